@@ -1,0 +1,12 @@
+// The subcommands of the `vkunroll` CLI: one file each, listed in main.cpp.
+#pragma once
+#include <string>
+#include <vector>
+
+namespace vkunroll::cli {
+
+using Argv = std::vector<std::string>;
+
+int cmd_devices(const Argv& args);
+
+}  // namespace vkunroll::cli

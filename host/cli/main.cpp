@@ -1,0 +1,55 @@
+// vkunroll: rolling-shutter + events -> global-shutter video, on any Vulkan GPU.
+#include <cstring>
+#include <exception>
+#include <iostream>
+
+#include "host/cli/commands.hpp"
+#include "runtime/error.hpp"
+
+namespace {
+
+struct Command {
+  const char* name;
+  int (*run)(const vkunroll::cli::Argv&);
+  const char* summary;
+};
+
+const Command kCommands[] = {
+    {"devices", vkunroll::cli::cmd_devices, "list Vulkan devices and mark the one vkunroll would use"},
+};
+
+void usage(std::ostream& os) {
+  os << "vkunroll " << VKUNROLL_VERSION << ": rolling-shutter images + events -> global-shutter video (SelfUnroll on Vulkan)\n\n"
+     << "usage: vkunroll <command> [options]   (vkunroll <command> --help for its options)\n\ncommands:\n";
+  for (const auto& c : kCommands) {
+    os << "  " << c.name;
+    for (size_t i = std::strlen(c.name); i < 12; ++i) os << ' ';
+    os << c.summary << "\n";
+  }
+  os << "\nenvironment: VKUNROLL_DEVICE (index or name), VKUNROLL_VALIDATION=1, VKUNROLL_CACHE_DIR\n";
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h") || !std::strcmp(argv[1], "help")) {
+    usage(std::cout);
+    return argc < 2 ? 2 : 0;
+  }
+  if (!std::strcmp(argv[1], "--version")) {
+    std::cout << "vkunroll " << VKUNROLL_VERSION << "\n";
+    return 0;
+  }
+  for (const auto& c : kCommands) {
+    if (std::strcmp(argv[1], c.name) != 0) continue;
+    try {
+      return c.run(vkunroll::cli::Argv(argv + 2, argv + argc));
+    } catch (const std::exception& e) {
+      std::cerr << "vkunroll " << c.name << ": error: " << e.what() << "\n";
+      return 1;
+    }
+  }
+  std::cerr << "vkunroll: unknown command '" << argv[1] << "'\n\n";
+  usage(std::cerr);
+  return 2;
+}

@@ -1,0 +1,253 @@
+#include "runtime/command_stream.hpp"
+
+#include <algorithm>
+#include <cstdlib>
+#include <sstream>
+
+#include "runtime/context.hpp"
+#include "runtime/pipeline.hpp"
+#include "runtime/profiler.hpp"
+
+namespace vkunroll {
+
+namespace {
+constexpr uint32_t kSetsPerPool = 256;
+constexpr uint32_t kDescriptorsPerSet = 16;
+constexpr uint32_t kMaxDispatchesPerSubmit = 2048;  // timestamp pairs per query pool
+
+double default_timeout() {
+  if (const char* v = std::getenv("VKUNROLL_FENCE_TIMEOUT_S"); v && *v) return std::atof(v);
+  return 600.0;  // a full-size model pass on a software rasterizer can take minutes
+}
+
+}  // namespace
+
+CommandStream::CommandStream(Context& ctx, Profiler* profiler)
+    : ctx_(ctx), profiler_(profiler), timeout_s_(default_timeout()) {
+  VkCommandPoolCreateInfo pci{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+  pci.flags = VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT;
+  pci.queueFamilyIndex = ctx.queue_family();
+  VK_CHECK(vkCreateCommandPool(ctx.device(), &pci, nullptr, &pool_));
+  VkCommandBufferAllocateInfo ai{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
+  ai.commandPool = pool_;
+  ai.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
+  ai.commandBufferCount = 1;
+  VK_CHECK(vkAllocateCommandBuffers(ctx.device(), &ai, &cb_));
+  VkFenceCreateInfo fci{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
+  VK_CHECK(vkCreateFence(ctx.device(), &fci, nullptr, &fence_));
+  if (ctx.info().timestamps) {
+    VkQueryPoolCreateInfo qci{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
+    qci.queryType = VK_QUERY_TYPE_TIMESTAMP;
+    qci.queryCount = 2 * kMaxDispatchesPerSubmit;
+    VK_CHECK(vkCreateQueryPool(ctx.device(), &qci, nullptr, &queries_));
+    query_capacity_ = qci.queryCount;
+  }
+}
+
+CommandStream::~CommandStream() {
+  VkDevice d = ctx_.device();
+  if (recording_) vkEndCommandBuffer(cb_);  // abandoned recording: never submitted
+  if (queries_) vkDestroyQueryPool(d, queries_, nullptr);
+  for (auto p : desc_pools_) vkDestroyDescriptorPool(d, p, nullptr);
+  if (fence_) vkDestroyFence(d, fence_, nullptr);
+  if (pool_) vkDestroyCommandPool(d, pool_, nullptr);
+}
+
+void CommandStream::begin_if_needed() {
+  if (recording_) return;
+  VkCommandBufferBeginInfo bi{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+  bi.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+  VK_CHECK(vkBeginCommandBuffer(cb_, &bi));
+  if (queries_) vkCmdResetQueryPool(cb_, queries_, 0, query_capacity_);
+  recording_ = true;
+}
+
+VkDescriptorSet CommandStream::allocate_set(VkDescriptorSetLayout layout, uint32_t bindings) {
+  if (bindings > kDescriptorsPerSet) throw Error("a dispatch binds more than 16 buffers");
+  if (desc_pools_.empty() || desc_pool_used_ >= kSetsPerPool) {
+    VkDescriptorPoolSize size{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, kSetsPerPool * kDescriptorsPerSet};
+    VkDescriptorPoolCreateInfo ci{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
+    ci.maxSets = kSetsPerPool;
+    ci.poolSizeCount = 1;
+    ci.pPoolSizes = &size;
+    VkDescriptorPool pool;
+    VK_CHECK(vkCreateDescriptorPool(ctx_.device(), &ci, nullptr, &pool));
+    desc_pools_.push_back(pool);
+    desc_pool_used_ = 0;
+  }
+  VkDescriptorSetAllocateInfo ai{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
+  ai.descriptorPool = desc_pools_.back();
+  ai.descriptorSetCount = 1;
+  ai.pSetLayouts = &layout;
+  VkDescriptorSet set;
+  VK_CHECK(vkAllocateDescriptorSets(ctx_.device(), &ai, &set));
+  desc_pool_used_++;
+  return set;
+}
+
+void CommandStream::hazard_barrier(const std::vector<Span>& reads, const std::vector<Span>& writes) {
+  auto hit = [](const Span& s, const std::vector<Span>& list) {
+    return std::any_of(list.begin(), list.end(), [&](const Span& o) {
+      return o.buffer == s.buffer && s.begin < o.end && o.begin < s.end;
+    });
+  };
+  bool need = false;
+  for (const auto& r : reads) need = need || hit(r, pending_writes_);                           // RAW
+  for (const auto& w : writes) need = need || hit(w, pending_writes_) || hit(w, pending_reads_);  // WAW, WAR
+  if (need) {
+    VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
+    mb.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
+    mb.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_READ_BIT |
+                       VK_ACCESS_TRANSFER_WRITE_BIT;
+    const VkPipelineStageFlags stages = VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT;
+    vkCmdPipelineBarrier(cb_, stages, stages, 0, 1, &mb, 0, nullptr, 0, nullptr);
+    pending_reads_.clear();
+    pending_writes_.clear();
+  }
+  pending_reads_.insert(pending_reads_.end(), reads.begin(), reads.end());
+  pending_writes_.insert(pending_writes_.end(), writes.begin(), writes.end());
+}
+
+void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& args, const void* push,
+                             uint32_t push_bytes, Groups groups, const DispatchInfo& info) {
+  if (args.size() != pipeline.binding_count())
+    throw Error("dispatch '" + info.name + "': shader " + pipeline.name() + " declares " +
+                std::to_string(pipeline.binding_count()) + " buffers, " + std::to_string(args.size()) + " given");
+  if (push_bytes != pipeline.push_constant_bytes())
+    throw Error("dispatch '" + info.name + "': " + std::to_string(push_bytes) + " push-constant bytes given, shader " +
+                pipeline.name() + " was set up for " + std::to_string(pipeline.push_constant_bytes()));
+  const auto& lim = ctx_.info();
+  if (groups.x == 0 || groups.y == 0 || groups.z == 0) return;  // nothing to do: an empty output
+  if (groups.x > lim.max_workgroup_count[0] || groups.y > lim.max_workgroup_count[1] ||
+      groups.z > lim.max_workgroup_count[2])
+    throw Error("dispatch '" + info.name + "': workgroup count " + std::to_string(groups.x) + "x" +
+                std::to_string(groups.y) + "x" + std::to_string(groups.z) + " exceeds the device limit");
+  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();  // keep submits bounded
+  begin_if_needed();
+
+  std::vector<Span> reads, writes;
+  std::vector<VkDescriptorBufferInfo> bufs(args.size());
+  std::vector<VkWriteDescriptorSet> w(args.size());
+  VkDescriptorSet set = allocate_set(pipeline.set_layout(), static_cast<uint32_t>(args.size()));
+  for (size_t i = 0; i < args.size(); ++i) {
+    const BufferRange& r = args[i].range;
+    if (r.buffer == VK_NULL_HANDLE) throw Error("dispatch '" + info.name + "': argument " + std::to_string(i) + " is an empty tensor");
+    if (r.size > lim.max_storage_buffer_range)
+      throw Error("dispatch '" + info.name + "': argument " + std::to_string(i) + " spans " + std::to_string(r.size) +
+                  " bytes, more than maxStorageBufferRange (" + std::to_string(lim.max_storage_buffer_range) +
+                  " bytes); bind it in sub-ranges");
+    bufs[i] = {r.buffer, r.offset, r.size};
+    w[i] = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
+    w[i].dstSet = set;
+    w[i].dstBinding = static_cast<uint32_t>(i);
+    w[i].descriptorCount = 1;
+    w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    w[i].pBufferInfo = &bufs[i];
+    const Span s{r.buffer, r.offset, r.offset + r.size};
+    if (args[i].access != Access::write) reads.push_back(s);
+    if (args[i].access != Access::read) writes.push_back(s);
+  }
+  vkUpdateDescriptorSets(ctx_.device(), static_cast<uint32_t>(w.size()), w.data(), 0, nullptr);
+  hazard_barrier(reads, writes);
+
+  const uint32_t q = static_cast<uint32_t>(names_.size()) * 2;
+  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
+  vkCmdBindPipeline(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.handle());
+  vkCmdBindDescriptorSets(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.layout(), 0, 1, &set, 0, nullptr);
+  if (push_bytes) vkCmdPushConstants(cb_, pipeline.layout(), VK_SHADER_STAGE_COMPUTE_BIT, 0, push_bytes, push);
+  vkCmdDispatch(cb_, groups.x, groups.y, groups.z);
+  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
+  names_.push_back(info.name);
+  infos_.push_back(info);
+}
+
+void CommandStream::fill(const Tensor& t, uint32_t value) {
+  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
+  begin_if_needed();
+  const BufferRange r = t.range();
+  hazard_barrier({}, {Span{r.buffer, r.offset, r.offset + r.size}});
+  const uint32_t q = static_cast<uint32_t>(names_.size()) * 2;
+  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
+  vkCmdFillBuffer(cb_, r.buffer, r.offset, (r.size + 3) / 4 * 4, value);
+  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
+  names_.push_back("fill");
+  infos_.push_back({"fill", 0, static_cast<double>(r.size)});
+}
+
+std::string CommandStream::in_flight_description() {
+  std::ostringstream os;
+  os << names_.size() << " dispatches submitted";
+  if (queries_ && !names_.empty()) {
+    // The first dispatch whose end timestamp is not available was the one in flight.
+    for (size_t i = 0; i < names_.size(); ++i) {
+      uint64_t v[2] = {0, 0};
+      VkResult r = vkGetQueryPoolResults(ctx_.device(), queries_, static_cast<uint32_t>(2 * i + 1), 1, sizeof v, v,
+                                         sizeof v, VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WITH_AVAILABILITY_BIT);
+      if (r != VK_SUCCESS || v[1] == 0) {
+        os << "; dispatch #" << i << " '" << names_[i] << "' was in flight";
+        return os.str();
+      }
+    }
+  }
+  if (!names_.empty()) os << "; first '" << names_.front() << "', last '" << names_.back() << "'";
+  return os.str();
+}
+
+void CommandStream::submit_and_wait() {
+  if (!recording_) return;
+  VK_CHECK(vkEndCommandBuffer(cb_));
+  recording_ = false;
+  VkSubmitInfo si{VK_STRUCTURE_TYPE_SUBMIT_INFO};
+  si.commandBufferCount = 1;
+  si.pCommandBuffers = &cb_;
+  VkResult r = vkQueueSubmit(ctx_.queue(), 1, &si, fence_);
+  if (r != VK_SUCCESS) {
+    const std::string what = in_flight_description();
+    reset();
+    throw_vk_error(r, "vkQueueSubmit", __FILE__, __LINE__, what);
+  }
+  const auto timeout_ns = static_cast<uint64_t>(std::max(0.0, timeout_s_) * 1e9);
+  r = vkWaitForFences(ctx_.device(), 1, &fence_, VK_TRUE, timeout_ns);
+  if (r == VK_TIMEOUT) {
+    const std::string what = in_flight_description();
+    vkDeviceWaitIdle(ctx_.device());  // the fence and pools cannot be reset while in use
+    reset();
+    throw VulkanError(VK_TIMEOUT, "GPU work did not finish within " + std::to_string(timeout_s_) +
+                                      " s (VKUNROLL_FENCE_TIMEOUT_S): " + what);
+  }
+  if (r != VK_SUCCESS) {
+    const std::string what = (r == VK_ERROR_DEVICE_LOST ? "device lost; " : "") + in_flight_description();
+    reset();
+    throw_vk_error(r, "vkWaitForFences", __FILE__, __LINE__, what);
+  }
+  if (queries_ && profiler_ && !names_.empty()) {
+    std::vector<uint64_t> ts(names_.size() * 2);
+    VK_CHECK(vkGetQueryPoolResults(ctx_.device(), queries_, 0, static_cast<uint32_t>(ts.size()),
+                                   ts.size() * sizeof(uint64_t), ts.data(), sizeof(uint64_t),
+                                   VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
+    const double period = ctx_.info().timestamp_period_ns;
+    for (size_t i = 0; i < names_.size(); ++i) {
+      const double ms = static_cast<double>(ts[2 * i + 1] - ts[2 * i]) * period * 1e-6;
+      profiler_->record(infos_[i].name, ms, infos_[i].flop, infos_[i].bytes);
+    }
+  }
+  reset();
+}
+
+void CommandStream::reset() {
+  vkResetFences(ctx_.device(), 1, &fence_);
+  vkResetCommandBuffer(cb_, 0);
+  for (auto p : desc_pools_) vkResetDescriptorPool(ctx_.device(), p, 0);
+  // Keep one pool for reuse; the others return to the driver.
+  while (desc_pools_.size() > 1) {
+    vkDestroyDescriptorPool(ctx_.device(), desc_pools_.back(), nullptr);
+    desc_pools_.pop_back();
+  }
+  desc_pool_used_ = 0;
+  names_.clear();
+  infos_.clear();
+  pending_reads_.clear();
+  pending_writes_.clear();
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,89 @@
+// CommandStream: records many dispatches into one command buffer with the barriers their
+// buffer accesses need (read-after-write, write-after-read, write-after-write), submits once,
+// and waits on a fence with a timeout.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "runtime/tensor.hpp"
+
+namespace vkunroll {
+
+class Context;
+class Pipeline;
+class Profiler;
+
+enum class Access { read, write, read_write };
+
+struct Arg {
+  BufferRange range;
+  Access access = Access::read;
+};
+inline Arg in(const Tensor& t) { return {t.range(), Access::read}; }
+inline Arg out(const Tensor& t) { return {t.range(), Access::write}; }
+inline Arg inout(const Tensor& t) { return {t.range(), Access::read_write}; }
+
+// What the profiler reports for a dispatch.
+struct DispatchInfo {
+  std::string name;   // the op, e.g. "conv2d_3x3"
+  double flop = 0;    // floating-point operations (2 x multiply-adds)
+  double bytes = 0;   // bytes read + written
+};
+
+struct Groups {
+  uint32_t x = 1, y = 1, z = 1;
+};
+
+class CommandStream {
+ public:
+  explicit CommandStream(Context& ctx, Profiler* profiler = nullptr);
+  ~CommandStream();
+  CommandStream(const CommandStream&) = delete;
+  CommandStream& operator=(const CommandStream&) = delete;
+
+  void dispatch(const Pipeline& pipeline, const std::vector<Arg>& args, const void* push, uint32_t push_bytes,
+                Groups groups, const DispatchInfo& info);
+  template <class P>
+  void dispatch(const Pipeline& pipeline, const std::vector<Arg>& args, const P& push, Groups groups,
+                const DispatchInfo& info) {
+    dispatch(pipeline, args, &push, sizeof(P), groups, info);
+  }
+  void fill(const Tensor& t, uint32_t value);  // vkCmdFillBuffer, e.g. zeroing accumulators
+
+  size_t recorded() const { return names_.size(); }
+  // Submits everything recorded, waits, feeds the profiler, and leaves the stream ready to reuse.
+  // Throws on timeout or device loss, naming the dispatch that was in flight.
+  void submit_and_wait();
+
+  // Seconds to wait for the fence; default from VKUNROLL_FENCE_TIMEOUT_S or 600.
+  void set_timeout_seconds(double s) { timeout_s_ = s; }
+
+ private:
+  struct Span {
+    VkBuffer buffer;
+    VkDeviceSize begin, end;
+  };
+  void begin_if_needed();
+  void hazard_barrier(const std::vector<Span>& reads, const std::vector<Span>& writes);
+  VkDescriptorSet allocate_set(VkDescriptorSetLayout layout, uint32_t bindings);
+  void reset();
+  std::string in_flight_description();
+
+  Context& ctx_;
+  Profiler* profiler_;
+  VkCommandPool pool_ = VK_NULL_HANDLE;
+  VkCommandBuffer cb_ = VK_NULL_HANDLE;
+  VkFence fence_ = VK_NULL_HANDLE;
+  std::vector<VkDescriptorPool> desc_pools_;
+  uint32_t desc_pool_used_ = 0;  // sets taken from desc_pools_.back()
+  VkQueryPool queries_ = VK_NULL_HANDLE;
+  uint32_t query_capacity_ = 0;
+  bool recording_ = false;
+  double timeout_s_;
+  std::vector<std::string> names_;
+  std::vector<DispatchInfo> infos_;
+  std::vector<Span> pending_reads_, pending_writes_;
+};
+
+}  // namespace vkunroll

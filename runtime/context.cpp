@@ -1,0 +1,461 @@
+#include "runtime/context.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+#include "runtime/memory.hpp"
+#include "runtime/pipeline.hpp"
+
+namespace vkunroll {
+namespace {
+
+constexpr const char* kValidationLayer = "VK_LAYER_KHRONOS_validation";
+
+const char* kNoDriverHelp =
+    "no Vulkan driver found. On Debian/Ubuntu install the software driver lavapipe with "
+    "`apt-get install mesa-vulkan-drivers libvulkan1` and, if the loader still finds none, point it "
+    "at the ICD: `export VK_DRIVER_FILES=/usr/share/vulkan/icd.d/lvp_icd.x86_64.json` "
+    "(and VK_ICD_FILENAMES for loaders older than 1.3.207)";
+
+bool env_flag(const char* name) {
+  const char* v = std::getenv(name);
+  return v && *v && std::string(v) != "0" && std::string(v) != "false";
+}
+
+std::string lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+void ensure_volk() {
+  static const VkResult loaded = volkInitialize();  // loads libvulkan once per process
+  if (loaded != VK_SUCCESS)
+    throw VulkanError(loaded, std::string("cannot load the Vulkan loader (libvulkan.so.1): ") +
+                                  kNoDriverHelp);
+}
+
+bool layer_available(const char* name) {
+  uint32_t n = 0;
+  vkEnumerateInstanceLayerProperties(&n, nullptr);
+  std::vector<VkLayerProperties> layers(n);
+  vkEnumerateInstanceLayerProperties(&n, layers.data());
+  for (const auto& l : layers)
+    if (std::strcmp(l.layerName, name) == 0) return true;
+  return false;
+}
+
+bool instance_extension_available(const char* name) {
+  uint32_t n = 0;
+  vkEnumerateInstanceExtensionProperties(nullptr, &n, nullptr);
+  std::vector<VkExtensionProperties> exts(n);
+  vkEnumerateInstanceExtensionProperties(nullptr, &n, exts.data());
+  for (const auto& e : exts)
+    if (std::strcmp(e.extensionName, name) == 0) return true;
+  return false;
+}
+
+bool device_extension_available(VkPhysicalDevice pd, const char* name) {
+  uint32_t n = 0;
+  vkEnumerateDeviceExtensionProperties(pd, nullptr, &n, nullptr);
+  std::vector<VkExtensionProperties> exts(n);
+  vkEnumerateDeviceExtensionProperties(pd, nullptr, &n, exts.data());
+  for (const auto& e : exts)
+    if (std::strcmp(e.extensionName, name) == 0) return true;
+  return false;
+}
+
+VKAPI_ATTR VkBool32 VKAPI_CALL debug_callback(VkDebugUtilsMessageSeverityFlagBitsEXT severity,
+                                              VkDebugUtilsMessageTypeFlagsEXT,
+                                              const VkDebugUtilsMessengerCallbackDataEXT* data,
+                                              void* user) {
+  if (severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT) {
+    std::string msg = std::string(severity >= VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT
+                                      ? "validation error: "
+                                      : "validation warning: ") +
+                      (data->pMessage ? data->pMessage : "");
+    static_cast<Context*>(user)->on_validation_message(msg);
+  }
+  return VK_FALSE;
+}
+
+uint32_t queue_family_for_compute(VkPhysicalDevice pd) {
+  uint32_t n = 0;
+  vkGetPhysicalDeviceQueueFamilyProperties(pd, &n, nullptr);
+  std::vector<VkQueueFamilyProperties> fams(n);
+  vkGetPhysicalDeviceQueueFamilyProperties(pd, &n, fams.data());
+  // Prefer a compute-only family (async compute), else any family with compute.
+  for (uint32_t i = 0; i < n; ++i)
+    if ((fams[i].queueFlags & VK_QUEUE_COMPUTE_BIT) && !(fams[i].queueFlags & VK_QUEUE_GRAPHICS_BIT))
+      return i;
+  for (uint32_t i = 0; i < n; ++i)
+    if (fams[i].queueFlags & VK_QUEUE_COMPUTE_BIT) return i;
+  return UINT32_MAX;
+}
+
+DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
+  DeviceInfo info;
+  info.index = index;
+  VkPhysicalDeviceProperties props{};
+  vkGetPhysicalDeviceProperties(pd, &props);
+  info.name = props.deviceName;
+  info.type = props.deviceType;
+  info.api_version = props.apiVersion;
+  info.vendor_id = props.vendorID;
+  info.device_id = props.deviceID;
+  info.max_storage_buffer_range = props.limits.maxStorageBufferRange;
+  info.max_shared_memory = props.limits.maxComputeSharedMemorySize;
+  info.max_push_constants = props.limits.maxPushConstantsSize;
+  info.max_workgroup_invocations = props.limits.maxComputeWorkGroupInvocations;
+  for (int i = 0; i < 3; ++i) info.max_workgroup_count[i] = props.limits.maxComputeWorkGroupCount[i];
+  info.min_storage_buffer_offset_alignment = props.limits.minStorageBufferOffsetAlignment;
+  info.timestamp_period_ns = props.limits.timestampPeriod;
+  std::memcpy(info.pipeline_cache_uuid, props.pipelineCacheUUID, VK_UUID_SIZE);
+
+  const bool v12 = VK_API_VERSION_MINOR(props.apiVersion) >= 2 || VK_API_VERSION_MAJOR(props.apiVersion) > 1;
+  VkPhysicalDeviceSubgroupProperties subgroup{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
+  VkPhysicalDeviceDriverProperties driver{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES};
+  VkPhysicalDeviceProperties2 props2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2};
+  props2.pNext = &subgroup;
+  if (v12 || device_extension_available(pd, VK_KHR_DRIVER_PROPERTIES_EXTENSION_NAME)) subgroup.pNext = &driver;
+  vkGetPhysicalDeviceProperties2(pd, &props2);
+  info.subgroup_size = subgroup.subgroupSize;
+  if (subgroup.pNext) {
+    info.driver_name = driver.driverName;
+    info.driver_info = driver.driverInfo;
+  }
+
+  VkPhysicalDevice16BitStorageFeatures storage16{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_16BIT_STORAGE_FEATURES};
+  VkPhysicalDeviceShaderFloat16Int8Features f16{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SHADER_FLOAT16_INT8_FEATURES};
+  VkPhysicalDeviceFeatures2 feats2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
+  feats2.pNext = &storage16;
+  if (v12 || device_extension_available(pd, VK_KHR_SHADER_FLOAT16_INT8_EXTENSION_NAME)) storage16.pNext = &f16;
+  vkGetPhysicalDeviceFeatures2(pd, &feats2);
+  info.storage_buffer_16bit = storage16.storageBuffer16BitAccess;
+  info.shader_float16 = storage16.pNext && f16.shaderFloat16;
+
+  const uint32_t qf = queue_family_for_compute(pd);
+  if (qf != UINT32_MAX) {
+    uint32_t n = 0;
+    vkGetPhysicalDeviceQueueFamilyProperties(pd, &n, nullptr);
+    std::vector<VkQueueFamilyProperties> fams(n);
+    vkGetPhysicalDeviceQueueFamilyProperties(pd, &n, fams.data());
+    info.timestamps = fams[qf].timestampValidBits > 0 && info.timestamp_period_ns > 0;
+  }
+  VkPhysicalDeviceMemoryProperties mem{};
+  vkGetPhysicalDeviceMemoryProperties(pd, &mem);
+  for (uint32_t i = 0; i < mem.memoryHeapCount; ++i)
+    if (mem.memoryHeaps[i].flags & VK_MEMORY_HEAP_DEVICE_LOCAL_BIT)
+      info.device_local_bytes = std::max<uint64_t>(info.device_local_bytes, mem.memoryHeaps[i].size);
+  return info;
+}
+
+int type_rank(VkPhysicalDeviceType t) {
+  switch (t) {
+    case VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU: return 0;
+    case VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU: return 1;
+    case VK_PHYSICAL_DEVICE_TYPE_VIRTUAL_GPU: return 2;
+    case VK_PHYSICAL_DEVICE_TYPE_CPU: return 3;
+    default: return 4;
+  }
+}
+
+VkInstance make_instance(bool validation, bool* messenger_ok) {
+  ensure_volk();
+  uint32_t loader_version = VK_API_VERSION_1_0;
+  if (vkEnumerateInstanceVersion) vkEnumerateInstanceVersion(&loader_version);
+  if (loader_version < VK_API_VERSION_1_1)
+    throw Error("the Vulkan loader is older than 1.1; vkunroll needs Vulkan 1.1 or newer");
+  VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
+  app.pApplicationName = "vkunroll";
+  app.applicationVersion = VK_MAKE_VERSION(0, 1, 0);
+  app.pEngineName = "vkunroll";
+  app.apiVersion = std::min<uint32_t>(loader_version, VK_API_VERSION_1_3);
+
+  std::vector<const char*> layers, exts;
+  if (validation) {
+    if (!layer_available(kValidationLayer))
+      throw Error(std::string("validation was requested but ") + kValidationLayer +
+                  " is not installed (apt-get install vulkan-validationlayers)");
+    layers.push_back(kValidationLayer);
+  }
+  *messenger_ok = validation && instance_extension_available(VK_EXT_DEBUG_UTILS_EXTENSION_NAME);
+  if (*messenger_ok) exts.push_back(VK_EXT_DEBUG_UTILS_EXTENSION_NAME);
+  const bool portability = instance_extension_available(VK_KHR_PORTABILITY_ENUMERATION_EXTENSION_NAME);
+  if (portability) exts.push_back(VK_KHR_PORTABILITY_ENUMERATION_EXTENSION_NAME);
+
+  VkInstanceCreateInfo ci{VK_STRUCTURE_TYPE_INSTANCE_CREATE_INFO};
+  ci.pApplicationInfo = &app;
+  ci.enabledLayerCount = static_cast<uint32_t>(layers.size());
+  ci.ppEnabledLayerNames = layers.data();
+  ci.enabledExtensionCount = static_cast<uint32_t>(exts.size());
+  ci.ppEnabledExtensionNames = exts.data();
+  if (portability) ci.flags |= VK_INSTANCE_CREATE_ENUMERATE_PORTABILITY_BIT_KHR;
+  VkInstance instance = VK_NULL_HANDLE;
+  VkResult r = vkCreateInstance(&ci, nullptr, &instance);
+  if (r == VK_ERROR_INCOMPATIBLE_DRIVER) throw VulkanError(r, std::string("vkCreateInstance: ") + kNoDriverHelp);
+  if (r != VK_SUCCESS) throw_vk_error(r, "vkCreateInstance", __FILE__, __LINE__);
+  volkLoadInstance(instance);
+  return instance;
+}
+
+std::vector<VkPhysicalDevice> physical_devices(VkInstance instance) {
+  uint32_t n = 0;
+  VK_CHECK(vkEnumeratePhysicalDevices(instance, &n, nullptr));
+  std::vector<VkPhysicalDevice> pds(n);
+  VK_CHECK(vkEnumeratePhysicalDevices(instance, &n, pds.data()));
+  if (n == 0) throw VulkanError(VK_ERROR_INCOMPATIBLE_DRIVER, kNoDriverHelp);
+  return pds;
+}
+
+std::filesystem::path cache_dir() {
+  if (const char* d = std::getenv("VKUNROLL_CACHE_DIR"); d && *d) return d;
+  if (const char* d = std::getenv("XDG_CACHE_HOME"); d && *d) return std::filesystem::path(d) / "vkunroll";
+  if (const char* h = std::getenv("HOME"); h && *h) return std::filesystem::path(h) / ".cache" / "vkunroll";
+  return {};
+}
+
+}  // namespace
+
+std::string DeviceInfo::type_name() const {
+  switch (type) {
+    case VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU: return "discrete";
+    case VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU: return "integrated";
+    case VK_PHYSICAL_DEVICE_TYPE_VIRTUAL_GPU: return "virtual";
+    case VK_PHYSICAL_DEVICE_TYPE_CPU: return "cpu";
+    default: return "other";
+  }
+}
+
+std::string DeviceInfo::api_version_string() const {
+  std::ostringstream os;
+  os << VK_API_VERSION_MAJOR(api_version) << "." << VK_API_VERSION_MINOR(api_version) << "."
+     << VK_API_VERSION_PATCH(api_version);
+  return os.str();
+}
+
+uint32_t choose_device(const std::vector<DeviceInfo>& devices, const std::string& selector) {
+  if (devices.empty()) throw Error(kNoDriverHelp);
+  auto list = [&] {
+    std::ostringstream os;
+    for (const auto& d : devices) os << "\n  [" << d.index << "] " << d.name << " (" << d.type_name() << ")";
+    return os.str();
+  };
+  if (!selector.empty()) {
+    const bool numeric = std::all_of(selector.begin(), selector.end(), [](unsigned char c) { return std::isdigit(c); });
+    if (numeric) {
+      const unsigned long idx = std::stoul(selector);
+      if (idx >= devices.size())
+        throw Error("--device " + selector + ": no device with that index; devices are:" + list());
+      return static_cast<uint32_t>(idx);
+    }
+    for (const auto& d : devices)
+      if (lower(d.name).find(lower(selector)) != std::string::npos) return d.index;
+    throw Error("--device '" + selector + "': no device name contains it; devices are:" + list());
+  }
+  uint32_t best = 0;
+  for (const auto& d : devices)
+    if (type_rank(d.type) < type_rank(devices[best].type)) best = d.index;
+  return best;
+}
+
+DeviceList Context::enumerate(bool validation) {
+  bool messenger = false;
+  VkInstance instance = make_instance(validation, &messenger);
+  DeviceList list;
+  try {
+    auto pds = physical_devices(instance);
+    for (uint32_t i = 0; i < pds.size(); ++i) list.devices.push_back(read_device_info(pds[i], i));
+    const char* env = std::getenv("VKUNROLL_DEVICE");
+    list.policy_choice = choose_device(list.devices, env ? env : "");
+  } catch (...) {
+    vkDestroyInstance(instance, nullptr);
+    throw;
+  }
+  vkDestroyInstance(instance, nullptr);
+  return list;
+}
+
+Context::Context(ContextOptions options) : options_(std::move(options)) {
+  validation_ = options_.validation || env_flag("VKUNROLL_VALIDATION");
+  create_instance(validation_);
+  try {
+    create_device();
+    allocator_ = std::make_unique<Allocator>(*this);
+    load_pipeline_cache();
+  } catch (...) {
+    release();
+    throw;
+  }
+}
+
+Context::~Context() { release(); }
+
+void Context::release() {
+  pipelines_.clear();
+  allocator_.reset();
+  if (device_) {
+    vkDeviceWaitIdle(device_);
+    if (pipeline_cache_) {
+      save_pipeline_cache();
+      vkDestroyPipelineCache(device_, pipeline_cache_, nullptr);
+      pipeline_cache_ = VK_NULL_HANDLE;
+    }
+    vkDestroyDevice(device_, nullptr);
+    device_ = VK_NULL_HANDLE;
+  }
+  if (messenger_) {
+    vkDestroyDebugUtilsMessengerEXT(instance_, messenger_, nullptr);
+    messenger_ = VK_NULL_HANDLE;
+  }
+  if (instance_) {
+    vkDestroyInstance(instance_, nullptr);
+    instance_ = VK_NULL_HANDLE;
+  }
+}
+
+void Context::create_instance(bool validation) {
+  bool messenger_ok = false;
+  instance_ = make_instance(validation, &messenger_ok);
+  if (messenger_ok) {
+    VkDebugUtilsMessengerCreateInfoEXT ci{VK_STRUCTURE_TYPE_DEBUG_UTILS_MESSENGER_CREATE_INFO_EXT};
+    ci.messageSeverity = VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT | VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT;
+    ci.messageType = VK_DEBUG_UTILS_MESSAGE_TYPE_GENERAL_BIT_EXT | VK_DEBUG_UTILS_MESSAGE_TYPE_VALIDATION_BIT_EXT |
+                     VK_DEBUG_UTILS_MESSAGE_TYPE_PERFORMANCE_BIT_EXT;
+    ci.pfnUserCallback = debug_callback;
+    ci.pUserData = this;
+    VK_CHECK(vkCreateDebugUtilsMessengerEXT(instance_, &ci, nullptr, &messenger_));
+  }
+}
+
+void Context::create_device() {
+  auto pds = physical_devices(instance_);
+  std::vector<DeviceInfo> infos;
+  for (uint32_t i = 0; i < pds.size(); ++i) infos.push_back(read_device_info(pds[i], i));
+  std::string selector = options_.device;
+  if (selector.empty())
+    if (const char* env = std::getenv("VKUNROLL_DEVICE")) selector = env;
+  const uint32_t chosen = choose_device(infos, selector);
+  physical_ = pds[chosen];
+  info_ = infos[chosen];
+  queue_family_ = queue_family_for_compute(physical_);
+  if (queue_family_ == UINT32_MAX) throw Error("device '" + info_.name + "' has no compute queue");
+
+  const float priority = 1.f;
+  VkDeviceQueueCreateInfo qci{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO};
+  qci.queueFamilyIndex = queue_family_;
+  qci.queueCount = 1;
+  qci.pQueuePriorities = &priority;
+
+  // Enable the 16-bit features the device has; fp16 kernels check info() before using them.
+  const bool v12 = VK_API_VERSION_MINOR(info_.api_version) >= 2 || VK_API_VERSION_MAJOR(info_.api_version) > 1;
+  std::vector<const char*> exts;
+  VkPhysicalDevice16BitStorageFeatures storage16{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_16BIT_STORAGE_FEATURES};
+  storage16.storageBuffer16BitAccess = info_.storage_buffer_16bit;
+  VkPhysicalDeviceShaderFloat16Int8Features f16{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SHADER_FLOAT16_INT8_FEATURES};
+  f16.shaderFloat16 = info_.shader_float16;
+  VkPhysicalDeviceFeatures2 feats{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
+  feats.pNext = &storage16;
+  if (info_.shader_float16) {
+    storage16.pNext = &f16;
+    if (!v12) exts.push_back(VK_KHR_SHADER_FLOAT16_INT8_EXTENSION_NAME);
+  }
+  VkPhysicalDeviceFeatures supported{};
+  vkGetPhysicalDeviceFeatures(physical_, &supported);
+  feats.features.shaderInt64 = supported.shaderInt64;
+  feats.features.shaderInt16 = supported.shaderInt16;
+  if (device_extension_available(physical_, "VK_KHR_portability_subset")) exts.push_back("VK_KHR_portability_subset");
+
+  VkDeviceCreateInfo dci{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO};
+  dci.pNext = &feats;
+  dci.queueCreateInfoCount = 1;
+  dci.pQueueCreateInfos = &qci;
+  dci.enabledExtensionCount = static_cast<uint32_t>(exts.size());
+  dci.ppEnabledExtensionNames = exts.data();
+  VK_CHECK(vkCreateDevice(physical_, &dci, nullptr, &device_));
+  volkLoadDevice(device_);
+  vkGetDeviceQueue(device_, queue_family_, 0, &queue_);
+  if (options_.announce)
+    std::cerr << "vkunroll: device [" << info_.index << "] " << info_.name << " (" << info_.type_name()
+              << ", Vulkan " << info_.api_version_string()
+              << (info_.driver_info.empty() ? "" : ", " + info_.driver_info)
+              << (validation_ ? ", validation on" : "") << ")\n";
+}
+
+void Context::load_pipeline_cache() {
+  std::vector<char> blob;
+  if (options_.persistent_pipeline_cache && !env_flag("VKUNROLL_NO_PIPELINE_CACHE")) {
+    const auto dir = cache_dir();
+    if (!dir.empty()) {
+      std::ostringstream name;
+      name << "pipelines-" << std::hex << info_.vendor_id << "-" << info_.device_id << "-";
+      for (uint8_t b : info_.pipeline_cache_uuid) name << std::hex << int(b);
+      name << ".bin";
+      pipeline_cache_path_ = (dir / name.str()).string();
+      std::ifstream in(pipeline_cache_path_, std::ios::binary);
+      if (in) blob.assign(std::istreambuf_iterator<char>(in), {});
+    }
+  }
+  VkPipelineCacheCreateInfo ci{VK_STRUCTURE_TYPE_PIPELINE_CACHE_CREATE_INFO};
+  ci.initialDataSize = blob.size();
+  ci.pInitialData = blob.empty() ? nullptr : blob.data();
+  // A stale or foreign blob is ignored by the driver (header check); retry empty if it is rejected.
+  if (vkCreatePipelineCache(device_, &ci, nullptr, &pipeline_cache_) != VK_SUCCESS) {
+    ci.initialDataSize = 0;
+    ci.pInitialData = nullptr;
+    VK_CHECK(vkCreatePipelineCache(device_, &ci, nullptr, &pipeline_cache_));
+  }
+  pipeline_cache_loaded_bytes_ = blob.size();
+}
+
+void Context::save_pipeline_cache() {
+  if (pipeline_cache_path_.empty()) return;
+  size_t size = 0;
+  if (vkGetPipelineCacheData(device_, pipeline_cache_, &size, nullptr) != VK_SUCCESS || size == 0) return;
+  if (size == pipeline_cache_loaded_bytes_) return;  // nothing new compiled
+  std::vector<char> blob(size);
+  if (vkGetPipelineCacheData(device_, pipeline_cache_, &size, blob.data()) != VK_SUCCESS) return;
+  std::error_code ec;
+  std::filesystem::create_directories(std::filesystem::path(pipeline_cache_path_).parent_path(), ec);
+  const std::string tmp = pipeline_cache_path_ + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    if (!out) return;  // an unwritable cache directory only costs compile time next run
+    out.write(blob.data(), static_cast<std::streamsize>(size));
+  }
+  std::filesystem::rename(tmp, pipeline_cache_path_, ec);
+}
+
+const Pipeline& Context::pipeline(const std::string& shader, const std::vector<uint32_t>& spec,
+                                  uint32_t push_constant_bytes) {
+  std::ostringstream key;
+  key << shader << "|" << push_constant_bytes;
+  for (uint32_t v : spec) key << "," << v;
+  auto it = pipelines_.find(key.str());
+  if (it == pipelines_.end())
+    it = pipelines_.emplace(key.str(), std::make_unique<Pipeline>(*this, shader, spec, push_constant_bytes)).first;
+  return *it->second;
+}
+
+std::vector<std::string> Context::validation_messages() const {
+  std::lock_guard<std::mutex> lock(messages_mutex_);
+  return messages_;
+}
+
+void Context::clear_validation_messages() {
+  std::lock_guard<std::mutex> lock(messages_mutex_);
+  messages_.clear();
+}
+
+void Context::on_validation_message(const std::string& message) {
+  std::cerr << "vkunroll: " << message << "\n";
+  std::lock_guard<std::mutex> lock(messages_mutex_);
+  messages_.push_back(message);
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,120 @@
+// Context: the Vulkan instance, the chosen device, its queue, memory and pipeline cache.
+// Everything else takes a Context& explicitly; there are no globals.
+#pragma once
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "runtime/error.hpp"
+
+namespace vkunroll {
+
+class Allocator;
+class Pipeline;
+
+struct ContextOptions {
+  // Enable VK_LAYER_KHRONOS_validation. Also turned on by VKUNROLL_VALIDATION=1.
+  bool validation = false;
+  // Device by index or by case-insensitive name substring; empty: VKUNROLL_DEVICE, then policy.
+  std::string device;
+  // Say the chosen device in one line on stderr.
+  bool announce = true;
+  // Persist the VkPipelineCache under the user's cache directory.
+  bool persistent_pipeline_cache = true;
+};
+
+// Limits and features of a physical device, read once.
+struct DeviceInfo {
+  uint32_t index = 0;
+  std::string name;
+  VkPhysicalDeviceType type = VK_PHYSICAL_DEVICE_TYPE_OTHER;
+  uint32_t api_version = 0;
+  uint32_t vendor_id = 0, device_id = 0;
+  std::string driver_name, driver_info;
+  uint32_t subgroup_size = 0;
+  bool shader_float16 = false;          // fp16 arithmetic in shaders
+  bool storage_buffer_16bit = false;    // fp16 values in storage buffers
+  uint64_t max_storage_buffer_range = 0;
+  uint32_t max_shared_memory = 0;
+  uint32_t max_push_constants = 0;
+  uint32_t max_workgroup_invocations = 0;
+  uint32_t max_workgroup_count[3] = {0, 0, 0};
+  uint64_t min_storage_buffer_offset_alignment = 0;
+  float timestamp_period_ns = 0.f;      // ns per timestamp tick
+  bool timestamps = false;              // the compute queue writes timestamps
+  uint64_t device_local_bytes = 0;
+  uint8_t pipeline_cache_uuid[VK_UUID_SIZE] = {};
+
+  std::string type_name() const;        // "discrete", "integrated", "virtual", "cpu", "other"
+  std::string api_version_string() const;
+};
+
+// Every device the loader sees, with the index `choose_device` would pick by policy.
+struct DeviceList {
+  std::vector<DeviceInfo> devices;
+  uint32_t policy_choice = 0;
+};
+
+// Policy: discrete > integrated > virtual > cpu > other; ties keep enumeration order.
+uint32_t choose_device(const std::vector<DeviceInfo>& devices, const std::string& selector);
+
+class Context {
+ public:
+  explicit Context(ContextOptions options = {});
+  ~Context();
+  Context(const Context&) = delete;
+  Context& operator=(const Context&) = delete;
+
+  // Lists devices without creating a logical device (for `vkunroll devices`).
+  static DeviceList enumerate(bool validation = false);
+
+  const DeviceInfo& info() const { return info_; }
+  VkInstance instance() const { return instance_; }
+  VkPhysicalDevice physical_device() const { return physical_; }
+  VkDevice device() const { return device_; }
+  VkQueue queue() const { return queue_; }
+  uint32_t queue_family() const { return queue_family_; }
+  VkPipelineCache pipeline_cache() const { return pipeline_cache_; }
+  Allocator& allocator() { return *allocator_; }
+  bool validation_enabled() const { return validation_; }
+
+  // Pipelines are created once per (shader, specialization, push size) and kept here.
+  const Pipeline& pipeline(const std::string& shader, const std::vector<uint32_t>& spec = {},
+                           uint32_t push_constant_bytes = 0);
+
+  // Messages the validation layer reported (warnings and errors) since creation / last clear.
+  std::vector<std::string> validation_messages() const;
+  void clear_validation_messages();
+
+  // Called by the debug messenger; public only for the C callback.
+  void on_validation_message(const std::string& message);
+
+ private:
+  void create_instance(bool validation);
+  void create_device();
+  void load_pipeline_cache();
+  void save_pipeline_cache();
+  void release();
+
+  ContextOptions options_;
+  bool validation_ = false;
+  VkInstance instance_ = VK_NULL_HANDLE;
+  VkDebugUtilsMessengerEXT messenger_ = VK_NULL_HANDLE;
+  VkPhysicalDevice physical_ = VK_NULL_HANDLE;
+  VkDevice device_ = VK_NULL_HANDLE;
+  VkQueue queue_ = VK_NULL_HANDLE;
+  uint32_t queue_family_ = 0;
+  VkPipelineCache pipeline_cache_ = VK_NULL_HANDLE;
+  std::string pipeline_cache_path_;
+  size_t pipeline_cache_loaded_bytes_ = 0;
+  DeviceInfo info_;
+  std::unique_ptr<Allocator> allocator_;
+  std::map<std::string, std::unique_ptr<Pipeline>> pipelines_;
+  mutable std::mutex messages_mutex_;
+  std::vector<std::string> messages_;
+};
+
+}  // namespace vkunroll

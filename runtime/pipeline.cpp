@@ -1,0 +1,80 @@
+#include "runtime/pipeline.hpp"
+
+#include <cstring>
+
+#include "runtime/context.hpp"
+#include "runtime/shader_registry.hpp"
+
+namespace vkunroll {
+
+uint32_t spec_float(float f) {
+  uint32_t u;
+  std::memcpy(&u, &f, 4);
+  return u;
+}
+
+Pipeline::Pipeline(Context& ctx, const std::string& shader, const std::vector<uint32_t>& spec,
+                   uint32_t push_constant_bytes)
+    : ctx_(ctx), name_(shader), push_bytes_(push_constant_bytes) {
+  if (push_constant_bytes > 128 || push_constant_bytes > ctx.info().max_push_constants)
+    throw Error("pipeline '" + shader + "': " + std::to_string(push_constant_bytes) +
+                " bytes of push constants exceed the portable limit of 128");
+  const auto words = find_shader(shader);
+  const auto bindings = spirv_storage_bindings(words);
+  for (uint32_t i = 0; i < bindings.size(); ++i)
+    if (bindings[i] != i) throw Error("shader '" + shader + "': storage bindings must be numbered 0..n-1");
+  binding_count_ = static_cast<uint32_t>(bindings.size());
+
+  VkShaderModuleCreateInfo mci{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
+  mci.codeSize = words.size_bytes();
+  mci.pCode = words.data();
+  VK_CHECK(vkCreateShaderModule(ctx.device(), &mci, nullptr, &module_));
+
+  std::vector<VkDescriptorSetLayoutBinding> lb(binding_count_);
+  for (uint32_t i = 0; i < binding_count_; ++i)
+    lb[i] = {i, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
+  VkDescriptorSetLayoutCreateInfo dci{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+  dci.bindingCount = binding_count_;
+  dci.pBindings = lb.data();
+  VK_CHECK(vkCreateDescriptorSetLayout(ctx.device(), &dci, nullptr, &set_layout_));
+
+  VkPushConstantRange pcr{VK_SHADER_STAGE_COMPUTE_BIT, 0, push_bytes_};
+  VkPipelineLayoutCreateInfo lci{VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO};
+  lci.setLayoutCount = 1;
+  lci.pSetLayouts = &set_layout_;
+  lci.pushConstantRangeCount = push_bytes_ ? 1 : 0;
+  lci.pPushConstantRanges = push_bytes_ ? &pcr : nullptr;
+  VK_CHECK(vkCreatePipelineLayout(ctx.device(), &lci, nullptr, &layout_));
+
+  std::vector<VkSpecializationMapEntry> entries(spec.size());
+  for (uint32_t i = 0; i < spec.size(); ++i) entries[i] = {i, i * 4u, 4};
+  VkSpecializationInfo si{static_cast<uint32_t>(entries.size()), entries.data(), spec.size() * 4, spec.data()};
+  VkComputePipelineCreateInfo pci{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
+  pci.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO};
+  pci.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
+  pci.stage.module = module_;
+  pci.stage.pName = "main";
+  pci.stage.pSpecializationInfo = spec.empty() ? nullptr : &si;
+  pci.layout = layout_;
+  VkResult r = vkCreateComputePipelines(ctx.device(), ctx.pipeline_cache(), 1, &pci, nullptr, &pipeline_);
+  if (r != VK_SUCCESS) {
+    destroy();
+    throw_vk_error(r, "vkCreateComputePipelines", __FILE__, __LINE__, "shader " + shader);
+  }
+}
+
+Pipeline::~Pipeline() { destroy(); }
+
+void Pipeline::destroy() {
+  VkDevice d = ctx_.device();
+  if (pipeline_) vkDestroyPipeline(d, pipeline_, nullptr);
+  if (layout_) vkDestroyPipelineLayout(d, layout_, nullptr);
+  if (set_layout_) vkDestroyDescriptorSetLayout(d, set_layout_, nullptr);
+  if (module_) vkDestroyShaderModule(d, module_, nullptr);
+  pipeline_ = VK_NULL_HANDLE;
+  layout_ = VK_NULL_HANDLE;
+  set_layout_ = VK_NULL_HANDLE;
+  module_ = VK_NULL_HANDLE;
+}
+
+}  // namespace vkunroll

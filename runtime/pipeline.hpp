@@ -1,0 +1,44 @@
+// Pipeline: one embedded SPIR-V module with its specialization constants and push-constant
+// size; the descriptor layout (storage buffers at set 0) is derived from the module once.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "runtime/error.hpp"
+
+namespace vkunroll {
+
+class Context;
+
+class Pipeline {
+ public:
+  // spec[i] is specialization constant id i (32-bit; floats bit-cast with spec_float()).
+  Pipeline(Context& ctx, const std::string& shader, const std::vector<uint32_t>& spec,
+           uint32_t push_constant_bytes);
+  ~Pipeline();
+  Pipeline(const Pipeline&) = delete;
+  Pipeline& operator=(const Pipeline&) = delete;
+
+  const std::string& name() const { return name_; }
+  VkPipeline handle() const { return pipeline_; }
+  VkPipelineLayout layout() const { return layout_; }
+  VkDescriptorSetLayout set_layout() const { return set_layout_; }
+  uint32_t binding_count() const { return binding_count_; }
+  uint32_t push_constant_bytes() const { return push_bytes_; }
+
+ private:
+  void destroy();
+  Context& ctx_;
+  std::string name_;
+  uint32_t binding_count_ = 0;
+  uint32_t push_bytes_ = 0;
+  VkShaderModule module_ = VK_NULL_HANDLE;
+  VkDescriptorSetLayout set_layout_ = VK_NULL_HANDLE;
+  VkPipelineLayout layout_ = VK_NULL_HANDLE;
+  VkPipeline pipeline_ = VK_NULL_HANDLE;
+};
+
+uint32_t spec_float(float f);
+
+}  // namespace vkunroll

@@ -1,0 +1,29 @@
+// Embedded SPIR-V modules, looked up by the name of their shaders/*.comp file.
+#pragma once
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace vkunroll {
+
+struct ShaderModuleBlob {
+  const char* name;
+  const uint32_t* words;
+  size_t word_count;
+};
+
+// The module compiled from shaders/<name>.comp; throws Error naming the shader if absent.
+std::span<const uint32_t> find_shader(std::string_view name);
+std::vector<std::string> shader_names();
+
+// Descriptor bindings (set 0) declared by a module, read from its OpDecorate Binding words.
+std::vector<uint32_t> spirv_storage_bindings(std::span<const uint32_t> words);
+
+namespace embedded {
+extern const ShaderModuleBlob kShaderTable[];
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,252 @@
+// The foundation: tensors, pipelines, command streams and barriers, device choice, errors.
+#include <gtest/gtest.h>
+
+#include <numeric>
+#include <sstream>
+
+#include "runtime/command_stream.hpp"
+#include "runtime/context.hpp"
+#include "runtime/pipeline.hpp"
+#include "runtime/profiler.hpp"
+#include "runtime/shader_registry.hpp"
+#include "runtime/tensor.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+
+namespace {
+struct AxpyPush {
+  float a;
+  uint32_t n;
+};
+
+void axpy(CommandStream& cs, Context& ctx, const Tensor& x, Tensor& y, float a) {
+  const auto n = static_cast<uint32_t>(x.shape().count());
+  AxpyPush p{a, n};
+  cs.dispatch(ctx.pipeline("runtime_axpy", {}, sizeof(AxpyPush)), {in(x), inout(y)}, p, {(n + 63) / 64},
+              {"axpy", 2.0 * n, 12.0 * n});
+}
+}  // namespace
+
+TEST(Runtime, RoundTripEveryDtype) {
+  Context& ctx = vktest::context();
+  for (DType dt : {DType::f32, DType::f16, DType::u32, DType::i32}) {
+    Tensor t(ctx, {1, 3, 5, 7}, dt);
+    std::vector<uint8_t> data(t.bytes());
+    std::iota(data.begin(), data.end(), static_cast<uint8_t>(dtype_size(dt)));
+    t.upload(data.data(), data.size());
+    std::vector<uint8_t> back(t.bytes());
+    t.download(back.data(), back.size());
+    EXPECT_EQ(data, back) << dtype_name(dt);
+  }
+}
+
+TEST(Runtime, UploadWrongSizeIsAnError) {
+  Tensor t(vktest::context(), {1, 1, 2, 2});
+  std::vector<float> v(3);
+  EXPECT_THROW(t.upload(v), Error);
+}
+
+TEST(Runtime, ChainOfDependentDispatches) {
+  Context& ctx = vktest::context();
+  const int n = 100003;  // not a multiple of the workgroup
+  Tensor x(ctx, {1, 1, 1, n}), y(ctx, {1, 1, 1, n}), z(ctx, {1, 1, 1, n});
+  std::vector<float> xv(n), yv(n, 1.f), zv(n, 0.f);
+  for (int i = 0; i < n; ++i) xv[i] = static_cast<float>(i % 97) * 0.5f;
+  x.upload(xv);
+  y.upload(yv);
+  z.upload(zv);
+  CommandStream cs(ctx);
+  // y = 2x + y; z = 3y + z; y = -1*z + y   (each step reads what the previous one wrote)
+  axpy(cs, ctx, x, y, 2.f);
+  axpy(cs, ctx, y, z, 3.f);
+  axpy(cs, ctx, z, y, -1.f);
+  cs.submit_and_wait();
+  auto yo = y.download<float>(), zo = z.download<float>();
+  for (int i = 0; i < n; ++i) {
+    const float y1 = 2 * xv[i] + 1, z1 = 3 * y1, y2 = y1 - z1;
+    ASSERT_EQ(zo[i], z1) << i;
+    ASSERT_EQ(yo[i], y2) << i;
+  }
+}
+
+TEST(Runtime, DispatchWritingTheSameBufferTwice) {
+  Context& ctx = vktest::context();
+  const int n = 4096;
+  Tensor x(ctx, {1, 1, 1, n}), y(ctx, {1, 1, 1, n});
+  x.upload(std::vector<float>(n, 1.f));
+  CommandStream cs(ctx);
+  cs.fill(y, 0);  // transfer write, then compute writes: write-after-write on y
+  for (int k = 0; k < 10; ++k) axpy(cs, ctx, x, y, 1.f);
+  cs.submit_and_wait();
+  for (float v : y.download<float>()) ASSERT_EQ(v, 10.f);
+  // The stream is reusable after a submit.
+  axpy(cs, ctx, x, y, 5.f);
+  cs.submit_and_wait();
+  EXPECT_EQ(y.download<float>()[17], 15.f);
+}
+
+TEST(Runtime, ManyDispatchesSplitAcrossSubmits) {
+  Context& ctx = vktest::context();
+  Tensor x(ctx, {1, 1, 1, 64}), y(ctx, {1, 1, 1, 64});
+  x.upload(std::vector<float>(64, 1.f));
+  y.upload(std::vector<float>(64, 0.f));
+  CommandStream cs(ctx);
+  for (int k = 0; k < 2500; ++k) axpy(cs, ctx, x, y, 1.f);  // more than one query pool holds
+  cs.submit_and_wait();
+  EXPECT_EQ(y.download<float>()[63], 2500.f);
+}
+
+TEST(Runtime, SubRangesOfOneTensorAreIndependentBindings) {
+  Context& ctx = vktest::context();
+  Tensor t(ctx, {1, 2, 1, 64});
+  std::vector<float> v(128, 1.f);
+  t.upload(v);
+  CommandStream cs(ctx);
+  // Second half += 4 * first half: reads one range, writes a disjoint one of the same buffer.
+  AxpyPush p{4.f, 64};
+  cs.dispatch(ctx.pipeline("runtime_axpy", {}, sizeof p),
+              {{t.range(0, 256), Access::read}, {t.range(256, 256), Access::read_write}}, p, {1}, {"axpy"});
+  cs.submit_and_wait();
+  auto o = t.download<float>();
+  EXPECT_EQ(o[0], 1.f);
+  EXPECT_EQ(o[64], 5.f);
+  EXPECT_THROW(t.range(256, 512), Error);
+}
+
+TEST(Runtime, AllocationsShareBlocks) {
+  Context& ctx = vktest::context();
+  const auto before = ctx.allocator().stats();
+  std::vector<Tensor> ts;
+  for (int i = 0; i < 50; ++i) ts.emplace_back(ctx, Shape{1, 4, 16, 16});
+  const auto after = ctx.allocator().stats();
+  EXPECT_EQ(after.allocations - before.allocations, 50u);
+  EXPECT_LE(after.blocks - before.blocks, 1u);  // 50 tensors, at most one new vkAllocateMemory
+  ts.clear();
+  EXPECT_EQ(ctx.allocator().stats().used_bytes, before.used_bytes);
+}
+
+TEST(Runtime, OverLimitTensorIsRefusedNamingTheLimit) {
+  Context& ctx = vktest::context();
+  const uint64_t limit = ctx.info().max_storage_buffer_range;
+  const int64_t w = static_cast<int64_t>(limit / 4 / 1024) + 1;  // just over the limit in f32
+  try {
+    Tensor t(ctx, {1, 1, 1024, w});
+    FAIL() << "no error for a tensor over maxStorageBufferRange";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("maxStorageBufferRange"), std::string::npos) << e.what();
+  }
+  // A ranged tensor may exist, but binding it whole is refused.
+  Tensor big(ctx, {1, 1, 1024, w}, DType::f32, Binding::ranged);
+  Tensor x(ctx, {1, 1, 1, 64});
+  CommandStream cs(ctx);
+  AxpyPush p{1.f, 64};
+  EXPECT_THROW(cs.dispatch(ctx.pipeline("runtime_axpy", {}, sizeof p), {in(x), inout(big)}, p, {1}, {"axpy"}), Error);
+}
+
+TEST(Runtime, WrongArgumentCountIsAnError) {
+  Context& ctx = vktest::context();
+  Tensor x(ctx, {1, 1, 1, 64});
+  CommandStream cs(ctx);
+  AxpyPush p{1.f, 64};
+  EXPECT_THROW(cs.dispatch(ctx.pipeline("runtime_axpy", {}, sizeof p), {in(x)}, p, {1}, {"axpy"}), Error);
+  EXPECT_THROW(ctx.pipeline("no_such_shader"), Error);
+}
+
+TEST(Runtime, DeviceChoiceByIndexNameAndPolicy) {
+  std::vector<DeviceInfo> devs(3);
+  devs[0].index = 0, devs[0].name = "llvmpipe (LLVM 15)", devs[0].type = VK_PHYSICAL_DEVICE_TYPE_CPU;
+  devs[1].index = 1, devs[1].name = "Intel Iris Xe", devs[1].type = VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU;
+  devs[2].index = 2, devs[2].name = "AMD Radeon RX 7900", devs[2].type = VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU;
+  EXPECT_EQ(choose_device(devs, ""), 2u);
+  EXPECT_EQ(choose_device(devs, "1"), 1u);
+  EXPECT_EQ(choose_device(devs, "LLVMPIPE"), 0u);
+  EXPECT_EQ(choose_device(devs, "iris"), 1u);
+  devs.pop_back();
+  EXPECT_EQ(choose_device(devs, ""), 1u);  // integrated beats cpu
+  try {
+    choose_device(devs, "nvidia");
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("nvidia"), std::string::npos);
+    EXPECT_NE(std::string(e.what()).find("llvmpipe"), std::string::npos);  // lists what exists
+  }
+  EXPECT_THROW(choose_device(devs, "7"), Error);
+}
+
+TEST(Runtime, RealDeviceChosenByNameAndIndex) {
+  const DeviceList list = Context::enumerate();
+  ASSERT_FALSE(list.devices.empty());
+  uint32_t lvp = UINT32_MAX;
+  for (const auto& d : list.devices)
+    if (d.name.find("llvmpipe") != std::string::npos) lvp = d.index;
+  ASSERT_NE(lvp, UINT32_MAX) << "lavapipe not found";
+  ContextOptions o;
+  o.announce = false;
+  o.validation = true;
+  o.device = std::to_string(lvp);
+  Context by_index(o);
+  EXPECT_NE(by_index.info().name.find("llvmpipe"), std::string::npos);
+  o.device = "LLVMpipe";
+  Context by_name(o);
+  EXPECT_EQ(by_name.info().index, lvp);
+  EXPECT_GT(by_name.info().subgroup_size, 0u);
+  EXPECT_GE(by_name.info().max_storage_buffer_range, 1u << 20);
+  o.device = "no-such-gpu";
+  EXPECT_THROW(Context bad(o), Error);
+}
+
+TEST(Runtime, ProfilerTablePerOp) {
+  Context& ctx = vktest::context();
+  if (!ctx.info().timestamps) GTEST_SKIP() << "device has no timestamps";
+  Tensor x(ctx, {1, 1, 1, 1 << 16}), y(ctx, {1, 1, 1, 1 << 16});
+  x.upload(std::vector<float>(1 << 16, 1.f));
+  y.upload(std::vector<float>(1 << 16, 0.f));
+  Profiler prof;
+  CommandStream cs(ctx, &prof);
+  for (int k = 0; k < 3; ++k) axpy(cs, ctx, x, y, 1.f);
+  cs.fill(y, 0);
+  cs.submit_and_wait();
+  ASSERT_EQ(prof.ops().count("axpy"), 1u);
+  EXPECT_EQ(prof.ops().at("axpy").calls, 3u);
+  EXPECT_EQ(prof.ops().at("fill").calls, 1u);
+  EXPECT_GT(prof.ops().at("axpy").total_ms, 0.0);
+  std::ostringstream os;
+  prof.print(os);
+  EXPECT_NE(os.str().find("axpy"), std::string::npos);
+  EXPECT_NE(os.str().find("GFLOP/s"), std::string::npos);
+}
+
+TEST(Runtime, SpirvBindingsAreDerivedFromTheModule) {
+  auto b = spirv_storage_bindings(find_shader("runtime_axpy"));
+  EXPECT_EQ(b, (std::vector<uint32_t>{0, 1}));
+  EXPECT_THROW(spirv_storage_bindings(std::vector<uint32_t>{1, 2, 3, 4, 5}), Error);
+}
+
+TEST(Runtime, VkResultNames) {
+  EXPECT_STREQ(vk_result_name(VK_ERROR_DEVICE_LOST), "VK_ERROR_DEVICE_LOST");
+  EXPECT_STREQ(vk_result_name(static_cast<VkResult>(-12345)), "VkResult(-12345)");
+  try {
+    VK_CHECK(VK_ERROR_OUT_OF_DEVICE_MEMORY);
+    FAIL();
+  } catch (const VulkanError& e) {
+    EXPECT_EQ(e.result(), VK_ERROR_OUT_OF_DEVICE_MEMORY);
+    EXPECT_NE(std::string(e.what()).find("test_runtime.cpp"), std::string::npos);
+  }
+}
+
+TEST(Runtime, ValidationLayerIsOnAndReportsMisuse) {
+  Context& ctx = vktest::context();
+  ASSERT_TRUE(ctx.validation_enabled());
+  // A deliberate misuse: a zero-sized buffer violates VUID-VkBufferCreateInfo-size-00912.
+  VkBufferCreateInfo bci{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
+  bci.size = 0;
+  bci.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+  VkBuffer b = VK_NULL_HANDLE;
+  (void)vkCreateBuffer(ctx.device(), &bci, nullptr, &b);
+  if (b) vkDestroyBuffer(ctx.device(), b, nullptr);
+  const auto msgs = ctx.validation_messages();
+  ASSERT_FALSE(msgs.empty()) << "the validation layer reported nothing";
+  EXPECT_NE(msgs.front().find("00912"), std::string::npos) << msgs.front();
+  ctx.clear_validation_messages();  // expected here; any other test with a message fails
+}

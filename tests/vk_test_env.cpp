@@ -1,0 +1,52 @@
+#include "vk_test_env.hpp"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <memory>
+
+namespace vkunroll::vktest {
+
+namespace {
+std::unique_ptr<Context>& slot() {
+  static std::unique_ptr<Context> ctx;
+  return ctx;
+}
+
+class ValidationListener : public ::testing::EmptyTestEventListener {
+  void OnTestStart(const ::testing::TestInfo&) override {
+    if (context_created()) context().clear_validation_messages();
+  }
+  void OnTestEnd(const ::testing::TestInfo&) override {
+    if (!context_created()) return;
+    for (const auto& m : context().validation_messages()) ADD_FAILURE() << "Vulkan " << m;
+  }
+};
+}  // namespace
+
+Context& context() {
+  if (!slot()) {
+    ContextOptions o;
+    o.validation = true;  // always in tests
+    o.announce = false;
+    slot() = std::make_unique<Context>(o);
+  }
+  return *slot();
+}
+
+bool context_created() { return slot() != nullptr; }
+
+std::string shared_path(const std::string& rel) {
+  const std::filesystem::path p = std::filesystem::path(VKUNROLL_SHARED_DIR) / rel;
+  return std::filesystem::exists(p) ? p.string() : std::string();
+}
+
+}  // namespace vkunroll::vktest
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  ::testing::UnitTest::GetInstance()->listeners().Append(new vkunroll::vktest::ValidationListener);
+  const int rc = RUN_ALL_TESTS();
+  vkunroll::vktest::slot().reset();
+  return rc;
+}

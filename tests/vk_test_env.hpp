@@ -1,0 +1,17 @@
+// Test support: one validated Vulkan context per test process, and a listener that fails any
+// test during which the validation layer reported a message.
+#pragma once
+#include <string>
+
+#include "runtime/context.hpp"
+
+namespace vkunroll::vktest {
+
+// The lavapipe context of this test process (validation on), created on first use.
+Context& context();
+// True when a context was created in this process (the listener only checks then).
+bool context_created();
+// `../shared/<rel>` next to the checkout; empty when the folder is absent.
+std::string shared_path(const std::string& rel);
+
+}  // namespace vkunroll::vktest
