@@ -120,6 +120,25 @@ SensorCrop resolve_crop(const SensorCrop& c, int sensor_width, int sensor_height
   return r;
 }
 
+std::pair<int64_t, int64_t> event_time_window(const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec,
+                                              int sensor_width, int sensor_height) {
+  check_spec(spec);
+  const SensorCrop c = resolve_crop(spec.crop, sensor_width, sensor_height);
+  int64_t lo = std::numeric_limits<int64_t>::max(), hi = std::numeric_limits<int64_t>::min();
+  for (size_t j = 0; j < jobs.size(); ++j) {
+    if (jobs[j].a.size() != static_cast<size_t>(sensor_height) || jobs[j].b.size() != static_cast<size_t>(sensor_height))
+      throw Error("event tensor: job " + std::to_string(j) + " row count does not match the sensor");
+    for (int r = 0; r < c.height; ++r) {
+      const Rational &a = jobs[j].a[c.y0 + r], &b = jobs[j].b[c.y0 + r];
+      if (a == b) continue;
+      lo = std::min(lo, std::min(a, b).ceil());
+      hi = std::max(hi, std::max(a, b).ceil());
+    }
+  }
+  if (lo >= hi) return {0, 0};
+  return {lo, hi};
+}
+
 // ---- CPU reference ----------------------------------------------------------------------------
 
 std::vector<float> bin_events_cpu(const EventStream& events, const std::vector<RowIntervals>& jobs,

@@ -71,6 +71,11 @@ struct EventTensors {
   size_t slice() const { return static_cast<size_t>(2 * bins) * height * width; }
 };
 
+// The event times a batch needs: [first, last) in microseconds (first >= last: none). Read only
+// this window from the event file.
+std::pair<int64_t, int64_t> event_time_window(const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec,
+                                              int sensor_width, int sensor_height);
+
 // ---- CPU reference ----------------------------------------------------------------------------
 // [jobs, 2N, h, w] float32 counts, the section-4 formula evaluated literally and exactly.
 std::vector<float> bin_events_cpu(const EventStream& events, const std::vector<RowIntervals>& jobs,
