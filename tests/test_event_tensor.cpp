@@ -2,6 +2,8 @@
 // CPU on random streams, and the NumPy golden fixture (tools/event_tensors_numpy.py).
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <cstring>
 #include <nlohmann/json.hpp>
 #include <random>
 
@@ -93,6 +95,9 @@ TEST(RowTiming, RationalParseAndFromDouble) {
   // A double with no short fraction keeps its exact binary value.
   const double odd = 0.1234567890123456;
   EXPECT_EQ(Rational::from_double(odd).to_double(), odd);
+  EXPECT_THROW(Rational::from_double(1e-300), Error);
+  EXPECT_THROW(Rational::from_double(1e300), Error);
+  EXPECT_THROW(Rational::from_double(std::nan("")), Error);
   EXPECT_EQ(R("7/2").floor(), 3);
   EXPECT_EQ(R("7/2").ceil(), 4);
   EXPECT_EQ(R("-7/2").floor(), -4);
