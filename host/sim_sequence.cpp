@@ -10,10 +10,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#if __has_include("host/event_writer.hpp")  // TEMPORARY until the readers branch is merged
 #include "host/event_writer.hpp"
-#define VKUNROLL_SIM_HAVE_WRITER 1
-#endif
 #include "host/sim_random.hpp"
 #include "runtime/error.hpp"
 
@@ -329,9 +326,6 @@ nlohmann::json write_sequence(const SimulationConfig& config, const SimulatedSeq
     gt.push_back({{"file", g.file}, {"t_us", g.t_us}, {"frame", g.frame}, {"index", g.index}, {"tau", g.tau}});
   }
   std::string events_file;
-#ifndef VKUNROLL_SIM_HAVE_WRITER
-  throw Error("simulate: event writers not merged yet");
-#else
   if (config.events_format == "h5" || config.events_format == "both") {
     write_events_hdf5((fs::path(dir) / "events.h5").string(), seq.events);
     events_file = "events.h5";
@@ -340,7 +334,6 @@ nlohmann::json write_sequence(const SimulationConfig& config, const SimulatedSeq
     write_events_text((fs::path(dir) / "events.txt").string(), seq.events);
     if (events_file.empty()) events_file = "events.txt";
   }
-#endif
   nlohmann::json meta = {
       {"width", seq.width},
       {"height", seq.height},
