@@ -8,5 +8,6 @@ namespace vkunroll::cli {
 using Argv = std::vector<std::string>;
 
 int cmd_devices(const Argv& args);
+int cmd_infer(const Argv& args);
 
 }  // namespace vkunroll::cli

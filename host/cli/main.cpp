@@ -16,6 +16,7 @@ struct Command {
 
 const Command kCommands[] = {
     {"devices", vkunroll::cli::cmd_devices, "list Vulkan devices and mark the one vkunroll would use"},
+    {"infer", vkunroll::cli::cmd_infer, "run SelfUnroll-S/-M on raw input tensors, write every intermediate"},
 };
 
 void usage(std::ostream& os) {
