@@ -3,7 +3,7 @@
 // the CPU with the same weights and inputs, in the same run: ms per GS frame, the ratio, and the
 // max abs difference of every output.
 //
-// usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N]
+// usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N] [--profile]
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -20,6 +20,8 @@
 #include "host/weights.hpp"
 #include "runtime/context.hpp"
 #include "runtime/memory.hpp"
+#include "runtime/profiler.hpp"
+#include <iostream>
 
 using namespace vkunroll;
 
@@ -40,7 +42,7 @@ double seconds_since(std::chrono::steady_clock::time_point t) {
 
 int main(int argc, char** argv) {
   int W = 346, H = 260, torch_threads = 0;
-  bool torch = true;
+  bool torch = true, profile = false;
   std::string mode = "m";
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -51,12 +53,14 @@ int main(int argc, char** argv) {
       }
     } else if (a == "--mode" && i + 1 < argc) {
       mode = argv[++i];
+    } else if (a == "--profile") {
+      profile = true;
     } else if (a == "--no-torch") {
       torch = false;
     } else if (a == "--torch-threads" && i + 1 < argc) {
       torch_threads = std::atoi(argv[++i]);
     } else {
-      std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N]\n");
+      std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile]\n");
       return 2;
     }
   }
@@ -72,7 +76,8 @@ int main(int argc, char** argv) {
   in.ev3 = random_array(rng, B, cfg.ev_channels(), H, W, true);
 
   Context ctx;
-  VulkanBackend vk(ctx);
+  Profiler profiler;
+  VulkanBackend vk(ctx, profile ? &profiler : nullptr);
   auto t = std::chrono::steady_clock::now();
   Model model(vk, w);
   const double prep = seconds_since(t);
@@ -93,6 +98,7 @@ int main(int argc, char** argv) {
     model.run(small, o);
   }
   vk.reset_peak();
+  profiler.clear();
   ctx.allocator().reset_peak();
   RunOptions opt;
   opt.mode = md;
@@ -106,6 +112,7 @@ int main(int argc, char** argv) {
               "device buffers peak %.1f MiB, allocator peak %.1f MiB incl. %.1f MiB of weights as given)\n",
               1000 * vk_s / frames, prep, vk.peak_bytes() / 1048576.0, vk.device_peak_bytes() / 1048576.0,
               ctx.allocator().stats().peak_used_bytes / 1048576.0, vk.weight_bytes() / 1048576.0);
+  if (profile) profiler.print(std::cout);
   if (!torch) return 0;
 
   const auto dir = std::filesystem::temp_directory_path() / ("vkunroll_bench_model_" + std::to_string(::getpid()));
