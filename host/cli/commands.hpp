@@ -8,7 +8,9 @@ namespace vkunroll::cli {
 using Argv = std::vector<std::string>;
 
 int cmd_devices(const Argv& args);
+int cmd_simulate(const Argv& args);
 int cmd_events(const Argv& args);
 int cmd_voxelize(const Argv& args);
+int cmd_infer(const Argv& args);
 
 }  // namespace vkunroll::cli
