@@ -11,6 +11,7 @@
 #include "host/event_writer.hpp"
 #include "host/safetensors.hpp"
 #include "host/sequence.hpp"
+#include "host/sim_sequence.hpp"
 #include "host/value_list.hpp"
 #include "kernels/event_tensor.hpp"
 #include "runtime/error.hpp"
@@ -260,4 +261,40 @@ TEST(Sequence, VoxelizeCliMatchesTheLibrary) {
   std::stringstream err;
   err << std::ifstream(d / "err.txt").rdbuf();
   EXPECT_NE(err.str().find("frame 7"), std::string::npos) << err.str();
+}
+
+TEST(Sequence, ReadsWhatTheSimulatorWrites) {
+  // The project's own writer (host/sim_sequence) and this loader must agree on the generic layout.
+  sim::SimulationConfig c = sim::simulation_preset("clean");
+  c.width = 24;
+  c.height = 16;
+  c.frames = 2;
+  c.gt_per_frame = 2;
+  c.fps = 200;
+  c.line_delay_us = 125.5;
+  c.exposure_us = 700;
+  c.lead_in_us = 1000;
+  c.readout = "bottom-up";
+  const sim::SimulatedSequence simulated = sim::simulate(c);
+  const fs::path d = fresh_dir("simulated");
+  sim::write_sequence(c, simulated, d.string());
+  const Sequence s = load_sequence(d.string());
+  EXPECT_EQ(s.layout, SequenceLayout::generic);
+  ASSERT_EQ(s.frames.size(), 2u);
+  EXPECT_EQ(s.width, 24);
+  EXPECT_EQ(s.frames[1].timing.t0, Rational::from_double(c.frame_t0_us(1)));
+  EXPECT_EQ(s.frames[1].timing.line_delay, R("251/2"));
+  EXPECT_EQ(s.frames[1].timing.readout, Readout::bottom_up);
+  for (int y : {0, 7, 15})
+    EXPECT_EQ(s.frames[1].timing.start(y).to_double(), c.row_start_us(1, y));
+  EXPECT_EQ(s.ground_truth.size(), simulated.gt.size());
+  const EventStream ev = s.read_events(0, 1 << 30);
+  EXPECT_EQ(ev.t, simulated.events.t);
+  // ev3 over a window holding the whole stream counts every event exactly once.
+  ASSERT_GT(ev.size(), 0u);
+  const EventTensorPair pair{s.frames[0].timing, Rational(ev.t.front()), Rational(ev.t.back() - ev.t.front() + 1)};
+  const auto t = build_event_tensors_cpu(ev, {pair}, {16, {}});
+  double total = 0;
+  for (float x : t.ev3) total += x;
+  EXPECT_EQ(total, static_cast<double>(ev.size()));
 }
