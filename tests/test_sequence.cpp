@@ -298,3 +298,26 @@ TEST(Sequence, ReadsWhatTheSimulatorWrites) {
   for (float x : t.ev3) total += x;
   EXPECT_EQ(total, static_cast<double>(ev.size()));
 }
+
+TEST(Sequence, GevRsRealInfersTheFrameRateFromTheRecording) {
+  // Three frames and events spanning 3 x 51000 us: closer to 19.61 fps (50994 us) than 20.79.
+  const fs::path g = fresh_dir("0001_8000_60000");
+  for (int k = 0; k < 3; ++k) png(g / "image" / (std::to_string(k) + ".png"), 16, 12);
+  const std::string py = "/usr/bin/python3 -c \"import numpy as np; n=4000; "
+                         "r=np.zeros(n, dtype=[('x','<u2'),('y','<u2'),('p','|b1'),('t','<i8')]); "
+                         "r['t']=np.linspace(5000, 5000+153000, n).astype(np.int64); r['x']=np.arange(n)%16; "
+                         "r['y']=np.arange(n)%12; r['p']=np.arange(n)%2==0; np.savez('" +
+                         (g / "events.npz").string() + "', event=r)\"";
+  if (std::system(py.c_str()) != 0) GTEST_SKIP() << "/usr/bin/python3 with numpy is needed to write the .npz";
+  const Sequence s = load_sequence(g.string());
+  EXPECT_EQ(s.layout, SequenceLayout::gev_rs_real);
+  ASSERT_EQ(s.frames.size(), 3u);
+  EXPECT_EQ(s.frames[0].timing.t0, R("5000"));
+  EXPECT_EQ(s.frames[2].timing.t0, R("5000") + R("2") * R("100000000/1961"));
+  EXPECT_EQ(s.frames[0].timing.exposure, R("8000"));
+  EXPECT_EQ(s.frames[0].timing.line_delay, R("60000/11"));
+  EXPECT_EQ(s.read_events(0, 1 << 30).size(), 4000u);
+  SequenceOptions o;
+  o.frame_period_us = R("48000");
+  EXPECT_EQ(load_sequence(g.string(), o).frames[1].timing.t0, R("53000"));
+}
