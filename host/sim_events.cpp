@@ -242,7 +242,6 @@ void EventSimulator::accept(double t_us) {
     if (a.x != b.x) return a.x < b.x;
     return a.p < b.p;
   });
-  events_.reserve(events_.size() + batch_.size());
   for (const RawEvent& e : batch_) {
     events_.push(e.t, e.x, e.y, e.p);
     (e.p > 0 ? stats_.on : stats_.off) += 1;
