@@ -1,0 +1,99 @@
+// Shared vocabulary of the kernels: activations, host tensors (the CPU references' data), and
+// slices (a channel range and a batch range of a tensor) so ops read from and write into parts
+// of a larger tensor: dense concatenations cost no copy.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "runtime/command_stream.hpp"
+#include "runtime/tensor.hpp"
+
+namespace vkunroll {
+
+enum class Activation : uint32_t { none = 0, leaky_relu = 1, tanh = 2, sigmoid = 3, hardsigmoid = 4 };
+
+struct Act {
+  Activation kind = Activation::none;
+  float slope = 0.f;  // negative slope of leaky_relu
+};
+inline Act leaky_relu(float slope) { return {Activation::leaky_relu, slope}; }
+
+// The CPU definition every shader matches: hardsigmoid(x) = clamp(x/6 + 1/2, 0, 1) (PyTorch's).
+float apply_act(Act act, float v);
+const char* activation_name(Activation a);
+
+// An NCHW f32 array in host memory.
+struct HostTensor {
+  Shape shape;
+  std::vector<float> data;
+
+  HostTensor() = default;
+  explicit HostTensor(Shape s, float fill = 0.f);
+  HostTensor(Shape s, std::vector<float> values);  // values.size() must equal s.count()
+
+  size_t index(int64_t n, int64_t c, int64_t y, int64_t x) const {
+    return static_cast<size_t>(((n * shape.c + c) * shape.h + y) * shape.w + x);
+  }
+  float& at(int64_t n, int64_t c, int64_t y, int64_t x) { return data[index(n, c, y, x)]; }
+  float at(int64_t n, int64_t c, int64_t y, int64_t x) const { return data[index(n, c, y, x)]; }
+
+  // Device round trips (f32 tensors only).
+  Tensor to_device(Context& ctx) const;
+  void upload_to(Tensor& t) const;
+  static HostTensor download(const Tensor& t);
+};
+
+// A channel range [c0, c0+c) and batch range [n0, n0+n) of a tensor; c or n = -1 means "to the end".
+// T is `const Tensor` (device: `Slice`) or `const HostTensor` / `HostTensor` (CPU references).
+template <class T>
+struct SliceOf {
+  T* t = nullptr;
+  int64_t c0 = 0, c = -1;
+  int64_t n0 = 0, n = -1;
+
+  SliceOf() = default;
+  SliceOf(T& tensor, int64_t c0_ = 0, int64_t c_ = -1, int64_t n0_ = 0, int64_t n_ = -1)
+      : t(&tensor), c0(c0_), c(c_), n0(n0_), n(n_) {}
+  SliceOf(T* tensor, int64_t c0_ = 0, int64_t c_ = -1, int64_t n0_ = 0, int64_t n_ = -1)
+      : t(tensor), c0(c0_), c(c_), n0(n0_), n(n_) {}
+  // A const view of a mutable slice.
+  template <class U>
+  SliceOf(const SliceOf<U>& o) : t(o.t), c0(o.c0), c(o.c), n0(o.n0), n(o.n) {}
+
+  int64_t channels() const { return c < 0 ? tensor_shape().c - c0 : c; }
+  int64_t batch() const { return n < 0 ? tensor_shape().n - n0 : n; }
+  int64_t height() const { return tensor_shape().h; }
+  int64_t width() const { return tensor_shape().w; }
+  // The shape of the view: {batch, channels, h, w}.
+  Shape shape() const { return {batch(), channels(), height(), width()}; }
+  const Shape& tensor_shape() const {
+    if constexpr (requires { t->shape(); }) return t->shape();
+    else return t->shape;
+  }
+  // Element (n, c, y, x) of the view, for host tensors.
+  decltype(auto) at(int64_t n_, int64_t c_, int64_t y, int64_t x) const { return t->at(n0 + n_, c0 + c_, y, x); }
+};
+
+using Slice = SliceOf<const Tensor>;
+using HostSlice = SliceOf<const HostTensor>;
+using HostSliceOut = SliceOf<HostTensor>;
+
+// Checks that a slice lies inside its tensor and is f32; `what` names it in the error.
+void check_slice(const Slice& s, const std::string& op, const std::string& what);
+void check_slice(const HostSlice& s, const std::string& op, const std::string& what);
+
+// How a slice is bound to a dispatch: a byte range starting at an aligned offset at or before the
+// slice's first element, plus the element offset of that first element and the batch stride, which
+// the shader adds itself (channel offsets are rarely aligned to the binding alignment).
+struct BoundSlice {
+  Arg arg;
+  uint32_t offset = 0;        // elements from the start of the bound range to element (n0, c0, 0, 0)
+  uint32_t batch_stride = 0;  // elements between batch items (C_total * H * W)
+};
+BoundSlice bind_slice(const Slice& s, Access access);
+
+// "2x48x130x173" for messages and dispatch names.
+std::string shape_str(const Shape& s);
+
+}  // namespace vkunroll

@@ -1,0 +1,68 @@
+// conv2d: 2-D convolution with bias, zero padding, a fused activation and an optional fused
+// residual add: out = act(conv(in) + bias) + residual. Input, output and residual are slices, so a
+// conv reads a prefix of a dense-concatenation tensor and writes its own channel range of it.
+#pragma once
+#include <optional>
+#include <string>
+
+#include "kernels/common.hpp"
+
+namespace vkunroll {
+
+struct Conv2dParams {
+  int kernel = 3, stride = 1, pad = 1;
+  Act act;
+};
+
+// How the GPU computes it; every algorithm gives the same result within fp32 rounding.
+enum class ConvAlgo : uint32_t {
+  automatic = 0,  // chosen per shape (see choose_algorithm)
+  naive = 1,      // one invocation per output value: the baseline
+  blocked = 2,    // register blocking: 4 pixels x 8 output channels per invocation, packed weights
+  tiled = 3,      // blocked + the input tile of each input channel staged in shared memory
+  winograd = 4,   // Winograd F(2,3), 3x3 stride 1 only
+};
+const char* conv_algo_name(ConvAlgo a);
+
+// Output extent of a convolution along one axis: floor((in + 2 pad - k) / stride) + 1.
+int64_t conv_output_size(int64_t in, int kernel, int stride, int pad);
+
+// CPU reference: plain loops, double accumulation. weight [cout, cin, k, k], bias [cout] (or empty
+// data: no bias). `out` must already have the output's extent.
+void conv2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const HostTensor& bias,
+                const Conv2dParams& params, std::optional<HostSlice> residual = {});
+
+class Conv2d {
+ public:
+  // Uploads (and repacks) the weights once. weight [cout, cin, k, k]; bias count cout or empty.
+  Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
+         std::string name = "conv2d");
+
+  // Records out = act(conv(in) + bias) [+ residual]; out and residual have the output's extent.
+  void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual = {}) const;
+  // The same with a forced algorithm (tests and the bench); throws if it does not apply to the shape.
+  void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo) const;
+
+  // The algorithm `automatic` picks for an input of this height and width.
+  ConvAlgo choose_algorithm(int64_t h, int64_t w) const;
+  bool supports(ConvAlgo algo) const;
+  Shape output_shape(const Shape& in) const;  // {n, cout, oh, ow}
+  double flop(const Shape& in) const;         // 2 x multiply-adds of the direct algorithm
+  int64_t cin() const { return cin_; }
+  int64_t cout() const { return cout_; }
+  const Conv2dParams& params() const { return params_; }
+  const std::string& name() const { return name_; }
+
+ private:
+  Context& ctx_;
+  std::string name_;
+  Conv2dParams params_;
+  int64_t cin_ = 0, cout_ = 0;
+  Tensor weight_;          // [cout][cin][k][k] as given (naive)
+  Tensor bias_;            // [cout], zeros when none was given
+  Tensor weight_blocked_;  // [ceil(cout/8)][cin][k*k][8], zero-padded output channels
+  Tensor bias_blocked_;    // [ceil(cout/8)*8]
+  Tensor weight_winograd_; // [ceil(cout/8)][cin][16][8]: G g G^T per (cout, cin)
+};
+
+}  // namespace vkunroll

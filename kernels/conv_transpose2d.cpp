@@ -1,0 +1,136 @@
+#include "kernels/conv_transpose2d.hpp"
+
+#include "runtime/context.hpp"
+#include "runtime/pipeline.hpp"
+
+namespace vkunroll {
+
+namespace {
+struct ConvTPush {
+  uint32_t in_off, in_bs, out_off, out_bs;
+  uint32_t cin, h, w, cout, oh, ow, pad;
+};
+}  // namespace
+
+const char* conv_transpose_algo_name(ConvTransposeAlgo a) {
+  switch (a) {
+    case ConvTransposeAlgo::automatic: return "automatic";
+    case ConvTransposeAlgo::naive: return "naive";
+    case ConvTransposeAlgo::blocked: return "blocked";
+  }
+  return "unknown";
+}
+
+int64_t conv_transpose_output_size(int64_t in, int kernel, int stride, int pad) {
+  return (in - 1) * stride - 2 * pad + kernel;
+}
+
+void conv_transpose2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const HostTensor& bias,
+                          const ConvTranspose2dParams& p) {
+  check_slice(in, "conv_transpose2d_ref", "input");
+  check_slice(HostSlice(out), "conv_transpose2d_ref", "output");
+  const int64_t cin = in.channels(), cout = out.channels(), k = p.kernel;
+  if (weight.shape != Shape{cin, cout, k, k})
+    throw Error("conv_transpose2d_ref: weight " + weight.shape.str() + ", expected " + Shape{cin, cout, k, k}.str());
+  const int64_t oh = conv_transpose_output_size(in.height(), p.kernel, p.stride, p.pad);
+  const int64_t ow = conv_transpose_output_size(in.width(), p.kernel, p.stride, p.pad);
+  if (out.height() != oh || out.width() != ow || out.batch() != in.batch())
+    throw Error("conv_transpose2d_ref: output " + out.shape().str() + ", expected " +
+                Shape{in.batch(), cout, oh, ow}.str());
+  // Scatter form (the definition): every input value adds weight x value to k x k outputs.
+  std::vector<double> acc(static_cast<size_t>(cout * oh * ow));
+  for (int64_t n = 0; n < in.batch(); ++n) {
+    for (int64_t co = 0; co < cout; ++co)
+      for (int64_t i = 0; i < oh * ow; ++i)
+        acc[static_cast<size_t>(co * oh * ow + i)] = bias.data.empty() ? 0.0 : bias.data[static_cast<size_t>(co)];
+    for (int64_t ci = 0; ci < cin; ++ci)
+      for (int64_t iy = 0; iy < in.height(); ++iy)
+        for (int64_t ix = 0; ix < in.width(); ++ix) {
+          const double v = in.at(n, ci, iy, ix);
+          for (int64_t co = 0; co < cout; ++co)
+            for (int64_t ky = 0; ky < k; ++ky) {
+              const int64_t oy = iy * p.stride - p.pad + ky;
+              if (oy < 0 || oy >= oh) continue;
+              for (int64_t kx = 0; kx < k; ++kx) {
+                const int64_t ox = ix * p.stride - p.pad + kx;
+                if (ox < 0 || ox >= ow) continue;
+                acc[static_cast<size_t>((co * oh + oy) * ow + ox)] += v * weight.at(ci, co, ky, kx);
+              }
+            }
+        }
+    for (int64_t co = 0; co < cout; ++co)
+      for (int64_t oy = 0; oy < oh; ++oy)
+        for (int64_t ox = 0; ox < ow; ++ox)
+          out.at(n, co, oy, ox) = apply_act(p.act, static_cast<float>(acc[static_cast<size_t>((co * oh + oy) * ow + ox)]));
+  }
+}
+
+ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const HostTensor& bias,
+                                 const ConvTranspose2dParams& params, std::string name)
+    : ctx_(ctx), name_(std::move(name)), params_(params) {
+  const int k = params.kernel;
+  if (k < 1 || params.stride < 1 || params.pad < 0 || params.pad >= k)
+    throw Error(name_ + ": invalid kernel " + std::to_string(k) + " stride " + std::to_string(params.stride) +
+                " pad " + std::to_string(params.pad));
+  if (weight.shape.h != k || weight.shape.w != k || static_cast<int64_t>(weight.data.size()) != weight.shape.count())
+    throw Error(name_ + ": weight " + weight.shape.str() + " is not [cin, cout, " + std::to_string(k) + ", " +
+                std::to_string(k) + "] (PyTorch ConvTranspose2d layout)");
+  cin_ = weight.shape.n;
+  cout_ = weight.shape.c;
+  if (!bias.data.empty() && static_cast<int64_t>(bias.data.size()) != cout_)
+    throw Error(name_ + ": bias has " + std::to_string(bias.data.size()) + " values, " + std::to_string(cout_) +
+                " output channels expected");
+  std::vector<float> b = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
+  weight_ = HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data).to_device(ctx);
+  bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
+}
+
+bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
+  return algo == ConvTransposeAlgo::automatic || algo == ConvTransposeAlgo::naive;
+}
+
+ConvTransposeAlgo ConvTranspose2d::choose_algorithm(int64_t, int64_t) const { return ConvTransposeAlgo::naive; }
+
+Shape ConvTranspose2d::output_shape(const Shape& in) const {
+  return {in.n, cout_, conv_transpose_output_size(in.h, params_.kernel, params_.stride, params_.pad),
+          conv_transpose_output_size(in.w, params_.kernel, params_.stride, params_.pad)};
+}
+
+double ConvTranspose2d::flop(const Shape& in) const {
+  return 2.0 * static_cast<double>(in.n * in.h * in.w) * static_cast<double>(cin_ * cout_) * params_.kernel *
+         params_.kernel;
+}
+
+void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTransposeAlgo algo) const {
+  check_slice(in, name_, "input");
+  check_slice(out, name_, "output");
+  const Shape is = in.shape(), os = out.shape(), expect = output_shape(is);
+  if (is.c != cin_)
+    throw Error(name_ + ": input has " + std::to_string(is.c) + " channels, the weights expect " + std::to_string(cin_));
+  if (expect.h <= 0 || expect.w <= 0) throw Error(name_ + ": input " + is.str() + " gives an empty output");
+  if (os != expect) throw Error(name_ + ": output slice " + os.str() + ", expected " + expect.str());
+  if (algo == ConvTransposeAlgo::automatic) algo = choose_algorithm(is.h, is.w);
+  if (!supports(algo))
+    throw Error(name_ + ": algorithm " + std::string(conv_transpose_algo_name(algo)) + " does not apply");
+  const BoundSlice bi = bind_slice(in, Access::read), bo = bind_slice(out, Access::write);
+  ConvTPush p{bi.offset, bi.batch_stride, bo.offset, bo.batch_stride, static_cast<uint32_t>(cin_),
+              static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w), static_cast<uint32_t>(cout_),
+              static_cast<uint32_t>(os.h), static_cast<uint32_t>(os.w), static_cast<uint32_t>(params_.pad)};
+  const std::vector<uint32_t> spec{static_cast<uint32_t>(params_.kernel), static_cast<uint32_t>(params_.stride),
+                                   static_cast<uint32_t>(params_.act.kind), spec_float(params_.act.slope)};
+  const double bytes = 4.0 * (static_cast<double>(is.count() + os.count()) +
+                              static_cast<double>(cin_ * cout_ * params_.kernel * params_.kernel));
+  const DispatchInfo info{name_ + "_" + std::to_string(params_.kernel) + "x" + std::to_string(params_.kernel), flop(is),
+                          bytes};
+  if (algo == ConvTransposeAlgo::naive) {
+    cs.dispatch(ctx_.pipeline("conv_transpose2d_naive", spec, sizeof(ConvTPush)),
+                {bi.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, bo.arg}, p,
+                Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
+                       static_cast<uint32_t>(os.n * cout_)},
+                info);
+    return;
+  }
+  throw Error(name_ + ": algorithm " + std::string(conv_transpose_algo_name(algo)) + " is not implemented");
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,55 @@
+// conv_transpose2d: PyTorch's ConvTranspose2d (weight [in, out, kh, kw]) with bias and a fused
+// activation; the UNets use kernel 4, stride 2, padding 1 (output exactly 2H x 2W).
+#pragma once
+#include <string>
+
+#include "kernels/common.hpp"
+
+namespace vkunroll {
+
+struct ConvTranspose2dParams {
+  int kernel = 4, stride = 2, pad = 1;
+  Act act;
+};
+
+enum class ConvTransposeAlgo : uint32_t {
+  automatic = 0,
+  naive = 1,    // one invocation per output value, loops over the taps that hit it
+  blocked = 2,  // sub-pixel (phase) decomposition, 4 pixels x 8 output channels per invocation
+};
+const char* conv_transpose_algo_name(ConvTransposeAlgo a);
+
+// Output extent along one axis: (in - 1) * stride - 2 pad + kernel.
+int64_t conv_transpose_output_size(int64_t in, int kernel, int stride, int pad);
+
+// CPU reference, double accumulation. weight [cin, cout, k, k]; bias count cout or empty.
+void conv_transpose2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const HostTensor& bias,
+                          const ConvTranspose2dParams& params);
+
+class ConvTranspose2d {
+ public:
+  ConvTranspose2d(Context& ctx, const HostTensor& weight, const HostTensor& bias,
+                  const ConvTranspose2dParams& params = {}, std::string name = "conv_transpose2d");
+
+  void record(CommandStream& cs, Slice in, Slice out, ConvTransposeAlgo algo = ConvTransposeAlgo::automatic) const;
+
+  bool supports(ConvTransposeAlgo algo) const;
+  ConvTransposeAlgo choose_algorithm(int64_t h, int64_t w) const;
+  Shape output_shape(const Shape& in) const;
+  double flop(const Shape& in) const;  // 2 x multiply-adds: in.count/cin x cin x cout x k x k
+  int64_t cin() const { return cin_; }
+  int64_t cout() const { return cout_; }
+  const ConvTranspose2dParams& params() const { return params_; }
+
+ private:
+  Context& ctx_;
+  std::string name_;
+  ConvTranspose2dParams params_;
+  int64_t cin_ = 0, cout_ = 0;
+  Tensor weight_;          // [cin][cout][k][k] as given
+  Tensor bias_;            // [cout]
+  Tensor weight_blocked_;  // [ceil(cout/8)][cin][k*k][8]
+  Tensor bias_blocked_;    // [ceil(cout/8)*8]
+};
+
+}  // namespace vkunroll

@@ -1,0 +1,88 @@
+#include "kernels/elementwise.hpp"
+
+#include <algorithm>
+
+#include "runtime/context.hpp"
+#include "runtime/pipeline.hpp"
+
+namespace vkunroll {
+
+namespace {
+enum Op : uint32_t { kCopy = 0, kAdd = 1, kScaleAct = 2, kBlend = 3, kClamp01 = 4 };
+const char* kOpNames[] = {"copy", "add", "scale_act", "blend", "clamp01"};
+
+struct EwPush {
+  uint32_t a_off, a_bs, b_off, b_bs, m_off, m_bs, out_off, out_bs, c, plane;
+  float scale;
+};
+
+template <class S>
+void check_same(const std::string& op, const S& s, const Shape& expect, const char* what) {
+  check_slice(s, op, what);
+  if (s.shape() != expect) throw Error(op + ": " + what + " " + s.shape().str() + ", expected " + expect.str());
+}
+
+void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slice out, Act act, float scale) {
+  const std::string name = kOpNames[op];
+  check_slice(a, name, "input");
+  const Shape s = a.shape();
+  check_same(name, out, s, "output");
+  if (b) check_same(name, *b, s, "second input");
+  if (m) check_same(name, *m, Shape{s.n, 1, s.h, s.w}, "mask");
+  const BoundSlice ba = bind_slice(a, Access::read), bo = bind_slice(out, Access::write);
+  const BoundSlice bb = b ? bind_slice(*b, Access::read) : ba, bm = m ? bind_slice(*m, Access::read) : ba;
+  EwPush p{ba.offset, ba.batch_stride, bb.offset, bb.batch_stride, bm.offset, bm.batch_stride, bo.offset,
+           bo.batch_stride, static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.plane()), scale};
+  Context& ctx = a.t->context();
+  const double n = static_cast<double>(s.count());
+  cs.dispatch(ctx.pipeline("elementwise", {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)}, sizeof p),
+              {ba.arg, bb.arg, bm.arg, bo.arg}, p,
+              Groups{static_cast<uint32_t>((s.plane() + 63) / 64), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},
+              {name, (op == kCopy || op == kClamp01) ? 0 : (op == kBlend ? 3 : 1) * n,
+               4.0 * n * (2 + (b ? 1 : 0)) + (m ? 4.0 * static_cast<double>(s.n * s.plane()) : 0)});
+}
+
+template <class F>
+void host_map(const std::string& op, HostSlice a, HostSliceOut out, F f) {
+  check_slice(a, op, "input");
+  check_same(op, HostSlice(out), a.shape(), "output");
+  for (int64_t n = 0; n < a.batch(); ++n)
+    for (int64_t c = 0; c < a.channels(); ++c)
+      for (int64_t y = 0; y < a.height(); ++y)
+        for (int64_t x = 0; x < a.width(); ++x) out.at(n, c, y, x) = f(n, c, y, x);
+}
+}  // namespace
+
+void copy(CommandStream& cs, Slice in, Slice out) { run(cs, kCopy, in, nullptr, nullptr, out, {}, 1.f); }
+void add(CommandStream& cs, Slice a, Slice b, Slice out) { run(cs, kAdd, a, &b, nullptr, out, {}, 1.f); }
+void scale_act(CommandStream& cs, Slice in, Slice out, Act act, float scale) {
+  run(cs, kScaleAct, in, nullptr, nullptr, out, act, scale);
+}
+void blend(CommandStream& cs, Slice m, Slice a, Slice b, Slice out) { run(cs, kBlend, a, &b, &m, out, {}, 1.f); }
+void clamp01(CommandStream& cs, Slice in, Slice out) { run(cs, kClamp01, in, nullptr, nullptr, out, {}, 1.f); }
+
+void copy_ref(HostSlice in, HostSliceOut out) {
+  host_map("copy_ref", in, out, [&](int64_t n, int64_t c, int64_t y, int64_t x) { return in.at(n, c, y, x); });
+}
+void add_ref(HostSlice a, HostSlice b, HostSliceOut out) {
+  check_same("add_ref", b, a.shape(), "second input");
+  host_map("add_ref", a, out, [&](int64_t n, int64_t c, int64_t y, int64_t x) { return a.at(n, c, y, x) + b.at(n, c, y, x); });
+}
+void scale_act_ref(HostSlice in, HostSliceOut out, Act act, float scale) {
+  host_map("scale_act_ref", in, out,
+           [&](int64_t n, int64_t c, int64_t y, int64_t x) { return scale * apply_act(act, in.at(n, c, y, x)); });
+}
+void blend_ref(HostSlice m, HostSlice a, HostSlice b, HostSliceOut out) {
+  check_same("blend_ref", b, a.shape(), "second input");
+  check_same("blend_ref", m, Shape{a.batch(), 1, a.height(), a.width()}, "mask");
+  host_map("blend_ref", a, out, [&](int64_t n, int64_t c, int64_t y, int64_t x) {
+    const float mm = m.at(n, 0, y, x);
+    return mm * a.at(n, c, y, x) + (1.f - mm) * b.at(n, c, y, x);
+  });
+}
+void clamp01_ref(HostSlice in, HostSliceOut out) {
+  host_map("clamp01_ref", in, out,
+           [&](int64_t n, int64_t c, int64_t y, int64_t x) { return std::clamp(in.at(n, c, y, x), 0.f, 1.f); });
+}
+
+}  // namespace vkunroll

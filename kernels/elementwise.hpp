@@ -1,0 +1,24 @@
+// Elementwise ops on slices (operands may be different channel ranges or batch items of one
+// tensor). The output may be the same slice as an input (in place); it must not partly overlap one.
+#pragma once
+#include "kernels/common.hpp"
+
+namespace vkunroll {
+
+void copy(CommandStream& cs, Slice in, Slice out);                      // out = in (builds concatenations)
+void add(CommandStream& cs, Slice a, Slice b, Slice out);               // out = a + b
+void scale_act(CommandStream& cs, Slice in, Slice out, Act act, float scale);  // out = scale * act(in)
+inline void scale_tanh(CommandStream& cs, Slice in, Slice out, float scale) {
+  scale_act(cs, in, out, {Activation::tanh, 0.f}, scale);
+}
+// out = m * a + (1 - m) * b; m has one channel, broadcast over the channels of a and b.
+void blend(CommandStream& cs, Slice m, Slice a, Slice b, Slice out);
+void clamp01(CommandStream& cs, Slice in, Slice out);                   // out = clamp(in, 0, 1)
+
+void copy_ref(HostSlice in, HostSliceOut out);
+void add_ref(HostSlice a, HostSlice b, HostSliceOut out);
+void scale_act_ref(HostSlice in, HostSliceOut out, Act act, float scale);
+void blend_ref(HostSlice m, HostSlice a, HostSlice b, HostSliceOut out);
+void clamp01_ref(HostSlice in, HostSliceOut out);
+
+}  // namespace vkunroll

@@ -1,0 +1,50 @@
+// backward_warp: grid_sample(align_corners=True, padding_mode='border') semantics.
+#include <gtest/gtest.h>
+
+#include "kernel_test_util.hpp"
+#include "kernels/backward_warp.hpp"
+#include "runtime/context.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+using namespace vkunroll::ktest;
+
+TEST(BackwardWarp, ReferenceKnownValues) {
+  // Row image [0 10 20 30]; flow x = +1 shifts left, +0.5 interpolates, far out clamps to the border.
+  HostTensor img({1, 1, 1, 4}, std::vector<float>{0, 10, 20, 30});
+  HostTensor flow({1, 2, 1, 4}, std::vector<float>{1, 0.5f, -100, 100, 7, 7, 7, 7}), out({1, 1, 1, 4});
+  backward_warp_ref(HostSlice(img), HostSlice(flow), HostSliceOut(out));
+  EXPECT_EQ(out.data, (std::vector<float>{10, 15, 0, 30}));
+}
+
+TEST(BackwardWarp, MatchesReference) {
+  Context& ctx = vktest::context();
+  std::mt19937 rng(11);
+  struct C { int64_t n, c, h, w, img_extra, img_c0, flow_c0; };
+  // fp32 bilinear of values in [0, 1]: max abs error 1e-5.
+  for (const C& c : std::vector<C>{{1, 3, 12, 16, 0, 0, 0}, {2, 3, 9, 7, 2, 1, 3}, {1, 3, 1, 11, 0, 0, 0},
+                                   {1, 2, 10, 1, 0, 0, 0}, {1, 1, 1, 1, 0, 0, 1}}) {
+    HostTensor img = random_tensor({c.n, c.c + c.img_extra, c.h, c.w}, rng, 0.f, 1.f);
+    HostTensor flow = random_tensor({c.n, 2 + c.flow_c0, c.h, c.w}, rng, -6.f, 6.f);
+    HostTensor out({c.n, c.c, c.h, c.w}), out_ref = out;
+    backward_warp_ref(HostSlice(img, c.img_c0, c.c), HostSlice(flow, c.flow_c0, 2), HostSliceOut(out_ref));
+    Tensor id = img.to_device(ctx), fd = flow.to_device(ctx), od(ctx, out.shape);
+    CommandStream cs(ctx);
+    backward_warp(cs, Slice(id, c.img_c0, c.c), Slice(fd, c.flow_c0, 2), Slice(od));
+    cs.submit_and_wait();
+    EXPECT_LE(max_abs_diff(HostTensor::download(od), out_ref), 1e-5) << c.h << "x" << c.w;
+  }
+}
+
+TEST(BackwardWarp, ZeroFlowIsIdentityAndWrongFlowShapeIsAnError) {
+  Context& ctx = vktest::context();
+  std::mt19937 rng(3);
+  HostTensor img = random_tensor({1, 3, 5, 6}, rng);
+  Tensor id = img.to_device(ctx), fd = HostTensor({1, 2, 5, 6}).to_device(ctx), od(ctx, img.shape);
+  CommandStream cs(ctx);
+  backward_warp(cs, Slice(id), Slice(fd), Slice(od));
+  cs.submit_and_wait();
+  EXPECT_EQ(max_abs_diff(HostTensor::download(od), img), 0.0);
+  Tensor bad(ctx, {1, 3, 5, 6});
+  EXPECT_THROW(backward_warp(cs, Slice(id), Slice(bad), Slice(od)), Error);
+}

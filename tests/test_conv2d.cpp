@@ -1,0 +1,109 @@
+// conv2d parity: every algorithm against the CPU reference on odd shapes, slices and activations.
+#include <gtest/gtest.h>
+
+#include "kernel_test_util.hpp"
+#include "kernels/conv2d.hpp"
+#include "runtime/context.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+using namespace vkunroll::ktest;
+
+namespace {
+// fp32 with values of order 1 (weights scaled by 1/sqrt(fan-in)): max abs error 1e-4.
+constexpr double kTol = 1e-4;
+
+struct Case {
+  int k, s;
+  int64_t cin, cout, h, w;
+  Act act;
+  bool residual;
+  int64_t in_extra_c = 0, in_c0 = 0, out_extra_c = 0, out_c0 = 0;  // slices inside larger tensors
+  int64_t batch = 1, in_n0 = 0, in_batch_total = 1;
+};
+
+std::vector<Case> cases() {
+  const Act lrelu01 = leaky_relu(0.1f), lrelu001 = leaky_relu(0.01f);
+  return {
+      // k  s cin cout  h   w  act                                res   in slice  out slice  batch
+      {3, 1, 5, 7, 9, 11, lrelu001, true, 4, 2, 5, 3, 2, 0, 2},
+      {3, 1, 17, 19, 16, 12, lrelu01, false},
+      {3, 1, 8, 16, 13, 35, Act{}, true, 0, 0, 8, 8},
+      {1, 1, 6, 3, 1, 1, Act{Activation::sigmoid}, false, 2, 1, 0, 0},
+      {1, 1, 13, 9, 7, 10, lrelu01, true},
+      {5, 1, 3, 9, 1, 13, Act{Activation::tanh}, false},
+      {5, 1, 11, 6, 12, 9, Act{}, false, 0, 0, 3, 1},
+      {3, 2, 4, 10, 13, 7, Act{Activation::hardsigmoid}, false},
+      {3, 2, 6, 5, 1, 1, Act{}, false},
+      {3, 2, 9, 12, 16, 18, lrelu01, false, 3, 3, 0, 0, 1, 1, 3},
+      {3, 1, 7, 5, 21, 1, lrelu01, false},
+      {5, 2, 5, 4, 11, 14, Act{Activation::sigmoid}, true},
+      {1, 2, 3, 5, 9, 8, Act{}, false},
+  };
+}
+
+void run_cases(ConvAlgo algo) {
+  Context& ctx = vktest::context();
+  std::mt19937 rng(1234);
+  int ran = 0;
+  for (const Case& c : cases()) {
+    const Conv2dParams p{c.k, c.s, c.k / 2, c.act};
+    const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
+    HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
+    HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
+    Conv2d conv(ctx, w, b, p);
+    if (!conv.supports(algo)) continue;
+    const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
+    const int64_t nb = std::max(c.batch, c.in_batch_total);
+    HostTensor x = random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng);
+    HostTensor y = random_tensor({nb, c.cout + c.out_extra_c, oh, ow}, rng);  // values outside the slice must survive
+    HostTensor r = random_tensor({nb, c.cout, oh, ow}, rng);
+    HostTensor y_ref = y;
+    conv2d_ref(HostSlice(x, c.in_c0, c.cin, c.in_n0, c.batch), HostSliceOut(y_ref, c.out_c0, c.cout, c.in_n0, c.batch), w,
+               b, p, c.residual ? std::optional<HostSlice>(HostSlice(r, 0, -1, c.in_n0, c.batch)) : std::nullopt);
+    Tensor xd = x.to_device(ctx), yd = y.to_device(ctx), rd = r.to_device(ctx);
+    CommandStream cs(ctx);
+    conv.record(cs, Slice(xd, c.in_c0, c.cin, c.in_n0, c.batch), Slice(yd, c.out_c0, c.cout, c.in_n0, c.batch),
+                c.residual ? std::optional<Slice>(Slice(rd, 0, -1, c.in_n0, c.batch)) : std::nullopt, algo);
+    cs.submit_and_wait();
+    const double err = max_abs_diff(HostTensor::download(yd), y_ref);
+    EXPECT_LE(err, kTol) << conv_algo_name(algo) << " k" << c.k << " s" << c.s << " " << c.cin << "->" << c.cout
+                         << " " << c.h << "x" << c.w << " act " << activation_name(c.act.kind);
+    ++ran;
+  }
+  EXPECT_GT(ran, 0) << "no case applies to " << conv_algo_name(algo);
+}
+}  // namespace
+
+TEST(Conv2d, NaiveMatchesReference) { run_cases(ConvAlgo::naive); }
+TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
+
+TEST(Conv2d, ReferenceKnownValues) {
+  // 1 input channel 3x3 of ones, 3x3 kernel of ones, pad 1: corner 4, edge 6, centre 9, + bias.
+  HostTensor x({1, 1, 3, 3}, 1.f), w({1, 1, 3, 3}, 1.f), b({1, 1, 1, 1}, 0.5f), y({1, 1, 3, 3});
+  conv2d_ref(HostSlice(x), HostSliceOut(y), w, b, {3, 1, 1, {}});
+  EXPECT_EQ(y.at(0, 0, 0, 0), 4.5f);
+  EXPECT_EQ(y.at(0, 0, 0, 1), 6.5f);
+  EXPECT_EQ(y.at(0, 0, 1, 1), 9.5f);
+  EXPECT_EQ(conv_output_size(260, 3, 2, 1), 130);
+  EXPECT_EQ(conv_output_size(13, 3, 2, 1), 7);
+}
+
+TEST(Conv2d, ShapeErrorsNameTheProblem) {
+  Context& ctx = vktest::context();
+  Conv2d conv(ctx, HostTensor({4, 3, 3, 3}), HostTensor(), {3, 1, 1, {}}, "my_conv");
+  Tensor x(ctx, {1, 5, 8, 8}), y(ctx, {1, 4, 8, 8}), y2(ctx, {1, 4, 7, 8});
+  CommandStream cs(ctx);
+  try {
+    conv.record(cs, Slice(x), Slice(y));
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("my_conv"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("5 channels"), std::string::npos) << e.what();
+  }
+  EXPECT_NO_THROW(conv.record(cs, Slice(x, 1, 3), Slice(y)));
+  EXPECT_THROW(conv.record(cs, Slice(x, 1, 3), Slice(y2)), Error);
+  EXPECT_THROW(conv.record(cs, Slice(x, 3, 3), Slice(y)), Error);  // slice outside the tensor
+  EXPECT_THROW(Conv2d(ctx, HostTensor({4, 3, 3, 3}), HostTensor({1, 1, 1, 3}), {3, 1, 1, {}}), Error);
+  cs.submit_and_wait();
+}

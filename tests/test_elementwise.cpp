@@ -1,0 +1,76 @@
+// Elementwise ops on slices: add, scale*act, blend across batch items, clamp, copy.
+#include <gtest/gtest.h>
+
+#include "kernel_test_util.hpp"
+#include "kernels/elementwise.hpp"
+#include "runtime/context.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+using namespace vkunroll::ktest;
+
+namespace {
+constexpr double kTol = 1e-6;  // one or two fp32 roundings of values of order 1 (tanh/exp: 1e-6)
+}
+
+TEST(Elementwise, EveryOpMatchesReference) {
+  Context& ctx = vktest::context();
+  std::mt19937 rng(17);
+  for (Shape s : {Shape{2, 5, 7, 9}, Shape{2, 3, 1, 1}, Shape{2, 6, 1, 13}}) {
+    // One tensor holding two batch items and extra channels; ops read channel slices of it.
+    HostTensor t = random_tensor({s.n, s.c * 2 + 1, s.h, s.w}, rng, -4.f, 4.f);
+    HostTensor m = random_tensor({s.n, 1, s.h, s.w}, rng, 0.f, 1.f);
+    Tensor td = t.to_device(ctx), md = m.to_device(ctx);
+    const HostSlice a(t, 0, s.c), b(t, s.c, s.c);
+    const Slice ad(td, 0, s.c), bd(td, s.c, s.c);
+    const Shape half{1, s.c, s.h, s.w};
+    struct Out { HostTensor ref; Tensor dev; };
+    std::vector<Out> outs;
+    CommandStream cs(ctx);
+    auto next = [&](Shape os) -> Out& {
+      outs.push_back({HostTensor(os), Tensor(ctx, os)});
+      return outs.back();
+    };
+    outs.reserve(16);
+    { Out& o = next(s); add_ref(a, b, HostSliceOut(o.ref)); add(cs, ad, bd, Slice(o.dev)); }
+    { Out& o = next(s); copy_ref(b, HostSliceOut(o.ref)); copy(cs, bd, Slice(o.dev)); }
+    { Out& o = next(s); clamp01_ref(a, HostSliceOut(o.ref)); clamp01(cs, ad, Slice(o.dev)); }
+    for (Activation k : {Activation::none, Activation::leaky_relu, Activation::tanh, Activation::sigmoid,
+                         Activation::hardsigmoid}) {
+      Out& o = next(s);
+      scale_act_ref(a, HostSliceOut(o.ref), {k, 0.2f}, 100.f);
+      scale_act(cs, ad, Slice(o.dev), {k, 0.2f}, 100.f);
+    }
+    {  // MOA: m * (item 0) + (1 - m) * (item 1), the mask from item 0 of m.
+      Out& o = next(half);
+      blend_ref(HostSlice(m, 0, 1, 0, 1), HostSlice(t, 0, s.c, 0, 1), HostSlice(t, 0, s.c, 1, 1), HostSliceOut(o.ref));
+      blend(cs, Slice(md, 0, 1, 0, 1), Slice(td, 0, s.c, 0, 1), Slice(td, 0, s.c, 1, 1), Slice(o.dev));
+    }
+    cs.submit_and_wait();
+    for (size_t i = 0; i < outs.size(); ++i) {
+      // scale_act multiplies by 100: its tolerance scales with it.
+      const double tol = (i >= 3 && i < 8) ? 100 * kTol : kTol;
+      EXPECT_LE(max_abs_diff(HostTensor::download(outs[i].dev), outs[i].ref), tol) << "op " << i << " " << s.str();
+    }
+  }
+}
+
+TEST(Elementwise, InPlaceAddAndCopyIntoAConcatenation) {
+  Context& ctx = vktest::context();
+  std::mt19937 rng(2);
+  HostTensor a = random_tensor({1, 3, 4, 5}, rng), b = random_tensor({1, 2, 4, 5}, rng);
+  Tensor ad = a.to_device(ctx), bd = b.to_device(ctx), cat(ctx, {1, 5, 4, 5});
+  CommandStream cs(ctx);
+  copy(cs, Slice(ad), Slice(cat, 0, 3));
+  copy(cs, Slice(bd), Slice(cat, 3, 2));
+  add(cs, Slice(cat, 0, 2), Slice(bd), Slice(cat, 0, 2));  // in place on a slice
+  cs.submit_and_wait();
+  HostTensor c = HostTensor::download(cat);
+  for (int64_t y = 0; y < 4; ++y)
+    for (int64_t x = 0; x < 5; ++x) {
+      EXPECT_EQ(c.at(0, 0, y, x), a.at(0, 0, y, x) + b.at(0, 0, y, x));
+      EXPECT_EQ(c.at(0, 2, y, x), a.at(0, 2, y, x));
+      EXPECT_EQ(c.at(0, 4, y, x), b.at(0, 1, y, x));
+    }
+  EXPECT_THROW(add(cs, Slice(ad), Slice(bd), Slice(ad)), Error);  // 3 vs 2 channels
+}

@@ -1,0 +1,53 @@
+// space_to_depth / depth_to_space parity, PyTorch channel order, odd sizes, slices.
+#include <gtest/gtest.h>
+
+#include "kernel_test_util.hpp"
+#include "kernels/space_to_depth.hpp"
+#include "runtime/context.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+using namespace vkunroll::ktest;
+
+// Pure data movement: the GPU result must be bit-exact (tolerance 0).
+TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlices) {
+  Context& ctx = vktest::context();
+  std::mt19937 rng(5);
+  struct C { int64_t n, c, h, w, extra_in, c0_in, extra_out, c0_out; };
+  for (const C& c : std::vector<C>{{1, 3, 8, 6, 0, 0, 0, 0}, {2, 5, 7, 9, 2, 1, 4, 4}, {1, 1, 1, 1, 0, 0, 0, 0},
+                                   {1, 2, 1, 13, 1, 1, 0, 0}, {1, 99, 12, 10, 0, 0, 0, 0}}) {
+    HostTensor x = random_tensor({c.n, c.c + c.extra_in, c.h, c.w}, rng);
+    const Shape os = space_to_depth_shape({c.n, c.c, c.h, c.w});
+    HostTensor y = random_tensor({c.n, os.c + c.extra_out, os.h, os.w}, rng), y_ref = y;
+    space_to_depth_ref(HostSlice(x, c.c0_in, c.c), HostSliceOut(y_ref, c.c0_out, os.c));
+    Tensor xd = x.to_device(ctx), yd = y.to_device(ctx);
+    // And back: depth_to_space of the result restores the input (cropped to its size).
+    Tensor back(ctx, {c.n, c.c, os.h * 2, os.w * 2});
+    CommandStream cs(ctx);
+    space_to_depth(cs, Slice(xd, c.c0_in, c.c), Slice(yd, c.c0_out, os.c));
+    depth_to_space(cs, Slice(yd, c.c0_out, os.c), Slice(back));
+    cs.submit_and_wait();
+    EXPECT_EQ(max_abs_diff(HostTensor::download(yd), y_ref), 0.0) << c.h << "x" << c.w;
+    HostTensor b = HostTensor::download(back), b_ref({c.n, c.c, os.h * 2, os.w * 2});
+    depth_to_space_ref(HostSlice(y_ref, c.c0_out, os.c), HostSliceOut(b_ref));
+    EXPECT_EQ(max_abs_diff(b, b_ref), 0.0);
+    for (int64_t ch = 0; ch < c.c; ++ch)
+      for (int64_t yy = 0; yy < os.h * 2; ++yy)
+        for (int64_t xx = 0; xx < os.w * 2; ++xx)
+          ASSERT_EQ(b.at(0, ch, yy, xx), (yy < c.h && xx < c.w) ? x.at(0, c.c0_in + ch, yy, xx) : 0.f);
+  }
+}
+
+TEST(SpaceToDepth, PixelUnshuffleChannelOrder) {
+  // 1 channel 2x2 [[a b] [c d]] -> 4 channels a, b, c, d (channel = i*2 + j).
+  HostTensor x({1, 1, 2, 2}, std::vector<float>{1, 2, 3, 4}), y({1, 4, 1, 1});
+  space_to_depth_ref(HostSlice(x), HostSliceOut(y));
+  EXPECT_EQ(y.data, (std::vector<float>{1, 2, 3, 4}));
+  // 2 channels: output channel c*4 + i*2 + j.
+  HostTensor x2({1, 2, 2, 2}, std::vector<float>{1, 2, 3, 4, 5, 6, 7, 8}), y2({1, 8, 1, 1});
+  space_to_depth_ref(HostSlice(x2), HostSliceOut(y2));
+  EXPECT_EQ(y2.data, (std::vector<float>{1, 2, 3, 4, 5, 6, 7, 8}));
+  EXPECT_EQ(space_to_depth_shape({1, 99, 260, 346}), (Shape{1, 396, 130, 173}));
+  EXPECT_EQ(depth_to_space_shape({1, 256, 130, 173}), (Shape{1, 64, 260, 346}));
+  EXPECT_THROW(depth_to_space_shape({1, 6, 2, 2}), Error);
+}
