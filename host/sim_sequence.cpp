@@ -22,6 +22,12 @@ namespace {
 constexpr uint64_t kStreamFrameNoise = 0xF4A3E;
 constexpr double kTwoPi = 6.283185307179586;
 
+std::string num(double v) {
+  char b[64];
+  std::snprintf(b, sizeof b, "%g", v);
+  return b;
+}
+
 std::string fmt_us(double v) {
   char b[64];
   std::snprintf(b, sizeof b, "%.1f us", v);
@@ -63,11 +69,10 @@ void SimulationConfig::validate() const {
   if (!(lead_in_us >= 0)) fail("lead-in must be >= 0");
   const double period = frame_period_us(), readout_time = (height - 1) * line_delay_us;
   if (readout_time > period)
-    fail("--line-delay-us " + std::to_string(line_delay_us) + " x " + std::to_string(height - 1) + " rows = " +
-         fmt_us(readout_time) + " of readout, longer than the frame period " + fmt_us(period) + " of --fps " +
-         std::to_string(fps) + " (a rolling shutter reads each frame out before the next)");
+    fail("--line-delay-us " + num(line_delay_us) + " x " + std::to_string(height - 1) + " rows = " +
+         fmt_us(readout_time) + " of readout, longer than the frame period " + fmt_us(period) + " of --fps " + num(fps) + " (a rolling shutter reads each frame out before the next)");
   if (exposure_us > period)
-    fail("--exposure-us " + std::to_string(exposure_us) + " is longer than the frame period " + fmt_us(period));
+    fail("--exposure-us " + num(exposure_us) + " is longer than the frame period " + fmt_us(period));
   if (readout != "top-down" && readout != "bottom-up") fail("--readout '" + readout + "': expected top-down or bottom-up");
   if (bit_depth != 8 && bit_depth != 16) fail("--bit-depth " + std::to_string(bit_depth) + ": expected 8 or 16");
   if (events_format != "h5" && events_format != "txt" && events_format != "both")
