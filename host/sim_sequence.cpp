@@ -253,7 +253,9 @@ SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
 
   // Finish the RS frames: average over the exposure, then the frame sensor's noise.
   for (int k = 0; k < K; ++k) {
-    cv::Mat img = acc[k].empty() ? cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0)) : acc[k] / e;
+    cv::Mat img = acc[k].empty() ? cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0)) : acc[k];
+    img *= 1.0 / e;  // in place: no second copy of every frame
+    acc[k].release();
     const FrameNoiseParams& n = config.frame_noise;
     if (n.full_well_e > 0 || n.read_noise > 0) {
       for (int y = 0; y < H; ++y) {
