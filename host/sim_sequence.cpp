@@ -112,7 +112,11 @@ nlohmann::json SimulationConfig::to_json() const {
           {"bit_depth", bit_depth},
           {"color", color},
           {"events_format", events_format},
-          {"event_model", events.to_json()},
+          {"event_model", [&] {
+             EventSimParams p = events;
+             p.seed = seed;
+             return p.to_json();
+           }()},
           {"frame_noise", frame_noise.to_json()},
           {"step_fraction", step_fraction},
           {"dt_min_us", dt_min_us},
@@ -169,7 +173,9 @@ SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
     return false;
   };
 
-  EventSimulator ev(W, H, config.events);
+  EventSimParams event_params = config.events;
+  event_params.seed = config.seed;  // one seed drives everything (events.seed is for standalone use)
+  EventSimulator ev(W, H, event_params);
   const double limit = config.step_fraction * std::min(config.events.c_on, config.events.c_off);
   double dt_max = config.dt_max_us;
   // The photoreceptor filter is integrated per step: keep steps well below its time constant.
