@@ -40,6 +40,7 @@ int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
     if (bufs_[i] && bufs_[i]->pooled && bufs_[i]->t.shape() == shape) {
       bufs_[i]->pooled = false;
       bufs_[i]->live = true;
+      pooled_bytes_ -= bytes;
       return static_cast<int>(i);
     }
   if (bytes > max_buffer_bytes())
@@ -64,6 +65,8 @@ void VulkanBackend::release(int id) {
   account_release(bufs_[id]->t.bytes());
   bufs_[id]->live = false;
   bufs_[id]->pooled = true;
+  pooled_bytes_ += bufs_[id]->t.bytes();
+  if (pooled_bytes_ > kPoolFlushBytes) flush();
 }
 
 Shape VulkanBackend::shape(int id) const { return tensor(id).shape(); }
@@ -76,6 +79,7 @@ void VulkanBackend::flush() {
       device_bytes_ -= b->t.bytes();
       b.reset();
     }
+  pooled_bytes_ = 0;
 }
 
 namespace {
