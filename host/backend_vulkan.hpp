@@ -13,6 +13,7 @@
 namespace vkunroll {
 
 class Conv2d;
+class ConvWorkspace;
 class ConvTranspose2d;
 class Profiler;
 
@@ -52,6 +53,7 @@ class VulkanBackend final : public Backend {
   struct Buf;
   const Tensor& tensor(int buf) const;
   Context& ctx_;
+  std::shared_ptr<ConvWorkspace> workspace_;  // Winograd scratch shared by every conv
   std::unique_ptr<CommandStream> cs_;
   std::vector<std::unique_ptr<Buf>> bufs_;
   std::vector<std::unique_ptr<Conv2d>> convs_;

@@ -103,7 +103,11 @@ TEST(ModelVulkan, PublishedConfigurationMatchesCpuOn32x32) {
     double scale = 0;
     for (float v : arr.data) scale = std::max(scale, double(std::fabs(v)));
     const double err = max_abs_diff(gpu.at(name), arr);
-    EXPECT_LE(err, 1e-4 * std::max(1.0, scale)) << name << " (max |value| " << scale << ")";
+    // Relative to the output's range (flow is 100 tanh: +-100 px); `warped` moves with the flow
+    // error times the image gradient (at most 1 per pixel per axis for [0,1] images).
+    double tol = 1e-4 * std::max(1.0, scale);
+    if (name == "warped") tol = 1e-4 + 2 * max_abs_diff(gpu.at("flow"), ref.at("flow"));
+    EXPECT_LE(err, tol) << name << " (max |value| " << scale << ")";
     std::printf("[ parity   ] %-6s max abs err %.3g (max |value| %.3g)\n", name.c_str(), err, scale);
   }
   std::printf("[ timing   ] published config, M 32x32: vulkan weights %.1f s + run %.1f s, cpu reference %.1f s\n",
