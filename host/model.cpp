@@ -165,7 +165,7 @@ int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budg
 
 // ---- stages ----------------------------------------------------------------------------------
 
-int Model::resblock(const std::string& p, int x, int64_t n) {
+int Model::resblock(const std::string& p, int x) {
   Backend& b = backend_;
   const Shape s = b.shape(x);
   const int t = b.alloc(s, p + ".conv.0");
@@ -175,7 +175,6 @@ int Model::resblock(const std::string& p, int x, int64_t n) {
   b.conv(conv(p + ".conv.1").id, whole(b, t), whole(b, y), &res);
   b.release(t);
   b.release(x);
-  (void)n;
   return y;
 }
 
@@ -201,7 +200,7 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Vi
   for (int i = 0; i < u.depth; ++i) {
     const std::string d = p + ".down_path." + std::to_string(i);
     const Shape s = b.shape(x);
-    x = resblock(d + ".conv1", x, n);
+    x = resblock(d + ".conv1", x);
     const int sk = b.alloc(s, d + ".skip");
     b.conv(conv(d + ".conv2.0").id, whole(b, x), whole(b, sk), nullptr);
     skips.push_back(sk);
@@ -210,8 +209,8 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Vi
     b.release(x);
     x = dn;
   }
-  x = resblock(p + ".bottom.0", x, n);
-  x = resblock(p + ".bottom.1", x, n);
+  x = resblock(p + ".bottom.0", x);
+  x = resblock(p + ".bottom.1", x);
   for (int i = u.depth - 1; i >= 0; --i) {
     const std::string q = p + ".up_path." + std::to_string(i);
     const Shape s = b.shape(skips[i]);
@@ -223,7 +222,7 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Vi
     x = b.alloc(s, q + ".conv1");
     b.conv(conv(q + ".conv1.0").id, whole(b, cat), whole(b, x), nullptr);
     b.release(cat);
-    x = resblock(q + ".conv2", x, n);
+    x = resblock(q + ".conv2", x);
   }
   const int pred = b.alloc({n, out.c, hp, wp}, p + ".pred");
   b.conv(conv(p + ".pred").id, whole(b, x), whole(b, pred), nullptr);
