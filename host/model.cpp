@@ -1,5 +1,7 @@
 #include "host/model.hpp"
 
+#include <chrono>
+
 #include <algorithm>
 #include <set>
 
@@ -409,6 +411,12 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
     ch.flow = b.alloc({ch.n, 2, he, we}, "flow");
     ch.warped = b.alloc({ch.n, 3, he, we}, "warped");
     ch.fused = b.alloc({ch.n, 3, he, we}, "fused");
+    auto stage_clock = std::chrono::steady_clock::now();
+    auto stage_done = [&](const char* stage) {
+      const auto now = std::chrono::steady_clock::now();
+      if (opt.stage_ms) (*opt.stage_ms)[stage] += std::chrono::duration<double, std::milli>(now - stage_clock).count();
+      stage_clock = now;
+    };
     for (int64_t i = 0; i < ch.n; i += sub_t) {
       stage_synthesis(ch, i, std::min<int64_t>(sub_t, ch.n - i));
       b.flush();
@@ -423,6 +431,7 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
       b.flush();
     }
     b.release(ch.ev3);
+    stage_done("eic");  // E-IC_T, E-IC_S and fusion: the SelfUnroll-S result
     if (m_mode) {
       ch.m = b.alloc({ch.nt, 1, he, we}, "m");
       ch.out = b.alloc({ch.nt, 3, he, we}, "out");
@@ -431,6 +440,7 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
         b.flush();
       }
     }
+    if (m_mode) stage_done("moa");
     // Download and crop to H x W.
     auto fetch = [&](const std::string& nme, int buf, int64_t first) {
       if (!want.count(nme)) return;

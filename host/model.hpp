@@ -41,6 +41,8 @@ struct RunOptions {
   // Bytes of intermediates the run should hold at once (0: no limit other than buffer size); it
   // bounds the chunk and sub-batch sizes (a single item may still need more, see docs/model.md).
   uint64_t memory_budget = 0;
+  // When set, wall milliseconds are added under "eic" (E-IC_T, E-IC_S, fusion) and "moa".
+  std::map<std::string, double>* stage_ms = nullptr;
 };
 
 class Model {
