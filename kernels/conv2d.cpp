@@ -1,5 +1,7 @@
 #include "kernels/conv2d.hpp"
 
+#include <algorithm>
+#include <cstdlib>
 #include <cstring>
 
 #include "runtime/context.hpp"
@@ -26,7 +28,7 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::automatic: return "automatic";
     case ConvAlgo::naive: return "naive";
     case ConvAlgo::blocked: return "blocked";
-    case ConvAlgo::tiled: return "tiled";
+    case ConvAlgo::subgroup: return "subgroup";
     case ConvAlgo::winograd: return "winograd";
   }
   return "unknown";
@@ -75,9 +77,22 @@ void conv2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const 
         }
 }
 
+const Tensor& ConvWorkspace::get(Context& ctx, int slot, int64_t floats) {
+  if (slot < 0) throw Error("ConvWorkspace: negative slot");
+  if (slots_.size() <= static_cast<size_t>(slot)) slots_.resize(static_cast<size_t>(slot) + 1);
+  auto& ptr = slots_[static_cast<size_t>(slot)];
+  if (!ptr) ptr = std::make_unique<Tensor>();
+  Tensor& t = *ptr;
+  if (t.empty() || t.shape().count() < floats) {
+    if (!t.empty()) retired_.push_back(std::move(t));
+    t = Tensor(ctx, Shape{1, 1, 1, std::max<int64_t>(floats, 1)});
+  }
+  return t;
+}
+
 Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
-               std::string name)
-    : ctx_(ctx), name_(std::move(name)), params_(params) {
+               std::string name, std::shared_ptr<ConvWorkspace> workspace)
+    : ctx_(ctx), name_(std::move(name)), params_(params), workspace_(std::move(workspace)) {
   const int k = params.kernel;
   if (k < 1 || params.stride < 1 || params.pad < 0)
     throw Error(name_ + ": invalid kernel " + std::to_string(k) + " stride " + std::to_string(params.stride) +
@@ -94,17 +109,103 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
 
   weight_ = HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data).to_device(ctx);
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
+
+  // Blocked layout: [cout/8][cin][k][k][8], output channels zero-padded to a multiple of 8.
+  const int64_t cob = (cout_ + kBlockCo - 1) / kBlockCo, kk = static_cast<int64_t>(k) * k;
+  std::vector<float> wb(static_cast<size_t>(cob * cin_ * kk * kBlockCo), 0.f), bb(static_cast<size_t>(cob * kBlockCo), 0.f);
+  for (int64_t co = 0; co < cout_; ++co) {
+    bb[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      for (int64_t t = 0; t < kk; ++t)
+        wb[static_cast<size_t>((((co / kBlockCo) * cin_ + ci) * kk + t) * kBlockCo + co % kBlockCo)] =
+            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
+  }
+  weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx);
+  bias_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb).to_device(ctx);
+
+  // Subgroup layout: [cout/(8G)][cin/4][k*k][G][8] of vec4 (4 input channels), zero-padded.
+  if (const char* g = std::getenv("VKUNROLL_CONV_G")) subgroup_g_ = static_cast<uint32_t>(std::atoi(g));
+  else subgroup_g_ = (cout_ % 24 == 0 || cout_ == 3) ? 3 : 2;
+  const int64_t G = subgroup_g_, cog = (cout_ + 8 * G - 1) / (8 * G), c4 = (cin_ + 3) / 4;
+  std::vector<float> ws(static_cast<size_t>(cog * c4 * kk * G * 8 * 4), 0.f), bs(static_cast<size_t>(cog * G * 8), 0.f);
+  for (int64_t co = 0; co < cout_; ++co) {
+    bs[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
+    const int64_t cg = co / (8 * G), g = (co / 8) % G, lane = co % 8;
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      for (int64_t t = 0; t < kk; ++t)
+        ws[static_cast<size_t>(((((cg * c4 + ci / 4) * kk + t) * G + g) * 8 + lane) * 4 + ci % 4)] =
+            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
+  }
+  weight_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws).to_device(ctx);
+  bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx);
+
+  if (k == 3 && params.stride == 1 && params.pad == 1) {
+    // Winograd F(4x4, 3x3): U = G g G^T in double, [36][cin][cout_pad].
+    winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
+    if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
+    winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
+    static const double Gm[6][3] = {{1.0 / 4, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                    {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
+    std::vector<float> u(static_cast<size_t>(36 * cin_ * winograd_cout_pad_), 0.f);
+    for (int64_t co = 0; co < cout_; ++co)
+      for (int64_t ci = 0; ci < cin_; ++ci) {
+        double gg[6][3];
+        for (int i = 0; i < 6; ++i)
+          for (int j = 0; j < 3; ++j) {
+            double acc = 0;
+            for (int t = 0; t < 3; ++t) acc += Gm[i][t] * weight.at(co, ci, t, j);
+            gg[i][j] = acc;
+          }
+        for (int i = 0; i < 6; ++i)
+          for (int j = 0; j < 6; ++j) {
+            double acc = 0;
+            for (int t = 0; t < 3; ++t) acc += gg[i][t] * Gm[j][t];
+            u[static_cast<size_t>(((i * 6 + j) * cin_ + ci) * winograd_cout_pad_ + co)] = static_cast<float>(acc);
+          }
+      }
+    weight_winograd_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
+  }
+}
+
+namespace {
+struct WinogradSizes {
+  int64_t tiles_x_pad, tiles_y, ngroups, tiles_pad;  // groups of 4 horizontally adjacent tiles
+};
+WinogradSizes winograd_sizes(const Shape& in) {
+  WinogradSizes s{};
+  s.tiles_x_pad = ((in.w + 3) / 4 + 3) / 4 * 4;
+  s.tiles_y = (in.h + 3) / 4;
+  s.ngroups = in.n * s.tiles_y * s.tiles_x_pad / 4;
+  s.tiles_pad = (s.ngroups * 4 + 7) / 8 * 8;
+  return s;
+}
+}  // namespace
+
+bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
+  if (!supports(algo)) return false;
+  if (algo != ConvAlgo::winograd) return true;
+  const WinogradSizes ws = winograd_sizes(in);
+  const uint64_t limit = ctx_.info().max_storage_buffer_range;
+  return static_cast<uint64_t>(36 * std::max(cin_, winograd_cout_pad_) * ws.tiles_pad) * 4 <= limit;
 }
 
 bool Conv2d::supports(ConvAlgo algo) const {
   switch (algo) {
+    case ConvAlgo::winograd: return !weight_winograd_.empty();
     case ConvAlgo::automatic:
-    case ConvAlgo::naive: return true;
+    case ConvAlgo::naive:
+    case ConvAlgo::blocked: return true;
+    case ConvAlgo::subgroup: return ctx_.info().subgroup_size == 8 && params_.kernel <= 5 && params_.stride <= 2;
     default: return false;
   }
 }
 
-ConvAlgo Conv2d::choose_algorithm(int64_t, int64_t) const { return ConvAlgo::naive; }
+ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
+  // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
+  // model; tiny images (one tile row or column) gain nothing from it.
+  if (supports(ConvAlgo::winograd) && h >= 4 && w >= 4) return ConvAlgo::winograd;
+  return ConvAlgo::blocked;
+}
 
 Shape Conv2d::output_shape(const Shape& in) const {
   return {in.n, cout_, conv_output_size(in.h, params_.kernel, params_.stride, params_.pad),
@@ -134,8 +235,11 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     if (residual->shape() != expect)
       throw Error(name_ + ": residual slice " + residual->shape().str() + ", expected " + expect.str());
   }
-  if (algo == ConvAlgo::automatic) algo = choose_algorithm(is.h, is.w);
-  if (!supports(algo))
+  if (algo == ConvAlgo::automatic) {
+    algo = choose_algorithm(is.h, is.w);
+    if (!supports(algo, is)) algo = ConvAlgo::blocked;
+  }
+  if (!supports(algo, is))
     throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " does not apply to kernel " +
                 std::to_string(params_.kernel) + " stride " + std::to_string(params_.stride));
 
@@ -158,6 +262,63 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
                   Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
                          static_cast<uint32_t>(os.n * cout_)},
                   info);
+      return;
+    }
+    case ConvAlgo::blocked: {
+      const uint32_t px = std::getenv("VKUNROLL_PX") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_PX"))) : 8u;
+      std::vector<uint32_t> bspec = spec;
+      bspec.push_back(px);
+      bspec.push_back(std::getenv("VKUNROLL_DBG") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_DBG"))) : 0u);
+      bspec.push_back(std::getenv("VKUNROLL_CIC") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_CIC"))) : 0u);
+      const Pipeline& pl = ctx_.pipeline("conv2d_blocked", bspec, sizeof(ConvPush));
+      const auto cob = static_cast<uint32_t>((cout_ + kBlockCo - 1) / kBlockCo);
+      cs.dispatch(pl, {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, br.arg, bo.arg},
+                  p,
+                  Groups{static_cast<uint32_t>((os.w + 16 * px - 1) / (16 * px)), static_cast<uint32_t>((os.h + 3) / 4),
+                         static_cast<uint32_t>(os.n) * cob},
+                  info);
+      return;
+    }
+    case ConvAlgo::subgroup: {
+      std::vector<uint32_t> sspec = spec;
+      sspec.push_back(subgroup_g_);
+      const Pipeline& pl = ctx_.pipeline("conv2d_subgroup", sspec, sizeof(ConvPush));
+      const int64_t tasks = os.h * ((os.w + 7) / 8), per_wg = 64 / 8;
+      const auto cog = static_cast<uint32_t>((cout_ + 8 * subgroup_g_ - 1) / (8 * subgroup_g_));
+      cs.dispatch(pl, {bi.arg, {weight_subgroup_.range(), Access::read}, {bias_subgroup_.range(), Access::read}, br.arg, bo.arg},
+                  p, Groups{static_cast<uint32_t>((tasks + per_wg - 1) / per_wg), 1, static_cast<uint32_t>(os.n) * cog}, info);
+      return;
+    }
+    case ConvAlgo::winograd: {
+      if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
+      const WinogradSizes wz = winograd_sizes(is);
+      const Tensor& vt = workspace_->get(ctx_, 0, 36 * cin_ * wz.tiles_pad);
+      const Tensor& mt = workspace_->get(ctx_, 1, 36 * winograd_cout_pad_ * wz.tiles_pad);
+      const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
+      const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cin_ * wz.tiles_pad) * 4);
+      const BufferRange mr = mt.range(0, static_cast<size_t>(36 * winograd_cout_pad_ * wz.tiles_pad) * 4);
+      struct InPush {
+        uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad;
+      } ip{bi.offset, bi.batch_stride, u32(cin_), u32(is.h), u32(is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
+           u32(wz.ngroups), u32(wz.tiles_pad)};
+      cs.dispatch(ctx_.pipeline("winograd_input", {}, sizeof ip), {bi.arg, {vr, Access::write}}, ip,
+                  Groups{u32((wz.ngroups + 63) / 64), u32(cin_), 1},
+                  {info.name + "_wino_in", 0, 4.0 * (static_cast<double>(is.count()) + 36.0 * cin_ * wz.tiles_pad)});
+      struct GemmPush {
+        uint32_t cin, tiles_pad, cout_pad;
+      } gp{u32(cin_), u32(wz.tiles_pad), u32(winograd_cout_pad_)};
+      cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_)}, sizeof gp),
+                  {{vr, Access::read}, {weight_winograd_.range(), Access::read}, {mr, Access::write}}, gp,
+                  Groups{u32((wz.tiles_pad / 8 + 63) / 64), u32(winograd_cout_pad_ / winograd_cob_), 36},
+                  {info.name + "_wino_gemm", info.flop, 4.0 * 36 * (cin_ + winograd_cout_pad_) * wz.tiles_pad});
+      struct OutPush {
+        uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
+      } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(cout_), u32(os.h), u32(os.w), u32(wz.tiles_x_pad),
+           u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_cout_pad_)};
+      cs.dispatch(ctx_.pipeline("winograd_output", {spec[2], spec[3], spec[4]}, sizeof op),
+                  {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
+                  Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},
+                  {info.name + "_wino_out", 0, 4.0 * (36.0 * cout_ * wz.tiles_pad + static_cast<double>(os.count()))});
       return;
     }
     default: break;

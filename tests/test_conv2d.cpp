@@ -76,6 +76,9 @@ void run_cases(ConvAlgo algo) {
 }  // namespace
 
 TEST(Conv2d, NaiveMatchesReference) { run_cases(ConvAlgo::naive); }
+TEST(Conv2d, BlockedMatchesReference) { run_cases(ConvAlgo::blocked); }
+TEST(Conv2d, SubgroupMatchesReference) { run_cases(ConvAlgo::subgroup); }
+TEST(Conv2d, WinogradMatchesReference) { run_cases(ConvAlgo::winograd); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
 
 TEST(Conv2d, ReferenceKnownValues) {
