@@ -110,14 +110,18 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   weight_ = HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data).to_device(ctx);
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
 
-  // Blocked layout: [cout/8][cin][k][k][8], output channels zero-padded to a multiple of 8.
-  const int64_t cob = (cout_ + kBlockCo - 1) / kBlockCo, kk = static_cast<int64_t>(k) * k;
-  std::vector<float> wb(static_cast<size_t>(cob * cin_ * kk * kBlockCo), 0.f), bb(static_cast<size_t>(cob * kBlockCo), 0.f);
+  // Blocked layout: [cout/COB][cin][k][k][COB], output channels zero-padded to a multiple of COB.
+  // 16 channels per invocation halve the input loads per FMA where cout allows it without waste.
+  blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
+  if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
+  const int64_t BC = blocked_cob_;
+  const int64_t cob = (cout_ + BC - 1) / BC, kk = static_cast<int64_t>(k) * k;
+  std::vector<float> wb(static_cast<size_t>(cob * cin_ * kk * BC), 0.f), bb(static_cast<size_t>(cob * BC), 0.f);
   for (int64_t co = 0; co < cout_; ++co) {
     bb[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
     for (int64_t ci = 0; ci < cin_; ++ci)
       for (int64_t t = 0; t < kk; ++t)
-        wb[static_cast<size_t>((((co / kBlockCo) * cin_ + ci) * kk + t) * kBlockCo + co % kBlockCo)] =
+        wb[static_cast<size_t>((((co / BC) * cin_ + ci) * kk + t) * BC + co % BC)] =
             weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
   }
   weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx);
@@ -268,13 +272,12 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       const uint32_t px = std::getenv("VKUNROLL_PX") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_PX"))) : 8u;
       std::vector<uint32_t> bspec = spec;
       bspec.push_back(px);
-      bspec.push_back(std::getenv("VKUNROLL_DBG") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_DBG"))) : 0u);
-      bspec.push_back(std::getenv("VKUNROLL_CIC") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_CIC"))) : 0u);
+      bspec.push_back(static_cast<uint32_t>(blocked_cob_ / 4));
       const Pipeline& pl = ctx_.pipeline("conv2d_blocked", bspec, sizeof(ConvPush));
       const auto cob = static_cast<uint32_t>((cout_ + kBlockCo - 1) / kBlockCo);
       cs.dispatch(pl, {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, br.arg, bo.arg},
                   p,
-                  Groups{static_cast<uint32_t>((os.w + 16 * px - 1) / (16 * px)), static_cast<uint32_t>((os.h + 3) / 4),
+                  Groups{static_cast<uint32_t>((os.w + 8 * px - 1) / (8 * px)), static_cast<uint32_t>((os.h + 7) / 8),
                          static_cast<uint32_t>(os.n) * cob},
                   info);
       return;

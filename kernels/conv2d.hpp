@@ -20,7 +20,7 @@ struct Conv2dParams {
 enum class ConvAlgo : uint32_t {
   automatic = 0,  // chosen per shape (see choose_algorithm)
   naive = 1,      // one invocation per output value: the baseline
-  blocked = 2,    // register blocking: 4 pixels x 8 output channels per invocation, packed weights
+  blocked = 2,    // register blocking: 8 pixels x 8 or 16 output channels per invocation, packed weights
   subgroup = 3,   // 8-wide subgroups: lanes = 8 output channels, inputs shared by subgroup broadcast
   winograd = 4,   // Winograd F(4x4, 3x3): input transform, batched GEMM, output transform; 3x3 stride 1
 };
@@ -78,8 +78,9 @@ class Conv2d {
   int64_t cin_ = 0, cout_ = 0;
   Tensor weight_;          // [cout][cin][k][k] as given (naive)
   Tensor bias_;            // [cout], zeros when none was given
-  Tensor weight_blocked_;  // [ceil(cout/8)][cin][k*k][8], zero-padded output channels
-  Tensor bias_blocked_;    // [ceil(cout/8)*8]
+  Tensor weight_blocked_;  // [ceil(cout/COB)][cin][k*k][COB], zero-padded output channels
+  Tensor bias_blocked_;    // [ceil(cout/COB)*COB]
+  int64_t blocked_cob_ = 8;  // output channels per invocation of the blocked path (8 or 16)
   Tensor weight_subgroup_; // [cout/(8G)][cin/4][k*k][G][8] vec4 over 4 input channels
   Tensor bias_subgroup_;   // [cout/(8G)*8G]
   uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
