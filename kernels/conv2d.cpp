@@ -143,30 +143,41 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   weight_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws).to_device(ctx);
   bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx);
 
-  if (k == 3 && params.stride == 1 && params.pad == 1) {
-    // Winograd F(4x4, 3x3): U = G g G^T in double, [36][cin][cout_pad].
+  if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2)) {
+    // Winograd F(4x4, 3x3): U = G g G^T in double, [36][KS*KS*cin][cout_pad]. A 5x5 kernel is split
+    // into four 3x3 blocks at offsets (0|3, 0|3) (zero beyond 5): four 3x3 convs on shifted inputs,
+    // summed by the GEMM as KS*KS*cin virtual input channels.
+    winograd_ks_ = k == 5 ? 2 : 1;
     winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
     if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
     winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
+    const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
     static const double Gm[6][3] = {{1.0 / 4, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
                                     {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
-    std::vector<float> u(static_cast<size_t>(36 * cin_ * winograd_cout_pad_), 0.f);
-    for (int64_t co = 0; co < cout_; ++co)
-      for (int64_t ci = 0; ci < cin_; ++ci) {
-        double gg[6][3];
-        for (int i = 0; i < 6; ++i)
-          for (int j = 0; j < 3; ++j) {
-            double acc = 0;
-            for (int t = 0; t < 3; ++t) acc += Gm[i][t] * weight.at(co, ci, t, j);
-            gg[i][j] = acc;
-          }
-        for (int i = 0; i < 6; ++i)
-          for (int j = 0; j < 6; ++j) {
-            double acc = 0;
-            for (int t = 0; t < 3; ++t) acc += gg[i][t] * Gm[j][t];
-            u[static_cast<size_t>(((i * 6 + j) * cin_ + ci) * winograd_cout_pad_ + co)] = static_cast<float>(acc);
-          }
-      }
+    std::vector<float> u(static_cast<size_t>(36 * cv * winograd_cout_pad_), 0.f);
+    for (int64_t sblk = 0; sblk < winograd_ks_ * winograd_ks_; ++sblk) {
+      const int64_t oy = 3 * (sblk / winograd_ks_), ox = 3 * (sblk % winograd_ks_);
+      for (int64_t co = 0; co < cout_; ++co)
+        for (int64_t ci = 0; ci < cin_; ++ci) {
+          auto g = [&](int64_t y, int64_t x) -> double {
+            return (oy + y < k && ox + x < k) ? weight.at(co, ci, oy + y, ox + x) : 0.0;
+          };
+          double gg[6][3];
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 3; ++j) {
+              double acc = 0;
+              for (int t = 0; t < 3; ++t) acc += Gm[i][t] * g(t, j);
+              gg[i][j] = acc;
+            }
+          const int64_t vc = sblk * cin_ + ci;
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              double acc = 0;
+              for (int t = 0; t < 3; ++t) acc += gg[i][t] * Gm[j][t];
+              u[static_cast<size_t>(((i * 6 + j) * cv + vc) * winograd_cout_pad_ + co)] = static_cast<float>(acc);
+            }
+        }
+    }
     weight_winograd_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
   }
 }
@@ -185,12 +196,23 @@ WinogradSizes winograd_sizes(const Shape& in) {
 }
 }  // namespace
 
+void Conv2d::set_winograd_scratch_limit(uint64_t bytes) { winograd_scratch_limit_ = bytes; }
+
+int64_t Conv2d::winograd_chunk(const Shape& in) const {
+  const WinogradSizes ws = winograd_sizes(in);
+  const uint64_t limit = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
+  const uint64_t per_channel = 36ull * static_cast<uint64_t>(ws.tiles_pad) * 4;
+  const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
+  return std::min<int64_t>(cv, static_cast<int64_t>(limit / per_channel));
+}
+
 bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
   if (!supports(algo)) return false;
   if (algo != ConvAlgo::winograd) return true;
+  // V is transformed in chunks of input channels; M (all output channels) must fit one binding.
   const WinogradSizes ws = winograd_sizes(in);
-  const uint64_t limit = ctx_.info().max_storage_buffer_range;
-  return static_cast<uint64_t>(36 * std::max(cin_, winograd_cout_pad_) * ws.tiles_pad) * 4 <= limit;
+  const uint64_t m_bytes = 36ull * static_cast<uint64_t>(winograd_cout_pad_ * ws.tiles_pad) * 4;
+  return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
 }
 
 bool Conv2d::supports(ConvAlgo algo) const {
@@ -295,25 +317,32 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     case ConvAlgo::winograd: {
       if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
       const WinogradSizes wz = winograd_sizes(is);
-      const Tensor& vt = workspace_->get(ctx_, 0, 36 * cin_ * wz.tiles_pad);
-      const Tensor& mt = workspace_->get(ctx_, 1, 36 * winograd_cout_pad_ * wz.tiles_pad);
       const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
-      const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cin_ * wz.tiles_pad) * 4);
+      const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, chunk = winograd_chunk(is);
+      const Tensor& vt = workspace_->get(ctx_, 0, 36 * chunk * wz.tiles_pad);
+      const Tensor& mt = workspace_->get(ctx_, 1, 36 * winograd_cout_pad_ * wz.tiles_pad);
       const BufferRange mr = mt.range(0, static_cast<size_t>(36 * winograd_cout_pad_ * wz.tiles_pad) * 4);
-      struct InPush {
-        uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad;
-      } ip{bi.offset, bi.batch_stride, u32(cin_), u32(is.h), u32(is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
-           u32(wz.ngroups), u32(wz.tiles_pad)};
-      cs.dispatch(ctx_.pipeline("winograd_input", {}, sizeof ip), {bi.arg, {vr, Access::write}}, ip,
-                  Groups{u32((wz.ngroups + 63) / 64), u32(cin_), 1},
-                  {info.name + "_wino_in", 0, 4.0 * (static_cast<double>(is.count()) + 36.0 * cin_ * wz.tiles_pad)});
-      struct GemmPush {
-        uint32_t cin, tiles_pad, cout_pad;
-      } gp{u32(cin_), u32(wz.tiles_pad), u32(winograd_cout_pad_)};
-      cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_)}, sizeof gp),
-                  {{vr, Access::read}, {weight_winograd_.range(), Access::read}, {mr, Access::write}}, gp,
-                  Groups{u32((wz.tiles_pad / 8 + 63) / 64), u32(winograd_cout_pad_ / winograd_cob_), 36},
-                  {info.name + "_wino_gemm", info.flop, 4.0 * 36 * (cin_ + winograd_cout_pad_) * wz.tiles_pad});
+      // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
+      for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
+        const int64_t cn = std::min(chunk, cv - c0);
+        const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cn * wz.tiles_pad) * 4);
+        struct InPush {
+          uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, pad, ks, c_begin, chunk;
+        } ip{bi.offset, bi.batch_stride, u32(cin_), u32(is.h), u32(is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
+             u32(wz.ngroups), u32(wz.tiles_pad), u32(params_.pad), u32(winograd_ks_), u32(c0), u32(cn)};
+        cs.dispatch(ctx_.pipeline("winograd_input", {}, sizeof ip), {bi.arg, {vr, Access::write}}, ip,
+                    Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1},
+                    {info.name + "_wino_in", 0, 4.0 * 36.0 * (cn * wz.tiles_pad) * (1 + 16.0 / 36)});
+        struct GemmPush {
+          uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
+        } gp{u32(cn), u32(wz.tiles_pad), u32(winograd_cout_pad_), u32(cv), u32(c0)};
+        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u}, sizeof gp),
+                    {{vr, Access::read}, {weight_winograd_.range(), Access::read},
+                     {mr, c0 > 0 ? Access::read_write : Access::write}},
+                    gp, Groups{u32((wz.tiles_pad / 8 + 63) / 64), u32(winograd_cout_pad_ / winograd_cob_), 36},
+                    {info.name + "_wino_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cv),
+                     4.0 * 36 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * wz.tiles_pad});
+      }
       struct OutPush {
         uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
       } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(cout_), u32(os.h), u32(os.w), u32(wz.tiles_x_pad),

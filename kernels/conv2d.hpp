@@ -23,6 +23,7 @@ enum class ConvAlgo : uint32_t {
   blocked = 2,    // register blocking: 8 pixels x 8 or 16 output channels per invocation, packed weights
   subgroup = 3,   // 8-wide subgroups: lanes = 8 output channels, inputs shared by subgroup broadcast
   winograd = 4,   // Winograd F(4x4, 3x3): input transform, batched GEMM, output transform; 3x3 stride 1
+                  // (pad 1), and 5x5 stride 1 (pad 2) as four 3x3 blocks on shifted inputs
 };
 const char* conv_algo_name(ConvAlgo a);
 
@@ -64,6 +65,10 @@ class Conv2d {
   bool supports(ConvAlgo algo) const;
   // Whether `algo` can run an input of this shape (Winograd's scratch must fit one binding).
   bool supports(ConvAlgo algo, const Shape& in) const;
+  // Caps Winograd's transformed-input scratch (it then runs in chunks of input channels that the
+  // GEMM accumulates); default 64 MiB (and never above maxStorageBufferRange). Tests, memory tuning.
+  void set_winograd_scratch_limit(uint64_t bytes);
+  int64_t winograd_chunk(const Shape& in) const;  // input channels (x4 for 5x5) per chunk
   Shape output_shape(const Shape& in) const;  // {n, cout, oh, ow}
   double flop(const Shape& in) const;         // 2 x multiply-adds of the direct algorithm
   int64_t cin() const { return cin_; }
@@ -85,7 +90,8 @@ class Conv2d {
   Tensor bias_subgroup_;   // [cout/(8G)*8G]
   uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
-  int64_t winograd_cob_ = 8, winograd_cout_pad_ = 0;
+  int64_t winograd_cob_ = 8, winograd_cout_pad_ = 0, winograd_ks_ = 1;
+  uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
   mutable std::shared_ptr<ConvWorkspace> workspace_;
 };
 
