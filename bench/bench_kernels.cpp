@@ -90,7 +90,7 @@ std::vector<ConvShape> model_shapes() {
   add(v, {"UPNet.0", false, 3, 1, G0, 256, h2, w2});
   add(v, {"UPNet.2", false, 3, 1, 64, 3, H, W});
   const int64_t ph = 288, pw = 352;  // size adapter: 260x346 -> 288x352
-  unet_shapes(v, "flownet", 2 * N2 + 2 * N2 + 3, 2, 4, ph, pw);
+  unet_shapes(v, "flownet", N2 + N2 + 3, 2, 4, ph, pw);  // cat(ev1, ev2, rs): 67
   unet_shapes(v, "fusion_net", 3 + 3 + 2 + N2 + 3, 3, 3, ph, pw);
   unet_shapes(v, "attfusion_net", 3 + 3 + N2 + N2 + 2 + 2, 1, 3, ph, pw);
   for (auto& s : v)  // the quick subset: one of each kind
@@ -227,7 +227,7 @@ int main(int argc, char** argv) {
         const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
         algos.push_back(conv_algo_name(chosen));
         if (all_algos)
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd})
+          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm})
             if (a != chosen && conv->supports(a)) algos.push_back(conv_algo_name(a));
       }
       Tensor yd(ctx, os);
@@ -236,7 +236,7 @@ int main(int argc, char** argv) {
           for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked})
             if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
         } else {
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd})
+          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm})
             if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
         }
       };

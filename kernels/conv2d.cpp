@@ -10,7 +10,14 @@
 namespace vkunroll {
 
 namespace {
-constexpr int64_t kBlockCo = 8;  // output channels per invocation in the blocked paths
+constexpr int64_t kBlockCo = 8;
+
+// Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
+Groups flat_groups(int64_t n, uint32_t z) {
+  const int64_t g = (n + 63) / 64;
+  const int64_t gx = std::min<int64_t>(g, 65535);
+  return {static_cast<uint32_t>(gx), static_cast<uint32_t>((g + gx - 1) / gx), z};
+}  // output channels per invocation in the blocked paths
 
 struct ConvPush {
   uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs;
@@ -30,6 +37,7 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::blocked: return "blocked";
     case ConvAlgo::subgroup: return "subgroup";
     case ConvAlgo::winograd: return "winograd";
+    case ConvAlgo::gemm: return "gemm";
   }
   return "unknown";
 }
@@ -180,6 +188,16 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
     }
     weight_winograd_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
   }
+  if (k == 1 && params.stride == 1 && params.pad == 0) {
+    winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
+    if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
+    winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
+    std::vector<float> u(static_cast<size_t>(cin_ * winograd_cout_pad_), 0.f);
+    for (int64_t co = 0; co < cout_; ++co)
+      for (int64_t ci = 0; ci < cin_; ++ci)
+        u[static_cast<size_t>(ci * winograd_cout_pad_ + co)] = weight.data[static_cast<size_t>(co * cin_ + ci)];
+    weight_gemm_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
+  }
 }
 
 namespace {
@@ -198,9 +216,15 @@ WinogradSizes winograd_sizes(const Shape& in) {
 
 void Conv2d::set_winograd_scratch_limit(uint64_t bytes) { winograd_scratch_limit_ = bytes; }
 
+static int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 7) / 8 * 8; }
+
 int64_t Conv2d::winograd_chunk(const Shape& in) const {
-  const WinogradSizes ws = winograd_sizes(in);
   const uint64_t limit = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
+  if (!weight_gemm_.empty()) {  // 1x1 gemm path: one position, pixels padded to 8
+    const uint64_t per_channel = static_cast<uint64_t>(gemm_pix_pad(in)) * 4;
+    return std::min<int64_t>(cin_, static_cast<int64_t>(limit / per_channel));
+  }
+  const WinogradSizes ws = winograd_sizes(in);
   const uint64_t per_channel = 36ull * static_cast<uint64_t>(ws.tiles_pad) * 4;
   const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
   return std::min<int64_t>(cv, static_cast<int64_t>(limit / per_channel));
@@ -208,6 +232,9 @@ int64_t Conv2d::winograd_chunk(const Shape& in) const {
 
 bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
   if (!supports(algo)) return false;
+  if (algo == ConvAlgo::gemm)
+    return static_cast<uint64_t>(winograd_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
+           winograd_chunk(in) >= 1;
   if (algo != ConvAlgo::winograd) return true;
   // V is transformed in chunks of input channels; M (all output channels) must fit one binding.
   const WinogradSizes ws = winograd_sizes(in);
@@ -218,6 +245,7 @@ bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
 bool Conv2d::supports(ConvAlgo algo) const {
   switch (algo) {
     case ConvAlgo::winograd: return !weight_winograd_.empty();
+    case ConvAlgo::gemm: return !weight_gemm_.empty();
     case ConvAlgo::automatic:
     case ConvAlgo::naive:
     case ConvAlgo::blocked: return true;
@@ -230,6 +258,7 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
   // model; tiny images (one tile row or column) gain nothing from it.
   if (supports(ConvAlgo::winograd) && h >= 4 && w >= 4) return ConvAlgo::winograd;
+  if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
   return ConvAlgo::blocked;
 }
 
@@ -299,8 +328,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       const auto cob = static_cast<uint32_t>((cout_ + kBlockCo - 1) / kBlockCo);
       cs.dispatch(pl, {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, br.arg, bo.arg},
                   p,
-                  Groups{static_cast<uint32_t>((os.w + 8 * px - 1) / (8 * px)), static_cast<uint32_t>((os.h + 7) / 8),
-                         static_cast<uint32_t>(os.n) * cob},
+                  flat_groups(os.h * ((os.w + px - 1) / px), static_cast<uint32_t>(os.n) * cob),
                   info);
       return;
     }
@@ -339,7 +367,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u}, sizeof gp),
                     {{vr, Access::read}, {weight_winograd_.range(), Access::read},
                      {mr, c0 > 0 ? Access::read_write : Access::write}},
-                    gp, Groups{u32((wz.tiles_pad / 8 + 63) / 64), u32(winograd_cout_pad_ / winograd_cob_), 36},
+                    gp, flat_groups(36 * (winograd_cout_pad_ / winograd_cob_) * (wz.tiles_pad / 8), 1),
                     {info.name + "_wino_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cv),
                      4.0 * 36 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * wz.tiles_pad});
       }
@@ -351,6 +379,41 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
                   {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
                   Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},
                   {info.name + "_wino_out", 0, 4.0 * (36.0 * cout_ * wz.tiles_pad + static_cast<double>(os.count()))});
+      return;
+    }
+    case ConvAlgo::gemm: {
+      if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
+      const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
+      const int64_t pix_pad = gemm_pix_pad(is), npix = is.n * is.h * is.w, chunk = winograd_chunk(is);
+      const Tensor& vt = workspace_->get(ctx_, 0, chunk * pix_pad);
+      const Tensor& mt = workspace_->get(ctx_, 1, winograd_cout_pad_ * pix_pad);
+      const BufferRange mr = mt.range(0, static_cast<size_t>(winograd_cout_pad_ * pix_pad) * 4);
+      for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
+        const int64_t cn = std::min(chunk, cin_ - c0);
+        const BufferRange vr = vt.range(0, static_cast<size_t>(cn * pix_pad) * 4);
+        struct PackPush {
+          uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin;
+        } pp{bi.offset, bi.batch_stride, u32(is.h * is.w), u32(npix), u32(pix_pad), u32(c0)};
+        cs.dispatch(ctx_.pipeline("conv1x1_pack", {}, sizeof pp), {bi.arg, {vr, Access::write}}, pp,
+                    Groups{u32((pix_pad / 4 + 63) / 64), u32(cn), 1},
+                    {info.name + "_gemm_pack", 0, 8.0 * static_cast<double>(cn * pix_pad)});
+        struct GemmPush {
+          uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
+        } gp{u32(cn), u32(pix_pad), u32(winograd_cout_pad_), u32(cin_), u32(c0)};
+        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 1u}, sizeof gp),
+                    {{vr, Access::read}, {weight_gemm_.range(), Access::read},
+                     {mr, c0 > 0 ? Access::read_write : Access::write}},
+                    gp, flat_groups((winograd_cout_pad_ / winograd_cob_) * (pix_pad / 8), 1),
+                    {info.name + "_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
+                     4.0 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * pix_pad});
+      }
+      struct OutPush {
+        uint32_t res_off, res_bs, out_off, out_bs, plane, npix, pix_pad;
+      } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(is.h * is.w), u32(npix), u32(pix_pad)};
+      cs.dispatch(ctx_.pipeline("conv1x1_output", {spec[2], spec[3], spec[4]}, sizeof op),
+                  {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
+                  Groups{u32((pix_pad / 4 + 63) / 64), u32(cout_), 1},
+                  {info.name + "_gemm_out", 0, 8.0 * static_cast<double>(os.count())});
       return;
     }
     default: break;

@@ -24,6 +24,8 @@ enum class ConvAlgo : uint32_t {
   subgroup = 3,   // 8-wide subgroups: lanes = 8 output channels, inputs shared by subgroup broadcast
   winograd = 4,   // Winograd F(4x4, 3x3): input transform, batched GEMM, output transform; 3x3 stride 1
                   // (pad 1), and 5x5 stride 1 (pad 2) as four 3x3 blocks on shifted inputs
+  gemm = 5,       // 1x1 stride 1: pack the input aligned, register-blocked GEMM (the Winograd GEMM with
+                  // one position: 8 pixels x 8/16 channels per invocation, vec4 loads), epilogue
 };
 const char* conv_algo_name(ConvAlgo a);
 
@@ -90,6 +92,7 @@ class Conv2d {
   Tensor bias_subgroup_;   // [cout/(8G)*8G]
   uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
+  Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
   int64_t winograd_cob_ = 8, winograd_cout_pad_ = 0, winograd_ks_ = 1;
   uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
   mutable std::shared_ptr<ConvWorkspace> workspace_;

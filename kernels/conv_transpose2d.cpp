@@ -1,11 +1,20 @@
 #include "kernels/conv_transpose2d.hpp"
 
+#include <algorithm>
+
 #include "runtime/context.hpp"
 #include "runtime/pipeline.hpp"
 
 namespace vkunroll {
 
 namespace {
+// Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
+Groups flat_groups(int64_t n, uint32_t z) {
+  const int64_t g = (n + 63) / 64;
+  const int64_t gx = std::min<int64_t>(g, 65535);
+  return {static_cast<uint32_t>(gx), static_cast<uint32_t>((g + gx - 1) / gx), z};
+}
+
 struct ConvTPush {
   uint32_t in_off, in_bs, out_off, out_bs;
   uint32_t cin, h, w, cout, oh, ow, pad;
@@ -151,8 +160,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
     const auto half_w = static_cast<uint32_t>((os.w + 1) / 2);
     cs.dispatch(ctx_.pipeline("conv_transpose2d_blocked", {spec[2], spec[3]}, sizeof(ConvTPush)),
                 {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, bo.arg}, p,
-                Groups{(2 * ((half_w + 7) / 8) + 15) / 16, static_cast<uint32_t>((os.h + 3) / 4),
-                       static_cast<uint32_t>(os.n * ((cout_ + 7) / 8))},
+                flat_groups(os.h * 2 * ((half_w + 7) / 8), static_cast<uint32_t>(os.n * ((cout_ + 7) / 8))),
                 info);
     return;
   }

@@ -5,7 +5,9 @@
 // loads the PX*STRIDE + K - STRIDE input values once and reuses them for all K taps and COB
 // channels; the weights are packed [cout/COB][cin][K][K][COB] so the COB channels of one tap are
 // COB/4 vec4 loads, the same for the whole workgroup.
-layout(local_size_x = 8, local_size_y = 8, local_size_z = 1) in;
+// Invocations are numbered over (output row, block of PX columns), so small and narrow images keep
+// every lane busy.
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(constant_id = 0) const uint K = 3;
 layout(constant_id = 1) const uint STRIDE = 1;
 layout(constant_id = 2) const uint ACT = 0;
@@ -31,7 +33,9 @@ layout(push_constant) uniform P {
 void main() {
   uint cob_count = (p.cout + COB - 1u) / COB;
   uint n = gl_WorkGroupID.z / cob_count, cob = gl_WorkGroupID.z % cob_count;
-  uint ox0 = gl_GlobalInvocationID.x * PX, oy = gl_GlobalInvocationID.y;
+  uint xblocks = (p.ow + PX - 1u) / PX;
+  uint blk = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
+  uint ox0 = (blk % xblocks) * PX, oy = blk / xblocks;
   // No early return and no branch on the invocation's position before the main loop: out-of-range
   // invocations compute clamped garbage that is never stored (divergent control flow costs more).
   bool live = ox0 < p.ow && oy < p.oh;

@@ -5,7 +5,8 @@
 // from input rows r+py, r-1+py and columns m+px, m-1+px (oy = 2r+py, ox = 2m+px). Each invocation
 // computes 8 output pixels of one parity along a row for 8 output channels (64 accumulators);
 // weights packed [cout/8][cin][4][4][8].
-layout(local_size_x = 16, local_size_y = 4, local_size_z = 1) in;
+// Invocations are numbered over (output row, column block, column parity).
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(constant_id = 0) const uint ACT = 0;
 layout(constant_id = 1) const float SLOPE = 0.0;
 #include "act.glsl"
@@ -23,8 +24,10 @@ layout(push_constant) uniform P {
 void main() {
   uint cob_count = (p.cout + 7u) / 8u;
   uint n = gl_WorkGroupID.z / cob_count, cob = gl_WorkGroupID.z % cob_count;
-  uint px = gl_GlobalInvocationID.x % 2u, m0 = (gl_GlobalInvocationID.x / 2u) * PX;
-  uint oy = gl_GlobalInvocationID.y;
+  uint xblocks = ((p.ow + 1u) / 2u + PX - 1u) / PX;
+  uint blk = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
+  uint rem = blk % (2u * xblocks), oy = blk / (2u * xblocks);
+  uint px = rem % 2u, m0 = (rem / 2u) * PX;
   bool live = m0 < (p.ow + 1u - px) / 2u && oy < p.oh;
   oy = min(oy, p.oh - 1u);
   uint py = oy % 2u, r = oy / 2u;

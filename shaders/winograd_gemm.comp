@@ -6,16 +6,20 @@
 layout(local_size_x = 64) in;
 layout(constant_id = 0) const uint COB = 8;
 layout(constant_id = 1) const uint ACCUM = 0;
+layout(constant_id = 2) const uint NPOS = 36;  // tile positions (36; 1 for a 1x1 conv as a plain GEMM)
 layout(std430, binding = 0) readonly buffer V { vec4 v[]; };
 layout(std430, binding = 1) readonly buffer U { vec4 u[]; };
 layout(std430, binding = 2) buffer M { vec4 m[]; };
 layout(push_constant) uniform P { uint chunk, tiles_pad, cout_pad, cin_total, c_begin; } p;
 
 void main() {
-  uint tg = gl_GlobalInvocationID.x, cog = gl_WorkGroupID.y, pos = gl_WorkGroupID.z;
-  uint groups = p.tiles_pad / 8u;
-  bool live = tg < groups;
-  tg = min(tg, groups - 1u);
+  // Invocations numbered over (position, channel block, group of 8 tiles): small images with
+  // few tiles still fill every workgroup.
+  uint groups = p.tiles_pad / 8u, cogs = p.cout_pad / COB;
+  uint idx = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
+  bool live = idx < NPOS * cogs * groups;
+  idx = min(idx, NPOS * cogs * groups - 1u);
+  uint tg = idx % groups, cog = (idx / groups) % cogs, pos = idx / (groups * cogs);
   uint vs = p.tiles_pad / 4u, us = p.cout_pad / 4u;
   vec4 acc[COB][2];
   for (uint c = 0; c < COB; ++c) {

@@ -82,6 +82,8 @@ TEST(Conv2d, SubgroupMatchesReference) { run_cases(ConvAlgo::subgroup); }
 TEST(Conv2d, WinogradMatchesReference) { run_cases(ConvAlgo::winograd); }
 // Scratch for 3 input channels' tiles only: several chunks accumulated by the GEMM.
 TEST(Conv2d, WinogradInChunksMatchesReference) { run_cases(ConvAlgo::winograd, 3 * 36 * 4 * 64); }
+TEST(Conv2d, GemmMatchesReference) { run_cases(ConvAlgo::gemm); }
+TEST(Conv2d, GemmInChunksMatchesReference) { run_cases(ConvAlgo::gemm, 2 * 4 * 80); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
 
 TEST(Conv2d, ReferenceKnownValues) {
