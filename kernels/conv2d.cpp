@@ -151,11 +151,14 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   weight_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws).to_device(ctx);
   bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx);
 
-  if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2)) {
+  const bool wino_s2 = k == 3 && params.stride == 2 && params.pad == 1;
+  if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2) || wino_s2) {
     // Winograd F(4x4, 3x3): U = G g G^T in double, [36][KS*KS*cin][cout_pad]. A 5x5 kernel is split
     // into four 3x3 blocks at offsets (0|3, 0|3) (zero beyond 5): four 3x3 convs on shifted inputs,
     // summed by the GEMM as KS*KS*cin virtual input channels.
-    winograd_ks_ = k == 5 ? 2 : 1;
+    // Stride 2: four phase images (a, b); tap (i', j') of the 3x3 kernel on phase a reads kernel row
+    // 1 (a = 0, i' = 1) or rows 0 and 2 (a = 1, i' = 0 and 1); every other tap is zero.
+    winograd_ks_ = (k == 5 || wino_s2) ? 2 : 1;
     winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
     if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
     winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
@@ -165,9 +168,18 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
     std::vector<float> u(static_cast<size_t>(36 * cv * winograd_cout_pad_), 0.f);
     for (int64_t sblk = 0; sblk < winograd_ks_ * winograd_ks_; ++sblk) {
       const int64_t oy = 3 * (sblk / winograd_ks_), ox = 3 * (sblk % winograd_ks_);
+      const int64_t pa = sblk / 2, pb = sblk % 2;
+      auto phase_tap = [](int64_t phase, int64_t t) -> int64_t {
+        if (phase == 0) return t == 1 ? 1 : -1;  // row 2u: kernel row 1 at u = oy
+        return t == 0 ? 0 : (t == 1 ? 2 : -1);   // row 2u+1: kernel row 0 at u = oy-1, row 2 at u = oy
+      };
       for (int64_t co = 0; co < cout_; ++co)
         for (int64_t ci = 0; ci < cin_; ++ci) {
           auto g = [&](int64_t y, int64_t x) -> double {
+            if (wino_s2) {
+              const int64_t ky = phase_tap(pa, y), kx = phase_tap(pb, x);
+              return (ky >= 0 && kx >= 0) ? weight.at(co, ci, ky, kx) : 0.0;
+            }
             return (oy + y < k && ox + x < k) ? weight.at(co, ci, oy + y, ox + x) : 0.0;
           };
           double gg[6][3];
@@ -224,7 +236,7 @@ int64_t Conv2d::winograd_chunk(const Shape& in) const {
     const uint64_t per_channel = static_cast<uint64_t>(gemm_pix_pad(in)) * 4;
     return std::min<int64_t>(cin_, static_cast<int64_t>(limit / per_channel));
   }
-  const WinogradSizes ws = winograd_sizes(in);
+  const WinogradSizes ws = winograd_sizes(output_shape(in));
   const uint64_t per_channel = 36ull * static_cast<uint64_t>(ws.tiles_pad) * 4;
   const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
   return std::min<int64_t>(cv, static_cast<int64_t>(limit / per_channel));
@@ -237,7 +249,7 @@ bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
            winograd_chunk(in) >= 1;
   if (algo != ConvAlgo::winograd) return true;
   // V is transformed in chunks of input channels; M (all output channels) must fit one binding.
-  const WinogradSizes ws = winograd_sizes(in);
+  const WinogradSizes ws = winograd_sizes(output_shape(in));
   const uint64_t m_bytes = 36ull * static_cast<uint64_t>(winograd_cout_pad_ * ws.tiles_pad) * 4;
   return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
 }
@@ -257,7 +269,7 @@ bool Conv2d::supports(ConvAlgo algo) const {
 ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
   // model; tiny images (one tile row or column) gain nothing from it.
-  if (supports(ConvAlgo::winograd) && h >= 4 && w >= 4) return ConvAlgo::winograd;
+  if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;
   if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
   return ConvAlgo::blocked;
 }
@@ -344,9 +356,10 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     }
     case ConvAlgo::winograd: {
       if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
-      const WinogradSizes wz = winograd_sizes(is);
+      const WinogradSizes wz = winograd_sizes(os);  // tiles of the output
       const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
       const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, chunk = winograd_chunk(is);
+      const bool s2 = params_.stride == 2;
       const Tensor& vt = workspace_->get(ctx_, 0, 36 * chunk * wz.tiles_pad);
       const Tensor& mt = workspace_->get(ctx_, 1, 36 * winograd_cout_pad_ * wz.tiles_pad);
       const BufferRange mr = mt.range(0, static_cast<size_t>(36 * winograd_cout_pad_ * wz.tiles_pad) * 4);
@@ -355,9 +368,11 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         const int64_t cn = std::min(chunk, cv - c0);
         const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cn * wz.tiles_pad) * 4);
         struct InPush {
-          uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, pad, ks, c_begin, chunk;
+          uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
+          int32_t off_base;
         } ip{bi.offset, bi.batch_stride, u32(cin_), u32(is.h), u32(is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
-             u32(wz.ngroups), u32(wz.tiles_pad), u32(params_.pad), u32(winograd_ks_), u32(c0), u32(cn)};
+             u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
+             params_.kernel == 5 ? -1 : 0};
         cs.dispatch(ctx_.pipeline("winograd_input", {}, sizeof ip), {bi.arg, {vr, Access::write}}, ip,
                     Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1},
                     {info.name + "_wino_in", 0, 4.0 * 36.0 * (cn * wz.tiles_pad) * (1 + 16.0 / 36)});

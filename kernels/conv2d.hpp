@@ -23,7 +23,8 @@ enum class ConvAlgo : uint32_t {
   blocked = 2,    // register blocking: 8 pixels x 8 or 16 output channels per invocation, packed weights
   subgroup = 3,   // 8-wide subgroups: lanes = 8 output channels, inputs shared by subgroup broadcast
   winograd = 4,   // Winograd F(4x4, 3x3): input transform, batched GEMM, output transform; 3x3 stride 1
-                  // (pad 1), and 5x5 stride 1 (pad 2) as four 3x3 blocks on shifted inputs
+                  // (pad 1), 5x5 stride 1 (pad 2) as four 3x3 blocks on shifted inputs, 3x3 stride 2
+                  // (pad 1) as four 3x3 stride-1 convs on the 2x2 phase images
   gemm = 5,       // 1x1 stride 1: pack the input aligned, register-blocked GEMM (the Winograd GEMM with
                   // one position: 8 pixels x 8/16 channels per invocation, vec4 loads), epilogue
 };
