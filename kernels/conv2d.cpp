@@ -10,14 +10,14 @@
 namespace vkunroll {
 
 namespace {
-constexpr int64_t kBlockCo = 8;
+constexpr int64_t kBlockCo = 8;  // output channels per invocation in the blocked path (or 16)
 
 // Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
 Groups flat_groups(int64_t n, uint32_t z) {
   const int64_t g = (n + 63) / 64;
   const int64_t gx = std::min<int64_t>(g, 65535);
   return {static_cast<uint32_t>(gx), static_cast<uint32_t>((g + gx - 1) / gx), z};
-}  // output channels per invocation in the blocked paths
+}
 
 struct ConvPush {
   uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs;
@@ -25,8 +25,11 @@ struct ConvPush {
 };
 
 std::string conv_label(const std::string& name, const Conv2dParams& p) {
-  return name + "_" + std::to_string(p.kernel) + "x" + std::to_string(p.kernel) +
-         (p.stride != 1 ? "s" + std::to_string(p.stride) : "");
+  // Appends (not operator+ chains): GCC 12 reports a false -Wrestrict on those at -O3.
+  std::string label = name;
+  label.append("_").append(std::to_string(p.kernel)).append("x").append(std::to_string(p.kernel));
+  if (p.stride != 1) label.append("s").append(std::to_string(p.stride));
+  return label;
 }
 }  // namespace
 
@@ -221,14 +224,19 @@ WinogradSizes winograd_sizes(const Shape& in) {
   s.tiles_x_pad = ((in.w + 3) / 4 + 3) / 4 * 4;
   s.tiles_y = (in.h + 3) / 4;
   s.ngroups = in.n * s.tiles_y * s.tiles_x_pad / 4;
-  s.tiles_pad = (s.ngroups * 4 + 7) / 8 * 8;
+  s.tiles_pad = (s.ngroups * 4 + 15) / 16 * 16;  // whole GEMM blocks of up to 16 tiles
   return s;
 }
 }  // namespace
 
 void Conv2d::set_winograd_scratch_limit(uint64_t bytes) { winograd_scratch_limit_ = bytes; }
 
-static int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 7) / 8 * 8; }
+static int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 15) / 16 * 16; }
+// vec4s of tiles (pixels) per GEMM invocation; VKUNROLL_GEMM_TV overrides (tuning).
+static uint32_t gemm_tv() {
+  const char* e = std::getenv("VKUNROLL_GEMM_TV");
+  return e ? static_cast<uint32_t>(std::atoi(e)) : 4u;
+}
 
 int64_t Conv2d::winograd_chunk(const Shape& in) const {
   const uint64_t limit = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
@@ -379,10 +387,11 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         struct GemmPush {
           uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
         } gp{u32(cn), u32(wz.tiles_pad), u32(winograd_cout_pad_), u32(cv), u32(c0)};
-        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u}, sizeof gp),
+        const uint32_t tv = gemm_tv();
+        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
                     {{vr, Access::read}, {weight_winograd_.range(), Access::read},
                      {mr, c0 > 0 ? Access::read_write : Access::write}},
-                    gp, flat_groups(36 * (winograd_cout_pad_ / winograd_cob_) * (wz.tiles_pad / 8), 1),
+                    gp, flat_groups(36 * (winograd_cout_pad_ / winograd_cob_) * (wz.tiles_pad / (4 * tv)), 1),
                     {info.name + "_wino_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cv),
                      4.0 * 36 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * wz.tiles_pad});
       }
@@ -415,10 +424,11 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         struct GemmPush {
           uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
         } gp{u32(cn), u32(pix_pad), u32(winograd_cout_pad_), u32(cin_), u32(c0)};
-        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 1u}, sizeof gp),
+        const uint32_t tv = gemm_tv();
+        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
                     {{vr, Access::read}, {weight_gemm_.range(), Access::read},
                      {mr, c0 > 0 ? Access::read_write : Access::write}},
-                    gp, flat_groups((winograd_cout_pad_ / winograd_cob_) * (pix_pad / 8), 1),
+                    gp, flat_groups((winograd_cout_pad_ / winograd_cob_) * (pix_pad / (4 * tv)), 1),
                     {info.name + "_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
                      4.0 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * pix_pad});
       }
