@@ -118,41 +118,16 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
                 " output channels expected");
   std::vector<float> b = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
 
-  weight_ = HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data).to_device(ctx);
+  // Only the packing `automatic` uses is uploaded now; the others (naive, blocked as the fallback,
+  // subgroup) on first use, from this host copy.
+  weight_host_ = weight;
+  bias_host_ = b;
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
-
-  // Blocked layout: [cout/COB][cin][k][k][COB], output channels zero-padded to a multiple of COB.
-  // 16 channels per invocation halve the input loads per FMA where cout allows it without waste.
   blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
   if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
-  const int64_t BC = blocked_cob_;
-  const int64_t cob = (cout_ + BC - 1) / BC, kk = static_cast<int64_t>(k) * k;
-  std::vector<float> wb(static_cast<size_t>(cob * cin_ * kk * BC), 0.f), bb(static_cast<size_t>(cob * BC), 0.f);
-  for (int64_t co = 0; co < cout_; ++co) {
-    bb[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
-    for (int64_t ci = 0; ci < cin_; ++ci)
-      for (int64_t t = 0; t < kk; ++t)
-        wb[static_cast<size_t>((((co / BC) * cin_ + ci) * kk + t) * BC + co % BC)] =
-            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
-  }
-  weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx);
-  bias_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb).to_device(ctx);
-
-  // Subgroup layout: [cout/(8G)][cin/4][k*k][G][8] of vec4 (4 input channels), zero-padded.
   if (const char* g = std::getenv("VKUNROLL_CONV_G")) subgroup_g_ = static_cast<uint32_t>(std::atoi(g));
   else subgroup_g_ = (cout_ % 24 == 0 || cout_ == 3) ? 3 : 2;
-  const int64_t G = subgroup_g_, cog = (cout_ + 8 * G - 1) / (8 * G), c4 = (cin_ + 3) / 4;
-  std::vector<float> ws(static_cast<size_t>(cog * c4 * kk * G * 8 * 4), 0.f), bs(static_cast<size_t>(cog * G * 8), 0.f);
-  for (int64_t co = 0; co < cout_; ++co) {
-    bs[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
-    const int64_t cg = co / (8 * G), g = (co / 8) % G, lane = co % 8;
-    for (int64_t ci = 0; ci < cin_; ++ci)
-      for (int64_t t = 0; t < kk; ++t)
-        ws[static_cast<size_t>(((((cg * c4 + ci / 4) * kk + t) * G + g) * 8 + lane) * 4 + ci % 4)] =
-            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
-  }
-  weight_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws).to_device(ctx);
-  bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx);
+  const int64_t kk = static_cast<int64_t>(k) * k;
 
   const bool wino_s2 = k == 3 && params.stride == 2 && params.pad == 1;
   if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2) || wino_s2) {
@@ -213,6 +188,53 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
         u[static_cast<size_t>(ci * winograd_cout_pad_ + co)] = weight.data[static_cast<size_t>(co * cin_ + ci)];
     weight_gemm_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
   }
+  (void)kk;
+  if (weight_winograd_.empty() && weight_gemm_.empty()) pack_blocked();
+}
+
+void Conv2d::pack_naive() const {
+  if (!weight_.empty()) return;
+  weight_ = HostTensor(Shape{1, 1, 1, weight_host_.shape.count()}, weight_host_.data).to_device(ctx_);
+}
+
+void Conv2d::pack_blocked() const {
+  if (!weight_blocked_.empty()) return;
+  // Blocked layout: [cout/COB][cin][k][k][COB], output channels zero-padded to a multiple of COB.
+  // 16 channels per invocation halve the input loads per FMA where cout allows it without waste.
+  const HostTensor& weight = weight_host_;
+  const std::vector<float>& b = bias_host_;
+  const int64_t BC = blocked_cob_, kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
+  const int64_t cob = (cout_ + BC - 1) / BC;
+  std::vector<float> wb(static_cast<size_t>(cob * cin_ * kk * BC), 0.f), bb(static_cast<size_t>(cob * BC), 0.f);
+  for (int64_t co = 0; co < cout_; ++co) {
+    bb[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      for (int64_t t = 0; t < kk; ++t)
+        wb[static_cast<size_t>((((co / BC) * cin_ + ci) * kk + t) * BC + co % BC)] =
+            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
+  }
+  weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx_);
+  bias_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb).to_device(ctx_);
+}
+
+void Conv2d::pack_subgroup() const {
+  if (!weight_subgroup_.empty()) return;
+  // Subgroup layout: [cout/(8G)][cin/4][k*k][G][8] of vec4 (4 input channels), zero-padded.
+  const HostTensor& weight = weight_host_;
+  const std::vector<float>& b = bias_host_;
+  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
+  const int64_t G = subgroup_g_, cog = (cout_ + 8 * G - 1) / (8 * G), c4 = (cin_ + 3) / 4;
+  std::vector<float> ws(static_cast<size_t>(cog * c4 * kk * G * 8 * 4), 0.f), bs(static_cast<size_t>(cog * G * 8), 0.f);
+  for (int64_t co = 0; co < cout_; ++co) {
+    bs[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
+    const int64_t cg = co / (8 * G), g = (co / 8) % G, lane = co % 8;
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      for (int64_t t = 0; t < kk; ++t)
+        ws[static_cast<size_t>(((((cg * c4 + ci / 4) * kk + t) * G + g) * 8 + lane) * 4 + ci % 4)] =
+            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
+  }
+  weight_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws).to_device(ctx_);
+  bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx_);
 }
 
 namespace {
@@ -332,6 +354,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   const DispatchInfo info{conv_label(name_, params_), flop(is), bytes};
   switch (algo) {
     case ConvAlgo::naive: {
+      pack_naive();
       const Pipeline& pl = ctx_.pipeline("conv2d_naive", spec, sizeof(ConvPush));
       cs.dispatch(pl, {bi.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, p,
                   Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
@@ -341,6 +364,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     }
     case ConvAlgo::blocked: {
       const uint32_t px = std::getenv("VKUNROLL_PX") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_PX"))) : 8u;
+      pack_blocked();
       std::vector<uint32_t> bspec = spec;
       bspec.push_back(px);
       bspec.push_back(static_cast<uint32_t>(blocked_cob_ / 4));
@@ -353,6 +377,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       return;
     }
     case ConvAlgo::subgroup: {
+      pack_subgroup();
       std::vector<uint32_t> sspec = spec;
       sspec.push_back(subgroup_g_);
       const Pipeline& pl = ctx_.pipeline("conv2d_subgroup", sspec, sizeof(ConvPush));

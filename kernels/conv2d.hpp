@@ -80,17 +80,24 @@ class Conv2d {
   const std::string& name() const { return name_; }
 
  private:
+  // Packings other than the automatic path's are uploaded on first use (record is const).
+  void pack_naive() const;
+  void pack_blocked() const;
+  void pack_subgroup() const;
+
   Context& ctx_;
   std::string name_;
   Conv2dParams params_;
   int64_t cin_ = 0, cout_ = 0;
-  Tensor weight_;          // [cout][cin][k][k] as given (naive)
-  Tensor bias_;            // [cout], zeros when none was given
-  Tensor weight_blocked_;  // [ceil(cout/COB)][cin][k*k][COB], zero-padded output channels
-  Tensor bias_blocked_;    // [ceil(cout/COB)*COB]
+  HostTensor weight_host_;         // as given, for the lazily uploaded packings
+  std::vector<float> bias_host_;   // [cout], zeros when none was given
+  mutable Tensor weight_;          // [cout][cin][k][k] as given (naive)
+  Tensor bias_;                    // [cout]
+  mutable Tensor weight_blocked_;  // [ceil(cout/COB)][cin][k*k][COB], zero-padded output channels
+  mutable Tensor bias_blocked_;    // [ceil(cout/COB)*COB]
   int64_t blocked_cob_ = 8;  // output channels per invocation of the blocked path (8 or 16)
-  Tensor weight_subgroup_; // [cout/(8G)][cin/4][k*k][G][8] vec4 over 4 input channels
-  Tensor bias_subgroup_;   // [cout/(8G)*8G]
+  mutable Tensor weight_subgroup_;  // [cout/(8G)][cin/4][k*k][G][8] vec4 over 4 input channels
+  mutable Tensor bias_subgroup_;    // [cout/(8G)*8G]
   uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
   Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
