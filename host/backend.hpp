@@ -1,0 +1,120 @@
+// The backend interface the SelfUnroll graph (host/model.cpp) is written against, once:
+// buffers are NCHW float arrays owned by the backend; a View is a batch range and a channel
+// range of one buffer (same height and width), so concatenations are written in place.
+// Backends: VulkanBackend (host/backend_vulkan.hpp, GPU kernels recorded into a CommandStream)
+// and CpuBackend (host/backend_cpu.hpp, the kernels' CPU references).
+#pragma once
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "host/weights.hpp"
+#include "runtime/tensor.hpp"
+
+namespace vkunroll {
+
+struct View {
+  int buf = -1;
+  int64_t n0 = 0, n = 0;  // batch items [n0, n0 + n)
+  int64_t c0 = 0, c = 0;  // channels [c0, c0 + c)
+};
+
+// One convolution layer of the network, prepared (weights uploaded / re-laid) once.
+struct ConvDesc {
+  std::string name;          // checkpoint prefix, e.g. "flownet.down_path.2.down.0"
+  int cin = 0, cout = 0, k = 3, stride = 1, pad = 1;
+  bool transposed = false;   // ConvTranspose2d (weight [cin, cout, k, k])
+  bool leaky = false;        // LeakyReLU after the conv
+  float slope = 0.f;
+};
+
+class Backend {
+ public:
+  virtual ~Backend() = default;
+  virtual std::string name() const = 0;
+
+  // Buffers. release() makes the memory reusable by later alloc() calls (the backend keeps
+  // ordering: a buffer is not overwritten before recorded reads of it have run).
+  virtual int alloc(const Shape& shape, const std::string& what) = 0;
+  virtual void release(int buf) = 0;
+  virtual Shape shape(int buf) const = 0;
+  // Host data in NCHW order with the view's extent.
+  virtual void upload(const View& dst, std::span<const float> data) = 0;
+  virtual std::vector<float> download(const View& src) = 0;
+
+  virtual int prepare_conv(const ConvDesc& desc, const WeightTensor& weight, const WeightTensor& bias) = 0;
+  // out = act(conv(in)) (+ residual, only for convs without activation). Views of equal batch.
+  virtual void conv(int conv, const View& in, const View& out, const View* residual) = 0;
+
+  virtual void space_to_depth(const View& in, const View& out) = 0;   // PixelUnshuffle(2)
+  virtual void depth_to_space(const View& in, const View& out) = 0;   // PixelShuffle(2)
+  // out (larger) = reflection padding of in, in placed at (top, left).
+  virtual void reflect_pad(const View& in, const View& out, int top, int left) = 0;
+  // out (smaller) = in[top : top + H_out, left : left + W_out].
+  virtual void crop(const View& in, const View& out, int top, int left) = 0;
+  virtual void copy(const View& in, const View& out) = 0;
+  virtual void add(const View& a, const View& b, const View& out) = 0;
+  virtual void tanh_scale(const View& in, const View& out, float scale) = 0;  // out = scale * tanh(in)
+  virtual void backward_warp(const View& img, const View& flow, const View& out) = 0;
+  // m = hardsigmoid(score) (or `forced` when >= 0); out = m * a + (1 - m) * b.
+  virtual void hardsigmoid_blend(const View& score, const View& a, const View& b, const View& m,
+                                 const View& out, float forced) = 0;
+
+  // Runs everything recorded so far and waits (a no-op for eager backends).
+  virtual void flush() = 0;
+  // The largest tensor one buffer may hold (bytes); the graph splits batches to respect it.
+  virtual uint64_t max_buffer_bytes() const = 0;
+
+  // Memory accounting of live buffers (bytes), maintained by alloc()/release().
+  uint64_t live_bytes() const { return live_bytes_; }
+  uint64_t peak_bytes() const { return peak_bytes_; }
+  void reset_peak() { peak_bytes_ = live_bytes_; }
+
+ protected:
+  void account_alloc(uint64_t b) {
+    live_bytes_ += b;
+    if (live_bytes_ > peak_bytes_) peak_bytes_ = live_bytes_;
+  }
+  void account_release(uint64_t b) { live_bytes_ -= b; }
+
+ private:
+  uint64_t live_bytes_ = 0, peak_bytes_ = 0;
+};
+
+// A backend that computes nothing and only tracks buffers: the memory plan of a run.
+class PlanningBackend final : public Backend {
+ public:
+  std::string name() const override { return "plan"; }
+  int alloc(const Shape& shape, const std::string& what) override;
+  void release(int buf) override;
+  Shape shape(int buf) const override;
+  void upload(const View&, std::span<const float>) override {}
+  std::vector<float> download(const View& src) override;
+  int prepare_conv(const ConvDesc&, const WeightTensor&, const WeightTensor&) override { return 0; }
+  void conv(int, const View&, const View&, const View*) override {}
+  void space_to_depth(const View&, const View&) override {}
+  void depth_to_space(const View&, const View&) override {}
+  void reflect_pad(const View&, const View&, int, int) override {}
+  void crop(const View&, const View&, int, int) override {}
+  void copy(const View&, const View&) override {}
+  void add(const View&, const View&, const View&) override {}
+  void tanh_scale(const View&, const View&, float) override {}
+  void backward_warp(const View&, const View&, const View&) override {}
+  void hardsigmoid_blend(const View&, const View&, const View&, const View&, const View&, float) override {}
+  void flush() override {}
+  uint64_t max_buffer_bytes() const override { return max_buffer_bytes_; }
+  void set_max_buffer_bytes(uint64_t b) { max_buffer_bytes_ = b; }
+  // The largest single buffer allocated, with its description.
+  uint64_t largest_buffer() const { return largest_; }
+  const std::string& largest_buffer_name() const { return largest_name_; }
+
+ private:
+  std::vector<Shape> shapes_;
+  std::vector<bool> live_;
+  uint64_t max_buffer_bytes_ = 128ull << 20;
+  uint64_t largest_ = 0;
+  std::string largest_name_;
+};
+
+}  // namespace vkunroll

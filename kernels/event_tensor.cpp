@@ -1,0 +1,534 @@
+#include "kernels/event_tensor.hpp"
+
+#include <algorithm>
+#include <cstring>
+#include <limits>
+#include <string>
+
+#include "runtime/command_stream.hpp"
+#include "runtime/context.hpp"
+#include "runtime/error.hpp"
+#include "runtime/pipeline.hpp"
+
+namespace vkunroll {
+namespace {
+
+int128_t gcd128(int128_t a, int128_t b) {
+  if (a < 0) a = -a;
+  if (b < 0) b = -b;
+  while (b) {
+    const int128_t t = a % b;
+    a = b;
+    b = t;
+  }
+  return a;
+}
+int128_t floor_div(int128_t a, int128_t b) {  // b > 0
+  int128_t q = a / b;
+  if ((a % b != 0) && (a < 0)) --q;
+  return q;
+}
+int128_t ceil_div(int128_t a, int128_t b) { return -floor_div(-a, b); }
+
+int128_t abs128(int128_t v) { return v < 0 ? -v : v; }
+
+// a and b of one row over a common denominator, relative to an integer origin:
+// a - origin = A / D, b - origin = B / D.
+struct ScaledRow {
+  int128_t A = 0, B = 0, D = 1;
+};
+ScaledRow scale_row(const Rational& a, const Rational& b, int64_t origin) {
+  const Rational ar = a - Rational(origin), br = b - Rational(origin);
+  const int128_t g = gcd128(ar.den(), br.den());
+  const int128_t D = ar.den() / g * br.den();
+  ScaledRow r;
+  r.D = D;
+  r.A = ar.num() * (D / ar.den());
+  r.B = br.num() * (D / br.den());
+  // Headroom for T*D and |T-A|*N below: keep every quantity under 2^100.
+  const int128_t lim = static_cast<int128_t>(1) << 100;
+  if (abs128(r.A) > lim || abs128(r.B) > lim || D > (static_cast<int128_t>(1) << 64))
+    throw Error("event tensor: row times " + a.str() + " / " + b.str() +
+                " need denominators beyond 2^64 us; give timing with simpler fractions");
+  return r;
+}
+
+void check_jobs(const EventStream& events, const std::vector<RowIntervals>& jobs) {
+  // The window search and the per-row ranges rely on time order; say so instead of binning wrong.
+  for (size_t i = 1; i < events.t.size(); ++i)
+    if (events.t[i] < events.t[i - 1])
+      throw Error("event tensor: the event stream is not sorted by time (event " + std::to_string(i) + " at " +
+                  std::to_string(events.t[i]) + " us follows " + std::to_string(events.t[i - 1]) + " us)");
+  if (events.x.size() != events.t.size() || events.y.size() != events.t.size() || events.p.size() != events.t.size())
+    throw Error("event tensor: the event stream's t, x, y, p arrays differ in length");
+  for (size_t j = 0; j < jobs.size(); ++j) {
+    if (jobs[j].a.size() != static_cast<size_t>(events.height) || jobs[j].b.size() != static_cast<size_t>(events.height))
+      throw Error("event tensor: job " + std::to_string(j) + " has " + std::to_string(jobs[j].a.size()) + "/" +
+                  std::to_string(jobs[j].b.size()) + " row times, the sensor has " + std::to_string(events.height) +
+                  " rows");
+  }
+}
+
+void check_spec(const EventTensorSpec& spec) {
+  if (spec.bins < 1 || spec.bins > 4096)
+    throw Error("event tensor: bins must be in [1, 4096], got " + std::to_string(spec.bins));
+}
+
+RowIntervals intervals(const EventTensorPair& pair, int which) {
+  const RowTiming& tm = pair.timing;
+  tm.validate("event tensor pair");
+  RowIntervals r;
+  r.a.assign(tm.rows, pair.target_us);
+  r.b.resize(tm.rows);
+  const Rational texp = pair.target_exposure_us.value_or(tm.exposure);
+  for (int y = 0; y < tm.rows; ++y) {
+    if (which == 0) r.b[y] = tm.start(y);
+    else if (which == 1) r.b[y] = tm.end(y);
+    else r.b[y] = pair.target_us + texp;
+  }
+  return r;
+}
+
+struct BinPush {
+  uint32_t n_events, jobs, job_begin, bins, width, height;
+};
+
+}  // namespace
+
+RowIntervals ev1_intervals(const EventTensorPair& pair) { return intervals(pair, 0); }
+RowIntervals ev2_intervals(const EventTensorPair& pair) { return intervals(pair, 1); }
+RowIntervals ev3_intervals(const EventTensorPair& pair) { return intervals(pair, 2); }
+
+std::vector<RowIntervals> event_tensor_jobs(const std::vector<EventTensorPair>& pairs) {
+  std::vector<RowIntervals> jobs;
+  jobs.reserve(pairs.size() * 3);
+  for (int which = 0; which < 3; ++which)
+    for (const auto& p : pairs) jobs.push_back(intervals(p, which));
+  return jobs;
+}
+
+SensorCrop resolve_crop(const SensorCrop& c, int sensor_width, int sensor_height) {
+  if (sensor_width <= 0 || sensor_height <= 0)
+    throw Error("event tensor: sensor size " + std::to_string(sensor_width) + "x" + std::to_string(sensor_height) +
+                " is not set");
+  if (sensor_width > 32767 || sensor_height > 32767)
+    throw Error("event tensor: sensor larger than 32767 pixels is not supported");
+  SensorCrop r = c;
+  if (r.width == 0) r.width = sensor_width - r.x0;
+  if (r.height == 0) r.height = sensor_height - r.y0;
+  if (r.x0 < 0 || r.y0 < 0 || r.width <= 0 || r.height <= 0 || r.x0 + r.width > sensor_width ||
+      r.y0 + r.height > sensor_height)
+    throw Error("event tensor: crop x0=" + std::to_string(c.x0) + " y0=" + std::to_string(c.y0) + " w=" +
+                std::to_string(c.width) + " h=" + std::to_string(c.height) + " is not inside the " +
+                std::to_string(sensor_width) + "x" + std::to_string(sensor_height) + " sensor");
+  return r;
+}
+
+std::pair<int64_t, int64_t> event_time_window(const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec,
+                                              int sensor_width, int sensor_height) {
+  check_spec(spec);
+  const SensorCrop c = resolve_crop(spec.crop, sensor_width, sensor_height);
+  int64_t lo = std::numeric_limits<int64_t>::max(), hi = std::numeric_limits<int64_t>::min();
+  for (size_t j = 0; j < jobs.size(); ++j) {
+    if (jobs[j].a.size() != static_cast<size_t>(sensor_height) || jobs[j].b.size() != static_cast<size_t>(sensor_height))
+      throw Error("event tensor: job " + std::to_string(j) + " row count does not match the sensor");
+    for (int r = 0; r < c.height; ++r) {
+      const Rational &a = jobs[j].a[c.y0 + r], &b = jobs[j].b[c.y0 + r];
+      if (a == b) continue;
+      lo = std::min(lo, std::min(a, b).ceil());
+      hi = std::max(hi, std::max(a, b).ceil());
+    }
+  }
+  if (lo >= hi) return {0, 0};
+  return {lo, hi};
+}
+
+// ---- CPU reference ----------------------------------------------------------------------------
+
+std::vector<float> bin_events_cpu(const EventStream& events, const std::vector<RowIntervals>& jobs,
+                                  const EventTensorSpec& spec) {
+  check_spec(spec);
+  check_jobs(events, jobs);
+  const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
+  const int N = spec.bins;
+  const size_t plane = static_cast<size_t>(c.width) * c.height, slice = 2 * N * plane;
+  std::vector<float> out(jobs.size() * slice, 0.f);
+  // The literal formula needs no origin; one is used only to keep the 128-bit products small.
+  const int64_t origin = events.empty() ? 0 : events.t.front();
+  for (size_t j = 0; j < jobs.size(); ++j) {
+    std::vector<ScaledRow> rows(c.height);
+    int64_t t_lo = std::numeric_limits<int64_t>::max(), t_hi = std::numeric_limits<int64_t>::min();
+    for (int r = 0; r < c.height; ++r) {
+      const Rational& a = jobs[j].a[c.y0 + r];
+      const Rational& b = jobs[j].b[c.y0 + r];
+      rows[r] = scale_row(a, b, origin);
+      if (a != b) {
+        t_lo = std::min(t_lo, std::min(a, b).floor());
+        t_hi = std::max(t_hi, std::max(a, b).ceil());
+      }
+    }
+    if (t_lo > t_hi) continue;
+    // The sorted stream: only events in [floor(min), ceil(max)] can be selected.
+    const size_t e0 = std::lower_bound(events.t.begin(), events.t.end(), t_lo) - events.t.begin();
+    const size_t e1 = std::upper_bound(events.t.begin(), events.t.end(), t_hi) - events.t.begin();
+    float* o = out.data() + j * slice;
+    for (size_t i = e0; i < e1; ++i) {
+      const int x = events.x[i] - c.x0, y = events.y[i] - c.y0;
+      if (x < 0 || y < 0 || x >= c.width || y >= c.height) continue;
+      const ScaledRow& R = rows[y];
+      if (R.A == R.B) continue;  // empty interval selects nothing
+      const int128_t T = static_cast<int128_t>(events.t[i] - origin) * R.D;
+      // 1. min(a, b) <= t < max(a, b)
+      if (T < std::min(R.A, R.B) || T >= std::max(R.A, R.B)) continue;
+      // 2. sign, flipped when t < a
+      int s = events.p[i] > 0 ? 1 : -1;
+      if (T < R.A) s = -s;
+      // 3. k = floor(|t - a| * N / |b - a|), N -> N - 1
+      int128_t k = abs128(T - R.A) * N / abs128(R.B - R.A);
+      if (k == N) k = N - 1;
+      // 4. channel 2k + (s > 0)
+      o[(2 * static_cast<size_t>(k) + (s > 0 ? 1 : 0)) * plane + static_cast<size_t>(y) * c.width + x] += 1.f;
+    }
+  }
+  return out;
+}
+
+namespace {
+EventTensors split_tensors(std::vector<float>&& flat, size_t pairs, const EventTensorSpec& spec, const SensorCrop& c) {
+  EventTensors t;
+  t.pairs = static_cast<int>(pairs);
+  t.bins = spec.bins;
+  t.height = c.height;
+  t.width = c.width;
+  const size_t n = pairs * t.slice();
+  t.ev1.assign(flat.begin(), flat.begin() + n);
+  t.ev2.assign(flat.begin() + n, flat.begin() + 2 * n);
+  t.ev3.assign(flat.begin() + 2 * n, flat.begin() + 3 * n);
+  return t;
+}
+}  // namespace
+
+EventTensors build_event_tensors_cpu(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                     const EventTensorSpec& spec) {
+  const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
+  for (const auto& p : pairs)
+    if (p.timing.rows != events.height)
+      throw Error("event tensor: frame timing has " + std::to_string(p.timing.rows) + " rows, the event sensor " +
+                  std::to_string(events.height));
+  const auto jobs = event_tensor_jobs(pairs);
+  auto t = split_tensors(bin_events_cpu(events, jobs, spec), pairs.size(), spec, c);
+  std::vector<uint32_t> packed;
+  t.events_considered = pack_events(events, plan_binning(events, jobs, spec), packed);
+  return t;
+}
+
+// ---- GPU host part ---------------------------------------------------------------------------
+
+BinningPlan plan_binning(const EventStream& events, const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec) {
+  check_spec(spec);
+  check_jobs(events, jobs);
+  const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
+  BinningPlan plan;
+  plan.bins = spec.bins;
+  plan.height = c.height;
+  plan.width = c.width;
+  plan.x0 = c.x0;
+  plan.y0 = c.y0;
+  plan.jobs = jobs.size();
+  const int N = spec.bins, R = plan.record_size();
+  // Window: selected t satisfy ceil(min(a,b)) <= t < ceil(max(a,b)).
+  int64_t lo = std::numeric_limits<int64_t>::max(), hi = std::numeric_limits<int64_t>::min();
+  for (const auto& job : jobs)
+    for (int r = 0; r < c.height; ++r) {
+      const Rational &a = job.a[c.y0 + r], &b = job.b[c.y0 + r];
+      if (a == b) continue;
+      lo = std::min(lo, std::min(a, b).ceil());
+      hi = std::max(hi, std::max(a, b).ceil());
+    }
+  plan.records.assign(jobs.size() * c.height * R, 0);
+  if (lo >= hi) return plan;  // nothing can be selected
+  if (hi - lo >= (int64_t{1} << 31) - 2)
+    throw Error("event tensor: the batch spans " + std::to_string(hi - lo) +
+                " us, more than 2^31 us (35 min); split the batch");
+  plan.origin_us = lo;
+  plan.first_event = std::lower_bound(events.t.begin(), events.t.end(), lo) - events.t.begin();
+  plan.last_event = std::lower_bound(events.t.begin(), events.t.end(), hi) - events.t.begin();
+  for (size_t j = 0; j < jobs.size(); ++j)
+    for (int r = 0; r < c.height; ++r) {
+      int32_t* rec = plan.records.data() + (j * c.height + r) * R;
+      const Rational &a = jobs[j].a[c.y0 + r], &b = jobs[j].b[c.y0 + r];
+      if (a == b) continue;  // lo == hi == 0: empty
+      const ScaledRow s = scale_row(a, b, lo);
+      const int128_t L = abs128(s.B - s.A), DN = s.D * N;
+      rec[0] = static_cast<int32_t>(ceil_div(std::min(s.A, s.B), s.D));
+      rec[1] = static_cast<int32_t>(ceil_div(std::max(s.A, s.B), s.D));
+      if (s.A < s.B) {
+        // bin >= k  <=>  t >= ceil(a + k L / N): ascending in k
+        for (int k = 1; k < N; ++k) rec[1 + k] = static_cast<int32_t>(ceil_div(s.A * N + k * L, DN));
+        rec[N + 1] = 0;
+      } else {
+        // bin >= k  <=>  t < floor(a - k L / N) + 1 =: f_k (descending in k); stored ascending
+        // as f_{N-1}, ..., f_1 so that (N - 1) - #{thresholds <= t} is the bin.
+        for (int k = 1; k < N; ++k) rec[1 + (N - k)] = static_cast<int32_t>(floor_div(s.A * N - k * L, DN) + 1);
+        rec[N + 1] = 1;
+      }
+      // Estimate of the threshold count: (t - min(a,b)) * N / |b - a| = (t - lo) * sc + c0.
+      const double sc = static_cast<double>(N) * static_cast<double>(s.D) / static_cast<double>(L);
+      const double c0 = static_cast<double>(static_cast<int128_t>(rec[0]) * s.D - std::min(s.A, s.B)) *
+                        static_cast<double>(N) / static_cast<double>(L);
+      const float scf = static_cast<float>(sc), c0f = static_cast<float>(c0);
+      std::memcpy(&rec[N + 2], &scf, 4);
+      std::memcpy(&rec[N + 3], &c0f, 4);
+    }
+  return plan;
+}
+
+size_t pack_events(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& packed) {
+  packed.clear();
+  packed.reserve(2 * (plan.last_event - plan.first_event));
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    packed.push_back(static_cast<uint32_t>(events.t[i] - plan.origin_us));
+    packed.push_back(static_cast<uint32_t>(x) | (static_cast<uint32_t>(y) << 15) | (events.p[i] > 0 ? 1u << 30 : 0u));
+  }
+  return packed.size() / 2;
+}
+
+// ---- GPU ---------------------------------------------------------------------------------------
+
+namespace {
+struct PixelPush {
+  uint32_t jobs, job_begin, width, height;
+};
+struct RowPush {
+  uint32_t job_begin, bins, width, height;
+};
+constexpr int kMaxPixelBins = 64;  // the per-pixel shader keeps 2N counters per invocation
+}  // namespace
+
+size_t pack_events_by_pixel(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& offsets,
+                            std::vector<uint32_t>& packed) {
+  const size_t plane = static_cast<size_t>(plan.width) * plan.height;
+  offsets.assign(plane + 1, 0);
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    ++offsets[static_cast<size_t>(y) * plan.width + x + 1];
+  }
+  for (size_t i = 0; i < plane; ++i) offsets[i + 1] += offsets[i];
+  packed.resize(offsets[plane]);
+  std::vector<uint32_t> cursor(offsets.begin(), offsets.end() - 1);
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    packed[cursor[static_cast<size_t>(y) * plan.width + x]++] =
+        static_cast<uint32_t>(events.t[i] - plan.origin_us) | (events.p[i] > 0 ? 1u << 31 : 0u);
+  }
+  return packed.size();
+}
+
+const char* event_bin_algorithm_name(EventBinAlgorithm a) {
+  switch (a) {
+    case EventBinAlgorithm::automatic: return "automatic";
+    case EventBinAlgorithm::per_row: return "per-row";
+    case EventBinAlgorithm::per_event: return "per-event";
+    case EventBinAlgorithm::per_pixel: return "per-pixel";
+  }
+  return "?";
+}
+
+size_t pack_events_by_row(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& packed,
+                          std::vector<uint32_t>& ranges) {
+  std::vector<uint32_t> offsets(static_cast<size_t>(plan.height) + 1, 0);
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    ++offsets[y + 1];
+  }
+  for (int y = 0; y < plan.height; ++y) offsets[y + 1] += offsets[y];
+  packed.resize(2 * static_cast<size_t>(offsets[plan.height]));
+  std::vector<uint32_t> cursor(offsets.begin(), offsets.end() - 1);
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    const size_t k = cursor[y]++;
+    packed[2 * k] = static_cast<uint32_t>(events.t[i] - plan.origin_us);
+    packed[2 * k + 1] = static_cast<uint32_t>(x) | (events.p[i] > 0 ? 1u << 31 : 0u);
+  }
+  // First index in the row segment [b, e) whose time is >= v.
+  auto lower = [&](uint32_t b, uint32_t e, int32_t v) {
+    while (b < e) {
+      const uint32_t m = b + (e - b) / 2;
+      if (static_cast<int32_t>(packed[2 * m]) < v) b = m + 1;
+      else e = m;
+    }
+    return b;
+  };
+  const int R = plan.record_size();
+  ranges.assign(plan.jobs * plan.height * 2, 0);
+  for (size_t j = 0; j < plan.jobs; ++j)
+    for (int y = 0; y < plan.height; ++y) {
+      const int32_t* rec = plan.records.data() + (j * plan.height + y) * R;
+      if (rec[0] >= rec[1]) continue;
+      const uint32_t b = lower(offsets[y], offsets[y + 1], rec[0]);
+      ranges[2 * (j * plan.height + y)] = b;
+      ranges[2 * (j * plan.height + y) + 1] = lower(b, offsets[y + 1], rec[1]);
+    }
+  return offsets[plan.height];
+}
+
+size_t EventTensorBuilder::jobs_per_chunk(const BinningPlan& plan) const {
+  const size_t slice = static_cast<size_t>(2 * plan.bins) * plan.height * plan.width;
+  const size_t max_range = ctx_.info().max_storage_buffer_range;
+  size_t chunk = max_range / (slice * 4);
+  if (chunk == 0)
+    throw Error("event tensor: one " + std::to_string(2 * plan.bins) + "x" + std::to_string(plan.height) + "x" +
+                std::to_string(plan.width) + " tensor exceeds the device's storage-buffer range (" +
+                std::to_string(max_range >> 20) + " MiB); use a crop");
+  if (max_jobs_) chunk = std::min(chunk, max_jobs_);
+  return chunk;
+}
+
+void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& plan, size_t chunk,
+                                 const std::function<void(size_t, Tensor&)>& done) {
+  const auto& info = ctx_.info();
+  const size_t max_range = info.max_storage_buffer_range;
+  const size_t plane = static_cast<size_t>(plan.width) * plan.height;
+  const size_t window = plan.last_event - plan.first_event;
+  // Automatic: per_row. On lavapipe every dense pass over the output costs about as much as
+  // NumPy's whole binning, so the sparse kernels (zero fill + one CAS per selected event and job)
+  // win; per_row reads only selected events with a uniform row record.
+  EventBinAlgorithm algo = algorithm_ == EventBinAlgorithm::automatic ? EventBinAlgorithm::per_row : algorithm_;
+  if (algo == EventBinAlgorithm::per_pixel &&
+      !(plan.bins <= kMaxPixelBins && window * 4 <= max_range && (plane + 1) * 4 <= max_range))
+    throw Error("event tensor: the per-pixel algorithm needs N <= 64 and the window's events in one binding");
+  if (algo == EventBinAlgorithm::per_row && window * 8 > max_range) {
+    if (algorithm_ == EventBinAlgorithm::per_row)
+      throw Error("event tensor: the per-row algorithm needs the window's events in one binding");
+    algo = EventBinAlgorithm::per_event;
+  }
+  const bool per_pixel = algo == EventBinAlgorithm::per_pixel;
+  last_algorithm_ = algo;
+  Tensor rec(ctx_, Shape{1, 1, 1, static_cast<int64_t>(std::max<size_t>(1, plan.records.size()))}, DType::i32);
+  if (!plan.records.empty()) rec.upload(plan.records);
+  else rec.upload(std::vector<int32_t>{0});
+
+  if (per_pixel) {
+    std::vector<uint32_t> offsets, packed;
+    last_events_ = pack_events_by_pixel(events, plan, offsets, packed);
+    if (packed.empty()) packed.push_back(0);  // a valid (never read) binding
+    Tensor off(ctx_, Shape{1, 1, 1, static_cast<int64_t>(offsets.size())}, DType::u32);
+    off.upload(offsets);
+    Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
+    ev.upload(packed);
+    const Pipeline& pipe = ctx_.pipeline("event_tensor_pixels", {static_cast<uint32_t>(plan.bins)}, sizeof(PixelPush));
+    for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
+      const size_t nj = std::min(chunk, plan.jobs - j0);
+      Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+      CommandStream cs(ctx_, profiler_);
+      PixelPush push{static_cast<uint32_t>(nj), static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.width),
+                     static_cast<uint32_t>(plan.height)};
+      const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((plane + 63) / 64, 65535));
+      cs.dispatch(pipe, {in(off), in(ev), in(rec), vkunroll::out(dst)}, push, {groups},
+                  {"event_tensor_pixels", 0, 4.0 * (plane + window * nj) + 4.0 * dst.shape().count()});
+      cs.submit_and_wait();
+      done(j0, dst);
+    }
+    return;
+  }
+
+  if (algo == EventBinAlgorithm::per_row) {
+    std::vector<uint32_t> packed, ranges;
+    last_events_ = pack_events_by_row(events, plan, packed, ranges);
+    if (packed.empty()) packed.assign(2, 0);  // a valid (never read) binding
+    Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
+    ev.upload(packed);
+    Tensor rg(ctx_, Shape{1, 1, 1, static_cast<int64_t>(ranges.size())}, DType::u32);
+    rg.upload(ranges);
+    const Pipeline& pipe = ctx_.pipeline("event_tensor_rows", {}, sizeof(RowPush));
+    for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
+      const size_t nj = std::min(chunk, plan.jobs - j0);
+      Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+      CommandStream cs(ctx_, profiler_);
+      cs.fill(dst, 0);
+      RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
+                   static_cast<uint32_t>(plan.height)};
+      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push,
+                  {static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)},
+                  {"event_tensor_rows", 0, 12.0 * last_events_ * nj});
+      cs.submit_and_wait();
+      done(j0, dst);
+    }
+    return;
+  }
+
+  std::vector<uint32_t> packed;
+  const size_t n_events = pack_events(events, plan, packed);
+  last_events_ = n_events;
+  if (packed.empty()) packed.assign(2, 0);
+  const Binding eb = packed.size() * 4 > max_range ? Binding::ranged : Binding::whole;
+  Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32, eb);
+  ev.upload(packed);
+  const Pipeline& bin = ctx_.pipeline("event_tensor_bin", {}, sizeof(BinPush));
+  // Events in pieces that fit one binding, at offsets the device accepts.
+  const size_t align_ev = std::max<size_t>(1, info.min_storage_buffer_offset_alignment / 8);
+  size_t per = std::min<size_t>(max_range / 8, size_t{1} << 28);
+  if (max_events_) per = std::min(per, max_events_);
+  per = std::max(align_ev, per / align_ev * align_ev);
+  for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
+    const size_t nj = std::min(chunk, plan.jobs - j0);
+    Tensor out(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+    CommandStream cs(ctx_, profiler_);
+    cs.fill(out, 0);
+    for (size_t e0 = 0; e0 < n_events; e0 += per) {
+      const size_t n = std::min(per, n_events - e0);
+      BinPush push{static_cast<uint32_t>(n), static_cast<uint32_t>(nj), static_cast<uint32_t>(j0),
+                   static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
+                   static_cast<uint32_t>(plan.height)};
+      const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((n + 63) / 64, 8192));
+      cs.dispatch(bin, {{ev.range(e0 * 8, n * 8), Access::read}, in(rec), inout(out)}, push, {groups},
+                  {"event_tensor_bin", 0, static_cast<double>(n) * (8 + nj * 4.0 * (plan.bins + 3))});
+    }
+    cs.submit_and_wait();
+    done(j0, out);
+  }
+}
+
+std::vector<float> EventTensorBuilder::bin(const EventStream& events, const std::vector<RowIntervals>& jobs,
+                                           const EventTensorSpec& spec) {
+  const BinningPlan plan = plan_binning(events, jobs, spec);
+  const size_t slice = static_cast<size_t>(2 * plan.bins) * plan.height * plan.width;
+  std::vector<float> result(jobs.size() * slice);
+  if (jobs.empty()) return result;
+  execute(events, plan, jobs_per_chunk(plan), [&](size_t j0, Tensor& out) {
+    out.download(result.data() + j0 * slice, static_cast<size_t>(out.shape().count()) * 4);
+  });
+  return result;
+}
+
+EventTensors EventTensorBuilder::build(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                       const EventTensorSpec& spec) {
+  const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
+  for (const auto& p : pairs)
+    if (p.timing.rows != events.height)
+      throw Error("event tensor: frame timing has " + std::to_string(p.timing.rows) + " rows, the event sensor " +
+                  std::to_string(events.height));
+  auto t = split_tensors(bin(events, event_tensor_jobs(pairs), spec), pairs.size(), spec, c);
+  t.events_considered = last_events_;
+  return t;
+}
+
+Tensor EventTensorBuilder::build_on_device(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                           const EventTensorSpec& spec) {
+  const auto jobs = event_tensor_jobs(pairs);
+  const BinningPlan plan = plan_binning(events, jobs, spec);
+  const Shape shape{static_cast<int64_t>(jobs.size()), 2 * plan.bins, plan.height, plan.width};
+  if (static_cast<uint64_t>(shape.count()) * 4 > ctx_.info().max_storage_buffer_range)
+    throw Error("event tensor: " + shape.str() + " exceeds one storage-buffer binding; use fewer pairs or a crop");
+  Tensor result;
+  execute(events, plan, jobs.size(), [&](size_t, Tensor& out) { result = std::move(out); });
+  return result;
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,154 @@
+#include "kernels/physics_unroll.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "runtime/context.hpp"
+#include "runtime/pipeline.hpp"
+
+namespace vkunroll {
+
+PixelEventLists gather_pixel_events(const EventStream& events, double t_star_us,
+                                    const std::vector<double>& row_start_us, const std::vector<double>& row_end_us,
+                                    int x0, int y0, int width, int height) {
+  if (width <= 0 || height <= 0) throw Error("gather_pixel_events: empty image");
+  if (y0 < 0 || static_cast<size_t>(y0 + height) > row_start_us.size() || row_end_us.size() != row_start_us.size())
+    throw Error("gather_pixel_events: rows " + std::to_string(y0) + ".." + std::to_string(y0 + height - 1) +
+                " are outside the row timing of " + std::to_string(row_start_us.size()) + " rows");
+  PixelEventLists ev;
+  ev.width = width;
+  ev.height = height;
+  ev.row_start.resize(height);
+  ev.row_end.resize(height);
+  double lo = std::numeric_limits<double>::max(), hi = std::numeric_limits<double>::lowest();
+  for (int y = 0; y < height; ++y) {
+    const double s = row_start_us[y0 + y], e = row_end_us[y0 + y];
+    ev.row_start[y] = static_cast<float>(s - t_star_us);
+    ev.row_end[y] = static_cast<float>(e - t_star_us);
+    lo = std::min({lo, s, t_star_us});
+    hi = std::max({hi, e, t_star_us});
+  }
+  // The events of the whole window, then counted and bucketed per pixel (stable: keeps time order).
+  const auto first = std::lower_bound(events.t.begin(), events.t.end(), static_cast<int64_t>(std::floor(lo)));
+  const auto last = std::upper_bound(events.t.begin(), events.t.end(), static_cast<int64_t>(std::ceil(hi)));
+  const size_t i0 = first - events.t.begin(), i1 = last - events.t.begin();
+  auto pixel_of = [&](size_t i) -> int64_t {
+    const int x = events.x[i] - x0, y = events.y[i] - y0;
+    if (x < 0 || y < 0 || x >= width || y >= height) return -1;
+    const double t = static_cast<double>(events.t[i]);
+    const double s = row_start_us[y0 + y], e = row_end_us[y0 + y];
+    if (t < std::min(s, t_star_us) || t > std::max(e, t_star_us)) return -1;  // outside this row's window
+    return static_cast<int64_t>(y) * width + x;
+  };
+  ev.offsets.assign(static_cast<size_t>(width) * height + 1, 0);
+  for (size_t i = i0; i < i1; ++i)
+    if (int64_t px = pixel_of(i); px >= 0) ev.offsets[px + 1]++;
+  for (size_t k = 1; k < ev.offsets.size(); ++k) ev.offsets[k] += ev.offsets[k - 1];
+  ev.tau.resize(ev.offsets.back());
+  ev.polarity.resize(ev.offsets.back());
+  std::vector<uint32_t> fill(ev.offsets.begin(), ev.offsets.end() - 1);
+  for (size_t i = i0; i < i1; ++i) {
+    const int64_t px = pixel_of(i);
+    if (px < 0) continue;
+    const uint32_t k = fill[px]++;
+    ev.tau[k] = static_cast<float>(static_cast<double>(events.t[i]) - t_star_us);
+    ev.polarity[k] = events.p[i] > 0 ? 1 : -1;
+  }
+  return ev;
+}
+
+std::vector<float> physics_unroll_ref(const std::vector<float>& rs, int channels, const PixelEventLists& ev,
+                                      const PhysicsUnrollParams& params) {
+  const size_t plane = static_cast<size_t>(ev.width) * ev.height;
+  if (rs.size() != plane * channels)
+    throw Error("physics_unroll_ref: image has " + std::to_string(rs.size()) + " values, expected " +
+                std::to_string(plane * channels));
+  std::vector<float> out(rs.size());
+  for (int y = 0; y < ev.height; ++y) {
+    const double S = ev.row_start[y], E = ev.row_end[y], T = E - S;
+    for (int x = 0; x < ev.width; ++x) {
+      const size_t pix = static_cast<size_t>(y) * ev.width + x;
+      const uint32_t b = ev.offsets[pix], e = ev.offsets[pix + 1];
+      int f0 = 0, f = 0;
+      for (uint32_t i = b; i < e; ++i) {
+        if (ev.tau[i] <= 0.f) f0 += ev.polarity[i];
+        if (ev.tau[i] <= S) f += ev.polarity[i];
+      }
+      double log_ratio = 0;
+      if (T > 0) {
+        // Segments between consecutive events inside (S, E): log-sum-exp of log(len) + c * E.
+        std::vector<double> terms;
+        double prev = S;
+        for (uint32_t i = b; i <= e; ++i) {
+          const bool last = i == e;
+          const double t = last ? E : ev.tau[i];
+          if (!last && t <= S) continue;
+          const double seg_end = std::min(t, E);
+          if (seg_end > prev) {
+            terms.push_back(std::log(seg_end - prev) + params.contrast * (f - f0));
+            prev = seg_end;
+          }
+          if (last || t >= E) break;
+          f += ev.polarity[i];
+        }
+        const double m = *std::max_element(terms.begin(), terms.end());
+        double acc = 0;
+        for (double v : terms) acc += std::exp(v - m);
+        log_ratio = std::log(T) - (m + std::log(acc));
+      }
+      for (int c = 0; c < channels; ++c) {
+        const double v = rs[c * plane + pix];
+        const double lin = v > 0 ? std::pow(v, static_cast<double>(params.gamma)) : 0.0;
+        const double o = lin > 0 ? std::min(std::exp(std::log(lin) + log_ratio), double(params.max_value)) : 0.0;
+        out[c * plane + pix] = static_cast<float>(o > 0 ? std::pow(o, 1.0 / params.gamma) : 0.0);
+      }
+    }
+  }
+  return out;
+}
+
+namespace {
+struct PhysicsPush {
+  int32_t width, height, channels;
+  float contrast, gamma, max_value;
+};
+template <class T>
+Tensor upload_vector(Context& ctx, const std::vector<T>& v, DType dt) {
+  Tensor t(ctx, {1, 1, 1, std::max<int64_t>(1, static_cast<int64_t>(v.size()))}, dt);
+  if (v.empty()) {
+    std::vector<T> one(1, T{});
+    t.upload(one);
+  } else {
+    t.upload(v);
+  }
+  return t;
+}
+}  // namespace
+
+PhysicsUnroll::PhysicsUnroll(Context& ctx, const PixelEventLists& ev)
+    : ctx_(ctx), width_(ev.width), height_(ev.height), events_(ev.tau.size()) {
+  offsets_ = upload_vector(ctx, ev.offsets, DType::u32);
+  tau_ = upload_vector(ctx, ev.tau, DType::f32);
+  polarity_ = upload_vector(ctx, ev.polarity, DType::i32);
+  std::vector<float> rows(ev.row_start);
+  rows.insert(rows.end(), ev.row_end.begin(), ev.row_end.end());
+  rows_ = upload_vector(ctx, rows, DType::f32);
+}
+
+void PhysicsUnroll::record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const {
+  const Shape& s = rs.shape();
+  if (s.n != 1 || s.h != height_ || s.w != width_ || !(result.shape() == s))
+    throw Error("PhysicsUnroll: image " + s.str() + " / output " + result.shape().str() + " do not match the event lists (" +
+                std::to_string(height_) + "x" + std::to_string(width_) + ")");
+  if (!(params.contrast > 0) || !(params.gamma > 0))
+    throw Error("PhysicsUnroll: contrast and gamma must be positive");
+  PhysicsPush p{width_, height_, static_cast<int32_t>(s.c), params.contrast, params.gamma, params.max_value};
+  const double pixels = static_cast<double>(width_) * height_;
+  cs.dispatch(ctx_.pipeline("physics_unroll", {}, sizeof p),
+              {in(offsets_), in(tau_), in(polarity_), in(rows_), in(rs), out(result)}, p,
+              {static_cast<uint32_t>((width_ + 7) / 8), static_cast<uint32_t>((height_ + 7) / 8)},
+              {"physics_unroll", 10.0 * (pixels + 2.0 * events_), 4.0 * (2 * events_ + pixels * (1 + 2 * s.c))});
+}
+
+}  // namespace vkunroll

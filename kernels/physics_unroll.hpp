@@ -1,0 +1,61 @@
+// The weight-free physics unroller: the event-based double integral (EDI) per pixel.
+//
+//   I(t*) = I_rs * T / integral over the row's exposure [S_y, E_y] of exp(c * E(t* -> s)) ds
+//
+// with E(t* -> s) the signed event count of the pixel from t* to s (the sum of polarities in
+// (t*, s] for s > t*, minus the sum over (s, t*] for s < t*) and c the contrast threshold.
+// Computed in the log domain (log-sum-exp over the constant segments between events), so
+// thousands of events neither overflow nor underflow, and black pixels stay 0 without NaN.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "host/events.hpp"
+#include "runtime/command_stream.hpp"
+#include "runtime/tensor.hpp"
+
+namespace vkunroll {
+
+// Per-pixel event lists for one target, in CSR form, times relative to t* (µs, as float for
+// the GPU: 100 ms spans keep a resolution below 0.01 µs).
+struct PixelEventLists {
+  int width = 0, height = 0;
+  std::vector<uint32_t> offsets;  // width*height + 1 entries
+  std::vector<float> tau;         // event time - t*, in µs, per pixel in time order
+  std::vector<int32_t> polarity;  // +1 / -1
+  std::vector<float> row_start;   // S_y - t*, µs (height entries)
+  std::vector<float> row_end;     // E_y - t*, µs
+};
+
+// Selects, for every row y, the events of the pixels of that row in [min(t*, S_y), max(t*, E_y)]
+// from a time-sorted stream (binary search on t), and buckets them per pixel. `row_start` and
+// `row_end` are absolute µs per sensor row; (x0, y0) is the crop origin of the image.
+PixelEventLists gather_pixel_events(const EventStream& events, double t_star_us,
+                                    const std::vector<double>& row_start_us, const std::vector<double>& row_end_us,
+                                    int x0, int y0, int width, int height);
+
+struct PhysicsUnrollParams {
+  float contrast = 0.2f;  // c: log-intensity change per event
+  float gamma = 1.0f;     // the image is decoded with x^gamma before and encoded after
+  float max_value = 1e4f; // cap on the linear result, so a wildly wrong c cannot produce inf
+};
+
+// CPU reference (double precision): rs and the result are [C, H, W] planes in [0, 1].
+std::vector<float> physics_unroll_ref(const std::vector<float>& rs, int channels, const PixelEventLists& ev,
+                                      const PhysicsUnrollParams& params);
+
+// GPU version: uploads the lists and records one dispatch (one thread per pixel).
+class PhysicsUnroll {
+ public:
+  PhysicsUnroll(Context& ctx, const PixelEventLists& ev);
+  // rs and out: [1, C, H, W] f32 tensors of the lists' size.
+  void record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const;
+
+ private:
+  Context& ctx_;
+  int width_, height_;
+  size_t events_;
+  Tensor offsets_, tau_, polarity_, rows_;
+};
+
+}  // namespace vkunroll

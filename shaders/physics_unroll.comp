@@ -1,0 +1,55 @@
+#version 450
+// EDI physics unroller, one thread per pixel: log I(t*) = log I_rs + log T - LSE_j(log len_j + c E_j).
+// See kernels/physics_unroll.hpp for the formula.
+layout(local_size_x = 8, local_size_y = 8) in;
+layout(std430, binding = 0) readonly buffer Offsets { uint offsets[]; };
+layout(std430, binding = 1) readonly buffer Tau { float tau[]; };
+layout(std430, binding = 2) readonly buffer Pol { int pol[]; };
+layout(std430, binding = 3) readonly buffer Rows { float rows[]; };  // [start_y..., end_y...]
+layout(std430, binding = 4) readonly buffer Rs { float rs[]; };
+layout(std430, binding = 5) writeonly buffer Out { float result[]; };
+layout(push_constant) uniform P {
+  int width, height, channels;
+  float contrast, gamma, max_value;
+} p;
+
+void main() {
+  const int x = int(gl_GlobalInvocationID.x), y = int(gl_GlobalInvocationID.y);
+  if (x >= p.width || y >= p.height) return;
+  const int pix = y * p.width + x;
+  const uint b = offsets[pix], e = offsets[pix + 1];
+  const float S = rows[y], E = rows[p.height + y];
+  const float T = E - S;
+  // F0: polarity sum up to t* (tau <= 0); F at S: sum up to S (right-continuous).
+  int f0 = 0, fs = 0;
+  for (uint i = b; i < e; ++i) {
+    if (tau[i] <= 0.0) f0 += pol[i];
+    if (tau[i] <= S) fs += pol[i];
+  }
+  float log_ratio = 0.0;  // log(T / integral); 0 when the exposure is empty
+  if (T > 0.0) {
+    float m = -1e30, acc = 0.0, prev = S;
+    int f = fs;
+    for (uint i = b; i <= e; ++i) {
+      const bool last = (i == e);
+      const float t = last ? E : tau[i];
+      if (!last && t <= S) continue;
+      const float seg_end = min(t, E);
+      if (seg_end > prev) {
+        const float v = log(seg_end - prev) + p.contrast * float(f - f0);
+        if (v > m) { acc = acc * exp(m - v) + 1.0; m = v; } else { acc += exp(v - m); }
+        prev = seg_end;
+      }
+      if (last || t >= E) break;
+      f += pol[i];
+    }
+    log_ratio = log(T) - (m + log(acc));
+  }
+  const int plane = p.width * p.height;
+  for (int c = 0; c < p.channels; ++c) {
+    const float v = rs[c * plane + pix];
+    float lin = v > 0.0 ? pow(v, p.gamma) : 0.0;
+    float o = lin > 0.0 ? min(exp(log(lin) + log_ratio), p.max_value) : 0.0;
+    result[c * plane + pix] = o > 0.0 ? pow(o, 1.0 / p.gamma) : 0.0;
+  }
+}

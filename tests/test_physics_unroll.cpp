@@ -1,0 +1,135 @@
+// The EDI physics unroller: analytic cases, stability, and GPU == CPU.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "kernels/physics_unroll.hpp"
+#include "runtime/command_stream.hpp"
+#include "runtime/context.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+
+namespace {
+std::vector<float> run_gpu(const std::vector<float>& rs, int channels, const PixelEventLists& ev,
+                           const PhysicsUnrollParams& prm) {
+  Context& ctx = vktest::context();
+  Tensor rs_t(ctx, {1, channels, ev.height, ev.width}), out_t(ctx, {1, channels, ev.height, ev.width});
+  rs_t.upload(rs);
+  PhysicsUnroll op(ctx, ev);
+  CommandStream cs(ctx);
+  op.record(cs, rs_t, out_t, prm);
+  cs.submit_and_wait();
+  return out_t.download<float>();
+}
+
+// One row, one pixel, exposure [0, 1000) µs.
+std::vector<double> starts(int h, double s0, double delay) {
+  std::vector<double> v(h);
+  for (int y = 0; y < h; ++y) v[y] = s0 + y * delay;
+  return v;
+}
+std::vector<double> plus(std::vector<double> v, double d) {
+  for (auto& x : v) x += d;
+  return v;
+}
+}  // namespace
+
+TEST(PhysicsUnroll, NoEventsReturnsTheInput) {
+  EventStream es;
+  es.width = 5, es.height = 3;
+  auto s = starts(3, 0, 10);
+  auto ev = gather_pixel_events(es, 500, s, plus(s, 1000), 0, 0, 5, 3);
+  std::vector<float> rs(15);
+  for (int i = 0; i < 15; ++i) rs[i] = i / 15.f;
+  PhysicsUnrollParams prm;
+  auto cpu = physics_unroll_ref(rs, 1, ev, prm);
+  auto gpu = run_gpu(rs, 1, ev, prm);
+  for (int i = 0; i < 15; ++i) {
+    EXPECT_NEAR(cpu[i], rs[i], 1e-6);
+    EXPECT_NEAR(gpu[i], rs[i], 1e-5);
+  }
+}
+
+TEST(PhysicsUnroll, OneEventAnalytic) {
+  // Pixel brightness L before the event at tau, L*e^c after. RS = mean over [0, 1000).
+  const double c = 0.25, tau = 300, L = 0.2;
+  const double rs = (L * tau + L * std::exp(c) * (1000 - tau)) / 1000;
+  EventStream es;
+  es.width = 1, es.height = 1;
+  es.push(static_cast<int64_t>(tau), 0, 0, 1);
+  PhysicsUnrollParams prm;
+  prm.contrast = static_cast<float>(c);
+  for (double t_star : {-200.0, 0.0, 100.0, 299.0, 301.0, 800.0, 1500.0}) {
+    auto ev = gather_pixel_events(es, t_star, {0.0}, {1000.0}, 0, 0, 1, 1);
+    const double expect = t_star < tau ? L : L * std::exp(c);
+    auto cpu = physics_unroll_ref({static_cast<float>(rs)}, 1, ev, prm);
+    auto gpu = run_gpu({static_cast<float>(rs)}, 1, ev, prm);
+    EXPECT_NEAR(cpu[0], expect, 1e-6) << "t*=" << t_star;
+    EXPECT_NEAR(gpu[0], expect, 1e-5) << "t*=" << t_star;
+  }
+}
+
+TEST(PhysicsUnroll, ThousandsOfEventsStayFinite) {
+  EventStream es;
+  es.width = 2, es.height = 1;
+  for (int i = 0; i < 5000; ++i) es.push(i / 5, 0, 0, 1);  // 5000 ON events in 1 ms at pixel 0
+  std::vector<float> rs = {0.5f, 0.f};                      // pixel 1 black
+  PhysicsUnrollParams prm;
+  prm.contrast = 0.3f;
+  for (double t_star : {0.0, 500.0, 1000.0}) {
+    auto ev = gather_pixel_events(es, t_star, {0.0}, {1000.0}, 0, 0, 2, 1);
+    for (const auto& out : {physics_unroll_ref(rs, 1, ev, prm), run_gpu(rs, 1, ev, prm)}) {
+      EXPECT_TRUE(std::isfinite(out[0])) << t_star;
+      EXPECT_GE(out[0], 0.f);
+      EXPECT_LE(out[0], prm.max_value);
+      EXPECT_EQ(out[1], 0.f);
+    }
+  }
+}
+
+TEST(PhysicsUnroll, GpuMatchesCpuOnRandomStreams) {
+  std::mt19937 rng(7);
+  const int W = 23, H = 17, C = 3;
+  EventStream es;
+  es.width = W, es.height = H;
+  int64_t t = -3000;
+  std::uniform_int_distribution<int> dx(0, W - 1), dy(0, H - 1), dp(0, 1), dt(0, 3);
+  for (int i = 0; i < 20000; ++i) {
+    t += dt(rng);
+    es.push(t, static_cast<uint16_t>(dx(rng)), static_cast<uint16_t>(dy(rng)), dp(rng) ? 1 : -1);
+  }
+  auto s = starts(H, 0, 37.5);  // fractional line delay
+  std::vector<float> rs(C * W * H);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  for (auto& v : rs) v = u(rng);
+  rs[5] = 0.f;
+  PhysicsUnrollParams prm;
+  prm.contrast = 0.2f;
+  prm.gamma = 2.2f;
+  for (double t_star : {-1000.0, 0.0, 650.0, 2400.0}) {
+    auto ev = gather_pixel_events(es, t_star, s, plus(s, 1500), 0, 0, W, H);
+    EXPECT_GT(ev.tau.size(), 100u);
+    auto cpu = physics_unroll_ref(rs, C, ev, prm);
+    auto gpu = run_gpu(rs, C, ev, prm);
+    for (size_t i = 0; i < cpu.size(); ++i)
+      ASSERT_NEAR(gpu[i], cpu[i], 1e-4 * std::max(1.f, std::abs(cpu[i]))) << "t*=" << t_star << " i=" << i;
+  }
+}
+
+TEST(PhysicsUnroll, GatherKeepsOnlyEachRowsWindowAndCrop) {
+  EventStream es;
+  es.width = 10, es.height = 10;
+  es.push(50, 3, 4, 1);    // inside row 4's window
+  es.push(50, 3, 9, 1);    // outside the crop (rows 2..5)
+  es.push(5000, 3, 4, 1);  // after the exposure and t*
+  es.push(60, 1, 4, -1);   // outside the crop columns (2..6)
+  auto s = starts(10, 0, 10);
+  auto ev = gather_pixel_events(es, 0, s, plus(s, 100), 2, 2, 5, 4);
+  ASSERT_EQ(ev.tau.size(), 1u);
+  const int pix = (4 - 2) * 5 + (3 - 2);
+  EXPECT_EQ(ev.offsets[pix + 1] - ev.offsets[pix], 1u);
+  EXPECT_FLOAT_EQ(ev.tau[0], 50.f);
+  EXPECT_THROW(gather_pixel_events(es, 0, s, plus(s, 100), 0, 8, 5, 4), Error);
+}

@@ -1,0 +1,88 @@
+#!/usr/bin/python3
+"""Writes the golden fixtures of the model parity tests (tests/data/selfunroll_*.safetensors).
+
+A tiny SelfUnroll (D=2, C=2, G=8, G0=16, N=4, UPNet width 32, UNets flownet 4/4, fusion_net 4/3,
+attfusion_net 8/2 (base/depth)) with fixed-seed weights rounded to fp16 (stored as F16, exact),
+inputs with fp16-exact values, and every intermediate of the PyTorch mirror in fp32:
+
+  selfunroll_tiny.safetensors        weights + configuration metadata
+  selfunroll_golden_m_64x48.safetensors  rs, ev1, ev2, ev3 (B=2) + sys, E, flow, warped, fused, m, out
+  selfunroll_golden_s_64x48.safetensors  batch item 0 of the above, run as SelfUnroll-S (no m, out)
+  selfunroll_golden_m_37x29.safetensors  odd size, SelfUnroll-M
+
+Usage: /usr/bin/python3 tools/make_golden.py [OUT_DIR]   (default tests/data)
+"""
+import os
+import sys
+
+import torch
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import safetensors_io  # noqa: E402
+from selfunroll_torch import SelfUnroll, SelfUnrollConfig, UnetConfig, random_init_, run_named  # noqa: E402
+
+SEED = 20240611
+
+
+def tiny_config() -> SelfUnrollConfig:
+    return SelfUnrollConfig(D=2, C=2, G=8, G0=16, N=4, upnet_width=32,
+                            flownet=UnetConfig(4, 4), fusion_net=UnetConfig(4, 3), attfusion_net=UnetConfig(8, 2),
+                            description="vkunroll golden fixture: tiny random SelfUnroll")
+
+
+def tiny_model() -> SelfUnroll:
+    net = SelfUnroll(tiny_config()).eval()
+    random_init_(net, seed=SEED)
+    with torch.no_grad():
+        # flows of a few pixels (not saturated at +-100) so the warp interpolates inside the image
+        net.flownet.pred.weight.mul_(0.03)
+        net.flownet.pred.bias.zero_()
+        net.UPNet[2].weight.mul_(0.2)        # E mostly inside tanh's linear range
+        net.attfusion_net.pred.weight.mul_(5.0)  # blend maps that span [0, 1] and clamp somewhere
+        for p in net.parameters():
+            p.copy_(p.half().float())
+    return net
+
+
+def make_inputs(b: int, h: int, w: int, n: int, seed: int):
+    g = torch.Generator().manual_seed(seed)
+    rs = torch.rand(b, 3, h, w, generator=g).half().float()
+
+    def events():
+        counts = torch.randint(0, 4, (b, 2 * n, h, w), generator=g).float()
+        return counts * (torch.rand(b, 2 * n, h, w, generator=g) < 0.25).float()
+
+    return {"rs": rs, "ev1": events(), "ev2": events(), "ev3": events()}
+
+
+def fixture(net, inputs, mode):
+    outs = run_named(net, inputs, mode)
+    d = {k: v.half() for k, v in inputs.items()}  # fp16-exact values: stored compactly
+    d.update({k: v.float() for k, v in outs.items()})
+    return d
+
+
+def main():
+    out_dir = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "..", "tests", "data")
+    os.makedirs(out_dir, exist_ok=True)
+    torch.manual_seed(SEED)
+    net = tiny_model()
+    cfg = net.cfg
+    safetensors_io.save(os.path.join(out_dir, "selfunroll_tiny.safetensors"),
+                        {k: v.half() for k, v in net.state_dict().items()}, cfg.to_metadata())
+    m_in = make_inputs(2, 48, 64, cfg.N, SEED + 1)
+    safetensors_io.save(os.path.join(out_dir, "selfunroll_golden_m_64x48.safetensors"), fixture(net, m_in, "m"),
+                        {"mode": "m", "model": "selfunroll_tiny.safetensors"})
+    s_in = {k: v[0:1] for k, v in m_in.items()}
+    safetensors_io.save(os.path.join(out_dir, "selfunroll_golden_s_64x48.safetensors"), fixture(net, s_in, "s"),
+                        {"mode": "s", "model": "selfunroll_tiny.safetensors"})
+    o_in = make_inputs(2, 29, 37, cfg.N, SEED + 2)
+    safetensors_io.save(os.path.join(out_dir, "selfunroll_golden_m_37x29.safetensors"), fixture(net, o_in, "m"),
+                        {"mode": "m", "model": "selfunroll_tiny.safetensors"})
+    for name in sorted(os.listdir(out_dir)):
+        if name.startswith("selfunroll_"):
+            print(f"{name}: {os.path.getsize(os.path.join(out_dir, name))} bytes")
+
+
+if __name__ == "__main__":
+    main()

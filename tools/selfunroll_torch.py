@@ -1,0 +1,340 @@
+"""PyTorch mirror of SelfUnroll-S / -M, written from docs/../shared/reference/selfunroll-network.md.
+
+Module and parameter names are the published checkpoints' key names, so
+`SelfUnroll(cfg).load_state_dict(checkpoint)` works on a converted or original state_dict.
+Used for golden vectors (tools/make_golden.py), the converter (tools/convert_checkpoint.py),
+the model bench and the training code.
+
+    from selfunroll_torch import SelfUnroll, SelfUnrollConfig
+    net = SelfUnroll(SelfUnrollConfig())            # the published configuration
+    sys_, E, flow, warped, fused, m, out = net(rs, ev1, ev2, ev3)   # B = 2 for -M
+    net(rs, ev1, ev2, ev3, moa=False)               # SelfUnroll-S: m and out are None
+"""
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass, field
+from typing import Dict, Mapping, Optional
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+
+@dataclass
+class UnetConfig:
+    base: int = 32
+    depth: int = 3
+
+
+@dataclass
+class SelfUnrollConfig:
+    D: int = 10          # residual dense blocks
+    C: int = 5           # convs per block
+    G: int = 48          # growth rate
+    G0: int = 96         # block width
+    N: int = 16          # temporal bins: each event tensor has 2N channels
+    upnet_width: int = 256  # UPNet.0 output channels (before depth_to_space(2))
+    flownet: UnetConfig = field(default_factory=lambda: UnetConfig(32, 4))
+    fusion_net: UnetConfig = field(default_factory=lambda: UnetConfig(32, 3))
+    attfusion_net: UnetConfig = field(default_factory=lambda: UnetConfig(32, 3))
+    rdb_slope: float = 0.01   # LeakyReLU slope inside the residual dense blocks
+    unet_slope: float = 0.1   # LeakyReLU slope inside the UNets
+    moa: bool = True          # attfusion_net present (SelfUnroll-M possible)
+    channel_order: str = "rgb"
+    description: str = ""
+
+    @property
+    def ev_channels(self) -> int:
+        return 2 * self.N
+
+    # ---- safetensors metadata (all values are strings) --------------------------------------
+    def to_metadata(self) -> Dict[str, str]:
+        md = {
+            "format": "vkunroll-selfunroll",
+            "D": str(self.D), "C": str(self.C), "G": str(self.G), "G0": str(self.G0), "N": str(self.N),
+            "upnet_width": str(self.upnet_width),
+            "rdb_slope": repr(float(self.rdb_slope)), "unet_slope": repr(float(self.unet_slope)),
+            "moa": "true" if self.moa else "false",
+            "channel_order": self.channel_order, "description": self.description,
+        }
+        for name in ("flownet", "fusion_net", "attfusion_net"):
+            u = getattr(self, name)
+            md[f"{name}.base"] = str(u.base)
+            md[f"{name}.depth"] = str(u.depth)
+        return md
+
+    @staticmethod
+    def from_metadata(md: Mapping[str, str]) -> "SelfUnrollConfig":
+        c = SelfUnrollConfig()
+        for k in ("D", "C", "G", "G0", "N", "upnet_width"):
+            if k in md:
+                setattr(c, k, int(md[k]))
+        for k in ("rdb_slope", "unet_slope"):
+            if k in md:
+                setattr(c, k, float(md[k]))
+        if "moa" in md:
+            c.moa = md["moa"] == "true"
+        c.channel_order = md.get("channel_order", "rgb")
+        c.description = md.get("description", "")
+        for name in ("flownet", "fusion_net", "attfusion_net"):
+            u = getattr(c, name)
+            if f"{name}.base" in md:
+                u.base = int(md[f"{name}.base"])
+            if f"{name}.depth" in md:
+                u.depth = int(md[f"{name}.depth"])
+        return c
+
+
+def infer_config(shapes: Mapping[str, tuple]) -> SelfUnrollConfig:
+    """The configuration from tensor shapes (name -> shape); slopes keep the published values."""
+    def need(key):
+        if key not in shapes:
+            raise KeyError(f"cannot infer the configuration: tensor '{key}' is missing")
+        return tuple(shapes[key])
+
+    c = SelfUnrollConfig()
+    w = need("SFENet1.weight")
+    c.G0 = w[0]
+    if w[1] % 4 or (w[1] // 4 - 3) % 6:
+        raise ValueError(f"SFENet1.weight has {w[1]} input channels; expected 4*(3+6N)")
+    c.N = (w[1] // 4 - 3) // 6
+    c.D = len({m.group(1) for k in shapes for m in [re.match(r"RDBs\.(\d+)\.LFF\.weight$", k)] if m})
+    c.C = len({m.group(1) for k in shapes for m in [re.match(r"RDBs\.0\.convs\.(\d+)\.conv\.0\.weight$", k)] if m})
+    c.G = need("RDBs.0.convs.0.conv.0.weight")[0]
+    c.upnet_width = need("UPNet.0.weight")[0]
+    for name in ("flownet", "fusion_net", "attfusion_net"):
+        u = getattr(c, name)
+        head = f"{name}.head.weight"
+        if head not in shapes:
+            if name == "attfusion_net":
+                c.moa = False
+                continue
+            need(head)
+        u.base = shapes[head][0]
+        u.depth = len({m.group(1) for k in shapes
+                       for m in [re.match(rf"{re.escape(name)}\.down_path\.(\d+)\.down\.0\.weight$", k)] if m})
+    return c
+
+
+# ---- building blocks (Sequential indices reproduce the checkpoint keys) ---------------------
+
+def conv_act(cin, cout, k, s, p, slope):
+    # conv, (absent) norm, activation: the conv is element 0
+    return nn.Sequential(nn.Conv2d(cin, cout, k, s, p), nn.Identity(), nn.LeakyReLU(slope))
+
+
+class ResBlock(nn.Module):
+    def __init__(self, w, slope):
+        super().__init__()
+        self.conv = nn.Sequential(conv_act(w, w, 3, 1, 1, slope), nn.Conv2d(w, w, 3, 1, 1))
+
+    def forward(self, x):
+        return x + self.conv(x)
+
+
+class DownBlock(nn.Module):
+    def __init__(self, w, wnext, slope):
+        super().__init__()
+        self.conv1 = ResBlock(w, slope)
+        self.conv2 = conv_act(w, w, 1, 1, 0, slope)
+        self.down = conv_act(w, wnext, 3, 2, 1, slope)
+
+    def forward(self, x):
+        x = self.conv1(x)
+        return self.down(x), self.conv2(x)
+
+
+class UpBlock(nn.Module):
+    def __init__(self, wprev, w, slope):
+        super().__init__()
+        self.deconv = nn.Sequential(nn.ConvTranspose2d(wprev, w, 4, 2, 1), nn.Identity(), nn.LeakyReLU(slope))
+        self.conv_skip = conv_act(w, w, 1, 1, 0, slope)
+        self.conv1 = conv_act(2 * w, w, 3, 1, 1, slope)
+        self.conv2 = ResBlock(w, slope)
+
+    def forward(self, x, skip):
+        x = torch.cat([self.deconv(x), self.conv_skip(skip)], 1)
+        return self.conv2(self.conv1(x))
+
+
+def size_adapter_pads(h: int, w: int, multiple: int = 32):
+    """(top, bottom, left, right) reflection pads; the odd remainder goes to the bottom/right."""
+    dh = -h % multiple
+    dw = -w % multiple
+    return dh // 2, dh - dh // 2, dw // 2, dw - dw // 2
+
+
+class Unet(nn.Module):
+    def __init__(self, cin, cout, base, depth, slope):
+        super().__init__()
+        self.depth = depth
+        self.head = nn.Conv2d(cin, base, 3, 1, 1)
+        self.down_path = nn.ModuleList([DownBlock(base << i, base << (i + 1), slope) for i in range(depth)])
+        self.bottom = nn.Sequential(ResBlock(base << depth, slope), ResBlock(base << depth, slope))
+        self.up_path = nn.ModuleList([UpBlock(base << (i + 1), base << i, slope) for i in range(depth)])
+        self.pred = nn.Conv2d(base, cout, 3, 1, 1)
+
+    def forward(self, x):
+        h, w = x.shape[-2:]
+        top, bottom, left, right = size_adapter_pads(h, w)
+        x = F.pad(x, (left, right, top, bottom), mode="reflect") if (top or bottom or left or right) else x
+        x = self.head(x)
+        skips = []
+        for blk in self.down_path:
+            x, s = blk(x)
+            skips.append(s)
+        x = self.bottom(x)
+        for i in range(self.depth - 1, -1, -1):
+            x = self.up_path[i](x, skips[i])
+        x = self.pred(x)
+        return x[:, :, top:top + h, left:left + w]
+
+
+class RDBConv(nn.Module):
+    def __init__(self, cin, g, slope):
+        super().__init__()
+        self.conv = nn.Sequential(nn.Conv2d(cin, g, 3, 1, 1), nn.LeakyReLU(slope))
+
+    def forward(self, x):
+        return torch.cat([x, self.conv(x)], 1)
+
+
+class RDB(nn.Module):
+    def __init__(self, g0, g, c, slope):
+        super().__init__()
+        self.convs = nn.Sequential(*[RDBConv(g0 + i * g, g, slope) for i in range(c)])
+        self.LFF = nn.Conv2d(g0 + c * g, g0, 1, 1, 0)
+
+    def forward(self, x):
+        return self.LFF(self.convs(x)) + x
+
+
+def backward_warp(img: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
+    """Bilinear sample of img at (x + flow_x, y + flow_y), positions clamped to the image
+    (= grid_sample(align_corners=True, padding_mode='border')), safe for width/height 1."""
+    b, c, h, w = img.shape
+    ys = torch.arange(h, dtype=img.dtype, device=img.device).view(1, h, 1)
+    xs = torch.arange(w, dtype=img.dtype, device=img.device).view(1, 1, w)
+    px = (xs + flow[:, 0]).clamp(0, w - 1)
+    py = (ys + flow[:, 1]).clamp(0, h - 1)
+    x0 = px.floor()
+    y0 = py.floor()
+    ax = px - x0
+    ay = py - y0
+    x0i = x0.long()
+    y0i = y0.long()
+    x1i = (x0i + 1).clamp(max=w - 1)
+    y1i = (y0i + 1).clamp(max=h - 1)
+    flat = img.reshape(b, c, h * w)
+
+    def tap(yi, xi):
+        idx = (yi * w + xi).reshape(b, 1, h * w).expand(b, c, h * w)
+        return flat.gather(2, idx).reshape(b, c, h, w)
+
+    ax = ax.unsqueeze(1)
+    ay = ay.unsqueeze(1)
+    top = tap(y0i, x0i) * (1 - ax) + tap(y0i, x1i) * ax
+    bot = tap(y1i, x0i) * (1 - ax) + tap(y1i, x1i) * ax
+    return top * (1 - ay) + bot * ay
+
+
+def reference_bwarp(img: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
+    """The authors' formulation (grid_sample); divides by zero for width or height 1."""
+    b, _, h, w = img.shape
+    gx = torch.linspace(-1.0, 1.0, w, dtype=img.dtype).view(1, 1, 1, w).expand(b, -1, h, -1)
+    gy = torch.linspace(-1.0, 1.0, h, dtype=img.dtype).view(1, 1, h, 1).expand(b, -1, -1, w)
+    f = torch.cat([flow[:, 0:1] / ((w - 1.0) / 2.0), flow[:, 1:2] / ((h - 1.0) / 2.0)], 1)
+    g = (torch.cat([gx, gy], 1) + f).permute(0, 2, 3, 1)
+    return F.grid_sample(img, g, mode="bilinear", padding_mode="border", align_corners=True)
+
+
+class SelfUnroll(nn.Module):
+    def __init__(self, cfg: Optional[SelfUnrollConfig] = None):
+        super().__init__()
+        cfg = cfg or SelfUnrollConfig()
+        self.cfg = cfg
+        nev = cfg.ev_channels
+        self.SFENet1 = nn.Conv2d(4 * (3 + 3 * nev), cfg.G0, 5, 1, 2)
+        self.SFENet2 = nn.Conv2d(cfg.G0, cfg.G0, 3, 1, 1)
+        self.RDBs = nn.ModuleList([RDB(cfg.G0, cfg.G, cfg.C, cfg.rdb_slope) for _ in range(cfg.D)])
+        self.GFF = nn.Sequential(nn.Conv2d(cfg.D * cfg.G0, cfg.G0, 1, 1, 0), nn.Conv2d(cfg.G0, cfg.G0, 3, 1, 1))
+        self.UPNet = nn.Sequential(nn.Conv2d(cfg.G0, cfg.upnet_width, 3, 1, 1), nn.PixelShuffle(2),
+                                   nn.Conv2d(cfg.upnet_width // 4, 3, 3, 1, 1))
+        s = cfg.unet_slope
+        self.flownet = Unet(2 * nev + 3, 2, cfg.flownet.base, cfg.flownet.depth, s)
+        self.fusion_net = Unet(3 + 3 + 2 + nev + 3, 3, cfg.fusion_net.base, cfg.fusion_net.depth, s)
+        if cfg.moa:
+            self.attfusion_net = Unet(3 + 3 + 2 * nev + 2 + 2, 1, cfg.attfusion_net.base, cfg.attfusion_net.depth, s)
+
+    def forward(self, rs, ev1, ev2, ev3, moa: Optional[bool] = None, force_m: Optional[float] = None):
+        """Returns (sys, E, flow, warped, fused, m, out); m and out are None for SelfUnroll-S.
+        `force_m` replaces the blend map by a constant (tests: m = 1 gives S of frame 1).
+        An odd height or width (space_to_depth needs even sizes) is handled by padding every
+        input by one row/column at the bottom/right (reflection; replication for size 1),
+        running the network, and cropping every output back."""
+        if moa is None:
+            moa = self.cfg.moa and rs.shape[0] == 2
+        h, w = rs.shape[-2:]
+        if h % 2 or w % 2:
+            pads = (0, w % 2, 0, h % 2)
+            def even(t):
+                mode = "reflect" if (h > 1 or h % 2 == 0) and (w > 1 or w % 2 == 0) else "replicate"
+                return F.pad(t, pads, mode=mode)
+            res = self.forward(even(rs), even(ev1), even(ev2), even(ev3), moa=moa, force_m=force_m)
+            return tuple(None if t is None else t[:, :, :h, :w] for t in res)
+        x0 = torch.cat([rs, ev1, ev2, ev3], 1)
+        f1 = self.SFENet1(F.pixel_unshuffle(x0, 2))
+        x = self.SFENet2(f1)
+        outs = []
+        for blk in self.RDBs:
+            x = blk(x)
+            outs.append(x)
+        g = self.GFF(torch.cat(outs, 1)) + f1
+        E = torch.tanh(self.UPNet(g))
+        sys_ = rs + E
+
+        flow = 100.0 * torch.tanh(self.flownet(torch.cat([ev1, ev2, rs], 1)))
+        warped = backward_warp(rs, flow)
+        fused = self.fusion_net(torch.cat([sys_, warped, flow, ev3, rs], 1))
+        if not moa:
+            return sys_, E, flow, warped, fused, None, None
+        if rs.shape[0] != 2:
+            raise ValueError(f"SelfUnroll-M needs batch 2 (frames 1 and 2), got {rs.shape[0]}")
+        if not hasattr(self, "attfusion_net"):
+            raise ValueError("this model has no attfusion_net (MOA) weights: SelfUnroll-S only")
+        score = self.attfusion_net(torch.cat([E[0:1], E[1:2], ev1[0:1], ev1[1:2], flow[0:1], flow[1:2]], 1))
+        m = F.hardsigmoid(score) if force_m is None else torch.full_like(score, float(force_m))
+        out = m * fused[0:1] + (1 - m) * fused[1:2]
+        return sys_, E, flow, warped, fused, m, out
+
+
+OUTPUT_NAMES = ("sys", "E", "flow", "warped", "fused", "m", "out")
+
+
+def run_named(net: SelfUnroll, inputs: Mapping[str, torch.Tensor], mode: str = "m") -> Dict[str, torch.Tensor]:
+    """Runs on a dict with rs, ev1, ev2, ev3 and returns the intermediates by their names."""
+    with torch.no_grad():
+        res = net(inputs["rs"], inputs["ev1"], inputs["ev2"], inputs["ev3"], moa=(mode == "m"))
+    return {k: v for k, v in zip(OUTPUT_NAMES, res) if v is not None}
+
+
+def random_init_(net: nn.Module, seed: int = 0, gain: float = 1.0) -> None:
+    """Deterministic weights with activations of order one through the whole network
+    (He-style uniform by fan-in; biases small), so parity tests exercise every op."""
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for name, p in net.named_parameters():
+            if name.endswith("weight"):
+                fan_in = p.shape[1] * p.shape[2] * p.shape[3]
+                if ".deconv." in name:  # ConvTranspose2d: [in, out, k, k], each output sums in*k*k/4 taps
+                    fan_in = p.shape[0] * p.shape[2] * p.shape[3] / 4
+                bound = gain * (3.0 / fan_in) ** 0.5
+                p.copy_((torch.rand(p.shape, generator=g) * 2 - 1) * bound)
+            else:
+                p.copy_((torch.rand(p.shape, generator=g) * 2 - 1) * 0.05)
+
+
+def config_dict(cfg: SelfUnrollConfig) -> dict:
+    return dataclasses.asdict(cfg)
