@@ -90,7 +90,7 @@ std::vector<ConvShape> model_shapes() {
   add(v, {"UPNet.0", false, 3, 1, G0, 256, h2, w2});
   add(v, {"UPNet.2", false, 3, 1, 64, 3, H, W});
   const int64_t ph = 288, pw = 352;  // size adapter: 260x346 -> 288x352
-  unet_shapes(v, "flownet", 2 * N2 + 2 * N2 + 3, 2, 4, ph, pw);
+  unet_shapes(v, "flownet", N2 + N2 + 3, 2, 4, ph, pw);  // cat(ev1, ev2, rs): 67
   unet_shapes(v, "fusion_net", 3 + 3 + 2 + N2 + 3, 3, 3, ph, pw);
   unet_shapes(v, "attfusion_net", 3 + 3 + N2 + N2 + 2 + 2, 1, 3, ph, pw);
   for (auto& s : v)  // the quick subset: one of each kind
@@ -150,7 +150,7 @@ double ceiling_gflops(Context& ctx, Profiler* profile) {
 
 int main(int argc, char** argv) {
   std::string json_path, only;
-  bool profile = false, quick = false, naive = true, all_algos = false;
+  bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false;
   int reps = 2;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -165,15 +165,19 @@ int main(int argc, char** argv) {
     else if (a == "--profile") profile = true;
     else if (a == "--quick") quick = true;
     else if (a == "--no-naive") naive = false;
+    else if (a == "--naive-full") naive_full = true;
     else if (a == "--all-algos") all_algos = true;
     else if (a == "--only") only = value();
     else if (a == "--reps") reps = std::max(1, std::atoi(value().c_str()));
     else if (a == "-h" || a == "--help") {
       std::cout << "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"
-                   "                              [--all-algos] [--only NAME_SUBSTRING]\n"
+                   "                              [--naive-full] [--all-algos] [--only NAME_SUBSTRING]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
-                   "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n";
+                   "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
+                   "Times are the best of --reps (default 2) after a warm-up. The naive shader runs on the\n"
+                   "full shape for the 3x3 RDB conv 144->48 and on a band of rows elsewhere (--naive-full:\n"
+                   "everywhere; slow). --all-algos also times every other applicable algorithm.\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
@@ -223,31 +227,47 @@ int main(int argc, char** argv) {
         const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
         algos.push_back(conv_algo_name(chosen));
         if (all_algos)
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd})
+          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm})
             if (a != chosen && conv->supports(a)) algos.push_back(conv_algo_name(a));
       }
       Tensor yd(ctx, os);
-      auto run = [&](const std::string& algo, int n) {
-        return time_gpu(ctx, n, prof, [&](CommandStream& cs) {
-          if (c.transposed) {
-            for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked})
-              if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(xd), Slice(yd), a);
-          } else {
-            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd})
-              if (algo == conv_algo_name(a)) conv->record(cs, Slice(xd), Slice(yd), std::nullopt, a);
-          }
-        });
+      auto record_algo = [&](CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) {
+        if (c.transposed) {
+          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked})
+            if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
+        } else {
+          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm})
+            if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
+        }
       };
+      auto run = [&](const std::string& algo, int n) {
+        return time_gpu(ctx, n, prof, [&](CommandStream& cs) { record_algo(cs, algo, xd, yd); });
+      };
+      // The naive shader is 10-50x slower: it runs on the full shape for the target shape
+      // (the 3x3 RDB conv 144->48) and on a band of input rows (same width and channels, so the
+      // same per-pixel work) elsewhere; its GFLOP/s is that of what it ran.
       std::optional<Timing> naive_t;
-      if (naive && algos.front() != "naive") naive_t = run("naive", 1);
+      double naive_flop = 0;
+      int64_t naive_rows = c.h;
+      if (naive && algos.front() != "naive") {
+        const bool full = c.name == "RDBs.d.convs.1" || naive_full;
+        naive_rows = full ? c.h : std::min<int64_t>(c.h, c.transposed ? 8 : 16 * c.s);
+        Tensor xb = random_host({1, c.cin, naive_rows, c.w}, rng, 1.f).to_device(ctx);
+        const Shape ob = c.transposed ? deconv->output_shape(xb.shape()) : conv->output_shape(xb.shape());
+        Tensor yb(ctx, ob);
+        naive_flop = c.transposed ? deconv->flop(xb.shape()) : conv->flop(xb.shape());
+        naive_t = time_gpu(ctx, 1, prof, [&](CommandStream& cs) { record_algo(cs, "naive", xb, yb); });
+      }
       for (size_t ai = 0; ai < algos.size(); ++ai) {
         const Timing t = run(algos[ai], reps);
         const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
         if (ai == 0 && frac < worst_fraction) worst_fraction = frac, worst = c.name;
-        const double nms = naive_t ? naive_t->ms : (algos[ai] == "naive" ? t.ms : 0);
-        std::printf("%-34s %-26s %-9s %9.2f %8.2f %5.1f%% %10.2f %8.2f %6.1fx%s\n", c.name.c_str(), c.shape_str().c_str(),
-                    algos[ai].c_str(), t.ms, gf, 100 * frac, nms, nms > 0 ? flop / (nms * 1e6) : 0.0,
-                    nms > 0 ? nms / t.ms : 0.0, ai == 0 ? "" : "  (forced)");
+        const double nms = naive_t ? naive_t->ms : 0;
+        const double ngf = naive_t ? naive_flop / (nms * 1e6) : 0;
+        std::printf("%-34s %-26s %-9s %9.2f %8.2f %5.1f%% %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(), c.shape_str().c_str(),
+                    algos[ai].c_str(), t.ms, gf, 100 * frac, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
+                    naive_t && naive_rows < c.h ? (" (naive: " + std::to_string(naive_rows) + " rows)").c_str() : "",
+                    ai == 0 ? "" : "  (forced)");
         std::fflush(stdout);
         nlohmann::json row{{"op", c.transposed ? "conv_transpose2d" : "conv2d"},
                            {"name", c.name},
@@ -266,16 +286,35 @@ int main(int argc, char** argv) {
                            {"gflops", gf},
                            {"ceiling_gflops", ceiling},
                            {"fraction_of_ceiling", frac}};
-        if (nms > 0) {
+        if (naive_t) {
           row["naive_ms"] = nms;
-          row["naive_gflops"] = flop / (nms * 1e6);
-          row["speedup_vs_naive"] = nms / t.ms;
+          row["naive_rows"] = naive_rows;
+          row["naive_gflops"] = ngf;
+          row["speedup_vs_naive"] = gf / ngf;
         }
         rows.push_back(row);
       }
     }
+    // The machine is shared: measure the ceiling again and judge every shape against the better
+    // of the two (the conservative fraction).
+    const double ceiling_end = ceiling_gflops(ctx, prof);
+    const double ceil_best = std::max(ceiling, ceiling_end);
+    std::printf("FMA ceiling again at the end: %.2f GFLOP/s; fractions below use %.2f\n", ceiling_end, ceil_best);
+    worst_fraction = 1e9;
+    for (auto& row : rows) {
+      row["ceiling_gflops"] = ceil_best;
+      row["fraction_of_ceiling"] = row["gflops"].get<double>() / ceil_best;
+      if (row["chosen"].get<bool>() && row["fraction_of_ceiling"].get<double>() < worst_fraction) {
+        worst_fraction = row["fraction_of_ceiling"].get<double>();
+        worst = row["name"].get<std::string>() + " [" + row["shape"].get<std::string>() + "]";
+      }
+      if (row["chosen"].get<bool>() && row["name"] == "RDBs.d.convs.1" && row.contains("speedup_vs_naive"))
+        std::printf("target 3x3 RDB conv 144->48 @130x173: %s %.2f GFLOP/s = %.1f%% of the ceiling, %.1fx the naive shader\n",
+                    row["algo"].get<std::string>().c_str(), row["gflops"].get<double>(),
+                    100 * row["fraction_of_ceiling"].get<double>(), row["speedup_vs_naive"].get<double>());
+    }
     if (worst_fraction < 1e9)
-      std::printf("lowest fraction of the ceiling (chosen algorithm): %.1f%% (%s)\n", 100 * worst_fraction, worst.c_str());
+      std::printf("lowest fraction of the ceiling (chosen algorithms): %.1f%% (%s)\n", 100 * worst_fraction, worst.c_str());
     if (!json_path.empty()) {
       std::ofstream f(json_path);
       if (!f) throw Error("cannot write --json file '" + json_path + "'");

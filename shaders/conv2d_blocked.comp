@@ -1,17 +1,21 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
 // conv2d with register blocking: each invocation computes PX (8) consecutive output pixels of one row
-// for 8 output channels (8 x PX accumulators). Per input channel and kernel row it loads the
-// PX*STRIDE + K - STRIDE input values once and reuses them for all K taps and 8 channels; the
-// weights are packed [cout/8][cin][K][K][8] so the 8 channels of one tap are two vec4 loads,
-// the same for the whole workgroup.
-layout(local_size_x = 16, local_size_y = 4, local_size_z = 1) in;
+// for COB (8 or 16) output channels (PX x COB accumulators). Per input channel and kernel row it
+// loads the PX*STRIDE + K - STRIDE input values once and reuses them for all K taps and COB
+// channels; the weights are packed [cout/COB][cin][K][K][COB] so the COB channels of one tap are
+// COB/4 vec4 loads, the same for the whole workgroup.
+// Invocations are numbered over (output row, block of PX columns), so small and narrow images keep
+// every lane busy.
+layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(constant_id = 0) const uint K = 3;
 layout(constant_id = 1) const uint STRIDE = 1;
 layout(constant_id = 2) const uint ACT = 0;
 layout(constant_id = 3) const float SLOPE = 0.0;
 layout(constant_id = 4) const uint HAS_RES = 0;
 layout(constant_id = 5) const uint PX = 8;
+layout(constant_id = 6) const uint CQ = 2;  // vec4s of output channels per invocation (COB / 4)
+const uint COB = CQ * 4u;
 #include "act.glsl"
 
 const uint ROW = PX * STRIDE + K - STRIDE;  // input values one kernel row of PX outputs touches
@@ -27,24 +31,28 @@ layout(push_constant) uniform P {
 } p;
 
 void main() {
-  uint cob_count = (p.cout + 7u) / 8u;
+  uint cob_count = (p.cout + COB - 1u) / COB;
   uint n = gl_WorkGroupID.z / cob_count, cob = gl_WorkGroupID.z % cob_count;
-  uint ox0 = gl_GlobalInvocationID.x * PX, oy = gl_GlobalInvocationID.y;
+  uint xblocks = (p.ow + PX - 1u) / PX;
+  uint blk = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
+  uint ox0 = (blk % xblocks) * PX, oy = blk / xblocks;
   // No early return and no branch on the invocation's position before the main loop: out-of-range
   // invocations compute clamped garbage that is never stored (divergent control flow costs more).
   bool live = ox0 < p.ow && oy < p.oh;
   int iy0 = int(oy * STRIDE) - int(p.pad), ix0 = int(ox0 * STRIDE) - int(p.pad);
 
-  vec4 acc[PX][2];
-  vec4 b0 = bias[cob * 2u], b1 = bias[cob * 2u + 1u];
-  for (uint j = 0; j < PX; ++j) { acc[j][0] = b0; acc[j][1] = b1; }
+  vec4 acc[PX][CQ];
+  for (uint q = 0; q < CQ; ++q) {
+    vec4 b0 = bias[cob * CQ + q];
+    for (uint j = 0; j < PX; ++j) acc[j][q] = b0;
+  }
 
   bool colok[ROW];
   for (uint i = 0; i < ROW; ++i) colok[i] = ix0 + int(i) >= 0 && ix0 + int(i) < int(p.w);
   uint plane = p.h * p.w;
   uint ib = p.in_off + n * p.in_bs;
-  uint wb = cob * p.cin * K * K * 2u;
-  for (uint ci = 0; ci < p.cin; ++ci, ib += plane, wb += K * K * 2u) {
+  uint wb = cob * p.cin * K * K * CQ;
+  for (uint ci = 0; ci < p.cin; ++ci, ib += plane, wb += K * K * CQ) {
     for (uint ky = 0; ky < K; ++ky) {
       int iy = iy0 + int(ky);
       bool rowok = iy >= 0 && iy < int(p.h);
@@ -55,12 +63,10 @@ void main() {
         row[i] = (rowok && colok[i]) ? v : 0.0;
       }
       for (uint kx = 0; kx < K; ++kx) {
-        uint wi = wb + (ky * K + kx) * 2u;
-        vec4 w0 = wt[wi], w1 = wt[wi + 1u];
-        for (uint j = 0; j < PX; ++j) {
-          float v = row[j * STRIDE + kx];
-          acc[j][0] += v * w0;
-          acc[j][1] += v * w1;
+        uint wi = wb + (ky * K + kx) * CQ;
+        for (uint q = 0; q < CQ; ++q) {
+          vec4 wq = wt[wi + q];
+          for (uint j = 0; j < PX; ++j) acc[j][q] += row[j * STRIDE + kx] * wq;
         }
       }
     }
@@ -70,9 +76,9 @@ void main() {
   uint ob = p.out_off + n * p.out_bs;
   uint rbase = p.res_off + n * p.res_bs;
   uint oplane = p.oh * p.ow;
-  for (uint h = 0; h < 2u; ++h)
+  for (uint h = 0; h < CQ; ++h)
     for (uint c = 0; c < 4u; ++c) {
-      uint co = cob * 8u + h * 4u + c;
+      uint co = cob * COB + h * 4u + c;
       if (co >= p.cout) continue;
       for (uint j = 0; j < PX; ++j) {
         uint ox = ox0 + j;
