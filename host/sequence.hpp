@@ -30,6 +30,8 @@ struct SequenceOptions {
   int fastec_frame_step_gs = 260;
   // Passed to the event reader (bad-record policy, format, ...); sensor size is set by the loader.
   EventReadOptions events;
+  // Replaces the layout's event file(s) by this one.
+  std::optional<std::string> events_file;
   // Read every frame's image header and check its size against the sensor.
   bool check_frame_sizes = true;
 };
