@@ -120,7 +120,9 @@ int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const 
     deconvs_.push_back(std::make_unique<ConvTranspose2d>(ctx_, wt, bt, ConvTranspose2dParams{d.k, d.stride, d.pad, act}, d.name));
     conv_index_.push_back(~static_cast<int>(deconvs_.size() - 1));
   } else {
-    convs_.push_back(std::make_unique<Conv2d>(ctx_, wt, bt, Conv2dParams{d.k, d.stride, d.pad, act}, d.name));
+    if (!conv_workspace_) conv_workspace_ = std::make_shared<ConvWorkspace>();
+    convs_.push_back(
+        std::make_unique<Conv2d>(ctx_, wt, bt, Conv2dParams{d.k, d.stride, d.pad, act}, d.name, conv_workspace_));
     conv_index_.push_back(static_cast<int>(convs_.size() - 1));
   }
   weight_bytes_ += (w.data.size() + b.data.size()) * 4;

@@ -14,6 +14,7 @@ namespace vkunroll {
 
 class Conv2d;
 class ConvTranspose2d;
+class ConvWorkspace;
 class Profiler;
 
 class VulkanBackend final : public Backend {
@@ -55,6 +56,7 @@ class VulkanBackend final : public Backend {
   std::unique_ptr<CommandStream> cs_;
   std::vector<std::unique_ptr<Buf>> bufs_;
   std::vector<std::unique_ptr<Conv2d>> convs_;
+  std::shared_ptr<ConvWorkspace> conv_workspace_;  // scratch shared by all convs (Winograd, GEMM)
   std::vector<std::unique_ptr<ConvTranspose2d>> deconvs_;
   std::vector<int> conv_index_;        // conv id -> index in convs_ (>= 0) or ~index in deconvs_
   std::vector<ConvDesc> descs_;

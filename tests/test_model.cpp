@@ -103,7 +103,11 @@ TEST(ModelVulkan, PublishedConfigurationMatchesCpuOn32x32) {
     double scale = 0;
     for (float v : arr.data) scale = std::max(scale, double(std::fabs(v)));
     const double err = max_abs_diff(gpu.at(name), arr);
-    EXPECT_LE(err, 1e-4 * std::max(1.0, scale)) << name << " (max |value| " << scale << ")";
+    // 3e-4, not 1e-4: the convs run Winograd F(4x4, 3x3) with fp32 transforms (kernels/conv2d.hpp),
+    // whose rounding accumulates over the ~100 convs of this configuration: measured 1.0e-4 (E, sys)
+    // and 2.2e-4 (warped, through the x100 flow) here; each conv alone is within 1e-4 of the CPU
+    // reference (tests/test_conv2d.cpp), and the naive shaders were within 1e-4 end to end.
+    EXPECT_LE(err, 3e-4 * std::max(1.0, scale)) << name << " (max |value| " << scale << ")";
     std::printf("[ parity   ] %-6s max abs err %.3g (max |value| %.3g)\n", name.c_str(), err, scale);
   }
   std::printf("[ timing   ] published config, M 32x32: vulkan weights %.1f s + run %.1f s, cpu reference %.1f s\n",
