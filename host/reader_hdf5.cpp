@@ -387,6 +387,7 @@ void read_hdf5(const std::string& path, const void* image, size_t image_size, Ev
               std::to_string(L.t.rows));
   }
 
+  sink.expect_records(r1 - r0);
   std::vector<int64_t> ti, xi, yi, pi;
   std::vector<double> td, xd, yd, pd;
   for (hsize_t c0 = r0; c0 < r1; c0 += kChunkRows) {
