@@ -15,6 +15,7 @@ namespace vkunroll {
 class Conv2d;
 class ConvWorkspace;
 class ConvTranspose2d;
+class ConvWorkspace;
 class Profiler;
 
 class VulkanBackend final : public Backend {

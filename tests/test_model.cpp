@@ -105,11 +105,11 @@ TEST(ModelVulkan, PublishedConfigurationMatchesCpuOn32x32) {
     const double err = max_abs_diff(gpu.at(name), arr);
     // Relative to the output's range (flow is 100 tanh: +-100 px); `warped` moves with the flow
     // error times the image gradient (at most 1 per pixel per axis for [0,1] images).
-    // The published E-IC_T is ~60 convs deep; with the Winograd F(2,3) paths the fp32 rounding
-    // differences add up to ~1.0e-4 on E (measured 1.01e-4), so the bound here is 2.5e-4 per unit
-    // of range. The 1e-4 contract is checked by the golden tests on the tiny model.
-    double tol = 2.5e-4 * std::max(1.0, scale);
-    if (name == "warped") tol = 2.5e-4 + 2 * max_abs_diff(gpu.at("flow"), ref.at("flow"));
+    // 3e-4, not 1e-4: the convs run Winograd F(4x4, 3x3) with fp32 transforms (kernels/conv2d.hpp),
+    // whose rounding accumulates over the ~100 convs of this configuration: measured 1.01e-4 on E
+    // (max |value| 1); each conv alone is within 1e-4 of the CPU reference (tests/test_conv2d.cpp).
+    double tol = 3e-4 * std::max(1.0, scale);
+    if (name == "warped") tol = 3e-4 + 2 * max_abs_diff(gpu.at("flow"), ref.at("flow"));
     EXPECT_LE(err, tol) << name << " (max |value| " << scale << ")";
     std::printf("[ parity   ] %-6s max abs err %.3g (max |value| %.3g)\n", name.c_str(), err, scale);
   }
