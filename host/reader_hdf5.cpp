@@ -238,7 +238,10 @@ std::vector<int64_t> read_whole_int(hid_t file, const std::string& file_name, co
   if (c.cls == H5T_FLOAT) {
     iv.resize(dv.size());
     for (size_t i = 0; i < dv.size(); ++i) {
-      if (!std::isfinite(dv[i])) throw Error(file_name + ": '" + path + "'[" + std::to_string(i) + "] is not finite");
+      // A float index must be an integer that int64 can hold (converting 1e169 would be undefined).
+      if (!std::isfinite(dv[i]) || std::fabs(dv[i]) >= 9.2e18 || dv[i] != std::floor(dv[i]))
+        throw Error(file_name + ": '" + path + "'[" + std::to_string(i) + "] = " + std::to_string(dv[i]) +
+                    " is not an integer index");
       iv[i] = int64_t(dv[i]);
     }
   }
