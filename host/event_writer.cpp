@@ -46,6 +46,7 @@ void write_dataset(const std::string& path, hid_t group, const char* name, hid_t
   hsize_t dims[1] = {n};
   H5Closer space{H5Screate_simple(1, dims, nullptr), H5Sclose};
   H5Closer dcpl{H5Pcreate(H5P_DATASET_CREATE), H5Pclose};
+  H5Pset_obj_track_times(dcpl.id, 0);  // no creation/modification times: same events -> same bytes
   if (n > 0) {
     // Chunked so readers can take hyperslabs of an hour-long stream without reading it all.
     hsize_t chunk[1] = {std::min<hsize_t>(n, hsize_t(1) << 16)};
@@ -78,7 +79,9 @@ void write_events_hdf5(const std::string& path, const EventStream& ev) {
   } restore{func, data};
   H5Closer file{H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose};
   if (file.id < 0) throw Error(path + ": cannot create the HDF5 file (folder missing or not writable?)");
-  H5Closer g{H5Gcreate2(file.id, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose};
+  H5Closer gcpl{H5Pcreate(H5P_GROUP_CREATE), H5Pclose};
+  H5Pset_obj_track_times(gcpl.id, 0);
+  H5Closer g{H5Gcreate2(file.id, "events", H5P_DEFAULT, gcpl.id, H5P_DEFAULT), H5Gclose};
   if (g.id < 0) throw Error(path + ": cannot create group events");
   const hsize_t n = ev.size();
   std::vector<int8_t> p01(n);

@@ -8,6 +8,7 @@ namespace vkunroll::cli {
 using Argv = std::vector<std::string>;
 
 int cmd_devices(const Argv& args);
+int cmd_simulate(const Argv& args);
 int cmd_events(const Argv& args);
 
 }  // namespace vkunroll::cli

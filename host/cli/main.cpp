@@ -16,6 +16,7 @@ struct Command {
 
 const Command kCommands[] = {
     {"devices", vkunroll::cli::cmd_devices, "list Vulkan devices and mark the one vkunroll would use"},
+    {"simulate", vkunroll::cli::cmd_simulate, "simulate RS frames, GS ground truth and events from a moving scene"},
     {"events", vkunroll::cli::cmd_events, "read an event file: count, time span, rate, sensor size, polarity, drops"},
 };
 
