@@ -6,6 +6,9 @@ namespace vkunroll {
 
 int PlanningBackend::alloc(const Shape& shape, const std::string& what) {
   const uint64_t bytes = static_cast<uint64_t>(shape.count()) * 4;
+  if (bytes > max_buffer_bytes_)
+    throw Error("plan: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
+                " MiB, above the storage-buffer limit of " + std::to_string(max_buffer_bytes_ >> 20) + " MiB");
   if (bytes > largest_) {
     largest_ = bytes;
     largest_name_ = what + " " + shape.str();

@@ -105,12 +105,8 @@ std::string EventSink::where() const {
 
 void EventSink::fail(const std::string& rule) const { throw Error(where() + rule); }
 
-bool EventSink::reject(uint64_t EventReadReport::*counter, const std::string& rule) {
-  if (options_.on_bad == BadEventPolicy::error)
-    fail(rule + " (use --on-bad drop or sort, or EventReadOptions::on_bad, to drop such records and count them)");
-  ++(report_.*counter);
-  ++index_;
-  return !done_;
+void EventSink::fail_rule(const std::string& rule) const {
+  fail(rule + " (use --on-bad drop or sort, or EventReadOptions::on_bad, to drop such records and count them)");
 }
 
 void EventSink::unknown_record(const std::string& what) {
@@ -124,12 +120,14 @@ void EventSink::unknown_record(const std::string& what) {
 bool EventSink::add_float_time(double t_us, int64_t x, int64_t y, int64_t p) {
   if (!std::isfinite(t_us)) {
     ++report_.records;
-    return reject(&EventReadReport::dropped_nan, "time is " + std::string(std::isnan(t_us) ? "NaN" : "infinite") +
-                                                     " (rule: every time must be a finite number)");
+    return reject(&EventReadReport::dropped_nan, [&] {
+      return "time is " + std::string(std::isnan(t_us) ? "NaN" : "infinite") + " (rule: every time must be a finite number)";
+    });
   }
   if (std::fabs(t_us) > 9.0e18) {
     ++report_.records;
-    return reject(&EventReadReport::dropped_nan, "time " + std::to_string(t_us) + " us does not fit in int64 microseconds");
+    return reject(&EventReadReport::dropped_nan,
+                  [&] { return "time " + std::to_string(t_us) + " us does not fit in int64 microseconds"; });
   }
   return add(std::llround(t_us), x, y, p);
 }
@@ -138,15 +136,19 @@ bool EventSink::add_float(double t_us, double x, double y, double p) {
   auto integral = [](double v) { return std::isfinite(v) && v == std::floor(v) && std::fabs(v) < 1e15; };
   if (!integral(x) || !integral(y)) {
     ++report_.records;
-    std::ostringstream os;
-    os << "coordinate x=" << x << " y=" << y << " is not an integer pixel (rule: x, y integral)";
-    return reject(&EventReadReport::dropped_out_of_sensor, os.str());
+    return reject(&EventReadReport::dropped_out_of_sensor, [&] {
+      std::ostringstream os;
+      os << "coordinate x=" << x << " y=" << y << " is not an integer pixel (rule: x, y integral)";
+      return os.str();
+    });
   }
   if (!integral(p)) {
     ++report_.records;
-    std::ostringstream os;
-    os << "polarity " << p << " is not 0/1 or -1/+1";
-    return reject(&EventReadReport::dropped_bad_polarity, os.str());
+    return reject(&EventReadReport::dropped_bad_polarity, [&] {
+      std::ostringstream os;
+      os << "polarity " << p << " is not 0/1 or -1/+1";
+      return os.str();
+    });
   }
   return add_float_time(t_us, int64_t(x), int64_t(y), int64_t(p));
 }
@@ -157,21 +159,24 @@ bool EventSink::add(int64_t t, int64_t x, int64_t y, int64_t p) {
   if (p == 1) pol = 1;
   else if (p == 0 || p == -1) pol = -1;
   else return reject(&EventReadReport::dropped_bad_polarity,
-                     "polarity " + std::to_string(p) + " is not one of 0/1, -1/+1, false/true");
+                     [&] { return "polarity " + std::to_string(p) + " is not one of 0/1, -1/+1, false/true"; });
   const int64_t w = width_ > 0 ? width_ : 65536, h = height_ > 0 ? height_ : 65536;
   if (x < 0 || y < 0 || x >= w || y >= h) {
-    std::string rule = "x=" + std::to_string(x) + " y=" + std::to_string(y) + " is outside the ";
-    rule += width_ > 0 ? std::to_string(width_) + "x" + std::to_string(height_) + " sensor (rule: 0 <= x < width, 0 <= y < height)"
-                       : std::string("16-bit coordinate range (rule: 0 <= x, y < 65536)");
-    return reject(&EventReadReport::dropped_out_of_sensor, rule);
+    return reject(&EventReadReport::dropped_out_of_sensor, [&] {
+      std::string rule = "x=" + std::to_string(x) + " y=" + std::to_string(y) + " is outside the ";
+      rule += width_ > 0 ? std::to_string(width_) + "x" + std::to_string(height_) + " sensor (rule: 0 <= x < width, 0 <= y < height)"
+                         : std::string("16-bit coordinate range (rule: 0 <= x, y < 65536)");
+      return rule;
+    });
   }
   if (have_last_ && t < last_t_) {
     if (options_.on_bad == BadEventPolicy::sort) {
       unsorted_ = true;
     } else {
-      return reject(&EventReadReport::dropped_time_order,
-                    "t=" + std::to_string(t) + " us is earlier than the previous record's t=" + std::to_string(last_t_) +
-                        " us (rule: timestamps non-decreasing)");
+      return reject(&EventReadReport::dropped_time_order, [&] {
+        return "t=" + std::to_string(t) + " us is earlier than the previous record's t=" + std::to_string(last_t_) +
+               " us (rule: timestamps non-decreasing)";
+      });
     }
   } else {
     last_t_ = t;

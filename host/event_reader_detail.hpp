@@ -83,7 +83,15 @@ class EventSink {
   // A record whose coordinates are floats (checked to be integral and finite).
   bool add_float(double t_us, double x, double y, double p);
   // A word/line/record the reader does not understand: error, or counted as dropped_unknown_word.
+  // `what` is a string or a callable returning one (built only when it becomes an error).
   void unknown_record(const std::string& what);
+  template <class Message>
+  void unknown_record_lazy(Message&& what) {
+    if (options_.on_bad == BadEventPolicy::error) unknown_record(what());
+    ++report_.records;
+    ++report_.dropped_unknown_word;
+    ++index_;
+  }
   // A record of another kind the reader skips on purpose (trigger, IMU, ...): counted only.
   void ignored(const std::string& kind, uint64_t n = 1) { report_.ignored[kind] += n; }
   void note(const std::string& text) { report_.notes.push_back(text); }
@@ -102,7 +110,15 @@ class EventSink {
   [[noreturn]] void fail(const std::string& rule) const;
 
  private:
-  bool reject(uint64_t EventReadReport::*counter, const std::string& rule);
+  // Error (the rule's message is built only then) or count and drop.
+  template <class Rule>
+  bool reject(uint64_t EventReadReport::*counter, Rule&& rule) {
+    if (options_.on_bad == BadEventPolicy::error) fail_rule(rule());
+    ++(report_.*counter);
+    ++index_;
+    return !done_;
+  }
+  [[noreturn]] void fail_rule(const std::string& rule) const;
   void flush_chunk();
 
   std::string file_;

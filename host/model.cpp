@@ -89,7 +89,21 @@ Model::Model(Backend& backend, const Weights& w) : backend_(backend), cfg_(w.con
       add_conv(w, p + ".convs." + std::to_string(c) + ".conv.0", cfg_.G0 + c * cfg_.G, cfg_.G, 3, 1, 1, true, cfg_.rdb_slope);
     add_conv(w, p + ".LFF", cfg_.G0 + cfg_.C * cfg_.G, cfg_.G0, 1, 1, 0, false, 0.f);
   }
-  add_conv(w, "GFF.0", cfg_.D * cfg_.G0, cfg_.G0, 1, 1, 0, false, 0.f);
+  // GFF.0 (1x1 over the D block outputs) as D partial 1x1 convs accumulated block by block, so the
+  // D * G0-channel concatenation never exists (it is 82 MiB per frame at 346x260 and above the
+  // 128 MiB binding limit of lavapipe at 640x360).
+  const WeightTensor& gw = w.get("GFF.0.weight");
+  const WeightTensor& gb = w.get("GFF.0.bias");
+  for (int d = 0; d < cfg_.D; ++d) {
+    WeightTensor pw{{cfg_.G0, cfg_.G0, 1, 1}, std::vector<float>(size_t(cfg_.G0) * cfg_.G0)};
+    for (int co = 0; co < cfg_.G0; ++co)
+      for (int ci = 0; ci < cfg_.G0; ++ci)
+        pw.data[size_t(co) * cfg_.G0 + ci] = gw.data[size_t(co) * cfg_.D * cfg_.G0 + size_t(d) * cfg_.G0 + ci];
+    WeightTensor pb{{cfg_.G0}, d == 0 ? gb.data : std::vector<float>(size_t(cfg_.G0), 0.f)};
+    const std::string name = "GFF.0.part" + std::to_string(d);
+    ConvDesc desc{name, cfg_.G0, cfg_.G0, 1, 1, 0, false, false, 0.f};
+    convs_[name] = Conv{backend_.prepare_conv(desc, pw, pb), desc};
+  }
   add_conv(w, "GFF.1", cfg_.G0, cfg_.G0, 3, 1, 1, false, 0.f);
   add_conv(w, "UPNet.0", cfg_.G0, cfg_.upnet_width, 3, 1, 1, false, 0.f);
   add_conv(w, "UPNet.2", cfg_.upnet_width / 4, 3, 3, 1, 1, false, 0.f);
@@ -109,8 +123,8 @@ const Model::Conv& Model::conv(const std::string& name) const {
 int64_t Model::synthesis_item_bytes(int64_t he, int64_t we) const {
   const int64_t plane = (he / 2) * (we / 2);
   const int64_t ev = cfg_.ev_channels();
-  return 4 * std::max({int64_t(cfg_.D) * cfg_.G0 * plane, int64_t(cfg_.G0 + cfg_.C * cfg_.G) * plane,
-                       4 * (3 + 3 * ev) * plane, int64_t(cfg_.upnet_width) * plane});
+  return 4 * std::max({int64_t(cfg_.G0 + cfg_.C * cfg_.G) * plane, 4 * (3 + 3 * ev) * plane,
+                       int64_t(cfg_.upnet_width) * plane});
 }
 
 int64_t Model::unet_item_bytes(const UnetConfig& u, int cin, int64_t he, int64_t we) const {
@@ -118,12 +132,15 @@ int64_t Model::unet_item_bytes(const UnetConfig& u, int cin, int64_t he, int64_t
   return 4 * plane * std::max<int64_t>(cin, 2 * u.base);
 }
 
-int Model::sub_items(int64_t item_bytes) const {
+int Model::sub_items(int64_t item_bytes, uint64_t memory_budget) const {
   const int64_t limit = static_cast<int64_t>(backend_.max_buffer_bytes());
   if (item_bytes > limit)
     throw Error("model: one batch item needs a " + std::to_string(item_bytes >> 20) + " MiB buffer, above the device's " +
                 std::to_string(limit >> 20) + " MiB storage-buffer limit; use a smaller image");
-  return static_cast<int>(std::max<int64_t>(1, limit / item_bytes));
+  int64_t n = limit / item_bytes;
+  // A stage holds about three buffers of its largest size at once.
+  if (memory_budget) n = std::min<int64_t>(n, int64_t(memory_budget) / (3 * item_bytes));
+  return static_cast<int>(std::max<int64_t>(1, n));
 }
 
 int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const {
@@ -229,24 +246,31 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   const int f1 = b.alloc({n, cfg_.G0, h2, w2}, "SFENet1");
   b.conv(conv("SFENet1").id, whole(b, xs), whole(b, f1), nullptr);
   b.release(xs);
-  // Block outputs go straight into the GFF input; each block works in one buffer whose first
-  // G0 channels are its input and whose growing tail holds its convs' outputs.
-  const int gcat = b.alloc({n, int64_t(cfg_.D) * cfg_.G0, h2, w2}, "RDB outputs");
-  const int blk = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
+  // Each block works in one buffer whose first G0 channels are its input and whose growing tail
+  // holds its convs' outputs; LFF writes the block output into the head of a second buffer, which
+  // becomes the next block's buffer (ping-pong). GFF.0 is accumulated after every block.
+  int blk = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
+  int nxt = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
+  int acc = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
+  int acc2 = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
   b.conv(conv("SFENet2").id, whole(b, f1), chans(whole(b, blk), 0, cfg_.G0), nullptr);
   for (int d = 0; d < cfg_.D; ++d) {
     const std::string p = "RDBs." + std::to_string(d);
-    if (d > 0) b.copy(chans(whole(b, gcat), int64_t(d - 1) * cfg_.G0, cfg_.G0), chans(whole(b, blk), 0, cfg_.G0));
     for (int c = 0; c < cfg_.C; ++c)
       b.conv(conv(p + ".convs." + std::to_string(c) + ".conv.0").id, chans(whole(b, blk), 0, cfg_.G0 + c * cfg_.G),
              chans(whole(b, blk), cfg_.G0 + c * cfg_.G, cfg_.G), nullptr);
     const View res = chans(whole(b, blk), 0, cfg_.G0);
-    b.conv(conv(p + ".LFF").id, whole(b, blk), chans(whole(b, gcat), int64_t(d) * cfg_.G0, cfg_.G0), &res);
+    const View block_out = chans(whole(b, nxt), 0, cfg_.G0);
+    b.conv(conv(p + ".LFF").id, whole(b, blk), block_out, &res);
+    const View prev = whole(b, acc);
+    b.conv(conv("GFF.0.part" + std::to_string(d)).id, block_out, whole(b, acc2), d ? &prev : nullptr);
+    std::swap(acc, acc2);
+    std::swap(blk, nxt);
   }
   b.release(blk);
-  const int g0 = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
-  b.conv(conv("GFF.0").id, whole(b, gcat), whole(b, g0), nullptr);
-  b.release(gcat);
+  b.release(nxt);
+  b.release(acc2);
+  const int g0 = acc;
   const int g = b.alloc({n, cfg_.G0, h2, w2}, "GFF.1");
   const View f1v = whole(b, f1);
   b.conv(conv("GFF.1").id, whole(b, g0), whole(b, g), &f1v);
@@ -341,10 +365,11 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
   int64_t per_chunk = opt.max_items > 0 ? opt.max_items : items_per_chunk(H, W, opt.mode, opt.memory_budget);
   if (m_mode) per_chunk = std::max<int64_t>(2, per_chunk & ~int64_t(1));
   per_chunk = std::min(per_chunk, B);
-  const int sub_t = sub_items(synthesis_item_bytes(he, we));
-  const int sub_f = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we));
-  const int sub_u = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we));
-  const int sub_m = m_mode ? sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we)) : 1;
+  const uint64_t budget = opt.memory_budget;
+  const int sub_t = sub_items(synthesis_item_bytes(he, we), budget);
+  const int sub_f = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we), budget);
+  const int sub_u = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we), budget);
+  const int sub_m = m_mode ? sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we), budget) : 1;
 
   std::map<std::string, HostArray> result;
   const int64_t K = m_mode ? B / 2 : 0;

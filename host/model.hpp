@@ -38,7 +38,8 @@ struct RunOptions {
   // Most batch items (M: frames, always whole pairs) run together; 0: as many as the backend's
   // buffer limit and `memory_budget` allow.
   int max_items = 0;
-  // Bytes of device memory the run may hold at once (0: no limit other than buffer size).
+  // Bytes of intermediates the run should hold at once (0: no limit other than buffer size); it
+  // bounds the chunk and sub-batch sizes (a single item may still need more, see docs/model.md).
   uint64_t memory_budget = 0;
 };
 
@@ -79,7 +80,7 @@ class Model {
 
   int64_t synthesis_item_bytes(int64_t h, int64_t w) const;
   int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w) const;
-  int sub_items(int64_t item_bytes) const;
+  int sub_items(int64_t item_bytes, uint64_t memory_budget) const;
 
   Backend& backend_;
   ModelConfig cfg_;

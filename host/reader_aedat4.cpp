@@ -317,6 +317,7 @@ void read_aedat4(ByteSource& src, EventSink& sink) {
       off = next;
       continue;
     }
+    pv.check(8, 4);  // the file identifier after the size prefix and root offset
     if (std::memcmp(out.data() + 8, "EVTS", 4) != 0) pv.fail("event packet without the EVTS identifier");
     if (elements) {
       const auto [first, n] = pv.vec(elements, 16);

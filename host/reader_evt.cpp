@@ -47,9 +47,9 @@ bool size_from_sensor(const std::string& name, int& w, int& h) {
 // Reads blocks of `unit`-byte words from [begin, size); calls fn(ptr, count, byte_offset).
 template <class Fn>
 void for_each_block(ByteSource& src, EventSink& sink, uint64_t begin, size_t unit, const char* what, Fn fn) {
-  std::vector<uint8_t> buf(kBlock);
   uint64_t off = begin;
   const uint64_t size = src.size();
+  std::vector<uint8_t> buf(size_t(std::min<uint64_t>(kBlock, size > begin ? size - begin : 0)));
   while (off < size && !sink.done()) {
     const size_t want = size_t(std::min<uint64_t>(kBlock, size - off));
     const size_t got = src.read_at(off, buf.data(), want);
@@ -80,9 +80,13 @@ PropheseeHeader parse_prophesee_header(ByteSource& src) {
   while (off < size) {
     uint8_t c = 0;
     if (src.read_at(off, &c, 1) != 1 || c != '%') break;
-    // one header line (at most 64 KiB)
-    buf = read_range(src, off, 1 << 16);
-    const auto nl = std::find(buf.begin(), buf.end(), uint8_t('\n'));
+    // one header line (at most 64 KiB), read in growing steps
+    auto nl = buf.end();
+    for (size_t want = 256;; want *= 4) {
+      buf = read_range(src, off, want);
+      nl = std::find(buf.begin(), buf.end(), uint8_t('\n'));
+      if (nl != buf.end() || buf.size() < want || want >= (1 << 16)) break;
+    }
     if (nl == buf.end() && buf.size() == (1 << 16))
       throw Error(src.name() + ": Prophesee header line at byte " + std::to_string(off) + " is longer than 64 KiB");
     std::string line(buf.begin(), nl);
@@ -203,7 +207,7 @@ void read_evt2(ByteSource& src, EventSink& sink) {
         default:
           sink.set_record_index(record++);
           sink.set_byte_offset(int64_t(off + 4 * i));
-          sink.unknown_record("unknown EVT 2.0 word type " + hex(type, 1) + " (word " + hex(w, 8) + ")");
+          sink.unknown_record_lazy([&] { return "unknown EVT 2.0 word type " + hex(type, 1) + " (word " + hex(w, 8) + ")"; });
       }
     }
   });
@@ -260,7 +264,7 @@ void read_evt3(ByteSource& src, EventSink& sink) {
         default:
           sink.set_record_index(record++);
           sink.set_byte_offset(int64_t(off + 2 * i));
-          sink.unknown_record("unknown EVT 3.0 word type " + hex(type, 1) + " (word " + hex(w, 4) + ")");
+          sink.unknown_record_lazy([&] { return "unknown EVT 3.0 word type " + hex(type, 1) + " (word " + hex(w, 4) + ")"; });
       }
     }
   });

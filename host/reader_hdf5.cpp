@@ -372,8 +372,8 @@ void read_hdf5(const std::string& path, const void* image, size_t image_size, Ev
     if (L.kind == "dsec" && is_dataset(f.get(), "ms_to_idx") && o.t_begin_us) {
       // ms_to_idx[k] = first event with (t - t_offset) >= 1000 k: narrows the search to one millisecond.
       const std::vector<int64_t> ms = read_whole_int(f.get(), path, "ms_to_idx");
-      const int64_t rel = *o.t_begin_us - L.t_offset;
-      if (rel >= 0 && !ms.empty()) {
+      int64_t rel = 0;
+      if (!__builtin_sub_overflow(*o.t_begin_us, L.t_offset, &rel) && rel >= 0 && !ms.empty()) {
         const size_t k = size_t(std::min<int64_t>(rel / 1000, int64_t(ms.size()) - 1));
         if (ms[k] >= 0 && hsize_t(ms[k]) <= hi) lo = hsize_t(ms[k]);
         if (k + 1 < ms.size() && ms[k + 1] >= int64_t(lo) && hsize_t(ms[k + 1]) <= hi) hi = hsize_t(ms[k + 1]);
@@ -400,15 +400,18 @@ void read_hdf5(const std::string& path, const void* image, size_t image_size, Ev
     for (hsize_t i = 0; i < n; ++i) {
       sink.set_record_index(c0 + i);
       bool more;
-      if (!tf && !cf) {
-        more = sink.add(ti[i] + L.t_offset, xi[i], yi[i], pi[i]);
+      int64_t t_int = 0;
+      // t + t_offset may overflow int64 in a hostile file: such a time goes through the float path,
+      // which rejects it as not representable.
+      const bool t_overflow = !tf && __builtin_add_overflow(ti[i], L.t_offset, &t_int);
+      if (!tf && !cf && !t_overflow) {
+        more = sink.add(t_int, xi[i], yi[i], pi[i]);
       } else {
-        const double t = tf ? td[i] * time_scale + double(L.t_offset) : double(ti[i] + L.t_offset);
+        const double t = tf ? td[i] * time_scale + double(L.t_offset) : double(ti[i]) + double(L.t_offset);
         const double x = L.x.cls == H5T_FLOAT ? xd[i] : double(xi[i]);
         const double y = L.y.cls == H5T_FLOAT ? yd[i] : double(yi[i]);
         const double p = L.p.cls == H5T_FLOAT ? pd[i] : double(pi[i]);
-        if (!tf && !cf) more = sink.add(ti[i] + L.t_offset, xi[i], yi[i], pi[i]);
-        else if (!cf) more = sink.add_float_time(t, xi[i], yi[i], pi[i]);
+        if (!cf) more = sink.add_float_time(t, xi[i], yi[i], pi[i]);
         else more = sink.add_float(t, x, y, p);
       }
       if (!more) return;

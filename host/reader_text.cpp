@@ -177,8 +177,9 @@ class LineReader {
       buf_.erase(buf_.begin(), buf_.begin() + long(pos_));
       pos_ = 0;
       const size_t old = buf_.size();
-      buf_.resize(old + (1 << 20));
-      const size_t got = src_.read_at(offset_, buf_.data() + old, 1 << 20);
+      const size_t step = size_t(std::min<uint64_t>(1 << 20, src_.size() > offset_ ? src_.size() - offset_ : 0));
+      buf_.resize(old + step);
+      const size_t got = step ? src_.read_at(offset_, buf_.data() + old, step) : 0;
       buf_.resize(old + got);
       offset_ += got;
       if (got == 0) eof_ = true;
@@ -336,24 +337,29 @@ void read_text(ByteSource& src, EventSink& sink) {
     sink.set_record_index(record++);
     split(line, tok);
     if (tok.size() < need) {
-      sink.unknown_record("has " + std::to_string(tok.size()) + " fields, expected at least " + std::to_string(need) +
-                          " (columns '" + columns + "')");
+      sink.unknown_record_lazy([&] {
+        return "has " + std::to_string(tok.size()) + " fields, expected at least " + std::to_string(need) + " (columns '" +
+               columns + "')";
+      });
       continue;
     }
     int64_t t = 0, x = 0, y = 0, p = 0;
     double td = 0;
     const Num tn = parse_time(tok[size_t(ct)], unit_exp, t, td);
     if (tn == Num::bad) {
-      sink.unknown_record("time '" + std::string(tok[size_t(ct)].substr(0, 40)) + "' is not a number");
+      sink.unknown_record_lazy([&] { return "time '" + std::string(tok[size_t(ct)].substr(0, 40)) + "' is not a number"; });
       continue;
     }
     if (!parse_int(tok[size_t(cx)], x) || !parse_int(tok[size_t(cy)], y)) {
-      sink.unknown_record("x '" + std::string(tok[size_t(cx)].substr(0, 40)) + "' / y '" +
-                          std::string(tok[size_t(cy)].substr(0, 40)) + "' is not an integer pixel coordinate");
+      sink.unknown_record_lazy([&] {
+        return "x '" + std::string(tok[size_t(cx)].substr(0, 40)) + "' / y '" + std::string(tok[size_t(cy)].substr(0, 40)) +
+               "' is not an integer pixel coordinate";
+      });
       continue;
     }
     if (!parse_polarity(tok[size_t(cp)], p)) {
-      sink.unknown_record("polarity '" + std::string(tok[size_t(cp)].substr(0, 40)) + "' is not 0/1, -1/+1 or true/false");
+      sink.unknown_record_lazy(
+          [&] { return "polarity '" + std::string(tok[size_t(cp)].substr(0, 40)) + "' is not 0/1, -1/+1 or true/false"; });
       continue;
     }
     const bool more = tn == Num::nan ? sink.add_float_time(td, x, y, p) : sink.add(t, x, y, p);

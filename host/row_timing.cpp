@@ -100,6 +100,7 @@ Rational Rational::from_double(double v) {
   const double m = std::frexp(x, &e);  // x = m * 2^e, m in [0.5, 1)
   const auto mant = static_cast<int128_t>(std::ldexp(m, 53));
   int shift = e - 53;
+  if (shift < -110 || shift > 60) throw Error("Rational: time value " + std::to_string(v) + " is out of range");
   Rational out = shift >= 0 ? Rational(mant << shift, 1) : Rational(mant, static_cast<int128_t>(1) << (-shift));
   return sign < 0 ? -out : out;
 }

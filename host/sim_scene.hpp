@@ -69,7 +69,7 @@ struct SpriteSpec {
 // ---- the scene ---------------------------------------------------------------------------------
 struct SceneSpec {
   int width = 346, height = 260;
-  int supersample = 3;                  // render at S x S samples per pixel, then box-filter
+  int supersample = 1;                  // S x S samples per pixel, box-filtered (textures are prefiltered)
   cv::Mat background;                   // CV_32FC3 linear; empty = uniform `background_color`
   cv::Scalar background_color{0.2, 0.2, 0.2};
   double background_scale = 1.0;        // background texture pixels per world pixel
@@ -114,7 +114,7 @@ class Scene {
 // Builds a complete scene from a few choices (what `vkunroll simulate` exposes).
 struct SceneOptions {
   int width = 346, height = 260;
-  int supersample = 3;
+  int supersample = 1;
   TextureKind texture = TextureKind::Mixed;
   std::string texture_file;        // non-empty: use this image instead of a procedural texture
   MotionKind motion = MotionKind::Mixed;

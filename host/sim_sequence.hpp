@@ -43,7 +43,7 @@ struct SimulationConfig {
   int sprites = 2;
   double speed_scale = 1.0;
   double flicker_amplitude = 0.0, flicker_hz = 100.0;
-  int supersample = 3;
+  int supersample = 1;
   // Output encoding.
   double gamma = 2.2;                 // PNG value = linear^(1/gamma); textures are linearized with it
   int bit_depth = 8;                  // 8 or 16

@@ -54,6 +54,13 @@ ScaledRow scale_row(const Rational& a, const Rational& b, int64_t origin) {
 }
 
 void check_jobs(const EventStream& events, const std::vector<RowIntervals>& jobs) {
+  // The window search and the per-row ranges rely on time order; say so instead of binning wrong.
+  for (size_t i = 1; i < events.t.size(); ++i)
+    if (events.t[i] < events.t[i - 1])
+      throw Error("event tensor: the event stream is not sorted by time (event " + std::to_string(i) + " at " +
+                  std::to_string(events.t[i]) + " us follows " + std::to_string(events.t[i - 1]) + " us)");
+  if (events.x.size() != events.t.size() || events.y.size() != events.t.size() || events.p.size() != events.t.size())
+    throw Error("event tensor: the event stream's t, x, y, p arrays differ in length");
   for (size_t j = 0; j < jobs.size(); ++j) {
     if (jobs[j].a.size() != static_cast<size_t>(events.height) || jobs[j].b.size() != static_cast<size_t>(events.height))
       throw Error("event tensor: job " + std::to_string(j) + " has " + std::to_string(jobs[j].a.size()) + "/" +
@@ -85,9 +92,6 @@ RowIntervals intervals(const EventTensorPair& pair, int which) {
 struct BinPush {
   uint32_t n_events, jobs, job_begin, bins, width, height;
 };
-struct ConvertPush {
-  uint32_t n;
-};
 
 }  // namespace
 
@@ -118,6 +122,25 @@ SensorCrop resolve_crop(const SensorCrop& c, int sensor_width, int sensor_height
                 std::to_string(c.width) + " h=" + std::to_string(c.height) + " is not inside the " +
                 std::to_string(sensor_width) + "x" + std::to_string(sensor_height) + " sensor");
   return r;
+}
+
+std::pair<int64_t, int64_t> event_time_window(const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec,
+                                              int sensor_width, int sensor_height) {
+  check_spec(spec);
+  const SensorCrop c = resolve_crop(spec.crop, sensor_width, sensor_height);
+  int64_t lo = std::numeric_limits<int64_t>::max(), hi = std::numeric_limits<int64_t>::min();
+  for (size_t j = 0; j < jobs.size(); ++j) {
+    if (jobs[j].a.size() != static_cast<size_t>(sensor_height) || jobs[j].b.size() != static_cast<size_t>(sensor_height))
+      throw Error("event tensor: job " + std::to_string(j) + " row count does not match the sensor");
+    for (int r = 0; r < c.height; ++r) {
+      const Rational &a = jobs[j].a[c.y0 + r], &b = jobs[j].b[c.y0 + r];
+      if (a == b) continue;
+      lo = std::min(lo, std::min(a, b).ceil());
+      hi = std::max(hi, std::max(a, b).ceil());
+    }
+  }
+  if (lo >= hi) return {0, 0};
+  return {lo, hi};
 }
 
 // ---- CPU reference ----------------------------------------------------------------------------
@@ -249,6 +272,13 @@ BinningPlan plan_binning(const EventStream& events, const std::vector<RowInterva
         for (int k = 1; k < N; ++k) rec[1 + (N - k)] = static_cast<int32_t>(floor_div(s.A * N - k * L, DN) + 1);
         rec[N + 1] = 1;
       }
+      // Estimate of the threshold count: (t - min(a,b)) * N / |b - a| = (t - lo) * sc + c0.
+      const double sc = static_cast<double>(N) * static_cast<double>(s.D) / static_cast<double>(L);
+      const double c0 = static_cast<double>(static_cast<int128_t>(rec[0]) * s.D - std::min(s.A, s.B)) *
+                        static_cast<double>(N) / static_cast<double>(L);
+      const float scf = static_cast<float>(sc), c0f = static_cast<float>(c0);
+      std::memcpy(&rec[N + 2], &scf, 4);
+      std::memcpy(&rec[N + 3], &c0f, 4);
     }
   return plan;
 }
@@ -267,61 +297,213 @@ size_t pack_events(const EventStream& events, const BinningPlan& plan, std::vect
 
 // ---- GPU ---------------------------------------------------------------------------------------
 
-void EventTensorBuilder::record_chunk(CommandStream& cs, const Tensor& packed, size_t n_events, const Tensor& records,
-                                      const BinningPlan& plan, size_t job_begin, Tensor& out) {
+namespace {
+struct PixelPush {
+  uint32_t jobs, job_begin, width, height;
+};
+struct RowPush {
+  uint32_t job_begin, bins, width, height;
+};
+constexpr int kMaxPixelBins = 64;  // the per-pixel shader keeps 2N counters per invocation
+}  // namespace
+
+size_t pack_events_by_pixel(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& offsets,
+                            std::vector<uint32_t>& packed) {
+  const size_t plane = static_cast<size_t>(plan.width) * plan.height;
+  offsets.assign(plane + 1, 0);
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    ++offsets[static_cast<size_t>(y) * plan.width + x + 1];
+  }
+  for (size_t i = 0; i < plane; ++i) offsets[i + 1] += offsets[i];
+  packed.resize(offsets[plane]);
+  std::vector<uint32_t> cursor(offsets.begin(), offsets.end() - 1);
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    packed[cursor[static_cast<size_t>(y) * plan.width + x]++] =
+        static_cast<uint32_t>(events.t[i] - plan.origin_us) | (events.p[i] > 0 ? 1u << 31 : 0u);
+  }
+  return packed.size();
+}
+
+const char* event_bin_algorithm_name(EventBinAlgorithm a) {
+  switch (a) {
+    case EventBinAlgorithm::automatic: return "automatic";
+    case EventBinAlgorithm::per_row: return "per-row";
+    case EventBinAlgorithm::per_event: return "per-event";
+    case EventBinAlgorithm::per_pixel: return "per-pixel";
+  }
+  return "?";
+}
+
+size_t pack_events_by_row(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& packed,
+                          std::vector<uint32_t>& ranges) {
+  std::vector<uint32_t> offsets(static_cast<size_t>(plan.height) + 1, 0);
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    ++offsets[y + 1];
+  }
+  for (int y = 0; y < plan.height; ++y) offsets[y + 1] += offsets[y];
+  packed.resize(2 * static_cast<size_t>(offsets[plan.height]));
+  std::vector<uint32_t> cursor(offsets.begin(), offsets.end() - 1);
+  for (size_t i = plan.first_event; i < plan.last_event; ++i) {
+    const int x = events.x[i] - plan.x0, y = events.y[i] - plan.y0;
+    if (x < 0 || y < 0 || x >= plan.width || y >= plan.height) continue;
+    const size_t k = cursor[y]++;
+    packed[2 * k] = static_cast<uint32_t>(events.t[i] - plan.origin_us);
+    packed[2 * k + 1] = static_cast<uint32_t>(x) | (events.p[i] > 0 ? 1u << 31 : 0u);
+  }
+  // First index in the row segment [b, e) whose time is >= v.
+  auto lower = [&](uint32_t b, uint32_t e, int32_t v) {
+    while (b < e) {
+      const uint32_t m = b + (e - b) / 2;
+      if (static_cast<int32_t>(packed[2 * m]) < v) b = m + 1;
+      else e = m;
+    }
+    return b;
+  };
+  const int R = plan.record_size();
+  ranges.assign(plan.jobs * plan.height * 2, 0);
+  for (size_t j = 0; j < plan.jobs; ++j)
+    for (int y = 0; y < plan.height; ++y) {
+      const int32_t* rec = plan.records.data() + (j * plan.height + y) * R;
+      if (rec[0] >= rec[1]) continue;
+      const uint32_t b = lower(offsets[y], offsets[y + 1], rec[0]);
+      ranges[2 * (j * plan.height + y)] = b;
+      ranges[2 * (j * plan.height + y) + 1] = lower(b, offsets[y + 1], rec[1]);
+    }
+  return offsets[plan.height];
+}
+
+size_t EventTensorBuilder::jobs_per_chunk(const BinningPlan& plan) const {
+  const size_t slice = static_cast<size_t>(2 * plan.bins) * plan.height * plan.width;
+  const size_t max_range = ctx_.info().max_storage_buffer_range;
+  size_t chunk = max_range / (slice * 4);
+  if (chunk == 0)
+    throw Error("event tensor: one " + std::to_string(2 * plan.bins) + "x" + std::to_string(plan.height) + "x" +
+                std::to_string(plan.width) + " tensor exceeds the device's storage-buffer range (" +
+                std::to_string(max_range >> 20) + " MiB); use a crop");
+  if (max_jobs_) chunk = std::min(chunk, max_jobs_);
+  return chunk;
+}
+
+void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& plan, size_t chunk,
+                                 const std::function<void(size_t, Tensor&)>& done) {
   const auto& info = ctx_.info();
-  const uint32_t jobs = static_cast<uint32_t>(out.shape().n);
-  cs.fill(out, 0);
+  const size_t max_range = info.max_storage_buffer_range;
+  const size_t plane = static_cast<size_t>(plan.width) * plan.height;
+  const size_t window = plan.last_event - plan.first_event;
+  // Automatic: per_row. On lavapipe every dense pass over the output costs about as much as
+  // NumPy's whole binning, so the sparse kernels (zero fill + one CAS per selected event and job)
+  // win; per_row reads only selected events with a uniform row record.
+  EventBinAlgorithm algo = algorithm_ == EventBinAlgorithm::automatic ? EventBinAlgorithm::per_row : algorithm_;
+  if (algo == EventBinAlgorithm::per_pixel &&
+      !(plan.bins <= kMaxPixelBins && window * 4 <= max_range && (plane + 1) * 4 <= max_range))
+    throw Error("event tensor: the per-pixel algorithm needs N <= 64 and the window's events in one binding");
+  if (algo == EventBinAlgorithm::per_row && window * 8 > max_range) {
+    if (algorithm_ == EventBinAlgorithm::per_row)
+      throw Error("event tensor: the per-row algorithm needs the window's events in one binding");
+    algo = EventBinAlgorithm::per_event;
+  }
+  const bool per_pixel = algo == EventBinAlgorithm::per_pixel;
+  last_algorithm_ = algo;
+  Tensor rec(ctx_, Shape{1, 1, 1, static_cast<int64_t>(std::max<size_t>(1, plan.records.size()))}, DType::i32);
+  if (!plan.records.empty()) rec.upload(plan.records);
+  else rec.upload(std::vector<int32_t>{0});
+
+  if (per_pixel) {
+    std::vector<uint32_t> offsets, packed;
+    last_events_ = pack_events_by_pixel(events, plan, offsets, packed);
+    if (packed.empty()) packed.push_back(0);  // a valid (never read) binding
+    Tensor off(ctx_, Shape{1, 1, 1, static_cast<int64_t>(offsets.size())}, DType::u32);
+    off.upload(offsets);
+    Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
+    ev.upload(packed);
+    const Pipeline& pipe = ctx_.pipeline("event_tensor_pixels", {static_cast<uint32_t>(plan.bins)}, sizeof(PixelPush));
+    for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
+      const size_t nj = std::min(chunk, plan.jobs - j0);
+      Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+      CommandStream cs(ctx_, profiler_);
+      PixelPush push{static_cast<uint32_t>(nj), static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.width),
+                     static_cast<uint32_t>(plan.height)};
+      const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((plane + 63) / 64, 65535));
+      cs.dispatch(pipe, {in(off), in(ev), in(rec), vkunroll::out(dst)}, push, {groups},
+                  {"event_tensor_pixels", 0, 4.0 * (plane + window * nj) + 4.0 * dst.shape().count()});
+      cs.submit_and_wait();
+      done(j0, dst);
+    }
+    return;
+  }
+
+  if (algo == EventBinAlgorithm::per_row) {
+    std::vector<uint32_t> packed, ranges;
+    last_events_ = pack_events_by_row(events, plan, packed, ranges);
+    if (packed.empty()) packed.assign(2, 0);  // a valid (never read) binding
+    Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
+    ev.upload(packed);
+    Tensor rg(ctx_, Shape{1, 1, 1, static_cast<int64_t>(ranges.size())}, DType::u32);
+    rg.upload(ranges);
+    const Pipeline& pipe = ctx_.pipeline("event_tensor_rows", {}, sizeof(RowPush));
+    for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
+      const size_t nj = std::min(chunk, plan.jobs - j0);
+      Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+      CommandStream cs(ctx_, profiler_);
+      cs.fill(dst, 0);
+      RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
+                   static_cast<uint32_t>(plan.height)};
+      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push,
+                  {static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)},
+                  {"event_tensor_rows", 0, 12.0 * last_events_ * nj});
+      cs.submit_and_wait();
+      done(j0, dst);
+    }
+    return;
+  }
+
+  std::vector<uint32_t> packed;
+  const size_t n_events = pack_events(events, plan, packed);
+  last_events_ = n_events;
+  if (packed.empty()) packed.assign(2, 0);
+  const Binding eb = packed.size() * 4 > max_range ? Binding::ranged : Binding::whole;
+  Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32, eb);
+  ev.upload(packed);
   const Pipeline& bin = ctx_.pipeline("event_tensor_bin", {}, sizeof(BinPush));
   // Events in pieces that fit one binding, at offsets the device accepts.
   const size_t align_ev = std::max<size_t>(1, info.min_storage_buffer_offset_alignment / 8);
-  size_t per = std::min<size_t>(info.max_storage_buffer_range / 8, size_t{1} << 28);
+  size_t per = std::min<size_t>(max_range / 8, size_t{1} << 28);
   if (max_events_) per = std::min(per, max_events_);
   per = std::max(align_ev, per / align_ev * align_ev);
-  for (size_t e0 = 0; e0 < n_events; e0 += per) {
-    const size_t n = std::min(per, n_events - e0);
-    BinPush push{static_cast<uint32_t>(n), jobs, static_cast<uint32_t>(job_begin), static_cast<uint32_t>(plan.bins),
-                 static_cast<uint32_t>(plan.width), static_cast<uint32_t>(plan.height)};
-    const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((n + 63) / 64, 8192));
-    cs.dispatch(bin, {{packed.range(e0 * 8, n * 8), Access::read}, in(records), inout(out)}, push, {groups},
-                {"event_tensor_bin", 0, static_cast<double>(n) * (8 + jobs * 4.0 * (plan.bins + 3))});
+  for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
+    const size_t nj = std::min(chunk, plan.jobs - j0);
+    Tensor out(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+    CommandStream cs(ctx_, profiler_);
+    cs.fill(out, 0);
+    for (size_t e0 = 0; e0 < n_events; e0 += per) {
+      const size_t n = std::min(per, n_events - e0);
+      BinPush push{static_cast<uint32_t>(n), static_cast<uint32_t>(nj), static_cast<uint32_t>(j0),
+                   static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
+                   static_cast<uint32_t>(plan.height)};
+      const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((n + 63) / 64, 8192));
+      cs.dispatch(bin, {{ev.range(e0 * 8, n * 8), Access::read}, in(rec), inout(out)}, push, {groups},
+                  {"event_tensor_bin", 0, static_cast<double>(n) * (8 + nj * 4.0 * (plan.bins + 3))});
+    }
+    cs.submit_and_wait();
+    done(j0, out);
   }
-  const uint32_t count = static_cast<uint32_t>(out.shape().count());
-  const uint32_t groups = std::min<uint32_t>((count + 255) / 256, 8192);
-  cs.dispatch(ctx_.pipeline("event_tensor_to_float", {}, sizeof(ConvertPush)), {inout(out)}, ConvertPush{count},
-              {groups}, {"event_tensor_to_float", static_cast<double>(count), 8.0 * count});
 }
 
 std::vector<float> EventTensorBuilder::bin(const EventStream& events, const std::vector<RowIntervals>& jobs,
                                            const EventTensorSpec& spec) {
   const BinningPlan plan = plan_binning(events, jobs, spec);
-  std::vector<uint32_t> packed;
-  const size_t n_events = pack_events(events, plan, packed);
-  last_events_ = n_events;
   const size_t slice = static_cast<size_t>(2 * plan.bins) * plan.height * plan.width;
-  std::vector<float> result(jobs.size() * slice, 0.f);
+  std::vector<float> result(jobs.size() * slice);
   if (jobs.empty()) return result;
-  const size_t max_range = ctx_.info().max_storage_buffer_range;
-  size_t chunk = max_range / (slice * 4);
-  if (max_jobs_ && chunk) chunk = std::min(chunk, max_jobs_);
-  if (chunk == 0)
-    throw Error("event tensor: one " + std::to_string(2 * plan.bins) + "x" + std::to_string(plan.height) + "x" +
-                std::to_string(plan.width) + " tensor exceeds the device's storage-buffer range (" +
-                std::to_string(max_range >> 20) + " MiB); use a crop");
-  if (packed.empty()) packed.assign(2, 0);  // a valid (never read) binding
-  const Binding eb = packed.size() * 4 > max_range ? Binding::ranged : Binding::whole;
-  Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32, eb);
-  ev.upload(packed);
-  Tensor rec(ctx_, Shape{1, 1, 1, static_cast<int64_t>(plan.records.size())}, DType::i32);
-  rec.upload(plan.records);
-  for (size_t j0 = 0; j0 < jobs.size(); j0 += chunk) {
-    const size_t nj = std::min(chunk, jobs.size() - j0);
-    Tensor out(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
-    CommandStream cs(ctx_, profiler_);
-    record_chunk(cs, ev, n_events, rec, plan, j0, out);
-    cs.submit_and_wait();
-    out.download(result.data() + j0 * slice, nj * slice * 4);
-  }
+  execute(events, plan, jobs_per_chunk(plan), [&](size_t j0, Tensor& out) {
+    out.download(result.data() + j0 * slice, static_cast<size_t>(out.shape().count()) * 4);
+  });
   return result;
 }
 
@@ -341,23 +523,12 @@ Tensor EventTensorBuilder::build_on_device(const EventStream& events, const std:
                                            const EventTensorSpec& spec) {
   const auto jobs = event_tensor_jobs(pairs);
   const BinningPlan plan = plan_binning(events, jobs, spec);
-  std::vector<uint32_t> packed;
-  const size_t n_events = pack_events(events, plan, packed);
-  last_events_ = n_events;
   const Shape shape{static_cast<int64_t>(jobs.size()), 2 * plan.bins, plan.height, plan.width};
   if (static_cast<uint64_t>(shape.count()) * 4 > ctx_.info().max_storage_buffer_range)
     throw Error("event tensor: " + shape.str() + " exceeds one storage-buffer binding; use fewer pairs or a crop");
-  if (packed.empty()) packed.assign(2, 0);
-  const Binding eb = packed.size() * 4 > ctx_.info().max_storage_buffer_range ? Binding::ranged : Binding::whole;
-  Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32, eb);
-  ev.upload(packed);
-  Tensor rec(ctx_, Shape{1, 1, 1, static_cast<int64_t>(plan.records.size())}, DType::i32);
-  rec.upload(plan.records);
-  Tensor out(ctx_, shape, DType::f32);
-  CommandStream cs(ctx_, profiler_);
-  record_chunk(cs, ev, n_events, rec, plan, 0, out);
-  cs.submit_and_wait();
-  return out;
+  Tensor result;
+  execute(events, plan, jobs.size(), [&](size_t, Tensor& out) { result = std::move(out); });
+  return result;
 }
 
 }  // namespace vkunroll

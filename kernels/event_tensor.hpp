@@ -18,6 +18,7 @@
 // represents a[y], b[y] exactly (integer and dyadic times) — see docs/event_tensors.md.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <vector>
 
@@ -71,6 +72,11 @@ struct EventTensors {
   size_t slice() const { return static_cast<size_t>(2 * bins) * height * width; }
 };
 
+// The event times a batch needs: [first, last) in microseconds (first >= last: none). Read only
+// this window from the event file.
+std::pair<int64_t, int64_t> event_time_window(const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec,
+                                              int sensor_width, int sensor_height);
+
 // ---- CPU reference ----------------------------------------------------------------------------
 // [jobs, 2N, h, w] float32 counts, the section-4 formula evaluated literally and exactly.
 std::vector<float> bin_events_cpu(const EventStream& events, const std::vector<RowIntervals>& jobs,
@@ -79,21 +85,43 @@ EventTensors build_event_tensors_cpu(const EventStream& events, const std::vecto
                                      const EventTensorSpec& spec);
 
 // ---- GPU ---------------------------------------------------------------------------------------
-// The host part of the GPU path, exposed for tests: per (job, crop row) records of N + 2 int32
-// [lo, hi, N-1 ascending thresholds, flags(bit0: a > b)], relative to `origin_us`, and the index
+// The host part of the GPU path, exposed for tests: per (job, crop row) records of N + 4 int32
+// [lo, hi, N-1 ascending thresholds, flags(bit0: a > b), s, c (float bits)], relative to
+// `origin_us` (s, c: a float estimate j ~ (t - lo) * s + c of the threshold count that the
+// shader then corrects exactly against the integer thresholds), and the index
 // range [first, last) of the sorted event stream the batch needs (binary search on t).
 struct BinningPlan {
   int bins = 0, height = 0, width = 0, x0 = 0, y0 = 0;
   int64_t origin_us = 0;
   size_t first_event = 0, last_event = 0;
   size_t jobs = 0;
-  std::vector<int32_t> records;  // [jobs][h][N + 2]
-  int record_size() const { return bins + 2; }
+  std::vector<int32_t> records;  // [jobs][h][N + 4]
+  int record_size() const { return bins + 4; }
 };
 BinningPlan plan_binning(const EventStream& events, const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec);
 // Events of the plan's window inside the crop, packed for the shader: (t - origin, x | y << 15 |
 // positive << 30), crop-relative x and y. Returns how many events were packed.
 size_t pack_events(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& packed);
+// The same events grouped by crop pixel (counting sort, time order kept inside a pixel) for the
+// per-pixel shader: offsets[h*w + 1] and words (t - origin) | positive << 31.
+size_t pack_events_by_pixel(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& offsets,
+                            std::vector<uint32_t>& packed);
+
+// The events of the window grouped by crop row (counting sort, time order kept): offsets[h + 1],
+// words (t - origin, x | positive << 31), and for every (job, row) the range [begin, end) of the
+// row's events inside [lo, hi) (binary search), ranges[jobs][h][2].
+size_t pack_events_by_row(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& packed,
+                          std::vector<uint32_t>& ranges);
+
+// per_row (automatic's choice): one workgroup per (row, job) over exactly the row's selected
+//   events; zero fill, then +1.0 on float32 cells through a 32-bit compare-and-swap loop (any N;
+//   exact below 2^24 per cell). Needs the window's events in one binding (16M events).
+// per_event: one invocation per event looping over jobs, same accumulation; events in pieces of
+//   any size (the fallback for bigger windows).
+// per_pixel: one invocation per pixel over its own events, writes every float32 cell once, no
+//   atomics (N <= 64); dense, so slower on lavapipe; for devices where atomics are expensive.
+enum class EventBinAlgorithm { automatic, per_row, per_event, per_pixel };
+const char* event_bin_algorithm_name(EventBinAlgorithm a);  // "per-row", ...
 
 class EventTensorBuilder {
  public:
@@ -116,16 +144,22 @@ class EventTensorBuilder {
     max_jobs_ = max_jobs_per_chunk;
     max_events_ = max_events_per_dispatch;
   }
+  void set_algorithm(EventBinAlgorithm a) { algorithm_ = a; }
+  EventBinAlgorithm last_algorithm() const { return last_algorithm_; }
 
  private:
   // Bins jobs [job_begin, job_begin + out.shape().n) of `plan` into `out` (u32 counts converted
   // to float32 in place).
-  void record_chunk(class CommandStream& cs, const Tensor& packed, size_t n_events, const Tensor& records,
-                    const BinningPlan& plan, size_t job_begin, Tensor& out);
+  // Uploads the plan's events once, then for each chunk of jobs fills a fresh [chunk, 2N, h, w]
+  // f32 tensor and hands it to `done(first_job, tensor)`.
+  void execute(const EventStream& events, const BinningPlan& plan, size_t chunk,
+               const std::function<void(size_t, Tensor&)>& done);
+  size_t jobs_per_chunk(const BinningPlan& plan) const;
   Context& ctx_;
   Profiler* profiler_;
   size_t last_events_ = 0;
   size_t max_jobs_ = 0, max_events_ = 0;
+  EventBinAlgorithm algorithm_ = EventBinAlgorithm::automatic, last_algorithm_ = EventBinAlgorithm::automatic;
 };
 
 }  // namespace vkunroll

@@ -2,11 +2,13 @@
 // Row-aware event binning (reference section 4) for a chunk of jobs, one pass over the events.
 // Exact by construction: the host turned every rational row time into integer thresholds
 // (kernels/event_tensor.cpp), so an event's selection, sign and bin are 32-bit int compares.
-// Record of (job, row), N + 2 ints: [lo, hi, N-1 ascending thresholds, flags (bit0: a > b)].
+// Record of (job, row), N + 4 ints: [lo, hi, N-1 ascending thresholds, flags (bit0: a > b), s, c].
+// Counts accumulate directly as float32 through a 32-bit compare-and-swap loop (core Vulkan, no
+// float-atomics extension), exact for counts below 2^24; the output needs only a zero fill.
 layout(local_size_x = 64) in;
 layout(std430, binding = 0) readonly buffer Events { uvec2 ev[]; };   // (t - origin, x | y<<15 | pos<<30)
 layout(std430, binding = 1) readonly buffer Records { int rec[]; };
-layout(std430, binding = 2) buffer Counts { uint counts[]; };         // [jobs, 2N, h, w]
+layout(std430, binding = 2) buffer Counts { uint counts[]; };         // float32 bits [jobs, 2N, h, w]
 layout(push_constant) uniform P {
   uint n_events;
   uint jobs;       // jobs in this chunk
@@ -17,7 +19,7 @@ layout(push_constant) uniform P {
 
 void main() {
   const uint plane = p.width * p.height;
-  const uint rsize = p.bins + 2u;
+  const uint rsize = p.bins + 4u;
   const uint stride = gl_NumWorkGroups.x * gl_WorkGroupSize.x;
   for (uint i = gl_GlobalInvocationID.x; i < p.n_events; i += stride) {
     const uvec2 e = ev[i];
@@ -29,21 +31,24 @@ void main() {
     for (uint j = 0u; j < p.jobs; ++j) {
       const uint base = ((p.job_begin + j) * p.height + y) * rsize;
       if (t < rec[base] || t >= rec[base + 1u]) continue;  // half-open, empty when lo == hi
-      // How many thresholds are <= t (lower bound over N-1 ascending ints).
-      uint first = 0u, count = p.bins - 1u;
-      while (count > 0u) {
-        const uint step = count >> 1;
-        if (rec[base + 2u + first + step] <= t) {
-          first += step + 1u;
-          count -= step + 1u;
-        } else {
-          count = step;
-        }
-      }
+      // Threshold count j = #{thresholds <= t}: a float estimate, then exact integer steps
+      // (the estimate is within one of the truth; two steps each way leave a margin).
+      const float sc = uintBitsToFloat(uint(rec[base + p.bins + 2u]));
+      const float c0 = uintBitsToFloat(uint(rec[base + p.bins + 3u]));
+      int jt = clamp(int(floor(float(t - rec[base]) * sc + c0)), 0, int(p.bins) - 1);
+      for (int r = 0; r < 2; ++r) if (jt < int(p.bins) - 1 && rec[base + 2u + uint(jt)] <= t) ++jt;
+      for (int r = 0; r < 2; ++r) if (jt > 0 && rec[base + 1u + uint(jt)] > t) --jt;
+      const uint first = uint(jt);
       const bool backward = (rec[base + p.bins + 1u] & 1) != 0;
       const uint k = backward ? p.bins - 1u - first : first;
       const bool s = backward ? !positive : positive;  // time flip reverses polarity
-      atomicAdd(counts[(j * 2u * p.bins + 2u * k + (s ? 1u : 0u)) * plane + pix], 1u);
+      const uint idx = (j * 2u * p.bins + 2u * k + (s ? 1u : 0u)) * plane + pix;
+      uint old = counts[idx];
+      while (true) {
+        const uint prev = atomicCompSwap(counts[idx], old, floatBitsToUint(uintBitsToFloat(old) + 1.0));
+        if (prev == old) break;
+        old = prev;
+      }
     }
   }
 }

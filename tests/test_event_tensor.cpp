@@ -2,6 +2,8 @@
 // CPU on random streams, and the NumPy golden fixture (tools/event_tensors_numpy.py).
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <cstring>
 #include <nlohmann/json.hpp>
 #include <random>
 
@@ -43,12 +45,17 @@ void expect_hits(const std::vector<float>& slice, int bins, int h, int w, const 
 // Runs jobs on CPU and GPU, checks they are identical, returns the CPU result.
 std::vector<float> both(const EventStream& ev, const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec) {
   auto cpu = bin_events_cpu(ev, jobs, spec);
-  EventTensorBuilder b(vktest::context());
-  auto gpu = b.bin(ev, jobs, spec);
-  EXPECT_EQ(cpu.size(), gpu.size());
-  size_t diff = 0;
-  for (size_t i = 0; i < cpu.size() && i < gpu.size(); ++i) diff += cpu[i] != gpu[i];
-  EXPECT_EQ(diff, 0u) << "GPU and CPU differ in " << diff << " cells";
+  for (auto algo : {EventBinAlgorithm::per_row, EventBinAlgorithm::per_event, EventBinAlgorithm::per_pixel}) {
+    EventTensorBuilder b(vktest::context());
+    b.set_algorithm(algo);
+    auto gpu = b.bin(ev, jobs, spec);
+    EXPECT_EQ(b.last_algorithm(), algo);
+    EXPECT_EQ(cpu.size(), gpu.size());
+    size_t diff = 0;
+    for (size_t i = 0; i < cpu.size() && i < gpu.size(); ++i) diff += cpu[i] != gpu[i];
+    EXPECT_EQ(diff, 0u) << "GPU (" << static_cast<int>(algo)
+                        << ") and CPU differ in " << diff << " cells";
+  }
   return cpu;
 }
 
@@ -88,6 +95,9 @@ TEST(RowTiming, RationalParseAndFromDouble) {
   // A double with no short fraction keeps its exact binary value.
   const double odd = 0.1234567890123456;
   EXPECT_EQ(Rational::from_double(odd).to_double(), odd);
+  EXPECT_THROW(Rational::from_double(1e-300), Error);
+  EXPECT_THROW(Rational::from_double(1e300), Error);
+  EXPECT_THROW(Rational::from_double(std::nan("")), Error);
   EXPECT_EQ(R("7/2").floor(), 3);
   EXPECT_EQ(R("7/2").ceil(), 4);
   EXPECT_EQ(R("-7/2").floor(), -4);
@@ -144,14 +154,25 @@ TEST(EventTensor, BackwardIntervalFlipsAndClampsAtB) {
   EventStream ev;
   ev.width = 4;
   ev.height = 3;
+  ev.push(9, 3, 0, 1);    // before b: excluded
   ev.push(10, 0, 0, 1);   // at b: k = 4 -> 3, positive flipped -> channel 6
   ev.push(22, 1, 0, 1);   // |t-a| = 4 -> k = 1, flipped -> channel 2
   ev.push(23, 2, 0, -1);  // |t-a| = 3 -> k = 0, negative flipped -> channel 1
   ev.push(26, 3, 0, 1);   // exactly at a: excluded (a is the later end)
-  ev.push(9, 3, 0, 1);    // before b: excluded
   EventTensorSpec spec{4, {}};
   auto out = both(ev, {uniform_job(3, 26, 10)}, spec);
   expect_hits(out, 4, 3, 4, {{6, 0, 0, 1}, {2, 0, 1, 1}, {1, 0, 2, 1}}, "backward");
+}
+
+TEST(EventTensor, UnsortedStreamIsAnError) {
+  EventStream ev;
+  ev.width = 2;
+  ev.height = 1;
+  ev.push(5, 0, 0, 1);
+  ev.push(4, 1, 0, 1);
+  EXPECT_THROW(bin_events_cpu(ev, {uniform_job(1, 0, 10)}, {4, {}}), Error);
+  EventTensorBuilder b(vktest::context());
+  EXPECT_THROW(b.bin(ev, {uniform_job(1, 0, 10)}, {4, {}}), Error);
 }
 
 TEST(EventTensor, EmptyIntervalSelectsNothing) {
@@ -261,11 +282,16 @@ TEST(EventTensor, GpuEqualsCpuRandomBatches) {
     auto ev = random_stream(c.w, c.h, 40000, tm.t0.floor() - span / 2, tm.t0.floor() + 2 * span, 17);
     EventTensorSpec spec{c.bins, c.crop};
     auto cpu = build_event_tensors_cpu(ev, pairs, spec);
-    EventTensorBuilder b(vktest::context());
-    auto gpu = b.build(ev, pairs, spec);
-    EXPECT_EQ(cpu.ev1, gpu.ev1) << c.name;
-    EXPECT_EQ(cpu.ev2, gpu.ev2) << c.name;
-    EXPECT_EQ(cpu.ev3, gpu.ev3) << c.name;
+    EventTensors gpu;
+    for (auto algo : {EventBinAlgorithm::per_row, EventBinAlgorithm::per_event, EventBinAlgorithm::per_pixel}) {
+      EventTensorBuilder b(vktest::context());
+      b.set_algorithm(algo);
+      gpu = b.build(ev, pairs, spec);
+      const std::string an = " (algorithm " + std::to_string(static_cast<int>(algo)) + ")";
+      EXPECT_EQ(cpu.ev1, gpu.ev1) << c.name << an;
+      EXPECT_EQ(cpu.ev2, gpu.ev2) << c.name << an;
+      EXPECT_EQ(cpu.ev3, gpu.ev3) << c.name << an;
+    }
     double total = 0;
     for (float v : cpu.ev1) total += v;
     EXPECT_GT(total, 1000) << c.name << ": the case must select events";
@@ -281,11 +307,15 @@ TEST(EventTensor, ChunkedJobsAndEventPiecesMatch) {
   EventTensorSpec spec{16, {}};
   auto cpu = build_event_tensors_cpu(ev, pairs, spec);
   EventTensorBuilder b(vktest::context());
-  b.set_chunk_limits(4, 1000);  // 18 jobs in 5 chunks, events in ~pieces of 1000
-  auto gpu = b.build(ev, pairs, spec);
-  EXPECT_EQ(cpu.ev1, gpu.ev1);
-  EXPECT_EQ(cpu.ev2, gpu.ev2);
-  EXPECT_EQ(cpu.ev3, gpu.ev3);
+  b.set_chunk_limits(4, 1000);  // 18 jobs in 5 chunks, events in ~pieces of 1000 (per-event path)
+  for (auto algo : {EventBinAlgorithm::per_row, EventBinAlgorithm::per_event, EventBinAlgorithm::per_pixel}) {
+    b.set_algorithm(algo);
+    auto gpu = b.build(ev, pairs, spec);
+    EXPECT_EQ(cpu.ev1, gpu.ev1);
+    EXPECT_EQ(cpu.ev2, gpu.ev2);
+    EXPECT_EQ(cpu.ev3, gpu.ev3);
+  }
+  b.set_algorithm(EventBinAlgorithm::automatic);
   // Device-resident: ev1, ev2, ev3 as consecutive ranges of one tensor.
   Tensor dev = b.build_on_device(ev, pairs, spec);
   EXPECT_EQ(dev.shape(), (Shape{18, 32, 12, 16}));
@@ -293,6 +323,26 @@ TEST(EventTensor, ChunkedJobsAndEventPiecesMatch) {
   const size_t n = cpu.ev1.size();
   EXPECT_TRUE(std::equal(cpu.ev1.begin(), cpu.ev1.end(), all.begin()));
   EXPECT_TRUE(std::equal(cpu.ev3.begin(), cpu.ev3.end(), all.begin() + 2 * n));
+}
+
+TEST(EventTensor, LargeBinCountsWorkAndPerPixelRefusesThem) {
+  RowTiming tm{R("0"), R("3"), R("500"), 8, Readout::bottom_up};
+  std::vector<EventTensorPair> pairs = {{tm, tm.target_time(R("0.3")), std::nullopt}};
+  auto ev = random_stream(10, 8, 5000, -100, 700, 8);
+  EventTensorSpec spec{100, {}};
+  auto cpu = build_event_tensors_cpu(ev, pairs, spec);
+  EventTensorBuilder b(vktest::context());
+  auto gpu = b.build(ev, pairs, spec);
+  EXPECT_EQ(b.last_algorithm(), EventBinAlgorithm::per_row);
+  EXPECT_EQ(cpu.ev1, gpu.ev1);
+  EXPECT_EQ(cpu.ev2, gpu.ev2);
+  EXPECT_EQ(cpu.ev3, gpu.ev3);
+  b.set_algorithm(EventBinAlgorithm::per_event);
+  gpu = b.build(ev, pairs, spec);
+  EXPECT_EQ(cpu.ev2, gpu.ev2);
+  EXPECT_EQ(cpu.ev3, gpu.ev3);
+  b.set_algorithm(EventBinAlgorithm::per_pixel);
+  EXPECT_THROW(b.build(ev, pairs, spec), Error);
 }
 
 TEST(EventTensor, PlanSelectsTheEventWindowByBinarySearch) {
@@ -307,7 +357,7 @@ TEST(EventTensor, PlanSelectsTheEventWindowByBinarySearch) {
   EXPECT_EQ(plan.origin_us, 1000);
   EXPECT_EQ(plan.first_event, 1000u);
   EXPECT_EQ(plan.last_event, 1150u);
-  EXPECT_EQ(plan.records.size(), 3u * 4 * 18);
+  EXPECT_EQ(plan.records.size(), 3u * 4 * 20);
 }
 
 // ---- golden fixture from NumPy float64 + np.add.at -------------------------------------------

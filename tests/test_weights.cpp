@@ -192,3 +192,24 @@ TEST(Weights, SaveAndLoadRoundTripF32AndF16) {
   }
   std::filesystem::remove_all(dir);
 }
+
+TEST(Weights, Bf16TensorsLoadAsFloat) {
+  const Weights r = random_weights(tiny(), 9);
+  std::vector<std::vector<uint16_t>> storage;
+  std::vector<StTensorView> views;
+  for (const auto& [name, t] : r.tensors) {
+    std::vector<uint16_t> h(t.data.size());
+    for (size_t i = 0; i < h.size(); ++i) {
+      uint32_t bits;
+      std::memcpy(&bits, &t.data[i], 4);
+      h[i] = static_cast<uint16_t>(bits >> 16);  // truncation: within 2^-7 relative
+    }
+    storage.push_back(std::move(h));
+    views.push_back({name, StDType::BF16, t.shape, storage.back().data(), storage.back().size() * 2});
+  }
+  const auto bytes = serialize_safetensors(views, tiny().to_metadata());
+  const Weights w = weights_from_safetensors(parse_safetensors(bytes, "bf16"), "bf16");
+  for (const auto& [name, t] : r.tensors)
+    for (size_t i = 0; i < t.data.size(); ++i)
+      ASSERT_NEAR(w.get(name).data[i], t.data[i], std::abs(t.data[i]) / 128.f + 1e-30f) << name;
+}

@@ -44,7 +44,7 @@ const char* kHelp =
     "  --bit-depth B           8 | 16                                                  [8]\n"
     "  --gray                  write 1-channel PNGs (default: 3-channel color)\n"
     "  --gamma G               output encoding gamma (textures are linearized with it) [2.2]\n"
-    "  --supersample S         anti-aliasing samples per pixel per axis                [3]\n"
+    "  --supersample S         anti-aliasing samples per pixel per axis                [1]\n"
     "  --lead-in-us T          events start this long before frame 0                   [10000]\n"
     "  --step-fraction F       adaptive step: max log change per sample / min(C)       [0.5]\n"
     "  event model overrides (default: the preset's values):\n"

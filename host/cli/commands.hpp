@@ -10,5 +10,7 @@ using Argv = std::vector<std::string>;
 int cmd_devices(const Argv& args);
 int cmd_simulate(const Argv& args);
 int cmd_events(const Argv& args);
+int cmd_voxelize(const Argv& args);
+int cmd_infer(const Argv& args);
 
 }  // namespace vkunroll::cli

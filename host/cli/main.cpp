@@ -18,6 +18,8 @@ const Command kCommands[] = {
     {"devices", vkunroll::cli::cmd_devices, "list Vulkan devices and mark the one vkunroll would use"},
     {"simulate", vkunroll::cli::cmd_simulate, "simulate RS frames, GS ground truth and events from a moving scene"},
     {"events", vkunroll::cli::cmd_events, "read an event file: count, time span, rate, sensor size, polarity, drops"},
+    {"voxelize", vkunroll::cli::cmd_voxelize, "row-aware event tensors ev1/ev2/ev3 of (frame, target) pairs -> safetensors"},
+    {"infer", vkunroll::cli::cmd_infer, "run SelfUnroll-S/-M on raw input tensors, write every intermediate"},
 };
 
 void usage(std::ostream& os) {

@@ -128,3 +128,25 @@ def test_vkunroll_infer_reproduces_the_mirror(tmp_path, net, mode, size, backend
         assert got[k].shape == v.shape, k
         err = (got[k].float() - v).abs().max().item()
         assert err <= 1e-4, f"{k}: max abs error {err}"
+
+
+@pytest.mark.skipif(not CLI or not os.path.exists(CLI or ""), reason="VKUNROLL_CLI not set (run through ctest)")
+def test_vkunroll_infer_bad_inputs_fail_clearly(tmp_path):
+    model = os.path.join(ROOT, "tests", "data", "selfunroll_tiny.safetensors")
+    inputs = make_inputs(1, 32, 32, 4, seed=5)
+
+    def infer(inp, *extra):
+        safetensors_io.save(str(tmp_path / "in.safetensors"), inp)
+        return subprocess.run([CLI, "infer", "--model", model, "--inputs", tmp_path / "in.safetensors",
+                               "--out", tmp_path / "out.safetensors", "--backend", "cpu", *extra],
+                              capture_output=True, text=True)
+
+    r = infer({k: v for k, v in inputs.items() if k != "ev3"})
+    assert r.returncode == 1 and "no tensor 'ev3'" in r.stderr
+    r = infer(dict(inputs, ev2=inputs["ev2"][:, :6]))
+    assert r.returncode == 1 and "'ev2' has shape 1x6x32x32, expected 1x8x32x32" in r.stderr
+    r = infer(inputs, "--mode", "m")
+    assert r.returncode == 1 and "even batch" in r.stderr
+    r = infer(inputs, "--precision", "fp16")
+    assert r.returncode == 1 and "fp16" in r.stderr
+    assert not (tmp_path / "out.safetensors").exists()

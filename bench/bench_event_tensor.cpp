@@ -1,0 +1,158 @@
+// Event tensors: events per second of the GPU builder and of the exact CPU reference against the
+// NumPy binning (float64 + np.add.at, tools/event_tensors_numpy.py), on the same 300,000 random
+// events at 346x260, N = 16, three tensors (ev1, ev2, ev3) of one (frame, target) pair, in one run.
+//
+//   vkunroll-bench-event-tensor [--events 300000] [--repeat 5] [--batch 8]
+//
+// Times are the best of `repeat` runs (the machine is shared; best-of filters other load).
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <string>
+
+#include "host/safetensors.hpp"
+#include "kernels/event_tensor.hpp"
+#include "runtime/context.hpp"
+#include "runtime/profiler.hpp"
+
+using namespace vkunroll;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+template <class F>
+double best_of(int repeat, F&& f) {
+  double best = 1e30;
+  for (int i = 0; i < repeat; ++i) {
+    const auto t0 = Clock::now();
+    f();
+    best = std::min(best, std::chrono::duration<double>(Clock::now() - t0).count());
+  }
+  return best;
+}
+
+// The same position-weighted checksum as the NumPy tool.
+double check(const std::vector<float>& v) {
+  double s = 0;
+  for (size_t i = 0; i < v.size(); ++i) s += static_cast<double>(v[i]) * static_cast<double>(i % 9973);
+  return s;
+}
+
+std::string run(const std::string& cmd) {
+  std::string out;
+  FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return out;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
+  pclose(p);
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  size_t n_events = 300000;
+  int repeat = 5, batch = 8;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string k = argv[i];
+    if (k == "--events") n_events = std::stoul(argv[i + 1]);
+    else if (k == "--repeat") repeat = std::stoi(argv[i + 1]);
+    else if (k == "--batch") batch = std::stoi(argv[i + 1]);
+  }
+  const int W = 346, H = 260, N = 16;
+  // DAVIS346-like frame: line delay 70 us (DRE), exposure 10 ms; t* at tau = 0.5.
+  RowTiming tm{Rational(0), Rational(70), Rational(10000), H, Readout::top_down};
+  const Rational t_star = tm.target_time(Rational(1, 2));
+  EventStream ev;
+  ev.width = W;
+  ev.height = H;
+  std::mt19937_64 rng(42);
+  std::vector<int64_t> ts(n_events);
+  for (auto& t : ts) t = -5000 + static_cast<int64_t>(rng() % 40000);  // frame spans 0 .. 28130 us
+  std::sort(ts.begin(), ts.end());
+  for (size_t i = 0; i < n_events; ++i)
+    ev.push(ts[i], static_cast<uint16_t>(rng() % W), static_cast<uint16_t>(rng() % H), (rng() & 1) ? 1 : -1);
+
+  // The NumPy baseline, on the same events.
+  const std::string in = (std::filesystem::temp_directory_path() / "vkunroll_bench_event_tensor.safetensors").string();
+  std::vector<int8_t> p(ev.p.begin(), ev.p.end());
+  write_safetensors(in,
+                    std::vector<StTensorView>{{"t", StDType::I64, {int64_t(n_events)}, ev.t.data(), n_events * 8},
+                                              {"x", StDType::U16, {int64_t(n_events)}, ev.x.data(), n_events * 2},
+                                              {"y", StDType::U16, {int64_t(n_events)}, ev.y.data(), n_events * 2},
+                                              {"p", StDType::I8, {int64_t(n_events)}, p.data(), n_events}},
+                    {{"width", std::to_string(W)}, {"height", std::to_string(H)}, {"bins", std::to_string(N)},
+                     {"t0", "0"}, {"delay", "70"}, {"exposure", "10000"}, {"target", t_star.str()}});
+  const std::string py = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) +
+                         "/tools/event_tensors_numpy.py --bench " + in + " --repeat " + std::to_string(std::max(1, repeat / 2));
+  const std::string py_out = run(py);
+  double np_s = 0;
+  std::vector<double> np_checks;
+  try {
+    const auto j = nlohmann::json::parse(py_out);
+    np_s = j["seconds"].get<double>();
+    np_checks = j["checks"].get<std::vector<double>>();
+  } catch (const std::exception& e) {
+    std::cerr << "NumPy baseline failed (" << py << "): " << e.what() << "\n" << py_out << "\n";
+    return 1;
+  }
+  std::filesystem::remove(in);
+
+  const EventTensorSpec spec{N, {}};
+  const std::vector<EventTensorPair> pairs = {{tm, t_star, std::nullopt}};
+  EventTensors cpu;
+  const double cpu_s = best_of(repeat, [&] { cpu = build_event_tensors_cpu(ev, pairs, spec); });
+
+  ContextOptions co;
+  co.announce = true;
+  Context ctx(co);
+  Profiler prof;
+  EventTensorBuilder builder(ctx, &prof);
+  EventTensors gpu;
+  gpu = builder.build(ev, pairs, spec);  // warm-up: pipelines
+  const double gpu_s = best_of(repeat, [&] { gpu = builder.build(ev, pairs, spec); });
+  (void)builder.build_on_device(ev, pairs, spec);
+  prof.clear();
+  const double dev_s = best_of(repeat, [&] { (void)builder.build_on_device(ev, pairs, spec); });
+  double disp_ms = 0;
+  for (const auto& [name, st] : prof.ops()) disp_ms += st.mean_ms();
+
+  // A batch of targets in one pass over the events (intra- and inter-frame taus).
+  std::vector<EventTensorPair> many;
+  for (int i = 0; i < batch; ++i)
+    many.push_back({tm, tm.target_time(Rational(-1, 4) + Rational(3, 2) * Rational(i) / Rational(std::max(1, batch - 1))),
+                    std::nullopt});
+  const double gpu_batch_s = best_of(std::max(1, repeat / 2), [&] { (void)builder.build(ev, many, spec); });
+  const double cpu_batch_s = best_of(1, [&] { (void)build_event_tensors_cpu(ev, many, spec); });
+
+  const bool same = cpu.ev1 == gpu.ev1 && cpu.ev2 == gpu.ev2 && cpu.ev3 == gpu.ev3;
+  const bool numpy_same = np_checks.size() == 3 && np_checks[0] == check(cpu.ev1) && np_checks[1] == check(cpu.ev2) &&
+                          np_checks[2] == check(cpu.ev3);
+  const double n = static_cast<double>(n_events);
+  auto line = [&](const char* name, double s, double events) {
+    std::printf("  %-44s %9.2f ms  %8.2f M events/s  %6.1fx NumPy\n", name, s * 1e3, events / s / 1e6, np_s / s * (events / n));
+  };
+  std::printf("event tensors: %zu random events, %dx%d, N=%d, ev1+ev2+ev3 of one pair (%zu events in its window)\n",
+              n_events, W, H, N, gpu.events_considered);
+  std::printf("device: %s; best of %d runs (shared machine: expect noise of 10-30%%)\n", ctx.info().name.c_str(), repeat);
+  line("NumPy float64 + np.add.at", np_s, n);
+  line("CPU reference (exact int128, 1 thread)", cpu_s, n);
+  line("GPU builder, end to end (upload+bin+readback)", gpu_s, n);
+  line("GPU builder, device-resident (upload+bin)", dev_s, n);
+  std::printf("  %-44s %9.2f ms (%s)\n", "GPU dispatch time (timestamps, mean)", disp_ms,
+              event_bin_algorithm_name(builder.last_algorithm()));
+  prof.print(std::cout);
+  std::printf("batch of %d targets, one pass over the events:\n", batch);
+  line("GPU builder, end to end", gpu_batch_s, n * batch);
+  line("CPU reference", cpu_batch_s, n * batch);
+  std::printf("ratio GPU (end to end) / NumPy: %.1fx   (target >= 20x)\n", np_s / gpu_s);
+  std::printf("ratio GPU (device-resident) / NumPy: %.1fx\n", np_s / dev_s);
+  std::printf("ratio CPU reference / NumPy: %.1fx\n", np_s / cpu_s);
+  std::printf("GPU == CPU: %s; CPU == NumPy (checksums): %s\n", same ? "yes" : "NO", numpy_same ? "yes" : "NO");
+  return same && numpy_same ? 0 : 1;
+}

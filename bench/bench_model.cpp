@@ -1,0 +1,150 @@
+// vkunroll-bench-model: SelfUnroll with the published configuration (random weights, fixed seed)
+// on one target, Vulkan (the device vkunroll picks; lavapipe here) against the PyTorch mirror on
+// the CPU with the same weights and inputs, in the same run: ms per GS frame, the ratio, and the
+// max abs difference of every output.
+//
+// usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N] [--profile]
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <random>
+#include <string>
+#include <unistd.h>
+
+#include "host/backend.hpp"
+#include "host/backend_vulkan.hpp"
+#include "host/model.hpp"
+#include "host/safetensors.hpp"
+#include "host/weights.hpp"
+#include "runtime/context.hpp"
+#include "runtime/memory.hpp"
+#include "runtime/profiler.hpp"
+#include <iostream>
+
+using namespace vkunroll;
+
+namespace {
+
+HostArray random_array(std::mt19937& rng, int64_t b, int64_t c, int64_t h, int64_t w, bool events) {
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  HostArray a{{b, c, h, w}, std::vector<float>(size_t(b * c * h * w))};
+  for (auto& v : a.data) v = events ? (u(rng) < 0.25f ? float(int(u(rng) * 4)) : 0.f) : u(rng);
+  return a;
+}
+
+double seconds_since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int W = 346, H = 260, torch_threads = 0;
+  bool torch = true, profile = false;
+  std::string mode = "m";
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--size" && i + 1 < argc) {
+      if (std::sscanf(argv[++i], "%dx%d", &W, &H) != 2 || W < 2 || H < 2) {
+        std::fprintf(stderr, "--size expects WxH, e.g. 346x260\n");
+        return 2;
+      }
+    } else if (a == "--mode" && i + 1 < argc) {
+      mode = argv[++i];
+    } else if (a == "--profile") {
+      profile = true;
+    } else if (a == "--no-torch") {
+      torch = false;
+    } else if (a == "--torch-threads" && i + 1 < argc) {
+      torch_threads = std::atoi(argv[++i]);
+    } else {
+      std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile]\n");
+      return 2;
+    }
+  }
+  const Mode md = mode == "s" ? Mode::s : Mode::m;
+  const int64_t B = md == Mode::m ? 2 : 1;
+  const ModelConfig cfg = ModelConfig::published();
+  const Weights w = random_weights(cfg, 2024);
+  std::mt19937 rng(7);
+  ModelInputs in;
+  in.rs = random_array(rng, B, 3, H, W, false);
+  in.ev1 = random_array(rng, B, cfg.ev_channels(), H, W, true);
+  in.ev2 = random_array(rng, B, cfg.ev_channels(), H, W, true);
+  in.ev3 = random_array(rng, B, cfg.ev_channels(), H, W, true);
+
+  Context ctx;
+  Profiler profiler;
+  VulkanBackend vk(ctx, profile ? &profiler : nullptr);
+  auto t = std::chrono::steady_clock::now();
+  Model model(vk, w);
+  const double prep = seconds_since(t);
+  // Warm-up on a small crop: compiles every pipeline variant, so the timed run is steady-state.
+  {
+    ModelInputs small;
+    auto crop = [](const HostArray& a) {
+      HostArray r{{a.shape.n, a.shape.c, 32, 32}, {}};
+      for (int64_t n = 0; n < a.shape.n; ++n)
+        for (int64_t c = 0; c < a.shape.c; ++c)
+          for (int64_t y = 0; y < 32; ++y)
+            for (int64_t x = 0; x < 32; ++x) r.data.push_back(a.data[size_t(((n * a.shape.c + c) * a.shape.h + y) * a.shape.w + x)]);
+      return r;
+    };
+    small = {crop(in.rs), crop(in.ev1), crop(in.ev2), crop(in.ev3)};
+    RunOptions o;
+    o.mode = md;
+    model.run(small, o);
+  }
+  vk.reset_peak();
+  profiler.clear();
+  ctx.allocator().reset_peak();
+  RunOptions opt;
+  opt.mode = md;
+  t = std::chrono::steady_clock::now();
+  const auto out = model.run(in, opt);
+  const double vk_s = seconds_since(t);
+  const double frames = 1.0;  // one GS frame (one target) per run
+  std::printf("vkunroll-bench-model: SelfUnroll-%s, published configuration (%lld parameters), %dx%d, device %s\n",
+              md == Mode::m ? "M" : "S", static_cast<long long>(parameter_count(cfg)), W, H, ctx.info().name.c_str());
+  std::printf("  vulkan : %.1f ms per GS frame (weights prepared in %.2f s; peak intermediates %.1f MiB, "
+              "device buffers peak %.1f MiB, allocator peak %.1f MiB incl. %.1f MiB of weights as given)\n",
+              1000 * vk_s / frames, prep, vk.peak_bytes() / 1048576.0, vk.device_peak_bytes() / 1048576.0,
+              ctx.allocator().stats().peak_used_bytes / 1048576.0, vk.weight_bytes() / 1048576.0);
+  if (profile) profiler.print(std::cout);
+  if (!torch) return 0;
+
+  const auto dir = std::filesystem::temp_directory_path() / ("vkunroll_bench_model_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  save_weights((dir / "w.safetensors").string(), w);
+  std::vector<StTensorView> views;
+  for (auto [name, a] : {std::pair<const char*, const HostArray*>{"rs", &in.rs}, {"ev1", &in.ev1}, {"ev2", &in.ev2}, {"ev3", &in.ev3}})
+    views.push_back({name, StDType::F32, {a->shape.n, a->shape.c, a->shape.h, a->shape.w}, a->data.data(), a->data.size() * 4});
+  write_safetensors((dir / "in.safetensors").string(), views);
+  const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_mirror.py " +
+                          (dir / "w.safetensors").string() + " " + (dir / "in.safetensors").string() + " " +
+                          (dir / "out.safetensors").string() + " --mode " + mode +
+                          (torch_threads ? " --threads " + std::to_string(torch_threads) : "");
+  if (std::system(cmd.c_str()) != 0) {
+    std::fprintf(stderr, "the PyTorch mirror failed: %s\n", cmd.c_str());
+    std::filesystem::remove_all(dir);
+    return 1;
+  }
+  const SafetensorsFile ref = read_safetensors((dir / "out.safetensors").string());
+  const double torch_s = std::stod(ref.metadata.at("seconds"));
+  std::printf("  torch  : %.1f ms per GS frame (PyTorch mirror on the CPU, %s threads)\n", 1000 * torch_s / frames,
+              ref.metadata.at("threads").c_str());
+  std::printf("  ratio  : vulkan / torch = %.2f\n", vk_s / torch_s);
+  for (const auto& [name, arr] : out) {
+    const std::vector<float> r = ref.get(name).to_f32();
+    double err = 0, mx = 0;
+    for (size_t i = 0; i < r.size(); ++i) {
+      err = std::max(err, double(std::fabs(r[i] - arr.data[i])));
+      mx = std::max(mx, double(std::fabs(r[i])));
+    }
+    std::printf("  max abs diff %-6s %.3g (max |value| %.3g)\n", name.c_str(), err, mx);
+  }
+  std::filesystem::remove_all(dir);
+  return 0;
+}

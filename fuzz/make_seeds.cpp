@@ -1,0 +1,107 @@
+// Writes the fuzzers' seed corpus: small valid files of every format (from the test encoders),
+// a few deliberately odd ones, and the first bytes of the real samples when present.
+// usage: fuzz_make_seeds OUT_DIR [SHARED_DIR]   (OUT_DIR/<reader>/seed_*)
+#include <zip.h>
+
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <random>
+
+#include "event_test_encoders.hpp"
+
+namespace fs = std::filesystem;
+using namespace vkunroll;
+using namespace vkunroll::evtest;
+
+namespace {
+
+void put(const fs::path& dir, const std::string& name, const std::vector<uint8_t>& b) {
+  fs::create_directories(dir);
+  std::ofstream f(dir / name, std::ios::binary);
+  f.write(reinterpret_cast<const char*>(b.data()), std::streamsize(b.size()));
+}
+
+std::vector<uint8_t> head(const fs::path& p, size_t n) {
+  std::ifstream f(p, std::ios::binary);
+  std::vector<uint8_t> b(n);
+  f.read(reinterpret_cast<char*>(b.data()), std::streamsize(n));
+  b.resize(size_t(f.gcount()));
+  return b;
+}
+
+std::vector<uint8_t> make_zip(const std::vector<std::pair<std::string, std::vector<uint8_t>>>& members, bool deflate,
+                              const fs::path& tmp) {
+  int err = 0;
+  zip_t* z = zip_open(tmp.c_str(), ZIP_CREATE | ZIP_TRUNCATE, &err);
+  for (const auto& [name, bytes] : members) {
+    zip_source_t* s = zip_source_buffer(z, bytes.data(), bytes.size(), 0);
+    const zip_int64_t idx = zip_file_add(z, name.c_str(), s, ZIP_FL_OVERWRITE);
+    zip_set_file_compression(z, zip_uint64_t(idx), deflate ? ZIP_CM_DEFLATE : ZIP_CM_STORE, 0);
+  }
+  zip_close(z);
+  auto b = head(tmp, 1 << 20);
+  fs::remove(tmp);
+  return b;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2) {
+    std::cerr << "usage: fuzz_make_seeds OUT_DIR [SHARED_DIR]\n";
+    return 2;
+  }
+  const fs::path out = argv[1];
+  const EventStream ev = random_stream(40, 64, 48, 1);
+  const EventStream big = random_stream(300, 1280, 720, 2, (int64_t(1) << 24) - 500);
+
+  put(out / "evt2", "seed_small", encode_evt2(ev, "% evt 2.0\n% format EVT2;height=48;width=64\n% end\n"));
+  put(out / "evt2", "seed_plugin", encode_evt2(big, "% plugin_name hal_plugin_gen31_fx3\n"));
+  put(out / "evt3", "seed_small", encode_evt3(ev, "% evt 3.0\n% format EVT3;height=48;width=64\n% end\n", false));
+  put(out / "evt3", "seed_vectors_wrap", encode_evt3(big, "% evt 3.0\n% plugin_name hal_plugin_gen41_evk3\n", true));
+  put(out / "dat", "seed_small", encode_dat(ev));
+  put(out / "dat", "seed_big", encode_dat(big));
+  put(out / "aedat4", "seed_none", encode_aedat4(ev, 0, 16));
+  put(out / "aedat4", "seed_lz4", encode_aedat4(ev, 1, 16));
+  put(out / "aedat4", "seed_zstd_notable", encode_aedat4(ev, 3, 16, false));
+  put(out / "npy", "seed_i8", encode_npy_nx4<int64_t>(ev, "<i8"));
+  put(out / "npy", "seed_f4_fortran", encode_npy_nx4<float>(ev, "<f4", true, true));
+  put(out / "npy", "seed_record", encode_npy_record(ev));
+  put(out / "npy", "seed_be", encode_npy_nx4<int16_t>(ev, ">i2"));
+  const fs::path tmpzip = out / "tmp.zip";
+  put(out / "npz", "seed_stored", make_zip({{"event.npy", encode_npy_nx4<int32_t>(ev, "<i4")}}, false, tmpzip));
+  put(out / "npz", "seed_deflate_record", make_zip({{"event.npy", encode_npy_record(ev)}}, true, tmpzip));
+  {
+    std::vector<std::pair<std::string, std::vector<uint8_t>>> sep;
+    auto col = [&](const char* name, auto get) {
+      std::vector<uint8_t> d;
+      for (size_t i = 0; i < ev.size(); ++i) put32(d, uint32_t(get(i)));
+      sep.emplace_back(std::string(name) + ".npy",
+                       encode_npy("{'descr': '<i4', 'fortran_order': False, 'shape': (" + std::to_string(ev.size()) + ",), }", d));
+    };
+    col("x", [&](size_t i) { return ev.x[i]; });
+    col("y", [&](size_t i) { return ev.y[i]; });
+    col("p", [&](size_t i) { return ev.p[i] > 0 ? 1 : 0; });
+    col("t", [&](size_t i) { return ev.t[i]; });
+    put(out / "npz", "seed_separate", make_zip(sep, true, tmpzip));
+  }
+  put(out / "text", "seed_txyp", text_bytes("# width 64 height 48\n1 2 3 1\n5 6 7 0\n5 8 9 -1\n"));
+  put(out / "text", "seed_e2vid", text_bytes("240 180\n0.000001 1 2 1\n0.000123456 3 4 0\n"));
+  put(out / "text", "seed_csv", text_bytes("x,y,timestamp,polarity\n1,2,1.5,True\n3,4,2e3,False\nnan,1,1,1\n"));
+  std::mt19937 rng(3);
+  for (int k = 0; k < 4; ++k) {
+    std::vector<uint8_t> r(size_t(200 + 200 * k));
+    for (auto& b : r) b = uint8_t(rng());
+    put(out / "hdf5", "seed_random_" + std::to_string(k), r);
+  }
+  if (argc > 2) {
+    const fs::path shared = argv[2];
+    if (fs::exists(shared / "data/real-events/evt3_sample.raw"))
+      put(out / "evt3", "seed_real_head", head(shared / "data/real-events/evt3_sample.raw", 4096));
+    if (fs::exists(shared / "data/real-events/sample.aedat4"))
+      put(out / "aedat4", "seed_real_head", head(shared / "data/real-events/sample.aedat4", 2334 + 8 + 7949 + 8 + 383));
+  }
+  std::cout << "seeds written under " << out << "\n";
+  return 0;
+}

@@ -1,0 +1,52 @@
+#version 450
+// Row-aware event binning (reference section 4), one workgroup per (sensor row, job): the host
+// grouped the batch's events by row (counting sort, time order kept) and found, by binary search,
+// the range of each row's events inside the job's interval [lo, hi). So every event a workgroup
+// reads is selected, and the row's record is uniform across the workgroup.
+// Exact: the host turned the rational row times into integer thresholds (kernels/event_tensor.cpp).
+// Record of (job, row), N + 4 ints: [lo, hi, N-1 ascending thresholds, flags (bit0: a > b), s, c].
+// Counts accumulate as float32 through a 32-bit compare-and-swap loop (core Vulkan).
+layout(local_size_x = 64) in;
+layout(std430, binding = 0) readonly buffer Events { uvec2 ev[]; };   // (t - origin, x | positive << 31)
+layout(std430, binding = 1) readonly buffer Records { int rec[]; };
+layout(std430, binding = 2) readonly buffer Ranges { uvec2 range[]; }; // [jobs][h] events [begin, end)
+layout(std430, binding = 3) buffer Counts { uint counts[]; };         // float32 bits [jobs, 2N, h, w]
+layout(push_constant) uniform P {
+  uint job_begin;  // first job of the chunk in the record table
+  uint bins;       // N
+  uint width, height;
+} p;
+
+void main() {
+  const uint y = gl_WorkGroupID.x;
+  const uint j = gl_WorkGroupID.y;  // job within the chunk
+  const uint plane = p.width * p.height;
+  const uint jr = (p.job_begin + j) * p.height + y;
+  const uint base = jr * (p.bins + 4u);
+  const uvec2 r = range[jr];
+  const int lo = rec[base];
+  const bool backward = (rec[base + p.bins + 1u] & 1) != 0;
+  const float sc = uintBitsToFloat(uint(rec[base + p.bins + 2u]));
+  const float c0 = uintBitsToFloat(uint(rec[base + p.bins + 3u]));
+  const uint out0 = (j * 2u * p.bins) * plane + y * p.width;
+  const int last = int(p.bins) - 1;
+  for (uint i = r.x + gl_LocalInvocationID.x; i < r.y; i += gl_WorkGroupSize.x) {
+    const uvec2 e = ev[i];
+    const int t = int(e.x);
+    // Threshold count jt = #{thresholds <= t}: a float estimate (within one of the truth), then
+    // exact integer steps; two each way leave a margin.
+    int jt = clamp(int(floor(float(t - lo) * sc + c0)), 0, last);
+    for (int s = 0; s < 2; ++s) if (jt < last && rec[base + 2u + uint(jt)] <= t) ++jt;
+    for (int s = 0; s < 2; ++s) if (jt > 0 && rec[base + 1u + uint(jt)] > t) --jt;
+    const bool positive = (e.y >> 31) != 0u;
+    const uint k = backward ? uint(last - jt) : uint(jt);
+    const bool sign = backward ? !positive : positive;  // time flip reverses polarity
+    const uint idx = out0 + (2u * k + (sign ? 1u : 0u)) * plane + (e.y & 0x7fffffffu);
+    uint old = counts[idx];
+    while (true) {
+      const uint prev = atomicCompSwap(counts[idx], old, floatBitsToUint(uintBitsToFloat(old) + 1.0));
+      if (prev == old) break;
+      old = prev;
+    }
+  }
+}

@@ -1,0 +1,263 @@
+// Sequence folders: the generic layout and the reference datasets' layouts, built tiny in a temp
+// dir; timing derivation, overrides, clear errors; value lists; `vkunroll voxelize` end to end.
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+
+#include "event_test_encoders.hpp"
+#include "host/event_writer.hpp"
+#include "host/safetensors.hpp"
+#include "host/sequence.hpp"
+#include "host/value_list.hpp"
+#include "kernels/event_tensor.hpp"
+#include "runtime/error.hpp"
+
+using namespace vkunroll;
+namespace fs = std::filesystem;
+
+namespace {
+
+Rational R(const std::string& s) { return Rational::parse(s); }
+
+fs::path fresh_dir(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / ("vkunroll_seq_" + std::to_string(::getpid())) / name;
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+void png(const fs::path& p, int w, int h) {
+  fs::create_directories(p.parent_path());
+  cv::Mat m(h, w, CV_8UC3, cv::Scalar(10, 20, 30));
+  ASSERT_TRUE(cv::imwrite(p.string(), m));
+}
+
+void text(const fs::path& p, const std::string& s) {
+  std::ofstream(p) << s;
+}
+
+std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// A generic sequence: 16x12 sensor, 3 frames, events from write_events_hdf5.
+fs::path make_generic(const std::string& name, const EventStream& ev) {
+  const fs::path d = fresh_dir(name);
+  for (int k = 0; k < 3; ++k) png(d / "rs" / ("00000" + std::to_string(k) + ".png"), 16, 12);
+  write_events_hdf5((d / "events.h5").string(), ev);
+  text(d / "meta.json", R"({"width": 16, "height": 12, "line_delay_us": "1000/7", "exposure_us": 900.5,
+    "readout": "top-down", "events": "events.h5",
+    "frames": [{"file": "rs/000000.png", "t0_us": 1000}, {"file": "rs/000001.png", "t0_us": 4000},
+               {"file": "rs/000002.png", "t0_us": 7000.25}],
+    "ground_truth": [{"file": "rs/000000.png", "t_us": 1500}]})");
+  return d;
+}
+
+}  // namespace
+
+TEST(Sequence, ValueAndFrameLists) {
+  auto v = parse_value_list("0:1:5", "--times");
+  ASSERT_EQ(v.size(), 5u);
+  EXPECT_EQ(v[1], R("1/4"));
+  EXPECT_EQ(v[4], R("1"));
+  v = parse_value_list("-0.25,0.5,1.25,1/3", "--times");
+  ASSERT_EQ(v.size(), 4u);
+  EXPECT_EQ(v[0], R("-1/4"));
+  EXPECT_EQ(v[3], R("1/3"));
+  EXPECT_EQ(parse_value_list("2:9:1", "x"), std::vector<Rational>{R("2")});
+  EXPECT_EQ(parse_frame_list("0:3", "--frames"), (std::vector<int>{0, 1, 2, 3}));
+  EXPECT_EQ(parse_frame_list("0:8:5,11", "--frames"), (std::vector<int>{0, 2, 4, 6, 8, 11}));
+  EXPECT_NE(error_of([] { parse_frame_list("0:1:3", "--frames"); }).find("--frames"), std::string::npos);
+  EXPECT_THROW(parse_value_list("0:1", "--times"), Error);
+  EXPECT_THROW(parse_value_list("1,,2", "--times"), Error);
+  EXPECT_THROW(parse_value_list("0:1:0", "--times"), Error);
+  EXPECT_THROW(parse_frame_list("-1", "--frames"), Error);
+}
+
+TEST(Sequence, GenericLayoutTimingAndOverrides) {
+  auto ev = evtest::random_stream(2000, 16, 12, 3, 0, 5);
+  const fs::path d = make_generic("generic", ev);
+  EXPECT_EQ(detect_sequence_layout(d.string()), SequenceLayout::generic);
+  const Sequence s = load_sequence(d.string());
+  EXPECT_EQ(s.width, 16);
+  EXPECT_EQ(s.height, 12);
+  ASSERT_EQ(s.frames.size(), 3u);
+  EXPECT_EQ(s.frames[2].timing.t0, R("7000.25"));
+  EXPECT_EQ(s.frames[0].timing.line_delay, R("1000/7"));
+  EXPECT_EQ(s.frames[0].timing.exposure, R("1801/2"));
+  EXPECT_EQ(s.frames[0].timing.rows, 12);
+  ASSERT_EQ(s.ground_truth.size(), 1u);
+  EXPECT_EQ(s.ground_truth[0].t_us, R("1500"));
+  const EventStream w = s.read_events(1000, 3000);
+  ASSERT_FALSE(w.empty());
+  EXPECT_GE(w.t.front(), 1000);
+  EXPECT_LT(w.t.back(), 3000);
+  EXPECT_THROW(s.frame(3), Error);
+
+  SequenceOptions o;
+  o.line_delay_us = R("100");
+  o.exposure_us = R("50");
+  o.readout = Readout::bottom_up;
+  o.t0s_us = std::vector<Rational>{R("1"), R("2"), R("3")};
+  const Sequence s2 = load_sequence(d.string(), o);
+  EXPECT_EQ(s2.frames[1].timing.t0, R("2"));
+  EXPECT_EQ(s2.frames[1].timing.start(11), R("2"));  // bottom-up: the last row is read first
+  EXPECT_EQ(s2.frames[1].timing.exposure, R("50"));
+  o.t0s_us = std::vector<Rational>{R("1")};
+  EXPECT_NE(error_of([&] { load_sequence(d.string(), o); }).find("3 frames"), std::string::npos);
+}
+
+TEST(Sequence, GenericLayoutErrorsNameFileAndField) {
+  auto ev = evtest::random_stream(100, 16, 12, 3, 0, 5);
+  const fs::path d = make_generic("generic_bad", ev);
+  const std::string meta = (d / "meta.json").string();
+  text(meta, "{ not json");
+  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("meta.json: not valid JSON"), std::string::npos);
+  text(meta, R"({"width": 16, "height": 12, "line_delay_us": 10, "exposure_us": 5, "events": "events.h5",
+                 "frames": [{"file": "rs/000000.png", "t0_us": "abc"}]})");
+  auto e = error_of([&] { load_sequence(d.string()); });
+  EXPECT_NE(e.find("frames[0].t0_us"), std::string::npos) << e;
+  text(meta, R"({"width": -3, "height": 12})");
+  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("'width'"), std::string::npos);
+  text(meta, R"({"width": 16, "height": 12, "exposure_us": 5, "events": "events.h5", "frames": []})");
+  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("line_delay_us"), std::string::npos);
+  text(meta, R"({"width": 16, "height": 12, "line_delay_us": 10, "exposure_us": 5, "readout": "diagonal",
+                 "events": "events.h5", "frames": [{"file": "rs/000000.png", "t0_us": 0}]})");
+  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("readout"), std::string::npos);
+  // A frame of the wrong size.
+  png(d / "rs" / "big.png", 20, 12);
+  text(meta, R"({"width": 16, "height": 12, "line_delay_us": 10, "exposure_us": 5, "events": "events.h5",
+                 "frames": [{"file": "rs/big.png", "t0_us": 0}]})");
+  e = error_of([&] { load_sequence(d.string()); });
+  EXPECT_NE(e.find("big.png"), std::string::npos) << e;
+  EXPECT_NE(e.find("20x12"), std::string::npos) << e;
+  // Missing meta.json and no other layout.
+  fs::remove(meta);
+  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("cannot tell the layout"), std::string::npos);
+  SequenceOptions o;
+  o.layout = SequenceLayout::generic;
+  EXPECT_NE(error_of([&] { load_sequence(d.string(), o); }).find("no meta.json"), std::string::npos);
+}
+
+TEST(Sequence, EventsOutsideTheSensorAreAnErrorNamingTheFile) {
+  auto ev = evtest::random_stream(100, 16, 12, 3, 0, 5);
+  ev.width = 40;  // the file says 40 wide; meta.json says 16
+  ev.x[50] = 30;
+  const fs::path d = make_generic("generic_oob", ev);
+  const Sequence s = load_sequence(d.string());
+  const auto e = error_of([&] { s.read_events(0, 1 << 20); });
+  EXPECT_NE(e.find("events.h5"), std::string::npos) << e;
+  SequenceOptions o;
+  o.events.on_bad = BadEventPolicy::drop;
+  EventReadReport rep;
+  const EventStream kept = load_sequence(d.string(), o).read_events(0, 1 << 20, &rep);
+  EXPECT_EQ(kept.size(), 99u);
+  EXPECT_EQ(rep.dropped_out_of_sensor, 1u);
+}
+
+TEST(Sequence, GevRsLayout) {
+  const fs::path d = fresh_dir("gevrs");
+  for (int k = 0; k < 3; ++k) png(d / "rs" / (std::to_string(k) + ".png"), 16, 12);
+  for (int k = 0; k < 12; ++k) png(d / "gs" / (std::to_string(k) + ".png"), 16, 12);
+  auto ev = evtest::random_stream(500, 16, 12, 4, 0, 200);
+  evtest::write_h5_nx4((d / "seq.h5").string(), ev, H5T_STD_I64LE, true);
+  EXPECT_EQ(detect_sequence_layout(d.string()), SequenceLayout::gev_rs);
+  const Sequence s = load_sequence(d.string());
+  ASSERT_EQ(s.frames.size(), 3u);
+  EXPECT_EQ(s.frames[2].timing.t0, R("40000"));  // GS frame 200 at 200 us
+  EXPECT_EQ(s.frames[2].timing.line_delay, R("200"));
+  EXPECT_EQ(s.frames[2].timing.exposure, R("3200"));
+  EXPECT_EQ(s.ground_truth.size(), 12u);
+  EXPECT_EQ(s.ground_truth[11].t_us, R("2200"));
+  EXPECT_EQ(fs::path(s.frames[2].image).filename(), "2.png");  // natural order
+  SequenceOptions half;
+  half.gev_half_row = true;
+  const Sequence h = load_sequence(d.string(), half);
+  EXPECT_EQ(h.frames[1].timing.line_delay, R("100"));
+  EXPECT_EQ(h.frames[1].timing.exposure, R("1600"));
+  EXPECT_EQ(s.read_events(0, 1 << 30).size(), 500u);
+}
+
+TEST(Sequence, DreLayout) {
+  const fs::path d = fresh_dir("dre");
+  for (int k = 0; k < 3; ++k) png(d / "images" / (std::to_string(k) + ".png"), 16, 12);
+  auto ev = evtest::random_stream(300, 16, 12, 5, 0, 5);
+  evtest::write_h5_dre((d / "rec.h5").string(), ev);
+  EXPECT_EQ(detect_sequence_layout(d.string()), SequenceLayout::dre);
+  const Sequence s = load_sequence(d.string());
+  ASSERT_EQ(s.frames.size(), 3u);
+  EXPECT_EQ(s.frames[1].timing.t0, R("950"));
+  EXPECT_EQ(s.frames[1].timing.exposure, R("100"));
+  EXPECT_EQ(s.frames[1].timing.line_delay, R("70"));
+  // An image without a timestamp is an error naming the h5 file.
+  png(d / "images" / "3.png", 16, 12);
+  const auto e = error_of([&] { load_sequence(d.string()); });
+  EXPECT_NE(e.find("rec.h5"), std::string::npos) << e;
+  EXPECT_NE(e.find("4 images"), std::string::npos) << e;
+}
+
+TEST(Sequence, GevRsRealAndFastecLayouts) {
+  const fs::path g = fresh_dir("0815_5000_73000");
+  for (int k = 0; k < 2; ++k) png(g / "image" / (std::to_string(k) + ".png"), 16, 12);
+  text(g / "events.npz", "not read when t0s are given");
+  EXPECT_EQ(detect_sequence_layout(g.string()), SequenceLayout::gev_rs_real);
+  SequenceOptions o;
+  o.t0s_us = std::vector<Rational>{R("100"), R("48200")};
+  const Sequence s = load_sequence(g.string(), o);
+  EXPECT_EQ(s.frames[0].timing.exposure, R("5000"));
+  EXPECT_EQ(s.frames[0].timing.line_delay, R("73000/11"));  // readout / (H - 1)
+  EXPECT_EQ(s.frames[1].timing.t0, R("48200"));
+
+  const fs::path f = fresh_dir("fastec");
+  for (int k = 0; k < 2; ++k) png(f / "RS" / (std::to_string(k) + ".png"), 16, 12);
+  text(f / "events" / "0.npz", "x");
+  fs::create_directories(f / "events");
+  text(f / "events" / "0.npz", "x");
+  text(f / "events" / "1.npz", "x");
+  EXPECT_EQ(detect_sequence_layout(f.string()), SequenceLayout::fastec);
+  const Sequence fs_ = load_sequence(f.string());
+  EXPECT_EQ(fs_.event_files.size(), 2u);
+  EXPECT_EQ(fs_.frames[1].timing.line_delay, R("625/3"));
+  EXPECT_EQ(fs_.frames[1].timing.t0, R("1250/3") * R("260"));
+}
+
+TEST(Sequence, VoxelizeCliMatchesTheLibrary) {
+  auto ev = evtest::random_stream(6000, 16, 12, 9, 0, 3);
+  const fs::path d = make_generic("voxelize", ev);
+  const std::string out = (d / "ev.safetensors").string();
+  const std::string cmd = std::string(VKUNROLL_CLI_PATH) + " voxelize " + d.string() +
+                          " --frames 0:1 --times 0:1:3 --bins 4 --crop 2,1,10,9 --out " + out + " > " +
+                          (d / "log.txt").string() + " 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0) << std::ifstream(d / "log.txt").rdbuf();
+  const auto f = read_safetensors(out);
+  const auto& ev1 = f.get("ev1");
+  EXPECT_EQ(ev1.shape, (std::vector<int64_t>{6, 8, 9, 10}));
+  const Sequence s = load_sequence(d.string());
+  std::vector<EventTensorPair> pairs;
+  for (int k : {0, 1})
+    for (const char* tau : {"0", "0.5", "1"})
+      pairs.push_back({s.frames[k].timing, s.frames[k].timing.target_time(R(tau)), std::nullopt});
+  const auto want = build_event_tensors_cpu(s.read_events(-100000, 100000), pairs, {4, {2, 1, 10, 9}});
+  EXPECT_EQ(f.get("ev1").to_f32(), want.ev1);
+  EXPECT_EQ(f.get("ev2").to_f32(), want.ev2);
+  EXPECT_EQ(f.get("ev3").to_f32(), want.ev3);
+  double total = 0;
+  for (float v : want.ev2) total += v;
+  EXPECT_GT(total, 100);
+  EXPECT_NE(f.metadata.at("pairs").find("t_star_us"), std::string::npos);
+  // Bad arguments are clear errors.
+  const std::string bad = std::string(VKUNROLL_CLI_PATH) + " voxelize " + d.string() +
+                          " --frames 7 --times 0.5 --out " + out + " > " + (d / "err.txt").string() + " 2>&1";
+  EXPECT_NE(std::system(bad.c_str()), 0);
+  std::stringstream err;
+  err << std::ifstream(d / "err.txt").rdbuf();
+  EXPECT_NE(err.str().find("frame 7"), std::string::npos) << err.str();
+}
