@@ -43,9 +43,12 @@ BRANCHES = ("sys", "warped", "fused")  # E-IC_T, E-IC_S, E-IC_S+T: every consist
 
 # ---- configurations ---------------------------------------------------------------------------------
 PRESETS = {
-    # the shipped model: ~1.1 MB of F32 weights, cheap enough to learn on 2 CPU cores in under an hour
-    "small": dict(D=3, C=3, G=16, G0=32, N=4, upnet_width=64, flownet=(16, 3), fusion_net=(16, 3),
+    # the shipped model: ~1M parameters (4 MB F32), ~62k multiply-adds a pixel for SelfUnroll-S
+    # (the published model: ~2.3M), cheap enough to learn something on 2 CPU cores in under an hour
+    "small": dict(D=2, C=3, G=12, G0=24, N=4, upnet_width=48, flownet=(8, 3), fusion_net=(8, 3),
                   attfusion_net=(8, 3)),
+    "medium": dict(D=3, C=3, G=16, G0=32, N=4, upnet_width=64, flownet=(16, 3), fusion_net=(16, 3),
+                   attfusion_net=(8, 3)),
     "tiny": dict(D=1, C=2, G=8, G0=16, N=2, upnet_width=32, flownet=(8, 2), fusion_net=(8, 2),
                  attfusion_net=(4, 2)),
     "published": dict(D=10, C=5, G=48, G0=96, N=16, upnet_width=256, flownet=(32, 4), fusion_net=(32, 3),
@@ -448,6 +451,7 @@ def train(a) -> None:
     step = state["step"] if state else 0
     elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
     t_run0 = time.time()
+    session_steps = 0
 
     for stage, steps in stages:
         if stage == "s" and start_stage == "m":
@@ -465,6 +469,7 @@ def train(a) -> None:
             step, elapsed_before = 0, 0.0
         sb = stage_budget[stage]
         t0 = time.time() - elapsed_before
+        t_sess0, step_sess0 = time.time(), step
         last_print, ema, done_reason = 0.0, {}, "steps"
         net.train()
         while True:
@@ -492,7 +497,7 @@ def train(a) -> None:
             now = time.time()
             if now - last_print >= a.print_every or step == 1 or step == steps:
                 last_print = now
-                rate = step / max(1e-9, now - t0) if not elapsed_before else step / max(1e-9, now - t0)
+                rate = (step - step_sess0) / max(1e-9, now - t_sess0)
                 parts = " ".join(f"{k} {v:.4f}" for k, v in ema.items() if k != "total")
                 print(f"[{stage}] step {step}/{steps} lr {lr:.2e} loss {ema['total']:.4f} ({parts}) "
                       f"{rate:.2f} step/s data {t_data:.2f}s elapsed {(now - t0) / 60:.1f} min", flush=True)
@@ -502,6 +507,12 @@ def train(a) -> None:
                       flush=True)
             if step % a.ckpt_every == 0:
                 save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
+            session_steps += 1
+            if a.stop_after and session_steps >= a.stop_after:
+                save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
+                print(f"[{stage}] stopped after {session_steps} steps (--stop-after); resume with --resume {ckpt_path}",
+                      flush=True)
+                return
         info[f"steps_{stage}"] = str(step)
         info[f"minutes_{stage}"] = f"{(time.time() - t0) / 60:.1f}"
         info[f"final_loss_{stage}"] = f"{ema.get('total', float('nan')):.4f}"
@@ -576,6 +587,7 @@ def main(argv=None) -> int:
     g.add_argument("--supervised", action="store_true", help="COMPARISON ONLY: L1 to ground truth")
     g.add_argument("--print-every", type=float, default=10.0, help="seconds between progress lines")
     g.add_argument("--ckpt-every", type=int, default=100)
+    g.add_argument("--stop-after", type=int, default=0, help="stop (with a checkpoint) after this many steps")
     g.add_argument("--val-every", type=int, default=0)
     g.add_argument("--val-targets", type=int, default=8)
     g.add_argument("--val-crop", type=parse_size, default=None)
