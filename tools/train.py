@@ -372,6 +372,43 @@ def make_data(out: str, count: int, seed_base: int, size: str, frames: int, gt_p
 
 
 # ---- training -------------------------------------------------------------------------------------------
+class ThreadChooser:
+    """Fixed torch thread count, or 'auto': every `period` steps, time `probe` steps with 1 thread
+    and up to `probe` with 2 (cut short when the first is clearly slower) and keep the faster:
+    the machine's load changes during a long run, and 2 OpenMP threads on an oversubscribed
+    machine can be many times slower than 1."""
+
+    def __init__(self, spec: str, period: int = 300, probe: int = 3):
+        self.auto = spec == "auto"
+        self.n = 2 if self.auto else int(spec)
+        self.period, self.probe = period, probe
+        self.times = {1: [], 2: []}
+        self.trial = None
+        self.next_probe = 0
+        torch.set_num_threads(self.n)
+
+    def before_step(self, step: int) -> None:
+        if not self.auto:
+            return
+        if self.trial is None and step >= self.next_probe:
+            self.trial, self.times = 1, {1: [], 2: []}
+        if self.trial == 1 and len(self.times[1]) >= self.probe:
+            self.trial = 2
+        if self.trial == 2:
+            t1 = float(np.median(self.times[1]))
+            t2 = self.times[2]
+            if len(t2) >= self.probe or (t2 and t2[0] > 1.5 * t1):
+                t2m = float(np.median(t2))
+                self.n = 1 if t1 < t2m else 2
+                print(f"threads: 1 -> {t1:.2f} s/step, 2 -> {t2m:.2f} s/step: using {self.n}", flush=True)
+                self.trial, self.next_probe = None, step + self.period
+        torch.set_num_threads(self.trial or self.n)
+
+    def after_step(self, seconds: float) -> None:
+        if self.trial is not None:
+            self.times[self.trial].append(seconds)
+
+
 def cosine_lr(lr0: float, progress: float, warmup: float = 0.02) -> float:
     if progress < warmup:
         return lr0 * max(progress / warmup, 0.05)
@@ -401,7 +438,7 @@ def describe_data(paths: List[str], seqs: List[Sequence]) -> str:
 
 
 def train(a) -> None:
-    torch.set_num_threads(a.threads)
+    threads = ThreadChooser(a.threads)
     os.makedirs(a.out, exist_ok=True)
     ckpt_path = os.path.join(a.out, "checkpoint.pt")
     state = None
@@ -431,7 +468,7 @@ def train(a) -> None:
     sampler = Sampler(seqs, a.crop[0], a.crop[1], cfg.N, a.target_exposure_us, rng, a.supervised)
     data_desc = describe_data(paths, seqs)
     print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}; data: {data_desc}; "
-          f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, {a.threads} threads", flush=True)
+          f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, threads {a.threads}", flush=True)
 
     stages = [("s", a.steps_s), ("m", a.steps_m if cfg.moa else 0)]
     budget = a.max_minutes * 60 if a.max_minutes else None
@@ -483,7 +520,8 @@ def train(a) -> None:
             lr = cosine_lr(a.lr, progress)
             for g in opt.param_groups:
                 g["lr"] = lr
-            t_data = time.time()
+            threads.before_step(step)
+            t_step = t_data = time.time()
             samples = [sampler.draw() for _ in range(a.batch)]
             t_data = time.time() - t_data
             L = (stage_s_losses if stage == "s" else stage_m_losses)(net, samples, a.supervised)
@@ -491,6 +529,7 @@ def train(a) -> None:
             L["total"].backward()
             torch.nn.utils.clip_grad_norm_(params, 1.0)
             opt.step()
+            threads.after_step(time.time() - t_step)
             step += 1
             for k, v in L.items():
                 ema[k] = float(v) if k not in ema else 0.9 * ema[k] + 0.1 * float(v)
@@ -501,6 +540,14 @@ def train(a) -> None:
                 parts = " ".join(f"{k} {v:.4f}" for k, v in ema.items() if k != "total")
                 print(f"[{stage}] step {step}/{steps} lr {lr:.2e} loss {ema['total']:.4f} ({parts}) "
                       f"{rate:.2f} step/s data {t_data:.2f}s elapsed {(now - t0) / 60:.1f} min", flush=True)
+            if a.rescan_every and step % a.rescan_every == 0:
+                known = {q.folder for q in sampler.seqs}
+                new = [Sequence(p) for p in list_sequences(paths) if p not in known]
+                new = [q for q in new if q.num_frames >= 2]
+                if new:
+                    sampler.seqs += new
+                    seqs += new
+                    print(f"[{stage}] step {step}: {len(new)} new sequences, {len(sampler.seqs)} in all", flush=True)
             if a.val_every and step % a.val_every == 0 and val:
                 v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop)
                 print(f"[{stage}] step {step} validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()),
@@ -513,6 +560,7 @@ def train(a) -> None:
                 print(f"[{stage}] stopped after {session_steps} steps (--stop-after); resume with --resume {ckpt_path}",
                       flush=True)
                 return
+        info["data"] = describe_data(paths, seqs)
         info[f"steps_{stage}"] = str(step)
         info[f"minutes_{stage}"] = f"{(time.time() - t0) / 60:.1f}"
         info[f"final_loss_{stage}"] = f"{ema.get('total', float('nan')):.4f}"
@@ -583,10 +631,13 @@ def main(argv=None) -> int:
     g.add_argument("--lr", type=float, default=1e-3)
     g.add_argument("--target-exposure-us", type=float, help="GS target exposure (ev3 window) [the RS exposure]")
     g.add_argument("--seed", type=int, default=1)
-    g.add_argument("--threads", type=int, default=2)
+    g.add_argument("--threads", default="2", help="torch threads, or 'auto': re-measure 1 vs 2 every 200 steps "
+                   "(2 OpenMP threads on an oversubscribed machine can be many times slower than 1) [2]")
     g.add_argument("--supervised", action="store_true", help="COMPARISON ONLY: L1 to ground truth")
     g.add_argument("--print-every", type=float, default=10.0, help="seconds between progress lines")
     g.add_argument("--ckpt-every", type=int, default=100)
+    g.add_argument("--rescan-every", type=int, default=0,
+                   help="every this many steps, add sequences that appeared in --data folders (data still being made)")
     g.add_argument("--stop-after", type=int, default=0, help="stop (with a checkpoint) after this many steps")
     g.add_argument("--val-every", type=int, default=0)
     g.add_argument("--val-targets", type=int, default=8)
