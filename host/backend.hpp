@@ -82,6 +82,11 @@ class Backend {
   uint64_t live_bytes_ = 0, peak_bytes_ = 0;
 };
 
+// Released device buffers wait in a pool (reusable by an allocation of the same shape) until the
+// recorded work that may still read them has run; past this many pooled bytes the backend
+// submits and frees them, so device memory stays close to the live bytes.
+constexpr uint64_t kPoolFlushBytes = 32ull << 20;
+
 // A backend that computes nothing and only tracks buffers: the memory plan of a run.
 class PlanningBackend final : public Backend {
  public:
@@ -102,16 +107,25 @@ class PlanningBackend final : public Backend {
   void tanh_scale(const View&, const View&, float) override {}
   void backward_warp(const View&, const View&, const View&) override {}
   void hardsigmoid_blend(const View&, const View&, const View&, const View&, const View&, float) override {}
-  void flush() override {}
+  void flush() override;
   uint64_t max_buffer_bytes() const override { return max_buffer_bytes_; }
   void set_max_buffer_bytes(uint64_t b) { max_buffer_bytes_ = b; }
+  // Device memory under VulkanBackend's policy (released buffers stay allocated until the next
+  // flush unless an allocation of the same shape reuses them): its peak.
+  uint64_t device_peak_bytes() const { return device_peak_; }
   // The largest single buffer allocated, with its description.
   uint64_t largest_buffer() const { return largest_; }
+  // The live buffers at the peak, largest first ("name shape, ...").
+  const std::string& peak_buffers() const { return peak_buffers_; }
   const std::string& largest_buffer_name() const { return largest_name_; }
 
  private:
   std::vector<Shape> shapes_;
+  std::vector<std::string> names_;
   std::vector<bool> live_;
+  std::string peak_buffers_;
+  std::vector<Shape> pooled_;
+  uint64_t pooled_bytes_ = 0, device_bytes_ = 0, device_peak_ = 0;
   uint64_t max_buffer_bytes_ = 128ull << 20;
   uint64_t largest_ = 0;
   std::string largest_name_;

@@ -21,7 +21,7 @@ struct VulkanBackend::Buf {
 };
 
 VulkanBackend::VulkanBackend(Context& ctx, Profiler* profiler)
-    : ctx_(ctx), cs_(std::make_unique<CommandStream>(ctx, profiler)) {}
+    : ctx_(ctx), workspace_(std::make_shared<ConvWorkspace>()), cs_(std::make_unique<CommandStream>(ctx, profiler)) {}
 
 VulkanBackend::~VulkanBackend() = default;
 
@@ -40,6 +40,7 @@ int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
     if (bufs_[i] && bufs_[i]->pooled && bufs_[i]->t.shape() == shape) {
       bufs_[i]->pooled = false;
       bufs_[i]->live = true;
+      pooled_bytes_ -= bytes;
       return static_cast<int>(i);
     }
   if (bytes > max_buffer_bytes())
@@ -64,6 +65,8 @@ void VulkanBackend::release(int id) {
   account_release(bufs_[id]->t.bytes());
   bufs_[id]->live = false;
   bufs_[id]->pooled = true;
+  pooled_bytes_ += bufs_[id]->t.bytes();
+  if (pooled_bytes_ > kPoolFlushBytes) flush();
 }
 
 Shape VulkanBackend::shape(int id) const { return tensor(id).shape(); }
@@ -76,6 +79,7 @@ void VulkanBackend::flush() {
       device_bytes_ -= b->t.bytes();
       b.reset();
     }
+  pooled_bytes_ = 0;
 }
 
 namespace {
@@ -120,7 +124,7 @@ int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const 
     deconvs_.push_back(std::make_unique<ConvTranspose2d>(ctx_, wt, bt, ConvTranspose2dParams{d.k, d.stride, d.pad, act}, d.name));
     conv_index_.push_back(~static_cast<int>(deconvs_.size() - 1));
   } else {
-    convs_.push_back(std::make_unique<Conv2d>(ctx_, wt, bt, Conv2dParams{d.k, d.stride, d.pad, act}, d.name));
+    convs_.push_back(std::make_unique<Conv2d>(ctx_, wt, bt, Conv2dParams{d.k, d.stride, d.pad, act}, d.name, workspace_));
     conv_index_.push_back(static_cast<int>(convs_.size() - 1));
   }
   weight_bytes_ += (w.data.size() + b.data.size()) * 4;

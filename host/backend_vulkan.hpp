@@ -1,7 +1,7 @@
 // The Vulkan backend: the kernels' GPU ops recorded into one CommandStream per flush. Buffers are
 // device Tensors; a released buffer is reused by a later alloc() of the same shape within the same
-// recording (the stream's hazard barriers order the reuse) and destroyed at the next flush, so
-// device memory follows the graph's liveness.
+// recording (the stream's hazard barriers order the reuse) and destroyed at the next flush (also
+// forced once kPoolFlushBytes are pooled), so device memory follows the graph's liveness.
 #pragma once
 #include <map>
 #include <memory>
@@ -13,7 +13,9 @@
 namespace vkunroll {
 
 class Conv2d;
+class ConvWorkspace;
 class ConvTranspose2d;
+class ConvWorkspace;
 class Profiler;
 
 class VulkanBackend final : public Backend {
@@ -52,13 +54,14 @@ class VulkanBackend final : public Backend {
   struct Buf;
   const Tensor& tensor(int buf) const;
   Context& ctx_;
+  std::shared_ptr<ConvWorkspace> workspace_;  // Winograd scratch shared by every conv
   std::unique_ptr<CommandStream> cs_;
   std::vector<std::unique_ptr<Buf>> bufs_;
   std::vector<std::unique_ptr<Conv2d>> convs_;
   std::vector<std::unique_ptr<ConvTranspose2d>> deconvs_;
   std::vector<int> conv_index_;        // conv id -> index in convs_ (>= 0) or ~index in deconvs_
   std::vector<ConvDesc> descs_;
-  uint64_t device_bytes_ = 0, device_peak_ = 0, weight_bytes_ = 0;
+  uint64_t device_bytes_ = 0, device_peak_ = 0, weight_bytes_ = 0, pooled_bytes_ = 0;
 };
 
 }  // namespace vkunroll

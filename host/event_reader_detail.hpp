@@ -2,6 +2,7 @@
 // bytes without touching the disk), and the EventSink that applies the record rules, the time
 // window and the bad-event policy for every format in one place.
 #pragma once
+#include <algorithm>
 #include <cstdint>
 #include <cstdio>
 #include <functional>
@@ -96,6 +97,11 @@ class EventSink {
   void ignored(const std::string& kind, uint64_t n = 1) { report_.ignored[kind] += n; }
   void note(const std::string& text) { report_.notes.push_back(text); }
 
+  // The reader's count of records it is about to decode: reserves memory (whole-file reads only,
+  // at most 16M events) so the arrays do not grow by copying.
+  void expect_records(uint64_t n) {
+    if (!on_chunk_ && !options_.t_begin_us && !options_.t_end_us) out_.reserve(size_t(std::min<uint64_t>(n, 1u << 24)));
+  }
   bool done() const { return done_; }
   const EventReadOptions& options() const { return options_; }
   EventReadReport& report() { return report_; }

@@ -1,5 +1,7 @@
 #include "host/model.hpp"
 
+#include <chrono>
+
 #include <algorithm>
 #include <set>
 
@@ -123,7 +125,7 @@ const Model::Conv& Model::conv(const std::string& name) const {
 int64_t Model::synthesis_item_bytes(int64_t he, int64_t we) const {
   const int64_t plane = (he / 2) * (we / 2);
   const int64_t ev = cfg_.ev_channels();
-  return 4 * std::max({int64_t(cfg_.G0 + cfg_.C * cfg_.G) * plane, 4 * (3 + 3 * ev) * plane,
+  return 4 * std::max({int64_t(cfg_.G0 + cfg_.C * cfg_.G) * plane, 4 * (3 + 3 * ev) * plane,  // RDB, s2d
                        int64_t(cfg_.upnet_width) * plane});
 }
 
@@ -165,7 +167,7 @@ int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budg
 
 // ---- stages ----------------------------------------------------------------------------------
 
-int Model::resblock(const std::string& p, int x, int64_t n) {
+int Model::resblock(const std::string& p, int x) {
   Backend& b = backend_;
   const Shape s = b.shape(x);
   const int t = b.alloc(s, p + ".conv.0");
@@ -175,7 +177,6 @@ int Model::resblock(const std::string& p, int x, int64_t n) {
   b.conv(conv(p + ".conv.1").id, whole(b, t), whole(b, y), &res);
   b.release(t);
   b.release(x);
-  (void)n;
   return y;
 }
 
@@ -201,7 +202,7 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Vi
   for (int i = 0; i < u.depth; ++i) {
     const std::string d = p + ".down_path." + std::to_string(i);
     const Shape s = b.shape(x);
-    x = resblock(d + ".conv1", x, n);
+    x = resblock(d + ".conv1", x);
     const int sk = b.alloc(s, d + ".skip");
     b.conv(conv(d + ".conv2.0").id, whole(b, x), whole(b, sk), nullptr);
     skips.push_back(sk);
@@ -210,8 +211,8 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Vi
     b.release(x);
     x = dn;
   }
-  x = resblock(p + ".bottom.0", x, n);
-  x = resblock(p + ".bottom.1", x, n);
+  x = resblock(p + ".bottom.0", x);
+  x = resblock(p + ".bottom.1", x);
   for (int i = u.depth - 1; i >= 0; --i) {
     const std::string q = p + ".up_path." + std::to_string(i);
     const Shape s = b.shape(skips[i]);
@@ -223,7 +224,7 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Vi
     x = b.alloc(s, q + ".conv1");
     b.conv(conv(q + ".conv1.0").id, whole(b, cat), whole(b, x), nullptr);
     b.release(cat);
-    x = resblock(q + ".conv2", x, n);
+    x = resblock(q + ".conv2", x);
   }
   const int pred = b.alloc({n, out.c, hp, wp}, p + ".pred");
   b.conv(conv(p + ".pred").id, whole(b, x), whole(b, pred), nullptr);
@@ -235,22 +236,22 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Vi
 void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
   const int64_t ev = cfg_.ev_channels(), h2 = ch.he / 2, w2 = ch.we / 2;
-  const int x0 = b.alloc({n, 3 + 3 * ev, ch.he, ch.we}, "x0");
-  b.copy(items(b, ch.rs, i0, n), chans(whole(b, x0), 0, 3));
-  b.copy(items(b, ch.ev1, i0, n), chans(whole(b, x0), 3, ev));
-  b.copy(items(b, ch.ev2, i0, n), chans(whole(b, x0), 3 + ev, ev));
-  b.copy(items(b, ch.ev3, i0, n), chans(whole(b, x0), 3 + 2 * ev, ev));
+  // space_to_depth(cat(rs, ev1, ev2, ev3)): input channel c lands in output channels 4c..4c+3,
+  // so each piece goes straight into its range and the 99-channel concatenation never exists.
   const int xs = b.alloc({n, 4 * (3 + 3 * ev), h2, w2}, "space_to_depth");
-  b.space_to_depth(whole(b, x0), whole(b, xs));
-  b.release(x0);
+  b.space_to_depth(items(b, ch.rs, i0, n), chans(whole(b, xs), 0, 12));
+  b.space_to_depth(items(b, ch.ev1, i0, n), chans(whole(b, xs), 12, 4 * ev));
+  b.space_to_depth(items(b, ch.ev2, i0, n), chans(whole(b, xs), 12 + 4 * ev, 4 * ev));
+  b.space_to_depth(items(b, ch.ev3, i0, n), chans(whole(b, xs), 12 + 8 * ev, 4 * ev));
   const int f1 = b.alloc({n, cfg_.G0, h2, w2}, "SFENet1");
   b.conv(conv("SFENet1").id, whole(b, xs), whole(b, f1), nullptr);
   b.release(xs);
   // Each block works in one buffer whose first G0 channels are its input and whose growing tail
-  // holds its convs' outputs; LFF writes the block output into the head of a second buffer, which
-  // becomes the next block's buffer (ping-pong). GFF.0 is accumulated after every block.
-  int blk = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
-  int nxt = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
+  // holds its convs' outputs; LFF (+ block input) writes the block output to a G0-channel buffer,
+  // GFF.0 accumulates it, and it is copied back into the head of the block buffer for the next
+  // block. Only one block buffer and two G0-channel accumulators are live.
+  const int blk = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
+  const int block_out = b.alloc({n, cfg_.G0, h2, w2}, "RDB output");
   int acc = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
   int acc2 = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
   b.conv(conv("SFENet2").id, whole(b, f1), chans(whole(b, blk), 0, cfg_.G0), nullptr);
@@ -260,15 +261,14 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
       b.conv(conv(p + ".convs." + std::to_string(c) + ".conv.0").id, chans(whole(b, blk), 0, cfg_.G0 + c * cfg_.G),
              chans(whole(b, blk), cfg_.G0 + c * cfg_.G, cfg_.G), nullptr);
     const View res = chans(whole(b, blk), 0, cfg_.G0);
-    const View block_out = chans(whole(b, nxt), 0, cfg_.G0);
-    b.conv(conv(p + ".LFF").id, whole(b, blk), block_out, &res);
+    b.conv(conv(p + ".LFF").id, whole(b, blk), whole(b, block_out), &res);
     const View prev = whole(b, acc);
-    b.conv(conv("GFF.0.part" + std::to_string(d)).id, block_out, whole(b, acc2), d ? &prev : nullptr);
+    b.conv(conv("GFF.0.part" + std::to_string(d)).id, whole(b, block_out), whole(b, acc2), d ? &prev : nullptr);
     std::swap(acc, acc2);
-    std::swap(blk, nxt);
+    if (d + 1 < cfg_.D) b.copy(whole(b, block_out), chans(whole(b, blk), 0, cfg_.G0));
   }
   b.release(blk);
-  b.release(nxt);
+  b.release(block_out);
   b.release(acc2);
   const int g0 = acc;
   const int g = b.alloc({n, cfg_.G0, h2, w2}, "GFF.1");
@@ -411,6 +411,12 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
     ch.flow = b.alloc({ch.n, 2, he, we}, "flow");
     ch.warped = b.alloc({ch.n, 3, he, we}, "warped");
     ch.fused = b.alloc({ch.n, 3, he, we}, "fused");
+    auto stage_clock = std::chrono::steady_clock::now();
+    auto stage_done = [&](const char* stage) {
+      const auto now = std::chrono::steady_clock::now();
+      if (opt.stage_ms) (*opt.stage_ms)[stage] += std::chrono::duration<double, std::milli>(now - stage_clock).count();
+      stage_clock = now;
+    };
     for (int64_t i = 0; i < ch.n; i += sub_t) {
       stage_synthesis(ch, i, std::min<int64_t>(sub_t, ch.n - i));
       b.flush();
@@ -425,6 +431,7 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
       b.flush();
     }
     b.release(ch.ev3);
+    stage_done("eic");  // E-IC_T, E-IC_S and fusion: the SelfUnroll-S result
     if (m_mode) {
       ch.m = b.alloc({ch.nt, 1, he, we}, "m");
       ch.out = b.alloc({ch.nt, 3, he, we}, "out");
@@ -433,6 +440,7 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
         b.flush();
       }
     }
+    if (m_mode) stage_done("moa");
     // Download and crop to H x W.
     auto fetch = [&](const std::string& nme, int buf, int64_t first) {
       if (!want.count(nme)) return;

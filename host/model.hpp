@@ -41,6 +41,8 @@ struct RunOptions {
   // Bytes of intermediates the run should hold at once (0: no limit other than buffer size); it
   // bounds the chunk and sub-batch sizes (a single item may still need more, see docs/model.md).
   uint64_t memory_budget = 0;
+  // When set, wall milliseconds are added under "eic" (E-IC_T, E-IC_S, fusion) and "moa".
+  std::map<std::string, double>* stage_ms = nullptr;
 };
 
 class Model {
@@ -76,7 +78,7 @@ class Model {
   void stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m);
   // The UNet on `pieces` (views with n items, concatenated along channels), output to `out`.
   void unet(const std::string& p, const UnetConfig& u, const std::vector<View>& pieces, const View& out);
-  int resblock(const std::string& p, int x, int64_t n);
+  int resblock(const std::string& p, int x);  // returns the output buffer; releases x
 
   int64_t synthesis_item_bytes(int64_t h, int64_t w) const;
   int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w) const;

@@ -180,6 +180,7 @@ void read_evt2(ByteSource& src, EventSink& sink) {
   if (!h.evt.empty() && h.evt != "2.0") sink.note("header says EVT " + h.evt + " but EVT 2.0 was asked for");
   uint64_t time_high = 0, loop = 0, record = 0;
   bool have_high = false;
+  sink.expect_records((src.size() - std::min(src.size(), h.data_offset)) / 4);
   for_each_block(src, sink, h.data_offset, 4, "32-bit EVT 2.0 word", [&](const uint8_t* p, size_t n, uint64_t off) {
     for (size_t i = 0; i < n; ++i) {
       const uint32_t w = le32(p + 4 * i);
@@ -314,6 +315,7 @@ void read_dat(ByteSource& src, EventSink& sink) {
       sink.note("time window: binary search skipped to record " + std::to_string(first));
     }
   }
+  sink.expect_records(n - first);
   uint64_t loop = 0, record = first;
   uint32_t prev = 0;
   bool have_prev = false;

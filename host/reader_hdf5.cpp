@@ -238,7 +238,10 @@ std::vector<int64_t> read_whole_int(hid_t file, const std::string& file_name, co
   if (c.cls == H5T_FLOAT) {
     iv.resize(dv.size());
     for (size_t i = 0; i < dv.size(); ++i) {
-      if (!std::isfinite(dv[i])) throw Error(file_name + ": '" + path + "'[" + std::to_string(i) + "] is not finite");
+      // A float index must be an integer that int64 can hold (converting 1e169 would be undefined).
+      if (!std::isfinite(dv[i]) || std::fabs(dv[i]) >= 9.2e18 || dv[i] != std::floor(dv[i]))
+        throw Error(file_name + ": '" + path + "'[" + std::to_string(i) + "] = " + std::to_string(dv[i]) +
+                    " is not an integer index");
       iv[i] = int64_t(dv[i]);
     }
   }
@@ -387,6 +390,7 @@ void read_hdf5(const std::string& path, const void* image, size_t image_size, Ev
               std::to_string(L.t.rows));
   }
 
+  sink.expect_records(r1 - r0);
   std::vector<int64_t> ti, xi, yi, pi;
   std::vector<double> td, xd, yd, pd;
   for (hsize_t c0 = r0; c0 < r1; c0 += kChunkRows) {

@@ -313,6 +313,7 @@ void decode_columns(std::array<ColumnSpec, 4>& cols, uint64_t rows, EventSink& s
     sink.note("time window: binary search on t read rows " + std::to_string(r0) + ".." + std::to_string(r1) + " of " +
               std::to_string(rows));
   }
+  sink.expect_records(r1 - r0);
   const bool tf = is_float(cols[0].type);
   const bool cf = is_float(cols[1].type) || is_float(cols[2].type) || is_float(cols[3].type);
   // Group columns that share a source so each chunk of bytes is read once (front to back).

@@ -380,6 +380,10 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
                     std::to_string(s.width) + "x" + std::to_string(s.height));
     }
   }
+  if (o.events_file) {
+    s.event_files = {*o.events_file};
+    s.notes.push_back("events read from " + *o.events_file + " (option)");
+  }
   for (const auto& e : s.event_files) {
     std::error_code ec;
     if (!fs::exists(e, ec)) throw Error(s.root + ": event file '" + e + "' does not exist");

@@ -30,6 +30,8 @@ struct SequenceOptions {
   int fastec_frame_step_gs = 260;
   // Passed to the event reader (bad-record policy, format, ...); sensor size is set by the loader.
   EventReadOptions events;
+  // Replaces the layout's event file(s) by this one.
+  std::optional<std::string> events_file;
   // Read every frame's image header and check its size against the sensor.
   bool check_frame_sizes = true;
 };
@@ -39,7 +41,7 @@ struct SequenceFrame {
   RowTiming timing;
 };
 
-struct GroundTruthFrame {
+struct SequenceGroundTruth {
   std::string image;
   Rational t_us;
 };
@@ -49,7 +51,7 @@ struct Sequence {
   SequenceLayout layout = SequenceLayout::generic;
   int width = 0, height = 0;
   std::vector<SequenceFrame> frames;
-  std::vector<GroundTruthFrame> ground_truth;
+  std::vector<SequenceGroundTruth> ground_truth;
   std::vector<std::string> event_files;  // one file, or Fastec's per-frame files in order
   EventReadOptions event_options;        // what read_events passes to the reader
   std::vector<std::string> notes;        // how the timing was derived, for the user

@@ -469,14 +469,24 @@ void render_rows(const cv::Range& rows, int width, int ss, const cv::Mat& bg, co
     for (const SpriteDraw& s : sprites)
       if (s.y0 <= y + 0.5 && s.y1 >= y - 0.5) active.push_back(&s);
     float* dst = out.ptr<float>(y);
-    if (ss == 1 && active.empty()) {
-      // Fast path (one sample per pixel, no sprite on this row): incremental coordinates.
+    if (ss == 1) {
+      // One sample per pixel: background along the row with incremental coordinates, then each
+      // sprite "over" it across its bounding-box span only.
       double u = mb[1] * y + mb[2], v = mb[4] * y + mb[5];
-      for (int x = 0; x < width; ++x, u += mb[0], v += mb[3]) {
-        float col[NC];
-        sample_reflect<NC>(bg, u, v, col);
-        for (int c = 0; c < NC; ++c) dst[x * NC + c] = col[c] * gain;
+      for (int x = 0; x < width; ++x, u += mb[0], v += mb[3]) sample_reflect<NC>(bg, u, v, dst + x * NC);
+      for (const SpriteDraw* s : active) {
+        const int xa = std::max(0, static_cast<int>(std::ceil(s->x0))), xb = std::min(width - 1, static_cast<int>(std::floor(s->x1)));
+        double su = s->m[0] * xa + s->m[1] * y + s->m[2], sv = s->m[3] * xa + s->m[4] * y + s->m[5];
+        for (int x = xa; x <= xb; ++x, su += s->m[0], sv += s->m[3]) {
+          float pre[NC + 1];
+          sample_zero<NC + 1>(*s->tex, su, sv, pre);
+          const float a = pre[NC];
+          if (a <= 0.0f) continue;
+          for (int c = 0; c < NC; ++c) dst[x * NC + c] = pre[c] + dst[x * NC + c] * (1.0f - a);
+        }
       }
+      if (gain != 1.0f)
+        for (int i = 0; i < width * NC; ++i) dst[i] *= gain;
       continue;
     }
     for (int x = 0; x < width; ++x) {

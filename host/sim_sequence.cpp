@@ -22,6 +22,12 @@ namespace {
 constexpr uint64_t kStreamFrameNoise = 0xF4A3E;
 constexpr double kTwoPi = 6.283185307179586;
 
+std::string num(double v) {
+  char b[64];
+  std::snprintf(b, sizeof b, "%g", v);
+  return b;
+}
+
 std::string fmt_us(double v) {
   char b[64];
   std::snprintf(b, sizeof b, "%.1f us", v);
@@ -63,11 +69,10 @@ void SimulationConfig::validate() const {
   if (!(lead_in_us >= 0)) fail("lead-in must be >= 0");
   const double period = frame_period_us(), readout_time = (height - 1) * line_delay_us;
   if (readout_time > period)
-    fail("--line-delay-us " + std::to_string(line_delay_us) + " x " + std::to_string(height - 1) + " rows = " +
-         fmt_us(readout_time) + " of readout, longer than the frame period " + fmt_us(period) + " of --fps " +
-         std::to_string(fps) + " (a rolling shutter reads each frame out before the next)");
+    fail("--line-delay-us " + num(line_delay_us) + " x " + std::to_string(height - 1) + " rows = " +
+         fmt_us(readout_time) + " of readout, longer than the frame period " + fmt_us(period) + " of --fps " + num(fps) + " (a rolling shutter reads each frame out before the next)");
   if (exposure_us > period)
-    fail("--exposure-us " + std::to_string(exposure_us) + " is longer than the frame period " + fmt_us(period));
+    fail("--exposure-us " + num(exposure_us) + " is longer than the frame period " + fmt_us(period));
   if (readout != "top-down" && readout != "bottom-up") fail("--readout '" + readout + "': expected top-down or bottom-up");
   if (bit_depth != 8 && bit_depth != 16) fail("--bit-depth " + std::to_string(bit_depth) + ": expected 8 or 16");
   if (events_format != "h5" && events_format != "txt" && events_format != "both")
@@ -107,7 +112,11 @@ nlohmann::json SimulationConfig::to_json() const {
           {"bit_depth", bit_depth},
           {"color", color},
           {"events_format", events_format},
-          {"event_model", events.to_json()},
+          {"event_model", [&] {
+             EventSimParams p = events;
+             p.seed = seed;
+             return p.to_json();
+           }()},
           {"frame_noise", frame_noise.to_json()},
           {"step_fraction", step_fraction},
           {"dt_min_us", dt_min_us},
@@ -164,7 +173,9 @@ SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
     return false;
   };
 
-  EventSimulator ev(W, H, config.events);
+  EventSimParams event_params = config.events;
+  event_params.seed = config.seed;  // one seed drives everything (events.seed is for standalone use)
+  EventSimulator ev(W, H, event_params);
   const double limit = config.step_fraction * std::min(config.events.c_on, config.events.c_off);
   double dt_max = config.dt_max_us;
   // The photoreceptor filter is integrated per step: keep steps well below its time constant.
@@ -248,7 +259,9 @@ SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
 
   // Finish the RS frames: average over the exposure, then the frame sensor's noise.
   for (int k = 0; k < K; ++k) {
-    cv::Mat img = acc[k].empty() ? cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0)) : acc[k] / e;
+    cv::Mat img = acc[k].empty() ? cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0)) : acc[k];
+    img *= 1.0 / e;  // in place: no second copy of every frame
+    acc[k].release();
     const FrameNoiseParams& n = config.frame_noise;
     if (n.full_well_e > 0 || n.read_noise > 0) {
       for (int y = 0; y < H; ++y) {

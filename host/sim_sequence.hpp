@@ -50,7 +50,7 @@ struct SimulationConfig {
   bool color = true;                  // 3-channel PNG (what the network expects) or gray
   std::string events_format = "h5";   // h5 | txt | both
   // Physics.
-  EventSimParams events;              // from the preset unless overridden
+  EventSimParams events;              // from the preset unless overridden; simulate() uses `seed`, not events.seed
   FrameNoiseParams frame_noise;
   double step_fraction = 0.5;         // adaptive step: no pixel's log intensity moves > this x min(C)
   double dt_min_us = 1.0, dt_max_us = 1000.0;

@@ -1,5 +1,6 @@
 #include "host/unroll_output.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
@@ -92,7 +93,7 @@ void UnrollOutput::add_to_contact(int frame, const cv::Mat& rs, const cv::Mat& r
 void UnrollOutput::write_contact_sheet() const {
   if (contact_.empty()) return;
   const cv::Size cell = contact_.front().results.front().size();
-  const double scale = std::min(1.0, 320.0 / cell.width);
+  const double scale = std::clamp(320.0 / cell.width, 0.25, 4.0);  // small crops are enlarged to be seen
   const cv::Size thumb(std::max(1, int(cell.width * scale)), std::max(1, int(cell.height * scale)));
   size_t cols = 0;
   bool any_gt = false;

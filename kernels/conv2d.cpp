@@ -1,5 +1,7 @@
 #include "kernels/conv2d.hpp"
 
+#include <algorithm>
+#include <cstdlib>
 #include <cstring>
 
 #include "runtime/context.hpp"
@@ -8,7 +10,14 @@
 namespace vkunroll {
 
 namespace {
-constexpr int64_t kBlockCo = 8;  // output channels per invocation in the blocked paths
+constexpr int64_t kBlockCo = 8;  // output channels per invocation in the blocked path (or 16)
+
+// Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
+Groups flat_groups(int64_t n, uint32_t z) {
+  const int64_t g = (n + 63) / 64;
+  const int64_t gx = std::min<int64_t>(g, 65535);
+  return {static_cast<uint32_t>(gx), static_cast<uint32_t>((g + gx - 1) / gx), z};
+}
 
 struct ConvPush {
   uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs;
@@ -16,8 +25,11 @@ struct ConvPush {
 };
 
 std::string conv_label(const std::string& name, const Conv2dParams& p) {
-  return name + "_" + std::to_string(p.kernel) + "x" + std::to_string(p.kernel) +
-         (p.stride != 1 ? "s" + std::to_string(p.stride) : "");
+  // Appends (not operator+ chains): GCC 12 reports a false -Wrestrict on those at -O3.
+  std::string label = name;
+  label.append("_").append(std::to_string(p.kernel)).append("x").append(std::to_string(p.kernel));
+  if (p.stride != 1) label.append("s").append(std::to_string(p.stride));
+  return label;
 }
 }  // namespace
 
@@ -26,8 +38,9 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::automatic: return "automatic";
     case ConvAlgo::naive: return "naive";
     case ConvAlgo::blocked: return "blocked";
-    case ConvAlgo::tiled: return "tiled";
+    case ConvAlgo::subgroup: return "subgroup";
     case ConvAlgo::winograd: return "winograd";
+    case ConvAlgo::gemm: return "gemm";
   }
   return "unknown";
 }
@@ -75,9 +88,22 @@ void conv2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const 
         }
 }
 
+const Tensor& ConvWorkspace::get(Context& ctx, int slot, int64_t floats) {
+  if (slot < 0) throw Error("ConvWorkspace: negative slot");
+  if (slots_.size() <= static_cast<size_t>(slot)) slots_.resize(static_cast<size_t>(slot) + 1);
+  auto& ptr = slots_[static_cast<size_t>(slot)];
+  if (!ptr) ptr = std::make_unique<Tensor>();
+  Tensor& t = *ptr;
+  if (t.empty() || t.shape().count() < floats) {
+    if (!t.empty()) retired_.push_back(std::move(t));
+    t = Tensor(ctx, Shape{1, 1, 1, std::max<int64_t>(floats, 1)});
+  }
+  return t;
+}
+
 Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
-               std::string name)
-    : ctx_(ctx), name_(std::move(name)), params_(params) {
+               std::string name, std::shared_ptr<ConvWorkspace> workspace)
+    : ctx_(ctx), name_(std::move(name)), params_(params), workspace_(std::move(workspace)) {
   const int k = params.kernel;
   if (k < 1 || params.stride < 1 || params.pad < 0)
     throw Error(name_ + ": invalid kernel " + std::to_string(k) + " stride " + std::to_string(params.stride) +
@@ -92,19 +118,191 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
                 " output channels expected");
   std::vector<float> b = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
 
-  weight_ = HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data).to_device(ctx);
+  // Only the packing `automatic` uses is uploaded now; the others (naive, blocked as the fallback,
+  // subgroup) on first use, from this host copy.
+  weight_host_ = weight;
+  bias_host_ = b;
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
+  blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
+  if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
+  if (const char* g = std::getenv("VKUNROLL_CONV_G")) subgroup_g_ = static_cast<uint32_t>(std::atoi(g));
+  else subgroup_g_ = (cout_ % 24 == 0 || cout_ == 3) ? 3 : 2;
+  const int64_t kk = static_cast<int64_t>(k) * k;
+
+  const bool wino_s2 = k == 3 && params.stride == 2 && params.pad == 1;
+  if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2) || wino_s2) {
+    // Winograd F(4x4, 3x3): U = G g G^T in double, [36][KS*KS*cin][cout_pad]. A 5x5 kernel is split
+    // into four 3x3 blocks at offsets (0|3, 0|3) (zero beyond 5): four 3x3 convs on shifted inputs,
+    // summed by the GEMM as KS*KS*cin virtual input channels.
+    // Stride 2: four phase images (a, b); tap (i', j') of the 3x3 kernel on phase a reads kernel row
+    // 1 (a = 0, i' = 1) or rows 0 and 2 (a = 1, i' = 0 and 1); every other tap is zero.
+    winograd_ks_ = (k == 5 || wino_s2) ? 2 : 1;
+    winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
+    if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
+    winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
+    const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
+    static const double Gm[6][3] = {{1.0 / 4, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                    {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
+    std::vector<float> u(static_cast<size_t>(36 * cv * winograd_cout_pad_), 0.f);
+    for (int64_t sblk = 0; sblk < winograd_ks_ * winograd_ks_; ++sblk) {
+      const int64_t oy = 3 * (sblk / winograd_ks_), ox = 3 * (sblk % winograd_ks_);
+      const int64_t pa = sblk / 2, pb = sblk % 2;
+      auto phase_tap = [](int64_t phase, int64_t t) -> int64_t {
+        if (phase == 0) return t == 1 ? 1 : -1;  // row 2u: kernel row 1 at u = oy
+        return t == 0 ? 0 : (t == 1 ? 2 : -1);   // row 2u+1: kernel row 0 at u = oy-1, row 2 at u = oy
+      };
+      for (int64_t co = 0; co < cout_; ++co)
+        for (int64_t ci = 0; ci < cin_; ++ci) {
+          auto g = [&](int64_t y, int64_t x) -> double {
+            if (wino_s2) {
+              const int64_t ky = phase_tap(pa, y), kx = phase_tap(pb, x);
+              return (ky >= 0 && kx >= 0) ? weight.at(co, ci, ky, kx) : 0.0;
+            }
+            return (oy + y < k && ox + x < k) ? weight.at(co, ci, oy + y, ox + x) : 0.0;
+          };
+          double gg[6][3];
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 3; ++j) {
+              double acc = 0;
+              for (int t = 0; t < 3; ++t) acc += Gm[i][t] * g(t, j);
+              gg[i][j] = acc;
+            }
+          const int64_t vc = sblk * cin_ + ci;
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              double acc = 0;
+              for (int t = 0; t < 3; ++t) acc += gg[i][t] * Gm[j][t];
+              u[static_cast<size_t>(((i * 6 + j) * cv + vc) * winograd_cout_pad_ + co)] = static_cast<float>(acc);
+            }
+        }
+    }
+    weight_winograd_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
+  }
+  if (k == 1 && params.stride == 1 && params.pad == 0) {
+    winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
+    if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
+    winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
+    std::vector<float> u(static_cast<size_t>(cin_ * winograd_cout_pad_), 0.f);
+    for (int64_t co = 0; co < cout_; ++co)
+      for (int64_t ci = 0; ci < cin_; ++ci)
+        u[static_cast<size_t>(ci * winograd_cout_pad_ + co)] = weight.data[static_cast<size_t>(co * cin_ + ci)];
+    weight_gemm_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
+  }
+  (void)kk;
+  if (weight_winograd_.empty() && weight_gemm_.empty()) pack_blocked();
+}
+
+void Conv2d::pack_naive() const {
+  if (!weight_.empty()) return;
+  weight_ = HostTensor(Shape{1, 1, 1, weight_host_.shape.count()}, weight_host_.data).to_device(ctx_);
+}
+
+void Conv2d::pack_blocked() const {
+  if (!weight_blocked_.empty()) return;
+  // Blocked layout: [cout/COB][cin][k][k][COB], output channels zero-padded to a multiple of COB.
+  // 16 channels per invocation halve the input loads per FMA where cout allows it without waste.
+  const HostTensor& weight = weight_host_;
+  const std::vector<float>& b = bias_host_;
+  const int64_t BC = blocked_cob_, kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
+  const int64_t cob = (cout_ + BC - 1) / BC;
+  std::vector<float> wb(static_cast<size_t>(cob * cin_ * kk * BC), 0.f), bb(static_cast<size_t>(cob * BC), 0.f);
+  for (int64_t co = 0; co < cout_; ++co) {
+    bb[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      for (int64_t t = 0; t < kk; ++t)
+        wb[static_cast<size_t>((((co / BC) * cin_ + ci) * kk + t) * BC + co % BC)] =
+            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
+  }
+  weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx_);
+  bias_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb).to_device(ctx_);
+}
+
+void Conv2d::pack_subgroup() const {
+  if (!weight_subgroup_.empty()) return;
+  // Subgroup layout: [cout/(8G)][cin/4][k*k][G][8] of vec4 (4 input channels), zero-padded.
+  const HostTensor& weight = weight_host_;
+  const std::vector<float>& b = bias_host_;
+  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
+  const int64_t G = subgroup_g_, cog = (cout_ + 8 * G - 1) / (8 * G), c4 = (cin_ + 3) / 4;
+  std::vector<float> ws(static_cast<size_t>(cog * c4 * kk * G * 8 * 4), 0.f), bs(static_cast<size_t>(cog * G * 8), 0.f);
+  for (int64_t co = 0; co < cout_; ++co) {
+    bs[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
+    const int64_t cg = co / (8 * G), g = (co / 8) % G, lane = co % 8;
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      for (int64_t t = 0; t < kk; ++t)
+        ws[static_cast<size_t>(((((cg * c4 + ci / 4) * kk + t) * G + g) * 8 + lane) * 4 + ci % 4)] =
+            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
+  }
+  weight_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws).to_device(ctx_);
+  bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx_);
+}
+
+namespace {
+struct WinogradSizes {
+  int64_t tiles_x_pad, tiles_y, ngroups, tiles_pad;  // groups of 4 horizontally adjacent tiles
+};
+WinogradSizes winograd_sizes(const Shape& in) {
+  WinogradSizes s{};
+  s.tiles_x_pad = ((in.w + 3) / 4 + 3) / 4 * 4;
+  s.tiles_y = (in.h + 3) / 4;
+  s.ngroups = in.n * s.tiles_y * s.tiles_x_pad / 4;
+  s.tiles_pad = (s.ngroups * 4 + 15) / 16 * 16;  // whole GEMM blocks of up to 16 tiles
+  return s;
+}
+}  // namespace
+
+void Conv2d::set_winograd_scratch_limit(uint64_t bytes) { winograd_scratch_limit_ = bytes; }
+
+static int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 15) / 16 * 16; }
+// vec4s of tiles (pixels) per GEMM invocation; VKUNROLL_GEMM_TV overrides (tuning).
+static uint32_t gemm_tv() {
+  const char* e = std::getenv("VKUNROLL_GEMM_TV");
+  return e ? static_cast<uint32_t>(std::atoi(e)) : 4u;
+}
+
+int64_t Conv2d::winograd_chunk(const Shape& in) const {
+  const uint64_t limit = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
+  if (!weight_gemm_.empty()) {  // 1x1 gemm path: one position, pixels padded to 8
+    const uint64_t per_channel = static_cast<uint64_t>(gemm_pix_pad(in)) * 4;
+    return std::min<int64_t>(cin_, static_cast<int64_t>(limit / per_channel));
+  }
+  const WinogradSizes ws = winograd_sizes(output_shape(in));
+  const uint64_t per_channel = 36ull * static_cast<uint64_t>(ws.tiles_pad) * 4;
+  const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
+  return std::min<int64_t>(cv, static_cast<int64_t>(limit / per_channel));
+}
+
+bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
+  if (!supports(algo)) return false;
+  if (algo == ConvAlgo::gemm)
+    return static_cast<uint64_t>(winograd_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
+           winograd_chunk(in) >= 1;
+  if (algo != ConvAlgo::winograd) return true;
+  // V is transformed in chunks of input channels; M (all output channels) must fit one binding.
+  const WinogradSizes ws = winograd_sizes(output_shape(in));
+  const uint64_t m_bytes = 36ull * static_cast<uint64_t>(winograd_cout_pad_ * ws.tiles_pad) * 4;
+  return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
 }
 
 bool Conv2d::supports(ConvAlgo algo) const {
   switch (algo) {
+    case ConvAlgo::winograd: return !weight_winograd_.empty();
+    case ConvAlgo::gemm: return !weight_gemm_.empty();
     case ConvAlgo::automatic:
-    case ConvAlgo::naive: return true;
+    case ConvAlgo::naive:
+    case ConvAlgo::blocked: return true;
+    case ConvAlgo::subgroup: return ctx_.info().subgroup_size == 8 && params_.kernel <= 5 && params_.stride <= 2;
     default: return false;
   }
 }
 
-ConvAlgo Conv2d::choose_algorithm(int64_t, int64_t) const { return ConvAlgo::naive; }
+ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
+  // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
+  // model; tiny images (one tile row or column) gain nothing from it.
+  if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;
+  if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
+  return ConvAlgo::blocked;
+}
 
 Shape Conv2d::output_shape(const Shape& in) const {
   return {in.n, cout_, conv_output_size(in.h, params_.kernel, params_.stride, params_.pad),
@@ -134,8 +332,11 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     if (residual->shape() != expect)
       throw Error(name_ + ": residual slice " + residual->shape().str() + ", expected " + expect.str());
   }
-  if (algo == ConvAlgo::automatic) algo = choose_algorithm(is.h, is.w);
-  if (!supports(algo))
+  if (algo == ConvAlgo::automatic) {
+    algo = choose_algorithm(is.h, is.w);
+    if (!supports(algo, is)) algo = ConvAlgo::blocked;
+  }
+  if (!supports(algo, is))
     throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " does not apply to kernel " +
                 std::to_string(params_.kernel) + " stride " + std::to_string(params_.stride));
 
@@ -153,11 +354,116 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   const DispatchInfo info{conv_label(name_, params_), flop(is), bytes};
   switch (algo) {
     case ConvAlgo::naive: {
+      pack_naive();
       const Pipeline& pl = ctx_.pipeline("conv2d_naive", spec, sizeof(ConvPush));
       cs.dispatch(pl, {bi.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, p,
                   Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
                          static_cast<uint32_t>(os.n * cout_)},
                   info);
+      return;
+    }
+    case ConvAlgo::blocked: {
+      const uint32_t px = std::getenv("VKUNROLL_PX") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_PX"))) : 8u;
+      pack_blocked();
+      std::vector<uint32_t> bspec = spec;
+      bspec.push_back(px);
+      bspec.push_back(static_cast<uint32_t>(blocked_cob_ / 4));
+      const Pipeline& pl = ctx_.pipeline("conv2d_blocked", bspec, sizeof(ConvPush));
+      const auto cob = static_cast<uint32_t>((cout_ + kBlockCo - 1) / kBlockCo);
+      cs.dispatch(pl, {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, br.arg, bo.arg},
+                  p,
+                  flat_groups(os.h * ((os.w + px - 1) / px), static_cast<uint32_t>(os.n) * cob),
+                  info);
+      return;
+    }
+    case ConvAlgo::subgroup: {
+      pack_subgroup();
+      std::vector<uint32_t> sspec = spec;
+      sspec.push_back(subgroup_g_);
+      const Pipeline& pl = ctx_.pipeline("conv2d_subgroup", sspec, sizeof(ConvPush));
+      const int64_t tasks = os.h * ((os.w + 7) / 8), per_wg = 64 / 8;
+      const auto cog = static_cast<uint32_t>((cout_ + 8 * subgroup_g_ - 1) / (8 * subgroup_g_));
+      cs.dispatch(pl, {bi.arg, {weight_subgroup_.range(), Access::read}, {bias_subgroup_.range(), Access::read}, br.arg, bo.arg},
+                  p, Groups{static_cast<uint32_t>((tasks + per_wg - 1) / per_wg), 1, static_cast<uint32_t>(os.n) * cog}, info);
+      return;
+    }
+    case ConvAlgo::winograd: {
+      if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
+      const WinogradSizes wz = winograd_sizes(os);  // tiles of the output
+      const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
+      const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, chunk = winograd_chunk(is);
+      const bool s2 = params_.stride == 2;
+      const Tensor& vt = workspace_->get(ctx_, 0, 36 * chunk * wz.tiles_pad);
+      const Tensor& mt = workspace_->get(ctx_, 1, 36 * winograd_cout_pad_ * wz.tiles_pad);
+      const BufferRange mr = mt.range(0, static_cast<size_t>(36 * winograd_cout_pad_ * wz.tiles_pad) * 4);
+      // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
+      for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
+        const int64_t cn = std::min(chunk, cv - c0);
+        const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cn * wz.tiles_pad) * 4);
+        struct InPush {
+          uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
+          int32_t off_base;
+        } ip{bi.offset, bi.batch_stride, u32(cin_), u32(is.h), u32(is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
+             u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
+             params_.kernel == 5 ? -1 : 0};
+        cs.dispatch(ctx_.pipeline("winograd_input", {}, sizeof ip), {bi.arg, {vr, Access::write}}, ip,
+                    Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1},
+                    {info.name + "_wino_in", 0, 4.0 * 36.0 * (cn * wz.tiles_pad) * (1 + 16.0 / 36)});
+        struct GemmPush {
+          uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
+        } gp{u32(cn), u32(wz.tiles_pad), u32(winograd_cout_pad_), u32(cv), u32(c0)};
+        const uint32_t tv = gemm_tv();
+        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
+                    {{vr, Access::read}, {weight_winograd_.range(), Access::read},
+                     {mr, c0 > 0 ? Access::read_write : Access::write}},
+                    gp, flat_groups(36 * (winograd_cout_pad_ / winograd_cob_) * (wz.tiles_pad / (4 * tv)), 1),
+                    {info.name + "_wino_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cv),
+                     4.0 * 36 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * wz.tiles_pad});
+      }
+      struct OutPush {
+        uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
+      } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(cout_), u32(os.h), u32(os.w), u32(wz.tiles_x_pad),
+           u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_cout_pad_)};
+      cs.dispatch(ctx_.pipeline("winograd_output", {spec[2], spec[3], spec[4]}, sizeof op),
+                  {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
+                  Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},
+                  {info.name + "_wino_out", 0, 4.0 * (36.0 * cout_ * wz.tiles_pad + static_cast<double>(os.count()))});
+      return;
+    }
+    case ConvAlgo::gemm: {
+      if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
+      const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
+      const int64_t pix_pad = gemm_pix_pad(is), npix = is.n * is.h * is.w, chunk = winograd_chunk(is);
+      const Tensor& vt = workspace_->get(ctx_, 0, chunk * pix_pad);
+      const Tensor& mt = workspace_->get(ctx_, 1, winograd_cout_pad_ * pix_pad);
+      const BufferRange mr = mt.range(0, static_cast<size_t>(winograd_cout_pad_ * pix_pad) * 4);
+      for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
+        const int64_t cn = std::min(chunk, cin_ - c0);
+        const BufferRange vr = vt.range(0, static_cast<size_t>(cn * pix_pad) * 4);
+        struct PackPush {
+          uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin;
+        } pp{bi.offset, bi.batch_stride, u32(is.h * is.w), u32(npix), u32(pix_pad), u32(c0)};
+        cs.dispatch(ctx_.pipeline("conv1x1_pack", {}, sizeof pp), {bi.arg, {vr, Access::write}}, pp,
+                    Groups{u32((pix_pad / 4 + 63) / 64), u32(cn), 1},
+                    {info.name + "_gemm_pack", 0, 8.0 * static_cast<double>(cn * pix_pad)});
+        struct GemmPush {
+          uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
+        } gp{u32(cn), u32(pix_pad), u32(winograd_cout_pad_), u32(cin_), u32(c0)};
+        const uint32_t tv = gemm_tv();
+        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
+                    {{vr, Access::read}, {weight_gemm_.range(), Access::read},
+                     {mr, c0 > 0 ? Access::read_write : Access::write}},
+                    gp, flat_groups((winograd_cout_pad_ / winograd_cob_) * (pix_pad / (4 * tv)), 1),
+                    {info.name + "_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
+                     4.0 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * pix_pad});
+      }
+      struct OutPush {
+        uint32_t res_off, res_bs, out_off, out_bs, plane, npix, pix_pad;
+      } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(is.h * is.w), u32(npix), u32(pix_pad)};
+      cs.dispatch(ctx_.pipeline("conv1x1_output", {spec[2], spec[3], spec[4]}, sizeof op),
+                  {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
+                  Groups{u32((pix_pad / 4 + 63) / 64), u32(cout_), 1},
+                  {info.name + "_gemm_out", 0, 8.0 * static_cast<double>(os.count())});
       return;
     }
     default: break;

@@ -2,8 +2,10 @@
 // residual add: out = act(conv(in) + bias) + residual. Input, output and residual are slices, so a
 // conv reads a prefix of a dense-concatenation tensor and writes its own channel range of it.
 #pragma once
+#include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "kernels/common.hpp"
 
@@ -18,9 +20,13 @@ struct Conv2dParams {
 enum class ConvAlgo : uint32_t {
   automatic = 0,  // chosen per shape (see choose_algorithm)
   naive = 1,      // one invocation per output value: the baseline
-  blocked = 2,    // register blocking: 4 pixels x 8 output channels per invocation, packed weights
-  tiled = 3,      // blocked + the input tile of each input channel staged in shared memory
-  winograd = 4,   // Winograd F(2,3), 3x3 stride 1 only
+  blocked = 2,    // register blocking: 8 pixels x 8 or 16 output channels per invocation, packed weights
+  subgroup = 3,   // 8-wide subgroups: lanes = 8 output channels, inputs shared by subgroup broadcast
+  winograd = 4,   // Winograd F(4x4, 3x3): input transform, batched GEMM, output transform; 3x3 stride 1
+                  // (pad 1), 5x5 stride 1 (pad 2) as four 3x3 blocks on shifted inputs, 3x3 stride 2
+                  // (pad 1) as four 3x3 stride-1 convs on the 2x2 phase images
+  gemm = 5,       // 1x1 stride 1: pack the input aligned, register-blocked GEMM (the Winograd GEMM with
+                  // one position: 8 pixels x 8/16 channels per invocation, vec4 loads), epilogue
 };
 const char* conv_algo_name(ConvAlgo a);
 
@@ -32,11 +38,25 @@ int64_t conv_output_size(int64_t in, int kernel, int stride, int pad);
 void conv2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const HostTensor& bias,
                 const Conv2dParams& params, std::optional<HostSlice> residual = {});
 
+// Scratch buffers of the multi-pass algorithms (Winograd's transformed tiles). Share one between
+// all convs of a model: buffers only grow, and a grown-out buffer stays alive (an already recorded
+// dispatch may still use it) until the workspace is destroyed, which must be after the last submit.
+class ConvWorkspace {
+ public:
+  // A buffer of at least `floats` f32 values for `slot` (0, 1, ...); contents undefined.
+  const Tensor& get(Context& ctx, int slot, int64_t floats);
+
+ private:
+  std::vector<std::unique_ptr<Tensor>> slots_;  // stable addresses while more slots are added
+  std::vector<Tensor> retired_;
+};
+
 class Conv2d {
  public:
   // Uploads (and repacks) the weights once. weight [cout, cin, k, k]; bias count cout or empty.
+  // `workspace`: scratch shared with other convs; null creates a private one when first needed.
   Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
-         std::string name = "conv2d");
+         std::string name = "conv2d", std::shared_ptr<ConvWorkspace> workspace = nullptr);
 
   // Records out = act(conv(in) + bias) [+ residual]; out and residual have the output's extent.
   void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual = {}) const;
@@ -46,6 +66,12 @@ class Conv2d {
   // The algorithm `automatic` picks for an input of this height and width.
   ConvAlgo choose_algorithm(int64_t h, int64_t w) const;
   bool supports(ConvAlgo algo) const;
+  // Whether `algo` can run an input of this shape (Winograd's scratch must fit one binding).
+  bool supports(ConvAlgo algo, const Shape& in) const;
+  // Caps Winograd's transformed-input scratch (it then runs in chunks of input channels that the
+  // GEMM accumulates); default 64 MiB (and never above maxStorageBufferRange). Tests, memory tuning.
+  void set_winograd_scratch_limit(uint64_t bytes);
+  int64_t winograd_chunk(const Shape& in) const;  // input channels (x4 for 5x5) per chunk
   Shape output_shape(const Shape& in) const;  // {n, cout, oh, ow}
   double flop(const Shape& in) const;         // 2 x multiply-adds of the direct algorithm
   int64_t cin() const { return cin_; }
@@ -54,15 +80,30 @@ class Conv2d {
   const std::string& name() const { return name_; }
 
  private:
+  // Packings other than the automatic path's are uploaded on first use (record is const).
+  void pack_naive() const;
+  void pack_blocked() const;
+  void pack_subgroup() const;
+
   Context& ctx_;
   std::string name_;
   Conv2dParams params_;
   int64_t cin_ = 0, cout_ = 0;
-  Tensor weight_;          // [cout][cin][k][k] as given (naive)
-  Tensor bias_;            // [cout], zeros when none was given
-  Tensor weight_blocked_;  // [ceil(cout/8)][cin][k*k][8], zero-padded output channels
-  Tensor bias_blocked_;    // [ceil(cout/8)*8]
-  Tensor weight_winograd_; // [ceil(cout/8)][cin][16][8]: G g G^T per (cout, cin)
+  HostTensor weight_host_;         // as given, for the lazily uploaded packings
+  std::vector<float> bias_host_;   // [cout], zeros when none was given
+  mutable Tensor weight_;          // [cout][cin][k][k] as given (naive)
+  Tensor bias_;                    // [cout]
+  mutable Tensor weight_blocked_;  // [ceil(cout/COB)][cin][k*k][COB], zero-padded output channels
+  mutable Tensor bias_blocked_;    // [ceil(cout/COB)*COB]
+  int64_t blocked_cob_ = 8;  // output channels per invocation of the blocked path (8 or 16)
+  mutable Tensor weight_subgroup_;  // [cout/(8G)][cin/4][k*k][G][8] vec4 over 4 input channels
+  mutable Tensor bias_subgroup_;    // [cout/(8G)*8G]
+  uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
+  Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
+  Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
+  int64_t winograd_cob_ = 8, winograd_cout_pad_ = 0, winograd_ks_ = 1;
+  uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
+  mutable std::shared_ptr<ConvWorkspace> workspace_;
 };
 
 }  // namespace vkunroll

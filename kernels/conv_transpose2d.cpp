@@ -1,11 +1,20 @@
 #include "kernels/conv_transpose2d.hpp"
 
+#include <algorithm>
+
 #include "runtime/context.hpp"
 #include "runtime/pipeline.hpp"
 
 namespace vkunroll {
 
 namespace {
+// Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
+Groups flat_groups(int64_t n, uint32_t z) {
+  const int64_t g = (n + 63) / 64;
+  const int64_t gx = std::min<int64_t>(g, 65535);
+  return {static_cast<uint32_t>(gx), static_cast<uint32_t>((g + gx - 1) / gx), z};
+}
+
 struct ConvTPush {
   uint32_t in_off, in_bs, out_off, out_bs;
   uint32_t cin, h, w, cout, oh, ow, pad;
@@ -83,13 +92,30 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
   std::vector<float> b = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
   weight_ = HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data).to_device(ctx);
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
+  if (k == 4 && params.stride == 2 && params.pad == 1) {
+    // Blocked layout [cout/8][cin][4][4][8], output channels zero-padded to a multiple of 8.
+    const int64_t cob = (cout_ + 7) / 8;
+    std::vector<float> wb(static_cast<size_t>(cob * cin_ * 16 * 8), 0.f), bb(static_cast<size_t>(cob * 8), 0.f);
+    for (int64_t co = 0; co < cout_; ++co) {
+      bb[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
+      for (int64_t ci = 0; ci < cin_; ++ci)
+        for (int64_t t = 0; t < 16; ++t)
+          wb[static_cast<size_t>((((co / 8) * cin_ + ci) * 16 + t) * 8 + co % 8)] =
+              weight.data[static_cast<size_t>((ci * cout_ + co) * 16 + t)];
+    }
+    weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx);
+    bias_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb).to_device(ctx);
+  }
 }
 
 bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
+  if (algo == ConvTransposeAlgo::blocked) return !weight_blocked_.empty();
   return algo == ConvTransposeAlgo::automatic || algo == ConvTransposeAlgo::naive;
 }
 
-ConvTransposeAlgo ConvTranspose2d::choose_algorithm(int64_t, int64_t) const { return ConvTransposeAlgo::naive; }
+ConvTransposeAlgo ConvTranspose2d::choose_algorithm(int64_t, int64_t) const {
+  return supports(ConvTransposeAlgo::blocked) ? ConvTransposeAlgo::blocked : ConvTransposeAlgo::naive;
+}
 
 Shape ConvTranspose2d::output_shape(const Shape& in) const {
   return {in.n, cout_, conv_transpose_output_size(in.h, params_.kernel, params_.stride, params_.pad),
@@ -127,6 +153,14 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
                 {bi.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, bo.arg}, p,
                 Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
                        static_cast<uint32_t>(os.n * cout_)},
+                info);
+    return;
+  }
+  if (algo == ConvTransposeAlgo::blocked) {
+    const auto half_w = static_cast<uint32_t>((os.w + 1) / 2);
+    cs.dispatch(ctx_.pipeline("conv_transpose2d_blocked", {spec[2], spec[3]}, sizeof(ConvTPush)),
+                {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, bo.arg}, p,
+                flat_groups(os.h * 2 * ((half_w + 7) / 8), static_cast<uint32_t>(os.n * ((cout_ + 7) / 8))),
                 info);
     return;
   }

@@ -390,7 +390,8 @@ size_t EventTensorBuilder::jobs_per_chunk(const BinningPlan& plan) const {
   return chunk;
 }
 
-void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& plan, size_t chunk,
+void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& plan,
+                                 const std::vector<std::pair<size_t, size_t>>& chunks,
                                  const std::function<void(size_t, Tensor&)>& done) {
   const auto& info = ctx_.info();
   const size_t max_range = info.max_storage_buffer_range;
@@ -423,8 +424,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
     Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
     ev.upload(packed);
     const Pipeline& pipe = ctx_.pipeline("event_tensor_pixels", {static_cast<uint32_t>(plan.bins)}, sizeof(PixelPush));
-    for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
-      const size_t nj = std::min(chunk, plan.jobs - j0);
+    for (const auto& [j0, nj] : chunks) {
       Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
       CommandStream cs(ctx_, profiler_);
       PixelPush push{static_cast<uint32_t>(nj), static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.width),
@@ -447,8 +447,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
     Tensor rg(ctx_, Shape{1, 1, 1, static_cast<int64_t>(ranges.size())}, DType::u32);
     rg.upload(ranges);
     const Pipeline& pipe = ctx_.pipeline("event_tensor_rows", {}, sizeof(RowPush));
-    for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
-      const size_t nj = std::min(chunk, plan.jobs - j0);
+    for (const auto& [j0, nj] : chunks) {
       Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
       CommandStream cs(ctx_, profiler_);
       cs.fill(dst, 0);
@@ -476,8 +475,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
   size_t per = std::min<size_t>(max_range / 8, size_t{1} << 28);
   if (max_events_) per = std::min(per, max_events_);
   per = std::max(align_ev, per / align_ev * align_ev);
-  for (size_t j0 = 0; j0 < plan.jobs; j0 += chunk) {
-    const size_t nj = std::min(chunk, plan.jobs - j0);
+  for (const auto& [j0, nj] : chunks) {
     Tensor out(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
     CommandStream cs(ctx_, profiler_);
     cs.fill(out, 0);
@@ -495,13 +493,27 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
   }
 }
 
+namespace {
+// Consecutive job ranges of at most `chunk` jobs that never cross a multiple of `boundary`.
+std::vector<std::pair<size_t, size_t>> job_chunks(size_t jobs, size_t chunk, size_t boundary) {
+  std::vector<std::pair<size_t, size_t>> out;
+  for (size_t j0 = 0; j0 < jobs;) {
+    size_t n = std::min(chunk, jobs - j0);
+    if (boundary) n = std::min(n, boundary - j0 % boundary);
+    out.push_back({j0, n});
+    j0 += n;
+  }
+  return out;
+}
+}  // namespace
+
 std::vector<float> EventTensorBuilder::bin(const EventStream& events, const std::vector<RowIntervals>& jobs,
                                            const EventTensorSpec& spec) {
   const BinningPlan plan = plan_binning(events, jobs, spec);
   const size_t slice = static_cast<size_t>(2 * plan.bins) * plan.height * plan.width;
   std::vector<float> result(jobs.size() * slice);
   if (jobs.empty()) return result;
-  execute(events, plan, jobs_per_chunk(plan), [&](size_t j0, Tensor& out) {
+  execute(events, plan, job_chunks(jobs.size(), jobs_per_chunk(plan), 0), [&](size_t j0, Tensor& out) {
     out.download(result.data() + j0 * slice, static_cast<size_t>(out.shape().count()) * 4);
   });
   return result;
@@ -514,7 +526,22 @@ EventTensors EventTensorBuilder::build(const EventStream& events, const std::vec
     if (p.timing.rows != events.height)
       throw Error("event tensor: frame timing has " + std::to_string(p.timing.rows) + " rows, the event sensor " +
                   std::to_string(events.height));
-  auto t = split_tensors(bin(events, event_tensor_jobs(pairs), spec), pairs.size(), spec, c);
+  EventTensors t;
+  t.pairs = static_cast<int>(pairs.size());
+  t.bins = spec.bins;
+  t.height = c.height;
+  t.width = c.width;
+  const size_t P = pairs.size(), slice = t.slice();
+  t.ev1.resize(P * slice);
+  t.ev2.resize(P * slice);
+  t.ev3.resize(P * slice);
+  if (P == 0) return t;
+  const BinningPlan plan = plan_binning(events, event_tensor_jobs(pairs), spec);
+  // Chunks stay inside one tensor's jobs, so each downloads straight into ev1, ev2 or ev3.
+  std::vector<float>* dst[3] = {&t.ev1, &t.ev2, &t.ev3};
+  execute(events, plan, job_chunks(3 * P, jobs_per_chunk(plan), P), [&](size_t j0, Tensor& out) {
+    out.download(dst[j0 / P]->data() + (j0 % P) * slice, static_cast<size_t>(out.shape().count()) * 4);
+  });
   t.events_considered = last_events_;
   return t;
 }
@@ -527,7 +554,7 @@ Tensor EventTensorBuilder::build_on_device(const EventStream& events, const std:
   if (static_cast<uint64_t>(shape.count()) * 4 > ctx_.info().max_storage_buffer_range)
     throw Error("event tensor: " + shape.str() + " exceeds one storage-buffer binding; use fewer pairs or a crop");
   Tensor result;
-  execute(events, plan, jobs.size(), [&](size_t, Tensor& out) { result = std::move(out); });
+  execute(events, plan, {{0, jobs.size()}}, [&](size_t, Tensor& out) { result = std::move(out); });
   return result;
 }
 

@@ -150,9 +150,10 @@ class EventTensorBuilder {
  private:
   // Bins jobs [job_begin, job_begin + out.shape().n) of `plan` into `out` (u32 counts converted
   // to float32 in place).
-  // Uploads the plan's events once, then for each chunk of jobs fills a fresh [chunk, 2N, h, w]
-  // f32 tensor and hands it to `done(first_job, tensor)`.
-  void execute(const EventStream& events, const BinningPlan& plan, size_t chunk,
+  // Uploads the plan's events once, then for each chunk [first_job, first_job + count) fills a
+  // fresh [count, 2N, h, w] f32 tensor and hands it to `done(first_job, tensor)`.
+  void execute(const EventStream& events, const BinningPlan& plan,
+               const std::vector<std::pair<size_t, size_t>>& chunks,
                const std::function<void(size_t, Tensor&)>& done);
   size_t jobs_per_chunk(const BinningPlan& plan) const;
   Context& ctx_;

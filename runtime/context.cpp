@@ -283,6 +283,7 @@ DeviceList Context::enumerate(bool validation) {
 
 Context::Context(ContextOptions options) : options_(std::move(options)) {
   validation_ = options_.validation || env_flag("VKUNROLL_VALIDATION");
+  validation_fatal_ = options_.validation_fatal.value_or(env_flag("VKUNROLL_VALIDATION_FATAL"));
   create_instance(validation_);
   try {
     create_device();
@@ -454,6 +455,10 @@ void Context::clear_validation_messages() {
 
 void Context::on_validation_message(const std::string& message) {
   std::cerr << "vkunroll: " << message << "\n";
+  if (validation_fatal_) {
+    std::cerr << "vkunroll: aborting on a validation message (VKUNROLL_VALIDATION_FATAL)\n";
+    std::abort();
+  }
   std::lock_guard<std::mutex> lock(messages_mutex_);
   messages_.push_back(message);
 }

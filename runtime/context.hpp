@@ -5,6 +5,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -22,6 +23,9 @@ struct ContextOptions {
   std::string device;
   // Say the chosen device in one line on stderr.
   bool announce = true;
+  // Abort the process on a validation message (tests: contexts made inside library code fail
+  // loudly). Unset: VKUNROLL_VALIDATION_FATAL=1 turns it on.
+  std::optional<bool> validation_fatal;
   // Persist the VkPipelineCache under the user's cache directory.
   bool persistent_pipeline_cache = true;
 };
@@ -101,6 +105,7 @@ class Context {
 
   ContextOptions options_;
   bool validation_ = false;
+  bool validation_fatal_ = false;
   VkInstance instance_ = VK_NULL_HANDLE;
   VkDebugUtilsMessengerEXT messenger_ = VK_NULL_HANDLE;
   VkPhysicalDevice physical_ = VK_NULL_HANDLE;

@@ -42,7 +42,7 @@ std::vector<Case> cases() {
   };
 }
 
-void run_cases(ConvAlgo algo) {
+void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull) {
   Context& ctx = vktest::context();
   std::mt19937 rng(1234);
   int ran = 0;
@@ -52,6 +52,7 @@ void run_cases(ConvAlgo algo) {
     HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
     HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
     Conv2d conv(ctx, w, b, p);
+    conv.set_winograd_scratch_limit(winograd_scratch_limit);
     if (!conv.supports(algo)) continue;
     const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
     const int64_t nb = std::max(c.batch, c.in_batch_total);
@@ -76,6 +77,13 @@ void run_cases(ConvAlgo algo) {
 }  // namespace
 
 TEST(Conv2d, NaiveMatchesReference) { run_cases(ConvAlgo::naive); }
+TEST(Conv2d, BlockedMatchesReference) { run_cases(ConvAlgo::blocked); }
+TEST(Conv2d, SubgroupMatchesReference) { run_cases(ConvAlgo::subgroup); }
+TEST(Conv2d, WinogradMatchesReference) { run_cases(ConvAlgo::winograd); }
+// Scratch for 3 input channels' tiles only: several chunks accumulated by the GEMM.
+TEST(Conv2d, WinogradInChunksMatchesReference) { run_cases(ConvAlgo::winograd, 3 * 36 * 4 * 64); }
+TEST(Conv2d, GemmMatchesReference) { run_cases(ConvAlgo::gemm); }
+TEST(Conv2d, GemmInChunksMatchesReference) { run_cases(ConvAlgo::gemm, 2 * 4 * 80); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
 
 TEST(Conv2d, ReferenceKnownValues) {

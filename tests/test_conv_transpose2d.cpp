@@ -54,6 +54,7 @@ void run_cases(ConvTransposeAlgo algo) {
 }  // namespace
 
 TEST(ConvTranspose2d, NaiveMatchesReference) { run_cases(ConvTransposeAlgo::naive); }
+TEST(ConvTranspose2d, BlockedMatchesReference) { run_cases(ConvTransposeAlgo::blocked); }
 TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases(ConvTransposeAlgo::automatic); }
 
 TEST(ConvTranspose2d, ReferenceKnownValues) {

@@ -862,3 +862,28 @@ TEST(EventReadersFuzzCorpus, DsecTimeOffsetOverflowIsAnError) {
   EXPECT_EQ(read_events(path, o, &rep).size(), 1u);
   EXPECT_EQ(rep.dropped_nan, 1u);
 }
+
+// Fuzz finding (hdf5, 10-minute run): a float ms_to_idx holding 1e169 was converted to int64
+// (undefined behaviour) during a window read. Now an error naming the dataset.
+TEST(EventReadersFuzzCorpus, FloatIndexOutOfRangeIsAnError) {
+  const EventStream ev = random_stream(100, 16, 12, 16);
+  const std::string path = tmp("float_index.h5");
+  {
+    hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    std::vector<int8_t> p(ev.size());
+    for (size_t i = 0; i < ev.size(); ++i) p[i] = ev.p[i] > 0 ? 1 : 0;
+    h5_write_1d(g, "t", H5T_STD_I64LE, H5T_NATIVE_INT64, ev.t.data(), ev.size());
+    h5_write_1d(g, "x", H5T_STD_U16LE, H5T_NATIVE_UINT16, ev.x.data(), ev.size());
+    h5_write_1d(g, "y", H5T_STD_U16LE, H5T_NATIVE_UINT16, ev.y.data(), ev.size());
+    h5_write_1d(g, "p", H5T_STD_I8LE, H5T_NATIVE_INT8, p.data(), ev.size());
+    const double ms[2] = {0.0, 1.13531e169};
+    h5_write_1d(f, "ms_to_idx", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, ms, 2);
+    H5Gclose(g);
+    H5Fclose(f);
+  }
+  EXPECT_EQ(read_events(path).size(), ev.size());  // the index is only used for windows
+  EventReadOptions o;
+  o.t_begin_us = ev.t[10];
+  expect_error(path, o, {"float_index.h5", "ms_to_idx", "not an integer index"});
+}

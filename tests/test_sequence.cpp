@@ -11,6 +11,7 @@
 #include "host/event_writer.hpp"
 #include "host/safetensors.hpp"
 #include "host/sequence.hpp"
+#include "host/sim_sequence.hpp"
 #include "host/value_list.hpp"
 #include "kernels/event_tensor.hpp"
 #include "runtime/error.hpp"
@@ -260,4 +261,63 @@ TEST(Sequence, VoxelizeCliMatchesTheLibrary) {
   std::stringstream err;
   err << std::ifstream(d / "err.txt").rdbuf();
   EXPECT_NE(err.str().find("frame 7"), std::string::npos) << err.str();
+}
+
+TEST(Sequence, ReadsWhatTheSimulatorWrites) {
+  // The project's own writer (host/sim_sequence) and this loader must agree on the generic layout.
+  sim::SimulationConfig c = sim::simulation_preset("clean");
+  c.width = 24;
+  c.height = 16;
+  c.frames = 2;
+  c.gt_per_frame = 2;
+  c.fps = 200;
+  c.line_delay_us = 125.5;
+  c.exposure_us = 700;
+  c.lead_in_us = 1000;
+  c.readout = "bottom-up";
+  const sim::SimulatedSequence simulated = sim::simulate(c);
+  const fs::path d = fresh_dir("simulated");
+  sim::write_sequence(c, simulated, d.string());
+  const Sequence s = load_sequence(d.string());
+  EXPECT_EQ(s.layout, SequenceLayout::generic);
+  ASSERT_EQ(s.frames.size(), 2u);
+  EXPECT_EQ(s.width, 24);
+  EXPECT_EQ(s.frames[1].timing.t0, Rational::from_double(c.frame_t0_us(1)));
+  EXPECT_EQ(s.frames[1].timing.line_delay, R("251/2"));
+  EXPECT_EQ(s.frames[1].timing.readout, Readout::bottom_up);
+  for (int y : {0, 7, 15})
+    EXPECT_EQ(s.frames[1].timing.start(y).to_double(), c.row_start_us(1, y));
+  EXPECT_EQ(s.ground_truth.size(), simulated.gt.size());
+  const EventStream ev = s.read_events(0, 1 << 30);
+  EXPECT_EQ(ev.t, simulated.events.t);
+  // ev3 over a window holding the whole stream counts every event exactly once.
+  ASSERT_GT(ev.size(), 0u);
+  const EventTensorPair pair{s.frames[0].timing, Rational(ev.t.front()), Rational(ev.t.back() - ev.t.front() + 1)};
+  const auto t = build_event_tensors_cpu(ev, {pair}, {16, {}});
+  double total = 0;
+  for (float x : t.ev3) total += x;
+  EXPECT_EQ(total, static_cast<double>(ev.size()));
+}
+
+TEST(Sequence, GevRsRealInfersTheFrameRateFromTheRecording) {
+  // Three frames and events spanning 3 x 51000 us: closer to 19.61 fps (50994 us) than 20.79.
+  const fs::path g = fresh_dir("0001_8000_60000");
+  for (int k = 0; k < 3; ++k) png(g / "image" / (std::to_string(k) + ".png"), 16, 12);
+  const std::string py = "/usr/bin/python3 -c \"import numpy as np; n=4000; "
+                         "r=np.zeros(n, dtype=[('x','<u2'),('y','<u2'),('p','|b1'),('t','<i8')]); "
+                         "r['t']=np.linspace(5000, 5000+153000, n).astype(np.int64); r['x']=np.arange(n)%16; "
+                         "r['y']=np.arange(n)%12; r['p']=np.arange(n)%2==0; np.savez('" +
+                         (g / "events.npz").string() + "', event=r)\"";
+  if (std::system(py.c_str()) != 0) GTEST_SKIP() << "/usr/bin/python3 with numpy is needed to write the .npz";
+  const Sequence s = load_sequence(g.string());
+  EXPECT_EQ(s.layout, SequenceLayout::gev_rs_real);
+  ASSERT_EQ(s.frames.size(), 3u);
+  EXPECT_EQ(s.frames[0].timing.t0, R("5000"));
+  EXPECT_EQ(s.frames[2].timing.t0, R("5000") + R("2") * R("100000000/1961"));
+  EXPECT_EQ(s.frames[0].timing.exposure, R("8000"));
+  EXPECT_EQ(s.frames[0].timing.line_delay, R("60000/11"));
+  EXPECT_EQ(s.read_events(0, 1 << 30).size(), 4000u);
+  SequenceOptions o;
+  o.frame_period_us = R("48000");
+  EXPECT_EQ(load_sequence(g.string(), o).frames[1].timing.t0, R("53000"));
 }

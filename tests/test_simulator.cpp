@@ -416,6 +416,33 @@ TEST(Simulator, WrittenSequenceIsReadBackByTheProjectReaders) {
   fs::remove_all(dir);
 }
 
+TEST(Simulator, ImageFileTextureIsLinearizedAndCoversTheView) {
+  const fs::path dir = temp_dir("texture");
+  // A left-dark / right-bright 8-bit image: the texture must keep that layout, in linear intensity.
+  cv::Mat img(60, 80, CV_8UC3, cv::Scalar::all(40));
+  img(cv::Rect(40, 0, 40, 60)).setTo(cv::Scalar::all(220));
+  const std::string path = (dir / "tex.png").string();
+  ASSERT_TRUE(cv::imwrite(path, img));
+  const cv::Mat lin = load_texture(path, 2.2);
+  ASSERT_EQ(lin.type(), CV_32FC3);
+  const double dark = lin.at<cv::Vec3f>(30, 10)[1], bright = lin.at<cv::Vec3f>(30, 70)[1];
+  EXPECT_NEAR(dark, std::pow(0.12 + 0.8 * 40 / 255.0, 2.2), 1e-4);
+  EXPECT_NEAR(bright, std::pow(0.12 + 0.8 * 220 / 255.0, 2.2), 1e-4);
+
+  SimulationConfig c = small_config(32, 24);
+  c.texture_file = path;
+  c.motion = MotionKind::Static;
+  c.sprites = 0;
+  c.frames = 1;
+  const SimulatedSequence seq = simulate(c);
+  EXPECT_EQ(seq.events.size(), 0u);
+  // The view shows the center of the (cover-scaled) image: dark on the left, bright on the right.
+  const cv::Mat& gt = seq.gt.at(0).image;
+  EXPECT_LT(gt.at<cv::Vec3f>(12, 1)[1], 0.2f);
+  EXPECT_GT(gt.at<cv::Vec3f>(12, 30)[1], 0.5f);
+  fs::remove_all(dir);
+}
+
 TEST(Simulator, RejectsImpossibleTimingAndNamesTheSetting) {
   SimulationConfig c = small_config(64, 48);
   c.line_delay_us = 500;  // 47 rows x 500 us = 23.5 ms of readout > 10 ms frame period

@@ -344,3 +344,20 @@ def random_init_(net: nn.Module, seed: int = 0, gain: float = 1.0) -> None:
 
 def config_dict(cfg: SelfUnrollConfig) -> dict:
     return dataclasses.asdict(cfg)
+
+
+def load_model(path: str) -> SelfUnroll:
+    """A SelfUnroll with the weights and configuration of a vkunroll weights file (safetensors)."""
+    import safetensors_io
+    tensors, meta = safetensors_io.load(path)
+    cfg = SelfUnrollConfig.from_metadata(meta) if "D" in meta else infer_config({k: tuple(v.shape) for k, v in tensors.items()})
+    net = SelfUnroll(cfg)
+    net.load_state_dict({k: v.float() for k, v in tensors.items()}, strict=True)
+    return net.eval()
+
+
+def save_model(net: SelfUnroll, path: str, fp16: bool = False) -> None:
+    """Writes a vkunroll weights file (what tools/convert_checkpoint.py writes) from a mirror."""
+    import safetensors_io
+    dtype = torch.float16 if fp16 else torch.float32
+    safetensors_io.save(path, {k: v.detach().to(dtype) for k, v in net.state_dict().items()}, net.cfg.to_metadata())

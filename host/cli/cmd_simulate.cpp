@@ -1,5 +1,6 @@
 #include <chrono>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
 
 #include "host/cli/args.hpp"
@@ -86,7 +87,11 @@ int cmd_simulate(const Argv& argv) {
     try {
       c.texture = sim::parse_texture_kind(*t);
     } catch (const Error&) {
-      c.texture_file = *t;  // not a procedural name: an image file (load_texture names it on failure)
+      // Not a procedural name: an image file.
+      if (!std::ifstream(*t))
+        throw Error("vkunroll simulate: --texture '" + *t +
+                    "' is neither checkerboard, bars, noise, text, mixed nor a readable image file");
+      c.texture_file = *t;
     }
   }
   c.sprites = static_cast<int>(args.integer("sprites", c.sprites));

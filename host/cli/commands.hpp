@@ -12,5 +12,7 @@ int cmd_simulate(const Argv& args);
 int cmd_events(const Argv& args);
 int cmd_voxelize(const Argv& args);
 int cmd_infer(const Argv& args);
+int cmd_unroll(const Argv& args);
+int cmd_demo(const Argv& args);
 
 }  // namespace vkunroll::cli

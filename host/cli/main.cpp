@@ -19,6 +19,8 @@ const Command kCommands[] = {
     {"simulate", vkunroll::cli::cmd_simulate, "simulate RS frames, GS ground truth and events from a moving scene"},
     {"events", vkunroll::cli::cmd_events, "read an event file: count, time span, rate, sensor size, polarity, drops"},
     {"voxelize", vkunroll::cli::cmd_voxelize, "row-aware event tensors ev1/ev2/ev3 of (frame, target) pairs -> safetensors"},
+    {"demo", vkunroll::cli::cmd_demo, "simulate a built-in scene and unroll it (the shipped model and physics)"},
+    {"unroll", vkunroll::cli::cmd_unroll, "turn a recording (RS frames + events) into GS frames, video and metrics"},
     {"infer", vkunroll::cli::cmd_infer, "run SelfUnroll-S/-M on raw input tensors, write every intermediate"},
 };
 

@@ -150,3 +150,12 @@ def test_vkunroll_infer_bad_inputs_fail_clearly(tmp_path):
     r = infer(inputs, "--precision", "fp16")
     assert r.returncode == 1 and "fp16" in r.stderr
     assert not (tmp_path / "out.safetensors").exists()
+
+
+def test_mirror_save_and_load_round_trip(tmp_path, net):
+    from selfunroll_torch import load_model, save_model
+    save_model(net, str(tmp_path / "w.safetensors"))
+    back = load_model(str(tmp_path / "w.safetensors"))
+    assert back.cfg.to_metadata() == net.cfg.to_metadata()
+    for k, v in net.state_dict().items():
+        assert torch.equal(back.state_dict()[k], v), k

@@ -1,0 +1,163 @@
+// vkunroll unroll end to end on small simulated sequences: outputs, metrics, modes, bad input.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+
+#include "host/sim_sequence.hpp"
+#include "host/unroll.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+namespace fs = std::filesystem;
+
+namespace {
+fs::path temp_dir(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / ("vkunroll-test-" + name + "-" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+// A clean 64x48 sequence of 3 frames with 3 ground-truth instants per frame period.
+fs::path make_sequence(const fs::path& dir, const std::string& preset = "clean") {
+  sim::SimulationConfig cfg = sim::simulation_preset(preset);
+  cfg.seed = 11;
+  cfg.width = 64;
+  cfg.height = 48;
+  cfg.frames = 3;
+  cfg.gt_per_frame = 3;
+  cfg.line_delay_us = 25900.0 / 48;
+  const auto seq = sim::simulate(cfg);
+  sim::write_sequence(cfg, seq, (dir / "seq").string());
+  return dir / "seq";
+}
+
+UnrollOptions base(const fs::path& seq, const fs::path& out) {
+  UnrollOptions o;
+  o.sequence = seq.string();
+  o.out_dir = out.string();
+  o.quiet = true;
+  o.device = "llvmpipe";
+  return o;
+}
+
+std::string fixture(const std::string& name) { return std::string(VKUNROLL_SOURCE_DIR) + "/tests/data/" + name; }
+}  // namespace
+
+TEST(Unroll, PhysicsOnACleanSceneBeatsTheRsInputAndWritesEverything) {
+  const fs::path dir = temp_dir("physics");
+  const fs::path seq = make_sequence(dir);
+  UnrollOptions o = base(seq, dir / "out");
+  o.times = "gt";
+  const auto s = run_unroll(o);
+  ASSERT_TRUE(s.contains("metrics"));
+  EXPECT_EQ(s["targets"].get<int>(), 9);
+  EXPECT_EQ(s["metrics"]["count"].get<int>(), 9);
+  EXPECT_GT(s["metrics"]["mean_psnr"].get<double>(), s["metrics"]["rs_mean_psnr"].get<double>() + 1.0);
+  EXPECT_GT(s["metrics"]["mean_ssim"].get<double>(), s["metrics"]["rs_mean_ssim"].get<double>());
+  EXPECT_TRUE(fs::exists(dir / "out" / "gs_video.mp4"));
+  EXPECT_TRUE(fs::exists(dir / "out" / "contact_sheet.png"));
+  EXPECT_TRUE(fs::exists(dir / "out" / "metrics.csv"));
+  size_t pngs = 0;
+  for (const auto& e : fs::directory_iterator(dir / "out" / "frames")) pngs += e.path().extension() == ".png";
+  EXPECT_EQ(pngs, 9u);
+  // --times gt names each output after its ground-truth file.
+  for (const auto& f : s["gs_frames"])
+    EXPECT_EQ(fs::path(f["file"].get<std::string>()).filename(), fs::path(f["gt_file"].get<std::string>()).filename());
+  // The estimated contrast lands near the simulator's thresholds (clean preset).
+  const double c = s["physics"]["contrast"].get<double>();
+  EXPECT_GT(c, 0.1);
+  EXPECT_LT(c, 0.45);
+  fs::remove_all(dir);
+}
+
+TEST(Unroll, NormalizedAndAbsoluteTargets) {
+  const fs::path dir = temp_dir("targets");
+  const fs::path seq = make_sequence(dir);
+  UnrollOptions o = base(seq, dir / "a");
+  o.times = "-0.25,0:1:3,1.25";
+  o.frames = "1:2";
+  o.contrast = 0.25;
+  o.video = false;
+  auto s = run_unroll(o);
+  EXPECT_EQ(s["targets"].get<int>(), 10);  // 2 frames x 5 targets
+  EXPECT_FALSE(fs::exists(dir / "a" / "gs_video.mp4"));
+  o.out_dir = (dir / "b").string();
+  o.times = "0.5";
+  o.times_us = "30000,80000";
+  s = run_unroll(o);
+  ASSERT_EQ(s["targets"].get<int>(), 2);
+  EXPECT_DOUBLE_EQ(s["gs_frames"][0]["t_us"].get<double>(), 30000.0);
+  fs::remove_all(dir);
+}
+
+TEST(Unroll, LearnedModelSAndMOnGpuAndCpuAgree) {
+  const fs::path dir = temp_dir("model");
+  const fs::path seq = make_sequence(dir);
+  UnrollOptions o = base(seq, dir / "vk");
+  o.model_path = fixture("selfunroll_tiny.safetensors");
+  o.times = "0.5";
+  o.frames = "1:2";
+  o.mode = "auto";
+  auto vk = run_unroll(o);
+  EXPECT_EQ(vk["runs"]["m"].get<int>(), 1);  // frame 1 has a next frame
+  EXPECT_EQ(vk["runs"]["s"].get<int>(), 1);  // frame 2 is the last
+  o.backend = "cpu";
+  o.out_dir = (dir / "cpu").string();
+  auto cpu = run_unroll(o);
+  for (int i = 0; i < 2; ++i) {
+    const cv::Mat a = cv::imread((dir / "vk" / vk["gs_frames"][i]["file"].get<std::string>()).string());
+    const cv::Mat b = cv::imread((dir / "cpu" / cpu["gs_frames"][i]["file"].get<std::string>()).string());
+    ASSERT_FALSE(a.empty());
+    double mx = 0;
+    cv::minMaxLoc(cv::abs(a - b), nullptr, &mx);
+    EXPECT_LE(mx, 1.0) << "8-bit outputs of the two backends differ by more than rounding";
+  }
+  o.mode = "physics";
+  o.model_path.clear();
+  o.backend = "vulkan";
+  o.out_dir = (dir / "needs").string();
+  o.mode = "m";
+  EXPECT_THROW(run_unroll(o), Error);  // M without a model
+  fs::remove_all(dir);
+}
+
+TEST(Unroll, BadFoldersGiveClearErrors) {
+  const fs::path dir = temp_dir("bad");
+  auto expect_error = [&](const UnrollOptions& o, const std::string& needle) {
+    try {
+      run_unroll(o);
+      ADD_FAILURE() << "no error, expected one mentioning '" << needle << "'";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
+  };
+  fs::create_directories(dir / "empty");
+  expect_error(base(dir / "empty", dir / "o1"), "empty");
+  const fs::path seq = make_sequence(dir);
+  // A frame of the wrong size.
+  const fs::path wrong = dir / "wrong";
+  fs::copy(seq, wrong, fs::copy_options::recursive);
+  cv::imwrite((wrong / "rs" / "000001.png").string(), cv::Mat(10, 10, CV_8UC3, cv::Scalar(0)));
+  expect_error(base(wrong, dir / "o2"), "000001.png");
+  // Times outside the recording.
+  UnrollOptions far = base(seq, dir / "o3");
+  far.times_us = "9000000";
+  expect_error(far, "outside the recording");
+  // An event outside the sensor.
+  const fs::path outside = dir / "outside";
+  fs::copy(seq, outside, fs::copy_options::recursive);
+  {
+    std::ofstream ev(outside / "events.txt");
+    ev << "# t x y p\n100 3 4 1\n200 64 4 0\n";
+  }
+  UnrollOptions o = base(outside, dir / "o4");
+  o.sequence_options.events_file = (outside / "events.txt").string();
+  o.contrast = 0.2;
+  expect_error(o, "events.txt");
+  fs::remove_all(dir);
+}
