@@ -39,6 +39,23 @@ def event_tensor(t, x, y, p, a_rows, b_rows, bins, crop):
     return out
 
 
+def event_tensor_fast(t, x, y, p, a_rows, b_rows, bins, crop):
+    """event_tensor with np.bincount instead of np.add.at (same counts, ~20x faster; used by
+    tools/train.py; tests/python/test_train.py checks it against event_tensor)."""
+    x0, y0, w, h = crop
+    inside = (x >= x0) & (x < x0 + w) & (y >= y0) & (y < y0 + h)
+    t, x, y, p = t[inside].astype(np.float64), x[inside], y[inside], p[inside]
+    a, b = a_rows[y], b_rows[y]
+    sel = (t >= np.minimum(a, b)) & (t < np.maximum(a, b))
+    t, x, y, p, a, b = t[sel], x[sel], y[sel], p[sel], a[sel], b[sel]
+    s = np.where(p > 0, 1, -1)
+    s = np.where(t < a, -s, s)
+    k = np.floor(np.abs(t - a) * bins / np.abs(b - a)).astype(np.int64)
+    k[k == bins] = bins - 1
+    flat = ((2 * k + (s > 0)) * h + (y - y0)) * w + (x - x0)
+    return np.bincount(flat, minlength=2 * bins * h * w).astype(np.float32).reshape(2 * bins, h, w)
+
+
 def row_times(t0, delay, exposure, rows, readout):
     r = np.arange(rows, dtype=np.float64)
     if readout == "bottom-up":

@@ -304,10 +304,16 @@ class SelfUnroll(nn.Module):
             raise ValueError(f"SelfUnroll-M needs batch 2 (frames 1 and 2), got {rs.shape[0]}")
         if not hasattr(self, "attfusion_net"):
             raise ValueError("this model has no attfusion_net (MOA) weights: SelfUnroll-S only")
-        score = self.attfusion_net(torch.cat([E[0:1], E[1:2], ev1[0:1], ev1[1:2], flow[0:1], flow[1:2]], 1))
-        m = F.hardsigmoid(score) if force_m is None else torch.full_like(score, float(force_m))
-        out = m * fused[0:1] + (1 - m) * fused[1:2]
+        m, out = self.moa_blend(E[0:1], E[1:2], ev1[0:1], ev1[1:2], flow[0:1], flow[1:2], fused[0:1], fused[1:2],
+                                force_m)
         return sys_, E, flow, warped, fused, m, out
+
+    def moa_blend(self, E1, E2, ev1_1, ev1_2, flow1, flow2, fused1, fused2, force_m: Optional[float] = None):
+        """The MOA stage on S results of frames 1 and 2 (any batch: item i of each is one pair);
+        returns (m, out). forward() uses it for B = 2; training calls it on batches of pairs."""
+        score = self.attfusion_net(torch.cat([E1, E2, ev1_1, ev1_2, flow1, flow2], 1))
+        m = F.hardsigmoid(score) if force_m is None else torch.full_like(score, float(force_m))
+        return m, m * fused1 + (1 - m) * fused2
 
 
 OUTPUT_NAMES = ("sys", "E", "flow", "warped", "fused", "m", "out")

@@ -1,0 +1,668 @@
+#!/usr/bin/python3
+"""Trains a SelfUnroll model with the paper's self-supervised losses, from sequences in the generic
+layout (simulated by `vkunroll simulate`, or a real recording), and exports vkunroll's weights file.
+Details, formulas and the shipped model's command: docs/training.md.
+
+  # simulated data (calls the vkunroll CLI once a sequence)
+  train.py --make-data data/train --sequences 24 --seed-base 1000 [--size 240x180 --frames 8]
+  # stage 1 (SelfUnroll-S: Llc + Lcc + Ltc + 0.01 Ltv), then stage 2 (MOA alone, dual cycle)
+  train.py --data data/train --val data/val --out runs/small --steps-s 3000 --steps-m 600 --max-minutes 50
+  train.py --resume runs/small/checkpoint.pt          # continues where it stopped (same arguments)
+  train.py --export runs/small/checkpoint.pt models/small.safetensors
+
+No ground truth is read for training; --supervised (L1 to the GS frames) exists only for comparison.
+Validation (--val) uses the ground truth of held-out sequences to print PSNRs, nothing else.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import random
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import safetensors_io  # noqa: E402
+from selfunroll_torch import SelfUnroll, SelfUnrollConfig, UnetConfig  # noqa: E402
+from sequence_data import DataError, Sequence, eic_tensors, list_sequences  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+LOSS_WEIGHTS = {"lc": 1.0, "cc": 1.0, "tc": 1.0, "tv": 0.01}
+BRANCHES = ("sys", "warped", "fused")  # E-IC_T, E-IC_S, E-IC_S+T: every consistency applies to all three
+
+# ---- configurations ---------------------------------------------------------------------------------
+PRESETS = {
+    # the shipped model: ~1M parameters (4 MB F32), ~62k multiply-adds a pixel for SelfUnroll-S
+    # (the published model: ~2.3M), cheap enough to learn something on 2 CPU cores in under an hour
+    "small": dict(D=2, C=3, G=12, G0=24, N=4, upnet_width=48, flownet=(8, 3), fusion_net=(8, 3),
+                  attfusion_net=(8, 3)),
+    "medium": dict(D=3, C=3, G=16, G0=32, N=4, upnet_width=64, flownet=(16, 3), fusion_net=(16, 3),
+                   attfusion_net=(8, 3)),
+    "tiny": dict(D=1, C=2, G=8, G0=16, N=2, upnet_width=32, flownet=(8, 2), fusion_net=(8, 2),
+                 attfusion_net=(4, 2)),
+    "published": dict(D=10, C=5, G=48, G0=96, N=16, upnet_width=256, flownet=(32, 4), fusion_net=(32, 3),
+                      attfusion_net=(32, 3)),
+}
+
+
+def make_config(preset: str, n_bins: Optional[int] = None) -> SelfUnrollConfig:
+    p = dict(PRESETS[preset])
+    cfg = SelfUnrollConfig()
+    for k in ("D", "C", "G", "G0", "N", "upnet_width"):
+        setattr(cfg, k, p[k])
+    for k in ("flownet", "fusion_net", "attfusion_net"):
+        setattr(cfg, k, UnetConfig(*p[k]))
+    if n_bins:
+        cfg.N = n_bins
+    return cfg
+
+
+def init_model(net: SelfUnroll, seed: int) -> None:
+    """PyTorch's default init, except that the flow head and the residual head start near zero:
+    flow = 100 tanh(raw) would otherwise start with random displacements of tens of pixels."""
+    torch.manual_seed(seed)
+    for m in net.modules():
+        if hasattr(m, "reset_parameters"):
+            m.reset_parameters()
+    with torch.no_grad():
+        for conv in (net.flownet.pred, net.UPNet[2]):
+            conv.weight.mul_(0.01)
+            conv.bias.zero_()
+
+
+# ---- sampling ---------------------------------------------------------------------------------------
+@dataclass
+class Sample:
+    """One training example: RS frames k and k+1 of a sequence, a crop, a GS target time t*, and
+    the event tensors of the six E-IC passes the losses need (each a tuple ev1, ev2, ev3):
+      g1: rs1 -> GS(t*)    g2: rs2 -> GS(t*)      (latent consistency; stage 2: the M result)
+      r12: rs1 -> rs2      r21: rs2 -> rs1        (temporal consistency)
+      c1: GS(t*) -> rs1    c2: GS(t*) -> rs2      (cycle consistency, second pass)"""
+    rs1: np.ndarray
+    rs2: np.ndarray
+    ev: Dict[str, Tuple[np.ndarray, np.ndarray, np.ndarray]]
+    gt: Optional[np.ndarray] = None  # only in --supervised mode
+
+
+def crop_img(img: np.ndarray, crop) -> np.ndarray:
+    x0, y0, w, h = crop
+    return img[:, y0:y0 + h, x0:x0 + w]
+
+
+def make_sample(seq: Sequence, k: int, crop, t_star: float, texp: float, bins: int, gt_index: Optional[int] = None):
+    s1, e1 = seq.row_times(k)
+    s2, e2 = seq.row_times(k + 1)
+    H = seq.height
+    ts = np.full(H, t_star, dtype=np.float64)
+    lo = min(s1.min(), t_star) - 1.0
+    hi = max(e2.max(), t_star + texp) + 1.0
+    ev = seq.events_in(lo, hi, crop)
+    tens = {
+        "g1": eic_tensors(ev, s1, e1, ts, texp, bins, crop),
+        "g2": eic_tensors(ev, s2, e2, ts, texp, bins, crop),
+        "r12": eic_tensors(ev, s1, e1, s2, seq.exposure, bins, crop),
+        "r21": eic_tensors(ev, s2, e2, s1, seq.exposure, bins, crop),
+        "c1": eic_tensors(ev, ts, ts + texp, s1, seq.exposure, bins, crop),
+        "c2": eic_tensors(ev, ts, ts + texp, s2, seq.exposure, bins, crop),
+    }
+    gt = crop_img(seq.gt_image(gt_index), crop) if gt_index is not None else None
+    return Sample(crop_img(seq.frame(k), crop), crop_img(seq.frame(k + 1), crop), tens, gt)
+
+
+class Sampler:
+    def __init__(self, seqs: List[Sequence], crop_w: int, crop_h: int, bins: int, target_exposure: Optional[float],
+                 rng: random.Random, supervised: bool = False):
+        self.seqs = [s for s in seqs if s.num_frames >= 2]
+        if not self.seqs:
+            raise DataError("training needs sequences with at least 2 RS frames")
+        for s in self.seqs:
+            if s.width < crop_w or s.height < crop_h:
+                raise DataError(f"{s.folder}: {s.width}x{s.height} is smaller than the crop {crop_w}x{crop_h}")
+        self.crop_w, self.crop_h, self.bins = crop_w, crop_h, bins
+        self.target_exposure = target_exposure
+        self.rng = rng
+        self.supervised = supervised
+
+    def draw(self) -> Sample:
+        r = self.rng
+        seq = r.choice(self.seqs)
+        k = r.randrange(seq.num_frames - 1)
+        x0 = r.randrange(seq.width - self.crop_w + 1)
+        y0 = r.randrange(seq.height - self.crop_h + 1)
+        texp = self.target_exposure or seq.exposure
+        gt_index = None
+        lo, hi = seq.frame_span(k)[0], seq.frame_span(k + 1)[1]
+        if self.supervised:
+            cands = [i for i, (_, t) in enumerate(seq.gt) if lo <= t <= hi]
+            if not cands:
+                raise DataError(f"{seq.folder}: --supervised needs ground truth between frames {k} and {k + 1}")
+            gt_index = r.choice(cands)
+            t_star = seq.gt[gt_index][1]
+        else:
+            t_star = r.uniform(lo, hi)
+        return make_sample(seq, k, (x0, y0, self.crop_w, self.crop_h), t_star, texp, self.bins, gt_index)
+
+
+def stack(samples: List[Sample], key: str):
+    """Batched (ev1, ev2, ev3) tensors of pass `key` over the samples."""
+    return [torch.from_numpy(np.stack([s.ev[key][i] for s in samples])) for i in range(3)]
+
+
+# ---- losses -----------------------------------------------------------------------------------------
+def l1(a, b):
+    return (a - b).abs().mean()
+
+
+def tv(flow):
+    return (flow[:, :, 1:, :] - flow[:, :, :-1, :]).abs().mean() + (flow[:, :, :, 1:] - flow[:, :, :, :-1]).abs().mean()
+
+
+def run_s(net: SelfUnroll, img, ev):
+    sys_, E, flow, warped, fused, _, _ = net(img, ev[0], ev[1], ev[2], moa=False)
+    return {"sys": sys_, "E": E, "flow": flow, "warped": warped, "fused": fused, "ev1": ev[0]}
+
+
+def split(o: dict, n: int):
+    return {k: v[:n] for k, v in o.items()}, {k: v[n:] for k, v in o.items()}
+
+
+def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = False):
+    """Stage 1 (SelfUnroll-S). B = len(samples); one batched pass for g1, g2, r12, r21 (4B) and one
+    for the cycle's second half c1, c2 (2B), whose input images are the fused GS results of g1, g2.
+      Llc = sum_b |b(g1) - b(g2)|,  Ltc = sum_b |b(r12) - rs2| + |b(r21) - rs1|,
+      Lcc = sum_b |b(c1) - rs1| + |b(c2) - rs2|,  Ltv = mean TV of the flow of all 6B passes,
+    b over the E-IC outputs sys (E-IC_T), warped (E-IC_S), fused (E-IC_S+T); |.| = mean abs."""
+    B = len(samples)
+    rs1 = torch.from_numpy(np.stack([s.rs1 for s in samples]))
+    rs2 = torch.from_numpy(np.stack([s.rs2 for s in samples]))
+    ev = [torch.cat(t) for t in zip(stack(samples, "g1"), stack(samples, "g2"), stack(samples, "r12"),
+                                    stack(samples, "r21"))]
+    first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev)
+    g, r = split(first, 2 * B)
+    g1, g2 = split(g, B)
+    r12, r21 = split(r, B)
+    L = {}
+    if supervised:
+        gt = torch.from_numpy(np.stack([s.gt for s in samples]))
+        L["sup"] = sum(l1(g1[b], gt) + l1(g2[b], gt) for b in BRANCHES)
+        L["tv"] = tv(first["flow"])
+        L["total"] = L["sup"] + LOSS_WEIGHTS["tv"] * L["tv"]
+        return L
+    ev_c = [torch.cat(t) for t in zip(stack(samples, "c1"), stack(samples, "c2"))]
+    second = run_s(net, torch.cat([g1["fused"], g2["fused"]]), ev_c)
+    c1, c2 = split(second, B)
+    L["lc"] = sum(l1(g1[b], g2[b]) for b in BRANCHES)
+    L["cc"] = sum(l1(c1[b], rs1) + l1(c2[b], rs2) for b in BRANCHES)
+    L["tc"] = sum(l1(r12[b], rs2) + l1(r21[b], rs1) for b in BRANCHES)
+    L["tv"] = (tv(first["flow"]) * 4 + tv(second["flow"]) * 2) / 6
+    L["total"] = sum(LOSS_WEIGHTS[k] * L[k] for k in ("lc", "cc", "tc", "tv"))
+    return L
+
+
+def moa(net: SelfUnroll, a: dict, b: dict):
+    return net.moa_blend(a["E"], b["E"], a["ev1"], b["ev1"], a["flow"], b["flow"], a["fused"], b["fused"])[1]
+
+
+def stage_m_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = False):
+    """Stage 2 (MOA alone, SelfUnroll-S frozen), the dual cycle consistency:
+      G = M(rs1 -> t*, rs2 -> t*);  rs1~ = M(G -> rs1, rs2 -> rs1);  rs2~ = M(G -> rs2, rs1 -> rs2);
+      Ldcc = |rs1~ - rs1| + |rs2~ - rs2|."""
+    B = len(samples)
+    rs1 = torch.from_numpy(np.stack([s.rs1 for s in samples]))
+    rs2 = torch.from_numpy(np.stack([s.rs2 for s in samples]))
+    ev = [torch.cat(t) for t in zip(stack(samples, "g1"), stack(samples, "g2"), stack(samples, "r12"),
+                                    stack(samples, "r21"))]
+    first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev)
+    g, r = split(first, 2 * B)
+    g1, g2 = split(g, B)
+    r12, r21 = split(r, B)
+    G = moa(net, g1, g2)
+    L = {}
+    if supervised:
+        gt = torch.from_numpy(np.stack([s.gt for s in samples]))
+        L["sup"] = l1(G, gt)
+        L["total"] = L["sup"]
+        return L
+    ev_c = [torch.cat(t) for t in zip(stack(samples, "c1"), stack(samples, "c2"))]
+    second = run_s(net, torch.cat([G, G]), ev_c)
+    c1, c2 = split(second, B)
+    rs1_t = moa(net, c1, r21)
+    rs2_t = moa(net, c2, r12)
+    L["dcc"] = l1(rs1_t, rs1) + l1(rs2_t, rs2)
+    L["total"] = L["dcc"]
+    return L
+
+
+# ---- validation (uses ground truth of held-out sequences; never used for training) -------------------
+def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+    mse = float(((a.clamp(0, 1) - b.clamp(0, 1)) ** 2).mean())
+    return 10 * math.log10(1.0 / max(mse, 1e-12))
+
+
+def gt_targets(seq: Sequence):
+    """(gt index, frame k, intra) for every GT instant with RS frames k and k+1 around it: k is the
+    last frame whose first row starts at or before t; intra = t inside frame k's exposure span."""
+    out = []
+    for i, (_, t) in enumerate(seq.gt):
+        k = int(np.searchsorted(seq.frame_t0, t, "right")) - 1
+        if k < 0 or k + 1 >= seq.num_frames:
+            continue
+        lo, hi = seq.frame_span(k)
+        out.append((i, k, lo <= t <= hi))
+    return out
+
+
+def unroll_pair(net: SelfUnroll, seq: Sequence, k: int, t_star: float, texp: float, bins: int, crop):
+    """S results from frames k and k+1 and the M result, all toward t*: dict of [1,3,h,w]."""
+    H = seq.height
+    ts = np.full(H, t_star)
+    s1, e1 = seq.row_times(k)
+    s2, e2 = seq.row_times(k + 1)
+    lo, hi = min(s1.min(), t_star) - 1, max(e2.max(), t_star + texp) + 1
+    ev = seq.events_in(lo, hi, crop)
+    t1 = [torch.from_numpy(a)[None] for a in eic_tensors(ev, s1, e1, ts, texp, bins, crop)]
+    t2 = [torch.from_numpy(a)[None] for a in eic_tensors(ev, s2, e2, ts, texp, bins, crop)]
+    rs1 = torch.from_numpy(crop_img(seq.frame(k), crop))[None]
+    rs2 = torch.from_numpy(crop_img(seq.frame(k + 1), crop))[None]
+    with torch.no_grad():
+        o = run_s(net, torch.cat([rs1, rs2]), [torch.cat([a, b]) for a, b in zip(t1, t2)])
+        a, b = split(o, 1)
+        res = {"rs1": rs1, "rs2": rs2, "s1": a["fused"], "s2": b["fused"]}
+        if net.cfg.moa:
+            res["m"] = moa(net, a, b)
+    return res
+
+
+def validate(net: SelfUnroll, seqs: List[Sequence], bins: int, target_exposure: Optional[float],
+             max_targets: int = 12, crop_size: Optional[Tuple[int, int]] = None) -> Dict[str, float]:
+    """Mean PSNR of the RS frame k, S (frame k) and M on up to max_targets GT instants in total
+    (spread over the sequences), on a centre crop of crop_size or the full frame."""
+    net.eval()
+    sums: Dict[str, List[float]] = {}
+    per_seq = max(1, max_targets // max(1, len(seqs)))
+    for seq in seqs:
+        targets = gt_targets(seq)
+        step = max(1, len(targets) // per_seq)
+        for i, k, _ in targets[::step][:per_seq]:
+            if crop_size:
+                cw, ch = min(crop_size[0], seq.width), min(crop_size[1], seq.height)
+                crop = ((seq.width - cw) // 2, (seq.height - ch) // 2, cw, ch)
+            else:
+                crop = (0, 0, seq.width, seq.height)
+            texp = target_exposure or seq.exposure
+            r = unroll_pair(net, seq, k, seq.gt[i][1], texp, bins, crop)
+            gt = torch.from_numpy(crop_img(seq.gt_image(i), crop))[None]
+            for name, key in (("rs", "rs1"), ("S", "s1"), ("M", "m")):
+                if key in r:
+                    sums.setdefault(name, []).append(psnr(r[key], gt))
+    net.train()
+    return {k: float(np.mean(v)) for k, v in sums.items()}
+
+
+# ---- export -----------------------------------------------------------------------------------------
+def export(net: SelfUnroll, path: str, info: Dict[str, str]) -> int:
+    md = net.cfg.to_metadata()
+    md.update({f"training.{k}": str(v) for k, v in info.items()})
+    tensors = {k: v.detach().float().contiguous() for k, v in net.state_dict().items()}
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    safetensors_io.save(path, tensors, md)
+    return os.path.getsize(path)
+
+
+def export_checkpoint(ckpt_path: str, out: str) -> None:
+    ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+    cfg = config_from_dict(ck["config"])
+    net = SelfUnroll(cfg)
+    net.load_state_dict(ck["model"])
+    size = export(net, out, ck["info"])
+    print(f"wrote {out}: {size / 1e6:.2f} MB, {sum(p.numel() for p in net.parameters())} parameters")
+
+
+def config_from_dict(d: dict) -> SelfUnrollConfig:
+    d = dict(d)
+    for k in ("flownet", "fusion_net", "attfusion_net"):
+        d[k] = UnetConfig(**d[k])
+    return SelfUnrollConfig(**d)
+
+
+# ---- data generation ----------------------------------------------------------------------------------
+MOTIONS = ("pan", "accelerate", "rotate", "zoom", "shake", "mixed")
+PRESET_CYCLE = ("realistic", "clean", "realistic", "noisy")
+
+
+def find_cli(explicit: Optional[str]) -> str:
+    for c in (explicit, os.environ.get("VKUNROLL_CLI"), os.path.join(ROOT, "build", "vkunroll")):
+        if c and os.path.isfile(c) and os.access(c, os.X_OK):
+            return c
+    raise DataError("vkunroll CLI not found: pass --cli PATH or set VKUNROLL_CLI (build it: cmake --build build)")
+
+
+def make_data(out: str, count: int, seed_base: int, size: str, frames: int, gt_per_frame: int,
+              cli: str, extra: List[str], speeds: List[float] = (1.0,)) -> None:
+    """`count` sequences seq_<seed> with seeds seed_base.., cycling motions, presets, speeds and readouts."""
+    os.makedirs(out, exist_ok=True)
+    for i in range(count):
+        seed = seed_base + i
+        d = os.path.join(out, f"seq_{seed:06d}")
+        if os.path.isfile(os.path.join(d, "meta.json")):
+            print(f"{d}: exists, kept")
+            continue
+        cmd = [cli, "simulate", "--out", d, "--seed", str(seed), "--preset", PRESET_CYCLE[i % len(PRESET_CYCLE)],
+               "--motion", MOTIONS[i % len(MOTIONS)], "--size", size, "--frames", str(frames),
+               "--gt-per-frame", str(gt_per_frame), "--speed", f"{speeds[i % len(speeds)]:g}", "--quiet"]
+        if (i // len(MOTIONS)) % 3 == 2:
+            cmd += ["--readout", "bottom-up"]
+        cmd += extra
+        t0 = time.time()
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise DataError(f"'{shlex.join(cmd)}' failed ({r.returncode}): {r.stderr.strip()}")
+        print(f"{d}: {' '.join(cmd[4:])} ({time.time() - t0:.1f} s)", flush=True)
+
+
+# ---- training -------------------------------------------------------------------------------------------
+class ThreadChooser:
+    """Fixed torch thread count, or 'auto': every `period` steps, time `probe` steps with 1 thread
+    and up to `probe` with 2 (cut short when the first is clearly slower) and keep the faster:
+    the machine's load changes during a long run, and 2 OpenMP threads on an oversubscribed
+    machine can be many times slower than 1."""
+
+    def __init__(self, spec: str, period: int = 300, probe: int = 3):
+        self.auto = spec == "auto"
+        self.n = 2 if self.auto else int(spec)
+        self.period, self.probe = period, probe
+        self.times = {1: [], 2: []}
+        self.trial = None
+        self.next_probe = 0
+        torch.set_num_threads(self.n)
+
+    def before_step(self, step: int) -> None:
+        if not self.auto:
+            return
+        if self.trial is None and step >= self.next_probe:
+            self.trial, self.times = 1, {1: [], 2: []}
+        if self.trial == 1 and len(self.times[1]) >= self.probe:
+            self.trial = 2
+        if self.trial == 2:
+            t1 = float(np.median(self.times[1]))
+            t2 = self.times[2]
+            if len(t2) >= self.probe or (t2 and t2[0] > 1.5 * t1):
+                t2m = float(np.median(t2))
+                self.n = 1 if t1 < t2m else 2
+                print(f"threads: 1 -> {t1:.2f} s/step, 2 -> {t2m:.2f} s/step: using {self.n}", flush=True)
+                self.trial, self.next_probe = None, step + self.period
+        torch.set_num_threads(self.trial or self.n)
+
+    def after_step(self, seconds: float) -> None:
+        if self.trial is not None:
+            self.times[self.trial].append(seconds)
+
+
+def cosine_lr(lr0: float, progress: float, warmup: float = 0.02) -> float:
+    if progress < warmup:
+        return lr0 * max(progress / warmup, 0.05)
+    return lr0 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
+
+
+def describe_data(paths: List[str], seqs: List[Sequence]) -> str:
+    presets, motions, seeds = set(), set(), []
+    for s in seqs:
+        src = s.meta.get("source") or {}
+        if "preset" in src:
+            presets.add(str(src["preset"]))
+        st = src.get("settings") or {}
+        if "motion" in st:
+            motions.add(str(st["motion"]))
+        if "seed" in src:
+            seeds.append(int(src["seed"]))
+    sizes = sorted({f"{s.width}x{s.height}" for s in seqs})
+    d = f"{len(seqs)} sequences ({', '.join(sizes)}; {sum(s.num_frames for s in seqs)} RS frames) from {', '.join(paths)}"
+    if presets:
+        d += f"; presets {'/'.join(sorted(presets))}"
+    if motions:
+        d += f"; motions {'/'.join(sorted(motions))}"
+    if seeds:
+        d += f"; seeds {min(seeds)}..{max(seeds)}"
+    return d
+
+
+def train(a) -> None:
+    threads = ThreadChooser(a.threads)
+    os.makedirs(a.out, exist_ok=True)
+    ckpt_path = os.path.join(a.out, "checkpoint.pt")
+    state = None
+    if a.resume:
+        state = torch.load(a.resume, map_location="cpu", weights_only=False)
+        print(f"resuming {a.resume}: stage {state['stage']}, step {state['step']}", flush=True)
+        cfg = config_from_dict(state["config"])
+    else:
+        cfg = make_config(a.config, a.bins)
+        cfg.description = a.description or f"vkunroll {a.config} SelfUnroll trained with tools/train.py"
+    net = SelfUnroll(cfg)
+    if state:
+        net.load_state_dict(state["model"])
+    elif a.init:
+        ck = torch.load(a.init, map_location="cpu", weights_only=False)
+        net.load_state_dict(ck["model"] if "model" in ck else ck)
+    else:
+        init_model(net, a.seed)
+    n_params = sum(p.numel() for p in net.parameters())
+
+    paths = a.data
+    seqs = [Sequence(p) for p in list_sequences(paths)]
+    val = [Sequence(p) for p in list_sequences(a.val)] if a.val else []
+    rng = random.Random(a.seed)
+    if state and "rng" in state:
+        rng.setstate(state["rng"])
+    sampler = Sampler(seqs, a.crop[0], a.crop[1], cfg.N, a.target_exposure_us, rng, a.supervised)
+    data_desc = describe_data(paths, seqs)
+    print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}; data: {data_desc}; "
+          f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, threads {a.threads}", flush=True)
+
+    stages = [("s", a.steps_s), ("m", a.steps_m if cfg.moa else 0)]
+    budget = a.max_minutes * 60 if a.max_minutes else None
+    # share of the time budget per stage: proportional to steps, an M step costing ~1.3 S steps
+    w = {"s": a.steps_s, "m": 1.3 * a.steps_m if cfg.moa else 0}
+    stage_budget = {k: (budget * w[k] / max(1e-9, sum(w.values())) if budget else None) for k in w}
+    info = dict(state["info"]) if state else {}
+    info.setdefault("command", shlex.join([os.path.relpath(sys.argv[0], ROOT) if sys.argv[0].startswith(ROOT)
+                                           else sys.argv[0]] + sys.argv[1:]))
+    info.update({"data": data_desc, "crop": f"{a.crop[0]}x{a.crop[1]}", "batch": str(a.batch), "seed": str(a.seed),
+                 "lr": str(a.lr), "supervised": "true" if a.supervised else "false",
+                 "losses": ("stage s: 1*Llc + 1*Lcc + 1*Ltc + 0.01*Ltv on sys/warped/fused; "
+                            "stage m: Ldcc (attfusion_net alone)") if not a.supervised else
+                 "SUPERVISED comparison run: L1 to ground truth + 0.01*Ltv; stage m: L1 of the M result",
+                 "target_exposure_us": str(a.target_exposure_us or "rs exposure")})
+    start_stage = state["stage"] if state else "s"
+    step = state["step"] if state else 0
+    elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
+    t_run0 = time.time()
+    session_steps = 0
+
+    for stage, steps in stages:
+        if stage == "s" and start_stage == "m":
+            continue
+        if steps <= 0:
+            continue
+        if stage == "m":
+            for n, p in net.named_parameters():
+                p.requires_grad_(n.startswith("attfusion_net."))
+        params = [p for p in net.parameters() if p.requires_grad]
+        opt = torch.optim.Adam(params, lr=a.lr)
+        if state and state["stage"] == stage and "opt" in state:
+            opt.load_state_dict(state["opt"])
+        else:
+            step, elapsed_before = 0, 0.0
+        sb = stage_budget[stage]
+        t0 = time.time() - elapsed_before
+        t_sess0, step_sess0 = time.time(), step
+        last_print, ema, done_reason = 0.0, {}, "steps"
+        net.train()
+        while True:
+            elapsed = time.time() - t0
+            progress = step / steps
+            if sb:
+                progress = max(progress, elapsed / sb)
+            if progress >= 1.0:
+                done_reason = "time" if step < steps else "steps"
+                break
+            lr = cosine_lr(a.lr, progress)
+            for g in opt.param_groups:
+                g["lr"] = lr
+            threads.before_step(step)
+            t_step = t_data = time.time()
+            samples = [sampler.draw() for _ in range(a.batch)]
+            t_data = time.time() - t_data
+            L = (stage_s_losses if stage == "s" else stage_m_losses)(net, samples, a.supervised)
+            opt.zero_grad(set_to_none=True)
+            L["total"].backward()
+            torch.nn.utils.clip_grad_norm_(params, 1.0)
+            opt.step()
+            threads.after_step(time.time() - t_step)
+            step += 1
+            for k, v in L.items():
+                ema[k] = float(v) if k not in ema else 0.9 * ema[k] + 0.1 * float(v)
+            now = time.time()
+            if now - last_print >= a.print_every or step == 1 or step == steps:
+                last_print = now
+                rate = (step - step_sess0) / max(1e-9, now - t_sess0)
+                parts = " ".join(f"{k} {v:.4f}" for k, v in ema.items() if k != "total")
+                print(f"[{stage}] step {step}/{steps} lr {lr:.2e} loss {ema['total']:.4f} ({parts}) "
+                      f"{rate:.2f} step/s data {t_data:.2f}s elapsed {(now - t0) / 60:.1f} min", flush=True)
+            if a.rescan_every and step % a.rescan_every == 0:
+                known = {q.folder for q in sampler.seqs}
+                new = [Sequence(p) for p in list_sequences(paths) if p not in known]
+                new = [q for q in new if q.num_frames >= 2]
+                if new:
+                    sampler.seqs += new
+                    seqs += new
+                    print(f"[{stage}] step {step}: {len(new)} new sequences, {len(sampler.seqs)} in all", flush=True)
+            if a.val_every and step % a.val_every == 0 and val:
+                v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop)
+                print(f"[{stage}] step {step} validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()),
+                      flush=True)
+            if step % a.ckpt_every == 0:
+                save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
+            session_steps += 1
+            if a.stop_after and session_steps >= a.stop_after:
+                save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
+                print(f"[{stage}] stopped after {session_steps} steps (--stop-after); resume with --resume {ckpt_path}",
+                      flush=True)
+                return
+        info["data"] = describe_data(paths, seqs)
+        info[f"steps_{stage}"] = str(step)
+        info[f"minutes_{stage}"] = f"{(time.time() - t0) / 60:.1f}"
+        info[f"final_loss_{stage}"] = f"{ema.get('total', float('nan')):.4f}"
+        print(f"[{stage}] done after {step} steps ({done_reason}), {(time.time() - t0) / 60:.1f} min", flush=True)
+        save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
+        for p in net.parameters():
+            p.requires_grad_(True)
+        state = None
+    if val:
+        v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop)
+        info["val_psnr"] = " ".join(f"{k}={x:.2f}dB" for k, x in v.items())
+        print("final validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()), flush=True)
+    info["finished_utc"] = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    save_ckpt(ckpt_path, net, None, "done", 0, 0.0, rng, info, cfg)
+    out = a.export or os.path.join(a.out, "model.safetensors")
+    size = export(net, out, info)
+    print(f"wrote {out}: {size / 1e6:.2f} MB ({n_params} parameters), run time {(time.time() - t_run0) / 60:.1f} min",
+          flush=True)
+
+
+def save_ckpt(path, net, opt, stage, step, elapsed, rng, info, cfg):
+    ck = {"model": net.state_dict(), "stage": stage, "step": step, "elapsed_stage": elapsed, "rng": rng.getstate(),
+          "info": dict(info), "config": {**cfg.__dict__, **{k: getattr(cfg, k).__dict__ for k in
+                                                            ("flownet", "fusion_net", "attfusion_net")}}}
+    if opt is not None:
+        ck["opt"] = opt.state_dict()
+    tmp = path + ".tmp"
+    torch.save(ck, tmp)
+    os.replace(tmp, path)  # a kill during the save never leaves a broken checkpoint
+
+
+def parse_size(s: str) -> Tuple[int, int]:
+    try:
+        w, h = s.lower().split("x")
+        return int(w), int(h)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{s}': expected WIDTHxHEIGHT, e.g. 64x64") from None
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[1], formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=__doc__.split("\n", 2)[2])
+    g = ap.add_argument_group("data generation")
+    g.add_argument("--make-data", metavar="DIR", help="simulate --sequences sequences into DIR and exit")
+    g.add_argument("--sequences", type=int, default=16)
+    g.add_argument("--seed-base", type=int, default=1000)
+    g.add_argument("--size", default="240x180", help="simulated sensor size [240x180]")
+    g.add_argument("--frames", type=int, default=8)
+    g.add_argument("--gt-per-frame", type=int, default=4)
+    g.add_argument("--speeds", default="1", help="comma-separated motion speed factors, cycled [1]")
+    g.add_argument("--cli", help="vkunroll executable [env VKUNROLL_CLI or build/vkunroll]")
+    g.add_argument("--sim-arg", action="append", default=[], help="extra argument for vkunroll simulate (repeatable)")
+    g = ap.add_argument_group("training")
+    g.add_argument("--data", nargs="+", help="sequence folders, or folders of them (generic layout)")
+    g.add_argument("--val", nargs="*", default=[], help="held-out sequences with ground truth, for validation PSNR")
+    g.add_argument("--out", default="runs/train", help="folder for checkpoint.pt and model.safetensors")
+    g.add_argument("--export", help="weights file to write at the end [OUT/model.safetensors]")
+    g.add_argument("--config", choices=sorted(PRESETS), default="small")
+    g.add_argument("--bins", type=int, help="N temporal bins (overrides the configuration's)")
+    g.add_argument("--description", default="")
+    g.add_argument("--init", help="start from these weights (a checkpoint.pt)")
+    g.add_argument("--resume", help="continue a checkpoint.pt (stage, step, optimizer, sampler state)")
+    g.add_argument("--steps-s", type=int, default=2000, help="stage 1 steps (SelfUnroll-S)")
+    g.add_argument("--steps-m", type=int, default=400, help="stage 2 steps (MOA alone)")
+    g.add_argument("--max-minutes", type=float, help="time budget of both stages (the cosine schedule follows it)")
+    g.add_argument("--crop", type=parse_size, default=(64, 64))
+    g.add_argument("--batch", type=int, default=2)
+    g.add_argument("--lr", type=float, default=1e-3)
+    g.add_argument("--target-exposure-us", type=float, help="GS target exposure (ev3 window) [the RS exposure]")
+    g.add_argument("--seed", type=int, default=1)
+    g.add_argument("--threads", default="2", help="torch threads, or 'auto': re-measure 1 vs 2 every 200 steps "
+                   "(2 OpenMP threads on an oversubscribed machine can be many times slower than 1) [2]")
+    g.add_argument("--supervised", action="store_true", help="COMPARISON ONLY: L1 to ground truth")
+    g.add_argument("--print-every", type=float, default=10.0, help="seconds between progress lines")
+    g.add_argument("--ckpt-every", type=int, default=100)
+    g.add_argument("--rescan-every", type=int, default=0,
+                   help="every this many steps, add sequences that appeared in --data folders (data still being made)")
+    g.add_argument("--stop-after", type=int, default=0, help="stop (with a checkpoint) after this many steps")
+    g.add_argument("--val-every", type=int, default=0)
+    g.add_argument("--val-targets", type=int, default=8)
+    g.add_argument("--val-crop", type=parse_size, default=None)
+    g = ap.add_argument_group("export only")
+    g.add_argument("--export-checkpoint", nargs=2, metavar=("CKPT", "OUT"))
+    a = ap.parse_args(argv)
+    try:
+        if a.make_data:
+            make_data(a.make_data, a.sequences, a.seed_base, a.size, a.frames, a.gt_per_frame, find_cli(a.cli),
+                      a.sim_arg, [float(x) for x in a.speeds.split(",")])
+            return 0
+        if a.export_checkpoint:
+            export_checkpoint(*a.export_checkpoint)
+            return 0
+        if not a.data and not a.resume:
+            ap.error("--data is required (or --make-data / --export-checkpoint)")
+        if a.resume and not a.data:
+            ap.error("--resume needs the same --data as the run it continues")
+        train(a)
+    except DataError as e:
+        print(f"train.py: error: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
