@@ -51,14 +51,14 @@ def physics_psnr(cli: str, seq: Sequence, work: str) -> Dict[float, float]:
     """PSNR per GT time from `vkunroll unroll --mode physics` (its metrics.csv), or {} when the CLI
     has no unroll command."""
     out = os.path.join(work, os.path.basename(seq.folder.rstrip("/")))
-    r = subprocess.run([cli, "unroll", "--mode", "physics", "--in", seq.folder, "--out", out, "--quiet"],
-                       capture_output=True, text=True)
+    r = subprocess.run([cli, "unroll", seq.folder, "--out", out, "--mode", "physics", "--times", "gt", "--no-video",
+                        "--quiet"], capture_output=True, text=True)
     if r.returncode != 0:
         raise DataError(f"vkunroll unroll --mode physics failed on {seq.folder}: {r.stderr.strip()[-400:]}")
     rows = list(csv.DictReader(open(os.path.join(out, "metrics.csv"))))
     res = {}
     for row in rows:
-        t = float(row.get("t_us") or row.get("t"))
+        t = float(row["t_us"])
         if row.get("psnr") not in (None, ""):
             res[t] = float(row["psnr"])
     return res
@@ -113,7 +113,7 @@ def cli_has_unroll(cli: str) -> bool:
     if not cli:
         return False
     r = subprocess.run([cli, "unroll", "--help"], capture_output=True, text=True)
-    return r.returncode == 0 and "physics" in r.stdout
+    return r.returncode == 0 and "physics" in r.stdout + r.stderr
 
 
 def evaluate(model: str, data: List[str], cli: str = "", target_exposure=None, limit=0, contrast=0.2,
