@@ -35,7 +35,9 @@ std::string find_shipped_model(const fs::path& exe) {
 
 void print_result(const char* what, const nlohmann::json& s) {
   std::cout << std::fixed << std::setprecision(2);
-  std::cout << "  " << std::left << std::setw(26) << what;
+  std::string label = what;
+  label.resize(std::max<size_t>(label.size() + 2, 36), ' ');
+  std::cout << "  " << label;
   if (s.contains("metrics"))
     std::cout << "PSNR " << s["metrics"]["mean_psnr"].get<double>() << " dB  SSIM " << std::setprecision(4)
               << s["metrics"]["mean_ssim"].get<double>() << std::setprecision(2) << "  ";
@@ -92,11 +94,11 @@ int cmd_demo(const Argv& argv) {
     learned = run_unroll(o);
   }
   std::cout << "demo: " << phys["targets"].get<int>() << " GS frames at the ground-truth instants (inside and between frames)\n";
-  std::cout << std::fixed << std::setprecision(2) << "  " << std::left << std::setw(26) << "RS input"
+  std::cout << std::fixed << std::setprecision(2) << "  " << std::left << std::setw(36) << "RS input"
             << "PSNR " << phys["metrics"]["rs_mean_psnr"].get<double>() << " dB  SSIM " << std::setprecision(4)
             << phys["metrics"]["rs_mean_ssim"].get<double>() << "\n";
   print_result("physics unroller", phys);
-  if (!learned.is_null()) print_result(("model " + fs::path(model).filename().string()).c_str(), learned);
+  if (!learned.is_null()) print_result(("model " + fs::path(model).filename().string() + " (" + learned["mode"].get<std::string>() + ")").c_str(), learned);
   else std::cout << "  (no shipped model found in models/: only the physics unroller ran)\n";
   std::cout << "demo: outputs in " << fs::absolute(out).string() << " (physics/"
             << (learned.is_null() ? "" : ", model/") << ": frames/, gs_video.mp4, contact_sheet.png, summary.json)\n";
