@@ -31,7 +31,8 @@ double psnr(const cv::Mat& a, const cv::Mat& b) {
   check_pair(a, b, "psnr");
   cv::Mat fa = to_unit_float(a), fb = to_unit_float(b), d;
   cv::subtract(fa, fb, d, cv::noArray(), CV_64F);
-  const double mse = cv::sum(d.mul(d))[0] + cv::sum(d.mul(d))[1] + cv::sum(d.mul(d))[2] + cv::sum(d.mul(d))[3];
+  const cv::Scalar sq = cv::sum(d.mul(d));
+  const double mse = sq[0] + sq[1] + sq[2] + sq[3];
   const double n = static_cast<double>(d.total()) * d.channels();
   if (mse <= 0) return std::numeric_limits<double>::infinity();
   return 10.0 * std::log10(1.0 / (mse / n));

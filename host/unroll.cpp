@@ -100,28 +100,18 @@ std::vector<double> row_ends(const RowTiming& t) {
   return v;
 }
 
-cv::Mat plane_image(const std::vector<float>& v, int h, int w, int channels) {
-  std::vector<cv::Mat> ch;
-  for (int c = 0; c < channels; ++c) ch.push_back(cv::Mat(h, w, CV_32F, const_cast<float*>(v.data() + static_cast<size_t>(c) * h * w)).clone());
-  cv::Mat out;
-  cv::merge(ch, out);
-  return out;
-}
-
 std::vector<float> bgr_planes(const cv::Mat& bgr) {
   std::vector<float> v;
   append_planes(bgr, false, v);
   return v;
 }
 
-// Physics result for one frame and one target (CPU reference or GPU).
-std::vector<float> physics_planes(const Sequence& seq, const SequenceFrame& f, const std::vector<float>& rs_planes,
+// Physics result for one frame and one target (CPU reference or GPU). `ev` holds at least the
+// events of [min(t*, first row start), max(t*, last row end)].
+std::vector<float> physics_planes(const Sequence& seq, const EventStream& ev, const std::vector<double>& starts,
+                                  const std::vector<double>& ends, const std::vector<float>& rs_planes,
                                   double t_star, const PhysicsUnrollParams& prm, Context* ctx) {
-  const auto s = row_starts(f.timing), e = row_ends(f.timing);
-  const double lo = std::min(t_star, *std::min_element(s.begin(), s.end()));
-  const double hi = std::max(t_star, *std::max_element(e.begin(), e.end()));
-  const EventStream ev = seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1);
-  const PixelEventLists lists = gather_pixel_events(ev, t_star, s, e, 0, 0, seq.width, seq.height);
+  const PixelEventLists lists = gather_pixel_events(ev, t_star, starts, ends, 0, 0, seq.width, seq.height);
   if (!ctx) return physics_unroll_ref(rs_planes, 3, lists, prm);
   Tensor rs_t(*ctx, {1, 3, seq.height, seq.width}), out_t(*ctx, {1, 3, seq.height, seq.width});
   rs_t.upload(rs_planes);
@@ -330,11 +320,20 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
     std::vector<cv::Mat> results(ts.size());
 
     if (mode == "physics") {
+      // The events of every target of this frame, read once.
+      const auto starts = row_starts(f1.timing), ends = row_ends(f1.timing);
+      double lo = f1.timing.first_start().to_double(), hi = f1.timing.last_end().to_double();
+      for (const auto& t : ts) lo = std::min(lo, t.t_us.to_double()), hi = std::max(hi, t.t_us.to_double());
+      for (size_t y = 0; y < starts.size(); ++y) lo = std::min(lo, starts[y]), hi = std::max(hi, ends[y]);
+      t_read = Clock::now();
+      const EventStream ev = seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1);
+      stage_ms["read"] += ms_since(t_read);
       const auto t = Clock::now();
       const auto rs_planes = bgr_planes(rs1);
-      for (size_t j = 0; j < ts.size(); ++j)
-        results[j] = plane_image(physics_planes(seq, f1, rs_planes, ts[j].t_us.to_double(), prm, ctx.get()),
-                                 seq.height, seq.width, 3);
+      for (size_t j = 0; j < ts.size(); ++j) {
+        const auto gs = physics_planes(seq, ev, starts, ends, rs_planes, ts[j].t_us.to_double(), prm, ctx.get());
+        results[j] = planes_to_bgr(gs.data(), seq.height, seq.width, /*rgb=*/false);
+      }
       stage_ms["physics"] += ms_since(t);
       runs_physics += ts.size();
     } else {
