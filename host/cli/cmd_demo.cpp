@@ -99,7 +99,7 @@ int cmd_demo(const Argv& argv) {
             << phys["metrics"]["rs_mean_ssim"].get<double>() << "\n";
   print_result("physics unroller", phys);
   if (!learned.is_null()) print_result(("model " + fs::path(model).filename().string() + " (" + learned["mode"].get<std::string>() + ")").c_str(), learned);
-  else std::cout << "  (no shipped model found in models/: only the physics unroller ran)\n";
+  else if (!args.has("physics-only")) std::cout << "  (no shipped model found in models/: only the physics unroller ran)\n";
   std::cout << "demo: outputs in " << fs::absolute(out).string() << " (physics/"
             << (learned.is_null() ? "" : ", model/") << ": frames/, gs_video.mp4, contact_sheet.png, summary.json)\n";
   return 0;
