@@ -331,6 +331,7 @@ size_t pack_events_by_pixel(const EventStream& events, const BinningPlan& plan, 
 const char* event_bin_algorithm_name(EventBinAlgorithm a) {
   switch (a) {
     case EventBinAlgorithm::automatic: return "automatic";
+    case EventBinAlgorithm::sparse: return "sparse-rows";
     case EventBinAlgorithm::per_row: return "per-row";
     case EventBinAlgorithm::per_event: return "per-event";
     case EventBinAlgorithm::per_pixel: return "per-pixel";
@@ -378,6 +379,19 @@ size_t pack_events_by_row(const EventStream& events, const BinningPlan& plan, st
   return offsets[plan.height];
 }
 
+EventTensorBuilder::EventTensorBuilder(Context& ctx, Profiler* profiler) : ctx_(ctx), profiler_(profiler) {}
+EventTensorBuilder::~EventTensorBuilder() = default;
+
+Tensor& EventTensorBuilder::reserve_words(Tensor& t, size_t count, DType dtype) {
+  count = std::max<size_t>(count, 1);
+  if (t.empty() || t.dtype() != dtype || static_cast<size_t>(t.shape().count()) < count) {
+    t = Tensor();  // free first so the allocator can reuse the range
+    const size_t cap = std::min(count + count / 2, ctx_.info().max_storage_buffer_range / 4);
+    t = Tensor(ctx_, Shape{1, 1, 1, static_cast<int64_t>(std::max(cap, count))}, dtype);
+  }
+  return t;
+}
+
 size_t EventTensorBuilder::jobs_per_chunk(const BinningPlan& plan) const {
   const size_t slice = static_cast<size_t>(2 * plan.bins) * plan.height * plan.width;
   const size_t max_range = ctx_.info().max_storage_buffer_range;
@@ -392,14 +406,25 @@ size_t EventTensorBuilder::jobs_per_chunk(const BinningPlan& plan) const {
 
 void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& plan,
                                  const std::vector<std::pair<size_t, size_t>>& chunks,
-                                 const std::function<void(size_t, Tensor&)>& done) {
+                                 const std::function<void(size_t, Tensor&)>& done, bool allow_sparse) {
   const auto& info = ctx_.info();
   const size_t max_range = info.max_storage_buffer_range;
   const size_t plane = static_cast<size_t>(plan.width) * plan.height;
   const size_t window = plan.last_event - plan.first_event;
-  // Automatic: per_row. On lavapipe every dense pass over the output costs about as much as
-  // NumPy's whole binning, so the sparse kernels (zero fill + one CAS per selected event and job)
-  // win; per_row reads only selected events with a uniform row record.
+  // Automatic: sparse, else per_row. On lavapipe a dense pass over the output (the zero fill:
+  // 34.5 MB for one pair at 346x260, N = 16) costs as much as the binning itself, so the sparse
+  // path, which only undoes the previous build's cells, wins; per_row reads only selected events
+  // with a uniform row record.
+  if (algorithm_ == EventBinAlgorithm::sparse && !allow_sparse)
+    throw Error("event tensor: the sparse algorithm keeps its output; use build, bin or build_resident");
+  if ((algorithm_ == EventBinAlgorithm::automatic && allow_sparse) || algorithm_ == EventBinAlgorithm::sparse) {
+    if (execute_sparse(events, plan, chunks, done)) {
+      last_algorithm_ = EventBinAlgorithm::sparse;
+      return;
+    }
+    if (algorithm_ == EventBinAlgorithm::sparse)
+      throw Error("event tensor: the sparse algorithm needs the window's events and its undo list in one binding");
+  }
   EventBinAlgorithm algo = algorithm_ == EventBinAlgorithm::automatic ? EventBinAlgorithm::per_row : algorithm_;
   if (algo == EventBinAlgorithm::per_pixel &&
       !(plan.bins <= kMaxPixelBins && window * 4 <= max_range && (plane + 1) * 4 <= max_range))
@@ -493,6 +518,97 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
   }
 }
 
+bool EventTensorBuilder::execute_sparse(const EventStream& events, const BinningPlan& plan,
+                                        const std::vector<std::pair<size_t, size_t>>& chunks,
+                                        const std::function<void(size_t, Tensor&)>& done) {
+  const size_t max_words = ctx_.info().max_storage_buffer_range / 4;
+  if (2 * (plan.last_event - plan.first_event) > max_words) return false;
+  last_events_ = pack_events_by_row(events, plan, packed_, ranges_);
+  // (begin, end, undo-list base, 0) per (job, row); bases restart at every chunk's first job.
+  const size_t rows = static_cast<size_t>(plan.height);
+  ranges4_.resize(plan.jobs * rows * 4);
+  std::vector<size_t> touched_n(chunks.size(), 0);
+  for (size_t c = 0; c < chunks.size(); ++c) {
+    size_t base = 0;
+    for (size_t jr = chunks[c].first * rows; jr < (chunks[c].first + chunks[c].second) * rows; ++jr) {
+      const uint32_t b = ranges_[2 * jr], e = ranges_[2 * jr + 1];
+      ranges4_[4 * jr] = b;
+      ranges4_[4 * jr + 1] = e;
+      ranges4_[4 * jr + 2] = static_cast<uint32_t>(std::min<size_t>(base, UINT32_MAX));
+      ranges4_[4 * jr + 3] = 0;
+      base += e - b;
+    }
+    if (base > max_words) return false;
+    touched_n[c] = base;
+  }
+  if (ranges4_.size() > max_words || plan.records.size() > max_words) return false;
+
+  // A new layout (size, bins or chunks) starts from freshly zeroed outputs.
+  std::vector<size_t> layout = {static_cast<size_t>(plan.bins), rows, static_cast<size_t>(plan.width)};
+  for (const auto& [j0, nj] : chunks) layout.insert(layout.end(), {j0, nj});
+  const bool fresh = layout != sparse_layout_;
+  if (fresh) {
+    sparse_.clear();
+    sparse_layout_.clear();
+    sparse_.resize(chunks.size());
+  }
+
+  Tensor& ev = reserve_words(events_buf_, packed_.size(), DType::u32);
+  ev.upload_part(0, packed_.data(), packed_.size() * 4);
+  Tensor& rec = reserve_words(records_buf_, plan.records.size(), DType::i32);
+  rec.upload_part(0, plan.records.data(), plan.records.size() * 4);
+  Tensor& rg = reserve_words(ranges_buf_, ranges4_.size(), DType::u32);
+  rg.upload_part(0, ranges4_.data(), ranges4_.size() * 4);
+  const auto words = [](const Tensor& t, size_t n) { return t.range(0, std::max<size_t>(n, 1) * 4); };
+
+  if (!stream_) stream_ = std::make_unique<CommandStream>(ctx_, profiler_);
+  CommandStream& cs = *stream_;
+  const Pipeline& undo = ctx_.pipeline("event_tensor_undo", {}, sizeof(uint32_t));
+  const Pipeline& pipe = ctx_.pipeline("event_tensor_rows_sparse", {}, sizeof(RowPush));
+  std::vector<Tensor> retired;  // undo lists replaced by bigger ones, alive until the submit
+  try {
+  for (size_t c = 0; c < chunks.size(); ++c) {
+    const auto [j0, nj] = chunks[c];
+    SparseChunk& sc = sparse_[c];
+    if (fresh) {
+      sc.out = Tensor(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+      cs.fill(sc.out, 0);
+      sc.touched_n = 0;
+    } else if (sc.touched_n > 0) {
+      const uint32_t n = static_cast<uint32_t>(sc.touched_n);
+      cs.dispatch(undo, {{words(sc.touched, sc.touched_n), Access::read}, inout(sc.out)}, n,
+                  {static_cast<uint32_t>(std::min<size_t>((sc.touched_n + 63) / 64, 4096))},
+                  {"event_tensor_undo", 0, 8.0 * sc.touched_n});
+    }
+    if (sc.touched.empty() || static_cast<size_t>(sc.touched.shape().count()) < std::max<size_t>(touched_n[c], 1)) {
+      retired.push_back(std::move(sc.touched));
+      const size_t cap = std::min(touched_n[c] + touched_n[c] / 2, max_words);
+      sc.touched = Tensor(ctx_, Shape{1, 1, 1, static_cast<int64_t>(std::max<size_t>(std::max(cap, touched_n[c]), 1))},
+                          DType::u32);
+    }
+    RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
+                 static_cast<uint32_t>(plan.height)};
+    cs.dispatch(pipe,
+                {{words(ev, packed_.size()), Access::read}, {words(rec, plan.records.size()), Access::read},
+                 {words(rg, ranges4_.size()), Access::read}, inout(sc.out),
+                 {words(sc.touched, touched_n[c]), Access::write}},
+                push, {static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)},
+                {"event_tensor_rows_sparse", 0, 16.0 * touched_n[c]});
+    sc.touched_n = touched_n[c];
+  }
+    cs.submit_and_wait();
+  } catch (...) {
+    // The outputs' state is unknown now: start from fresh zeros and a fresh stream next time.
+    sparse_.clear();
+    sparse_layout_.clear();
+    stream_.reset();
+    throw;
+  }
+  sparse_layout_ = std::move(layout);
+  for (size_t c = 0; c < chunks.size(); ++c) done(chunks[c].first, sparse_[c].out);
+  return true;
+}
+
 namespace {
 // Consecutive job ranges of at most `chunk` jobs that never cross a multiple of `boundary`.
 std::vector<std::pair<size_t, size_t>> job_chunks(size_t jobs, size_t chunk, size_t boundary) {
@@ -513,37 +629,48 @@ std::vector<float> EventTensorBuilder::bin(const EventStream& events, const std:
   const size_t slice = static_cast<size_t>(2 * plan.bins) * plan.height * plan.width;
   std::vector<float> result(jobs.size() * slice);
   if (jobs.empty()) return result;
-  execute(events, plan, job_chunks(jobs.size(), jobs_per_chunk(plan), 0), [&](size_t j0, Tensor& out) {
-    out.download(result.data() + j0 * slice, static_cast<size_t>(out.shape().count()) * 4);
-  });
+  execute(
+      events, plan, job_chunks(jobs.size(), jobs_per_chunk(plan), 0),
+      [&](size_t j0, Tensor& out) { out.download(result.data() + j0 * slice, static_cast<size_t>(out.shape().count()) * 4); },
+      true);
   return result;
 }
 
 EventTensors EventTensorBuilder::build(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                                        const EventTensorSpec& spec) {
+  EventTensors t;
+  build(events, pairs, spec, t);
+  return t;
+}
+
+void EventTensorBuilder::build(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                               const EventTensorSpec& spec, EventTensors& t) {
   const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
   for (const auto& p : pairs)
     if (p.timing.rows != events.height)
       throw Error("event tensor: frame timing has " + std::to_string(p.timing.rows) + " rows, the event sensor " +
                   std::to_string(events.height));
-  EventTensors t;
   t.pairs = static_cast<int>(pairs.size());
   t.bins = spec.bins;
   t.height = c.height;
   t.width = c.width;
+  t.events_considered = 0;
   const size_t P = pairs.size(), slice = t.slice();
+  // resize keeps the storage of a repeated shape: every cell is overwritten below.
   t.ev1.resize(P * slice);
   t.ev2.resize(P * slice);
   t.ev3.resize(P * slice);
-  if (P == 0) return t;
+  if (P == 0) return;
   const BinningPlan plan = plan_binning(events, event_tensor_jobs(pairs), spec);
   // Chunks stay inside one tensor's jobs, so each downloads straight into ev1, ev2 or ev3.
   std::vector<float>* dst[3] = {&t.ev1, &t.ev2, &t.ev3};
-  execute(events, plan, job_chunks(3 * P, jobs_per_chunk(plan), P), [&](size_t j0, Tensor& out) {
-    out.download(dst[j0 / P]->data() + (j0 % P) * slice, static_cast<size_t>(out.shape().count()) * 4);
-  });
+  execute(
+      events, plan, job_chunks(3 * P, jobs_per_chunk(plan), P),
+      [&](size_t j0, Tensor& out) {
+        out.download(dst[j0 / P]->data() + (j0 % P) * slice, static_cast<size_t>(out.shape().count()) * 4);
+      },
+      true);
   t.events_considered = last_events_;
-  return t;
 }
 
 Tensor EventTensorBuilder::build_on_device(const EventStream& events, const std::vector<EventTensorPair>& pairs,
@@ -554,8 +681,25 @@ Tensor EventTensorBuilder::build_on_device(const EventStream& events, const std:
   if (static_cast<uint64_t>(shape.count()) * 4 > ctx_.info().max_storage_buffer_range)
     throw Error("event tensor: " + shape.str() + " exceeds one storage-buffer binding; use fewer pairs or a crop");
   Tensor result;
-  execute(events, plan, {{0, jobs.size()}}, [&](size_t, Tensor& out) { result = std::move(out); });
+  execute(events, plan, {{0, jobs.size()}}, [&](size_t, Tensor& out) { result = std::move(out); }, false);
   return result;
+}
+
+const Tensor& EventTensorBuilder::build_resident(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                                 const EventTensorSpec& spec) {
+  if (pairs.empty()) throw Error("event tensor: build_resident needs at least one pair");
+  const auto jobs = event_tensor_jobs(pairs);
+  const BinningPlan plan = plan_binning(events, jobs, spec);
+  const Shape shape{static_cast<int64_t>(jobs.size()), 2 * plan.bins, plan.height, plan.width};
+  if (static_cast<uint64_t>(shape.count()) * 4 > ctx_.info().max_storage_buffer_range)
+    throw Error("event tensor: " + shape.str() + " exceeds one storage-buffer binding; use fewer pairs or a crop");
+  if (algorithm_ != EventBinAlgorithm::automatic && algorithm_ != EventBinAlgorithm::sparse)
+    throw Error(std::string("event tensor: build_resident runs the sparse algorithm, not ") +
+                event_bin_algorithm_name(algorithm_));
+  if (!execute_sparse(events, plan, {{0, jobs.size()}}, [](size_t, Tensor&) {}))
+    throw Error("event tensor: build_resident needs the window's events and its undo list in one binding");
+  last_algorithm_ = EventBinAlgorithm::sparse;
+  return sparse_[0].out;
 }
 
 }  // namespace vkunroll

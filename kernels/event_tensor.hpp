@@ -19,6 +19,7 @@
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <vector>
 
@@ -113,19 +114,29 @@ size_t pack_events_by_pixel(const EventStream& events, const BinningPlan& plan, 
 size_t pack_events_by_row(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& packed,
                           std::vector<uint32_t>& ranges);
 
-// per_row (automatic's choice): one workgroup per (row, job) over exactly the row's selected
+// sparse (automatic's choice): per_row's kernel into a PERSISTENT output owned by the builder that
+//   stays zero between builds: each build first puts back to zero only the cells the previous
+//   build counted (a list the kernel writes), then counts. O(selected events) work, no dense fill;
+//   the output and every device buffer are reused across calls. Needs the window's events and the
+//   undo list in one binding each; otherwise automatic falls back to per_row.
+// per_row: one workgroup per (row, job) over exactly the row's selected
 //   events; zero fill, then +1.0 on float32 cells through a 32-bit compare-and-swap loop (any N;
 //   exact below 2^24 per cell). Needs the window's events in one binding (16M events).
 // per_event: one invocation per event looping over jobs, same accumulation; events in pieces of
 //   any size (the fallback for bigger windows).
 // per_pixel: one invocation per pixel over its own events, writes every float32 cell once, no
 //   atomics (N <= 64); dense, so slower on lavapipe; for devices where atomics are expensive.
-enum class EventBinAlgorithm { automatic, per_row, per_event, per_pixel };
+enum class EventBinAlgorithm { automatic, sparse, per_row, per_event, per_pixel };
 const char* event_bin_algorithm_name(EventBinAlgorithm a);  // "per-row", ...
+
+class CommandStream;
 
 class EventTensorBuilder {
  public:
-  explicit EventTensorBuilder(Context& ctx, Profiler* profiler = nullptr) : ctx_(ctx), profiler_(profiler) {}
+  explicit EventTensorBuilder(Context& ctx, Profiler* profiler = nullptr);
+  ~EventTensorBuilder();
+  EventTensorBuilder(const EventTensorBuilder&) = delete;
+  EventTensorBuilder& operator=(const EventTensorBuilder&) = delete;
 
   // [jobs, 2N, h, w] float32, identical to bin_events_cpu. Splits jobs into chunks that fit one
   // storage-buffer binding; events are uploaded once for all chunks.
@@ -133,6 +144,15 @@ class EventTensorBuilder {
                          const EventTensorSpec& spec);
   EventTensors build(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                      const EventTensorSpec& spec);
+  // The same into `out`, reusing its vectors' storage when the shape repeats (no fresh pages).
+  void build(const EventStream& events, const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec,
+             EventTensors& out);
+  // Device-resident through the sparse path: the builder's own persistent f32 tensor
+  // [3 * pairs, 2N, h, w] (ev1, ev2, ev3 consecutive, as build_on_device). Read it only; it is
+  // valid until the next call on this builder, which overwrites it. Throws if it exceeds one
+  // binding or the sparse path cannot run (window beyond one binding).
+  const Tensor& build_resident(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                               const EventTensorSpec& spec);
   // Device-resident result for the network: one f32 tensor [3 * pairs, 2N, h, w] whose ev1, ev2,
   // ev3 are the consecutive ranges of `pairs` slices each. Throws if it exceeds one binding.
   Tensor build_on_device(const EventStream& events, const std::vector<EventTensorPair>& pairs,
@@ -152,12 +172,30 @@ class EventTensorBuilder {
   // to float32 in place).
   // Uploads the plan's events once, then for each chunk [first_job, first_job + count) fills a
   // fresh [count, 2N, h, w] f32 tensor and hands it to `done(first_job, tensor)`.
+  // allow_sparse: the caller only reads the chunk tensors (they stay the builder's).
   void execute(const EventStream& events, const BinningPlan& plan,
                const std::vector<std::pair<size_t, size_t>>& chunks,
-               const std::function<void(size_t, Tensor&)>& done);
+               const std::function<void(size_t, Tensor&)>& done, bool allow_sparse);
+  // The sparse path; false (nothing done) when a buffer would exceed one binding.
+  bool execute_sparse(const EventStream& events, const BinningPlan& plan,
+                      const std::vector<std::pair<size_t, size_t>>& chunks,
+                      const std::function<void(size_t, Tensor&)>& done);
   size_t jobs_per_chunk(const BinningPlan& plan) const;
+  // Reuses `t` when it holds at least `count` u32/i32 words, else replaces it (grown by half).
+  Tensor& reserve_words(Tensor& t, size_t count, DType dtype);
   Context& ctx_;
   Profiler* profiler_;
+  std::unique_ptr<CommandStream> stream_;  // reused: no command pool, fence and query pool per call
+  // Sparse path state: one persistent output per chunk of the last layout, each zero except at
+  // the cells its undo list names.
+  struct SparseChunk {
+    Tensor out, touched;
+    size_t touched_n = 0;
+  };
+  std::vector<SparseChunk> sparse_;
+  std::vector<size_t> sparse_layout_;  // bins, h, w, then (first job, jobs) of every chunk
+  Tensor events_buf_, records_buf_, ranges_buf_;  // inputs, reused with spare capacity
+  std::vector<uint32_t> packed_, ranges_, ranges4_;  // host scratch, reused
   size_t last_events_ = 0;
   size_t max_jobs_ = 0, max_events_ = 0;
   EventBinAlgorithm algorithm_ = EventBinAlgorithm::automatic, last_algorithm_ = EventBinAlgorithm::automatic;

@@ -120,6 +120,27 @@ void Tensor::upload(const void* data, size_t nbytes) {
   ctx_->allocator().free(staging);
 }
 
+void Tensor::upload_part(size_t byte_offset, const void* data, size_t nbytes) {
+  if (byte_offset > bytes() || nbytes > bytes() - byte_offset)
+    throw Error("Tensor::upload_part: bytes [" + std::to_string(byte_offset) + ", " +
+                std::to_string(byte_offset + nbytes) + ") outside the tensor " + shape_.str() + " of " +
+                std::to_string(bytes()) + " bytes");
+  if (nbytes == 0) return;
+  if (alloc_.mapped) {
+    std::memcpy(static_cast<char*>(alloc_.mapped) + byte_offset, data, nbytes);
+    return;
+  }
+  Allocation staging = ctx_->allocator().allocate(nbytes, /*host_visible=*/true);
+  std::memcpy(staging.mapped, data, nbytes);
+  try {
+    copy_buffer(*ctx_, {staging.buffer, staging.offset, nbytes}, range(byte_offset, nbytes));
+  } catch (...) {
+    ctx_->allocator().free(staging);
+    throw;
+  }
+  ctx_->allocator().free(staging);
+}
+
 void Tensor::download(void* data, size_t nbytes) const {
   if (nbytes != bytes())
     throw Error("Tensor::download: " + std::to_string(nbytes) + " bytes asked of a tensor " + shape_.str() + " " +

@@ -57,6 +57,8 @@ class Tensor {
   // Host <-> device copies of the whole tensor; `bytes` must equal bytes().
   void upload(const void* data, size_t bytes);
   void download(void* data, size_t bytes) const;
+  // Host -> device copy of `bytes` bytes at `byte_offset`, for tensors reused with spare capacity.
+  void upload_part(size_t byte_offset, const void* data, size_t bytes);
   template <class T>
   void upload(std::span<const T> v) { upload(v.data(), v.size_bytes()); }
   template <class T>

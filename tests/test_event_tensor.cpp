@@ -6,6 +6,7 @@
 #include <cstring>
 #include <nlohmann/json.hpp>
 #include <random>
+#include <tuple>
 
 #include "host/row_timing.hpp"
 #include "host/safetensors.hpp"
@@ -333,7 +334,7 @@ TEST(EventTensor, LargeBinCountsWorkAndPerPixelRefusesThem) {
   auto cpu = build_event_tensors_cpu(ev, pairs, spec);
   EventTensorBuilder b(vktest::context());
   auto gpu = b.build(ev, pairs, spec);
-  EXPECT_EQ(b.last_algorithm(), EventBinAlgorithm::per_row);
+  EXPECT_EQ(b.last_algorithm(), EventBinAlgorithm::sparse);
   EXPECT_EQ(cpu.ev1, gpu.ev1);
   EXPECT_EQ(cpu.ev2, gpu.ev2);
   EXPECT_EQ(cpu.ev3, gpu.ev3);
@@ -415,4 +416,67 @@ TEST(EventTensor, MatchesNumpyGoldenExactly) {
       EXPECT_GT(total, 50) << c["name"] << " ev" << k + 1;
     }
   }
+}
+
+// The sparse path keeps its outputs between builds and only undoes the cells the previous build
+// counted: successive builds with other events, other pairs, another layout and chunking must
+// each equal the CPU reference exactly (a stale count from an earlier build would show here).
+TEST(EventTensor, SparseBuildsReuseTheirOutputExactly) {
+  RowTiming tm{R("0"), R("1000/7"), R("900"), 12, Readout::top_down};
+  const std::vector<std::tuple<std::vector<const char*>, int, uint32_t, size_t>> steps = {
+      {{"0.5"}, 16, 1, 0},
+      {{"0.5"}, 16, 2, 0},              // same layout, other events: undo, then count
+      {{"0.1"}, 16, 2, 0},              // other target
+      {{"0", "0.7", "1.3"}, 16, 3, 0},  // a batch: new layout
+      {{"0", "0.7", "1.3"}, 16, 4, 0},
+      {{"0", "0.7", "1.3"}, 16, 4, 2},  // chunks of at most 2 jobs
+      {{"0", "0.7", "1.3"}, 16, 5, 2},
+      {{"0.5"}, 5, 5, 0},               // other bins
+      {{"0.5"}, 5, 6, 0}};
+  EventTensorBuilder b(vktest::context());
+  // build() into reused host tensors, then build_resident(): each keeps its own layout.
+  for (const bool resident : {false, true}) {
+    EventTensors reused;
+    const float* storage = nullptr;
+    int step = 0;
+    for (const auto& [taus, bins, seed, chunk] : steps) {
+      std::vector<EventTensorPair> pairs;
+      for (const char* tau : taus) pairs.push_back({tm, tm.target_time(R(tau)), std::nullopt});
+      const auto ev = random_stream(16, 12, 6000, -500, 3500, seed);
+      const EventTensorSpec spec{bins, {}};
+      const auto cpu = build_event_tensors_cpu(ev, pairs, spec);
+      const std::string what = std::string(resident ? "resident" : "build") + " step " + std::to_string(step++);
+      if (resident) {
+        if (chunk) continue;  // one tensor, no chunks
+        const Tensor& dev = b.build_resident(ev, pairs, spec);
+        const auto all = dev.download<float>();
+        const size_t n = cpu.ev1.size();
+        ASSERT_EQ(all.size(), 3 * n);
+        EXPECT_TRUE(std::equal(cpu.ev1.begin(), cpu.ev1.end(), all.begin())) << what;
+        EXPECT_TRUE(std::equal(cpu.ev2.begin(), cpu.ev2.end(), all.begin() + n)) << what;
+        EXPECT_TRUE(std::equal(cpu.ev3.begin(), cpu.ev3.end(), all.begin() + 2 * n)) << what;
+      } else {
+        b.set_chunk_limits(chunk, 0);
+        b.build(ev, pairs, spec, reused);
+        EXPECT_EQ(cpu.ev1, reused.ev1) << what;
+        EXPECT_EQ(cpu.ev2, reused.ev2) << what;
+        EXPECT_EQ(cpu.ev3, reused.ev3) << what;
+        EXPECT_EQ(cpu.events_considered, reused.events_considered) << what;
+        if (step == 2) EXPECT_EQ(storage, reused.ev1.data()) << "a repeated shape reuses the host storage";
+        storage = reused.ev1.data();
+      }
+      EXPECT_EQ(b.last_algorithm(), EventBinAlgorithm::sparse) << what;
+    }
+    b.set_chunk_limits(0, 0);
+  }
+  // A dense algorithm in between leaves the sparse state alone; the next sparse build is exact.
+  std::vector<EventTensorPair> pairs = {{tm, tm.target_time(R("0.4")), std::nullopt}};
+  const EventTensorSpec spec{16, {}};
+  b.set_algorithm(EventBinAlgorithm::per_row);
+  (void)b.build(random_stream(16, 12, 6000, -500, 3500, 7), pairs, spec);
+  EXPECT_THROW((void)b.build_resident(random_stream(16, 12, 100, -500, 3500, 7), pairs, spec), Error);
+  b.set_algorithm(EventBinAlgorithm::sparse);
+  auto ev = random_stream(16, 12, 6000, -500, 3500, 8);
+  EXPECT_EQ(build_event_tensors_cpu(ev, pairs, spec).ev2, b.build(ev, pairs, spec).ev2);
+  EXPECT_THROW((void)b.build_on_device(ev, pairs, spec), Error);  // its tensor would be the builder's
 }
