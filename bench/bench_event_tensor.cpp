@@ -72,11 +72,20 @@ int main(int argc, char** argv) {
   ev.width = W;
   ev.height = H;
   std::mt19937_64 rng(42);
-  std::vector<int64_t> ts(n_events);
-  for (auto& t : ts) t = -5000 + static_cast<int64_t>(rng() % 40000);  // frame spans 0 .. 28130 us
-  std::sort(ts.begin(), ts.end());
-  for (size_t i = 0; i < n_events; ++i)
-    ev.push(ts[i], static_cast<uint16_t>(rng() % W), static_cast<uint16_t>(rng() % H), (rng() & 1) ? 1 : -1);
+  auto random_events = [&](EventStream& e) {
+    std::vector<int64_t> ts(n_events);
+    for (auto& t : ts) t = -5000 + static_cast<int64_t>(rng() % 40000);  // frame spans 0 .. 28130 us
+    std::sort(ts.begin(), ts.end());
+    for (size_t i = 0; i < n_events; ++i)
+      e.push(ts[i], static_cast<uint16_t>(rng() % W), static_cast<uint16_t>(rng() % H), (rng() & 1) ? 1 : -1);
+  };
+  random_events(ev);
+  // A second stream of the same statistics: the sparse path's timings alternate the two, so each
+  // build undoes cells other than the ones it counts (as with a new frame's events).
+  EventStream ev_b;
+  ev_b.width = W;
+  ev_b.height = H;
+  random_events(ev_b);
 
   // The NumPy baseline, on the same events.
   const std::string in = (std::filesystem::temp_directory_path() / "vkunroll_bench_event_tensor.safetensors").string();
@@ -113,33 +122,104 @@ int main(int argc, char** argv) {
   Context ctx(co);
   Profiler prof;
   EventTensorBuilder builder(ctx, &prof);
+  // Device time of one call from the profiler's timestamps: total and the part of one op.
+  auto device_ms = [&](const char* part) {
+    double total = 0, of_part = 0;
+    for (const auto& [name, st] : prof.ops()) {
+      total += st.total_ms;
+      if (name == part) of_part = st.total_ms;
+    }
+    return std::pair<double, double>{total, of_part};
+  };
+  // Alternates the two streams; checks every result against the CPU reference of its stream.
+  const EventTensors cpu_b = build_event_tensors_cpu(ev_b, pairs, spec);
+  bool sparse_same = true;
+  auto same_as_cpu = [&](const EventTensors& t, bool second) {
+    const EventTensors& c = second ? cpu_b : cpu;
+    return c.ev1 == t.ev1 && c.ev2 == t.ev2 && c.ev3 == t.ev3;
+  };
+
   EventTensors gpu;
   gpu = builder.build(ev, pairs, spec);  // warm-up: pipelines
   const double gpu_s = best_of(repeat, [&] { gpu = builder.build(ev, pairs, spec); });
+  const EventBinAlgorithm default_algo = builder.last_algorithm();
+  // End to end into reused host tensors (no fresh pages), alternating the streams.
+  EventTensors reused;
+  int flip = 0;
+  const double gpu_reuse_s = best_of(repeat, [&] {
+    builder.build(flip ? ev_b : ev, pairs, spec, reused);
+    sparse_same = sparse_same && same_as_cpu(reused, flip);
+    flip ^= 1;
+  });
+  // Device-resident through the sparse path, alternating the streams.
+  double res_s = 1e30, res_disp_ms = 1e30, res_undo_ms = 0;
+  for (int r = 0; r < repeat + 1; ++r) {
+    prof.clear();
+    const double s1 = best_of(1, [&] { (void)builder.build_resident(flip ? ev_b : ev, pairs, spec); });
+    flip ^= 1;
+    if (r == 0) continue;  // the first call allocates and zero-fills the persistent output
+    res_s = std::min(res_s, s1);
+    const auto [total, undo] = device_ms("event_tensor_undo");
+    if (total < res_disp_ms) {
+      res_disp_ms = total;
+      res_undo_ms = undo;
+    }
+  }
+  {
+    std::vector<float> all = builder.build_resident(ev, pairs, spec).download<float>();
+    const size_t sl = cpu.ev1.size();
+    sparse_same = sparse_same && std::equal(cpu.ev1.begin(), cpu.ev1.end(), all.begin()) &&
+                  std::equal(cpu.ev2.begin(), cpu.ev2.end(), all.begin() + sl) &&
+                  std::equal(cpu.ev3.begin(), cpu.ev3.end(), all.begin() + 2 * sl);
+  }
+  // The previous default (dense: zero fill + per-row binning into a fresh tensor) for comparison.
+  builder.set_algorithm(EventBinAlgorithm::per_row);
+  EventTensors dense;
+  const double dense_s = best_of(repeat, [&] { dense = builder.build(ev, pairs, spec); });
+  builder.set_algorithm(EventBinAlgorithm::automatic);
   (void)builder.build_on_device(ev, pairs, spec);
   double dev_s = 1e30, disp_ms = 1e30, fill_ms = 0;
   for (int r = 0; r < repeat; ++r) {
     prof.clear();
     dev_s = std::min(dev_s, best_of(1, [&] { (void)builder.build_on_device(ev, pairs, spec); }));
-    double total = 0, fill = 0;
-    for (const auto& [name, st] : prof.ops()) {
-      total += st.total_ms;
-      if (name == "fill") fill = st.total_ms;
-    }
+    const auto [total, fill] = device_ms("fill");
     if (total < disp_ms) {
       disp_ms = total;
       fill_ms = fill;
     }
   }
+  const EventBinAlgorithm device_algo = builder.last_algorithm();
+  // The host's share of every GPU call: exact planning (rational thresholds) and row grouping.
+  std::vector<uint32_t> scratch_packed, scratch_ranges;
+  const double plan_s = best_of(repeat, [&] {
+    const BinningPlan plan = plan_binning(ev, event_tensor_jobs(pairs), spec);
+    (void)pack_events_by_row(ev, plan, scratch_packed, scratch_ranges);
+  });
+  // Floor of any dense design: one f32 write of every output cell, at this machine's fill rate.
+  const size_t out_bytes = 3 * cpu.ev1.size() * 4;
   // A batch of targets in one pass over the events (intra- and inter-frame taus).
   std::vector<EventTensorPair> many;
   for (int i = 0; i < batch; ++i)
     many.push_back({tm, tm.target_time(Rational(-1, 4) + Rational(3, 2) * Rational(i) / Rational(std::max(1, batch - 1))),
                     std::nullopt});
   const double gpu_batch_s = best_of(std::max(1, repeat / 2), [&] { (void)builder.build(ev, many, spec); });
-  const double cpu_batch_s = best_of(1, [&] { (void)build_event_tensors_cpu(ev, many, spec); });
+  EventTensors cpu_many;
+  const double cpu_batch_s = best_of(1, [&] { cpu_many = build_event_tensors_cpu(ev, many, spec); });
+  EventTensors many_reused;
+  builder.build(ev, many, spec, many_reused);
+  const double gpu_batch_reuse_s = best_of(std::max(1, repeat / 2), [&] { builder.build(ev, many, spec, many_reused); });
+  sparse_same = sparse_same && cpu_many.ev1 == many_reused.ev1 && cpu_many.ev2 == many_reused.ev2 &&
+                cpu_many.ev3 == many_reused.ev3;
+  // (event, tensor) counts: the work per pair, which the batch's inter-frame targets raise.
+  auto counted = [](const EventTensors& t) {
+    double s = 0;
+    for (const auto* v : {&t.ev1, &t.ev2, &t.ev3})
+      for (float x : *v) s += x;
+    return s;
+  };
 
-  const bool same = cpu.ev1 == gpu.ev1 && cpu.ev2 == gpu.ev2 && cpu.ev3 == gpu.ev3;
+  const bool same = cpu.ev1 == gpu.ev1 && cpu.ev2 == gpu.ev2 && cpu.ev3 == gpu.ev3 && cpu.ev1 == dense.ev1 &&
+                    cpu.ev2 == dense.ev2 && cpu.ev3 == dense.ev3 && sparse_same;
   const bool numpy_same = np_checks.size() == 3 && np_checks[0] == check(cpu.ev1) && np_checks[1] == check(cpu.ev2) &&
                           np_checks[2] == check(cpu.ev3);
   const double n = static_cast<double>(n_events);
@@ -155,13 +235,31 @@ int main(int argc, char** argv) {
   line("GPU builder, device-resident (upload+bin)", dev_s, n);
   line("GPU on the device (fill + binning)", disp_ms / 1e3, n);
   std::printf("  %-44s %9.2f ms (zero fill %.2f ms + %s binning %.2f ms)\n", "GPU time on the device (timestamps)",
-              disp_ms, fill_ms, event_bin_algorithm_name(builder.last_algorithm()), disp_ms - fill_ms);
+              disp_ms, fill_ms, event_bin_algorithm_name(device_algo), disp_ms - fill_ms);
+  std::printf("  (end to end above: %s; device-resident above: build_on_device, a fresh dense tensor)\n",
+              event_bin_algorithm_name(default_algo));
+  line("GPU end to end, dense per-row (old default)", dense_s, n);
+  line("GPU end to end into reused host tensors", gpu_reuse_s, n);
+  line("GPU sparse, device-resident (build_resident)", res_s, n);
+  line("GPU sparse on the device (undo + binning)", res_disp_ms / 1e3, n);
+  std::printf("  %-44s %9.2f ms (undo %.2f ms + sparse binning %.2f ms; streams alternate)\n",
+              "GPU sparse time on the device (timestamps)", res_disp_ms, res_undo_ms, res_disp_ms - res_undo_ms);
+  std::printf("  dense floor: %.1f MB of f32 output written once at the zero fill's %.1f GB/s = %.2f ms = %.1fx NumPy at most\n",
+              out_bytes / 1e6, out_bytes / (fill_ms * 1e6), fill_ms, np_s / (fill_ms / 1e3));
+  std::printf("  %-44s %9.2f ms\n", "host part: plan (exact thresholds) + row grouping", plan_s * 1e3);
+  std::printf("  counted (event, tensor) pairs: %.0f for the pair\n", counted(cpu));
   std::printf("batch of %d targets, one pass over the events:\n", batch);
+  std::printf("  counted (event, tensor) pairs: %.0f per pair (%.1fx the single pair's: inter-frame targets)\n",
+              counted(cpu_many) / batch, counted(cpu_many) / batch / counted(cpu));
   line("GPU builder, end to end", gpu_batch_s, n * batch);
+  line("GPU builder, end to end into reused host tensors", gpu_batch_reuse_s, n * batch);
   line("CPU reference", cpu_batch_s, n * batch);
   std::printf("ratio GPU (end to end) / NumPy: %.1fx   (target >= 20x)\n", np_s / gpu_s);
   std::printf("ratio GPU (device-resident) / NumPy: %.1fx\n", np_s / dev_s);
   std::printf("ratio GPU (device time) / NumPy: %.1fx\n", np_s / (disp_ms / 1e3));
+  std::printf("ratio GPU (end to end, reused host tensors) / NumPy: %.1fx\n", np_s / gpu_reuse_s);
+  std::printf("ratio GPU (sparse device-resident) / NumPy: %.1fx\n", np_s / res_s);
+  std::printf("ratio GPU (sparse device time) / NumPy: %.1fx\n", np_s / (res_disp_ms / 1e3));
   std::printf("ratio CPU reference / NumPy: %.1fx\n", np_s / cpu_s);
   std::printf("GPU == CPU: %s; CPU == NumPy (checksums): %s\n", same ? "yes" : "NO", numpy_same ? "yes" : "NO");
   return same && numpy_same ? 0 : 1;

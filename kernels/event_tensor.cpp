@@ -24,6 +24,14 @@ int128_t gcd128(int128_t a, int128_t b) {
   return a;
 }
 int128_t floor_div(int128_t a, int128_t b) {  // b > 0
+  // 64-bit division when both fit: several times cheaper than the 128-bit library call, and the
+  // planner does N divisions per (job, row).
+  if (a >= INT64_MIN && a <= INT64_MAX && b <= INT64_MAX) {
+    const int64_t a64 = static_cast<int64_t>(a), b64 = static_cast<int64_t>(b);
+    int64_t q = a64 / b64;
+    if ((a64 % b64 != 0) && (a64 < 0)) --q;
+    return q;
+  }
   int128_t q = a / b;
   if ((a % b != 0) && (a < 0)) --q;
   return q;

@@ -150,6 +150,7 @@ int cmd_voxelize(const Argv& argv) {
   if (batch <= 0) batch = std::max<int64_t>(1, static_cast<int64_t>((256ull << 20) / (3 * slice * 4)));
   const auto t_start = std::chrono::steady_clock::now();
   size_t events_read = 0, events_used = 0;
+  EventTensors t;
   for (int64_t p0 = 0; p0 < P; p0 += batch) {
     const int64_t np = std::min(batch, P - p0);
     const std::vector<EventTensorPair> part(pairs.begin() + p0, pairs.begin() + p0 + np);
@@ -165,7 +166,9 @@ int cmd_voxelize(const Argv& argv) {
     }
     if (report.dropped()) std::cerr << "voxelize: " << report.summary() << "\n";
     events_read += ev.size();
-    const EventTensors t = builder ? builder->build(ev, part, spec) : build_event_tensors_cpu(ev, part, spec);
+    // Reused across batches: the builder overwrites the same host storage (no fresh pages).
+    if (builder) builder->build(ev, part, spec, t);
+    else t = build_event_tensors_cpu(ev, part, spec);
     events_used += t.events_considered;
     const size_t off = static_cast<size_t>(p0) * slice * 4, bytes = static_cast<size_t>(np) * slice * 4;
     writer.write("ev1", off, t.ev1.data(), bytes);
