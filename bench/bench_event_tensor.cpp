@@ -13,7 +13,6 @@
 #include <nlohmann/json.hpp>
 #include <random>
 #include <string>
-#include <tuple>
 
 #include "host/safetensors.hpp"
 #include "kernels/event_tensor.hpp"
@@ -152,28 +151,20 @@ int main(int argc, char** argv) {
     sparse_same = sparse_same && same_as_cpu(reused, flip);
     flip ^= 1;
   });
-  // Device-resident through the sparse path, alternating the streams: wall time, device time and
-  // the undo's share of it.
-  auto measure_resident = [&] {
-    double wall = 1e30, disp = 1e30, undo_ms = 0;
-    for (int r = 0; r < repeat + 1; ++r) {
-      prof.clear();
-      const double s1 = best_of(1, [&] { (void)builder.build_resident(flip ? ev_b : ev, pairs, spec); });
-      flip ^= 1;
-      if (r == 0) continue;  // the first call allocates and zero-fills the persistent output
-      wall = std::min(wall, s1);
-      const auto [total, undo] = device_ms("event_tensor_undo");
-      if (total < disp) {
-        disp = total;
-        undo_ms = undo;
-      }
+  // Device-resident through the sparse path, alternating the streams.
+  double res_s = 1e30, res_disp_ms = 1e30, res_undo_ms = 0;
+  for (int r = 0; r < repeat + 1; ++r) {
+    prof.clear();
+    const double s1 = best_of(1, [&] { (void)builder.build_resident(flip ? ev_b : ev, pairs, spec); });
+    flip ^= 1;
+    if (r == 0) continue;  // the first call allocates and zero-fills the persistent output
+    res_s = std::min(res_s, s1);
+    const auto [total, undo] = device_ms("event_tensor_undo");
+    if (total < res_disp_ms) {
+      res_disp_ms = total;
+      res_undo_ms = undo;
     }
-    return std::tuple<double, double, double>{wall, disp, undo_ms};
-  };
-  builder.set_sparse_shared_counts(false);
-  const auto [cas_s, cas_disp_ms, cas_undo_ms] = measure_resident();
-  builder.set_sparse_shared_counts(true);
-  const auto [res_s, res_disp_ms, res_undo_ms] = measure_resident();
+  }
   {
     std::vector<float> all = builder.build_resident(ev, pairs, spec).download<float>();
     const size_t sl = cpu.ev1.size();
@@ -253,9 +244,6 @@ int main(int argc, char** argv) {
   line("GPU sparse on the device (undo + binning)", res_disp_ms / 1e3, n);
   std::printf("  %-44s %9.2f ms (undo %.2f ms + sparse binning %.2f ms; streams alternate)\n",
               "GPU sparse time on the device (timestamps)", res_disp_ms, res_undo_ms, res_disp_ms - res_undo_ms);
-  std::printf("  %-44s %9.2f ms (undo %.2f ms + compare-and-swap binning %.2f ms)\n",
-              "  same, counting by CAS on the output", cas_disp_ms, cas_undo_ms, cas_disp_ms - cas_undo_ms);
-  std::printf("  %-44s %9.2f ms\n", "  same, device-resident wall time", cas_s * 1e3);
   std::printf("  dense floor: %.1f MB of f32 output written once at the zero fill's %.1f GB/s = %.2f ms = %.1fx NumPy at most\n",
               out_bytes / 1e6, out_bytes / (fill_ms * 1e6), fill_ms, np_s / (fill_ms / 1e3));
   std::printf("  %-44s %9.2f ms\n", "host part: plan (exact thresholds) + row grouping", plan_s * 1e3);

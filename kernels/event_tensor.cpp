@@ -572,17 +572,7 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
   if (!stream_) stream_ = std::make_unique<CommandStream>(ctx_, profiler_);
   CommandStream& cs = *stream_;
   const Pipeline& undo = ctx_.pipeline("event_tensor_undo", {}, sizeof(uint32_t));
-  // Counting in workgroup memory (16-bit halves) needs N * width words of it, and is exact only
-  // while no (job, row) has 65536 or more events; otherwise compare-and-swap on the output.
-  uint32_t shared_words = 0;
-  if (sparse_shared_counts_) {
-    uint32_t longest = 0;
-    for (size_t jr = 0; jr < plan.jobs * rows; ++jr) longest = std::max(longest, ranges_[2 * jr + 1] - ranges_[2 * jr]);
-    const size_t need = (static_cast<size_t>(plan.bins) * plan.width + 511) / 512 * 512;  // fewer pipeline variants
-    if (longest < 65536 && need * 4 <= ctx_.info().max_shared_memory) shared_words = static_cast<uint32_t>(need);
-  }
-  last_sparse_shared_ = shared_words > 0;
-  const Pipeline& pipe = ctx_.pipeline("event_tensor_rows_sparse", {shared_words}, sizeof(RowPush));
+  const Pipeline& pipe = ctx_.pipeline("event_tensor_rows_sparse", {}, sizeof(RowPush));
   std::vector<Tensor> retired;  // undo lists replaced by bigger ones, alive until the submit
   try {
   for (size_t c = 0; c < chunks.size(); ++c) {

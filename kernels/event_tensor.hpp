@@ -166,11 +166,6 @@ class EventTensorBuilder {
   }
   void set_algorithm(EventBinAlgorithm a) { algorithm_ = a; }
   EventBinAlgorithm last_algorithm() const { return last_algorithm_; }
-  // sparse: count in workgroup memory, then store each cell once (default), or compare-and-swap
-  // on the output (false; also used where a row has >= 65536 events or N * width words exceed
-  // the device's shared memory). For tests and the bench.
-  void set_sparse_shared_counts(bool on) { sparse_shared_counts_ = on; }
-  bool last_sparse_shared_counts() const { return last_sparse_shared_; }
 
  private:
   // Bins jobs [job_begin, job_begin + out.shape().n) of `plan` into `out` (u32 counts converted
@@ -190,7 +185,6 @@ class EventTensorBuilder {
   Tensor& reserve_words(Tensor& t, size_t count, DType dtype);
   Context& ctx_;
   Profiler* profiler_;
-  bool sparse_shared_counts_ = true, last_sparse_shared_ = false;
   std::unique_ptr<CommandStream> stream_;  // reused: no command pool, fence and query pool per call
   // Sparse path state: one persistent output per chunk of the last layout, each zero except at
   // the cells its undo list names.

@@ -6,12 +6,6 @@
 // addition every counted cell's index goes to `touched`, the undo list of the next build.
 // Record of (job, row), N + 4 ints: [lo, hi, N-1 ascending thresholds, flags (bit0: a > b), s, c].
 layout(local_size_x = 64) in;
-// SHARED_WORDS > 0: count in workgroup memory (16-bit halves of SHARED_WORDS >= N * width words;
-// exact because the host only picks this when every (job, row) range has < 65536 events), then
-// store each counted cell once; plain stores instead of compare-and-swap on cold output lines.
-// 0: compare-and-swap on the output.
-layout(constant_id = 0) const uint SHARED_WORDS = 0;
-shared uint cnt[SHARED_WORDS > 0 ? SHARED_WORDS : 1];
 layout(std430, binding = 0) readonly buffer Events { uvec2 ev[]; };    // (t - origin, x | positive << 31)
 layout(std430, binding = 1) readonly buffer Records { int rec[]; };
 layout(std430, binding = 2) readonly buffer Ranges { uvec4 range[]; }; // [jobs][h]: begin, end, touched base, -
@@ -22,21 +16,6 @@ layout(push_constant) uniform P {
   uint bins;       // N
   uint width, height;
 } p;
-
-// The event's cell relative to the (job, row)'s first cell: channel * plane + x.
-uint cell(uvec2 e, uint base, int lo, bool backward, float sc, float c0, int last) {
-  const uint plane = p.width * p.height;
-  const int t = int(e.x);
-  // Threshold count jt = #{thresholds <= t}: a float estimate (within one of the truth), then
-  // exact integer steps; two each way leave a margin.
-  int jt = clamp(int(floor(float(t - lo) * sc + c0)), 0, last);
-  for (int s = 0; s < 2; ++s) if (jt < last && rec[base + 2u + uint(jt)] <= t) ++jt;
-  for (int s = 0; s < 2; ++s) if (jt > 0 && rec[base + 1u + uint(jt)] > t) --jt;
-  const bool positive = (e.y >> 31) != 0u;
-  const uint k = backward ? uint(last - jt) : uint(jt);
-  const bool sign = backward ? !positive : positive;  // time flip reverses polarity
-  return (2u * k + (sign ? 1u : 0u)) * plane + (e.y & 0x7fffffffu);
-}
 
 void main() {
   const uint y = gl_WorkGroupID.x;
@@ -51,25 +30,18 @@ void main() {
   const float c0 = uintBitsToFloat(uint(rec[base + p.bins + 3u]));
   const uint out0 = (j * 2u * p.bins) * plane + y * p.width;
   const int last = int(p.bins) - 1;
-  if (SHARED_WORDS > 0) {
-    // Pass 1 zeroes the words this row's events use, pass 2 counts, pass 3 stores each cell's count.
-    for (uint pass = 0u; pass < 3u; ++pass) {
-      for (uint i = r.x + gl_LocalInvocationID.x; i < r.y; i += gl_WorkGroupSize.x) {
-        const uint idx = cell(ev[i], base, lo, backward, sc, c0, last);
-        const uint c = (idx / plane) * p.width + (idx % p.width);  // channel * width + x
-        if (pass == 0u) cnt[c >> 1] = 0u;
-        else if (pass == 1u) atomicAdd(cnt[c >> 1], 1u << ((c & 1u) * 16u));
-        else {
-          touched[r.z + (i - r.x)] = out0 + idx;
-          counts[out0 + idx] = floatBitsToUint(float((cnt[c >> 1] >> ((c & 1u) * 16u)) & 0xffffu));
-        }
-      }
-      barrier();
-    }
-    return;
-  }
   for (uint i = r.x + gl_LocalInvocationID.x; i < r.y; i += gl_WorkGroupSize.x) {
-    const uint idx = out0 + cell(ev[i], base, lo, backward, sc, c0, last);
+    const uvec2 e = ev[i];
+    const int t = int(e.x);
+    // Threshold count jt = #{thresholds <= t}: a float estimate (within one of the truth), then
+    // exact integer steps; two each way leave a margin.
+    int jt = clamp(int(floor(float(t - lo) * sc + c0)), 0, last);
+    for (int s = 0; s < 2; ++s) if (jt < last && rec[base + 2u + uint(jt)] <= t) ++jt;
+    for (int s = 0; s < 2; ++s) if (jt > 0 && rec[base + 1u + uint(jt)] > t) --jt;
+    const bool positive = (e.y >> 31) != 0u;
+    const uint k = backward ? uint(last - jt) : uint(jt);
+    const bool sign = backward ? !positive : positive;  // time flip reverses polarity
+    const uint idx = out0 + (2u * k + (sign ? 1u : 0u)) * plane + (e.y & 0x7fffffffu);
     touched[r.z + (i - r.x)] = idx;
     uint old = counts[idx];
     while (true) {

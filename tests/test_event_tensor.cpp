@@ -434,11 +434,8 @@ TEST(EventTensor, SparseBuildsReuseTheirOutputExactly) {
       {{"0.5"}, 5, 5, 0},               // other bins
       {{"0.5"}, 5, 6, 0}};
   EventTensorBuilder b(vktest::context());
-  // build() into reused host tensors, then build_resident(): each keeps its own layout; counting
-  // in workgroup memory and by compare-and-swap on the output.
-  for (const bool shared : {true, false})
+  // build() into reused host tensors, then build_resident(): each keeps its own layout.
   for (const bool resident : {false, true}) {
-    b.set_sparse_shared_counts(shared);
     EventTensors reused;
     const float* storage = nullptr;
     int step = 0;
@@ -465,13 +462,10 @@ TEST(EventTensor, SparseBuildsReuseTheirOutputExactly) {
         EXPECT_EQ(cpu.ev2, reused.ev2) << what;
         EXPECT_EQ(cpu.ev3, reused.ev3) << what;
         EXPECT_EQ(cpu.events_considered, reused.events_considered) << what;
-        if (step == 2) {
-          EXPECT_EQ(storage, reused.ev1.data()) << "a repeated shape reuses the host storage";
-        }
+        if (step == 2) EXPECT_EQ(storage, reused.ev1.data()) << "a repeated shape reuses the host storage";
         storage = reused.ev1.data();
       }
       EXPECT_EQ(b.last_algorithm(), EventBinAlgorithm::sparse) << what;
-      EXPECT_EQ(b.last_sparse_shared_counts(), shared) << what;
     }
     b.set_chunk_limits(0, 0);
   }
