@@ -585,7 +585,8 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
     } else if (sc.touched_n > 0) {
       const uint32_t n = static_cast<uint32_t>(sc.touched_n);
       cs.dispatch(undo, {{words(sc.touched, sc.touched_n), Access::read}, inout(sc.out)}, n,
-                  {static_cast<uint32_t>(std::min<size_t>((sc.touched_n + 63) / 64, 4096))},
+                  // Few large workgroups: on lavapipe each workgroup has a fixed cost that 64 stores do not hide.
+                  {static_cast<uint32_t>(std::min<size_t>((sc.touched_n + 63) / 64, 32))},
                   {"event_tensor_undo", 0, 8.0 * sc.touched_n});
     }
     if (sc.touched.empty() || static_cast<size_t>(sc.touched.shape().count()) < std::max<size_t>(touched_n[c], 1)) {

@@ -462,7 +462,9 @@ TEST(EventTensor, SparseBuildsReuseTheirOutputExactly) {
         EXPECT_EQ(cpu.ev2, reused.ev2) << what;
         EXPECT_EQ(cpu.ev3, reused.ev3) << what;
         EXPECT_EQ(cpu.events_considered, reused.events_considered) << what;
-        if (step == 2) EXPECT_EQ(storage, reused.ev1.data()) << "a repeated shape reuses the host storage";
+        if (step == 2) {
+          EXPECT_EQ(storage, reused.ev1.data()) << "a repeated shape reuses the host storage";
+        }
         storage = reused.ev1.data();
       }
       EXPECT_EQ(b.last_algorithm(), EventBinAlgorithm::sparse) << what;
