@@ -310,8 +310,10 @@ struct PixelPush {
   uint32_t jobs, job_begin, width, height;
 };
 struct RowPush {
-  uint32_t job_begin, bins, width, height;
+  uint32_t job_begin, bins, width, height, jobs;
 };
+// Workgroups of the per-row kernels; each loops over (job, row) items.
+uint32_t row_groups(size_t items) { return static_cast<uint32_t>(std::clamp<size_t>(items, 1, 64)); }
 constexpr int kMaxPixelBins = 64;  // the per-pixel shader keeps 2N counters per invocation
 }  // namespace
 
@@ -485,9 +487,8 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
       CommandStream cs(ctx_, profiler_);
       cs.fill(dst, 0);
       RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
-                   static_cast<uint32_t>(plan.height)};
-      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push,
-                  {static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)},
+                   static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)};
+      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push, {row_groups(nj * plan.height)},
                   {"event_tensor_rows", 0, 12.0 * last_events_ * nj});
       cs.submit_and_wait();
       done(j0, dst);
@@ -596,12 +597,12 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
                           DType::u32);
     }
     RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
-                 static_cast<uint32_t>(plan.height)};
+                 static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)};
     cs.dispatch(pipe,
                 {{words(ev, packed_.size()), Access::read}, {words(rec, plan.records.size()), Access::read},
                  {words(rg, ranges4_.size()), Access::read}, inout(sc.out),
                  {words(sc.touched, touched_n[c]), Access::write}},
-                push, {static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)},
+                push, {row_groups(nj * plan.height)},
                 {"event_tensor_rows_sparse", 0, 16.0 * touched_n[c]});
     sc.touched_n = touched_n[c];
   }

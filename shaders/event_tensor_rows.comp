@@ -1,5 +1,5 @@
 #version 450
-// Row-aware event binning (reference section 4), one workgroup per (sensor row, job): the host
+// Row-aware event binning (reference section 4), per (sensor row, job) item in a workgroup: the host
 // grouped the batch's events by row (counting sort, time order kept) and found, by binary search,
 // the range of each row's events inside the job's interval [lo, hi). So every event a workgroup
 // reads is selected, and the row's record is uniform across the workgroup.
@@ -15,12 +15,16 @@ layout(push_constant) uniform P {
   uint job_begin;  // first job of the chunk in the record table
   uint bins;       // N
   uint width, height;
+  uint jobs;       // jobs in the chunk
 } p;
 
 void main() {
-  const uint y = gl_WorkGroupID.x;
-  const uint j = gl_WorkGroupID.y;  // job within the chunk
   const uint plane = p.width * p.height;
+  // Workgroups loop over (job, row) items: on lavapipe each workgroup has a fixed cost that a
+  // row's few hundred events do not hide, so the host dispatches only a few dozen of them.
+  for (uint item = gl_WorkGroupID.x; item < p.jobs * p.height; item += gl_NumWorkGroups.x) {
+  const uint y = item % p.height;
+  const uint j = item / p.height;  // job within the chunk
   const uint jr = (p.job_begin + j) * p.height + y;
   const uint base = jr * (p.bins + 4u);
   const uvec2 r = range[jr];
@@ -48,5 +52,6 @@ void main() {
       if (prev == old) break;
       old = prev;
     }
+  }
   }
 }
