@@ -181,6 +181,21 @@ int main(int argc, char** argv) {
       res_undo_ms = undo;
     }
   }
+  // Device time by the per-row kernels' workgroup count (interleaved): dense, sparse.
+  const std::vector<uint32_t> caps = {0, 8, 64};
+  std::vector<double> cap_dense(caps.size(), 1e30), cap_sparse(caps.size(), 1e30);
+  for (int r = 0; r < repeat; ++r)
+    for (size_t c = 0; c < caps.size(); ++c) {
+      builder.set_row_workgroups(caps[c]);
+      prof.clear();
+      (void)builder.build_on_device(ev, pairs, spec);
+      cap_dense[c] = std::min(cap_dense[c], device_ms("fill").first);
+      prof.clear();
+      (void)builder.build_resident(flip ? ev_b : ev, pairs, spec);
+      flip ^= 1;
+      cap_sparse[c] = std::min(cap_sparse[c], device_ms("fill").first);
+    }
+  builder.set_row_workgroups(64);
   {
     std::vector<float> all = builder.build_resident(ev, pairs, spec).download<float>();
     const size_t sl = cpu.ev1.size();
@@ -244,6 +259,9 @@ int main(int argc, char** argv) {
   line("GPU sparse on the device (undo + binning)", res_disp_ms / 1e3, n);
   std::printf("  %-44s %9.2f ms (undo %.2f ms + sparse binning %.2f ms; streams alternate)\n",
               "GPU sparse time on the device (timestamps)", res_disp_ms, res_undo_ms, res_disp_ms - res_undo_ms);
+  for (size_t c = 0; c < caps.size(); ++c)
+    std::printf("  device time with %-3s row workgroups: dense %.2f ms, sparse %.2f ms\n",
+                caps[c] ? std::to_string(caps[c]).c_str() : "780", cap_dense[c], cap_sparse[c]);
   std::printf("  dense floor: %.1f MB of f32 output written once at the zero fill's %.1f GB/s = %.2f ms = %.1fx NumPy at most\n",
               out_bytes / 1e6, out_bytes / (fill_ms * 1e6), fill_ms, np_s / (fill_ms / 1e3));
   std::printf("  %-44s %9.2f ms\n", "host part: plan (exact thresholds) + row grouping", plan_s * 1e3);

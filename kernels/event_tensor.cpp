@@ -312,8 +312,10 @@ struct PixelPush {
 struct RowPush {
   uint32_t job_begin, bins, width, height, jobs;
 };
-// Workgroups of the per-row kernels; each loops over (job, row) items.
-uint32_t row_groups(size_t items) { return static_cast<uint32_t>(std::clamp<size_t>(items, 1, 64)); }
+// Workgroups of the per-row kernels; each loops over (job, row) items. cap 0: one per item.
+uint32_t row_groups(size_t items, uint32_t cap) {
+  return static_cast<uint32_t>(std::clamp<size_t>(items, 1, cap ? cap : std::min<size_t>(items, 65535)));
+}
 constexpr int kMaxPixelBins = 64;  // the per-pixel shader keeps 2N counters per invocation
 }  // namespace
 
@@ -488,7 +490,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
       cs.fill(dst, 0);
       RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
                    static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)};
-      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push, {row_groups(nj * plan.height)},
+      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push, {row_groups(nj * plan.height, row_workgroups_)},
                   {"event_tensor_rows", 0, 12.0 * last_events_ * nj});
       cs.submit_and_wait();
       done(j0, dst);
@@ -602,7 +604,7 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
                 {{words(ev, packed_.size()), Access::read}, {words(rec, plan.records.size()), Access::read},
                  {words(rg, ranges4_.size()), Access::read}, inout(sc.out),
                  {words(sc.touched, touched_n[c]), Access::write}},
-                push, {row_groups(nj * plan.height)},
+                push, {row_groups(nj * plan.height, row_workgroups_)},
                 {"event_tensor_rows_sparse", 0, 16.0 * touched_n[c]});
     sc.touched_n = touched_n[c];
   }

@@ -166,6 +166,9 @@ class EventTensorBuilder {
   }
   void set_algorithm(EventBinAlgorithm a) { algorithm_ = a; }
   EventBinAlgorithm last_algorithm() const { return last_algorithm_; }
+  // Most workgroups the per-row kernels use, each looping over (job, row) items (0: one per
+  // item). For the bench's comparison.
+  void set_row_workgroups(uint32_t cap) { row_workgroups_ = cap; }
 
  private:
   // Bins jobs [job_begin, job_begin + out.shape().n) of `plan` into `out` (u32 counts converted
@@ -185,6 +188,7 @@ class EventTensorBuilder {
   Tensor& reserve_words(Tensor& t, size_t count, DType dtype);
   Context& ctx_;
   Profiler* profiler_;
+  uint32_t row_workgroups_ = 64;
   std::unique_ptr<CommandStream> stream_;  // reused: no command pool, fence and query pool per call
   // Sparse path state: one persistent output per chunk of the last layout, each zero except at
   // the cells its undo list names.
