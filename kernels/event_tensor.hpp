@@ -119,7 +119,7 @@ size_t pack_events_by_row(const EventStream& events, const BinningPlan& plan, st
 //   build counted (a list the kernel writes), then counts. O(selected events) work, no dense fill;
 //   the output and every device buffer are reused across calls. Needs the window's events and the
 //   undo list in one binding each; otherwise automatic falls back to per_row.
-// per_row: one workgroup per (row, job) over exactly the row's selected
+// per_row: (job, row) items, each over exactly the row's selected
 //   events; zero fill, then +1.0 on float32 cells through a 32-bit compare-and-swap loop (any N;
 //   exact below 2^24 per cell). Needs the window's events in one binding (16M events).
 // per_event: one invocation per event looping over jobs, same accumulation; events in pieces of

@@ -1,7 +1,7 @@
 #version 450
 // Row-aware event binning into a PERSISTENT output that is all zeros except where the previous
 // build counted (event_tensor_undo.comp put those cells back to zero first), so no dense fill:
-// the work is O(selected events), not O(pixels x bins). Same per-(row, job) workgroups, exact
+// the work is O(selected events), not O(pixels x bins). Same (job, row) items per workgroup, exact
 // integer thresholds and float32 compare-and-swap accumulation as event_tensor_rows.comp; in
 // addition every counted cell's index goes to `touched`, the undo list of the next build.
 // Record of (job, row), N + 4 ints: [lo, hi, N-1 ascending thresholds, flags (bit0: a > b), s, c].
