@@ -360,6 +360,35 @@ TEST(HardCases, MillionsOfEventsInOnePixel) {
   EXPECT_EQ(tl.ev1[pixel(4, py, px)], static_cast<float>(kOn));   // bin floor(2070*4/3500) = 2, flipped to OFF
 }
 
+// 20000 events in one pixel selected by four jobs of a chunk: the per-pixel kernel would loop
+// 4 x 20000 times in one invocation (beyond lavapipe's 65535), so it splits the jobs over dispatches;
+// every algorithm still equals the CPU reference and the hand count.
+TEST(HardCases, BusyPixelWithManyJobsStaysExact) {
+  const EventStream bg = random_stream(2000, 0, 2000, 17);
+  EventStream es;
+  es.width = kW, es.height = kH;
+  size_t i = 0;
+  for (int k = 0; k < 20000; ++k) {
+    const int64_t t = 500 + k / 20;  // 20 events per microsecond over [500, 1500)
+    for (; i < bg.size() && bg.t[i] <= t; ++i)
+      if (!(bg.x[i] == 9 && bg.y[i] == 11)) es.push(bg.t[i], bg.x[i], bg.y[i], bg.p[i]);
+    es.push(t, 9, 11, (k % 3) ? 1 : -1);
+  }
+  for (; i < bg.size(); ++i)
+    if (!(bg.x[i] == 9 && bg.y[i] == 11)) es.push(bg.t[i], bg.x[i], bg.y[i], bg.p[i]);
+  // t* = 100, before the burst: ev2 and ev3 of each pair select all 20000 events; the builder
+  // bins ev2 of the four pairs together (one chunk): 4 x 20000 loop iterations for that pixel.
+  const EventTensors t = build_checked(
+      es, {pair_at(timing(0, 10, 3000), Rational(100)), pair_at(timing(5, 10, 3000), Rational(100)),
+           pair_at(timing(10, 10, 3000), Rational(100)), pair_at(timing(15, 10, 3000), Rational(100))});
+  for (const auto* v : {&t.ev2, &t.ev3})
+    for (int p = 0; p < 4; ++p) {
+      double at_pixel = 0;
+      for (int c = 0; c < 2 * kBins; ++c) at_pixel += (*v)[p * t.slice() + pixel(c, 11, 9)];
+      EXPECT_EQ(at_pixel, 20000.0) << "pair " << p;
+    }
+}
+
 // The GPU physics kernel at its per-pixel limit equals the CPU reference (on lavapipe a pixel
 // beyond ~32000 events came out wrong without an error before the limit existed).
 TEST(HardCases, PhysicsGpuAtItsPerPixelEventLimit) {
