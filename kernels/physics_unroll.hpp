@@ -58,7 +58,7 @@ class PhysicsUnroll {
   static constexpr uint32_t kMaxPixelEvents = 29000;
   // Whether every pixel fits kMaxPixelEvents; the CPU reference has no such limit.
   static bool fits(const PixelEventLists& ev);
-  // Throws Error naming the busiest pixel when !fits(ev).
+  // Throws Error naming the first pixel over the limit when !fits(ev).
   PhysicsUnroll(Context& ctx, const PixelEventLists& ev);
   // rs and out: [1, C, H, W] f32 tensors of the lists' size.
   void record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const;
