@@ -3,6 +3,7 @@
 #include <chrono>
 
 #include <algorithm>
+#include <cmath>
 #include <set>
 
 #include "runtime/error.hpp"
@@ -30,6 +31,20 @@ void check_input(const HostArray& a, const char* name, int64_t b, int64_t c, int
   if (static_cast<int64_t>(a.data.size()) != a.shape.count())
     throw Error(std::string("model input '") + name + "' holds " + std::to_string(a.data.size()) + " values for shape " +
                 a.shape.str());
+}
+
+// NaN/Inf in an input would spread through every conv and come out as a NaN image; name the
+// first bad value instead. One pass over the inputs, negligible next to the network.
+void check_finite(const HostArray& a, const char* name) {
+  const int64_t plane = a.shape.h * a.shape.w, item = a.shape.c * plane;
+  for (size_t i = 0; i < a.data.size(); ++i)
+    if (!std::isfinite(a.data[i])) {
+      const int64_t k = static_cast<int64_t>(i);
+      throw Error(std::string("model input '") + name + "' holds " + (std::isnan(a.data[i]) ? "NaN" : "an infinite value") +
+                  " at (batch " + std::to_string(k / item) + ", channel " + std::to_string(k % item / plane) + ", y " +
+                  std::to_string(k % plane / a.shape.w) + ", x " + std::to_string(k % a.shape.w) +
+                  "); inputs must be finite");
+    }
 }
 
 }  // namespace
@@ -346,6 +361,10 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
   check_input(in.ev1, "ev1", B, ev, H, W);
   check_input(in.ev2, "ev2", B, ev, H, W);
   check_input(in.ev3, "ev3", B, ev, H, W);
+  check_finite(in.rs, "rs");
+  check_finite(in.ev1, "ev1");
+  check_finite(in.ev2, "ev2");
+  check_finite(in.ev3, "ev3");
   const bool m_mode = opt.mode == Mode::m;
   if (m_mode && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
   if (m_mode && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));

@@ -112,7 +112,9 @@ std::vector<float> physics_planes(const Sequence& seq, const EventStream& ev, co
                                   const std::vector<double>& ends, const std::vector<float>& rs_planes,
                                   double t_star, const PhysicsUnrollParams& prm, Context* ctx) {
   const PixelEventLists lists = gather_pixel_events(ev, t_star, starts, ends, 0, 0, seq.width, seq.height);
-  if (!ctx) return physics_unroll_ref(rs_planes, 3, lists, prm);
+  // The CPU reference also takes what the GPU kernel cannot (a pixel with tens of thousands of events).
+  if (!ctx || !PhysicsUnroll::fits(lists)) return physics_unroll_ref(rs_planes, 3, lists, prm);
+  check_physics_image(rs_planes, 3, lists);  // the CPU path checks inside; the GPU one cannot cheaply
   Tensor rs_t(*ctx, {1, 3, seq.height, seq.width}), out_t(*ctx, {1, 3, seq.height, seq.width});
   rs_t.upload(rs_planes);
   PhysicsUnroll op(*ctx, lists);
@@ -186,6 +188,10 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   const auto t_start = Clock::now();
   std::map<std::string, double> stage_ms{{"read", 0}, {"event_tensors", 0}, {"eic", 0}, {"moa", 0}, {"physics", 0}, {"write", 0}};
 
+  // Options first: a refused option should not wait for the sequence to load.
+  if (o.precision != "fp32")
+    throw Error("--precision '" + o.precision + "': fp32 is the only precision (the kernels compute in fp32)");
+
   auto t_read = Clock::now();
   const Sequence seq = load_sequence(o.sequence, o.sequence_options);
   stage_ms["read"] += ms_since(t_read);
@@ -203,8 +209,6 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   if (mode != "auto" && mode != "s" && mode != "m" && mode != "physics")
     throw Error("--mode '" + mode + "' (expected s, m, physics or auto)");
   if (o.backend != "vulkan" && o.backend != "cpu") throw Error("--backend '" + o.backend + "' (expected vulkan or cpu)");
-  if (o.precision != "fp32")
-    throw Error("--precision '" + o.precision + "': only fp32 is available (the kernels compute in fp32)");
   if (mode == "auto" && o.model_path.empty()) mode = "physics";
   if (mode != "physics" && o.model_path.empty()) throw Error("--mode " + mode + " needs --model FILE.safetensors");
   std::optional<Weights> weights;

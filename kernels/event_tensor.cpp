@@ -77,6 +77,27 @@ void check_jobs(const EventStream& events, const std::vector<RowIntervals>& jobs
   }
 }
 
+// Counts are float32 (the network's input type; the GPU adds 1.0 through a 32-bit CAS), and
+// float32 holds every integer only up to 2^24: one more event in a cell would be lost silently
+// (x + 1 == x). A cell can only exceed 2^24 if its pixel has more than 2^24 events in the window,
+// so refuse that (conservatively: the events could spread over bins) instead of miscounting.
+// Scans per pixel only when the window itself holds more than 2^24 events.
+constexpr size_t kMaxExactCount = size_t{1} << 24;
+void check_counts_stay_exact(const EventStream& events, size_t first, size_t last, const SensorCrop& c) {
+  if (last <= first || last - first <= kMaxExactCount) return;
+  std::vector<uint32_t> per_pixel(static_cast<size_t>(c.width) * c.height, 0);
+  for (size_t i = first; i < last; ++i) {
+    const int x = events.x[i] - c.x0, y = events.y[i] - c.y0;
+    if (x < 0 || y < 0 || x >= c.width || y >= c.height) continue;
+    if (++per_pixel[static_cast<size_t>(y) * c.width + x] > kMaxExactCount)
+      throw Error("event tensor: pixel (x=" + std::to_string(events.x[i]) + ", y=" + std::to_string(events.y[i]) +
+                  ") has more than 2^24 = 16777216 events in the batch's time window (event " + std::to_string(i) +
+                  " at " + std::to_string(events.t[i]) +
+                  " us); float32 counts are exact only up to 2^24, so the tensor would be wrong. "
+                  "Use shorter targets/exposures or check the event stream");
+  }
+}
+
 void check_spec(const EventTensorSpec& spec) {
   if (spec.bins < 1 || spec.bins > 4096)
     throw Error("event tensor: bins must be in [1, 4096], got " + std::to_string(spec.bins));
@@ -98,7 +119,7 @@ RowIntervals intervals(const EventTensorPair& pair, int which) {
 }
 
 struct BinPush {
-  uint32_t n_events, jobs, job_begin, bins, width, height;
+  uint32_t n_events, jobs, job_begin, bins, width, height, out_job;
 };
 
 }  // namespace
@@ -163,6 +184,13 @@ std::vector<float> bin_events_cpu(const EventStream& events, const std::vector<R
   std::vector<float> out(jobs.size() * slice, 0.f);
   // The literal formula needs no origin; one is used only to keep the 128-bit products small.
   const int64_t origin = events.empty() ? 0 : events.t.front();
+  {
+    // Union of the jobs' windows, for the float32 exactness guard.
+    const auto [lo, hi] = event_time_window(jobs, spec, events.width, events.height);
+    check_counts_stay_exact(events,
+                            std::lower_bound(events.t.begin(), events.t.end(), lo) - events.t.begin(),
+                            std::lower_bound(events.t.begin(), events.t.end(), hi) - events.t.begin(), c);
+  }
   for (size_t j = 0; j < jobs.size(); ++j) {
     std::vector<ScaledRow> rows(c.height);
     int64_t t_lo = std::numeric_limits<int64_t>::max(), t_hi = std::numeric_limits<int64_t>::min();
@@ -261,6 +289,7 @@ BinningPlan plan_binning(const EventStream& events, const std::vector<RowInterva
   plan.origin_us = lo;
   plan.first_event = std::lower_bound(events.t.begin(), events.t.end(), lo) - events.t.begin();
   plan.last_event = std::lower_bound(events.t.begin(), events.t.end(), hi) - events.t.begin();
+  check_counts_stay_exact(events, plan.first_event, plan.last_event, c);
   for (size_t j = 0; j < jobs.size(); ++j)
     for (int r = 0; r < c.height; ++r) {
       int32_t* rec = plan.records.data() + (j * c.height + r) * R;
@@ -307,16 +336,29 @@ size_t pack_events(const EventStream& events, const BinningPlan& plan, std::vect
 
 namespace {
 struct PixelPush {
-  uint32_t jobs, job_begin, width, height;
+  uint32_t jobs, job_begin, width, height, out_job;
 };
 struct RowPush {
   uint32_t job_begin, bins, width, height, jobs;
 };
 // Workgroups of the per-row kernels; each loops over (job, row) items. cap 0: one per item.
+// An invocation runs at most kRowPiece / 64 = 256 events per item (a CAS loop and two threshold
+// steps each, <= ~1,500 loop iterations), so a workgroup takes at most 39 items: lavapipe's 65535
+// loop iterations per invocation (see below) are never reached, whatever the cap.
+constexpr size_t kRowItemsPerGroup = 39;
 uint32_t row_groups(size_t items, uint32_t cap) {
-  return static_cast<uint32_t>(std::clamp<size_t>(items, 1, cap ? cap : std::min<size_t>(items, 65535)));
+  const size_t wanted = std::clamp<size_t>(items, 1, cap ? cap : std::min<size_t>(items, 65535));
+  return static_cast<uint32_t>(std::max(wanted, (items + kRowItemsPerGroup - 1) / kRowItemsPerGroup));
 }
 constexpr int kMaxPixelBins = 64;  // the per-pixel shader keeps 2N counters per invocation
+// lavapipe (llvmpipe) silently stops a shader invocation's loops after 65535 iterations in all
+// (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS, shared by every loop of the invocation): a longer loop
+// returns a wrong tensor without any error. So every dispatch below bounds the loop iterations of
+// one invocation well under that, on every device (the split costs nothing on small inputs).
+constexpr size_t kLoopBudget = 60000;
+constexpr uint32_t kRowPiece = 16384;        // per_row: events per workgroup (256 per invocation)
+constexpr size_t kEventsPerInvocation = 8;   // per_event: events per invocation per dispatch
+constexpr size_t kEventJobsPerDispatch = 64; // per_event: jobs per dispatch (x up to ~17 CAS tries)
 }  // namespace
 
 size_t pack_events_by_pixel(const EventStream& events, const BinningPlan& plan, std::vector<uint32_t>& offsets,
@@ -461,14 +503,29 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
     Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
     ev.upload(packed);
     const Pipeline& pipe = ctx_.pipeline("event_tensor_pixels", {static_cast<uint32_t>(plan.bins)}, sizeof(PixelPush));
+    const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((plane + 63) / 64, 65535));
+    // Loop iterations of one invocation per job: its pixels (grid stride) x (events + 4N).
+    size_t busiest = 0, busiest_pixel = 0;
+    for (size_t k = 0; k < plane; ++k)
+      if (offsets[k + 1] - offsets[k] > busiest) busiest = offsets[k + 1] - offsets[k], busiest_pixel = k;
+    const size_t per_job = (plane + size_t{groups} * 64 - 1) / (size_t{groups} * 64) * (busiest + 4 * plan.bins + 2);
+    if (per_job > kLoopBudget)
+      throw Error("event tensor: the per-pixel algorithm cannot bin pixel (x=" +
+                  std::to_string(plan.x0 + busiest_pixel % plan.width) + ", y=" +
+                  std::to_string(plan.y0 + busiest_pixel / plan.width) + ") with " + std::to_string(busiest) +
+                  " events in the window: one invocation would loop more than " + std::to_string(kLoopBudget) +
+                  " times (lavapipe ends shader loops after 65535); use the per-row algorithm");
+    const size_t jobs_per_dispatch = std::max<size_t>(1, kLoopBudget / per_job);
     for (const auto& [j0, nj] : chunks) {
       Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
       CommandStream cs(ctx_, profiler_);
-      PixelPush push{static_cast<uint32_t>(nj), static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.width),
-                     static_cast<uint32_t>(plan.height)};
-      const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((plane + 63) / 64, 65535));
-      cs.dispatch(pipe, {in(off), in(ev), in(rec), vkunroll::out(dst)}, push, {groups},
-                  {"event_tensor_pixels", 0, 4.0 * (plane + window * nj) + 4.0 * dst.shape().count()});
+      for (size_t js = 0; js < nj; js += jobs_per_dispatch) {
+        const size_t n = std::min(jobs_per_dispatch, nj - js);
+        PixelPush push{static_cast<uint32_t>(n), static_cast<uint32_t>(j0 + js), static_cast<uint32_t>(plan.width),
+                       static_cast<uint32_t>(plan.height), static_cast<uint32_t>(js)};
+        cs.dispatch(pipe, {in(off), in(ev), in(rec), vkunroll::out(dst)}, push, {groups},
+                    {"event_tensor_pixels", 0, 4.0 * (plane + window * n) + 4.0 * plane * 2 * plan.bins * n});
+      }
       cs.submit_and_wait();
       done(j0, dst);
     }
@@ -484,13 +541,17 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
     Tensor rg(ctx_, Shape{1, 1, 1, static_cast<int64_t>(ranges.size())}, DType::u32);
     rg.upload(ranges);
     const Pipeline& pipe = ctx_.pipeline("event_tensor_rows", {}, sizeof(RowPush));
+    uint32_t longest = 1;  // events of the longest (job, row) range
+    for (size_t k = 0; k + 1 < ranges.size(); k += 2) longest = std::max(longest, ranges[k + 1] - ranges[k]);
+    const uint32_t pieces = (longest + kRowPiece - 1) / kRowPiece;  // <= 1024 for the 16M-event window
     for (const auto& [j0, nj] : chunks) {
       Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
       CommandStream cs(ctx_, profiler_);
       cs.fill(dst, 0);
       RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
                    static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)};
-      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push, {row_groups(nj * plan.height, row_workgroups_)},
+      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push,
+                  {row_groups(nj * plan.height, row_workgroups_), 1, pieces},
                   {"event_tensor_rows", 0, 12.0 * last_events_ * nj});
       cs.submit_and_wait();
       done(j0, dst);
@@ -508,22 +569,23 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
   const Pipeline& bin = ctx_.pipeline("event_tensor_bin", {}, sizeof(BinPush));
   // Events in pieces that fit one binding, at offsets the device accepts.
   const size_t align_ev = std::max<size_t>(1, info.min_storage_buffer_offset_alignment / 8);
-  size_t per = std::min<size_t>(max_range / 8, size_t{1} << 28);
+  size_t per = std::min<size_t>(max_range / 8, 8192 * 64 * kEventsPerInvocation);
   if (max_events_) per = std::min(per, max_events_);
   per = std::max(align_ev, per / align_ev * align_ev);
   for (const auto& [j0, nj] : chunks) {
     Tensor out(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
     CommandStream cs(ctx_, profiler_);
     cs.fill(out, 0);
-    for (size_t e0 = 0; e0 < n_events; e0 += per) {
-      const size_t n = std::min(per, n_events - e0);
-      BinPush push{static_cast<uint32_t>(n), static_cast<uint32_t>(nj), static_cast<uint32_t>(j0),
-                   static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
-                   static_cast<uint32_t>(plan.height)};
-      const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((n + 63) / 64, 8192));
-      cs.dispatch(bin, {{ev.range(e0 * 8, n * 8), Access::read}, in(rec), inout(out)}, push, {groups},
-                  {"event_tensor_bin", 0, static_cast<double>(n) * (8 + nj * 4.0 * (plan.bins + 3))});
-    }
+    for (size_t e0 = 0; e0 < n_events; e0 += per)
+      for (size_t js = 0; js < nj; js += kEventJobsPerDispatch) {
+        const size_t n = std::min(per, n_events - e0), jn = std::min(kEventJobsPerDispatch, nj - js);
+        BinPush push{static_cast<uint32_t>(n), static_cast<uint32_t>(jn), static_cast<uint32_t>(j0 + js),
+                     static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
+                     static_cast<uint32_t>(plan.height), static_cast<uint32_t>(js)};
+        const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((n + 63) / 64, 8192));
+        cs.dispatch(bin, {{ev.range(e0 * 8, n * 8), Access::read}, in(rec), inout(out)}, push, {groups},
+                    {"event_tensor_bin", 0, static_cast<double>(n) * (8 + jn * 4.0 * (plan.bins + 3))});
+      }
     cs.submit_and_wait();
     done(j0, out);
   }
@@ -600,11 +662,15 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
     }
     RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
                  static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)};
+    uint32_t longest = 1;  // events of the chunk's longest (job, row) range: workgroup z takes its z-th piece
+    for (size_t k = j0 * plan.height; k < (j0 + nj) * plan.height; ++k)
+      longest = std::max(longest, ranges4_[4 * k + 1] - ranges4_[4 * k]);
+    const uint32_t pieces = (longest + kRowPiece - 1) / kRowPiece;
     cs.dispatch(pipe,
                 {{words(ev, packed_.size()), Access::read}, {words(rec, plan.records.size()), Access::read},
                  {words(rg, ranges4_.size()), Access::read}, inout(sc.out),
                  {words(sc.touched, touched_n[c]), Access::write}},
-                push, {row_groups(nj * plan.height, row_workgroups_)},
+                push, {row_groups(nj * plan.height, row_workgroups_), 1, pieces},
                 {"event_tensor_rows_sparse", 0, 16.0 * touched_n[c]});
     sc.touched_n = touched_n[c];
   }

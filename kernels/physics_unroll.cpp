@@ -16,6 +16,11 @@ PixelEventLists gather_pixel_events(const EventStream& events, double t_star_us,
   if (y0 < 0 || static_cast<size_t>(y0 + height) > row_start_us.size() || row_end_us.size() != row_start_us.size())
     throw Error("gather_pixel_events: rows " + std::to_string(y0) + ".." + std::to_string(y0 + height - 1) +
                 " are outside the row timing of " + std::to_string(row_start_us.size()) + " rows");
+  // A NaN t* or row time would make every comparison below false and select garbage silently.
+  if (!std::isfinite(t_star_us)) throw Error("gather_pixel_events: target time t* is not finite");
+  for (int y = 0; y < height; ++y)
+    if (!std::isfinite(row_start_us[y0 + y]) || !std::isfinite(row_end_us[y0 + y]))
+      throw Error("gather_pixel_events: row " + std::to_string(y0 + y) + "'s exposure start/end is not finite");
   PixelEventLists ev;
   ev.width = width;
   ev.height = height;
@@ -58,12 +63,26 @@ PixelEventLists gather_pixel_events(const EventStream& events, double t_star_us,
   return ev;
 }
 
+void check_physics_image(const std::vector<float>& rs, int channels, const PixelEventLists& ev) {
+  const size_t plane = static_cast<size_t>(ev.width) * ev.height;
+  if (rs.size() != plane * channels)
+    throw Error("physics unroller: image 'rs' has " + std::to_string(rs.size()) + " values, expected " +
+                std::to_string(plane * channels) + " (" + std::to_string(channels) + "x" + std::to_string(ev.height) +
+                "x" + std::to_string(ev.width) + ")");
+  // The formula maps NaN to 0 and +inf to max_value without a word; say where the bad value is.
+  for (size_t i = 0; i < rs.size(); ++i)
+    if (!std::isfinite(rs[i])) {
+      const size_t c = i / plane, y = (i % plane) / ev.width, x = i % ev.width;
+      throw Error("physics unroller: image 'rs' holds " + std::string(std::isnan(rs[i]) ? "NaN" : "an infinite value") +
+                  " at (channel " + std::to_string(c) + ", y " + std::to_string(y) + ", x " + std::to_string(x) +
+                  "); the image must be finite");
+    }
+}
+
 std::vector<float> physics_unroll_ref(const std::vector<float>& rs, int channels, const PixelEventLists& ev,
                                       const PhysicsUnrollParams& params) {
   const size_t plane = static_cast<size_t>(ev.width) * ev.height;
-  if (rs.size() != plane * channels)
-    throw Error("physics_unroll_ref: image has " + std::to_string(rs.size()) + " values, expected " +
-                std::to_string(plane * channels));
+  check_physics_image(rs, channels, ev);
   std::vector<float> out(rs.size());
   for (int y = 0; y < ev.height; ++y) {
     const double S = ev.row_start[y], E = ev.row_end[y], T = E - S;
@@ -100,7 +119,11 @@ std::vector<float> physics_unroll_ref(const std::vector<float>& rs, int channels
       for (int c = 0; c < channels; ++c) {
         const double v = rs[c * plane + pix];
         const double lin = v > 0 ? std::pow(v, static_cast<double>(params.gamma)) : 0.0;
-        const double o = lin > 0 ? std::min(std::exp(std::log(lin) + log_ratio), double(params.max_value)) : 0.0;
+        // Capped in the log domain: log_ratio reaches ~c * (event count) (1e5 and more for millions
+        // of events), and exp() of that is inf; the GPU does the same so it never relies on inf.
+        const double o = lin > 0 ? std::min(std::exp(std::min(std::log(lin) + log_ratio, std::log(double(params.max_value)))),
+                                                   double(params.max_value))
+                                : 0.0;
         out[c * plane + pix] = static_cast<float>(o > 0 ? std::pow(o, 1.0 / params.gamma) : 0.0);
       }
     }
@@ -126,8 +149,20 @@ Tensor upload_vector(Context& ctx, const std::vector<T>& v, DType dt) {
 }
 }  // namespace
 
+bool PhysicsUnroll::fits(const PixelEventLists& ev) {
+  for (size_t k = 0; k + 1 < ev.offsets.size(); ++k)
+    if (ev.offsets[k + 1] - ev.offsets[k] > kMaxPixelEvents) return false;
+  return true;
+}
+
 PhysicsUnroll::PhysicsUnroll(Context& ctx, const PixelEventLists& ev)
     : ctx_(ctx), width_(ev.width), height_(ev.height), events_(ev.tau.size()) {
+  for (size_t k = 0; k + 1 < ev.offsets.size(); ++k)
+    if (const uint32_t n = ev.offsets[k + 1] - ev.offsets[k]; n > kMaxPixelEvents)
+      throw Error("PhysicsUnroll: pixel (x=" + std::to_string(k % ev.width) + ", y=" + std::to_string(k / ev.width) +
+                  ") has " + std::to_string(n) + " events in its window, more than the GPU kernel's " +
+                  std::to_string(kMaxPixelEvents) +
+                  " (lavapipe ends shader loops after 65535 iterations); use physics_unroll_ref");
   offsets_ = upload_vector(ctx, ev.offsets, DType::u32);
   tau_ = upload_vector(ctx, ev.tau, DType::f32);
   polarity_ = upload_vector(ctx, ev.polarity, DType::i32);
@@ -143,6 +178,8 @@ void PhysicsUnroll::record(CommandStream& cs, const Tensor& rs, Tensor& result, 
                 std::to_string(height_) + "x" + std::to_string(width_) + ")");
   if (!(params.contrast > 0) || !(params.gamma > 0))
     throw Error("PhysicsUnroll: contrast and gamma must be positive");
+  if (!(params.max_value > 0) || !std::isfinite(params.max_value))
+    throw Error("PhysicsUnroll: max_value must be positive and finite");
   PhysicsPush p{width_, height_, static_cast<int32_t>(s.c), params.contrast, params.gamma, params.max_value};
   const double pixels = static_cast<double>(width_) * height_;
   cs.dispatch(ctx_.pipeline("physics_unroll", {}, sizeof p),

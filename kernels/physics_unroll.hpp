@@ -40,13 +40,25 @@ struct PhysicsUnrollParams {
   float max_value = 1e4f; // cap on the linear result, so a wildly wrong c cannot produce inf
 };
 
-// CPU reference (double precision): rs and the result are [C, H, W] planes in [0, 1].
+// Throws Error unless `rs` holds C x H x W finite values (names the first bad (channel, y, x)).
+// physics_unroll_ref calls it; call it before PhysicsUnroll::record (whose image is on the device).
+void check_physics_image(const std::vector<float>& rs, int channels, const PixelEventLists& ev);
+
+// CPU reference (double precision): rs and the result are [C, H, W] planes in [0, 1]. Guards:
+// rs <= 0 gives 0 (no log of 0), an empty exposure (S == E) returns rs, and the linear result is
+// capped at max_value in the log domain (never inf); writers clamp to [0, 1].
 std::vector<float> physics_unroll_ref(const std::vector<float>& rs, int channels, const PixelEventLists& ev,
                                       const PhysicsUnrollParams& params);
 
 // GPU version: uploads the lists and records one dispatch (one thread per pixel).
 class PhysicsUnroll {
  public:
+  // Most events one pixel may have: the shader loops twice over them, and lavapipe silently ends
+  // an invocation's loops after 65535 iterations in all (a wrong image, no error).
+  static constexpr uint32_t kMaxPixelEvents = 29000;
+  // Whether every pixel fits kMaxPixelEvents; the CPU reference has no such limit.
+  static bool fits(const PixelEventLists& ev);
+  // Throws Error naming the first pixel over the limit when !fits(ev).
   PhysicsUnroll(Context& ctx, const PixelEventLists& ev);
   // rs and out: [1, C, H, W] f32 tensors of the lists' size.
   void record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const;

@@ -5,6 +5,8 @@
 // Record of (job, row), N + 4 ints: [lo, hi, N-1 ascending thresholds, flags (bit0: a > b), s, c].
 // Counts accumulate directly as float32 through a 32-bit compare-and-swap loop (core Vulkan, no
 // float-atomics extension), exact for counts below 2^24; the output needs only a zero fill.
+// The host bounds events per invocation and jobs per dispatch: lavapipe silently ends an
+// invocation's loops after 65535 iterations in all (kernels/event_tensor.cpp, kLoopBudget).
 layout(local_size_x = 64) in;
 layout(std430, binding = 0) readonly buffer Events { uvec2 ev[]; };   // (t - origin, x | y<<15 | pos<<30)
 layout(std430, binding = 1) readonly buffer Records { int rec[]; };
@@ -15,6 +17,7 @@ layout(push_constant) uniform P {
   uint job_begin;  // first job of the chunk in the record table
   uint bins;       // N
   uint width, height;
+  uint out_job;    // index of job_begin's job in the output chunk (a dispatch takes a few jobs)
 } p;
 
 void main() {
@@ -42,7 +45,7 @@ void main() {
       const bool backward = (rec[base + p.bins + 1u] & 1) != 0;
       const uint k = backward ? p.bins - 1u - first : first;
       const bool s = backward ? !positive : positive;  // time flip reverses polarity
-      const uint idx = (j * 2u * p.bins + 2u * k + (s ? 1u : 0u)) * plane + pix;
+      const uint idx = ((p.out_job + j) * 2u * p.bins + 2u * k + (s ? 1u : 0u)) * plane + pix;
       uint old = counts[idx];
       while (true) {
         const uint prev = atomicCompSwap(counts[idx], old, floatBitsToUint(uintBitsToFloat(old) + 1.0));

@@ -4,6 +4,8 @@
 // registers and writes every channel once as float: no zero fill, no atomics, no conversion pass.
 // Exact: the host turned the rational row times into integer thresholds (kernels/event_tensor.cpp).
 // Record of (job, row), BINS + 4 ints: [lo, hi, BINS-1 ascending thresholds, flags (bit0: a > b), s, c].
+// The host bounds jobs per dispatch so that jobs x (the pixel's events + 4N) stays under
+// lavapipe's 65535 loop iterations per invocation (kernels/event_tensor.cpp, kLoopBudget).
 layout(local_size_x = 64) in;
 layout(constant_id = 0) const uint BINS = 16;
 layout(std430, binding = 0) readonly buffer Offsets { uint off[]; };  // [h*w + 1] first event of each pixel
@@ -14,6 +16,7 @@ layout(push_constant) uniform P {
   uint jobs;       // jobs in this chunk
   uint job_begin;  // first job of the chunk in the record table
   uint width, height;
+  uint out_job;    // index of job_begin's job in the output chunk (a dispatch takes a few jobs)
 } p;
 
 void main() {
@@ -44,7 +47,7 @@ void main() {
         const bool s = backward ? !positive : positive;  // time flip reverses polarity
         c[2u * k + (s ? 1u : 0u)] += 1u;
       }
-      const uint out0 = (j * 2u * BINS) * plane + pix;
+      const uint out0 = ((p.out_job + j) * 2u * BINS) * plane + pix;
       for (uint k = 0u; k < 2u * BINS; ++k) o[out0 + k * plane] = float(c[k]);
     }
   }

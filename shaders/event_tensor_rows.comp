@@ -6,7 +6,12 @@
 // Exact: the host turned the rational row times into integer thresholds (kernels/event_tensor.cpp).
 // Record of (job, row), N + 4 ints: [lo, hi, N-1 ascending thresholds, flags (bit0: a > b), s, c].
 // Counts accumulate as float32 through a 32-bit compare-and-swap loop (core Vulkan).
+// Workgroup z takes the z-th piece of ROW_PIECE events of the range: lavapipe (llvmpipe) silently
+// ends a shader invocation's loops after 65535 iterations in all (LP_MAX_TGSI_LOOP_ITERATIONS,
+// shared by every loop), so each invocation's loop stays short (ROW_PIECE / 64 = 256 events, each
+// with at most a few CAS retries), whatever the row holds.
 layout(local_size_x = 64) in;
+const uint ROW_PIECE = 16384u;  // kRowPiece in kernels/event_tensor.cpp
 layout(std430, binding = 0) readonly buffer Events { uvec2 ev[]; };   // (t - origin, x | positive << 31)
 layout(std430, binding = 1) readonly buffer Records { int rec[]; };
 layout(std430, binding = 2) readonly buffer Ranges { uvec2 range[]; }; // [jobs][h] events [begin, end)
@@ -34,7 +39,9 @@ void main() {
   const float c0 = uintBitsToFloat(uint(rec[base + p.bins + 3u]));
   const uint out0 = (j * 2u * p.bins) * plane + y * p.width;
   const int last = int(p.bins) - 1;
-  for (uint i = r.x + gl_LocalInvocationID.x; i < r.y; i += gl_WorkGroupSize.x) {
+  const uint piece_begin = r.x + gl_WorkGroupID.z * ROW_PIECE;
+  const uint piece_end = min(r.y, piece_begin + ROW_PIECE);
+  for (uint i = piece_begin + gl_LocalInvocationID.x; i < piece_end; i += gl_WorkGroupSize.x) {
     const uvec2 e = ev[i];
     const int t = int(e.x);
     // Threshold count jt = #{thresholds <= t}: a float estimate (within one of the truth), then

@@ -49,7 +49,9 @@ void main() {
   for (int c = 0; c < p.channels; ++c) {
     const float v = rs[c * plane + pix];
     float lin = v > 0.0 ? pow(v, p.gamma) : 0.0;
-    float o = lin > 0.0 ? min(exp(log(lin) + log_ratio), p.max_value) : 0.0;
+    // Cap the exponent, not exp's result: log_ratio can be ~c * millions of events, and exp of
+    // that overflows (inf, or whatever a fast exp returns there); log(0) is never taken (lin > 0).
+    float o = lin > 0.0 ? min(exp(min(log(lin) + log_ratio, log(p.max_value))), p.max_value) : 0.0;
     result[c * plane + pix] = o > 0.0 ? pow(o, 1.0 / p.gamma) : 0.0;
   }
 }

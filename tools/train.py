@@ -31,10 +31,11 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 import torch
 import torch.nn.functional as F
+from torch import nn
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import safetensors_io  # noqa: E402
-from selfunroll_torch import SelfUnroll, SelfUnrollConfig, UnetConfig  # noqa: E402
+from selfunroll_torch import SelfUnroll, SelfUnrollConfig, Unet, UnetConfig  # noqa: E402
 from sequence_data import DataError, Sequence, eic_tensors, list_sequences  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -68,9 +69,38 @@ def make_config(preset: str, n_bins: Optional[int] = None) -> SelfUnrollConfig:
     return cfg
 
 
-def init_model(net: SelfUnroll, seed: int) -> None:
-    """PyTorch's default init, except that the flow head and the residual head start near zero:
-    flow = 100 tanh(raw) would otherwise start with random displacements of tens of pixels."""
+def _identity_rows(conv: nn.Conv2d, rows, src_offset: int = 0) -> None:
+    """Output channels `rows` of `conv` copy input channels src_offset + row (centre tap 1, the rest 0)."""
+    k = conv.weight.shape[-1] // 2
+    for j in rows:
+        conv.weight[j].zero_()
+        conv.weight[j, src_offset + j, k, k] = 1.0
+        conv.bias[j] = 0.0
+
+
+def init_fusion_passthrough(unet: Unet, channels: int = 3) -> None:
+    """Makes a fresh UNet pass its first `channels` inputs through to its output: an identity path
+    head -> level-0 ResBlock -> skip (conv2) -> up_path[0] (conv_skip, conv1, ResBlock) -> pred,
+    on feature channels 0..channels-1; every other weight keeps its random init. fusion_net's first
+    inputs are `sys`, so SelfUnroll-S starts as E-IC_T (= the RS image while E ~ 0) instead of a
+    random UNet that must first learn to reproduce the image (a small UNet trained for an hour on
+    a CPU never does: 24-25 dB even where nothing moved). LeakyReLU keeps values >= 0 unchanged."""
+    rows = range(channels)
+    _identity_rows(unet.head, rows)
+    for rb in (unet.down_path[0].conv1, unet.up_path[0].conv2):  # ResBlock: x + conv(x), zero the added rows
+        rb.conv[1].weight[list(rows)] = 0.0
+        rb.conv[1].bias[list(rows)] = 0.0
+    _identity_rows(unet.down_path[0].conv2[0], rows)
+    up = unet.up_path[0]
+    _identity_rows(up.conv_skip[0], rows)
+    _identity_rows(up.conv1[0], rows, src_offset=up.conv1[0].weight.shape[1] // 2)  # cat(deconv, skip)
+    _identity_rows(unet.pred, rows)
+
+
+def init_model(net: SelfUnroll, seed: int, fusion_passthrough: bool = True) -> None:
+    """PyTorch's default init, except that the flow head and the residual head start near zero
+    (flow = 100 tanh(raw) would otherwise start with random displacements of tens of pixels), and,
+    with `fusion_passthrough`, fusion_net starts as the identity on its `sys` input."""
     torch.manual_seed(seed)
     for m in net.modules():
         if hasattr(m, "reset_parameters"):
@@ -79,6 +109,8 @@ def init_model(net: SelfUnroll, seed: int) -> None:
         for conv in (net.flownet.pred, net.UPNet[2]):
             conv.weight.mul_(0.01)
             conv.bias.zero_()
+        if fusion_passthrough:
+            init_fusion_passthrough(net.fusion_net)
 
 
 # ---- sampling ---------------------------------------------------------------------------------------
@@ -456,7 +488,7 @@ def train(a) -> None:
         ck = torch.load(a.init, map_location="cpu", weights_only=False)
         net.load_state_dict(ck["model"] if "model" in ck else ck)
     else:
-        init_model(net, a.seed)
+        init_model(net, a.seed, fusion_passthrough=not a.no_fusion_passthrough)
     n_params = sum(p.numel() for p in net.parameters())
 
     paths = a.data
@@ -631,6 +663,8 @@ def main(argv=None) -> int:
     g.add_argument("--lr", type=float, default=1e-3)
     g.add_argument("--target-exposure-us", type=float, help="GS target exposure (ev3 window) [the RS exposure]")
     g.add_argument("--seed", type=int, default=1)
+    g.add_argument("--no-fusion-passthrough", action="store_true",
+                   help="initialise fusion_net randomly instead of as the identity on its sys input")
     g.add_argument("--threads", default="2", help="torch threads, or 'auto': re-measure 1 vs 2 every 200 steps "
                    "(2 OpenMP threads on an oversubscribed machine can be many times slower than 1) [2]")
     g.add_argument("--supervised", action="store_true", help="COMPARISON ONLY: L1 to ground truth")

@@ -60,9 +60,9 @@ int cmd_infer(const Argv& argv) {
   }
   const std::string model_path = args.require("model"), inputs_path = args.require("inputs"), out_path = args.require("out");
   const std::string precision = args.get_or("precision", "fp32");
-  if (precision == "fp16")
-    throw Error("--precision fp16 is not available yet: the kernels compute in fp32 (use --precision fp32)");
-  if (precision != "fp32") throw Error("--precision '" + precision + "' (expected fp32 or fp16)");
+  if (precision != "fp32")
+    throw Error("--precision '" + precision + "': fp32 is the only precision (there are no fp16 kernels; the " +
+                "kernels compute in fp32)");
   const std::string backend_name = args.get_or("backend", "vulkan");
   if (backend_name != "vulkan" && backend_name != "cpu")
     throw Error("--backend '" + backend_name + "' (expected vulkan or cpu)");
