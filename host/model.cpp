@@ -165,6 +165,14 @@ int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budg
   return static_cast<int>(std::min<int64_t>(n, 1 << 20));
 }
 
+int64_t Model::item_buffer_bytes(int64_t h, int64_t w, Mode mode) const {
+  const int64_t he = round_up(h, 2), we = round_up(w, 2), ev = cfg_.ev_channels();
+  int64_t b = std::max({4 * he * we * ev, synthesis_item_bytes(he, we), unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we),
+                        unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we)});
+  if (mode == Mode::m && cfg_.moa) b = std::max(b, unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we));
+  return b;
+}
+
 // ---- stages ----------------------------------------------------------------------------------
 
 int Model::resblock(const std::string& p, int x) {

@@ -57,6 +57,9 @@ class Model {
 
   // Batch items one chunk holds for inputs of this size (what run() uses when max_items = 0).
   int items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const;
+  // Bytes of the largest single buffer one batch item of this size needs (run() throws when it
+  // exceeds the backend's max_buffer_bytes()); host/tiling.cpp sizes tiles with it.
+  int64_t item_buffer_bytes(int64_t h, int64_t w, Mode mode) const;
 
   static const std::vector<std::string>& output_names();  // sys, E, flow, warped, fused, m, out
 
