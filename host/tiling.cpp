@@ -276,13 +276,13 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
 
   // Inactive (tile, target): nothing moved there; the RS frame stands.
   res.tiles = int64_t(T) * K;
-  res.target_active_fraction.assign(size_t(K), 0.0);
+  std::vector<int64_t> target_runs(size_t(K), 0);
   const auto t_fill = Clock::now();
   for (size_t t = 0; t < T; ++t)
     for (int64_t k = 0; k < K; ++k) {
       if (active[t][size_t(k)]) {
         res.tiles_run++;
-        res.target_active_fraction[size_t(k)] += 1.0 / double(T);
+        target_runs[size_t(k)]++;
         continue;
       }
       const Rect& r = res.plan.tiles[t].interior;
@@ -300,6 +300,7 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
       }
     }
   res.active_fraction = res.tiles ? double(res.tiles_run) / double(res.tiles) : 0.0;
+  for (int64_t r : target_runs) res.target_active_fraction.push_back(double(r) / double(T));
   res.stage_ms["stitch"] += ms_since(t_fill);
 
   // Active (tile, target) pairs grouped by input-rect shape, run in batches.
@@ -310,9 +311,13 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
   const int64_t ev = model.config().ev_channels();
   for (const auto& [shape, work] : groups) {
     const auto [rh, rw] = shape;
-    // Host copies of one batch stay under 256 MiB of inputs unless max_batch says otherwise.
+    // Unless max_batch says otherwise, one batch holds no more pixels than the untiled run of one
+    // target (so device memory stays near the untiled run's, or one tile's when that is larger) and
+    // its host copies of the inputs stay under 256 MiB.
     const int64_t item_bytes = 4 * rh * rw * (3 + 3 * ev);
-    const int64_t cap_items = topt.max_batch > 0 ? topt.max_batch : std::max<int64_t>(per, (int64_t(256) << 20) / item_bytes);
+    const int64_t by_pixels = std::max<int64_t>(1, (H * W) / (rh * rw)) * per;
+    const int64_t cap_items = topt.max_batch > 0 ? topt.max_batch
+                                                 : std::max<int64_t>(per, std::min(by_pixels, (int64_t(256) << 20) / item_bytes));
     const size_t targets_per_batch = size_t(std::max<int64_t>(1, cap_items / per));
     for (size_t w0 = 0; w0 < work.size(); w0 += targets_per_batch) {
       const size_t nw = std::min(targets_per_batch, work.size() - w0);

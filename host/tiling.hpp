@@ -90,7 +90,8 @@ struct TileOptions {
   double threshold = 0.01;  // fast: events per pixel (ev1 + ev2 |counts| over the input rect)
   // Limit for any one tensor when choosing the tile (0: the backend's max_buffer_bytes()).
   uint64_t max_buffer_bytes = 0;
-  // Most tile items (tiles x batch items) per Model::run call; bounds the host copies (0: 64).
+  // Most tile items (tiles x batch items) per Model::run call (0: as many tiles as hold no more
+  // pixels than one untiled target, and at most 256 MiB of input copies; M: whole pairs).
   int max_batch = 0;
 };
 

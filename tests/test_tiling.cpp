@@ -5,12 +5,18 @@
 // 1280x720 planned; a capped lavapipe backend forced to tile).
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
+#include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 
 #include "host/backend_cpu.hpp"
 #include "host/backend_vulkan.hpp"
+#include "host/sim_sequence.hpp"
 #include "host/tiling.hpp"
+#include "host/unroll.hpp"
 #include "host/weights.hpp"
 #include "model_test_util.hpp"
 #include "runtime/error.hpp"
@@ -289,4 +295,88 @@ TEST(TilingVulkan, CappedBufferLimitForcesTiles) {
   t.tile = g.plan.tile_h;
   const TiledResult c = run_tiled(cm, in, opt, t);
   EXPECT_LE(max_abs_diff(g.outputs.at("fused"), c.outputs.at("fused")), 1e-4);
+}
+
+// The shipped small model on one 1280x720 SelfUnroll-S target on lavapipe, tiled (tile 256,
+// halo 64) with sparse exact: events only in a band, so part of the tiles run.
+TEST(TilingVulkan, SmallModel1280x720STarget) {
+  const Weights w = load_weights(std::string(VKUNROLL_SOURCE_DIR) + "/models/selfunroll_small.safetensors");
+  ModelInputs in = random_inputs(1, 720, 1280, w.config.N, 31);
+  keep_events_in(in, 256, 0, 128, 1280);
+  VulkanBackend vk(vktest::context());
+  Model model(vk, w);
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  TileOptions t;
+  t.tile = 256;
+  t.halo = 64;
+  t.sparse = SparsePolicy::exact;
+  const auto t0 = std::chrono::steady_clock::now();
+  const TiledResult r = run_tiled(model, in, opt, t);
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::printf("[ tiling   ] small model 1280x720 S, tile 256 halo 64 sparse exact: %lld of %lld tiles run, %.1f s\n",
+              (long long)r.tiles_run, (long long)r.tiles, s);
+  EXPECT_EQ(r.tiles, 15);
+  EXPECT_EQ(r.tiles_run, 10);  // tile rows 0 (input rows 0..319) and 1 reach the band 256..383
+  const HostArray& f = r.outputs.at("fused");
+  for (float v : f.data) ASSERT_TRUE(std::isfinite(v));
+  // Tile row 2 (rows 512..719, input from row 448) saw no event: the RS pixels.
+  for (int64_t c = 0; c < 3; ++c)
+    for (int64_t y = 512; y < 720; y += 7)
+      for (int64_t x = 0; x < 1280; x += 5) ASSERT_EQ(f.data[size_t((c * 720 + y) * 1280 + x)], in.rs.data[size_t((c * 720 + y) * 1280 + x)]);
+}
+
+// `vkunroll unroll` with --mode choose, --tile, --halo, --sparse: the per-target mode choice and the
+// tiling record in summary.json.
+TEST(TilingUnroll, ChooseModeAndTiledSparseSummary) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("vkunroll-test-tiling-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  sim::SimulationConfig cfg = sim::simulation_preset("clean");
+  cfg.seed = 11;
+  cfg.width = 64;
+  cfg.height = 48;
+  cfg.frames = 3;
+  cfg.gt_per_frame = 1;
+  sim::write_sequence(cfg, sim::simulate(cfg), (dir / "seq").string());
+  UnrollOptions o;
+  o.sequence = (dir / "seq").string();
+  o.out_dir = (dir / "out").string();
+  o.quiet = true;
+  o.video = false;
+  o.backend = "cpu";
+  o.model_path = fixture("selfunroll_tiny.safetensors");
+  o.mode = "choose";
+  o.times = "-0.25,0.5";  // before the frame's exposure span, inside it
+  o.frames = "1:2";            // frame 2 is the last: M impossible there
+  o.tile = 32;
+  o.halo = 32;
+  o.sparse = "exact";
+  const auto s = run_unroll(o);
+  EXPECT_EQ(s["runs"]["m"].get<int>(), 1);  // frame 1: -0.25
+  EXPECT_EQ(s["runs"]["s"].get<int>(), 3);  // frame 1: 0.5; frame 2: both
+  const auto& t = s["tiling"];
+  EXPECT_EQ(t["tile"].get<int>(), 32);
+  EXPECT_EQ(t["tile_used"].get<int>(), 32);
+  EXPECT_EQ(t["halo"].get<int>(), 32);
+  EXPECT_EQ(t["sparse"].get<std::string>(), "exact");
+  EXPECT_EQ(t["tiles_per_target"].get<int>(), 4);  // 64x48 in 32-pixel tiles
+  EXPECT_EQ(t["tiles"].get<int>(), 4 * 4);
+  const double f = t["active_tile_fraction"].get<double>();
+  EXPECT_NEAR(f, t["tiles_run"].get<double>() / 16.0, 1e-12);
+  EXPECT_GT(f, 0.0);  // the clean scene moves: events in some tiles
+  bool noted = false;
+  for (const auto& n : s["notes"]) noted = noted || n.get<std::string>().find("outside its frame's exposure span") != std::string::npos;
+  EXPECT_TRUE(noted);
+  o.tile = 40;
+  try {
+    run_unroll(o);
+    ADD_FAILURE() << "--tile 40 accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("--tile 40"), std::string::npos) << e.what();
+  }
+  o.tile = 0;
+  o.sparse = "sometimes";
+  EXPECT_THROW(run_unroll(o), Error);
+  fs::remove_all(dir);
 }
