@@ -257,20 +257,33 @@ TEST(TilingPlan, AutomaticTileFitsTheBufferLimitAt1280x720) {
   small.flownet = small.fusion_net = small.attfusion_net = {8, 3};
   for (const ModelConfig& cfg : {small, ModelConfig::published()}) {
     const Weights w = random_weights(cfg, 1);
+    const ModelInputs in = random_inputs(2, 720, 1280, cfg.N, 1, /*values=*/false);
     PlanningBackend plan;
     Model model(plan, w);
-    const ModelInputs in = random_inputs(2, 720, 1280, cfg.N, 1, /*values=*/false);
     RunOptions opt;
     opt.mode = Mode::m;
     TileOptions t;
     t.halo = 64;
     const TiledResult r = run_tiled(model, in, opt, t);
     EXPECT_LE(plan.largest_buffer(), plan.max_buffer_bytes());
-    std::printf("[ tiling   ] %s at 1280x720, halo 64: tile %lld (%zu tiles), largest buffer %.1f MiB (%s)\n",
+    std::printf("[ tiling   ] %s at 1280x720 M, halo 64: tile %lld (%zu tiles), largest buffer %.1f MiB (%s), peak %.1f MiB\n",
                 cfg.D == 10 ? "published" : "small", (long long)r.plan.tile_h, r.plan.tiles.size(),
-                plan.largest_buffer() / 1048576.0, plan.largest_buffer_name().c_str());
-    if (cfg.D == 10) EXPECT_FALSE(r.plan.untiled());
-    else EXPECT_TRUE(r.plan.untiled());  // the small model fits lavapipe untiled
+                plan.largest_buffer() / 1048576.0, plan.largest_buffer_name().c_str(), plan.device_peak_bytes() / 1048576.0);
+    if (cfg.D != 10) {
+      EXPECT_TRUE(r.plan.untiled());  // the small model fits lavapipe untiled
+      continue;
+    }
+    EXPECT_FALSE(r.plan.untiled());
+    // The published model's exact halo (288: input rects of 608 x 608 at least) needs a 146 MB
+    // space_to_depth buffer, above lavapipe's 128 MiB; 256 is the largest halo that fits there.
+    EXPECT_EQ(exact_halo(cfg, Mode::m, 100.0), 288);
+    EXPECT_THROW(choose_tile(model, 720, 1280, Mode::m, 288, plan.max_buffer_bytes()), Error);
+    const int64_t tile = choose_tile(model, 720, 1280, Mode::m, 256, plan.max_buffer_bytes());
+    EXPECT_EQ(tile, 64);
+    PlanningBackend plan_one;
+    Model one(plan_one, w);
+    one.run(random_inputs(2, tile + 512, tile + 512, cfg.N, 1, false), opt);  // an unclipped tile
+    EXPECT_LE(plan_one.largest_buffer(), plan_one.max_buffer_bytes());
   }
 }
 
