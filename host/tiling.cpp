@@ -16,6 +16,12 @@ double ms_since(Clock::time_point t) { return std::chrono::duration<double, std:
 
 int64_t round_up(int64_t v, int64_t m) { return (v + m - 1) / m * m; }
 
+// The untiled run's UNet input offset along one axis: half of the padding of the even size to 32.
+int unet_offset(int64_t size) {
+  const int64_t even = round_up(size, 2);
+  return static_cast<int>((round_up(even, 32) - even) / 2);
+}
+
 void check_aligned(int64_t v, const char* what) {
   if (v < 0 || v % kTileAlign)
     throw Error(std::string("tiling: ") + what + " " + std::to_string(v) + " must be a non-negative multiple of " +
@@ -28,7 +34,8 @@ void axis_tiles(int64_t size, int64_t tile, int64_t halo, std::vector<std::pair<
   for (int64_t a = 0; a < size; a += tile) {
     const int64_t n = std::min(tile, size - a);
     int64_t lo = std::max<int64_t>(0, a - halo), hi = std::min(size, a + n + halo);
-    if (hi - lo < 2) lo = std::max<int64_t>(0, hi - 2);  // the model needs 2 pixels (only with halo 0)
+    // At least 32 pixels (the UNets reflect up to 31), on the 32-grid (only with halo 0).
+    if (hi - lo < kTileAlign) lo = std::max<int64_t>(0, (hi - kTileAlign) / kTileAlign * kTileAlign);
     interior.push_back({a, n});
     input.push_back({lo, hi - lo});
   }
@@ -189,7 +196,7 @@ int64_t choose_tile(const Model& model, int64_t height, int64_t width, Mode mode
   if (model.item_buffer_bytes(height, width, mode) <= limit) return whole;
   for (int64_t t = whole / kTileAlign * kTileAlign; t >= kTileAlign; t -= kTileAlign) {
     const int64_t h = std::min(height, t + 2 * halo), w = std::min(width, t + 2 * halo);
-    if (model.item_buffer_bytes(h, w, mode) <= limit) return t;
+    if (model.item_buffer_bytes(h, w, mode, unet_offset(height), unet_offset(width)) <= limit) return t;
   }
   throw Error("tiling: even a " + std::to_string(kTileAlign) + "-pixel tile with halo " + std::to_string(halo) +
               " needs a buffer above the " + std::to_string(limit >> 20) + " MiB limit; use a smaller halo");
@@ -231,6 +238,13 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
   RunOptions ro = opt;
   ro.outputs = names;
   ro.stage_ms = &model_ms;
+  if (!res.plan.untiled()) {
+    // Every input rect starts on the 32-grid, so placing each tile's UNet input at the untiled run's
+    // offset puts it on the untiled run's stride grid, and the border tiles get the untiled run's
+    // reflection at the image border (docs/tiling.md, alignment).
+    ro.unet_pad_top = unet_offset(H);
+    ro.unet_pad_left = unet_offset(W);
+  }
   auto finish_ms = [&] {
     for (const auto& [k, v] : model_ms) {
       res.stage_ms[k] += v;
@@ -300,6 +314,11 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
       }
     }
   res.active_fraction = res.tiles ? double(res.tiles_run) / double(res.tiles) : 0.0;
+  double run_pixels = 0;
+  for (size_t t = 0; t < T; ++t)
+    for (int64_t k = 0; k < K; ++k)
+      if (active[t][size_t(k)]) run_pixels += double(res.plan.tiles[t].input.area());
+  res.work_ratio = run_pixels / (double(K) * double(H * W));
   for (int64_t r : target_runs) res.target_active_fraction.push_back(double(r) / double(T));
   res.stage_ms["stitch"] += ms_since(t_fill);
 

@@ -102,6 +102,9 @@ struct TiledResult {
   int64_t tiles_run = 0;      // of them, run through the network
   double active_fraction = 1; // tiles_run / tiles
   std::vector<double> target_active_fraction;  // per target (S: batch item; M: pair)
+  // Pixels the network processed (input rects of the tiles run) / pixels of the untiled run of
+  // every target: the halo overhead times the active fraction (1 for an untiled dense run).
+  double work_ratio = 1;
   // Wall milliseconds: "plan", "cut" (activity + input crops), "model" (Model::run, with its
   // "eic" and "moa" split), "stitch".
   std::map<std::string, double> stage_ms;

@@ -323,6 +323,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   tile_options.sparse = parse_sparse_policy(o.sparse, "--sparse");
   tile_options.threshold = o.sparse_threshold;
   int64_t tiles_total = 0, tiles_run = 0, tile_used = 0, tiles_per_target = 0;
+  double work_pixels = 0;  // sum over targets of run_tiled's work_ratio
   std::vector<double> target_active;
   std::map<std::string, int> notes;
 
@@ -420,6 +421,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
         for (const char* st : {"plan", "cut", "stitch"})
           if (res.stage_ms.count(st)) stage_ms["tiling"] += res.stage_ms.at(st);
         tiles_total += res.tiles;
+        work_pixels += res.work_ratio * double(group.size());
         tiles_run += res.tiles_run;
         tile_used = res.plan.tile_h == seq.height && res.plan.tile_w == seq.width ? 0 : std::max(res.plan.tile_h, res.plan.tile_w);
         tiles_per_target = static_cast<int64_t>(res.plan.tiles.size());
@@ -459,7 +461,8 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
     nlohmann::json tj{{"tile", o.tile}, {"tile_used", tile_used}, {"halo", o.halo}, {"sparse", o.sparse},
                       {"sparse_threshold", o.sparse_threshold}, {"tiles_per_target", tiles_per_target},
                       {"tiles", tiles_total}, {"tiles_run", tiles_run},
-                      {"active_tile_fraction", tiles_total ? double(tiles_run) / double(tiles_total) : 0.0}};
+                      {"active_tile_fraction", tiles_total ? double(tiles_run) / double(tiles_total) : 0.0},
+                      {"work_ratio", target_active.empty() ? 0.0 : work_pixels / double(target_active.size())}};
     if (!target_active.empty()) {
       double lo = 1, hi = 0, sum = 0;
       for (double a : target_active) lo = std::min(lo, a), hi = std::max(hi, a), sum += a;
