@@ -327,8 +327,12 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
   for (size_t t = 0; t < T; ++t)
     for (int64_t k = 0; k < K; ++k)
       if (active[t][size_t(k)]) groups[{res.plan.tiles[t].input.h, res.plan.tiles[t].input.w}].push_back({t, k});
+  // Largest rects first: scratch buffers the conv kernels grow (and keep) reach their size once.
+  std::vector<std::pair<std::pair<int64_t, int64_t>, std::vector<std::pair<size_t, int64_t>>>> ordered(groups.begin(), groups.end());
+  std::stable_sort(ordered.begin(), ordered.end(),
+                   [](const auto& a, const auto& b) { return a.first.first * a.first.second > b.first.first * b.first.second; });
   const int64_t ev = model.config().ev_channels();
-  for (const auto& [shape, work] : groups) {
+  for (const auto& [shape, work] : ordered) {
     const auto [rh, rw] = shape;
     // Unless max_batch says otherwise, one batch holds no more pixels than the untiled run of one
     // target (so device memory stays near the untiled run's, or one tile's when that is larger) and

@@ -14,11 +14,11 @@
 //   r.outputs["fused"], r.active_fraction, r.stage_ms["model"], ...
 //
 // Alignment (why tile and halo are multiples of 32): the model works at even size (space_to_depth)
-// and every UNet pads its input to multiples of 32; with tile origins and sizes multiples of 32, an
-// unclipped tile sees the same stride grid as the untiled run and needs no UNet padding. When H and
-// W are multiples of 32 as well, a tiled run with halo >= exact_halo() equals the untiled one bit
-// for bit on the CPU backend (tests/test_tiling.cpp); other sizes differ near the bottom/right
-// border tiles (their UNet padding differs from the untiled run's), within the measured tolerance.
+// and every UNet pads its input to multiples of 32. Tile origins on the 32-grid see the untiled
+// run's space_to_depth cells, and each tile's UNet places its input at the untiled run's offset
+// (RunOptions::unet_pad_top / left), so it sees the untiled stride grid and border reflection. A
+// tiled run with halo >= exact_halo() then equals the untiled one bit for bit on the CPU backend,
+// for any image size (tests/test_tiling.cpp); smaller halos differ by a measured tolerance.
 #pragma once
 #include <cstdint>
 #include <map>
