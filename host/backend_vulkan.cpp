@@ -1,5 +1,6 @@
 #include "host/backend_vulkan.hpp"
 
+#include <algorithm>
 #include <cstring>
 
 #include "kernels/backward_warp.hpp"
@@ -25,7 +26,10 @@ VulkanBackend::VulkanBackend(Context& ctx, Profiler* profiler)
 
 VulkanBackend::~VulkanBackend() = default;
 
-uint64_t VulkanBackend::max_buffer_bytes() const { return ctx_.info().max_storage_buffer_range; }
+uint64_t VulkanBackend::max_buffer_bytes() const {
+  const uint64_t device = ctx_.info().max_storage_buffer_range;
+  return max_buffer_cap_ ? std::min(device, max_buffer_cap_) : device;
+}
 
 const Tensor& VulkanBackend::tensor(int id) const {
   if (id < 0 || id >= static_cast<int>(bufs_.size()) || !bufs_[id] || !bufs_[id]->live)

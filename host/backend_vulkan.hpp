@@ -42,6 +42,8 @@ class VulkanBackend final : public Backend {
                          float forced) override;
   void flush() override;
   uint64_t max_buffer_bytes() const override;
+  // Caps max_buffer_bytes() below the device's limit (0: no cap), e.g. to test tiling.
+  void set_max_buffer_bytes(uint64_t b) { max_buffer_cap_ = b; }
 
   Context& context() { return ctx_; }
   // Bytes of device memory held by buffers (live + pooled for reuse), and its peak.
@@ -62,6 +64,7 @@ class VulkanBackend final : public Backend {
   std::vector<int> conv_index_;        // conv id -> index in convs_ (>= 0) or ~index in deconvs_
   std::vector<ConvDesc> descs_;
   uint64_t device_bytes_ = 0, device_peak_ = 0, weight_bytes_ = 0, pooled_bytes_ = 0;
+  uint64_t max_buffer_cap_ = 0;
 };
 
 }  // namespace vkunroll

@@ -52,6 +52,7 @@ void check_finite(const HostArray& a, const char* name) {
 struct Model::Chunk {
   int64_t n = 0, nt = 0;  // batch items; targets (M)
   int64_t he = 0, we = 0; // even working size
+  int pad_top = -1, pad_left = -1;  // UNet input offsets (RunOptions::unet_pad_top / left)
   int rs = -1, ev1 = -1, ev2 = -1, ev3 = -1;
   int E = -1, sys = -1, flow = -1, warped = -1, fused = -1, m = -1, out = -1;
 };
@@ -144,8 +145,8 @@ int64_t Model::synthesis_item_bytes(int64_t he, int64_t we) const {
                        int64_t(cfg_.upnet_width) * plane});
 }
 
-int64_t Model::unet_item_bytes(const UnetConfig& u, int cin, int64_t he, int64_t we) const {
-  const int64_t plane = round_up(he, 32) * round_up(we, 32);
+int64_t Model::unet_item_bytes(const UnetConfig& u, int cin, int64_t he, int64_t we, int top, int left) const {
+  const int64_t plane = round_up(he + top, 32) * round_up(we + left, 32);
   return 4 * plane * std::max<int64_t>(cin, 2 * u.base);
 }
 
@@ -180,6 +181,15 @@ int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budg
   return static_cast<int>(std::min<int64_t>(n, 1 << 20));
 }
 
+int64_t Model::item_buffer_bytes(int64_t h, int64_t w, Mode mode, int top, int left) const {
+  const int64_t he = round_up(h, 2), we = round_up(w, 2), ev = cfg_.ev_channels();
+  int64_t b = std::max({4 * he * we * ev, synthesis_item_bytes(he, we), unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, top, left),
+                        unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, top, left)});
+  if (mode == Mode::m && cfg_.moa)
+    b = std::max(b, unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, top, left));
+  return b;
+}
+
 // ---- stages ----------------------------------------------------------------------------------
 
 int Model::resblock(const std::string& p, int x) {
@@ -195,13 +205,16 @@ int Model::resblock(const std::string& p, int x) {
   return y;
 }
 
-void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<View>& pieces, const View& out) {
+void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<View>& pieces, const View& out, int top,
+                 int left) {
   Backend& b = backend_;
   const Shape s0 = b.shape(pieces.at(0).buf);
   const int64_t n = pieces[0].n, h = s0.h, w = s0.w;
-  const int64_t hp = round_up(h, 32), wp = round_up(w, 32);
-  // Size adapter: reflection pad to multiples of 32, the odd remainder at the bottom/right.
-  const int top = static_cast<int>((hp - h) / 2), left = static_cast<int>((wp - w) / 2);
+  // Size adapter: reflection pad to multiples of 32, the odd remainder at the bottom/right (or at
+  // the given offsets: tiles, host/tiling.cpp).
+  const int64_t hp = round_up(h + std::max(top, 0), 32), wp = round_up(w + std::max(left, 0), 32);
+  if (top < 0) top = static_cast<int>((hp - h) / 2);
+  if (left < 0) left = static_cast<int>((wp - w) / 2);
   int64_t cin = 0;
   for (const auto& v : pieces) cin += v.c;
   const int xin = b.alloc({n, cin, hp, wp}, p + ".input");
@@ -309,7 +322,7 @@ void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
   const int raw = b.alloc({n, 2, ch.he, ch.we}, "flownet");
   unet("flownet", cfg_.flownet, {items(b, ch.ev1, i0, n), items(b, ch.ev2, i0, n), items(b, ch.rs, i0, n)},
-       whole(b, raw));
+       whole(b, raw), ch.pad_top, ch.pad_left);
   b.tanh_scale(whole(b, raw), items(b, ch.flow, i0, n), 100.f);
   b.release(raw);
   b.backward_warp(items(b, ch.rs, i0, n), items(b, ch.flow, i0, n), items(b, ch.warped, i0, n));
@@ -320,7 +333,7 @@ void Model::stage_fusion(Chunk& ch, int64_t i0, int64_t n) {
   unet("fusion_net", cfg_.fusion_net,
        {items(b, ch.sys, i0, n), items(b, ch.warped, i0, n), items(b, ch.flow, i0, n), items(b, ch.ev3, i0, n),
         items(b, ch.rs, i0, n)},
-       items(b, ch.fused, i0, n));
+       items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
 }
 
 void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
@@ -340,7 +353,7 @@ void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
     b.copy(items(b, ch.flow, f2, 1), chans(dst, 8 + 2 * ev, 2));
   }
   const int score = b.alloc({nt, 1, ch.he, ch.we}, "attfusion_net");
-  unet("attfusion_net", cfg_.attfusion_net, {whole(b, gathered)}, whole(b, score));
+  unet("attfusion_net", cfg_.attfusion_net, {whole(b, gathered)}, whole(b, score), ch.pad_top, ch.pad_left);
   b.release(gathered);
   for (int64_t k = 0; k < nt; ++k) {
     const int64_t f1 = 2 * (t0 + k);
@@ -386,9 +399,14 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
   per_chunk = std::min(per_chunk, B);
   const uint64_t budget = opt.memory_budget;
   const int sub_t = sub_items(synthesis_item_bytes(he, we), budget);
-  const int sub_f = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we), budget);
-  const int sub_u = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we), budget);
-  const int sub_m = m_mode ? sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we), budget) : 1;
+  if (opt.unet_pad_top >= he || opt.unet_pad_left >= we)
+    throw Error("model: UNet input offset (" + std::to_string(opt.unet_pad_top) + ", " + std::to_string(opt.unet_pad_left) +
+                ") must lie inside the " + std::to_string(we) + "x" + std::to_string(he) + " input (reflection padding)");
+  const int ptop = std::max(opt.unet_pad_top, 0), pleft = std::max(opt.unet_pad_left, 0);
+  const int sub_f = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, ptop, pleft), budget);
+  const int sub_u = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, ptop, pleft), budget);
+  const int sub_m =
+      m_mode ? sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, ptop, pleft), budget) : 1;
 
   std::map<std::string, HostArray> result;
   const int64_t K = m_mode ? B / 2 : 0;
@@ -406,6 +424,8 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
     ch.nt = m_mode ? ch.n / 2 : 0;
     ch.he = he;
     ch.we = we;
+    ch.pad_top = opt.unet_pad_top;
+    ch.pad_left = opt.unet_pad_left;
     // Inputs: uploaded at H x W, reflected by one row/column to even sizes when odd.
     auto input = [&](const HostArray& a, const char* nme) {
       const int64_t c = a.shape.c;

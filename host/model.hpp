@@ -41,6 +41,10 @@ struct RunOptions {
   // Bytes of intermediates the run should hold at once (0: no limit other than buffer size); it
   // bounds the chunk and sub-batch sizes (a single item may still need more, see docs/model.md).
   uint64_t memory_budget = 0;
+  // >= 0: every UNet's size adapter places its input at this row / column of the padded input
+  // (which then extends to the next multiple of 32) instead of centering it; host/tiling.cpp gives
+  // each tile the untiled run's offsets, so a tile sees the untiled run's stride grid.
+  int unet_pad_top = -1, unet_pad_left = -1;
   // When set, wall milliseconds are added under "eic" (E-IC_T, E-IC_S, fusion) and "moa".
   std::map<std::string, double>* stage_ms = nullptr;
 };
@@ -57,6 +61,10 @@ class Model {
 
   // Batch items one chunk holds for inputs of this size (what run() uses when max_items = 0).
   int items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const;
+  // Bytes of the largest single buffer one batch item of this size needs (run() throws when it
+  // exceeds the backend's max_buffer_bytes()); host/tiling.cpp sizes tiles with it.
+  // (pad_top, pad_left: RunOptions::unet_pad_top / left when set.)
+  int64_t item_buffer_bytes(int64_t h, int64_t w, Mode mode, int pad_top = 0, int pad_left = 0) const;
 
   static const std::vector<std::string>& output_names();  // sys, E, flow, warped, fused, m, out
 
@@ -77,11 +85,13 @@ class Model {
   void stage_fusion(Chunk& ch, int64_t i0, int64_t n);
   void stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m);
   // The UNet on `pieces` (views with n items, concatenated along channels), output to `out`.
-  void unet(const std::string& p, const UnetConfig& u, const std::vector<View>& pieces, const View& out);
+  // top, left >= 0: the input's offset in the padded input (RunOptions::unet_pad_top / left).
+  void unet(const std::string& p, const UnetConfig& u, const std::vector<View>& pieces, const View& out, int top = -1,
+            int left = -1);
   int resblock(const std::string& p, int x);  // returns the output buffer; releases x
 
   int64_t synthesis_item_bytes(int64_t h, int64_t w) const;
-  int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w) const;
+  int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w, int top = 0, int left = 0) const;
   int sub_items(int64_t item_bytes, uint64_t memory_budget) const;
 
   Backend& backend_;

@@ -16,6 +16,7 @@
 #include "host/metrics.hpp"
 #include "host/model.hpp"
 #include "host/progress.hpp"
+#include "host/tiling.hpp"
 #include "host/unroll_output.hpp"
 #include "host/value_list.hpp"
 #include "host/weights.hpp"
@@ -206,10 +207,18 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
 
   // Model or physics.
   std::string mode = o.mode;
-  if (mode != "auto" && mode != "s" && mode != "m" && mode != "physics")
-    throw Error("--mode '" + mode + "' (expected s, m, physics or auto)");
+  if (mode != "auto" && mode != "s" && mode != "m" && mode != "physics" && mode != "choose")
+    throw Error("--mode '" + mode + "' (expected s, m, choose, physics or auto)");
+  parse_sparse_policy(o.sparse, "--sparse");  // fail before any work
+  if (o.tile < 0 || o.tile % kTileAlign)
+    throw Error("--tile " + std::to_string(o.tile) + ": expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
+  if (o.halo < 0 || o.halo % kTileAlign)
+    throw Error("--halo " + std::to_string(o.halo) + ": expected a non-negative multiple of " + std::to_string(kTileAlign));
+  if (!(o.sparse_threshold >= 0))
+    throw Error("--sparse-threshold " + std::to_string(o.sparse_threshold) + ": expected >= 0 events per pixel");
   if (o.backend != "vulkan" && o.backend != "cpu") throw Error("--backend '" + o.backend + "' (expected vulkan or cpu)");
   if (mode == "auto" && o.model_path.empty()) mode = "physics";
+  if (mode == "choose" && o.model_path.empty()) throw Error("--mode choose needs --model FILE.safetensors");
   if (mode != "physics" && o.model_path.empty()) throw Error("--mode " + mode + " needs --model FILE.safetensors");
   std::optional<Weights> weights;
   if (mode != "physics") {
@@ -311,6 +320,15 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   std::optional<EventTensorBuilder> builder_gpu;
   if (ctx) builder_gpu.emplace(*ctx);
   size_t done = 0, runs_s = 0, runs_m = 0, runs_physics = 0;
+  // Tiling and sparse execution of the model (host/tiling.hpp).
+  TileOptions tile_options;
+  tile_options.tile = o.tile;
+  tile_options.halo = o.halo;
+  tile_options.sparse = parse_sparse_policy(o.sparse, "--sparse");
+  tile_options.threshold = o.sparse_threshold;
+  int64_t tiles_total = 0, tiles_run = 0, tile_used = 0, tiles_per_target = 0;
+  double work_pixels = 0;  // sum over targets of run_tiled's work_ratio
+  std::vector<double> target_active;
   std::map<std::string, int> notes;
 
   for (int k : frames) {
@@ -342,54 +360,81 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
       runs_physics += ts.size();
     } else {
       const bool has_next = k + 1 < static_cast<int>(seq.frames.size());
-      const bool use_m = (mode == "m" || mode == "auto") && weights->config.moa && has_next;
+      const bool moa = weights->config.moa;
+      const double span_lo = f1.timing.first_start().to_double(), span_hi = f1.timing.last_end().to_double();
+      // Per target: SelfUnroll-M or -S. choose: S inside the frame's exposure span, M between frames.
+      std::vector<size_t> s_targets, m_targets;
+      for (size_t j = 0; j < ts.size(); ++j) {
+        bool use_m = (mode == "m" || mode == "auto") && moa && has_next;
+        if (mode == "choose") {
+          const double t = ts[j].t_us.to_double();
+          const bool inside = t >= span_lo && t <= span_hi;
+          use_m = !inside && moa && has_next;
+          if (!inside && !use_m)
+            notes[std::string("target outside its frame's exposure span: SelfUnroll-S used (") +
+                  (moa ? "M needs the next frame" : "the model has no MOA weights") + ")"]++;
+        }
+        (use_m ? m_targets : s_targets).push_back(j);
+      }
       if (mode == "m" && !has_next) notes["frame " + std::to_string(k) + " is the last: SelfUnroll-S used (M needs the next frame)"]++;
       cv::Mat rs2;
-      if (use_m) {
+      if (!m_targets.empty()) {
         t_read = Clock::now();
         rs2 = read_image(seq.frames[k + 1].image, seq.width, seq.height);
         stage_ms["read"] += ms_since(t_read);
       }
-      // Pairs: S: (k, t_j); M: (k, t_j), (k+1, t_j) interleaved.
-      std::vector<EventTensorPair> pairs;
-      ModelInputs in;
-      for (const auto& t : ts) {
-        pairs.push_back({f1.timing, t.t_us, std::nullopt});
-        append_planes(rs1, rgb, in.rs.data);
-        if (use_m) {
-          pairs.push_back({seq.frames[k + 1].timing, t.t_us, std::nullopt});
-          append_planes(rs2, rgb, in.rs.data);
+      for (const bool use_m : {false, true}) {
+        const std::vector<size_t>& group = use_m ? m_targets : s_targets;
+        if (group.empty()) continue;
+        // Pairs: S: (k, t_j); M: (k, t_j), (k+1, t_j) interleaved.
+        std::vector<EventTensorPair> pairs;
+        ModelInputs in;
+        for (size_t j : group) {
+          pairs.push_back({f1.timing, ts[j].t_us, std::nullopt});
+          append_planes(rs1, rgb, in.rs.data);
+          if (use_m) {
+            pairs.push_back({seq.frames[k + 1].timing, ts[j].t_us, std::nullopt});
+            append_planes(rs2, rgb, in.rs.data);
+          }
         }
+        const int64_t B = static_cast<int64_t>(pairs.size());
+        in.rs.shape = {B, 3, seq.height, seq.width};
+        // Events of the window all pairs need.
+        double lo = 1e300, hi = -1e300;
+        for (const auto& p : pairs) {
+          lo = std::min({lo, p.target_us.to_double(), p.timing.first_start().to_double()});
+          hi = std::max({hi, p.target_us.to_double() + p.timing.exposure.to_double(), p.timing.last_end().to_double()});
+        }
+        t_read = Clock::now();
+        const EventStream ev = seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1);
+        stage_ms["read"] += ms_since(t_read);
+        const auto t_ev = Clock::now();
+        EventTensorSpec spec;
+        spec.bins = weights->config.N;
+        EventTensors et = builder_gpu ? builder_gpu->build(ev, pairs, spec) : build_event_tensors_cpu(ev, pairs, spec);
+        stage_ms["event_tensors"] += ms_since(t_ev);
+        const Shape es{B, 2 * spec.bins, seq.height, seq.width};
+        in.ev1 = {es, std::move(et.ev1)};
+        in.ev2 = {es, std::move(et.ev2)};
+        in.ev3 = {es, std::move(et.ev3)};
+        RunOptions ro;
+        ro.mode = use_m ? Mode::m : Mode::s;
+        ro.outputs = {use_m ? "out" : "fused"};
+        ro.stage_ms = &stage_ms;
+        const TiledResult res = run_tiled(*model, in, ro, tile_options);
+        for (const char* st : {"plan", "cut", "stitch"})
+          if (res.stage_ms.count(st)) stage_ms["tiling"] += res.stage_ms.at(st);
+        tiles_total += res.tiles;
+        work_pixels += res.work_ratio * double(group.size());
+        tiles_run += res.tiles_run;
+        tile_used = res.plan.tile_h == seq.height && res.plan.tile_w == seq.width ? 0 : std::max(res.plan.tile_h, res.plan.tile_w);
+        tiles_per_target = static_cast<int64_t>(res.plan.tiles.size());
+        for (double a : res.target_active_fraction) target_active.push_back(a);
+        const HostArray& out = res.outputs.at(use_m ? "out" : "fused");
+        for (size_t q = 0; q < group.size(); ++q)
+          results[group[q]] = planes_to_bgr(out.data.data() + q * 3 * seq.height * seq.width, seq.height, seq.width, rgb);
+        (use_m ? runs_m : runs_s) += group.size();
       }
-      const int64_t B = static_cast<int64_t>(pairs.size());
-      in.rs.shape = {B, 3, seq.height, seq.width};
-      // Events of the window all pairs need.
-      double lo = 1e300, hi = -1e300;
-      for (const auto& p : pairs) {
-        lo = std::min({lo, p.target_us.to_double(), p.timing.first_start().to_double()});
-        hi = std::max({hi, p.target_us.to_double() + p.timing.exposure.to_double(), p.timing.last_end().to_double()});
-      }
-      t_read = Clock::now();
-      const EventStream ev = seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1);
-      stage_ms["read"] += ms_since(t_read);
-      const auto t_ev = Clock::now();
-      EventTensorSpec spec;
-      spec.bins = weights->config.N;
-      EventTensors et = builder_gpu ? builder_gpu->build(ev, pairs, spec) : build_event_tensors_cpu(ev, pairs, spec);
-      stage_ms["event_tensors"] += ms_since(t_ev);
-      const Shape es{B, 2 * spec.bins, seq.height, seq.width};
-      in.ev1 = {es, std::move(et.ev1)};
-      in.ev2 = {es, std::move(et.ev2)};
-      in.ev3 = {es, std::move(et.ev3)};
-      RunOptions ro;
-      ro.mode = use_m ? Mode::m : Mode::s;
-      ro.outputs = {use_m ? "out" : "fused"};
-      ro.stage_ms = &stage_ms;
-      const auto res = model->run(in, ro);
-      const HostArray& out = res.at(use_m ? "out" : "fused");
-      for (size_t j = 0; j < ts.size(); ++j)
-        results[j] = planes_to_bgr(out.data.data() + j * 3 * seq.height * seq.width, seq.height, seq.width, rgb);
-      (use_m ? runs_m : runs_s) += ts.size();
     }
 
     const auto t_write = Clock::now();
@@ -416,6 +461,19 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   extra["runs"] = {{"s", runs_s}, {"m", runs_m}, {"physics", runs_physics}};
   if (weights) extra["model"] = {{"path", o.model_path}, {"config", weights->config.summary()}, {"channel_order", rgb ? "rgb" : "bgr"}};
   if (mode == "physics") extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma}};
+  if (weights) {
+    nlohmann::json tj{{"tile", o.tile}, {"tile_used", tile_used}, {"halo", o.halo}, {"sparse", o.sparse},
+                      {"sparse_threshold", o.sparse_threshold}, {"tiles_per_target", tiles_per_target},
+                      {"tiles", tiles_total}, {"tiles_run", tiles_run},
+                      {"active_tile_fraction", tiles_total ? double(tiles_run) / double(tiles_total) : 0.0},
+                      {"work_ratio", target_active.empty() ? 0.0 : work_pixels / double(target_active.size())}};
+    if (!target_active.empty()) {
+      double lo = 1, hi = 0, sum = 0;
+      for (double a : target_active) lo = std::min(lo, a), hi = std::max(hi, a), sum += a;
+      tj["target_active_fraction"] = {{"min", lo}, {"mean", sum / target_active.size()}, {"max", hi}};
+    }
+    extra["tiling"] = tj;
+  }
   extra["frames"] = frames.size();
   extra["targets"] = total_targets;
   extra["backend"] = ctx ? "vulkan" : "cpu";

@@ -1,6 +1,7 @@
 // `vkunroll unroll`: a recording (sequence folder) -> GS frames at chosen instants, with the
 // learned model (SelfUnroll-S/-M) or the weight-free physics unroller, streaming frame by frame.
 #pragma once
+#include <cstdint>
 #include <optional>
 #include <string>
 
@@ -15,7 +16,9 @@ struct UnrollOptions {
   SequenceOptions sequence_options;
   std::string out_dir;
   std::string model_path;        // safetensors; empty: physics
-  std::string mode = "auto";     // s | m | physics | auto (M when the next frame exists, else S; physics without model)
+  // s | m | physics | auto (M when the next frame exists, else S; physics without model) | choose (per
+  // target: S when t* lies in the frame's exposure span, M between frames when the next frame exists)
+  std::string mode = "auto";
   std::string times = "0.5";     // normalized targets per frame ("0:1:9", "-0.25,0.5,1.25"), or "gt"
   std::string times_us;          // absolute targets (µs); each goes to the frame whose span holds it
   std::string frames;            // "A:B" (inclusive) or a list; empty: all frames
@@ -28,6 +31,11 @@ struct UnrollOptions {
   bool quiet = false;
   bool video = true;
   int bit_depth = 8;
+  // Tiled / sparse model execution (host/tiling.hpp, docs/tiling.md).
+  int64_t tile = 0;               // interior side, multiple of 32; 0: untiled if it fits, else the largest that fits
+  int64_t halo = 64;              // multiple of 32
+  std::string sparse = "off";     // off | exact | fast
+  double sparse_threshold = 0.01; // fast: ev1 + ev2 events per pixel of a tile's input rect
 };
 
 // Runs the whole job; returns summary.json's content (also written to out_dir).

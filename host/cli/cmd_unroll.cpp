@@ -12,11 +12,11 @@ int cmd_unroll(const Argv& argv) {
   Args args("unroll", argv,
             {"out", "model", "mode", "times", "times-us", "frames", "layout", "events", "line-delay-us", "exposure-us",
              "readout", "t0s-us", "channel-order", "device", "backend", "precision", "contrast", "gamma", "bit-depth",
-             "on-bad"},
+             "on-bad", "tile", "halo", "sparse", "sparse-threshold"},
             {"quiet", "no-video", "gev-half-row"});
   if (args.help() || args.positionals().empty()) {
     std::cout <<
-        "usage: vkunroll unroll SEQUENCE --out DIR [--model M.safetensors] [--mode s|m|physics|auto]\n"
+        "usage: vkunroll unroll SEQUENCE --out DIR [--model M.safetensors] [--mode s|m|choose|physics|auto]\n"
         "                       [--times LIST|gt | --times-us LIST] [--frames A:B] [options]\n\n"
         "Turns a recording into global-shutter frames: a PNG per GS frame (frames/), gs_video.mp4, a contact\n"
         "sheet, metrics.csv and summary.json (PSNR/SSIM where the sequence has ground truth).\n\n"
@@ -25,6 +25,13 @@ int cmd_unroll(const Argv& argv) {
         "  --model FILE         SelfUnroll weights (safetensors, see tools/convert_checkpoint.py)\n"
         "  --mode M             s | m | physics | auto: M when the next frame exists, else S; physics\n"
         "                       (the weight-free event double integral) when no model is given  [auto]\n"
+        "                       choose: per target, S when t* lies in the frame's exposure span, else M\n"
+        "  --tile N             run the model on N x N tiles (multiple of 32); 0: whole frames when they\n"
+        "                       fit the device's buffers, else the largest tile that fits        [0]\n"
+        "  --halo N             context pixels around each tile (multiple of 32; see docs/tiling.md) [64]\n"
+        "  --sparse P           off | exact: tiles without events keep the RS pixels | fast: also tiles\n"
+        "                       below --sparse-threshold events per pixel                       [off]\n"
+        "  --sparse-threshold X events per pixel (ev1 + ev2 over a tile and its halo) for fast   [0.01]\n"
         "  --times LIST         normalized targets per frame: 0 = first row's exposure start, 1 = last\n"
         "                       row's exposure end; ranges start:stop:count, lists -0.25,0.5,1.25;\n"
         "                       'gt' renders exactly the ground-truth instants, named after their files [0.5]\n"
@@ -59,6 +66,10 @@ int cmd_unroll(const Argv& argv) {
   if (args.has("gamma")) o.gamma = args.number("gamma", 1.0);
   o.bit_depth = static_cast<int>(args.integer("bit-depth", 8));
   if (o.bit_depth != 8 && o.bit_depth != 16) throw Error("--bit-depth must be 8 or 16");
+  o.tile = args.integer("tile", 0);
+  o.halo = args.integer("halo", 64);
+  o.sparse = args.get_or("sparse", "off");
+  o.sparse_threshold = args.number("sparse-threshold", 0.01);
   o.quiet = args.has("quiet");
   o.video = !args.has("no-video");
   SequenceOptions& so = o.sequence_options;

@@ -1,0 +1,418 @@
+// Tiled and sparse execution (host/tiling.hpp): plan geometry, receptive radii, a tiled CPU run
+// with halo >= the exact halo equal to the untiled run bit for bit, a smaller halo's measured
+// error, sparse policies (no events: RS and zero tiles; events in a corner: only nearby tiles),
+// lavapipe tiled vs CPU tiled, and tile choice under buffer limits (small and published model at
+// 1280x720 planned; a capped lavapipe backend forced to tile).
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+#include "host/backend_cpu.hpp"
+#include "host/backend_vulkan.hpp"
+#include "host/sim_sequence.hpp"
+#include "host/tiling.hpp"
+#include "host/unroll.hpp"
+#include "host/weights.hpp"
+#include "model_test_util.hpp"
+#include "runtime/error.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+using namespace vkunroll::modeltest;
+
+namespace {
+
+// A tiny model with shallow UNets (receptive radius 84, so tiles with halo 96 see less than a
+// 320-wide image) whose flownet output is scaled down: flow of a few pixels, not up to 100.
+Weights shallow_weights() {
+  ModelConfig cfg;
+  cfg.D = 1;
+  cfg.C = 1;
+  cfg.G = 4;
+  cfg.G0 = 8;
+  cfg.N = 2;
+  cfg.upnet_width = 16;
+  cfg.flownet = {4, 2};
+  cfg.fusion_net = {4, 2};
+  cfg.attfusion_net = {4, 2};
+  Weights w = random_weights(cfg, 7);
+  for (const char* k : {"flownet.pred.weight", "flownet.pred.bias"})
+    for (auto& v : w.tensors.at(k).data) v *= 0.02f;
+  return w;
+}
+
+double max_abs(const HostArray& a) {
+  double m = 0;
+  for (float v : a.data) m = std::max(m, double(std::fabs(v)));
+  return m;
+}
+
+// Zeroes the events of ev1/ev2 outside rows [y0, y0+h) x cols [x0, x0+w) (all of them when h = 0).
+void keep_events_in(ModelInputs& in, int64_t y0, int64_t x0, int64_t h, int64_t w) {
+  for (HostArray* a : {&in.ev1, &in.ev2}) {
+    const Shape s = a->shape;
+    for (int64_t i = 0; i < s.n * s.c; ++i)
+      for (int64_t y = 0; y < s.h; ++y)
+        for (int64_t x = 0; x < s.w; ++x)
+          if (!(y >= y0 && y < y0 + h && x >= x0 && x < x0 + w)) a->data[size_t((i * s.h + y) * s.w + x)] = 0.f;
+  }
+}
+
+}  // namespace
+
+TEST(TilingPlan, TilesPartitionTheImageAndHalosAreClipped) {
+  const TilePlan p = make_tile_plan(100, 70, 32, 32, 32);
+  ASSERT_EQ(p.tiles.size(), 4u * 3u);
+  std::vector<int> covered(100 * 70, 0);
+  for (const Tile& t : p.tiles) {
+    for (int64_t y = t.interior.y; y < t.interior.y + t.interior.h; ++y)
+      for (int64_t x = t.interior.x; x < t.interior.x + t.interior.w; ++x) covered[size_t(y * 70 + x)]++;
+    EXPECT_EQ(t.input.y, std::max<int64_t>(0, t.interior.y - 32));
+    EXPECT_EQ(t.input.y + t.input.h, std::min<int64_t>(100, t.interior.y + t.interior.h + 32));
+    EXPECT_EQ(t.input.x % 32, 0);
+  }
+  for (int c : covered) ASSERT_EQ(c, 1);
+  EXPECT_EQ(p.tiles.back().interior, (Rect{96, 64, 4, 6}));
+  EXPECT_TRUE(make_tile_plan(100, 70, 128, 128, 32).untiled());
+  EXPECT_THROW(make_tile_plan(100, 70, 40, 40, 32), Error);  // not a multiple of 32
+  EXPECT_THROW(make_tile_plan(100, 70, 32, 32, 20), Error);
+  EXPECT_THROW(make_tile_plan(1, 70, 32, 32, 32), Error);
+}
+
+TEST(TilingPlan, ReceptiveRadii) {
+  const ReceptiveRadius pub = receptive_radius(ModelConfig::published());
+  EXPECT_EQ(pub.synthesis, 112);   // 2 (2 + 1 + 50 + 1 + 1) + 2
+  EXPECT_EQ(pub.flownet, 186);     // depth 4: 12 * 16 - 6
+  EXPECT_EQ(pub.fusion_net, 90);   // depth 3
+  EXPECT_EQ(pub.fused, 276);
+  EXPECT_EQ(pub.out, 276);
+  EXPECT_EQ(exact_halo(ModelConfig::published(), Mode::s, 0.0), 288);
+  EXPECT_EQ(exact_halo(ModelConfig::published(), Mode::s, 250.0), 352);  // 90 + 251 -> 341
+  const Weights w = shallow_weights();
+  const ReceptiveRadius r = receptive_radius(w.config);
+  EXPECT_EQ(r.synthesis, 14);
+  EXPECT_EQ(r.flownet, 42);
+  EXPECT_EQ(r.fused, 84);
+}
+
+// halo >= exact_halo: every stitched output equals the untiled run exactly (CPU backend: the
+// same arithmetic per output pixel; H and W multiples of 32, so no UNet padding anywhere).
+TEST(TilingCpu, HaloAtExactHaloEqualsUntiledBitForBit) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  const ModelInputs in = random_inputs(2, 64, 256, w.config.N, 5);
+  RunOptions opt;
+  opt.mode = Mode::m;
+  const auto full = model.run(in, opt);
+  const double max_flow = max_abs(full.at("flow"));
+  TileOptions t;
+  t.tile = 64;
+  t.halo = exact_halo(w.config, Mode::m, max_flow);
+  ASSERT_EQ(t.halo, 96) << "max |flow| " << max_flow;
+  const TiledResult tiled = run_tiled(model, in, opt, t);
+  ASSERT_EQ(tiled.plan.tiles.size(), 4u);
+  // The halo really cuts: every tile sees less than the image.
+  EXPECT_EQ(tiled.plan.tiles[0].input, (Rect{0, 0, 64, 160}));
+  EXPECT_EQ(tiled.plan.tiles[2].input, (Rect{0, 32, 64, 224}));
+  EXPECT_EQ(tiled.tiles_run, 4);
+  ASSERT_EQ(tiled.outputs.size(), full.size());
+  for (const auto& [name, arr] : full) EXPECT_EQ(max_abs_diff(tiled.outputs.at(name), arr), 0.0) << name;
+}
+
+// Sizes that are not multiples of 32 (odd height too): the tiles' UNets place their input at the
+// untiled run's offset, so the result is still bit for bit the untiled one.
+TEST(TilingCpu, UnalignedOddSizeAtExactHaloEqualsUntiledBitForBit) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  const ModelInputs in = random_inputs(2, 61, 226, w.config.N, 6);  // UNet offsets 1 (rows), 15 (columns)
+  RunOptions opt;
+  opt.mode = Mode::m;
+  opt.outputs = {"flow", "warped", "fused", "out"};
+  const auto full = model.run(in, opt);
+  TileOptions t;
+  t.tile = 64;
+  t.halo = exact_halo(w.config, Mode::m, max_abs(full.at("flow")));
+  ASSERT_EQ(t.halo, 96);
+  const TiledResult tiled = run_tiled(model, in, opt, t);
+  ASSERT_EQ(tiled.plan.tiles.size(), 4u);
+  EXPECT_EQ(tiled.plan.tiles[3].input, (Rect{0, 96, 61, 130}));
+  for (const auto& [name, arr] : full) EXPECT_EQ(max_abs_diff(tiled.outputs.at(name), arr), 0.0) << name;
+}
+
+// A halo below the receptive radius: measured error, bounded, and not zero.
+TEST(TilingCpu, SmallHaloHasABoundedMeasuredError) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  const ModelInputs in = random_inputs(1, 64, 192, w.config.N, 9);
+  RunOptions opt;
+  opt.outputs = {"fused", "flow"};
+  const auto full = model.run(in, opt);
+  TileOptions t;
+  t.tile = 64;
+  t.halo = 32;
+  const TiledResult tiled = run_tiled(model, in, opt, t);
+  const double err = max_abs_diff(tiled.outputs.at("fused"), full.at("fused"));
+  const double flow_err = max_abs_diff(tiled.outputs.at("flow"), full.at("flow"));
+  std::printf("[ tiling   ] halo 32 (exact 96): fused max abs err %.3g (max |fused| %.3g), flow %.3g px\n", err,
+              max_abs(full.at("fused")), flow_err);
+  EXPECT_GT(err, 0.0);
+  EXPECT_LT(err, 0.005);  // measured 1.66e-3
+}
+
+TEST(TilingCpu, SparseExactWithoutEventsReturnsRsAndRunsNoTile) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  ModelInputs in = random_inputs(2, 64, 96, w.config.N, 3);
+  keep_events_in(in, 0, 0, 0, 0);
+  for (Mode mode : {Mode::s, Mode::m}) {
+    RunOptions opt;
+    opt.mode = mode;
+    opt.outputs = {mode == Mode::m ? "out" : "fused"};
+    TileOptions t;
+    t.tile = 32;
+    t.halo = 32;
+    t.sparse = SparsePolicy::exact;
+    const TiledResult r = run_tiled(model, in, opt, t);
+    EXPECT_EQ(r.tiles_run, 0);
+    EXPECT_EQ(r.active_fraction, 0.0);
+    const HostArray& o = r.outputs.at(opt.outputs[0]);
+    const HostArray rs = mode == Mode::m ? take(in.rs, 0, 1) : in.rs;
+    EXPECT_EQ(max_abs_diff(o, rs), 0.0);
+  }
+}
+
+TEST(TilingCpu, SparseRunsOnlyTilesNearTheEvents) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  ModelInputs in = random_inputs(1, 96, 96, w.config.N, 4);
+  keep_events_in(in, 0, 0, 8, 8);  // events only in the top-left corner
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  TileOptions t;
+  t.tile = 32;
+  t.halo = 32;
+  const TiledResult dense = run_tiled(model, in, opt, t);
+  t.sparse = SparsePolicy::exact;
+  const TiledResult sparse = run_tiled(model, in, opt, t);
+  // Tiles whose input rect (interior + 32) reaches the corner: interiors (0,0), (0,32), (32,0), (32,32).
+  EXPECT_EQ(sparse.tiles, 9);
+  EXPECT_EQ(sparse.tiles_run, 4);
+  EXPECT_DOUBLE_EQ(sparse.active_fraction, 4.0 / 9);
+  // Input rects 64x64, 64x96, 96x64, 96x96 (clipped at the image border) of a 96x96 image.
+  EXPECT_DOUBLE_EQ(sparse.work_ratio, (64.0 * 64 + 2 * 64 * 96 + 96 * 96) / (96 * 96));
+  const HostArray& a = sparse.outputs.at("fused");
+  const HostArray& d = dense.outputs.at("fused");
+  for (const Tile& tl : sparse.plan.tiles) {
+    const bool near = tl.interior.y < 64 && tl.interior.x < 64;
+    double diff_dense = 0, diff_rs = 0;
+    for (int64_t c = 0; c < 3; ++c)
+      for (int64_t y = tl.interior.y; y < tl.interior.y + tl.interior.h; ++y)
+        for (int64_t x = tl.interior.x; x < tl.interior.x + tl.interior.w; ++x) {
+          const size_t i = size_t((c * 96 + y) * 96 + x);
+          diff_dense = std::max(diff_dense, double(std::fabs(a.data[i] - d.data[i])));
+          diff_rs = std::max(diff_rs, double(std::fabs(a.data[i] - in.rs.data[i])));
+        }
+    if (near) EXPECT_EQ(diff_dense, 0.0) << tl.interior.y << "," << tl.interior.x;
+    else EXPECT_EQ(diff_rs, 0.0) << tl.interior.y << "," << tl.interior.x;
+  }
+  // fast: a threshold above the corner's density runs nothing.
+  t.sparse = SparsePolicy::fast;
+  t.threshold = 1e6;
+  EXPECT_EQ(run_tiled(model, in, opt, t).tiles_run, 0);
+  t.threshold = 0.0;
+  EXPECT_EQ(run_tiled(model, in, opt, t).tiles_run, 4);
+}
+
+TEST(TilingCpu, BadOptionsAreClearErrors) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  const ModelInputs in = random_inputs(1, 64, 64, w.config.N, 1);
+  RunOptions opt;
+  TileOptions t;
+  t.tile = 48;
+  EXPECT_THROW(run_tiled(model, in, opt, t), Error);
+  t.tile = 32;
+  t.halo = 10;
+  EXPECT_THROW(run_tiled(model, in, opt, t), Error);
+  EXPECT_THROW(parse_sparse_policy("maybe", "--sparse"), Error);
+}
+
+// lavapipe, tiled, against the CPU tiled run (golden tiny model; tolerance of the model tests).
+TEST(TilingVulkan, TiledMatchesCpuTiled) {
+  const Weights w = load_weights(fixture("selfunroll_tiny.safetensors"));
+  const ModelInputs in = random_inputs(2, 64, 96, w.config.N, 12);
+  RunOptions opt;
+  opt.mode = Mode::m;
+  TileOptions t;
+  t.tile = 32;
+  t.halo = 32;
+  VulkanBackend vk(vktest::context());
+  Model gm(vk, w);
+  const TiledResult g = run_tiled(gm, in, opt, t);
+  CpuBackend cpu;
+  Model cm(cpu, w);
+  const TiledResult c = run_tiled(cm, in, opt, t);
+  ASSERT_EQ(g.plan.tiles.size(), 6u);
+  for (const auto& [name, arr] : c.outputs) {
+    const double tol = name == "flow" ? 1e-4 * std::max(1.0, max_abs(arr))
+                       : name == "warped" ? 1e-4 + 2 * max_abs_diff(g.outputs.at("flow"), c.outputs.at("flow"))
+                                          : 1e-4;
+    EXPECT_LE(max_abs_diff(g.outputs.at(name), arr), tol) << name;
+  }
+}
+
+// The tile choice keeps every buffer under the limit: planned runs at 1280x720 (shipped small
+// model's configuration and the published one) on a 128 MiB PlanningBackend.
+TEST(TilingPlan, AutomaticTileFitsTheBufferLimitAt1280x720) {
+  ModelConfig small;
+  small.D = 2, small.C = 3, small.G = 12, small.G0 = 24, small.N = 4, small.upnet_width = 48;
+  small.flownet = small.fusion_net = small.attfusion_net = {8, 3};
+  for (const ModelConfig& cfg : {small, ModelConfig::published()}) {
+    const Weights w = random_weights(cfg, 1);
+    const ModelInputs in = random_inputs(2, 720, 1280, cfg.N, 1, /*values=*/false);
+    PlanningBackend plan;
+    Model model(plan, w);
+    RunOptions opt;
+    opt.mode = Mode::m;
+    TileOptions t;
+    t.halo = 64;
+    const TiledResult r = run_tiled(model, in, opt, t);
+    EXPECT_LE(plan.largest_buffer(), plan.max_buffer_bytes());
+    std::printf("[ tiling   ] %s at 1280x720 M, halo 64: tile %lld (%zu tiles), largest buffer %.1f MiB (%s), peak %.1f MiB\n",
+                cfg.D == 10 ? "published" : "small", (long long)r.plan.tile_h, r.plan.tiles.size(),
+                plan.largest_buffer() / 1048576.0, plan.largest_buffer_name().c_str(), plan.device_peak_bytes() / 1048576.0);
+    if (cfg.D != 10) {
+      EXPECT_TRUE(r.plan.untiled());  // the small model fits lavapipe untiled
+      continue;
+    }
+    EXPECT_FALSE(r.plan.untiled());
+    // The published model's exact halo (288: input rects of 608 x 608 at least) needs a 146 MB
+    // space_to_depth buffer, above lavapipe's 128 MiB; 256 is the largest halo that fits there.
+    EXPECT_EQ(exact_halo(cfg, Mode::m, 100.0), 288);
+    EXPECT_THROW(choose_tile(model, 720, 1280, Mode::m, 288, plan.max_buffer_bytes()), Error);
+    const int64_t tile = choose_tile(model, 720, 1280, Mode::m, 256, plan.max_buffer_bytes());
+    EXPECT_EQ(tile, 64);
+    PlanningBackend plan_one;
+    Model one(plan_one, w);
+    one.run(random_inputs(2, tile + 512, tile + 512, cfg.N, 1, false), opt);  // an unclipped tile
+    EXPECT_LE(plan_one.largest_buffer(), plan_one.max_buffer_bytes());
+  }
+}
+
+// A lavapipe backend capped at 4 MiB per buffer: the automatic tile fits it and the run completes
+// (without tiling the same run throws), equal to the CPU run with the same tiles.
+TEST(TilingVulkan, CappedBufferLimitForcesTiles) {
+  const Weights w = load_weights(fixture("selfunroll_tiny.safetensors"));
+  const ModelInputs in = random_inputs(1, 96, 128, w.config.N, 21);
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  VulkanBackend vk(vktest::context());
+  vk.set_max_buffer_bytes(1u << 20);
+  Model gm(vk, w);
+  EXPECT_THROW(gm.run(in, opt), Error);
+  TileOptions t;
+  t.halo = 32;
+  const TiledResult g = run_tiled(gm, in, opt, t);
+  EXPECT_FALSE(g.plan.untiled());
+  EXPECT_LE(vk.device_peak_bytes(), 64ull << 20);
+  CpuBackend cpu;
+  Model cm(cpu, w);
+  t.tile = g.plan.tile_h;
+  const TiledResult c = run_tiled(cm, in, opt, t);
+  EXPECT_LE(max_abs_diff(g.outputs.at("fused"), c.outputs.at("fused")), 1e-4);
+}
+
+// The shipped small model on one 1280x720 SelfUnroll-S target on lavapipe, tiled (tile 256,
+// halo 64) with sparse exact: events only in a band, so part of the tiles run.
+TEST(TilingVulkan, SmallModel1280x720STarget) {
+  const Weights w = load_weights(std::string(VKUNROLL_SOURCE_DIR) + "/models/selfunroll_small.safetensors");
+  ModelInputs in = random_inputs(1, 720, 1280, w.config.N, 31);
+  keep_events_in(in, 256, 0, 128, 1280);
+  VulkanBackend vk(vktest::context());
+  Model model(vk, w);
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  TileOptions t;
+  t.tile = 256;
+  t.halo = 64;
+  t.sparse = SparsePolicy::exact;
+  const auto t0 = std::chrono::steady_clock::now();
+  const TiledResult r = run_tiled(model, in, opt, t);
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::printf("[ tiling   ] small model 1280x720 S, tile 256 halo 64 sparse exact: %lld of %lld tiles run, %.1f s\n",
+              (long long)r.tiles_run, (long long)r.tiles, s);
+  EXPECT_EQ(r.tiles, 15);
+  EXPECT_EQ(r.tiles_run, 10);  // tile rows 0 (input rows 0..319) and 1 reach the band 256..383
+  const HostArray& f = r.outputs.at("fused");
+  for (float v : f.data) ASSERT_TRUE(std::isfinite(v));
+  // Tile row 2 (rows 512..719, input from row 448) saw no event: the RS pixels.
+  for (int64_t c = 0; c < 3; ++c)
+    for (int64_t y = 512; y < 720; y += 7)
+      for (int64_t x = 0; x < 1280; x += 5) ASSERT_EQ(f.data[size_t((c * 720 + y) * 1280 + x)], in.rs.data[size_t((c * 720 + y) * 1280 + x)]);
+}
+
+// `vkunroll unroll` with --mode choose, --tile, --halo, --sparse: the per-target mode choice and the
+// tiling record in summary.json.
+TEST(TilingUnroll, ChooseModeAndTiledSparseSummary) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("vkunroll-test-tiling-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  sim::SimulationConfig cfg = sim::simulation_preset("clean");
+  cfg.seed = 11;
+  cfg.width = 64;
+  cfg.height = 48;
+  cfg.frames = 3;
+  cfg.gt_per_frame = 1;
+  sim::write_sequence(cfg, sim::simulate(cfg), (dir / "seq").string());
+  UnrollOptions o;
+  o.sequence = (dir / "seq").string();
+  o.out_dir = (dir / "out").string();
+  o.quiet = true;
+  o.video = false;
+  o.backend = "cpu";
+  o.model_path = fixture("selfunroll_tiny.safetensors");
+  o.mode = "choose";
+  o.times = "-0.25,0.5";  // before the frame's exposure span, inside it
+  o.frames = "1:2";            // frame 2 is the last: M impossible there
+  o.tile = 32;
+  o.halo = 32;
+  o.sparse = "exact";
+  const auto s = run_unroll(o);
+  EXPECT_EQ(s["runs"]["m"].get<int>(), 1);  // frame 1: -0.25
+  EXPECT_EQ(s["runs"]["s"].get<int>(), 3);  // frame 1: 0.5; frame 2: both
+  const auto& t = s["tiling"];
+  EXPECT_EQ(t["tile"].get<int>(), 32);
+  EXPECT_EQ(t["tile_used"].get<int>(), 32);
+  EXPECT_EQ(t["halo"].get<int>(), 32);
+  EXPECT_EQ(t["sparse"].get<std::string>(), "exact");
+  EXPECT_EQ(t["tiles_per_target"].get<int>(), 4);  // 64x48 in 32-pixel tiles
+  EXPECT_EQ(t["tiles"].get<int>(), 4 * 4);
+  const double f = t["active_tile_fraction"].get<double>();
+  EXPECT_NEAR(f, t["tiles_run"].get<double>() / 16.0, 1e-12);
+  EXPECT_GT(f, 0.0);  // the clean scene moves: events in some tiles
+  bool noted = false;
+  for (const auto& n : s["notes"]) noted = noted || n.get<std::string>().find("outside its frame's exposure span") != std::string::npos;
+  EXPECT_TRUE(noted);
+  o.tile = 40;
+  try {
+    run_unroll(o);
+    ADD_FAILURE() << "--tile 40 accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("--tile 40"), std::string::npos) << e.what();
+  }
+  o.tile = 0;
+  o.sparse = "sometimes";
+  EXPECT_THROW(run_unroll(o), Error);
+  fs::remove_all(dir);
+}
