@@ -129,7 +129,10 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
   direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
   if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
+  // Few output channels: reuse each loaded input row for 4 output rows (loads bound the speed).
+  direct_py_ = (cout_ <= 4 && k > 1) ? 4 : 1;
   if (const char* c = std::getenv("VKUNROLL_DIRECT_PX")) direct_px_ = static_cast<uint32_t>(std::atoi(c));
+  if (const char* c = std::getenv("VKUNROLL_DIRECT_PY")) direct_py_ = static_cast<uint32_t>(std::atoi(c));
   if (const char* g = std::getenv("VKUNROLL_CONV_G")) subgroup_g_ = static_cast<uint32_t>(std::atoi(g));
   else subgroup_g_ = (cout_ % 24 == 0 || cout_ == 3) ? 3 : 2;
   const int64_t kk = static_cast<int64_t>(k) * k;
@@ -328,7 +331,13 @@ bool Conv2d::supports(ConvAlgo algo) const {
 ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
   // model; tiny images (one tile row or column) gain nothing from it.
+  // The direct path (weights from a uniform buffer) beats Winograd for 1-4 output channels (Winograd
+  // pads them to 8) and the GEMM for 1x1 convs with <= 64 input channels (no pack/epilogue passes);
+  // only where one dispatch per channel block holds all input channels.
+  const bool direct_whole = supports(ConvAlgo::direct) && direct_chunk() >= cin_;
+  if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
   if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;
+  if (direct_whole && supports(ConvAlgo::gemm) && cin_ <= 64) return ConvAlgo::direct;
   if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
   return ConvAlgo::blocked;
 }
@@ -429,7 +438,8 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         dp.h = dp.oh = 1;
         dp.w = dp.ow = u32(is.h * is.w);
       }
-      const int64_t px = direct_px_, tasks = static_cast<int64_t>(dp.oh) * ((dp.ow + px - 1) / px);
+      const int64_t px = direct_px_, py = flat ? 1 : direct_py_;
+      const int64_t tasks = ((dp.oh + py - 1) / py) * ((dp.ow + px - 1) / px);
       const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
       const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
       if (chunk < cin_ && residual && residual->t->range().buffer == out.t->range().buffer &&
@@ -440,7 +450,8 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
           const bool first = c0 == 0, last = c0 + chunk >= cin_;
           std::vector<uint32_t> dspec = spec;
-          dspec.insert(dspec.end(), {direct_px_, u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u, u32(chunk * kk * cob / 4)});
+          dspec.insert(dspec.end(),
+                       {direct_px_, u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u, u32(chunk * kk * cob / 4), u32(py)});
           ConvPush cp = dp;
           cp.in_off = u32(bi.offset + c0 * is.h * is.w);
           cp.cin = u32(std::min(chunk, cin_ - c0));

@@ -109,7 +109,8 @@ class Conv2d {
   uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
   mutable Tensor weight_direct_;  // [ceil(cout/COB)][cin (+ one chunk of padding)][k*k][COB]
   int64_t direct_cob_ = 16;  // output channels per invocation of the direct path
-  uint32_t direct_px_ = 8;   // output pixels per invocation of the direct path
+  uint32_t direct_px_ = 8;   // output pixels per row and invocation of the direct path
+  uint32_t direct_py_ = 1;   // output rows per invocation of the direct path
   int64_t direct_chunk_limit_ = 0;  // 0: none
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
   Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path

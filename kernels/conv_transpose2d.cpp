@@ -140,6 +140,9 @@ bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
 }
 
 ConvTransposeAlgo ConvTranspose2d::choose_algorithm(int64_t, int64_t) const {
+  // direct (weights from a uniform buffer, 16 channels per invocation) measured 5-10% faster than
+  // blocked on every transposed conv of the model on lavapipe.
+  if (supports(ConvTransposeAlgo::direct)) return ConvTransposeAlgo::direct;
   return supports(ConvTransposeAlgo::blocked) ? ConvTransposeAlgo::blocked : ConvTransposeAlgo::naive;
 }
 
