@@ -151,6 +151,8 @@ double ceiling_gflops(Context& ctx, Profiler* profile) {
 int main(int argc, char** argv) {
   std::string json_path, only;
   bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false;
+  std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
+  auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
   int reps = 2;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -167,17 +169,22 @@ int main(int argc, char** argv) {
     else if (a == "--no-naive") naive = false;
     else if (a == "--naive-full") naive_full = true;
     else if (a == "--all-algos") all_algos = true;
+    else if (a == "--algos") {
+      all_algos = true;
+      algo_filter = "," + value() + ",";
+    }
     else if (a == "--only") only = value();
     else if (a == "--reps") reps = std::max(1, std::atoi(value().c_str()));
     else if (a == "-h" || a == "--help") {
       std::cout << "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"
-                   "                              [--naive-full] [--all-algos] [--only NAME_SUBSTRING]\n"
+                   "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
                    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
                    "Times are the best of --reps (default 2) after a warm-up. The naive shader runs on the\n"
                    "full shape for the 3x3 RDB conv 144->48 and on a band of rows elsewhere (--naive-full:\n"
-                   "everywhere; slow). --all-algos also times every other applicable algorithm.\n";
+                   "everywhere; slow). --all-algos also times every other applicable algorithm, --algos A,B\n"
+                   "only the named ones (e.g. direct,gemm).\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
@@ -217,8 +224,9 @@ int main(int argc, char** argv) {
         const ConvTransposeAlgo chosen = deconv->choose_algorithm(c.h, c.w);
         algos.push_back(conv_transpose_algo_name(chosen));
         if (all_algos)
-          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked})
-            if (a != chosen && deconv->supports(a)) algos.push_back(conv_transpose_algo_name(a));
+          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+            if (a != chosen && deconv->supports(a) && wanted(conv_transpose_algo_name(a)))
+              algos.push_back(conv_transpose_algo_name(a));
       } else {
         conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
                      Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name);
@@ -227,16 +235,16 @@ int main(int argc, char** argv) {
         const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
         algos.push_back(conv_algo_name(chosen));
         if (all_algos)
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm})
-            if (a != chosen && conv->supports(a)) algos.push_back(conv_algo_name(a));
+          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+            if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
       }
       Tensor yd(ctx, os);
       auto record_algo = [&](CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) {
         if (c.transposed) {
-          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked})
+          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
             if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
         } else {
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm})
+          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
             if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
         }
       };

@@ -22,6 +22,7 @@ Groups flat_groups(int64_t n, uint32_t z) {
 struct ConvPush {
   uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs;
   uint32_t cin, h, w, cout, oh, ow, pad;
+  uint32_t co0 = 0;  // direct: first output channel of the dispatch (the other shaders ignore it)
 };
 
 std::string conv_label(const std::string& name, const Conv2dParams& p) {
@@ -41,6 +42,7 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::subgroup: return "subgroup";
     case ConvAlgo::winograd: return "winograd";
     case ConvAlgo::gemm: return "gemm";
+    case ConvAlgo::direct: return "direct";
   }
   return "unknown";
 }
@@ -125,6 +127,12 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
   blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
   if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
+  direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
+  if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
+  // Few output channels: reuse each loaded input row for 4 output rows (loads bound the speed).
+  direct_py_ = (cout_ <= 4 && k > 1) ? 4 : 1;
+  if (const char* c = std::getenv("VKUNROLL_DIRECT_PX")) direct_px_ = static_cast<uint32_t>(std::atoi(c));
+  if (const char* c = std::getenv("VKUNROLL_DIRECT_PY")) direct_py_ = static_cast<uint32_t>(std::atoi(c));
   if (const char* g = std::getenv("VKUNROLL_CONV_G")) subgroup_g_ = static_cast<uint32_t>(std::atoi(g));
   else subgroup_g_ = (cout_ % 24 == 0 || cout_ == 3) ? 3 : 2;
   const int64_t kk = static_cast<int64_t>(k) * k;
@@ -237,6 +245,29 @@ void Conv2d::pack_subgroup() const {
   bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx_);
 }
 
+int64_t Conv2d::direct_chunk_max() const {
+  const int64_t slab_per_channel = static_cast<int64_t>(params_.kernel) * params_.kernel * direct_cob_ * 4;
+  return std::min<int64_t>(cin_, static_cast<int64_t>(ctx_.info().max_uniform_buffer_range) / slab_per_channel);
+}
+int64_t Conv2d::direct_chunk() const {
+  return direct_chunk_limit_ > 0 ? std::min(direct_chunk_limit_, direct_chunk_max()) : direct_chunk_max();
+}
+
+void Conv2d::pack_direct() const {
+  if (!weight_direct_.empty()) return;
+  // [cout/COB][cin][k*k][COB], zero-padded channels, plus one chunk of zeros at the end so that
+  // every dispatch can bind a whole slab (the uniform block has a fixed size).
+  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, cob = direct_cob_;
+  const int64_t blocks = (cout_ + cob - 1) / cob;
+  std::vector<float> wd(static_cast<size_t>((blocks * cin_ + direct_chunk_max()) * kk * cob), 0.f);
+  for (int64_t co = 0; co < cout_; ++co)
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      for (int64_t t = 0; t < kk; ++t)
+        wd[static_cast<size_t>((((co / cob) * cin_ + ci) * kk + t) * cob + co % cob)] =
+            weight_host_.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
+  weight_direct_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd).to_device(ctx_);
+}
+
 namespace {
 struct WinogradSizes {
   int64_t tiles_x_pad, tiles_y, ngroups, tiles_pad;  // groups of 4 horizontally adjacent tiles
@@ -291,6 +322,7 @@ bool Conv2d::supports(ConvAlgo algo) const {
     case ConvAlgo::automatic:
     case ConvAlgo::naive:
     case ConvAlgo::blocked: return true;
+    case ConvAlgo::direct: return direct_cob_ % 4 == 0 && direct_chunk() >= 1;
     case ConvAlgo::subgroup: return ctx_.info().subgroup_size == 8 && params_.kernel <= 5 && params_.stride <= 2;
     default: return false;
   }
@@ -299,7 +331,13 @@ bool Conv2d::supports(ConvAlgo algo) const {
 ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
   // model; tiny images (one tile row or column) gain nothing from it.
+  // The direct path (weights from a uniform buffer) beats Winograd for 1-4 output channels (Winograd
+  // pads them to 8) and the GEMM for 1x1 convs with <= 64 input channels (no pack/epilogue passes);
+  // only where one dispatch per channel block holds all input channels.
+  const bool direct_whole = supports(ConvAlgo::direct) && direct_chunk() >= cin_;
+  if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
   if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;
+  if (direct_whole && supports(ConvAlgo::gemm) && cin_ <= 64) return ConvAlgo::direct;
   if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
   return ConvAlgo::blocked;
 }
@@ -385,6 +423,49 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       const auto cog = static_cast<uint32_t>((cout_ + 8 * subgroup_g_ - 1) / (8 * subgroup_g_));
       cs.dispatch(pl, {bi.arg, {weight_subgroup_.range(), Access::read}, {bias_subgroup_.range(), Access::read}, br.arg, bo.arg},
                   p, Groups{static_cast<uint32_t>((tasks + per_wg - 1) / per_wg), 1, static_cast<uint32_t>(os.n) * cog}, info);
+      return;
+    }
+    case ConvAlgo::direct: {
+      pack_direct();
+      const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
+      const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, cob = direct_cob_;
+      const int64_t chunk = direct_chunk(), blocks = (cout_ + cob - 1) / cob;
+      const size_t slab_bytes = static_cast<size_t>(chunk * kk * cob) * 4;
+      // A 1x1 stride-1 conv without padding is one row of H*W pixels per channel plane.
+      const bool flat = params_.kernel == 1 && params_.stride == 1 && params_.pad == 0;
+      ConvPush dp = p;
+      if (flat) {
+        dp.h = dp.oh = 1;
+        dp.w = dp.ow = u32(is.h * is.w);
+      }
+      const int64_t px = direct_px_, py = flat ? 1 : direct_py_;
+      const int64_t tasks = ((dp.oh + py - 1) / py) * ((dp.ow + px - 1) / px);
+      const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
+      const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
+      if (chunk < cin_ && residual && residual->t->range().buffer == out.t->range().buffer &&
+          bo.arg.range.offset < br.arg.range.offset + br.arg.range.size &&
+          br.arg.range.offset < bo.arg.range.offset + bo.arg.range.size)
+        throw Error(name_ + ": the direct algorithm accumulates in the output, which overlaps the residual");
+      for (int64_t b = 0; b < blocks; ++b)
+        for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
+          const bool first = c0 == 0, last = c0 + chunk >= cin_;
+          std::vector<uint32_t> dspec = spec;
+          dspec.insert(dspec.end(),
+                       {direct_px_, u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u, u32(chunk * kk * cob / 4), u32(py)});
+          ConvPush cp = dp;
+          cp.in_off = u32(bi.offset + c0 * is.h * is.w);
+          cp.cin = u32(std::min(chunk, cin_ - c0));
+          cp.pad = params_.pad;
+          cp.co0 = u32(b * cob);
+          const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * cin_ + c0) * kk * cob) * 4, slab_bytes);
+          cs.dispatch(ctx_.pipeline("conv2d_direct", dspec, sizeof(ConvPush)),
+                      {bi.arg, {wr, Access::read}, {bias_.range(), Access::read}, br.arg,
+                       {bo.arg.range, first ? Access::write : Access::read_write}},
+                      cp, groups,
+                      {info.name, info.flop * static_cast<double>(cp.cin) * static_cast<double>(std::min(cob, cout_ - b * cob)) /
+                                      static_cast<double>(cin_ * cout_),
+                       info.bytes / static_cast<double>(blocks)});
+        }
       return;
     }
     case ConvAlgo::winograd: {

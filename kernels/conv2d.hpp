@@ -27,6 +27,8 @@ enum class ConvAlgo : uint32_t {
                   // (pad 1) as four 3x3 stride-1 convs on the 2x2 phase images
   gemm = 5,       // 1x1 stride 1: pack the input aligned, register-blocked GEMM (the Winograd GEMM with
                   // one position: 8 pixels x 8/16 channels per invocation, vec4 loads), epilogue
+  direct = 6,     // register blocking (8 pixels x 16 output channels per invocation) with the weights in
+                  // a uniform buffer, one dispatch per channel block and input-channel chunk; all shapes
 };
 const char* conv_algo_name(ConvAlgo a);
 
@@ -71,7 +73,10 @@ class Conv2d {
   // Caps Winograd's transformed-input scratch (it then runs in chunks of input channels that the
   // GEMM accumulates); default 64 MiB (and never above maxStorageBufferRange). Tests, memory tuning.
   void set_winograd_scratch_limit(uint64_t bytes);
-  int64_t winograd_chunk(const Shape& in) const;  // input channels (x4 for 5x5) per chunk
+  int64_t winograd_chunk(const Shape& in) const;
+  // Caps the input channels per dispatch of the direct path (default: as many as fit one uniform
+  // binding); several chunks then accumulate in the output. Tests.
+  void set_direct_chunk_limit(int64_t channels) { direct_chunk_limit_ = channels; }  // input channels (x4 for 5x5) per chunk
   Shape output_shape(const Shape& in) const;  // {n, cout, oh, ow}
   double flop(const Shape& in) const;         // 2 x multiply-adds of the direct algorithm
   int64_t cin() const { return cin_; }
@@ -84,6 +89,9 @@ class Conv2d {
   void pack_naive() const;
   void pack_blocked() const;
   void pack_subgroup() const;
+  void pack_direct() const;
+  int64_t direct_chunk() const;  // input channels whose weight slab fits one uniform binding (capped)
+  int64_t direct_chunk_max() const;  // the same without the cap
 
   Context& ctx_;
   std::string name_;
@@ -99,6 +107,11 @@ class Conv2d {
   mutable Tensor weight_subgroup_;  // [cout/(8G)][cin/4][k*k][G][8] vec4 over 4 input channels
   mutable Tensor bias_subgroup_;    // [cout/(8G)*8G]
   uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
+  mutable Tensor weight_direct_;  // [ceil(cout/COB)][cin (+ one chunk of padding)][k*k][COB]
+  int64_t direct_cob_ = 16;  // output channels per invocation of the direct path
+  uint32_t direct_px_ = 8;   // output pixels per row and invocation of the direct path
+  uint32_t direct_py_ = 1;   // output rows per invocation of the direct path
+  int64_t direct_chunk_limit_ = 0;  // 0: none
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
   Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
   int64_t winograd_cob_ = 8, winograd_cout_pad_ = 0, winograd_ks_ = 1;

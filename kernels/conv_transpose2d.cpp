@@ -1,6 +1,9 @@
 #include "kernels/conv_transpose2d.hpp"
 
 #include <algorithm>
+#include <cstdlib>
+
+#include <algorithm>
 
 #include "runtime/context.hpp"
 #include "runtime/pipeline.hpp"
@@ -18,6 +21,7 @@ Groups flat_groups(int64_t n, uint32_t z) {
 struct ConvTPush {
   uint32_t in_off, in_bs, out_off, out_bs;
   uint32_t cin, h, w, cout, oh, ow, pad;
+  uint32_t co0 = 0;  // direct: first output channel of the dispatch
 };
 }  // namespace
 
@@ -26,6 +30,7 @@ const char* conv_transpose_algo_name(ConvTransposeAlgo a) {
     case ConvTransposeAlgo::automatic: return "automatic";
     case ConvTransposeAlgo::naive: return "naive";
     case ConvTransposeAlgo::blocked: return "blocked";
+    case ConvTransposeAlgo::direct: return "direct";
   }
   return "unknown";
 }
@@ -93,6 +98,9 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
   weight_ = HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data).to_device(ctx);
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
   if (k == 4 && params.stride == 2 && params.pad == 1) {
+    weight_host_ = weight;
+    direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
+    if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
     // Blocked layout [cout/8][cin][4][4][8], output channels zero-padded to a multiple of 8.
     const int64_t cob = (cout_ + 7) / 8;
     std::vector<float> wb(static_cast<size_t>(cob * cin_ * 16 * 8), 0.f), bb(static_cast<size_t>(cob * 8), 0.f);
@@ -108,12 +116,33 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
   }
 }
 
+int64_t ConvTranspose2d::direct_chunk_max() const {
+  return std::min<int64_t>(cin_, static_cast<int64_t>(ctx_.info().max_uniform_buffer_range) / (16 * direct_cob_ * 4));
+}
+
+void ConvTranspose2d::pack_direct() const {
+  if (!weight_direct_.empty()) return;
+  // [cout/COB][cin][16][COB] plus one chunk of zeros, so every dispatch binds a whole slab.
+  const int64_t cob = direct_cob_, blocks = (cout_ + cob - 1) / cob;
+  std::vector<float> wd(static_cast<size_t>((blocks * cin_ + direct_chunk_max()) * 16 * cob), 0.f);
+  for (int64_t co = 0; co < cout_; ++co)
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      for (int64_t t = 0; t < 16; ++t)
+        wd[static_cast<size_t>((((co / cob) * cin_ + ci) * 16 + t) * cob + co % cob)] =
+            weight_host_.data[static_cast<size_t>((ci * cout_ + co) * 16 + t)];
+  weight_direct_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd).to_device(ctx_);
+}
+
 bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
   if (algo == ConvTransposeAlgo::blocked) return !weight_blocked_.empty();
+  if (algo == ConvTransposeAlgo::direct) return !weight_blocked_.empty() && direct_cob_ % 4 == 0 && direct_chunk_max() >= 1;
   return algo == ConvTransposeAlgo::automatic || algo == ConvTransposeAlgo::naive;
 }
 
 ConvTransposeAlgo ConvTranspose2d::choose_algorithm(int64_t, int64_t) const {
+  // direct (weights from a uniform buffer, 16 channels per invocation) measured 5-10% faster than
+  // blocked on every transposed conv of the model on lavapipe.
+  if (supports(ConvTransposeAlgo::direct)) return ConvTransposeAlgo::direct;
   return supports(ConvTransposeAlgo::blocked) ? ConvTransposeAlgo::blocked : ConvTransposeAlgo::naive;
 }
 
@@ -162,6 +191,36 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
                 {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, bo.arg}, p,
                 flat_groups(os.h * 2 * ((half_w + 7) / 8), static_cast<uint32_t>(os.n * ((cout_ + 7) / 8))),
                 info);
+    return;
+  }
+  if (algo == ConvTransposeAlgo::direct) {
+    pack_direct();
+    const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
+    const int64_t cob = direct_cob_, blocks = (cout_ + cob - 1) / cob, px = 8;
+    const int64_t chunk = direct_chunk_limit_ > 0 ? std::min(direct_chunk_limit_, direct_chunk_max()) : direct_chunk_max();
+    const int64_t half_w = (os.w + 1) / 2, tasks = os.h * 2 * ((half_w + px - 1) / px);
+    const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
+    const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
+    for (int64_t b = 0; b < blocks; ++b)
+      for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
+        const bool first = c0 == 0, last = c0 + chunk >= cin_;
+        ConvTPush cp = p;
+        cp.in_off = u32(bi.offset + c0 * is.h * is.w);
+        cp.cin = u32(std::min(chunk, cin_ - c0));
+        cp.co0 = u32(b * cob);
+        const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * cin_ + c0) * 16 * cob) * 4,
+                                                    static_cast<size_t>(chunk * 16 * cob) * 4);
+        cs.dispatch(ctx_.pipeline("conv_transpose2d_direct",
+                                  {spec[2], spec[3], u32(px), u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u,
+                                   u32(chunk * 16 * cob / 4)},
+                                  sizeof(ConvTPush)),
+                    {bi.arg, {wr, Access::read}, {bias_.range(), Access::read},
+                     {bo.arg.range, first ? Access::write : Access::read_write}},
+                    cp, groups,
+                    {info.name, info.flop * static_cast<double>(cp.cin) * static_cast<double>(std::min(cob, cout_ - b * cob)) /
+                                    static_cast<double>(cin_ * cout_),
+                     info.bytes / static_cast<double>(blocks)});
+      }
     return;
   }
   throw Error(name_ + ": algorithm " + std::string(conv_transpose_algo_name(algo)) + " is not implemented");

@@ -16,6 +16,8 @@ enum class ConvTransposeAlgo : uint32_t {
   automatic = 0,
   naive = 1,    // one invocation per output value, loops over the taps that hit it
   blocked = 2,  // sub-pixel (phase) decomposition, 4 pixels x 8 output channels per invocation
+  direct = 3,   // the same decomposition, 8 pixels x 16 output channels per invocation, weights from a
+                // uniform buffer, one dispatch per channel block and input-channel chunk
 };
 const char* conv_transpose_algo_name(ConvTransposeAlgo a);
 
@@ -40,6 +42,8 @@ class ConvTranspose2d {
   int64_t cin() const { return cin_; }
   int64_t cout() const { return cout_; }
   const ConvTranspose2dParams& params() const { return params_; }
+  // Caps the input channels per dispatch of the direct path (chunks accumulate in the output). Tests.
+  void set_direct_chunk_limit(int64_t channels) { direct_chunk_limit_ = channels; }
 
  private:
   Context& ctx_;
@@ -50,6 +54,12 @@ class ConvTranspose2d {
   Tensor bias_;            // [cout]
   Tensor weight_blocked_;  // [ceil(cout/8)][cin][k*k][8]
   Tensor bias_blocked_;    // [ceil(cout/8)*8]
+  void pack_direct() const;
+  int64_t direct_chunk_max() const;
+  HostTensor weight_host_;         // as given, for the lazily uploaded direct packing
+  mutable Tensor weight_direct_;   // [ceil(cout/COB)][cin (+ one chunk)][16][COB]
+  int64_t direct_cob_ = 16;
+  int64_t direct_chunk_limit_ = 0;
 };
 
 }  // namespace vkunroll

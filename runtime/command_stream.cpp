@@ -13,6 +13,7 @@ namespace vkunroll {
 namespace {
 constexpr uint32_t kSetsPerPool = 256;
 constexpr uint32_t kDescriptorsPerSet = 16;
+constexpr uint32_t kUniformsPerSet = Pipeline::kMaxUniformBindings;  // pool sizing
 constexpr uint32_t kMaxDispatchesPerSubmit = 2048;  // timestamp pairs per query pool
 
 double default_timeout() {
@@ -65,11 +66,12 @@ void CommandStream::begin_if_needed() {
 VkDescriptorSet CommandStream::allocate_set(VkDescriptorSetLayout layout, uint32_t bindings) {
   if (bindings > kDescriptorsPerSet) throw Error("a dispatch binds more than 16 buffers");
   if (desc_pools_.empty() || desc_pool_used_ >= kSetsPerPool) {
-    VkDescriptorPoolSize size{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, kSetsPerPool * kDescriptorsPerSet};
+    const VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, kSetsPerPool * kDescriptorsPerSet},
+                                           {VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, kSetsPerPool * kUniformsPerSet}};
     VkDescriptorPoolCreateInfo ci{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
     ci.maxSets = kSetsPerPool;
-    ci.poolSizeCount = 1;
-    ci.pPoolSizes = &size;
+    ci.poolSizeCount = 2;
+    ci.pPoolSizes = sizes;
     VkDescriptorPool pool;
     VK_CHECK(vkCreateDescriptorPool(ctx_.device(), &ci, nullptr, &pool));
     desc_pools_.push_back(pool);
@@ -97,8 +99,8 @@ void CommandStream::hazard_barrier(const std::vector<Span>& reads, const std::ve
   if (need) {
     VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
     mb.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
-    mb.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_READ_BIT |
-                       VK_ACCESS_TRANSFER_WRITE_BIT;
+    mb.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_UNIFORM_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT |
+                       VK_ACCESS_TRANSFER_READ_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
     const VkPipelineStageFlags stages = VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT;
     vkCmdPipelineBarrier(cb_, stages, stages, 0, 1, &mb, 0, nullptr, 0, nullptr);
     pending_reads_.clear();
@@ -132,6 +134,12 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
   for (size_t i = 0; i < args.size(); ++i) {
     const BufferRange& r = args[i].range;
     if (r.buffer == VK_NULL_HANDLE) throw Error("dispatch '" + info.name + "': argument " + std::to_string(i) + " is an empty tensor");
+    const bool uniform = pipeline.binding_is_uniform(static_cast<uint32_t>(i));
+    if (uniform && (r.size > lim.max_uniform_buffer_range || r.offset % lim.min_uniform_buffer_offset_alignment != 0))
+      throw Error("dispatch '" + info.name + "': uniform-buffer argument " + std::to_string(i) + " spans " +
+                  std::to_string(r.size) + " bytes at offset " + std::to_string(r.offset) +
+                  "; at most maxUniformBufferRange (" + std::to_string(lim.max_uniform_buffer_range) +
+                  ") bytes at a multiple of " + std::to_string(lim.min_uniform_buffer_offset_alignment) + " allowed");
     if (r.size > lim.max_storage_buffer_range)
       throw Error("dispatch '" + info.name + "': argument " + std::to_string(i) + " spans " + std::to_string(r.size) +
                   " bytes, more than maxStorageBufferRange (" + std::to_string(lim.max_storage_buffer_range) +
@@ -141,7 +149,7 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
     w[i].dstSet = set;
     w[i].dstBinding = static_cast<uint32_t>(i);
     w[i].descriptorCount = 1;
-    w[i].descriptorType = VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+    w[i].descriptorType = uniform ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
     w[i].pBufferInfo = &bufs[i];
     const Span s{r.buffer, r.offset, r.offset + r.size};
     if (args[i].access != Access::write) reads.push_back(s);

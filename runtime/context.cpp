@@ -114,6 +114,8 @@ DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
   info.max_workgroup_invocations = props.limits.maxComputeWorkGroupInvocations;
   for (int i = 0; i < 3; ++i) info.max_workgroup_count[i] = props.limits.maxComputeWorkGroupCount[i];
   info.min_storage_buffer_offset_alignment = props.limits.minStorageBufferOffsetAlignment;
+  info.max_uniform_buffer_range = props.limits.maxUniformBufferRange;
+  info.min_uniform_buffer_offset_alignment = std::max<uint64_t>(1, props.limits.minUniformBufferOffsetAlignment);
   info.timestamp_period_ns = props.limits.timestampPeriod;
   std::memcpy(info.pipeline_cache_uuid, props.pipelineCacheUUID, VK_UUID_SIZE);
 

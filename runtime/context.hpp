@@ -47,6 +47,8 @@ struct DeviceInfo {
   uint32_t max_workgroup_invocations = 0;
   uint32_t max_workgroup_count[3] = {0, 0, 0};
   uint64_t min_storage_buffer_offset_alignment = 0;
+  uint64_t max_uniform_buffer_range = 0;             // bytes one uniform-buffer binding may span
+  uint64_t min_uniform_buffer_offset_alignment = 1;
   float timestamp_period_ns = 0.f;      // ns per timestamp tick
   bool timestamps = false;              // the compute queue writes timestamps
   uint64_t device_local_bytes = 0;

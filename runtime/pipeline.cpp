@@ -1,5 +1,6 @@
 #include "runtime/pipeline.hpp"
 
+#include <algorithm>
 #include <cstring>
 
 #include "runtime/context.hpp"
@@ -20,10 +21,14 @@ Pipeline::Pipeline(Context& ctx, const std::string& shader, const std::vector<ui
     throw Error("pipeline '" + shader + "': " + std::to_string(push_constant_bytes) +
                 " bytes of push constants exceed the portable limit of 128");
   const auto words = find_shader(shader);
-  const auto bindings = spirv_storage_bindings(words);
-  for (uint32_t i = 0; i < bindings.size(); ++i)
-    if (bindings[i] != i) throw Error("shader '" + shader + "': storage bindings must be numbered 0..n-1");
+  const auto bindings = spirv_bindings(words);
+  for (uint32_t i = 0; i < bindings.size(); ++i) {
+    if (bindings[i].binding != i) throw Error("shader '" + shader + "': bindings must be numbered 0..n-1");
+    uniform_.push_back(bindings[i].uniform);
+  }
   binding_count_ = static_cast<uint32_t>(bindings.size());
+  if (std::count(uniform_.begin(), uniform_.end(), true) > kMaxUniformBindings)
+    throw Error("shader '" + shader + "': more than " + std::to_string(kMaxUniformBindings) + " uniform buffers");
 
   VkShaderModuleCreateInfo mci{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
   mci.codeSize = words.size_bytes();
@@ -32,7 +37,8 @@ Pipeline::Pipeline(Context& ctx, const std::string& shader, const std::vector<ui
 
   std::vector<VkDescriptorSetLayoutBinding> lb(binding_count_);
   for (uint32_t i = 0; i < binding_count_; ++i)
-    lb[i] = {i, VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
+    lb[i] = {i, uniform_[i] ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1,
+             VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
   VkDescriptorSetLayoutCreateInfo dci{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
   dci.bindingCount = binding_count_;
   dci.pBindings = lb.data();

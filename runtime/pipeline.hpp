@@ -1,5 +1,5 @@
 // Pipeline: one embedded SPIR-V module with its specialization constants and push-constant
-// size; the descriptor layout (storage buffers at set 0) is derived from the module once.
+// size; the descriptor layout (storage and uniform buffers at set 0) is derived from the module once.
 #pragma once
 #include <cstdint>
 #include <string>
@@ -13,6 +13,7 @@ class Context;
 
 class Pipeline {
  public:
+  static constexpr uint32_t kMaxUniformBindings = 2;  // uniform buffers one shader may declare
   // spec[i] is specialization constant id i (32-bit; floats bit-cast with spec_float()).
   Pipeline(Context& ctx, const std::string& shader, const std::vector<uint32_t>& spec,
            uint32_t push_constant_bytes);
@@ -25,6 +26,8 @@ class Pipeline {
   VkPipelineLayout layout() const { return layout_; }
   VkDescriptorSetLayout set_layout() const { return set_layout_; }
   uint32_t binding_count() const { return binding_count_; }
+  // Whether binding i is a uniform buffer (declared `uniform` in the shader) instead of a storage buffer.
+  bool binding_is_uniform(uint32_t i) const { return i < uniform_.size() && uniform_[i]; }
   uint32_t push_constant_bytes() const { return push_bytes_; }
 
  private:
@@ -32,6 +35,7 @@ class Pipeline {
   Context& ctx_;
   std::string name_;
   uint32_t binding_count_ = 0;
+  std::vector<bool> uniform_;  // per binding
   uint32_t push_bytes_ = 0;
   VkShaderModule module_ = VK_NULL_HANDLE;
   VkDescriptorSetLayout set_layout_ = VK_NULL_HANDLE;

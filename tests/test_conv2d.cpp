@@ -42,7 +42,7 @@ std::vector<Case> cases() {
   };
 }
 
-void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull) {
+void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull, int64_t direct_chunk_limit = 0) {
   Context& ctx = vktest::context();
   std::mt19937 rng(1234);
   int ran = 0;
@@ -53,6 +53,7 @@ void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull) {
     HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
     Conv2d conv(ctx, w, b, p);
     conv.set_winograd_scratch_limit(winograd_scratch_limit);
+    conv.set_direct_chunk_limit(direct_chunk_limit);
     if (!conv.supports(algo)) continue;
     const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
     const int64_t nb = std::max(c.batch, c.in_batch_total);
@@ -84,6 +85,9 @@ TEST(Conv2d, WinogradMatchesReference) { run_cases(ConvAlgo::winograd); }
 TEST(Conv2d, WinogradInChunksMatchesReference) { run_cases(ConvAlgo::winograd, 3 * 36 * 4 * 64); }
 TEST(Conv2d, GemmMatchesReference) { run_cases(ConvAlgo::gemm); }
 TEST(Conv2d, GemmInChunksMatchesReference) { run_cases(ConvAlgo::gemm, 2 * 4 * 80); }
+TEST(Conv2d, DirectMatchesReference) { run_cases(ConvAlgo::direct); }
+// 2 input channels per dispatch: chunks accumulate in the output, the last applies act + residual.
+TEST(Conv2d, DirectInChunksMatchesReference) { run_cases(ConvAlgo::direct, ~0ull, 2); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
 
 TEST(Conv2d, ReferenceKnownValues) {

@@ -18,7 +18,7 @@ struct Case {
   int64_t in_extra_c = 0, in_c0 = 0, out_extra_c = 0, out_c0 = 0, batch = 1;
 };
 
-void run_cases(ConvTransposeAlgo algo) {
+void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
   Context& ctx = vktest::context();
   std::mt19937 rng(99);
   const std::vector<Case> cases{
@@ -36,6 +36,7 @@ void run_cases(ConvTransposeAlgo algo) {
     HostTensor w = random_tensor({c.cin, c.cout, 4, 4}, rng, -ws, ws);
     HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
     ConvTranspose2d deconv(ctx, w, b, p);
+    deconv.set_direct_chunk_limit(direct_chunk_limit);
     if (!deconv.supports(algo)) continue;
     HostTensor x = random_tensor({c.batch, c.cin + c.in_extra_c, c.h, c.w}, rng);
     HostTensor y = random_tensor({c.batch, c.cout + c.out_extra_c, 2 * c.h, 2 * c.w}, rng);
@@ -55,6 +56,9 @@ void run_cases(ConvTransposeAlgo algo) {
 
 TEST(ConvTranspose2d, NaiveMatchesReference) { run_cases(ConvTransposeAlgo::naive); }
 TEST(ConvTranspose2d, BlockedMatchesReference) { run_cases(ConvTransposeAlgo::blocked); }
+TEST(ConvTranspose2d, DirectMatchesReference) { run_cases(ConvTransposeAlgo::direct); }
+// 3 input channels per dispatch: chunks accumulate in the output, the last applies the activation.
+TEST(ConvTranspose2d, DirectInChunksMatchesReference) { run_cases(ConvTransposeAlgo::direct, 3); }
 TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases(ConvTransposeAlgo::automatic); }
 
 TEST(ConvTranspose2d, ReferenceKnownValues) {

@@ -226,6 +226,36 @@ TEST(Runtime, SpirvBindingsAreDerivedFromTheModule) {
   EXPECT_THROW(spirv_storage_bindings(std::vector<uint32_t>{1, 2, 3, 4, 5}), Error);
 }
 
+TEST(Runtime, UniformBufferBindingsAreDerivedAndBound) {
+  Context& ctx = vktest::context();
+  EXPECT_EQ(spirv_bindings(find_shader("runtime_uniform_scale")),
+            (std::vector<SpirvBinding>{{0, false}, {1, true}, {2, false}}));
+  EXPECT_EQ(spirv_bindings(find_shader("runtime_axpy")), (std::vector<SpirvBinding>{{0, false}, {1, false}}));
+  const Pipeline& pl = ctx.pipeline("runtime_uniform_scale", {}, 4);
+  EXPECT_TRUE(pl.binding_is_uniform(1));
+  EXPECT_FALSE(pl.binding_is_uniform(0));
+  // The scales are the second 16 floats of a 64-float tensor: a uniform sub-range at offset 64 bytes.
+  Tensor x(ctx, {1, 1, 1, 40}), s(ctx, {1, 1, 1, 64}), y(ctx, {1, 1, 1, 40});
+  std::vector<float> xv(40), sv(64);
+  for (size_t i = 0; i < xv.size(); ++i) xv[i] = static_cast<float>(i) + 1.f;
+  for (size_t i = 0; i < sv.size(); ++i) sv[i] = 0.5f * static_cast<float>(i);
+  x.upload(xv);
+  s.upload(sv);
+  CommandStream cs(ctx);
+  const uint32_t n = 40;
+  cs.dispatch(pl, {in(x), {s.range(64, 64), Access::read}, out(y)}, n, {1}, {"uniform_scale"});
+  cs.submit_and_wait();
+  const auto yv = y.download<float>();
+  for (size_t i = 0; i < yv.size(); ++i) EXPECT_EQ(yv[i], xv[i] * sv[16 + i % 16]) << i;
+  // A uniform binding beyond maxUniformBufferRange or at an unaligned offset is refused by name.
+  const uint64_t limit = ctx.info().max_uniform_buffer_range;
+  Tensor big(ctx, {1, 1, 1, static_cast<int64_t>(limit / 4 + 4)});
+  EXPECT_THROW(cs.dispatch(pl, {in(x), {big.range(), Access::read}, out(y)}, n, {1}, {"uniform_scale"}), Error);
+  if (ctx.info().min_uniform_buffer_offset_alignment > 4) {
+    EXPECT_THROW(cs.dispatch(pl, {in(x), {s.range(4, 64), Access::read}, out(y)}, n, {1}, {"uniform_scale"}), Error);
+  }
+}
+
 TEST(Runtime, VkResultNames) {
   EXPECT_STREQ(vk_result_name(VK_ERROR_DEVICE_LOST), "VK_ERROR_DEVICE_LOST");
   EXPECT_STREQ(vk_result_name(static_cast<VkResult>(-12345)), "VkResult(-12345)");
