@@ -314,19 +314,74 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
       }
     }
   res.active_fraction = res.tiles ? double(res.tiles_run) / double(res.tiles) : 0.0;
-  double run_pixels = 0;
-  for (size_t t = 0; t < T; ++t)
-    for (int64_t k = 0; k < K; ++k)
-      if (active[t][size_t(k)]) run_pixels += double(res.plan.tiles[t].input.area());
-  res.work_ratio = run_pixels / (double(K) * double(H * W));
   for (int64_t r : target_runs) res.target_active_fraction.push_back(double(r) / double(T));
   res.stage_ms["stitch"] += ms_since(t_fill);
 
-  // Active (tile, target) pairs grouped by input-rect shape, run in batches.
+  // What runs: the active tiles, or (merge_active) per target the bounding box of each 4-connected
+  // group of active tiles as one rect with one halo, so neighbours share their halos.
+  std::vector<Tile> runs = res.plan.tiles;
+  std::vector<std::pair<size_t, int64_t>> work_items;  // (index in runs, target)
+  if (topt.sparse != SparsePolicy::off && topt.merge_active && !res.plan.untiled()) {
+    runs.clear();
+    const int64_t cols = (W + res.plan.tile_w - 1) / res.plan.tile_w;
+    // Regions stay within the largest tile the device fits (any image size still runs in bounded memory).
+    const int64_t max_side =
+        topt.max_region > 0 ? std::max(tile, topt.max_region) : choose_tile(model, H, W, opt.mode, topt.halo, limit);
+    for (int64_t k = 0; k < K; ++k) {
+      std::vector<int> seen(T, 0);
+      for (size_t t0 = 0; t0 < T; ++t0) {
+        if (seen[t0] || !active[t0][size_t(k)]) continue;
+        std::vector<size_t> comp{t0}, stack{t0};
+        seen[t0] = 1;
+        while (!stack.empty()) {
+          const size_t t = stack.back();
+          stack.pop_back();
+          const int64_t r = int64_t(t) / cols, c = int64_t(t) % cols;
+          const std::pair<int64_t, int64_t> nb[] = {{r - 1, c}, {r + 1, c}, {r, c - 1}, {r, c + 1}};
+          for (const auto& [nr, nc] : nb) {
+            if (nr < 0 || nc < 0 || nc >= cols || nr * cols + nc >= int64_t(T)) continue;
+            const size_t u = size_t(nr * cols + nc);
+            if (seen[u] || !active[u][size_t(k)]) continue;
+            seen[u] = 1;
+            comp.push_back(u);
+            stack.push_back(u);
+          }
+        }
+        Rect box = res.plan.tiles[comp[0]].interior;
+        for (size_t t : comp) {
+          const Rect& q = res.plan.tiles[t].interior;
+          const int64_t y1 = std::max(box.y + box.h, q.y + q.h), x1 = std::max(box.x + box.w, q.x + q.w);
+          box.y = std::min(box.y, q.y), box.x = std::min(box.x, q.x);
+          box.h = y1 - box.y, box.w = x1 - box.x;
+        }
+        if (box.h <= max_side && box.w <= max_side) {
+          Tile region;
+          region.interior = box;
+          const int64_t y0 = std::max<int64_t>(0, box.y - topt.halo), x0 = std::max<int64_t>(0, box.x - topt.halo);
+          region.input = {y0, x0, std::min(H, box.y + box.h + topt.halo) - y0, std::min(W, box.x + box.w + topt.halo) - x0};
+          runs.push_back(region);
+          work_items.push_back({runs.size() - 1, k});
+        } else {
+          // A group larger than the largest tile that fits the device: its tiles run one by one.
+          for (size_t t : comp) {
+            runs.push_back(res.plan.tiles[t]);
+            work_items.push_back({runs.size() - 1, k});
+          }
+        }
+      }
+    }
+  } else {
+    for (size_t t = 0; t < T; ++t)
+      for (int64_t k = 0; k < K; ++k)
+        if (active[t][size_t(k)]) work_items.push_back({t, k});
+  }
+  double run_pixels = 0;
+  for (const auto& [t, k] : work_items) run_pixels += double(runs[t].input.area());
+  res.work_ratio = run_pixels / (double(K) * double(H * W));
+
+  // The rects to run, grouped by input-rect shape, run in batches.
   std::map<std::pair<int64_t, int64_t>, std::vector<std::pair<size_t, int64_t>>> groups;
-  for (size_t t = 0; t < T; ++t)
-    for (int64_t k = 0; k < K; ++k)
-      if (active[t][size_t(k)]) groups[{res.plan.tiles[t].input.h, res.plan.tiles[t].input.w}].push_back({t, k});
+  for (const auto& [t, k] : work_items) groups[{runs[t].input.h, runs[t].input.w}].push_back({t, k});
   // Largest rects first: scratch buffers the conv kernels grow (and keep) reach their size once.
   std::vector<std::pair<std::pair<int64_t, int64_t>, std::vector<std::pair<size_t, int64_t>>>> ordered(groups.begin(), groups.end());
   std::stable_sort(ordered.begin(), ordered.end(),
@@ -352,7 +407,7 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
       for (auto* a : {&tin.rs, &tin.ev1, &tin.ev2, &tin.ev3}) a->data.reserve(size_t(a->shape.count()));
       for (size_t q = 0; q < nw; ++q) {
         const auto [t, k] = work[w0 + q];
-        const Rect& r = res.plan.tiles[t].input;
+        const Rect& r = runs[t].input;
         for (int64_t j = 0; j < per; ++j) {
           append_crop(in.rs, k * per + j, r, tin.rs.data);
           append_crop(in.ev1, k * per + j, r, tin.ev1.data);
@@ -368,9 +423,9 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
       for (size_t q = 0; q < nw; ++q) {
         const auto [t, k] = work[w0 + q];
         for (const auto& n : names) {
-          if (per_target(n)) stitch(out.at(n), int64_t(q), res.plan.tiles[t], res.outputs[n], k);
+          if (per_target(n)) stitch(out.at(n), int64_t(q), runs[t], res.outputs[n], k);
           else
-            for (int64_t j = 0; j < per; ++j) stitch(out.at(n), int64_t(q) * per + j, res.plan.tiles[t], res.outputs[n], k * per + j);
+            for (int64_t j = 0; j < per; ++j) stitch(out.at(n), int64_t(q) * per + j, runs[t], res.outputs[n], k * per + j);
         }
       }
       res.stage_ms["stitch"] += ms_since(t2);

@@ -93,6 +93,12 @@ struct TileOptions {
   // Most tile items (tiles x batch items) per Model::run call (0: as many tiles as hold no more
   // pixels than one untiled target, and at most 256 MiB of input copies; M: whole pairs).
   int max_batch = 0;
+  // Sparse only: per target, each 4-connected group of active tiles runs as one rect (the group's
+  // bounding box, one halo around it), so neighbouring active tiles do not each pay a halo. A group
+  // wider or taller than max(tile, max_region) runs tile by tile (max_region 0: the largest tile
+  // that fits the device, choose_tile()).
+  bool merge_active = true;
+  int64_t max_region = 0;
 };
 
 struct TiledResult {

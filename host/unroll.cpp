@@ -212,8 +212,8 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   parse_sparse_policy(o.sparse, "--sparse");  // fail before any work
   if (o.tile < 0 || o.tile % kTileAlign)
     throw Error("--tile " + std::to_string(o.tile) + ": expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
-  if (o.halo < 0 || o.halo % kTileAlign)
-    throw Error("--halo " + std::to_string(o.halo) + ": expected a non-negative multiple of " + std::to_string(kTileAlign));
+  if (o.halo < -1 || (o.halo >= 0 && o.halo % kTileAlign))
+    throw Error("--halo " + std::to_string(o.halo) + ": expected -1 (automatic) or a non-negative multiple of " + std::to_string(kTileAlign));
   if (!(o.sparse_threshold >= 0))
     throw Error("--sparse-threshold " + std::to_string(o.sparse_threshold) + ": expected >= 0 events per pixel");
   if (o.backend != "vulkan" && o.backend != "cpu") throw Error("--backend '" + o.backend + "' (expected vulkan or cpu)");
@@ -322,9 +322,10 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   size_t done = 0, runs_s = 0, runs_m = 0, runs_physics = 0;
   // Tiling and sparse execution of the model (host/tiling.hpp).
   TileOptions tile_options;
-  tile_options.tile = o.tile;
-  tile_options.halo = o.halo;
   tile_options.sparse = parse_sparse_policy(o.sparse, "--sparse");
+  const bool sparse_on = tile_options.sparse != SparsePolicy::off;
+  tile_options.tile = o.tile > 0 ? o.tile : (sparse_on ? kTileAlign : 0);
+  tile_options.halo = o.halo >= 0 ? o.halo : (sparse_on ? kTileAlign : 2 * kTileAlign);
   tile_options.threshold = o.sparse_threshold;
   int64_t tiles_total = 0, tiles_run = 0, tile_used = 0, tiles_per_target = 0;
   double work_pixels = 0;  // sum over targets of run_tiled's work_ratio
@@ -462,7 +463,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   if (weights) extra["model"] = {{"path", o.model_path}, {"config", weights->config.summary()}, {"channel_order", rgb ? "rgb" : "bgr"}};
   if (mode == "physics") extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma}};
   if (weights) {
-    nlohmann::json tj{{"tile", o.tile}, {"tile_used", tile_used}, {"halo", o.halo}, {"sparse", o.sparse},
+    nlohmann::json tj{{"tile", tile_options.tile}, {"tile_used", tile_used}, {"halo", tile_options.halo}, {"sparse", o.sparse},
                       {"sparse_threshold", o.sparse_threshold}, {"tiles_per_target", tiles_per_target},
                       {"tiles", tiles_total}, {"tiles_run", tiles_run},
                       {"active_tile_fraction", tiles_total ? double(tiles_run) / double(tiles_total) : 0.0},

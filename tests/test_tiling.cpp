@@ -201,6 +201,7 @@ TEST(TilingCpu, SparseRunsOnlyTilesNearTheEvents) {
   TileOptions t;
   t.tile = 32;
   t.halo = 32;
+  t.merge_active = false;  // each active tile with its own halo (merging: the next test)
   const TiledResult dense = run_tiled(model, in, opt, t);
   t.sparse = SparsePolicy::exact;
   const TiledResult sparse = run_tiled(model, in, opt, t);
@@ -231,6 +232,50 @@ TEST(TilingCpu, SparseRunsOnlyTilesNearTheEvents) {
   EXPECT_EQ(run_tiled(model, in, opt, t).tiles_run, 0);
   t.threshold = 0.0;
   EXPECT_EQ(run_tiled(model, in, opt, t).tiles_run, 4);
+}
+
+TEST(TilingCpu, SparseMergesNeighbouringActiveTilesIntoOneRect) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  ModelInputs in = random_inputs(1, 160, 160, w.config.N, 4);
+  keep_events_in(in, 0, 0, 8, 8);  // events only in the top-left corner
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  TileOptions t;
+  t.tile = 32;
+  t.halo = 32;
+  t.sparse = SparsePolicy::exact;
+  t.merge_active = false;
+  const TiledResult apart = run_tiled(model, in, opt, t);
+  t.merge_active = true;
+  const TiledResult merged = run_tiled(model, in, opt, t);
+  // The same four active tiles; merged they run as one 64x64 interior with one halo (input 96x96)
+  // instead of four inputs of 64x64, 64x96, 96x64 and 96x96 pixels.
+  EXPECT_EQ(merged.tiles_run, 4);
+  EXPECT_EQ(apart.tiles_run, 4);
+  EXPECT_DOUBLE_EQ(apart.work_ratio, (64.0 * 64 + 2 * 64 * 96 + 96 * 96) / (160 * 160));
+  EXPECT_DOUBLE_EQ(merged.work_ratio, 96.0 * 96 / (160 * 160));
+  // The merged rect is exactly one 64-pixel tile with halo 32: the same input, the same output.
+  TileOptions big;
+  big.tile = 64;
+  big.halo = 32;
+  const TiledResult one = run_tiled(model, in, opt, big);
+  const HostArray& a = merged.outputs.at("fused");
+  const HostArray& b = one.outputs.at("fused");
+  double inside = 0, outside_rs = 0;
+  for (int64_t c = 0; c < 3; ++c)
+    for (int64_t y = 0; y < 160; ++y)
+      for (int64_t x = 0; x < 160; ++x) {
+        const size_t i = size_t((c * 160 + y) * 160 + x);
+        if (y < 64 && x < 64) inside = std::max(inside, double(std::fabs(a.data[i] - b.data[i])));
+        else outside_rs = std::max(outside_rs, double(std::fabs(a.data[i] - in.rs.data[i])));
+      }
+  EXPECT_EQ(inside, 0.0);
+  EXPECT_EQ(outside_rs, 0.0);
+  // A cap on the region side below the group's size runs the group tile by tile again.
+  t.max_region = 32;
+  EXPECT_DOUBLE_EQ(run_tiled(model, in, opt, t).work_ratio, apart.work_ratio);
 }
 
 TEST(TilingCpu, BadOptionsAreClearErrors) {

@@ -26,12 +26,13 @@ int cmd_unroll(const Argv& argv) {
         "  --mode M             s | m | physics | auto: M when the next frame exists, else S; physics\n"
         "                       (the weight-free event double integral) when no model is given  [auto]\n"
         "                       choose: per target, S when t* lies in the frame's exposure span, else M\n"
-        "  --tile N             run the model on N x N tiles (multiple of 32); 0: whole frames when they\n"
-        "                       fit the device's buffers, else the largest tile that fits        [0]\n"
-        "  --halo N             context pixels around each tile (multiple of 32; see docs/tiling.md) [64]\n"
-        "  --sparse P           off | exact: tiles without events keep the RS pixels | fast: also tiles\n"
-        "                       below --sparse-threshold events per pixel                       [off]\n"
-        "  --sparse-threshold X events per pixel (ev1 + ev2 over a tile and its halo) for fast   [0.01]\n"
+        "  --tile N             run the model on N x N tiles (multiple of 32); 0: 32 when sparse, else whole\n"
+        "                       frames when they fit the device's buffers, else the largest tile that fits [0]\n"
+        "  --halo N             context pixels around each tile (multiple of 32; see docs/tiling.md);\n"
+        "                       -1: 32 when sparse, 64 for dense tiles                             [-1]\n"
+        "  --sparse P           off: every tile runs | exact: tiles with no ev1/ev2 event in them or their\n"
+        "                       halo keep the RS pixels | fast: also tiles below --sparse-threshold  [exact]\n"
+        "  --sparse-threshold X events per pixel (ev1 + ev2 over a tile and its halo) for fast   [0.05]\n"
         "  --times LIST         normalized targets per frame: 0 = first row's exposure start, 1 = last\n"
         "                       row's exposure end; ranges start:stop:count, lists -0.25,0.5,1.25;\n"
         "                       'gt' renders exactly the ground-truth instants, named after their files [0.5]\n"
@@ -67,9 +68,9 @@ int cmd_unroll(const Argv& argv) {
   o.bit_depth = static_cast<int>(args.integer("bit-depth", 8));
   if (o.bit_depth != 8 && o.bit_depth != 16) throw Error("--bit-depth must be 8 or 16");
   o.tile = args.integer("tile", 0);
-  o.halo = args.integer("halo", 64);
-  o.sparse = args.get_or("sparse", "off");
-  o.sparse_threshold = args.number("sparse-threshold", 0.01);
+  o.halo = args.integer("halo", -1);
+  o.sparse = args.get_or("sparse", "exact");
+  o.sparse_threshold = args.number("sparse-threshold", 0.05);
   o.quiet = args.has("quiet");
   o.video = !args.has("no-video");
   SequenceOptions& so = o.sequence_options;
