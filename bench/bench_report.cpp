@@ -170,8 +170,8 @@ void plot(const std::vector<RowResult>& rows, const std::string& path) {
   cv::rectangle(img, {L, T}, {W - R, H - B}, black, 1);
   cv::putText(img, "ms per GS frame (log scale, this device)", {L + 180, H - 20}, cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1,
               cv::LINE_AA);
-  cv::putText(img, "PSNR (dB)", {10, T - 15}, cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1, cv::LINE_AA);
-  cv::putText(img, "vkunroll: speed against error (simulated sequences with ground truth)", {L, 30},
+  cv::putText(img, "PSNR (dB)", {10, T - 8}, cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1, cv::LINE_AA);
+  cv::putText(img, "vkunroll: speed against error (simulated sequences with ground truth)", {L + 100, 22},
               cv::FONT_HERSHEY_SIMPLEX, 0.6, black, 1, cv::LINE_AA);
   static const cv::Scalar palette[] = {{200, 80, 20}, {30, 140, 30}, {20, 20, 200}, {160, 30, 160}, {20, 150, 200}, {90, 90, 90}};
   std::map<std::string, int> series;
