@@ -234,12 +234,36 @@ int main(int argc, char** argv) try {
     else if (k == "--published-size") published_size = next();
     else if (k == "--thresholds") thresholds_arg = next();
     else if (k == "--no-sparse") sparse_rows = false;
+    else if (k == "--plot-from") {
+      // Redraws the PNG of an earlier run's report.json (no measurement).
+      const std::string json_path = next();
+      std::ifstream f(json_path);
+      if (!f) throw Error("vkunroll-bench-report: cannot read " + json_path);
+      const nlohmann::json j = nlohmann::json::parse(f);
+      std::vector<RowResult> rows;
+      for (const auto& r : j.at("rows")) {
+        RowResult x;
+        x.spec.label = r.value("row", "");
+        x.spec.mode = r.value("mode", "");
+        x.spec.sparse = r.value("sparse", "off");
+        x.scene = r.value("scene", "");
+        x.size = r.value("size", "");
+        x.ms_compute = r["ms_per_gs_frame"].is_number() ? r["ms_per_gs_frame"].get<double>() : NAN;
+        x.psnr = r["psnr"].is_number() ? r["psnr"].get<double>() : NAN;
+        rows.push_back(x);
+      }
+      const std::string png = (fs::path(json_path).parent_path() / "report.png").string();
+      plot(rows, png);
+      std::cout << "wrote " << png << "\n";
+      return 0;
+    }
     else if (k == "--sparse-tile") sparse_tile = std::stoll(next());
     else if (k == "--sparse-halo") sparse_halo = std::stoll(next());
     else if (k == "--help" || k == "-h") {
       std::cout << "usage: vkunroll-bench-report [--out DIR] [--sizes 346x260,640x480] [--scenes static,camera,noisy]\n"
                    "         [--frames 3] [--gt-per-frame 2] [--model FILE] [--published-size WxH|none]\n"
-                   "         [--thresholds 0.002,0.01,0.05] [--sparse-tile 64] [--sparse-halo 32] [--no-sparse]\n";
+                   "         [--thresholds 0.002,0.01,0.05] [--sparse-tile 64] [--sparse-halo 32] [--no-sparse]\n"
+                   "       vkunroll-bench-report --plot-from DIR/report.json   (redraws DIR/report.png)\n";
       return 0;
     } else
       throw Error("vkunroll-bench-report: unknown argument '" + k + "' (see --help)");
