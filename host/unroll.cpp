@@ -209,7 +209,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   std::string mode = o.mode;
   if (mode != "auto" && mode != "s" && mode != "m" && mode != "physics" && mode != "choose")
     throw Error("--mode '" + mode + "' (expected s, m, choose, physics or auto)");
-  parse_sparse_policy(o.sparse, "--sparse");  // fail before any work
+  const SparsePolicy sparse_policy = parse_sparse_policy(o.sparse, "--sparse");  // fail before any work
   if (o.tile < 0 || o.tile % kTileAlign)
     throw Error("--tile " + std::to_string(o.tile) + ": expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
   if (o.halo < -1 || (o.halo >= 0 && o.halo % kTileAlign))
@@ -322,7 +322,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   size_t done = 0, runs_s = 0, runs_m = 0, runs_physics = 0;
   // Tiling and sparse execution of the model (host/tiling.hpp).
   TileOptions tile_options;
-  tile_options.sparse = parse_sparse_policy(o.sparse, "--sparse");
+  tile_options.sparse = sparse_policy;
   const bool sparse_on = tile_options.sparse != SparsePolicy::off;
   tile_options.tile = o.tile > 0 ? o.tile : (sparse_on ? kTileAlign : 0);
   tile_options.halo = o.halo >= 0 ? o.halo : (sparse_on ? kTileAlign : 2 * kTileAlign);
@@ -384,31 +384,34 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
         rs2 = read_image(seq.frames[k + 1].image, seq.width, seq.height);
         stage_ms["read"] += ms_since(t_read);
       }
-      for (const bool use_m : {false, true}) {
-        const std::vector<size_t>& group = use_m ? m_targets : s_targets;
-        if (group.empty()) continue;
-        // Pairs: S: (k, t_j); M: (k, t_j), (k+1, t_j) interleaved.
-        std::vector<EventTensorPair> pairs;
-        ModelInputs in;
-        for (size_t j : group) {
-          pairs.push_back({f1.timing, ts[j].t_us, std::nullopt});
-          append_planes(rs1, rgb, in.rs.data);
-          if (use_m) {
-            pairs.push_back({seq.frames[k + 1].timing, ts[j].t_us, std::nullopt});
-            append_planes(rs2, rgb, in.rs.data);
-          }
+      // Pairs per group: S: (k, t_j); M: (k, t_j), (k+1, t_j) interleaved.
+      std::vector<EventTensorPair> group_pairs[2];
+      for (const bool use_m : {false, true})
+        for (size_t j : use_m ? m_targets : s_targets) {
+          group_pairs[use_m].push_back({f1.timing, ts[j].t_us, std::nullopt});
+          if (use_m) group_pairs[use_m].push_back({seq.frames[k + 1].timing, ts[j].t_us, std::nullopt});
         }
-        const int64_t B = static_cast<int64_t>(pairs.size());
-        in.rs.shape = {B, 3, seq.height, seq.width};
-        // Events of the window all pairs need.
-        double lo = 1e300, hi = -1e300;
+      // The frame's events are read once, over the window every pair of both groups needs.
+      double lo = 1e300, hi = -1e300;
+      for (const auto& pairs : group_pairs)
         for (const auto& p : pairs) {
           lo = std::min({lo, p.target_us.to_double(), p.timing.first_start().to_double()});
           hi = std::max({hi, p.target_us.to_double() + p.timing.exposure.to_double(), p.timing.last_end().to_double()});
         }
-        t_read = Clock::now();
-        const EventStream ev = seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1);
-        stage_ms["read"] += ms_since(t_read);
+      t_read = Clock::now();
+      const EventStream ev = seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1);
+      stage_ms["read"] += ms_since(t_read);
+      for (const bool use_m : {false, true}) {
+        const std::vector<size_t>& group = use_m ? m_targets : s_targets;
+        if (group.empty()) continue;
+        const std::vector<EventTensorPair>& pairs = group_pairs[use_m];
+        ModelInputs in;
+        for (size_t q = 0; q < group.size(); ++q) {
+          append_planes(rs1, rgb, in.rs.data);
+          if (use_m) append_planes(rs2, rgb, in.rs.data);
+        }
+        const int64_t B = static_cast<int64_t>(pairs.size());
+        in.rs.shape = {B, 3, seq.height, seq.width};
         const auto t_ev = Clock::now();
         EventTensorSpec spec;
         spec.bins = weights->config.N;
