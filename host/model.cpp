@@ -130,6 +130,23 @@ Model::Model(Backend& backend, const Weights& w) : backend_(backend), cfg_(w.con
   if (cfg_.moa) add_unet(w, "attfusion_net", 3 + 3 + 2 * ev + 2 + 2, 1, cfg_.attfusion_net);
 }
 
+std::vector<std::string> Model::resolve_outputs(const std::vector<std::string>& requested, Mode mode) {
+  const bool m_mode = mode == Mode::m;
+  std::vector<std::string> names;
+  if (requested.empty()) {
+    for (const auto& nme : output_names())
+      if (m_mode || (nme != "m" && nme != "out")) names.push_back(nme);
+    return names;
+  }
+  for (const auto& nme : requested) {
+    if (std::find(output_names().begin(), output_names().end(), nme) == output_names().end())
+      throw Error("model: unknown output '" + nme + "' (expected sys, E, flow, warped, fused, m, out)");
+    if (!m_mode && (nme == "m" || nme == "out")) throw Error("model: output '" + nme + "' exists in mode m only");
+    if (std::find(names.begin(), names.end(), nme) == names.end()) names.push_back(nme);
+  }
+  return names;
+}
+
 const Model::Conv& Model::conv(const std::string& name) const {
   auto it = convs_.find(name);
   if (it == convs_.end()) throw Error("model: no layer '" + name + "'");
@@ -382,16 +399,8 @@ std::map<std::string, HostArray> Model::run(const ModelInputs& in, const RunOpti
   if (m_mode && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
   if (m_mode && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
 
-  std::set<std::string> want(opt.outputs.begin(), opt.outputs.end());
-  if (want.empty()) {
-    for (const auto& nme : output_names())
-      if (m_mode || (nme != "m" && nme != "out")) want.insert(nme);
-  }
-  for (const auto& nme : want) {
-    if (std::find(output_names().begin(), output_names().end(), nme) == output_names().end())
-      throw Error("model: unknown output '" + nme + "' (expected sys, E, flow, warped, fused, m, out)");
-    if (!m_mode && (nme == "m" || nme == "out")) throw Error("model: output '" + nme + "' exists in mode m only");
-  }
+  const std::vector<std::string> wanted = resolve_outputs(opt.outputs, opt.mode);
+  const std::set<std::string> want(wanted.begin(), wanted.end());
 
   const int64_t he = round_up(H, 2), we = round_up(W, 2);
   int64_t per_chunk = opt.max_items > 0 ? opt.max_items : items_per_chunk(H, W, opt.mode, opt.memory_budget);

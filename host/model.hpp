@@ -67,6 +67,9 @@ class Model {
   int64_t item_buffer_bytes(int64_t h, int64_t w, Mode mode, int pad_top = 0, int pad_left = 0) const;
 
   static const std::vector<std::string>& output_names();  // sys, E, flow, warped, fused, m, out
+  // The outputs a run returns: `requested`, or every output of the mode when empty (in
+  // output_names() order); throws Error for an unknown name or m/out outside mode m.
+  static std::vector<std::string> resolve_outputs(const std::vector<std::string>& requested, Mode mode);
 
  private:
   struct Conv {

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <set>
 
 #include "runtime/error.hpp"
 
@@ -39,12 +38,6 @@ void axis_tiles(int64_t size, int64_t tile, int64_t halo, std::vector<std::pair<
     interior.push_back({a, n});
     input.push_back({lo, hi - lo});
   }
-}
-
-const std::vector<std::string>& mode_outputs(Mode mode) {
-  static const std::vector<std::string> s{"sys", "E", "flow", "warped", "fused"};
-  static const std::vector<std::string> m{"sys", "E", "flow", "warped", "fused", "m", "out"};
-  return mode == Mode::m ? m : s;
 }
 
 bool per_target(const std::string& name) { return name == "m" || name == "out"; }
@@ -219,13 +212,7 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
   if (topt.sparse == SparsePolicy::fast && !(topt.threshold >= 0))
     throw Error("run_tiled: sparse threshold " + std::to_string(topt.threshold) + " (expected >= 0 events per pixel)");
 
-  std::vector<std::string> names = opt.outputs.empty() ? mode_outputs(opt.mode) : opt.outputs;
-  for (const auto& n : names) {
-    const auto& all = Model::output_names();
-    if (std::find(all.begin(), all.end(), n) == all.end())
-      throw Error("model: unknown output '" + n + "' (expected sys, E, flow, warped, fused, m, out)");
-    if (!m_mode && per_target(n)) throw Error("model: output '" + n + "' exists in mode m only");
-  }
+  const std::vector<std::string> names = Model::resolve_outputs(opt.outputs, opt.mode);
 
   const uint64_t limit = topt.max_buffer_bytes ? std::min(topt.max_buffer_bytes, model.backend().max_buffer_bytes())
                                                : model.backend().max_buffer_bytes();
@@ -325,8 +312,9 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
     runs.clear();
     const int64_t cols = (W + res.plan.tile_w - 1) / res.plan.tile_w;
     // Regions stay within the largest tile the device fits (any image size still runs in bounded memory).
-    const int64_t max_side =
-        topt.max_region > 0 ? std::max(tile, topt.max_region) : choose_tile(model, H, W, opt.mode, topt.halo, limit);
+    const int64_t max_side = topt.max_region > 0 ? std::max(tile, topt.max_region)
+                             : topt.tile > 0           ? choose_tile(model, H, W, opt.mode, topt.halo, limit)
+                                                       : tile;  // `tile` is already that choice
     for (int64_t k = 0; k < K; ++k) {
       std::vector<int> seen(T, 0);
       for (size_t t0 = 0; t0 < T; ++t0) {
