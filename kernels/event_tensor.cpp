@@ -357,6 +357,13 @@ constexpr int kMaxPixelBins = 64;  // the per-pixel shader keeps 2N counters per
 // one invocation well under that, on every device (the split costs nothing on small inputs).
 constexpr size_t kLoopBudget = 60000;
 constexpr uint32_t kRowPiece = 16384;        // per_row: events per workgroup (256 per invocation)
+// Workgroups along z for the row kernels: each takes the z-th piece of kRowPiece events of every
+// (job, row) range; `ranges` holds [begin, end, ...] per range, `stride` words apart, ranges [first, last).
+uint32_t row_pieces(const std::vector<uint32_t>& ranges, size_t stride, size_t first, size_t last) {
+  uint32_t longest = 1;
+  for (size_t k = first; k < last; ++k) longest = std::max(longest, ranges[stride * k + 1] - ranges[stride * k]);
+  return (longest + kRowPiece - 1) / kRowPiece;
+}
 constexpr size_t kEventsPerInvocation = 8;   // per_event: events per invocation per dispatch
 constexpr size_t kEventJobsPerDispatch = 64; // per_event: jobs per dispatch (x up to ~17 CAS tries)
 }  // namespace
@@ -541,9 +548,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
     Tensor rg(ctx_, Shape{1, 1, 1, static_cast<int64_t>(ranges.size())}, DType::u32);
     rg.upload(ranges);
     const Pipeline& pipe = ctx_.pipeline("event_tensor_rows", {}, sizeof(RowPush));
-    uint32_t longest = 1;  // events of the longest (job, row) range
-    for (size_t k = 0; k + 1 < ranges.size(); k += 2) longest = std::max(longest, ranges[k + 1] - ranges[k]);
-    const uint32_t pieces = (longest + kRowPiece - 1) / kRowPiece;  // <= 1024 for the 16M-event window
+    const uint32_t pieces = row_pieces(ranges, 2, 0, ranges.size() / 2);  // <= 1024 for the 16M-event window
     for (const auto& [j0, nj] : chunks) {
       Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
       CommandStream cs(ctx_, profiler_);
@@ -662,10 +667,7 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
     }
     RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
                  static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)};
-    uint32_t longest = 1;  // events of the chunk's longest (job, row) range: workgroup z takes its z-th piece
-    for (size_t k = j0 * plan.height; k < (j0 + nj) * plan.height; ++k)
-      longest = std::max(longest, ranges4_[4 * k + 1] - ranges4_[4 * k]);
-    const uint32_t pieces = (longest + kRowPiece - 1) / kRowPiece;
+    const uint32_t pieces = row_pieces(ranges4_, 4, j0 * plan.height, (j0 + nj) * plan.height);
     cs.dispatch(pipe,
                 {{words(ev, packed_.size()), Access::read}, {words(rec, plan.records.size()), Access::read},
                  {words(rg, ranges4_.size()), Access::read}, inout(sc.out),
