@@ -23,6 +23,15 @@ inline Act leaky_relu(float slope) { return {Activation::leaky_relu, slope}; }
 float apply_act(Act act, float v);
 const char* activation_name(Activation a);
 
+// The profiler's share of one dispatch of a conv run as `blocks` blocks of output channels times
+// chunks of input channels: flop in proportion to cin_part x cout_part, bytes split per block.
+inline DispatchInfo dispatch_part(const DispatchInfo& whole, int64_t cin_part, int64_t cout_part, int64_t cin,
+                                  int64_t cout, int64_t blocks) {
+  return {whole.name,
+          whole.flop * static_cast<double>(cin_part) * static_cast<double>(cout_part) / static_cast<double>(cin * cout),
+          whole.bytes / static_cast<double>(blocks)};
+}
+
 // An NCHW f32 array in host memory.
 struct HostTensor {
   Shape shape;

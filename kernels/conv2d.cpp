@@ -461,10 +461,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
           cs.dispatch(ctx_.pipeline("conv2d_direct", dspec, sizeof(ConvPush)),
                       {bi.arg, {wr, Access::read}, {bias_.range(), Access::read}, br.arg,
                        {bo.arg.range, first ? Access::write : Access::read_write}},
-                      cp, groups,
-                      {info.name, info.flop * static_cast<double>(cp.cin) * static_cast<double>(std::min(cob, cout_ - b * cob)) /
-                                      static_cast<double>(cin_ * cout_),
-                       info.bytes / static_cast<double>(blocks)});
+                      cp, groups, dispatch_part(info, cp.cin, std::min(cob, cout_ - b * cob), cin_, cout_, blocks));
         }
       return;
     }

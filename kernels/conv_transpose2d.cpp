@@ -216,10 +216,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
                                   sizeof(ConvTPush)),
                     {bi.arg, {wr, Access::read}, {bias_.range(), Access::read},
                      {bo.arg.range, first ? Access::write : Access::read_write}},
-                    cp, groups,
-                    {info.name, info.flop * static_cast<double>(cp.cin) * static_cast<double>(std::min(cob, cout_ - b * cob)) /
-                                    static_cast<double>(cin_ * cout_),
-                     info.bytes / static_cast<double>(blocks)});
+                    cp, groups, dispatch_part(info, cp.cin, std::min(cob, cout_ - b * cob), cin_, cout_, blocks));
       }
     return;
   }
