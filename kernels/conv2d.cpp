@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstdlib>
+#include <numeric>
 #include <cstring>
 
 #include "runtime/context.hpp"
@@ -245,12 +246,28 @@ void Conv2d::pack_subgroup() const {
   bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx_);
 }
 
+// Input channels per step of a chunk's start: each chunk's weight slab is bound as a uniform
+// buffer, whose offset must be a multiple of minUniformBufferOffsetAlignment (64 on NVIDIA, 1-256 elsewhere).
+int64_t Conv2d::direct_channel_quantum() const {
+  const int64_t per_channel = static_cast<int64_t>(params_.kernel) * params_.kernel * direct_cob_ * 4;
+  const int64_t a = static_cast<int64_t>(ctx_.info().min_uniform_buffer_offset_alignment);
+  return a / std::gcd(a, per_channel);
+}
+int64_t Conv2d::direct_cin_pad() const {
+  const int64_t q = direct_channel_quantum();
+  return (cin_ + q - 1) / q * q;
+}
 int64_t Conv2d::direct_chunk_max() const {
   const int64_t slab_per_channel = static_cast<int64_t>(params_.kernel) * params_.kernel * direct_cob_ * 4;
-  return std::min<int64_t>(cin_, static_cast<int64_t>(ctx_.info().max_uniform_buffer_range) / slab_per_channel);
+  const int64_t m = std::min<int64_t>(cin_, static_cast<int64_t>(ctx_.info().max_uniform_buffer_range) / slab_per_channel);
+  const int64_t q = direct_channel_quantum();
+  return m < cin_ ? m / q * q : m;
 }
 int64_t Conv2d::direct_chunk() const {
-  return direct_chunk_limit_ > 0 ? std::min(direct_chunk_limit_, direct_chunk_max()) : direct_chunk_max();
+  const int64_t m = direct_chunk_max();
+  if (direct_chunk_limit_ <= 0 || direct_chunk_limit_ >= m) return m;
+  const int64_t q = direct_channel_quantum();
+  return std::min(m, std::max(q, direct_chunk_limit_ / q * q));
 }
 
 void Conv2d::pack_direct() const {
@@ -259,11 +276,13 @@ void Conv2d::pack_direct() const {
   // every dispatch can bind a whole slab (the uniform block has a fixed size).
   const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, cob = direct_cob_;
   const int64_t blocks = (cout_ + cob - 1) / cob;
-  std::vector<float> wd(static_cast<size_t>((blocks * cin_ + direct_chunk_max()) * kk * cob), 0.f);
+  // Each block's channels are padded to direct_cin_pad() so every chunk's slab starts aligned.
+  const int64_t cin_pad = direct_cin_pad();
+  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + direct_chunk_max()) * kk * cob), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
     for (int64_t ci = 0; ci < cin_; ++ci)
       for (int64_t t = 0; t < kk; ++t)
-        wd[static_cast<size_t>((((co / cob) * cin_ + ci) * kk + t) * cob + co % cob)] =
+        wd[static_cast<size_t>((((co / cob) * cin_pad + ci) * kk + t) * cob + co % cob)] =
             weight_host_.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
   weight_direct_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd).to_device(ctx_);
 }
@@ -457,7 +476,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
           cp.cin = u32(std::min(chunk, cin_ - c0));
           cp.pad = params_.pad;
           cp.co0 = u32(b * cob);
-          const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * cin_ + c0) * kk * cob) * 4, slab_bytes);
+          const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * direct_cin_pad() + c0) * kk * cob) * 4, slab_bytes);
           cs.dispatch(ctx_.pipeline("conv2d_direct", dspec, sizeof(ConvPush)),
                       {bi.arg, {wr, Access::read}, {bias_.range(), Access::read}, br.arg,
                        {bo.arg.range, first ? Access::write : Access::read_write}},

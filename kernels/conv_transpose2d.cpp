@@ -2,8 +2,7 @@
 
 #include <algorithm>
 #include <cstdlib>
-
-#include <algorithm>
+#include <numeric>
 
 #include "runtime/context.hpp"
 #include "runtime/pipeline.hpp"
@@ -116,19 +115,37 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
   }
 }
 
+// Chunk starts must sit at multiples of minUniformBufferOffsetAlignment (see Conv2d::direct_channel_quantum).
+int64_t ConvTranspose2d::direct_channel_quantum() const {
+  const int64_t a = static_cast<int64_t>(ctx_.info().min_uniform_buffer_offset_alignment);
+  return a / std::gcd(a, 16 * direct_cob_ * 4);
+}
+int64_t ConvTranspose2d::direct_cin_pad() const {
+  const int64_t q = direct_channel_quantum();
+  return (cin_ + q - 1) / q * q;
+}
 int64_t ConvTranspose2d::direct_chunk_max() const {
-  return std::min<int64_t>(cin_, static_cast<int64_t>(ctx_.info().max_uniform_buffer_range) / (16 * direct_cob_ * 4));
+  const int64_t m = std::min<int64_t>(cin_, static_cast<int64_t>(ctx_.info().max_uniform_buffer_range) / (16 * direct_cob_ * 4));
+  const int64_t q = direct_channel_quantum();
+  return m < cin_ ? m / q * q : m;
+}
+int64_t ConvTranspose2d::direct_chunk() const {
+  const int64_t m = direct_chunk_max();
+  if (direct_chunk_limit_ <= 0 || direct_chunk_limit_ >= m) return m;
+  const int64_t q = direct_channel_quantum();
+  return std::min(m, std::max(q, direct_chunk_limit_ / q * q));
 }
 
 void ConvTranspose2d::pack_direct() const {
   if (!weight_direct_.empty()) return;
   // [cout/COB][cin][16][COB] plus one chunk of zeros, so every dispatch binds a whole slab.
   const int64_t cob = direct_cob_, blocks = (cout_ + cob - 1) / cob;
-  std::vector<float> wd(static_cast<size_t>((blocks * cin_ + direct_chunk_max()) * 16 * cob), 0.f);
+  const int64_t cin_pad = direct_cin_pad();  // aligned chunk starts
+  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + direct_chunk_max()) * 16 * cob), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
     for (int64_t ci = 0; ci < cin_; ++ci)
       for (int64_t t = 0; t < 16; ++t)
-        wd[static_cast<size_t>((((co / cob) * cin_ + ci) * 16 + t) * cob + co % cob)] =
+        wd[static_cast<size_t>((((co / cob) * cin_pad + ci) * 16 + t) * cob + co % cob)] =
             weight_host_.data[static_cast<size_t>((ci * cout_ + co) * 16 + t)];
   weight_direct_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd).to_device(ctx_);
 }
@@ -197,7 +214,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
     pack_direct();
     const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
     const int64_t cob = direct_cob_, blocks = (cout_ + cob - 1) / cob, px = 8;
-    const int64_t chunk = direct_chunk_limit_ > 0 ? std::min(direct_chunk_limit_, direct_chunk_max()) : direct_chunk_max();
+    const int64_t chunk = direct_chunk();
     const int64_t half_w = (os.w + 1) / 2, tasks = os.h * 2 * ((half_w + px - 1) / px);
     const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
     const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
@@ -208,7 +225,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
         cp.in_off = u32(bi.offset + c0 * is.h * is.w);
         cp.cin = u32(std::min(chunk, cin_ - c0));
         cp.co0 = u32(b * cob);
-        const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * cin_ + c0) * 16 * cob) * 4,
+        const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * direct_cin_pad() + c0) * 16 * cob) * 4,
                                                     static_cast<size_t>(chunk * 16 * cob) * 4);
         cs.dispatch(ctx_.pipeline("conv_transpose2d_direct",
                                   {spec[2], spec[3], u32(px), u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u,

@@ -346,6 +346,8 @@ void Context::create_device() {
   const uint32_t chosen = choose_device(infos, selector);
   physical_ = pds[chosen];
   info_ = infos[chosen];
+  info_.min_uniform_buffer_offset_alignment =
+      std::max<uint64_t>(info_.min_uniform_buffer_offset_alignment, options_.min_uniform_offset_alignment);
   queue_family_ = queue_family_for_compute(physical_);
   if (queue_family_ == UINT32_MAX) throw Error("device '" + info_.name + "' has no compute queue");
 

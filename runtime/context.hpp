@@ -28,6 +28,9 @@ struct ContextOptions {
   std::optional<bool> validation_fatal;
   // Persist the VkPipelineCache under the user's cache directory.
   bool persistent_pipeline_cache = true;
+  // Enforce at least this minUniformBufferOffsetAlignment (bytes; 0: the device's). Tests use it to
+  // check on a lenient device (lavapipe: 16) what a strict one (NVIDIA: 64, others up to 256) needs.
+  uint64_t min_uniform_offset_alignment = 0;
 };
 
 // Limits and features of a physical device, read once.

@@ -5,12 +5,13 @@ layout(local_size_x = 64) in;
 layout(std430, binding = 0) readonly buffer In { float x[]; };
 layout(std430, binding = 1) writeonly buffer Out { float y[]; };
 layout(push_constant) uniform P { uint in_off, in_bs, out_off, out_bs, c, h, w, oh, ow, top, left; } p;
+// The folding is even (index -i maps like i), so the remainder is taken of |i|: Vulkan leaves
+// OpSMod/OpSRem of a negative operand undefined (NVIDIA returned wrong indices; lavapipe did not).
 uint reflect_index(int i, int n) {
   if (n == 1) return 0u;
-  int period = 2 * (n - 1);
-  i = i % period;
-  if (i < 0) i += period;
-  return uint(i >= n ? period - i : i);
+  uint period = 2u * uint(n - 1);
+  uint r = uint(abs(i)) % period;
+  return r >= uint(n) ? period - r : r;
 }
 void main() {
   uint i = gl_GlobalInvocationID.x, c = gl_GlobalInvocationID.y, n = gl_GlobalInvocationID.z;

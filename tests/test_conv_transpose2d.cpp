@@ -18,8 +18,7 @@ struct Case {
   int64_t in_extra_c = 0, in_c0 = 0, out_extra_c = 0, out_c0 = 0, batch = 1;
 };
 
-void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
-  Context& ctx = vktest::context();
+void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
   std::mt19937 rng(99);
   const std::vector<Case> cases{
       {5, 7, 9, 11, leaky_relu(0.1f), 3, 2, 4, 4, 2},
@@ -52,6 +51,9 @@ void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
   }
   EXPECT_GT(ran, 0);
 }
+void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
+  run_cases(vktest::context(), algo, direct_chunk_limit);
+}
 }  // namespace
 
 TEST(ConvTranspose2d, NaiveMatchesReference) { run_cases(ConvTransposeAlgo::naive); }
@@ -59,6 +61,16 @@ TEST(ConvTranspose2d, BlockedMatchesReference) { run_cases(ConvTransposeAlgo::bl
 TEST(ConvTranspose2d, DirectMatchesReference) { run_cases(ConvTransposeAlgo::direct); }
 // 3 input channels per dispatch: chunks accumulate in the output, the last applies the activation.
 TEST(ConvTranspose2d, DirectInChunksMatchesReference) { run_cases(ConvTransposeAlgo::direct, 3); }
+// Chunk starts on a 256-byte uniform offset alignment (see Conv2d.DirectInChunksOnAStrictUniformAlignment).
+TEST(ConvTranspose2d, DirectInChunksOnAStrictUniformAlignment) {
+  ContextOptions o;
+  o.validation = true;
+  o.validation_fatal = true;
+  o.announce = false;
+  o.min_uniform_offset_alignment = 256;
+  Context strict(o);
+  run_cases(strict, ConvTransposeAlgo::direct, 3);
+}
 TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases(ConvTransposeAlgo::automatic); }
 
 TEST(ConvTranspose2d, ReferenceKnownValues) {
