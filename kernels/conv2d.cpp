@@ -353,6 +353,16 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // The direct path (weights from a uniform buffer) beats Winograd for 1-4 output channels (Winograd
   // pads them to 8) and the GEMM for 1x1 convs with <= 64 input channels (no pack/epilogue passes);
   // only where one dispatch per channel block holds all input channels.
+  // On a GPU (measured on an H100, docs/kernels.md) the uniform-buffer `direct` path, built for
+  // llvmpipe, is 3-10x slower than `blocked`. Winograd wins there as here, except for 1-4 output
+  // channels; 1x1 convs take the GEMM (`blocked` led by 20% alone but was 10x slower in the model,
+  // on batch-2 channel slices).
+  if (ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU) {
+    if (cout_ > 4 && supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride)
+      return ConvAlgo::winograd;
+    if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
+    return ConvAlgo::blocked;
+  }
   const bool direct_whole = supports(ConvAlgo::direct) && direct_chunk() >= cin_;
   if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
   if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;

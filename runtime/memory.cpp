@@ -16,8 +16,12 @@ Allocator::Allocator(Context& ctx, VkDeviceSize block_bytes) : ctx_(ctx), block_
   alignment_ = std::max<VkDeviceSize>(256, ctx.info().min_storage_buffer_offset_alignment);
   VkPhysicalDeviceMemoryProperties mem{};
   vkGetPhysicalDeviceMemoryProperties(ctx.physical_device(), &mem);
+  // Unified memory (lavapipe, integrated GPUs): device-local memory the host reads through its
+  // caches, so tensors live there and the host maps them. A discrete GPU's resizable BAR is
+  // device-local and host-visible too but uncached: host reads from it crawl (35 MB/s measured on
+  // an H100), so there tensors stay device-only and copies go through cached staging memory.
   const VkMemoryPropertyFlags want = VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT | VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT |
-                                     VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+                                     VK_MEMORY_PROPERTY_HOST_COHERENT_BIT | VK_MEMORY_PROPERTY_HOST_CACHED_BIT;
   for (uint32_t i = 0; i < mem.memoryTypeCount; ++i)
     if ((mem.memoryTypes[i].propertyFlags & want) == want &&
         mem.memoryHeaps[mem.memoryTypes[i].heapIndex].size >= (1ull << 30))
@@ -40,8 +44,11 @@ uint32_t Allocator::memory_type(uint32_t type_bits, bool host_visible) const {
     return UINT32_MAX;
   };
   const VkMemoryPropertyFlags hv = VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+  const VkMemoryPropertyFlags cached = VK_MEMORY_PROPERTY_HOST_CACHED_BIT;
   uint32_t t = UINT32_MAX;
-  if (host_visible || device_type_host_visible_) t = find(VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT | hv);
+  if (device_type_host_visible_) t = find(VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT | hv | cached);
+  // Staging: cached host memory first (downloads read it), then any coherent host-visible memory.
+  if (t == UINT32_MAX && host_visible) t = find(hv | cached);
   if (t == UINT32_MAX && host_visible) t = find(hv);
   if (t == UINT32_MAX && !host_visible) t = find(VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT);
   if (t == UINT32_MAX) t = find(0);

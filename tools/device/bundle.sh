@@ -1,0 +1,34 @@
+#!/bin/bash
+# Bundles vkunroll's GPU tests and benches for a machine that has a GPU driver but none of the
+# project's build dependencies (docs/gpu_nvidia.md): the Vulkan-facing tests (not the readers',
+# which need OpenCV and HDF5) and the benches, relinked with --as-needed so that they need only
+# libstdc++; the Khronos validation layer; the Vulkan loader's Debian package.
+#   tools/device/bundle.sh [BUILD_DIR=build]   -> .devrun/ (bin, layers, run_checks.sh) and .gl/
+set -euo pipefail
+B=${1:-build}
+R=$(cd "$(dirname "$0")/../.." && pwd)
+cd "$R"
+cmake --build "$B" --target vkunroll_tests vkunroll-bench-kernels vkunroll-bench-event-tensor vkunroll-bench-model
+mkdir -p .devrun/bin .devrun/layers .gl
+LIBS=$(ninja -C "$B" -t commands bench/vkunroll-bench-kernels | tail -1 | grep -oE ' (lib[^ ]+\.a|/usr/lib[^ ]+\.(so[.0-9]*|a)|-l[a-z]+)' | tr '\n' ' ')
+(cd "$B"
+ for b in kernels event-tensor model; do
+   c++ -O3 -Wl,--as-needed bench/CMakeFiles/vkunroll-bench-$b.dir/bench_*.cpp.o -o "$R/.devrun/bin/vkunroll-bench-$b" $LIBS
+ done
+ T=tests/CMakeFiles/vkunroll_tests.dir
+ objs=""
+ for t in backward_warp conv2d conv_transpose2d elementwise event_tensor model physics_unroll reflection_pad runtime \
+          space_to_depth weights safetensors; do objs="$objs $T/test_$t.cpp.o"; done
+ c++ -O3 -Wl,--as-needed $objs $T/vk_test_env.cpp.o -o "$R/.devrun/bin/vkunroll_gpu_tests" $LIBS \
+     /usr/lib/x86_64-linux-gnu/libgtest.a -lpthread)
+cp /usr/lib/x86_64-linux-gnu/libVkLayer_khronos_validation.so .devrun/layers/
+sed 's|"library_path": *"[^"]*"|"library_path": "./libVkLayer_khronos_validation.so"|' \
+    /usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json > .devrun/layers/VkLayer_khronos_validation.json
+cp tools/device/run_checks.sh .devrun/run.sh
+# The loader (and glvnd, which NVIDIA's Vulkan ICD needs) as Debian packages, unpacked there.
+o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
+mkdir -p /tmp/amd64/partial
+apt-get $o update >/dev/null
+(cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
+for f in .devrun/bin/*; do readelf -d "$f" | grep -q 'NEEDED.*opencv' && { echo "$f needs OpenCV"; exit 1; }; done
+echo "bundle ready: .devrun/ and .gl/ (add both to .git/info/exclude); run there: bash .devrun/run.sh"
