@@ -31,4 +31,4 @@ mkdir -p /tmp/amd64/partial
 apt-get $o update >/dev/null
 (cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
 for f in .devrun/bin/*; do readelf -d "$f" | grep -q 'NEEDED.*opencv' && { echo "$f needs OpenCV"; exit 1; }; done
-echo "bundle ready: .devrun/ and .gl/ (add both to .git/info/exclude); run there: bash .devrun/run.sh"
+echo "bundle ready: .devrun/ and .gl/ (both git-ignored); run there from the repo root: bash .devrun/run.sh"
