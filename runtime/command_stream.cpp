@@ -14,6 +14,7 @@ namespace {
 constexpr uint32_t kSetsPerPool = 256;
 constexpr uint32_t kDescriptorsPerSet = 16;
 constexpr uint32_t kUniformsPerSet = Pipeline::kMaxUniformBindings;  // pool sizing
+constexpr uint32_t kTexelsPerSet = Pipeline::kMaxTexelBindings;
 constexpr uint32_t kMaxDispatchesPerSubmit = 2048;  // timestamp pairs per query pool
 
 double default_timeout() {
@@ -49,6 +50,7 @@ CommandStream::~CommandStream() {
   VkDevice d = ctx_.device();
   if (recording_) vkEndCommandBuffer(cb_);  // abandoned recording: never submitted
   if (queries_) vkDestroyQueryPool(d, queries_, nullptr);
+  for (const auto& v : views_) vkDestroyBufferView(d, v.view, nullptr);
   for (auto p : desc_pools_) vkDestroyDescriptorPool(d, p, nullptr);
   if (fence_) vkDestroyFence(d, fence_, nullptr);
   if (pool_) vkDestroyCommandPool(d, pool_, nullptr);
@@ -66,11 +68,13 @@ void CommandStream::begin_if_needed() {
 VkDescriptorSet CommandStream::allocate_set(VkDescriptorSetLayout layout, uint32_t bindings) {
   if (bindings > kDescriptorsPerSet) throw Error("a dispatch binds more than 16 buffers");
   if (desc_pools_.empty() || desc_pool_used_ >= kSetsPerPool) {
-    const VkDescriptorPoolSize sizes[2] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, kSetsPerPool * kDescriptorsPerSet},
-                                           {VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, kSetsPerPool * kUniformsPerSet}};
+    const VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, kSetsPerPool * kDescriptorsPerSet},
+                                           {VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, kSetsPerPool * kUniformsPerSet},
+                                           {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, kSetsPerPool * kTexelsPerSet},
+                                           {VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER, kSetsPerPool * kTexelsPerSet}};
     VkDescriptorPoolCreateInfo ci{VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO};
     ci.maxSets = kSetsPerPool;
-    ci.poolSizeCount = 2;
+    ci.poolSizeCount = 4;
     ci.pPoolSizes = sizes;
     VkDescriptorPool pool;
     VK_CHECK(vkCreateDescriptorPool(ctx_.device(), &ci, nullptr, &pool));
@@ -129,28 +133,36 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
 
   std::vector<Span> reads, writes;
   std::vector<VkDescriptorBufferInfo> bufs(args.size());
+  std::vector<VkBufferView> views(args.size(), VK_NULL_HANDLE);
   std::vector<VkWriteDescriptorSet> w(args.size());
   VkDescriptorSet set = allocate_set(pipeline.set_layout(), static_cast<uint32_t>(args.size()));
   for (size_t i = 0; i < args.size(); ++i) {
     const BufferRange& r = args[i].range;
-    if (r.buffer == VK_NULL_HANDLE) throw Error("dispatch '" + info.name + "': argument " + std::to_string(i) + " is an empty tensor");
-    const bool uniform = pipeline.binding_is_uniform(static_cast<uint32_t>(i));
+    const std::string what = "dispatch '" + info.name + "': argument " + std::to_string(i);
+    if (r.buffer == VK_NULL_HANDLE) throw Error(what + " is an empty tensor");
+    const DescriptorKind kind = pipeline.binding_kind(static_cast<uint32_t>(i));
+    const bool uniform = kind == DescriptorKind::uniform_buffer;
     if (uniform && (r.size > lim.max_uniform_buffer_range || r.offset % lim.min_uniform_buffer_offset_alignment != 0))
       throw Error("dispatch '" + info.name + "': uniform-buffer argument " + std::to_string(i) + " spans " +
                   std::to_string(r.size) + " bytes at offset " + std::to_string(r.offset) +
                   "; at most maxUniformBufferRange (" + std::to_string(lim.max_uniform_buffer_range) +
                   ") bytes at a multiple of " + std::to_string(lim.min_uniform_buffer_offset_alignment) + " allowed");
-    if (r.size > lim.max_storage_buffer_range)
-      throw Error("dispatch '" + info.name + "': argument " + std::to_string(i) + " spans " + std::to_string(r.size) +
+    if (!is_texel_buffer(kind) && r.size > lim.max_storage_buffer_range)
+      throw Error(what + " spans " + std::to_string(r.size) +
                   " bytes, more than maxStorageBufferRange (" + std::to_string(lim.max_storage_buffer_range) +
                   " bytes); bind it in sub-ranges");
-    bufs[i] = {r.buffer, r.offset, r.size};
     w[i] = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
     w[i].dstSet = set;
     w[i].dstBinding = static_cast<uint32_t>(i);
     w[i].descriptorCount = 1;
-    w[i].descriptorType = uniform ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
-    w[i].pBufferInfo = &bufs[i];
+    w[i].descriptorType = descriptor_type(kind);
+    if (is_texel_buffer(kind)) {
+      views[i] = texel_view(args[i], kind, what);
+      w[i].pTexelBufferView = &views[i];
+    } else {
+      bufs[i] = {r.buffer, r.offset, r.size};
+      w[i].pBufferInfo = &bufs[i];
+    }
     const Span s{r.buffer, r.offset, r.offset + r.size};
     if (args[i].access != Access::write) reads.push_back(s);
     if (args[i].access != Access::read) writes.push_back(s);
@@ -167,6 +179,65 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
   if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
   names_.push_back(info.name);
   infos_.push_back(info);
+}
+
+namespace {
+uint64_t texel_bytes(VkFormat f) {
+  switch (f) {
+    case VK_FORMAT_R32_SFLOAT:
+    case VK_FORMAT_R32_UINT:
+    case VK_FORMAT_R32_SINT: return 4;
+    case VK_FORMAT_R32G32_SFLOAT: return 8;
+    case VK_FORMAT_R32G32B32A32_SFLOAT:
+    case VK_FORMAT_R32G32B32A32_UINT:
+    case VK_FORMAT_R32G32B32A32_SINT: return 16;
+    default: return 0;
+  }
+}
+}  // namespace
+
+VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const std::string& what) {
+  const BufferRange& r = a.range;
+  for (const auto& v : views_)
+    if (v.buffer == r.buffer && v.offset == r.offset && v.size == r.size && v.format == a.texel_format) return v.view;
+  const auto& lim = ctx_.info();
+  const uint64_t texel = texel_bytes(a.texel_format);
+  const char* kind_name = descriptor_kind_name(kind);
+  if (texel == 0)
+    throw Error(what + ": texel format " + std::to_string(a.texel_format) +
+                " is not one of the 32-bit formats R32, R32G32, R32G32B32A32 (float, uint, sint)");
+  if (r.offset % lim.min_texel_buffer_offset_alignment != 0)
+    throw Error(what + " (" + kind_name + ") starts at byte offset " + std::to_string(r.offset) +
+                ", not a multiple of minTexelBufferOffsetAlignment (" +
+                std::to_string(lim.min_texel_buffer_offset_alignment) + ")");
+  if (r.size % texel != 0 || r.size / texel > lim.max_texel_buffer_elements)
+    throw Error(what + " (" + kind_name + ") spans " + std::to_string(r.size) + " bytes = " +
+                std::to_string(static_cast<double>(r.size) / static_cast<double>(texel)) + " texels of " +
+                std::to_string(texel) + " bytes; a whole number of at most maxTexelBufferElements (" +
+                std::to_string(lim.max_texel_buffer_elements) + ") allowed");
+  auto ff = std::find_if(format_features_.begin(), format_features_.end(),
+                         [&](const auto& p) { return p.first == a.texel_format; });
+  if (ff == format_features_.end()) {
+    VkFormatProperties fp{};
+    vkGetPhysicalDeviceFormatProperties(ctx_.physical_device(), a.texel_format, &fp);
+    format_features_.emplace_back(a.texel_format, fp.bufferFeatures);
+    ff = format_features_.end() - 1;
+  }
+  const VkFormatFeatureFlags need = kind == DescriptorKind::uniform_texel_buffer
+                                        ? VK_FORMAT_FEATURE_UNIFORM_TEXEL_BUFFER_BIT
+                                        : VK_FORMAT_FEATURE_STORAGE_TEXEL_BUFFER_BIT;
+  if ((ff->second & need) == 0)
+    throw Error(what + ": the device does not support texel format " + std::to_string(a.texel_format) + " as a " +
+                kind_name);
+  VkBufferViewCreateInfo ci{VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO};
+  ci.buffer = r.buffer;
+  ci.format = a.texel_format;
+  ci.offset = r.offset;
+  ci.range = r.size;
+  VkBufferView view = VK_NULL_HANDLE;
+  VK_CHECK(vkCreateBufferView(ctx_.device(), &ci, nullptr, &view));
+  views_.push_back({r.buffer, r.offset, r.size, a.texel_format, view});
+  return view;
 }
 
 void CommandStream::fill(const Tensor& t, uint32_t value) {
@@ -252,6 +323,8 @@ void CommandStream::reset() {
     desc_pools_.pop_back();
   }
   desc_pool_used_ = 0;
+  for (const auto& v : views_) vkDestroyBufferView(ctx_.device(), v.view, nullptr);
+  views_.clear();
   names_.clear();
   infos_.clear();
   pending_reads_.clear();

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "runtime/shader_registry.hpp"
 #include "runtime/tensor.hpp"
 
 namespace vkunroll {
@@ -16,9 +17,13 @@ class Profiler;
 
 enum class Access { read, write, read_write };
 
+// A buffer range bound to one binding. For a texel-buffer binding (samplerBuffer / imageBuffer in
+// the shader) the stream creates a VkBufferView of `texel_format` over the range; the range's
+// offset must be a multiple of minTexelBufferOffsetAlignment and its size a whole number of texels.
 struct Arg {
   BufferRange range;
   Access access = Access::read;
+  VkFormat texel_format = VK_FORMAT_R32_SFLOAT;
 };
 inline Arg in(const Tensor& t) { return {t.range(), Access::read}; }
 inline Arg out(const Tensor& t) { return {t.range(), Access::write}; }
@@ -69,6 +74,7 @@ class CommandStream {
   VkDescriptorSet allocate_set(VkDescriptorSetLayout layout, uint32_t bindings);
   void reset();
   std::string in_flight_description();
+  VkBufferView texel_view(const Arg& a, DescriptorKind kind, const std::string& what);
 
   Context& ctx_;
   Profiler* profiler_;
@@ -84,6 +90,17 @@ class CommandStream {
   std::vector<std::string> names_;
   std::vector<DispatchInfo> infos_;
   std::vector<Span> pending_reads_, pending_writes_;
+  // Buffer views of this submission's texel-buffer arguments (one per buffer, range and format),
+  // destroyed once the submission finished (or with the stream): a tensor freed afterwards may
+  // give its buffer range to another tensor.
+  struct View {
+    VkBuffer buffer;
+    VkDeviceSize offset, size;
+    VkFormat format;
+    VkBufferView view;
+  };
+  std::vector<View> views_;
+  std::vector<std::pair<VkFormat, VkFormatFeatureFlags>> format_features_;  // queried once per format
 };
 
 }  // namespace vkunroll

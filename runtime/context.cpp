@@ -116,6 +116,8 @@ DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
   info.min_storage_buffer_offset_alignment = props.limits.minStorageBufferOffsetAlignment;
   info.max_uniform_buffer_range = props.limits.maxUniformBufferRange;
   info.min_uniform_buffer_offset_alignment = std::max<uint64_t>(1, props.limits.minUniformBufferOffsetAlignment);
+  info.max_texel_buffer_elements = props.limits.maxTexelBufferElements;
+  info.min_texel_buffer_offset_alignment = std::max<uint64_t>(1, props.limits.minTexelBufferOffsetAlignment);
   info.timestamp_period_ns = props.limits.timestampPeriod;
   std::memcpy(info.pipeline_cache_uuid, props.pipelineCacheUUID, VK_UUID_SIZE);
 

@@ -49,6 +49,8 @@ struct DeviceInfo {
   uint64_t min_storage_buffer_offset_alignment = 0;
   uint64_t max_uniform_buffer_range = 0;             // bytes one uniform-buffer binding may span
   uint64_t min_uniform_buffer_offset_alignment = 1;
+  uint64_t max_texel_buffer_elements = 0;            // texels one buffer view may span
+  uint64_t min_texel_buffer_offset_alignment = 1;    // byte alignment of a buffer view's offset
   float timestamp_period_ns = 0.f;      // ns per timestamp tick
   bool timestamps = false;              // the compute queue writes timestamps
   uint64_t device_local_bytes = 0;

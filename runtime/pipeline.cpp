@@ -8,6 +8,16 @@
 
 namespace vkunroll {
 
+VkDescriptorType descriptor_type(DescriptorKind k) {
+  switch (k) {
+    case DescriptorKind::uniform_buffer: return VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
+    case DescriptorKind::uniform_texel_buffer: return VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
+    case DescriptorKind::storage_texel_buffer: return VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER;
+    case DescriptorKind::storage_buffer: break;
+  }
+  return VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+}
+
 uint32_t spec_float(float f) {
   uint32_t u;
   std::memcpy(&u, &f, 4);
@@ -24,11 +34,13 @@ Pipeline::Pipeline(Context& ctx, const std::string& shader, const std::vector<ui
   const auto bindings = spirv_bindings(words);
   for (uint32_t i = 0; i < bindings.size(); ++i) {
     if (bindings[i].binding != i) throw Error("shader '" + shader + "': bindings must be numbered 0..n-1");
-    uniform_.push_back(bindings[i].uniform);
+    kinds_.push_back(bindings[i].kind);
   }
   binding_count_ = static_cast<uint32_t>(bindings.size());
-  if (std::count(uniform_.begin(), uniform_.end(), true) > kMaxUniformBindings)
+  if (std::count(kinds_.begin(), kinds_.end(), DescriptorKind::uniform_buffer) > kMaxUniformBindings)
     throw Error("shader '" + shader + "': more than " + std::to_string(kMaxUniformBindings) + " uniform buffers");
+  if (std::count_if(kinds_.begin(), kinds_.end(), is_texel_buffer) > kMaxTexelBindings)
+    throw Error("shader '" + shader + "': more than " + std::to_string(kMaxTexelBindings) + " texel buffers");
 
   VkShaderModuleCreateInfo mci{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
   mci.codeSize = words.size_bytes();
@@ -37,8 +49,7 @@ Pipeline::Pipeline(Context& ctx, const std::string& shader, const std::vector<ui
 
   std::vector<VkDescriptorSetLayoutBinding> lb(binding_count_);
   for (uint32_t i = 0; i < binding_count_; ++i)
-    lb[i] = {i, uniform_[i] ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, 1,
-             VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
+    lb[i] = {i, descriptor_type(kinds_[i]), 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
   VkDescriptorSetLayoutCreateInfo dci{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
   dci.bindingCount = binding_count_;
   dci.pBindings = lb.data();

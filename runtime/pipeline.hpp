@@ -1,11 +1,12 @@
 // Pipeline: one embedded SPIR-V module with its specialization constants and push-constant
-// size; the descriptor layout (storage and uniform buffers at set 0) is derived from the module once.
+// size; the descriptor layout (storage, uniform and texel buffers at set 0) is derived from the module once.
 #pragma once
 #include <cstdint>
 #include <string>
 #include <vector>
 
 #include "runtime/error.hpp"
+#include "runtime/shader_registry.hpp"
 
 namespace vkunroll {
 
@@ -14,6 +15,7 @@ class Context;
 class Pipeline {
  public:
   static constexpr uint32_t kMaxUniformBindings = 2;  // uniform buffers one shader may declare
+  static constexpr uint32_t kMaxTexelBindings = 4;    // texel buffers (uniform + storage) one shader may declare
   // spec[i] is specialization constant id i (32-bit; floats bit-cast with spec_float()).
   Pipeline(Context& ctx, const std::string& shader, const std::vector<uint32_t>& spec,
            uint32_t push_constant_bytes);
@@ -26,8 +28,9 @@ class Pipeline {
   VkPipelineLayout layout() const { return layout_; }
   VkDescriptorSetLayout set_layout() const { return set_layout_; }
   uint32_t binding_count() const { return binding_count_; }
-  // Whether binding i is a uniform buffer (declared `uniform` in the shader) instead of a storage buffer.
-  bool binding_is_uniform(uint32_t i) const { return i < uniform_.size() && uniform_[i]; }
+  // What binding i is, from the shader's declaration (storage buffer if out of range).
+  DescriptorKind binding_kind(uint32_t i) const { return i < kinds_.size() ? kinds_[i] : DescriptorKind::storage_buffer; }
+  bool binding_is_uniform(uint32_t i) const { return binding_kind(i) == DescriptorKind::uniform_buffer; }
   uint32_t push_constant_bytes() const { return push_bytes_; }
 
  private:
@@ -35,7 +38,7 @@ class Pipeline {
   Context& ctx_;
   std::string name_;
   uint32_t binding_count_ = 0;
-  std::vector<bool> uniform_;  // per binding
+  std::vector<DescriptorKind> kinds_;  // per binding
   uint32_t push_bytes_ = 0;
   VkShaderModule module_ = VK_NULL_HANDLE;
   VkDescriptorSetLayout set_layout_ = VK_NULL_HANDLE;
@@ -44,5 +47,6 @@ class Pipeline {
 };
 
 uint32_t spec_float(float f);
+VkDescriptorType descriptor_type(DescriptorKind k);
 
 }  // namespace vkunroll

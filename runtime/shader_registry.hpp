@@ -22,11 +22,20 @@ std::vector<std::string> shader_names();
 // Descriptor bindings (set 0) declared by a module, read from its OpDecorate Binding words.
 std::vector<uint32_t> spirv_storage_bindings(std::span<const uint32_t> words);
 
-// A binding and whether it is a uniform buffer (a `uniform` block: Uniform storage class, Block
-// decoration) rather than a storage buffer (`buffer`: BufferBlock or the StorageBuffer class).
+// What a set-0 binding of a module is, from its SPIR-V declaration:
+// - storage_buffer: `buffer` block (BufferBlock decoration or the StorageBuffer class);
+// - uniform_buffer: `uniform` block (Uniform class, Block decoration);
+// - uniform_texel_buffer: `uniform samplerBuffer` / `textureBuffer` (an image of Dim Buffer, sampled);
+// - storage_texel_buffer: `imageBuffer` (an image of Dim Buffer, read/written with imageLoad/Store).
+enum class DescriptorKind : uint8_t { storage_buffer, uniform_buffer, uniform_texel_buffer, storage_texel_buffer };
+const char* descriptor_kind_name(DescriptorKind k);
+inline bool is_texel_buffer(DescriptorKind k) {
+  return k == DescriptorKind::uniform_texel_buffer || k == DescriptorKind::storage_texel_buffer;
+}
+
 struct SpirvBinding {
   uint32_t binding = 0;
-  bool uniform = false;
+  DescriptorKind kind = DescriptorKind::storage_buffer;
   bool operator==(const SpirvBinding&) const = default;
 };
 // The bindings sorted by number, with their kinds; throws on a malformed module.

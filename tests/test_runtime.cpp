@@ -228,9 +228,11 @@ TEST(Runtime, SpirvBindingsAreDerivedFromTheModule) {
 
 TEST(Runtime, UniformBufferBindingsAreDerivedAndBound) {
   Context& ctx = vktest::context();
+  using K = DescriptorKind;
   EXPECT_EQ(spirv_bindings(find_shader("runtime_uniform_scale")),
-            (std::vector<SpirvBinding>{{0, false}, {1, true}, {2, false}}));
-  EXPECT_EQ(spirv_bindings(find_shader("runtime_axpy")), (std::vector<SpirvBinding>{{0, false}, {1, false}}));
+            (std::vector<SpirvBinding>{{0, K::storage_buffer}, {1, K::uniform_buffer}, {2, K::storage_buffer}}));
+  EXPECT_EQ(spirv_bindings(find_shader("runtime_axpy")),
+            (std::vector<SpirvBinding>{{0, K::storage_buffer}, {1, K::storage_buffer}}));
   const Pipeline& pl = ctx.pipeline("runtime_uniform_scale", {}, 4);
   EXPECT_TRUE(pl.binding_is_uniform(1));
   EXPECT_FALSE(pl.binding_is_uniform(0));
@@ -254,6 +256,60 @@ TEST(Runtime, UniformBufferBindingsAreDerivedAndBound) {
   if (ctx.info().min_uniform_buffer_offset_alignment > 4) {
     EXPECT_THROW(cs.dispatch(pl, {in(x), {s.range(4, 64), Access::read}, out(y)}, n, {1}, {"uniform_scale"}), Error);
   }
+}
+
+TEST(Runtime, TexelBufferBindingsAreDerivedAndBound) {
+  Context& ctx = vktest::context();
+  using K = DescriptorKind;
+  EXPECT_EQ(spirv_bindings(find_shader("runtime_texel_scale")),
+            (std::vector<SpirvBinding>{{0, K::uniform_texel_buffer}, {1, K::uniform_texel_buffer},
+                                       {2, K::storage_texel_buffer}}));
+  const Pipeline& pl = ctx.pipeline("runtime_texel_scale", {}, 4);
+  EXPECT_EQ(pl.binding_kind(1), K::uniform_texel_buffer);
+  EXPECT_EQ(pl.binding_kind(2), K::storage_texel_buffer);
+  // x: floats 16.. of a tensor (an R32 view at byte offset 64); q: an RGBA32 view at byte offset 32;
+  // y: floats 4.. of its tensor (byte offset 16), the floats before it must survive.
+  const uint32_t n = 40;
+  Tensor x(ctx, {1, 1, 1, 64}), q(ctx, {1, 1, 1, 64}), y(ctx, {1, 1, 1, 48});
+  std::vector<float> xv(64), qv(64), y0(48, -7.f);
+  for (size_t i = 0; i < xv.size(); ++i) xv[i] = static_cast<float>(i) + 1.f;
+  for (size_t i = 0; i < qv.size(); ++i) qv[i] = 0.25f * static_cast<float>(i);
+  x.upload(xv);
+  q.upload(qv);
+  y.upload(y0);
+  const Arg xa{x.range(64, n * 4), Access::read}, qa{q.range(32, n * 4), Access::read, VK_FORMAT_R32G32B32A32_SFLOAT};
+  const Arg ya{y.range(16, n * 4), Access::write};
+  CommandStream cs(ctx);
+  cs.dispatch(pl, {xa, qa, ya}, n, {1}, {"texel_scale"});
+  cs.dispatch(pl, {xa, qa, ya}, n, {1}, {"texel_scale"});  // the same views again (cached)
+  cs.submit_and_wait();
+  const auto yv = y.download<float>();
+  for (size_t i = 0; i < 4; ++i) EXPECT_EQ(yv[i], -7.f) << i;
+  for (size_t i = 0; i < n; ++i) EXPECT_EQ(yv[4 + i], xv[16 + i] + 2.f * qv[8 + i]) << i;
+  for (size_t i = 4 + n; i < yv.size(); ++i) EXPECT_EQ(yv[i], -7.f) << i;
+  // Refused by name before Vulkan sees them: more texels than maxTexelBufferElements (the range is
+  // never created), an offset that is not a multiple of minTexelBufferOffsetAlignment, a partial texel.
+  const uint64_t max_texels = ctx.info().max_texel_buffer_elements;
+  ASSERT_GT(max_texels, 0u);
+  const Arg too_long{{x.range().buffer, x.range().offset, (max_texels + 1) * 4}, Access::read};
+  try {
+    cs.dispatch(pl, {too_long, qa, ya}, n, {1}, {"texel_scale"});
+    ADD_FAILURE() << "a view beyond maxTexelBufferElements was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("maxTexelBufferElements"), std::string::npos) << e.what();
+  }
+  if (ctx.info().min_texel_buffer_offset_alignment > 4) {
+    try {
+      cs.dispatch(pl, {{x.range(4, n * 4), Access::read}, qa, ya}, n, {1}, {"texel_scale"});
+      ADD_FAILURE() << "an unaligned view was accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("minTexelBufferOffsetAlignment"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_THROW(cs.dispatch(pl, {xa, {q.range(32, 20), Access::read, VK_FORMAT_R32G32B32A32_SFLOAT}, ya}, n, {1},
+                           {"texel_scale"}),
+               Error);
+  cs.submit_and_wait();
 }
 
 TEST(Runtime, VkResultNames) {
