@@ -11,6 +11,7 @@ namespace vkunroll {
 
 namespace {
 constexpr int64_t kBlockCo = 8;  // output channels per invocation in the blocked path (or 16)
+constexpr int64_t kDirectWideMinCin = 128;  // 1x1 convs from here use the wide direct blocks
 
 // Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
 Groups flat_groups(int64_t n, uint32_t z) {
@@ -128,6 +129,14 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
   if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
   direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
+  // Wide 1x1 convs: more output channels per invocation, so each loaded input value (a per-lane
+  // storage-buffer loop on lavapipe) feeds more FMAs; 4 pixels x 48 or 8 x 32 measured best there.
+  if (k == 1 && cin_ >= kDirectWideMinCin && cout_ % 48 == 0) {
+    direct_cob_ = 48;
+    direct_px_ = 4;
+  } else if (k == 1 && cin_ >= kDirectWideMinCin && cout_ % 32 == 0) {
+    direct_cob_ = 32;
+  }
   if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
   // Few output channels: reuse each loaded input row for 4 output rows (loads bound the speed).
   direct_py_ = (cout_ <= 4 && k > 1) ? 4 : 1;
@@ -332,12 +341,13 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
   // model; tiny images (one tile row or column) gain nothing from it.
   // The direct path (weights from a uniform buffer) beats Winograd for 1-4 output channels (Winograd
-  // pads them to 8) and the GEMM for 1x1 convs with <= 64 input channels (no pack/epilogue passes);
-  // only where one dispatch per channel block holds all input channels.
+  // pads them to 8) and the GEMM for 1x1 convs with <= 64 input channels (no pack/epilogue passes)
+  // or with the wide blocks (32 or 48 output channels per invocation); only where one dispatch per
+  // channel block holds all input channels.
   const bool direct_whole = supports(ConvAlgo::direct) && direct_chunk() >= cin_;
   if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
   if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;
-  if (direct_whole && supports(ConvAlgo::gemm) && cin_ <= 64) return ConvAlgo::direct;
+  if (direct_whole && supports(ConvAlgo::gemm) && (cin_ <= 64 || direct_cob_ >= 32)) return ConvAlgo::direct;
   if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
   return ConvAlgo::blocked;
 }

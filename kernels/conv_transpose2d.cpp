@@ -99,7 +99,9 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
   if (k == 4 && params.stride == 2 && params.pad == 1) {
     weight_host_ = weight;
-    direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
+    // 32 channels per invocation where they divide cout: 3-6% faster than 16 on lavapipe (fewer
+    // input loads per FMA), even on 512->256 where the chunks halve.
+    direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : (cout_ % 32 == 0 ? 32 : 16));
     if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
     // Blocked layout [cout/8][cin][4][4][8], output channels zero-padded to a multiple of 8.
     const int64_t cob = (cout_ + 7) / 8;
@@ -140,7 +142,7 @@ bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
 }
 
 ConvTransposeAlgo ConvTranspose2d::choose_algorithm(int64_t, int64_t) const {
-  // direct (weights from a uniform buffer, 16 channels per invocation) measured 5-10% faster than
+  // direct (weights from a uniform buffer, 16 or 32 channels per invocation) measured 5-10% faster than
   // blocked on every transposed conv of the model on lavapipe.
   if (supports(ConvTransposeAlgo::direct)) return ConvTransposeAlgo::direct;
   return supports(ConvTransposeAlgo::blocked) ? ConvTransposeAlgo::blocked : ConvTransposeAlgo::naive;

@@ -39,6 +39,9 @@ std::vector<Case> cases() {
       {3, 1, 7, 5, 21, 1, lrelu01, false},
       {5, 2, 5, 4, 11, 14, Act{Activation::sigmoid}, true},
       {1, 2, 3, 5, 9, 8, Act{}, false},
+      // wide 1x1 convs: direct's 4 px x 48 and 8 px x 32 channel blocks
+      {1, 1, 130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1},
+      {1, 1, 129, 64, 3, 11, Act{Activation::tanh}, false, 0, 0, 0, 0, 2, 0, 2},
   };
 }
 

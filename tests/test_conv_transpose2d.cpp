@@ -28,6 +28,7 @@ void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
       {12, 6, 7, 1, Act{Activation::sigmoid}, 0, 0, 6, 0},
       {9, 13, 6, 5, Act{Activation::hardsigmoid}},
       {32, 16, 11, 9, leaky_relu(0.01f), 0, 0, 16, 16, 2},
+      {33, 64, 5, 3, leaky_relu(0.2f), 2, 1, 0, 0, 1},  // direct's 32-channel blocks
   };
   int ran = 0;
   for (const Case& c : cases) {
