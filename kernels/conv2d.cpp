@@ -347,7 +347,9 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   const bool direct_whole = supports(ConvAlgo::direct) && direct_chunk() >= cin_;
   if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
   if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;
-  if (direct_whole && supports(ConvAlgo::gemm) && (cin_ <= 64 || direct_cob_ >= 32)) return ConvAlgo::direct;
+  if (direct_whole && supports(ConvAlgo::gemm) && cin_ <= 64) return ConvAlgo::direct;
+  // The wide blocks beat the GEMM even in several input-channel chunks (GFF.0, 960 channels: 3).
+  if (supports(ConvAlgo::direct) && supports(ConvAlgo::gemm) && direct_cob_ >= 32) return ConvAlgo::direct;
   if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
   return ConvAlgo::blocked;
 }
@@ -380,8 +382,15 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     if (residual->shape() != expect)
       throw Error(name_ + ": residual slice " + residual->shape().str() + ", expected " + expect.str());
   }
+  // direct in several chunks accumulates in the output, so it cannot add a residual that overlaps it.
+  const auto residual_overlaps_output = [&] {
+    if (!residual || residual->t->range().buffer != out.t->range().buffer) return false;
+    const BufferRange ro = bind_slice(*residual, Access::read).arg.range, oo = bind_slice(out, Access::write).arg.range;
+    return oo.offset < ro.offset + ro.size && ro.offset < oo.offset + oo.size;
+  };
   if (algo == ConvAlgo::automatic) {
     algo = choose_algorithm(is.h, is.w);
+    if (algo == ConvAlgo::direct && direct_chunk() < cin_ && residual_overlaps_output()) algo = ConvAlgo::gemm;
     if (!supports(algo, is)) algo = ConvAlgo::blocked;
   }
   if (!supports(algo, is))
@@ -452,9 +461,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       const int64_t tasks = ((dp.oh + py - 1) / py) * ((dp.ow + px - 1) / px);
       const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
       const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
-      if (chunk < cin_ && residual && residual->t->range().buffer == out.t->range().buffer &&
-          bo.arg.range.offset < br.arg.range.offset + br.arg.range.size &&
-          br.arg.range.offset < bo.arg.range.offset + bo.arg.range.size)
+      if (chunk < cin_ && residual_overlaps_output())
         throw Error(name_ + ": the direct algorithm accumulates in the output, which overlaps the residual");
       for (int64_t b = 0; b < blocks; ++b)
         for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {

@@ -93,6 +93,36 @@ TEST(Conv2d, DirectMatchesReference) { run_cases(ConvAlgo::direct); }
 TEST(Conv2d, DirectInChunksMatchesReference) { run_cases(ConvAlgo::direct, ~0ull, 2); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
 
+TEST(Conv2d, AutomaticAvoidsChunkedDirectOnAnOverlappingResidual) {
+  // A wide 1x1 conv picks `direct` even in several input-channel chunks, which accumulate in the
+  // output; with the residual being the output itself (y = conv(x) + y) it must take another path.
+  Context& ctx = vktest::context();
+  std::mt19937 rng(77);
+  const int64_t cin = 130, cout = 96;
+  const Conv2dParams p{1, 1, 0, leaky_relu(0.1f)};
+  const float wscale = 1.f / std::sqrt(static_cast<float>(cin));
+  HostTensor w = random_tensor({cout, cin, 1, 1}, rng, -wscale, wscale), b = random_tensor({1, 1, 1, cout}, rng);
+  Conv2d conv(ctx, w, b, p);
+  conv.set_direct_chunk_limit(50);
+  HostTensor x = random_tensor({1, cin, 4, 9}, rng), y = random_tensor({1, cout, 4, 9}, rng), y_ref = y;
+  const HostTensor r = y;
+  conv2d_ref(HostSlice(x), HostSliceOut(y_ref), w, b, p, HostSlice(r));
+  Tensor xd = x.to_device(ctx), yd = y.to_device(ctx);
+  CommandStream cs(ctx);
+  EXPECT_THROW(conv.record(cs, Slice(xd), Slice(yd), Slice(yd), ConvAlgo::direct), Error);
+  const size_t before = cs.recorded();
+  conv.record(cs, Slice(xd), Slice(yd), Slice(yd));
+  EXPECT_EQ(cs.recorded() - before, 3u);  // gemm: pack, GEMM, epilogue
+  cs.submit_and_wait();
+  EXPECT_LE(max_abs_diff(HostTensor::download(yd), y_ref), kTol);
+  // Without the overlap the same conv runs `direct` in 3 chunks.
+  Tensor y2(ctx, {1, cout, 4, 9}), rd = r.to_device(ctx);
+  conv.record(cs, Slice(xd), Slice(y2), Slice(rd));
+  EXPECT_EQ(cs.recorded(), 6u);  // direct: 2 blocks of 48 channels x 3 chunks of <= 50 inputs
+  cs.submit_and_wait();
+  EXPECT_LE(max_abs_diff(HostTensor::download(y2), y_ref), kTol);
+}
+
 TEST(Conv2d, ReferenceKnownValues) {
   // 1 input channel 3x3 of ones, 3x3 kernel of ones, pad 1: corner 4, edge 6, centre 9, + bias.
   HostTensor x({1, 1, 3, 3}, 1.f), w({1, 1, 3, 3}, 1.f), b({1, 1, 1, 1}, 0.5f), y({1, 1, 3, 3});
