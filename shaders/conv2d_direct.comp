@@ -1,5 +1,6 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_control_flow_attributes : require
 // conv2d, register-blocked direct algorithm with the weights in a uniform buffer: each invocation
 // computes PX consecutive output pixels in each of PY rows (lanes = pixels) for COB = 4 CQ output
 // channels. Per input channel and input row it loads the PX*STRIDE + K - STRIDE input values once and
@@ -48,23 +49,23 @@ void main() {
   uint ob = p.out_off + n * p.out_bs, oplane = p.oh * p.ow;
 
   vec4 acc[PY][PX][CQ];
-  for (uint q = 0; q < CQ; ++q)
-    for (uint c = 0; c < 4u; ++c) {
+  [[unroll]] for (uint q = 0; q < CQ; ++q)
+    [[unroll]] for (uint c = 0; c < 4u; ++c) {
       uint co = min(p.co0 + q * 4u + c, p.cout - 1u);
-      for (uint t = 0; t < PY; ++t) {
+      [[unroll]] for (uint t = 0; t < PY; ++t) {
         uint oy = min(oy0 + t, p.oh - 1u);
         if (FIRST != 0u) {
           float b = bias[co];
-          for (uint j = 0; j < PX; ++j) acc[t][j][q][c] = b;
+          [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q][c] = b;
         } else {
-          for (uint j = 0; j < PX; ++j) acc[t][j][q][c] = y[ob + co * oplane + oy * p.ow + min(ox0 + j, p.ow - 1u)];
+          [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q][c] = y[ob + co * oplane + oy * p.ow + min(ox0 + j, p.ow - 1u)];
         }
       }
     }
 
   bool colok[ROW];
   uint colc[ROW];
-  for (uint i = 0; i < ROW; ++i) {
+  [[unroll]] for (uint i = 0; i < ROW; ++i) {
     int ix = ix0 + int(i);
     colok[i] = ix >= 0 && ix < int(p.w);
     colc[i] = uint(clamp(ix, 0, int(p.w) - 1));
@@ -73,23 +74,23 @@ void main() {
   uint ib = p.in_off + n * p.in_bs;
   uint wb = 0u;
   for (uint ci = 0; ci < p.cin; ++ci, ib += plane, wb += K * K * CQ) {
-    for (uint r = 0; r < ROWS; ++r) {
+    [[unroll]] for (uint r = 0; r < ROWS; ++r) {
       int iy = iy0 + int(r);
       bool rowok = iy >= 0 && iy < int(p.h);
       uint rb = ib + uint(clamp(iy, 0, int(p.h) - 1)) * p.w;
       float row[ROW];
-      for (uint i = 0; i < ROW; ++i) {
+      [[unroll]] for (uint i = 0; i < ROW; ++i) {
         float v = x[rb + colc[i]];
         row[i] = (rowok && colok[i]) ? v : 0.0;
       }
-      for (uint t = 0; t < PY; ++t) {  // output row t reads input row r with kernel row r - t*STRIDE
+      [[unroll]] for (uint t = 0; t < PY; ++t) {  // output row t reads input row r with kernel row r - t*STRIDE
         int ky = int(r) - int(t * STRIDE);
         if (ky < 0 || ky >= int(K)) continue;  // resolved at compile time (constant trip counts)
-        for (uint kx = 0; kx < K; ++kx) {
+        [[unroll]] for (uint kx = 0; kx < K; ++kx) {
           uint wi = wb + (uint(ky) * K + kx) * CQ;
-          for (uint q = 0; q < CQ; ++q) {
+          [[unroll]] for (uint q = 0; q < CQ; ++q) {
             vec4 wq = wt[wi + q];
-            for (uint j = 0; j < PX; ++j) acc[t][j][q] += row[j * STRIDE + kx] * wq;
+            [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q] += row[j * STRIDE + kx] * wq;
           }
         }
       }
@@ -98,14 +99,14 @@ void main() {
 
   if (!live) return;
   uint rbase = p.res_off + n * p.res_bs;
-  for (uint t = 0; t < PY; ++t) {
+  [[unroll]] for (uint t = 0; t < PY; ++t) {
     uint oy = oy0 + t;
     if (oy >= p.oh) continue;
-    for (uint q = 0; q < CQ; ++q)
-      for (uint c = 0; c < 4u; ++c) {
+    [[unroll]] for (uint q = 0; q < CQ; ++q)
+      [[unroll]] for (uint c = 0; c < 4u; ++c) {
         uint co = p.co0 + q * 4u + c;
         if (co >= p.cout) continue;
-        for (uint j = 0; j < PX; ++j) {
+        [[unroll]] for (uint j = 0; j < PX; ++j) {
           uint ox = ox0 + j;
           if (ox >= p.ow) continue;
           uint o = co * oplane + oy * p.ow + ox;

@@ -1,4 +1,5 @@
 #version 450
+#extension GL_EXT_control_flow_attributes : require
 #extension GL_GOOGLE_include_directive : require
 // conv_transpose2d, kernel 4, stride 2, padding 1, by phase decomposition (as
 // conv_transpose2d_blocked: an output pixel of row parity py and column parity px receives exactly
@@ -38,21 +39,21 @@ void main() {
   uint ob = p.out_off + n * p.out_bs, oplane = p.oh * p.ow;
 
   vec4 acc[PX][CQ];
-  for (uint q = 0; q < CQ; ++q)
-    for (uint c = 0; c < 4u; ++c) {
+  [[unroll]] for (uint q = 0; q < CQ; ++q)
+    [[unroll]] for (uint c = 0; c < 4u; ++c) {
       uint co = min(p.co0 + q * 4u + c, p.cout - 1u);
       if (FIRST != 0u) {
         float b = bias[co];
-        for (uint j = 0; j < PX; ++j) acc[j][q][c] = b;
+        [[unroll]] for (uint j = 0; j < PX; ++j) acc[j][q][c] = b;
       } else {
-        for (uint j = 0; j < PX; ++j)
+        [[unroll]] for (uint j = 0; j < PX; ++j)
           acc[j][q][c] = y[ob + co * oplane + oy * p.ow + min(2u * (m0 + j) + px, p.ow - 1u)];
       }
     }
   int xbase = int(m0) - 1 + int(px);  // input column of local index 0
   bool colok[PX + 1u];
   uint colc[PX + 1u];
-  for (uint i = 0; i <= PX; ++i) {
+  [[unroll]] for (uint i = 0; i <= PX; ++i) {
     int ix = xbase + int(i);
     colok[i] = ix >= 0 && ix < int(p.w);
     colc[i] = uint(clamp(ix, 0, int(p.w) - 1));
@@ -61,30 +62,30 @@ void main() {
   uint ib = p.in_off + n * p.in_bs;
   uint wb = 0u;
   for (uint ci = 0; ci < p.cin; ++ci, ib += plane, wb += 16u * CQ) {
-    for (uint t = 0; t < 2u; ++t) {  // t = 0: ky = 1-py, input row r+py; t = 1: ky = 3-py, row r-1+py
+    [[unroll]] for (uint t = 0; t < 2u; ++t) {  // t = 0: ky = 1-py, input row r+py; t = 1: ky = 3-py, row r-1+py
       int iy = int(r + py) - int(t);
       uint ky = 1u - py + 2u * t;
       bool rowok = iy >= 0 && iy < int(p.h);
       uint rb = ib + uint(clamp(iy, 0, int(p.h) - 1)) * p.w;
       float row[PX + 1u];
-      for (uint i = 0; i <= PX; ++i) {
+      [[unroll]] for (uint i = 0; i <= PX; ++i) {
         float v = x[rb + colc[i]];
         row[i] = (rowok && colok[i]) ? v : 0.0;
       }
       // kx = 1-px reads local index j+1, kx = 3-px reads index j.
       uint wa = wb + (ky * 4u + 1u - px) * CQ, wc = wb + (ky * 4u + 3u - px) * CQ;
-      for (uint q = 0; q < CQ; ++q) {
+      [[unroll]] for (uint q = 0; q < CQ; ++q) {
         vec4 w1 = wt[wa + q], w3 = wt[wc + q];
-        for (uint j = 0; j < PX; ++j) acc[j][q] += row[j + 1u] * w1 + row[j] * w3;
+        [[unroll]] for (uint j = 0; j < PX; ++j) acc[j][q] += row[j + 1u] * w1 + row[j] * w3;
       }
     }
   }
   if (!live) return;
-  for (uint q = 0; q < CQ; ++q)
-    for (uint c = 0; c < 4u; ++c) {
+  [[unroll]] for (uint q = 0; q < CQ; ++q)
+    [[unroll]] for (uint c = 0; c < 4u; ++c) {
       uint co = p.co0 + q * 4u + c;
       if (co >= p.cout) continue;
-      for (uint j = 0; j < PX; ++j) {
+      [[unroll]] for (uint j = 0; j < PX; ++j) {
         uint ox = 2u * (m0 + j) + px;
         if (ox >= p.ow) continue;
         float v = acc[j][q][c];
