@@ -463,6 +463,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
       if (chunk < cin_ && residual_overlaps_output())
         throw Error(name_ + ": the direct algorithm accumulates in the output, which overlaps the residual");
+      const bool texel_input = direct_texel_input_ && bi.arg.range.size / 4 <= ctx_.info().max_texel_buffer_elements;
       for (int64_t b = 0; b < blocks; ++b)
         for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
           const bool first = c0 == 0, last = c0 + chunk >= cin_;
@@ -475,7 +476,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
           cp.pad = params_.pad;
           cp.co0 = u32(b * cob);
           const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * cin_ + c0) * kk * cob) * 4, slab_bytes);
-          cs.dispatch(ctx_.pipeline("conv2d_direct", dspec, sizeof(ConvPush)),
+          cs.dispatch(ctx_.pipeline(texel_input ? "conv2d_direct_texel" : "conv2d_direct", dspec, sizeof(ConvPush)),
                       {bi.arg, {wr, Access::read}, {bias_.range(), Access::read}, br.arg,
                        {bo.arg.range, first ? Access::write : Access::read_write}},
                       cp, groups, dispatch_part(info, cp.cin, std::min(cob, cout_ - b * cob), cin_, cout_, blocks));

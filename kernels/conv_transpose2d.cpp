@@ -203,6 +203,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
     const int64_t half_w = (os.w + 1) / 2, tasks = os.h * 2 * ((half_w + px - 1) / px);
     const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
     const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
+    const bool texel_input = direct_texel_input_ && bi.arg.range.size / 4 <= ctx_.info().max_texel_buffer_elements;
     for (int64_t b = 0; b < blocks; ++b)
       for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
         const bool first = c0 == 0, last = c0 + chunk >= cin_;
@@ -212,7 +213,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
         cp.co0 = u32(b * cob);
         const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * cin_ + c0) * 16 * cob) * 4,
                                                     static_cast<size_t>(chunk * 16 * cob) * 4);
-        cs.dispatch(ctx_.pipeline("conv_transpose2d_direct",
+        cs.dispatch(ctx_.pipeline(texel_input ? "conv_transpose2d_direct_texel" : "conv_transpose2d_direct",
                                   {spec[2], spec[3], u32(px), u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u,
                                    u32(chunk * 16 * cob / 4)},
                                   sizeof(ConvTPush)),

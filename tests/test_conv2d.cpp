@@ -45,7 +45,8 @@ std::vector<Case> cases() {
   };
 }
 
-void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull, int64_t direct_chunk_limit = 0) {
+void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull, int64_t direct_chunk_limit = 0,
+               bool direct_texel_input = true) {
   Context& ctx = vktest::context();
   std::mt19937 rng(1234);
   int ran = 0;
@@ -57,6 +58,7 @@ void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull, int64_t d
     Conv2d conv(ctx, w, b, p);
     conv.set_winograd_scratch_limit(winograd_scratch_limit);
     conv.set_direct_chunk_limit(direct_chunk_limit);
+    conv.set_direct_texel_input(direct_texel_input);
     if (!conv.supports(algo)) continue;
     const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
     const int64_t nb = std::max(c.batch, c.in_batch_total);
@@ -91,6 +93,8 @@ TEST(Conv2d, GemmInChunksMatchesReference) { run_cases(ConvAlgo::gemm, 2 * 4 * 8
 TEST(Conv2d, DirectMatchesReference) { run_cases(ConvAlgo::direct); }
 // 2 input channels per dispatch: chunks accumulate in the output, the last applies act + residual.
 TEST(Conv2d, DirectInChunksMatchesReference) { run_cases(ConvAlgo::direct, ~0ull, 2); }
+// The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
+TEST(Conv2d, DirectStorageInputMatchesReference) { run_cases(ConvAlgo::direct, ~0ull, 0, false); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
 
 TEST(Conv2d, AutomaticAvoidsChunkedDirectOnAnOverlappingResidual) {

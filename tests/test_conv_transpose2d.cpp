@@ -18,7 +18,7 @@ struct Case {
   int64_t in_extra_c = 0, in_c0 = 0, out_extra_c = 0, out_c0 = 0, batch = 1;
 };
 
-void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
+void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0, bool direct_texel_input = true) {
   Context& ctx = vktest::context();
   std::mt19937 rng(99);
   const std::vector<Case> cases{
@@ -38,6 +38,7 @@ void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
     HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
     ConvTranspose2d deconv(ctx, w, b, p);
     deconv.set_direct_chunk_limit(direct_chunk_limit);
+    deconv.set_direct_texel_input(direct_texel_input);
     if (!deconv.supports(algo)) continue;
     HostTensor x = random_tensor({c.batch, c.cin + c.in_extra_c, c.h, c.w}, rng);
     HostTensor y = random_tensor({c.batch, c.cout + c.out_extra_c, 2 * c.h, 2 * c.w}, rng);
@@ -60,6 +61,8 @@ TEST(ConvTranspose2d, BlockedMatchesReference) { run_cases(ConvTransposeAlgo::bl
 TEST(ConvTranspose2d, DirectMatchesReference) { run_cases(ConvTransposeAlgo::direct); }
 // 3 input channels per dispatch: chunks accumulate in the output, the last applies the activation.
 TEST(ConvTranspose2d, DirectInChunksMatchesReference) { run_cases(ConvTransposeAlgo::direct, 3); }
+// The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
+TEST(ConvTranspose2d, DirectStorageInputMatchesReference) { run_cases(ConvTransposeAlgo::direct, 0, false); }
 TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases(ConvTransposeAlgo::automatic); }
 
 TEST(ConvTranspose2d, ReferenceKnownValues) {
