@@ -129,13 +129,15 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
   if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
   direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
-  // Wide 1x1 convs: more output channels per invocation, so each loaded input value (a per-lane
-  // storage-buffer loop on lavapipe) feeds more FMAs; 4 pixels x 48 or 8 x 32 measured best there.
+  // Wide 1x1 convs: more output channels per invocation, so each loaded input value feeds more
+  // FMAs; 4 pixels x 48 or 8 x 32 measured best there (bench_kernels on lavapipe).
   if (k == 1 && cin_ >= kDirectWideMinCin && cout_ % 48 == 0) {
     direct_cob_ = 48;
     direct_px_ = 4;
   } else if (k == 1 && cin_ >= kDirectWideMinCin && cout_ % 32 == 0) {
     direct_cob_ = 32;
+  } else if (k == 1 && params.stride == 1 && direct_cob_ == 16) {
+    direct_px_ = 12;  // narrower 1x1 convs (32->32, 64->64): 12 px x 16 channels, 1.1-1.2x over 8 px
   }
   if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
   // Few output channels: reuse each loaded input row for 4 output rows (loads bound the speed).
