@@ -1,5 +1,4 @@
 #version 450
-#extension GL_EXT_control_flow_attributes : require
 // Winograd F(4x4, 3x3), step 2: for each of the 36 tile positions, M (+)= U V over a chunk of input
 // channels: a register-blocked GEMM, 8 tiles x COB output channels per invocation, vec4 loads of
 // both operands (U [36][cin_total][cout_pad], V [36][chunk][tiles_pad], M [36][cout_pad][tiles_pad]).
@@ -24,23 +23,23 @@ void main() {
   uint tg = idx % groups, cog = (idx / groups) % cogs, pos = idx / (groups * cogs);
   uint vs = p.tiles_pad / 4u, us = p.cout_pad / 4u;
   vec4 acc[COB][TV];
-  [[unroll]] for (uint c = 0; c < COB; ++c) {
+  for (uint c = 0; c < COB; ++c) {
     uint mb = (pos * p.cout_pad + cog * COB + c) * vs + tg * TV;
-    [[unroll]] for (uint t = 0; t < TV; ++t) acc[c][t] = ACCUM != 0u ? m[mb + t] : vec4(0.0);
+    for (uint t = 0; t < TV; ++t) acc[c][t] = ACCUM != 0u ? m[mb + t] : vec4(0.0);
   }
   uint vb = pos * p.chunk * vs + tg * TV, ub = (pos * p.cin_total + p.c_begin) * us + cog * (COB / 4u);
   for (uint ci = 0; ci < p.chunk; ++ci, vb += vs, ub += us) {
     vec4 vv[TV];
-    [[unroll]] for (uint t = 0; t < TV; ++t) vv[t] = v[vb + t];
-    [[unroll]] for (uint q = 0; q < COB / 4u; ++q) {
+    for (uint t = 0; t < TV; ++t) vv[t] = v[vb + t];
+    for (uint q = 0; q < COB / 4u; ++q) {
       vec4 w = u[ub + q];
-      [[unroll]] for (uint c = 0; c < 4u; ++c)
-        [[unroll]] for (uint t = 0; t < TV; ++t) acc[q * 4u + c][t] += w[c] * vv[t];
+      for (uint c = 0; c < 4u; ++c)
+        for (uint t = 0; t < TV; ++t) acc[q * 4u + c][t] += w[c] * vv[t];
     }
   }
   if (!live) return;
-  [[unroll]] for (uint c = 0; c < COB; ++c) {
+  for (uint c = 0; c < COB; ++c) {
     uint mb = (pos * p.cout_pad + cog * COB + c) * vs + tg * TV;
-    [[unroll]] for (uint t = 0; t < TV; ++t) m[mb + t] = acc[c][t];
+    for (uint t = 0; t < TV; ++t) m[mb + t] = acc[c][t];
   }
 }

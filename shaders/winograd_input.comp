@@ -1,5 +1,4 @@
 #version 450
-#extension GL_EXT_control_flow_attributes : require
 // Winograd F(4x4, 3x3), step 1: the input transform V = B^T d B of the 6x6 input tiles (stride 4),
 // four horizontally adjacent tiles per invocation: their 6x18 input window is loaded once and each
 // of the 36 transformed positions is stored as one vec4 (4 tiles).
@@ -29,18 +28,18 @@ void main() {
   int x0 = si * (int(gi % gx) * 16 - 1) + int(p.off_mul * (sh % p.ks)) + p.off_base;
   uint base = p.in_off + n * p.in_bs + ci * p.h * p.w;
   float d[6][18];
-  [[unroll]] for (int i = 0; i < 6; ++i) {
+  for (int i = 0; i < 6; ++i) {
     int yy = y0 + si * i;
     bool rowok = yy >= 0 && yy < int(p.h);
     uint rb = base + uint(clamp(yy, 0, int(p.h) - 1)) * p.w;
-    [[unroll]] for (int j = 0; j < 18; ++j) {
+    for (int j = 0; j < 18; ++j) {
       int xx = x0 + si * j;
       float val = x[rb + uint(clamp(xx, 0, int(p.w) - 1))];
       d[i][j] = (rowok && xx >= 0 && xx < int(p.w)) ? val : 0.0;
     }
   }
   vec4 t6[6][6];  // B^T d, the 4 tiles side by side in the vec4 components
-  [[unroll]] for (int j = 0; j < 6; ++j) {
+  for (int j = 0; j < 6; ++j) {
     vec4 d0 = vec4(d[0][j], d[0][j + 4], d[0][j + 8], d[0][j + 12]);
     vec4 d1 = vec4(d[1][j], d[1][j + 4], d[1][j + 8], d[1][j + 12]);
     vec4 d2 = vec4(d[2][j], d[2][j + 4], d[2][j + 8], d[2][j + 12]);
@@ -55,7 +54,7 @@ void main() {
     t6[5][j] = 4.0 * d1 - 5.0 * d3 + d5;
   }
   uint stride = p.chunk * p.tiles_pad / 4u, o = cl * p.tiles_pad / 4u + gi;
-  [[unroll]] for (int i = 0; i < 6; ++i) {  // (B^T d) B
+  for (int i = 0; i < 6; ++i) {  // (B^T d) B
     vec4 r0 = t6[i][0], r1 = t6[i][1], r2 = t6[i][2], r3 = t6[i][3], r4 = t6[i][4], r5 = t6[i][5];
     uint b = uint(i * 6) * stride + o;
     v[b] = 4.0 * r0 - 5.0 * r2 + r4;

@@ -1,5 +1,4 @@
 #version 450
-#extension GL_EXT_control_flow_attributes : require
 #extension GL_GOOGLE_include_directive : require
 // Winograd F(4x4, 3x3), step 3: Y = A^T M A for four horizontally adjacent tiles of one output
 // channel per invocation (vec4 loads of M), then bias, the fused activation and the optional
@@ -25,7 +24,7 @@ void main() {
   uint oy0 = ty * 4u, ox0 = (gi % gx) * 16u;
   uint stride = p.cout_pad * p.tiles_pad / 4u, b = co * p.tiles_pad / 4u + gi;
   vec4 t4[4][6];  // A^T M
-  [[unroll]] for (uint j = 0; j < 6u; ++j) {
+  for (uint j = 0; j < 6u; ++j) {
     vec4 m0 = m[b + j * stride], m1 = m[b + (6u + j) * stride], m2 = m[b + (12u + j) * stride];
     vec4 m3 = m[b + (18u + j) * stride], m4 = m[b + (24u + j) * stride], m5 = m[b + (30u + j) * stride];
     t4[0][j] = m0 + m1 + m2 + m3 + m4;
@@ -35,7 +34,7 @@ void main() {
   }
   float bv = bias[co];
   uint ob = p.out_off + n * p.out_bs + co * p.oh * p.ow, rb = p.res_off + n * p.res_bs + co * p.oh * p.ow;
-  [[unroll]] for (uint i = 0; i < 4u; ++i) {
+  for (uint i = 0; i < 4u; ++i) {
     vec4 r0 = t4[i][0], r1 = t4[i][1], r2 = t4[i][2], r3 = t4[i][3], r4 = t4[i][4], r5 = t4[i][5];
     vec4 o4[4];
     o4[0] = r0 + r1 + r2 + r3 + r4;
@@ -44,8 +43,8 @@ void main() {
     o4[3] = r1 - r2 + 8.0 * (r3 - r4) + r5;
     uint oy = oy0 + i;
     if (oy >= p.oh) continue;
-    [[unroll]] for (uint t = 0; t < 4u; ++t)      // tile within the group
-      [[unroll]] for (uint j = 0; j < 4u; ++j) {  // column within the tile
+    for (uint t = 0; t < 4u; ++t)      // tile within the group
+      for (uint j = 0; j < 4u; ++j) {  // column within the tile
         uint ox = ox0 + t * 4u + j;
         if (ox >= p.ow) continue;
         uint o = oy * p.ow + ox;
