@@ -84,7 +84,9 @@ BoundSlice bind_slice(const Slice& s, Access access) {
   const int64_t plane = f.h * f.w;
   const int64_t first = (s.n0 * f.c + s.c0) * plane;
   const int64_t last = ((s.n0 + s.batch() - 1) * f.c + s.c0 + s.channels()) * plane;  // one past
-  const uint64_t align = std::max<uint64_t>(4, s.t->context().info().min_storage_buffer_offset_alignment);
+  // Aligned for a storage buffer and for an R32 texel-buffer view alike (both are powers of two).
+  const auto& info = s.t->context().info();
+  const uint64_t align = std::max<uint64_t>({4, info.min_storage_buffer_offset_alignment, info.min_texel_buffer_offset_alignment});
   const uint64_t first_bytes = static_cast<uint64_t>(first) * 4;
   const uint64_t begin = first_bytes / align * align;
   const uint64_t end = static_cast<uint64_t>(last) * 4;

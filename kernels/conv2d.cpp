@@ -12,6 +12,7 @@ namespace vkunroll {
 
 namespace {
 constexpr int64_t kBlockCo = 8;  // output channels per invocation in the blocked path (or 16)
+constexpr int64_t kDirectWideMinCin = 128;  // 1x1 convs from here use the wide direct blocks
 
 // Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
 Groups flat_groups(int64_t n, uint32_t z) {
@@ -129,6 +130,16 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
   if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
   direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
+  // Wide 1x1 convs: more output channels per invocation, so each loaded input value feeds more
+  // FMAs; 4 pixels x 48 or 8 x 32 measured best there (bench_kernels on lavapipe).
+  if (k == 1 && cin_ >= kDirectWideMinCin && cout_ % 48 == 0) {
+    direct_cob_ = 48;
+    direct_px_ = 4;
+  } else if (k == 1 && cin_ >= kDirectWideMinCin && cout_ % 32 == 0) {
+    direct_cob_ = 32;
+  } else if (k == 1 && params.stride == 1 && direct_cob_ == 16) {
+    direct_px_ = 12;  // narrower 1x1 convs (32->32, 64->64): 12 px x 16 channels, 1.1-1.2x over 8 px
+  }
   if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
   // Few output channels: reuse each loaded input row for 4 output rows (loads bound the speed).
   direct_py_ = (cout_ <= 4 && k > 1) ? 4 : 1;
@@ -350,10 +361,11 @@ bool Conv2d::supports(ConvAlgo algo) const {
 ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
   // model; tiny images (one tile row or column) gain nothing from it.
-  // The direct path (weights from a uniform buffer) beats Winograd for 1-4 output channels (Winograd
-  // pads them to 8) and the GEMM for 1x1 convs with <= 64 input channels (no pack/epilogue passes);
-  // only where one dispatch per channel block holds all input channels.
-  // On a GPU (measured on an H100, docs/kernels.md) the uniform-buffer `direct` path, built for
+  // The direct path (weights from a uniform buffer, input through a texel buffer) beats Winograd for
+  // 1-4 output channels (Winograd pads them to 8; there only where one dispatch per channel block
+  // holds all input channels) and the GEMM for 1x1 convs with <= 64 input channels (no pack and
+  // epilogue passes) or with the wide blocks (32 or 48 output channels per invocation).
+  // On a GPU (measured on an H100, docs/gpu_nvidia.md) the uniform-buffer `direct` path, built for
   // llvmpipe, is 3-10x slower than `blocked`. Winograd wins there as here, except for 1-4 output
   // channels; 1x1 convs take the GEMM (`blocked` led by 20% alone but was 10x slower in the model,
   // on batch-2 channel slices).
@@ -365,8 +377,13 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   }
   const bool direct_whole = supports(ConvAlgo::direct) && direct_chunk() >= cin_;
   if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
+  // 3x3 stride 2: direct (input through a texel buffer) runs 1.6-2x the speed of Winograd on the
+  // phase images, in input-channel chunks too.
+  if (supports(ConvAlgo::direct) && params_.kernel == 3 && params_.stride == 2) return ConvAlgo::direct;
   if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;
   if (direct_whole && supports(ConvAlgo::gemm) && cin_ <= 64) return ConvAlgo::direct;
+  // The wide blocks beat the GEMM even in several input-channel chunks (GFF.0, 960 channels: 3).
+  if (supports(ConvAlgo::direct) && supports(ConvAlgo::gemm) && direct_cob_ >= 32) return ConvAlgo::direct;
   if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
   return ConvAlgo::blocked;
 }
@@ -399,8 +416,16 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     if (residual->shape() != expect)
       throw Error(name_ + ": residual slice " + residual->shape().str() + ", expected " + expect.str());
   }
+  // direct in several chunks accumulates in the output, so it cannot add a residual that overlaps it.
+  const auto residual_overlaps_output = [&] {
+    if (!residual || residual->t->range().buffer != out.t->range().buffer) return false;
+    const BufferRange ro = bind_slice(*residual, Access::read).arg.range, oo = bind_slice(out, Access::write).arg.range;
+    return oo.offset < ro.offset + ro.size && ro.offset < oo.offset + oo.size;
+  };
   if (algo == ConvAlgo::automatic) {
     algo = choose_algorithm(is.h, is.w);
+    if (algo == ConvAlgo::direct && direct_chunk() < cin_ && residual_overlaps_output())
+      algo = supports(ConvAlgo::gemm) ? ConvAlgo::gemm : ConvAlgo::winograd;
     if (!supports(algo, is)) algo = ConvAlgo::blocked;
   }
   if (!supports(algo, is))
@@ -471,10 +496,9 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       const int64_t tasks = ((dp.oh + py - 1) / py) * ((dp.ow + px - 1) / px);
       const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
       const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
-      if (chunk < cin_ && residual && residual->t->range().buffer == out.t->range().buffer &&
-          bo.arg.range.offset < br.arg.range.offset + br.arg.range.size &&
-          br.arg.range.offset < bo.arg.range.offset + bo.arg.range.size)
+      if (chunk < cin_ && residual_overlaps_output())
         throw Error(name_ + ": the direct algorithm accumulates in the output, which overlaps the residual");
+      const bool texel_input = direct_texel_input_ && bi.arg.range.size / 4 <= ctx_.info().max_texel_buffer_elements;
       for (int64_t b = 0; b < blocks; ++b)
         for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
           const bool first = c0 == 0, last = c0 + chunk >= cin_;
@@ -487,7 +511,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
           cp.pad = params_.pad;
           cp.co0 = u32(b * cob);
           const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * direct_cin_pad() + c0) * kk * cob) * 4, slab_bytes);
-          cs.dispatch(ctx_.pipeline("conv2d_direct", dspec, sizeof(ConvPush)),
+          cs.dispatch(ctx_.pipeline(texel_input ? "conv2d_direct_texel" : "conv2d_direct", dspec, sizeof(ConvPush)),
                       {bi.arg, {wr, Access::read}, {bias_.range(), Access::read}, br.arg,
                        {bo.arg.range, first ? Access::write : Access::read_write}},
                       cp, groups, dispatch_part(info, cp.cin, std::min(cob, cout_ - b * cob), cin_, cout_, blocks));

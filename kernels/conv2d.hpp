@@ -77,6 +77,9 @@ class Conv2d {
   // Caps the input channels per dispatch of the direct path (default: as many as fit one uniform
   // binding); several chunks then accumulate in the output. Tests.
   void set_direct_chunk_limit(int64_t channels) { direct_chunk_limit_ = channels; }  // input channels (x4 for 5x5) per chunk
+  // direct reads its input through a uniform texel buffer (faster on lavapipe) where the bound
+  // input fits maxTexelBufferElements; false forces the storage-buffer variant (tests).
+  void set_direct_texel_input(bool on) { direct_texel_input_ = on; }
   Shape output_shape(const Shape& in) const;  // {n, cout, oh, ow}
   double flop(const Shape& in) const;         // 2 x multiply-adds of the direct algorithm
   int64_t cin() const { return cin_; }
@@ -114,6 +117,7 @@ class Conv2d {
   uint32_t direct_px_ = 8;   // output pixels per row and invocation of the direct path
   uint32_t direct_py_ = 1;   // output rows per invocation of the direct path
   int64_t direct_chunk_limit_ = 0;  // 0: none
+  bool direct_texel_input_ = true;
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
   Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
   int64_t winograd_cob_ = 8, winograd_cout_pad_ = 0, winograd_ks_ = 1;

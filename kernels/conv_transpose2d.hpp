@@ -44,6 +44,9 @@ class ConvTranspose2d {
   const ConvTranspose2dParams& params() const { return params_; }
   // Caps the input channels per dispatch of the direct path (chunks accumulate in the output). Tests.
   void set_direct_chunk_limit(int64_t channels) { direct_chunk_limit_ = channels; }
+  // direct reads its input through a uniform texel buffer (faster on lavapipe) where the bound
+  // input fits maxTexelBufferElements; false forces the storage-buffer variant (tests).
+  void set_direct_texel_input(bool on) { direct_texel_input_ = on; }
 
  private:
   Context& ctx_;
@@ -63,6 +66,7 @@ class ConvTranspose2d {
   mutable Tensor weight_direct_;   // [ceil(cout/COB)][cin (+ one chunk)][16][COB]
   int64_t direct_cob_ = 16;
   int64_t direct_chunk_limit_ = 0;
+  bool direct_texel_input_ = true;
 };
 
 }  // namespace vkunroll

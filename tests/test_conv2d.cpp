@@ -39,10 +39,14 @@ std::vector<Case> cases() {
       {3, 1, 7, 5, 21, 1, lrelu01, false},
       {5, 2, 5, 4, 11, 14, Act{Activation::sigmoid}, true},
       {1, 2, 3, 5, 9, 8, Act{}, false},
+      // wide 1x1 convs: direct's 4 px x 48 and 8 px x 32 channel blocks
+      {1, 1, 130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1},
+      {1, 1, 129, 64, 3, 11, Act{Activation::tanh}, false, 0, 0, 0, 0, 2, 0, 2},
   };
 }
 
-void run_cases(Context& ctx, ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull, int64_t direct_chunk_limit = 0) {
+void run_cases(Context& ctx, ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull, int64_t direct_chunk_limit = 0,
+               bool direct_texel_input = true) {
   std::mt19937 rng(1234);
   int ran = 0;
   for (const Case& c : cases()) {
@@ -53,6 +57,7 @@ void run_cases(Context& ctx, ConvAlgo algo, uint64_t winograd_scratch_limit = ~0
     Conv2d conv(ctx, w, b, p);
     conv.set_winograd_scratch_limit(winograd_scratch_limit);
     conv.set_direct_chunk_limit(direct_chunk_limit);
+    conv.set_direct_texel_input(direct_texel_input);
     if (!conv.supports(algo)) continue;
     const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
     const int64_t nb = std::max(c.batch, c.in_batch_total);
@@ -74,8 +79,9 @@ void run_cases(Context& ctx, ConvAlgo algo, uint64_t winograd_scratch_limit = ~0
   }
   EXPECT_GT(ran, 0) << "no case applies to " << conv_algo_name(algo);
 }
-void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull, int64_t direct_chunk_limit = 0) {
-  run_cases(vktest::context(), algo, winograd_scratch_limit, direct_chunk_limit);
+void run_cases(ConvAlgo algo, uint64_t winograd_scratch_limit = ~0ull, int64_t direct_chunk_limit = 0,
+               bool direct_texel_input = true) {
+  run_cases(vktest::context(), algo, winograd_scratch_limit, direct_chunk_limit, direct_texel_input);
 }
 }  // namespace
 
@@ -105,7 +111,39 @@ TEST(Conv2d, DirectInChunksOnAStrictUniformAlignment) {
   Context strict(o);
   run_cases(strict, ConvAlgo::direct, ~0ull, 2);
 }
+// The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
+TEST(Conv2d, DirectStorageInputMatchesReference) { run_cases(ConvAlgo::direct, ~0ull, 0, false); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
+
+TEST(Conv2d, AutomaticAvoidsChunkedDirectOnAnOverlappingResidual) {
+  // A wide 1x1 conv picks `direct` even in several input-channel chunks, which accumulate in the
+  // output; with the residual being the output itself (y = conv(x) + y) it must take another path.
+  Context& ctx = vktest::context();
+  std::mt19937 rng(77);
+  const int64_t cin = 130, cout = 96;
+  const Conv2dParams p{1, 1, 0, leaky_relu(0.1f)};
+  const float wscale = 1.f / std::sqrt(static_cast<float>(cin));
+  HostTensor w = random_tensor({cout, cin, 1, 1}, rng, -wscale, wscale), b = random_tensor({1, 1, 1, cout}, rng);
+  Conv2d conv(ctx, w, b, p);
+  conv.set_direct_chunk_limit(50);
+  HostTensor x = random_tensor({1, cin, 4, 9}, rng), y = random_tensor({1, cout, 4, 9}, rng), y_ref = y;
+  const HostTensor r = y;
+  conv2d_ref(HostSlice(x), HostSliceOut(y_ref), w, b, p, HostSlice(r));
+  Tensor xd = x.to_device(ctx), yd = y.to_device(ctx);
+  CommandStream cs(ctx);
+  EXPECT_THROW(conv.record(cs, Slice(xd), Slice(yd), Slice(yd), ConvAlgo::direct), Error);
+  const size_t before = cs.recorded();
+  conv.record(cs, Slice(xd), Slice(yd), Slice(yd));
+  EXPECT_EQ(cs.recorded() - before, 3u);  // gemm: pack, GEMM, epilogue
+  cs.submit_and_wait();
+  EXPECT_LE(max_abs_diff(HostTensor::download(yd), y_ref), kTol);
+  // Without the overlap the same conv runs `direct` in 3 chunks.
+  Tensor y2(ctx, {1, cout, 4, 9}), rd = r.to_device(ctx);
+  conv.record(cs, Slice(xd), Slice(y2), Slice(rd));
+  EXPECT_EQ(cs.recorded(), 6u);  // direct: 2 blocks of 48 channels x 3 chunks of <= 50 inputs
+  cs.submit_and_wait();
+  EXPECT_LE(max_abs_diff(HostTensor::download(y2), y_ref), kTol);
+}
 
 TEST(Conv2d, ReferenceKnownValues) {
   // 1 input channel 3x3 of ones, 3x3 kernel of ones, pad 1: corner 4, edge 6, centre 9, + bias.

@@ -18,7 +18,7 @@ struct Case {
   int64_t in_extra_c = 0, in_c0 = 0, out_extra_c = 0, out_c0 = 0, batch = 1;
 };
 
-void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
+void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0, bool direct_texel_input = true) {
   std::mt19937 rng(99);
   const std::vector<Case> cases{
       {5, 7, 9, 11, leaky_relu(0.1f), 3, 2, 4, 4, 2},
@@ -27,6 +27,7 @@ void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit 
       {12, 6, 7, 1, Act{Activation::sigmoid}, 0, 0, 6, 0},
       {9, 13, 6, 5, Act{Activation::hardsigmoid}},
       {32, 16, 11, 9, leaky_relu(0.01f), 0, 0, 16, 16, 2},
+      {33, 64, 5, 3, leaky_relu(0.2f), 2, 1, 0, 0, 1},  // direct's 32-channel blocks
   };
   int ran = 0;
   for (const Case& c : cases) {
@@ -36,6 +37,7 @@ void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit 
     HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
     ConvTranspose2d deconv(ctx, w, b, p);
     deconv.set_direct_chunk_limit(direct_chunk_limit);
+    deconv.set_direct_texel_input(direct_texel_input);
     if (!deconv.supports(algo)) continue;
     HostTensor x = random_tensor({c.batch, c.cin + c.in_extra_c, c.h, c.w}, rng);
     HostTensor y = random_tensor({c.batch, c.cout + c.out_extra_c, 2 * c.h, 2 * c.w}, rng);
@@ -51,8 +53,8 @@ void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit 
   }
   EXPECT_GT(ran, 0);
 }
-void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0) {
-  run_cases(vktest::context(), algo, direct_chunk_limit);
+void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0, bool direct_texel_input = true) {
+  run_cases(vktest::context(), algo, direct_chunk_limit, direct_texel_input);
 }
 }  // namespace
 
@@ -71,6 +73,8 @@ TEST(ConvTranspose2d, DirectInChunksOnAStrictUniformAlignment) {
   Context strict(o);
   run_cases(strict, ConvTransposeAlgo::direct, 3);
 }
+// The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
+TEST(ConvTranspose2d, DirectStorageInputMatchesReference) { run_cases(ConvTransposeAlgo::direct, 0, false); }
 TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases(ConvTransposeAlgo::automatic); }
 
 TEST(ConvTranspose2d, ReferenceKnownValues) {

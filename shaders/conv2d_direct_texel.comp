@@ -1,0 +1,6 @@
+#version 450
+#extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_control_flow_attributes : require
+// conv2d, direct algorithm, input through a uniform texel buffer (see conv2d_direct.glsl).
+#define DIRECT_TEXEL_INPUT 1
+#include "conv2d_direct.glsl"
