@@ -21,10 +21,14 @@ layout(constant_id = 7) const uint FIRST = 1;    // first input-channel chunk: s
 layout(constant_id = 8) const uint LAST = 1;     // last chunk: activation and residual
 layout(constant_id = 9) const uint SLAB = 4096;  // vec4s of the bound weight slab
 layout(constant_id = 10) const uint PY = 1;      // output rows per invocation
+layout(constant_id = 11) const uint NC = 4;      // output channels computed when CQ == 1 (1-4): the heads
 #include "act.glsl"
 
 const uint ROW = PX * STRIDE + K - STRIDE;  // input values one kernel row of PX outputs touches
 const uint ROWS = PY * STRIDE + K - STRIDE;  // input rows PY output rows touch
+// Components of each vec4 that carry a real output channel: a 1-channel head (attfusion_net.pred)
+// skips the 3 padding channels' multiply-adds, which cost as much as its input fetches on lavapipe.
+const uint NCV = CQ == 1u ? NC : 4u;
 
 #ifdef DIRECT_TEXEL_INPUT
 // The input through a uniform texel buffer (an R32 view): llvmpipe fetches it with a gather, where a
@@ -58,6 +62,11 @@ void main() {
   vec4 acc[PY][PX][CQ];
   [[unroll]] for (uint q = 0; q < CQ; ++q)
     [[unroll]] for (uint c = 0; c < 4u; ++c) {
+      if (c >= NCV) {  // padding channels: never stored
+        [[unroll]] for (uint t = 0; t < PY; ++t)
+          [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q][c] = 0.0;
+        continue;
+      }
       uint co = min(p.co0 + q * 4u + c, p.cout - 1u);
       [[unroll]] for (uint t = 0; t < PY; ++t) {
         uint oy = min(oy0 + t, p.oh - 1u);
@@ -97,7 +106,12 @@ void main() {
           uint wi = wb + (uint(ky) * K + kx) * CQ;
           [[unroll]] for (uint q = 0; q < CQ; ++q) {
             vec4 wq = wt[wi + q];
-            [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q] += row[j * STRIDE + kx] * wq;
+            if (NCV == 4u) {
+              [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q] += row[j * STRIDE + kx] * wq;
+            } else {
+              [[unroll]] for (uint c = 0; c < NCV; ++c)
+                [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q][c] += row[j * STRIDE + kx] * wq[c];
+            }
           }
         }
       }
@@ -112,7 +126,7 @@ void main() {
     [[unroll]] for (uint q = 0; q < CQ; ++q)
       [[unroll]] for (uint c = 0; c < 4u; ++c) {
         uint co = p.co0 + q * 4u + c;
-        if (co >= p.cout) continue;
+        if (c >= NCV || co >= p.cout) continue;
         [[unroll]] for (uint j = 0; j < PX; ++j) {
           uint ox = ox0 + j;
           if (ox >= p.ow) continue;

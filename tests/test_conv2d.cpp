@@ -39,6 +39,10 @@ std::vector<Case> cases() {
       {3, 1, 7, 5, 21, 1, lrelu01, false},
       {5, 2, 5, 4, 11, 14, Act{Activation::sigmoid}, true},
       {1, 2, 3, 5, 9, 8, Act{}, false},
+      // heads with 1, 2 and 3 output channels (direct computes only the real ones, 8 rows per invocation)
+      {3, 1, 9, 1, 19, 13, Act{Activation::hardsigmoid}, false, 2, 1, 3, 2},
+      {3, 1, 6, 2, 10, 23, Act{}, true},
+      {3, 1, 5, 3, 17, 9, lrelu01, false, 0, 0, 0, 0, 2},
       // wide 1x1 convs: direct's 4 px x 48 and 8 px x 32 channel blocks
       {1, 1, 130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1},
       {1, 1, 129, 64, 3, 11, Act{Activation::tanh}, false, 0, 0, 0, 0, 2, 0, 2},
