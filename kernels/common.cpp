@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numeric>
 
 #include "runtime/context.hpp"
 #include "runtime/error.hpp"
@@ -98,5 +99,16 @@ BoundSlice bind_slice(const Slice& s, Access access) {
 }
 
 std::string shape_str(const Shape& s) { return s.str(); }
+
+UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit) {
+  UniformSlabChunks c;
+  const int64_t a = static_cast<int64_t>(info.min_uniform_buffer_offset_alignment);
+  c.quantum = a / std::gcd(a, bytes_per_channel);
+  c.cin_pad = (cin + c.quantum - 1) / c.quantum * c.quantum;
+  const int64_t m = std::min<int64_t>(cin, static_cast<int64_t>(info.max_uniform_buffer_range) / bytes_per_channel);
+  c.max = m < cin ? m / c.quantum * c.quantum : m;
+  c.chunk = limit <= 0 || limit >= c.max ? c.max : std::min(c.max, std::max(c.quantum, limit / c.quantum * c.quantum));
+  return c;
+}
 
 }  // namespace vkunroll

@@ -11,6 +11,8 @@
 
 namespace vkunroll {
 
+struct DeviceInfo;
+
 enum class Activation : uint32_t { none = 0, leaky_relu = 1, tanh = 2, sigmoid = 3, hardsigmoid = 4 };
 
 struct Act {
@@ -31,6 +33,18 @@ inline DispatchInfo dispatch_part(const DispatchInfo& whole, int64_t cin_part, i
           whole.flop * static_cast<double>(cin_part) * static_cast<double>(cout_part) / static_cast<double>(cin * cout),
           whole.bytes / static_cast<double>(blocks)};
 }
+
+// How a direct conv splits its input channels into weight slabs, each bound as one uniform buffer:
+// a slab fits maxUniformBufferRange and starts at a multiple of minUniformBufferOffsetAlignment
+// (64 bytes on NVIDIA, 1-256 elsewhere), so chunks start at multiples of `quantum` channels and
+// each block of output channels is packed with `cin_pad` input channels.
+struct UniformSlabChunks {
+  int64_t quantum = 1;  // chunk starts are multiples of this many input channels
+  int64_t cin_pad = 0;  // input channels per output block in the packing (a multiple of quantum)
+  int64_t max = 0;      // input channels one binding holds (a multiple of quantum unless all of them)
+  int64_t chunk = 0;    // input channels per dispatch: max, capped by the limit (> 0), a multiple of quantum
+};
+UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit);
 
 // An NCHW f32 array in host memory.
 struct HostTensor {

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cstdlib>
-#include <numeric>
 #include <cstring>
 
 #include "runtime/context.hpp"
@@ -257,28 +256,9 @@ void Conv2d::pack_subgroup() const {
   bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx_);
 }
 
-// Input channels per step of a chunk's start: each chunk's weight slab is bound as a uniform
-// buffer, whose offset must be a multiple of minUniformBufferOffsetAlignment (64 on NVIDIA, 1-256 elsewhere).
-int64_t Conv2d::direct_channel_quantum() const {
-  const int64_t per_channel = static_cast<int64_t>(params_.kernel) * params_.kernel * direct_cob_ * 4;
-  const int64_t a = static_cast<int64_t>(ctx_.info().min_uniform_buffer_offset_alignment);
-  return a / std::gcd(a, per_channel);
-}
-int64_t Conv2d::direct_cin_pad() const {
-  const int64_t q = direct_channel_quantum();
-  return (cin_ + q - 1) / q * q;
-}
-int64_t Conv2d::direct_chunk_max() const {
-  const int64_t slab_per_channel = static_cast<int64_t>(params_.kernel) * params_.kernel * direct_cob_ * 4;
-  const int64_t m = std::min<int64_t>(cin_, static_cast<int64_t>(ctx_.info().max_uniform_buffer_range) / slab_per_channel);
-  const int64_t q = direct_channel_quantum();
-  return m < cin_ ? m / q * q : m;
-}
-int64_t Conv2d::direct_chunk() const {
-  const int64_t m = direct_chunk_max();
-  if (direct_chunk_limit_ <= 0 || direct_chunk_limit_ >= m) return m;
-  const int64_t q = direct_channel_quantum();
-  return std::min(m, std::max(q, direct_chunk_limit_ / q * q));
+UniformSlabChunks Conv2d::direct_chunks() const {
+  return uniform_slab_chunks(ctx_.info(), cin_, static_cast<int64_t>(params_.kernel) * params_.kernel * direct_cob_ * 4,
+                             direct_chunk_limit_);
 }
 
 void Conv2d::pack_direct() const {
@@ -287,9 +267,10 @@ void Conv2d::pack_direct() const {
   // every dispatch can bind a whole slab (the uniform block has a fixed size).
   const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, cob = direct_cob_;
   const int64_t blocks = (cout_ + cob - 1) / cob;
-  // Each block's channels are padded to direct_cin_pad() so every chunk's slab starts aligned.
-  const int64_t cin_pad = direct_cin_pad();
-  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + direct_chunk_max()) * kk * cob), 0.f);
+  // Each block's channels are padded to cin_pad so every chunk's slab starts aligned.
+  const UniformSlabChunks ch = direct_chunks();
+  const int64_t cin_pad = ch.cin_pad;
+  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + ch.max) * kk * cob), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
     for (int64_t ci = 0; ci < cin_; ++ci)
       for (int64_t t = 0; t < kk; ++t)
@@ -352,7 +333,7 @@ bool Conv2d::supports(ConvAlgo algo) const {
     case ConvAlgo::automatic:
     case ConvAlgo::naive:
     case ConvAlgo::blocked: return true;
-    case ConvAlgo::direct: return direct_cob_ % 4 == 0 && direct_chunk() >= 1;
+    case ConvAlgo::direct: return direct_cob_ % 4 == 0 && direct_chunks().chunk >= 1;
     case ConvAlgo::subgroup: return ctx_.info().subgroup_size == 8 && params_.kernel <= 5 && params_.stride <= 2;
     default: return false;
   }
@@ -375,7 +356,7 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
     if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
     return ConvAlgo::blocked;
   }
-  const bool direct_whole = supports(ConvAlgo::direct) && direct_chunk() >= cin_;
+  const bool direct_whole = supports(ConvAlgo::direct) && direct_chunks().chunk >= cin_;
   if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
   // 3x3 stride 2: direct (input through a texel buffer) runs 1.6-2x the speed of Winograd on the
   // phase images, in input-channel chunks too.
@@ -424,7 +405,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   };
   if (algo == ConvAlgo::automatic) {
     algo = choose_algorithm(is.h, is.w);
-    if (algo == ConvAlgo::direct && direct_chunk() < cin_ && residual_overlaps_output())
+    if (algo == ConvAlgo::direct && direct_chunks().chunk < cin_ && residual_overlaps_output())
       algo = supports(ConvAlgo::gemm) ? ConvAlgo::gemm : ConvAlgo::winograd;
     if (!supports(algo, is)) algo = ConvAlgo::blocked;
   }
@@ -483,7 +464,8 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       pack_direct();
       const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
       const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, cob = direct_cob_;
-      const int64_t chunk = direct_chunk(), blocks = (cout_ + cob - 1) / cob;
+      const UniformSlabChunks ch = direct_chunks();
+      const int64_t chunk = ch.chunk, blocks = (cout_ + cob - 1) / cob;
       const size_t slab_bytes = static_cast<size_t>(chunk * kk * cob) * 4;
       // A 1x1 stride-1 conv without padding is one row of H*W pixels per channel plane.
       const bool flat = params_.kernel == 1 && params_.stride == 1 && params_.pad == 0;
@@ -511,7 +493,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
           cp.cin = u32(std::min(chunk, cin_ - c0));
           cp.pad = params_.pad;
           cp.co0 = u32(b * cob);
-          const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * direct_cin_pad() + c0) * kk * cob) * 4, slab_bytes);
+          const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * ch.cin_pad + c0) * kk * cob) * 4, slab_bytes);
           cs.dispatch(ctx_.pipeline(texel_input ? "conv2d_direct_texel" : "conv2d_direct", dspec, sizeof(ConvPush)),
                       {bi.arg, {wr, Access::read}, {bias_.range(), Access::read}, br.arg,
                        {bo.arg.range, first ? Access::write : Access::read_write}},

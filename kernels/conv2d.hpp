@@ -93,10 +93,7 @@ class Conv2d {
   void pack_blocked() const;
   void pack_subgroup() const;
   void pack_direct() const;
-  int64_t direct_chunk() const;  // input channels whose weight slab fits one uniform binding (capped)
-  int64_t direct_chunk_max() const;  // the same without the cap
-  int64_t direct_channel_quantum() const;  // chunk starts are multiples of this (uniform offset alignment)
-  int64_t direct_cin_pad() const;  // input channels per block in the packing (a multiple of the quantum)
+  UniformSlabChunks direct_chunks() const;  // input-channel chunks of the uniform weight slabs
 
   Context& ctx_;
   std::string name_;

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cstdlib>
-#include <numeric>
 
 #include "runtime/context.hpp"
 #include "runtime/pipeline.hpp"
@@ -117,33 +116,17 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
   }
 }
 
-// Chunk starts must sit at multiples of minUniformBufferOffsetAlignment (see Conv2d::direct_channel_quantum).
-int64_t ConvTranspose2d::direct_channel_quantum() const {
-  const int64_t a = static_cast<int64_t>(ctx_.info().min_uniform_buffer_offset_alignment);
-  return a / std::gcd(a, 16 * direct_cob_ * 4);
-}
-int64_t ConvTranspose2d::direct_cin_pad() const {
-  const int64_t q = direct_channel_quantum();
-  return (cin_ + q - 1) / q * q;
-}
-int64_t ConvTranspose2d::direct_chunk_max() const {
-  const int64_t m = std::min<int64_t>(cin_, static_cast<int64_t>(ctx_.info().max_uniform_buffer_range) / (16 * direct_cob_ * 4));
-  const int64_t q = direct_channel_quantum();
-  return m < cin_ ? m / q * q : m;
-}
-int64_t ConvTranspose2d::direct_chunk() const {
-  const int64_t m = direct_chunk_max();
-  if (direct_chunk_limit_ <= 0 || direct_chunk_limit_ >= m) return m;
-  const int64_t q = direct_channel_quantum();
-  return std::min(m, std::max(q, direct_chunk_limit_ / q * q));
+UniformSlabChunks ConvTranspose2d::direct_chunks() const {
+  return uniform_slab_chunks(ctx_.info(), cin_, 16 * direct_cob_ * 4, direct_chunk_limit_);
 }
 
 void ConvTranspose2d::pack_direct() const {
   if (!weight_direct_.empty()) return;
   // [cout/COB][cin][16][COB] plus one chunk of zeros, so every dispatch binds a whole slab.
   const int64_t cob = direct_cob_, blocks = (cout_ + cob - 1) / cob;
-  const int64_t cin_pad = direct_cin_pad();  // aligned chunk starts
-  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + direct_chunk_max()) * 16 * cob), 0.f);
+  const UniformSlabChunks ch = direct_chunks();
+  const int64_t cin_pad = ch.cin_pad;  // aligned chunk starts
+  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + ch.max) * 16 * cob), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
     for (int64_t ci = 0; ci < cin_; ++ci)
       for (int64_t t = 0; t < 16; ++t)
@@ -154,7 +137,7 @@ void ConvTranspose2d::pack_direct() const {
 
 bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
   if (algo == ConvTransposeAlgo::blocked) return !weight_blocked_.empty();
-  if (algo == ConvTransposeAlgo::direct) return !weight_blocked_.empty() && direct_cob_ % 4 == 0 && direct_chunk_max() >= 1;
+  if (algo == ConvTransposeAlgo::direct) return !weight_blocked_.empty() && direct_cob_ % 4 == 0 && direct_chunks().max >= 1;
   return algo == ConvTransposeAlgo::automatic || algo == ConvTransposeAlgo::naive;
 }
 
@@ -218,7 +201,8 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
     pack_direct();
     const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
     const int64_t cob = direct_cob_, blocks = (cout_ + cob - 1) / cob, px = 8;
-    const int64_t chunk = direct_chunk();
+    const UniformSlabChunks ch = direct_chunks();
+    const int64_t chunk = ch.chunk;
     const int64_t half_w = (os.w + 1) / 2, tasks = os.h * 2 * ((half_w + px - 1) / px);
     const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
     const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
@@ -230,7 +214,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
         cp.in_off = u32(bi.offset + c0 * is.h * is.w);
         cp.cin = u32(std::min(chunk, cin_ - c0));
         cp.co0 = u32(b * cob);
-        const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * direct_cin_pad() + c0) * 16 * cob) * 4,
+        const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * ch.cin_pad + c0) * 16 * cob) * 4,
                                                     static_cast<size_t>(chunk * 16 * cob) * 4);
         cs.dispatch(ctx_.pipeline(texel_input ? "conv_transpose2d_direct_texel" : "conv_transpose2d_direct",
                                   {spec[2], spec[3], u32(px), u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u,

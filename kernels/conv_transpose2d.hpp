@@ -58,10 +58,7 @@ class ConvTranspose2d {
   Tensor weight_blocked_;  // [ceil(cout/8)][cin][k*k][8]
   Tensor bias_blocked_;    // [ceil(cout/8)*8]
   void pack_direct() const;
-  int64_t direct_chunk_max() const;
-  int64_t direct_chunk() const;             // capped by set_direct_chunk_limit, a multiple of the quantum
-  int64_t direct_channel_quantum() const;  // chunk starts are multiples of this (uniform offset alignment)
-  int64_t direct_cin_pad() const;          // input channels per block in the packing
+  UniformSlabChunks direct_chunks() const;  // input-channel chunks of the uniform weight slabs
   HostTensor weight_host_;         // as given, for the lazily uploaded direct packing
   mutable Tensor weight_direct_;   // [ceil(cout/COB)][cin (+ one chunk)][16][COB]
   int64_t direct_cob_ = 16;

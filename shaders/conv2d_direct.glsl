@@ -30,15 +30,7 @@ const uint ROWS = PY * STRIDE + K - STRIDE;  // input rows PY output rows touch
 // skips the 3 padding channels' multiply-adds, which cost as much as its input fetches on lavapipe.
 const uint NCV = CQ == 1u ? NC : 4u;
 
-#ifdef DIRECT_TEXEL_INPUT
-// The input through a uniform texel buffer (an R32 view): llvmpipe fetches it with a gather, where a
-// storage-buffer load is a per-lane loop; 1.2-1.5x faster on lavapipe.
-layout(binding = 0) uniform samplerBuffer xin;
-float load_input(uint i) { return texelFetch(xin, int(i)).r; }
-#else
-layout(std430, binding = 0) readonly buffer In { float x[]; };
-float load_input(uint i) { return x[i]; }
-#endif
+#include "direct_input.glsl"
 layout(std140, binding = 1) uniform Wt { vec4 wt[SLAB]; };
 layout(std430, binding = 2) readonly buffer Bias { float bias[]; };
 layout(std430, binding = 3) readonly buffer Res { float res[]; };

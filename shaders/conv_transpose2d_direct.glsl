@@ -17,14 +17,7 @@ layout(constant_id = 5) const uint LAST = 1;
 layout(constant_id = 6) const uint SLAB = 4096;
 #include "act.glsl"
 
-#ifdef DIRECT_TEXEL_INPUT
-// The input through a uniform texel buffer (an R32 view): a gather on llvmpipe instead of a per-lane loop.
-layout(binding = 0) uniform samplerBuffer xin;
-float load_input(uint i) { return texelFetch(xin, int(i)).r; }
-#else
-layout(std430, binding = 0) readonly buffer In { float x[]; };
-float load_input(uint i) { return x[i]; }
-#endif
+#include "direct_input.glsl"
 layout(std140, binding = 1) uniform Wt { vec4 wt[SLAB]; };
 layout(std430, binding = 2) readonly buffer Bias { float bias[]; };
 layout(std430, binding = 3) buffer Out { float y[]; };

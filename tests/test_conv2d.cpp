@@ -107,13 +107,7 @@ TEST(Conv2d, DirectInChunksMatchesReference) { run_cases(ConvAlgo::direct, ~0ull
 // Each chunk's weights are a uniform binding: on a device with a 256-byte offset alignment the
 // chunks start at aligned channels (found on NVIDIA, whose 64 bytes refused 2-channel chunks).
 TEST(Conv2d, DirectInChunksOnAStrictUniformAlignment) {
-  ContextOptions o;
-  o.validation = true;
-  o.validation_fatal = true;
-  o.announce = false;
-  o.min_uniform_offset_alignment = 256;
-  Context strict(o);
-  run_cases(strict, ConvAlgo::direct, ~0ull, 2);
+  run_cases(vktest::strict_uniform_context(), ConvAlgo::direct, ~0ull, 2);
 }
 // The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
 TEST(Conv2d, DirectStorageInputMatchesReference) { run_cases(ConvAlgo::direct, ~0ull, 0, false); }

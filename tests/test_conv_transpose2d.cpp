@@ -65,13 +65,7 @@ TEST(ConvTranspose2d, DirectMatchesReference) { run_cases(ConvTransposeAlgo::dir
 TEST(ConvTranspose2d, DirectInChunksMatchesReference) { run_cases(ConvTransposeAlgo::direct, 3); }
 // Chunk starts on a 256-byte uniform offset alignment (see Conv2d.DirectInChunksOnAStrictUniformAlignment).
 TEST(ConvTranspose2d, DirectInChunksOnAStrictUniformAlignment) {
-  ContextOptions o;
-  o.validation = true;
-  o.validation_fatal = true;
-  o.announce = false;
-  o.min_uniform_offset_alignment = 256;
-  Context strict(o);
-  run_cases(strict, ConvTransposeAlgo::direct, 3);
+  run_cases(vktest::strict_uniform_context(), ConvTransposeAlgo::direct, 3);
 }
 // The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
 TEST(ConvTranspose2d, DirectStorageInputMatchesReference) { run_cases(ConvTransposeAlgo::direct, 0, false); }

@@ -12,6 +12,10 @@ std::unique_ptr<Context>& slot() {
   static std::unique_ptr<Context> ctx;
   return ctx;
 }
+std::unique_ptr<Context>& strict_slot() {
+  static std::unique_ptr<Context> ctx;
+  return ctx;
+}
 
 class ValidationListener : public ::testing::EmptyTestEventListener {
   void OnTestStart(const ::testing::TestInfo&) override {
@@ -35,6 +39,19 @@ Context& context() {
   return *slot();
 }
 
+Context& strict_uniform_context() {
+  std::unique_ptr<Context>& strict = strict_slot();
+  if (!strict) {
+    ContextOptions o;
+    o.validation = true;
+    o.validation_fatal = true;
+    o.announce = false;
+    o.min_uniform_offset_alignment = 256;
+    strict = std::make_unique<Context>(o);
+  }
+  return *strict;
+}
+
 bool context_created() { return slot() != nullptr; }
 
 std::string shared_path(const std::string& rel) {
@@ -48,6 +65,7 @@ int main(int argc, char** argv) {
   ::testing::InitGoogleTest(&argc, argv);
   ::testing::UnitTest::GetInstance()->listeners().Append(new vkunroll::vktest::ValidationListener);
   const int rc = RUN_ALL_TESTS();
+  vkunroll::vktest::strict_slot().reset();
   vkunroll::vktest::slot().reset();
   return rc;
 }

@@ -9,6 +9,9 @@ namespace vkunroll::vktest {
 
 // The lavapipe context of this test process (validation on), created on first use.
 Context& context();
+// A second lavapipe context that enforces a 256-byte minUniformBufferOffsetAlignment (lavapipe's is
+// 16), to check what a strict GPU needs; a validation message aborts. Created on first use.
+Context& strict_uniform_context();
 // True when a context was created in this process (the listener only checks then).
 bool context_created();
 // `../shared/<rel>` next to the checkout; empty when the folder is absent.
