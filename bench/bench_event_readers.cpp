@@ -13,8 +13,8 @@
 #include <unistd.h>
 #include <vector>
 
-#include "host/event_reader.hpp"
-#include "tests/event_test_encoders.hpp"
+#include "vkunroll/host/events/event_reader.hpp"
+#include "../tests/event_test_encoders.hpp"
 
 namespace fs = std::filesystem;
 using namespace vkunroll;

@@ -14,10 +14,10 @@
 #include <random>
 #include <string>
 
-#include "host/safetensors.hpp"
-#include "kernels/event_tensor.hpp"
-#include "runtime/context.hpp"
-#include "runtime/profiler.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/profiler.hpp"
 
 using namespace vkunroll;
 using Clock = std::chrono::steady_clock;
@@ -91,7 +91,7 @@ int main(int argc, char** argv) {
   const std::string in = (std::filesystem::temp_directory_path() / "vkunroll_bench_event_tensor.safetensors").string();
   std::vector<int8_t> p(ev.p.begin(), ev.p.end());
   write_safetensors(in,
-                    std::vector<StTensorView>{{"t", StDType::I64, {int64_t(n_events)}, ev.t.data(), n_events * 8},
+                    std::vector<SafetensorsTensorRef>{{"t", StDType::I64, {int64_t(n_events)}, ev.t.data(), n_events * 8},
                                               {"x", StDType::U16, {int64_t(n_events)}, ev.x.data(), n_events * 2},
                                               {"y", StDType::U16, {int64_t(n_events)}, ev.y.data(), n_events * 2},
                                               {"p", StDType::I8, {int64_t(n_events)}, p.data(), n_events}},
@@ -115,7 +115,7 @@ int main(int argc, char** argv) {
   const EventTensorSpec spec{N, {}};
   const std::vector<EventTensorPair> pairs = {{tm, t_star, std::nullopt}};
   EventTensors cpu;
-  const double cpu_s = best_of(repeat, [&] { cpu = build_event_tensors_cpu(ev, pairs, spec); });
+  const double cpu_s = best_of(repeat, [&] { cpu = build_event_tensors_ref(ev, pairs, spec); });
 
   ContextOptions co;
   co.announce = true;
@@ -132,7 +132,7 @@ int main(int argc, char** argv) {
     return std::pair<double, double>{total, of_part};
   };
   // Alternates the two streams; checks every result against the CPU reference of its stream.
-  const EventTensors cpu_b = build_event_tensors_cpu(ev_b, pairs, spec);
+  const EventTensors cpu_b = build_event_tensors_ref(ev_b, pairs, spec);
   bool sparse_same = true;
   auto same_as_cpu = [&](const EventTensors& t, bool second) {
     const EventTensors& c = second ? cpu_b : cpu;
@@ -219,7 +219,7 @@ int main(int argc, char** argv) {
                     std::nullopt});
   const double gpu_batch_s = best_of(std::max(1, repeat / 2), [&] { (void)builder.build(ev, many, spec); });
   EventTensors cpu_many;
-  const double cpu_batch_s = best_of(1, [&] { cpu_many = build_event_tensors_cpu(ev, many, spec); });
+  const double cpu_batch_s = best_of(1, [&] { cpu_many = build_event_tensors_ref(ev, many, spec); });
   EventTensors many_reused;
   builder.build(ev, many, spec, many_reused);
   const double gpu_batch_reuse_s = best_of(std::max(1, repeat / 2), [&] { builder.build(ev, many, spec, many_reused); });

@@ -16,11 +16,12 @@
 
 #include <nlohmann/json.hpp>
 
-#include "kernels/conv2d.hpp"
-#include "kernels/conv_transpose2d.hpp"
-#include "runtime/context.hpp"
-#include "runtime/pipeline.hpp"
-#include "runtime/profiler.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/conv2d.hpp"
+#include "vkunroll/kernels/conv_transpose2d.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
+#include "vkunroll/runtime/profiler.hpp"
 
 using namespace vkunroll;
 
@@ -139,7 +140,7 @@ double ceiling_gflops(Context& ctx, Profiler* profile) {
   struct {
     float a, b;
   } push{0.999f, 0.001f};
-  const Pipeline& pl = ctx.pipeline("fma_ceiling", {iters}, sizeof push);
+  const Pipeline& pl = kernel_pipeline(ctx, "fma_ceiling", {iters}, sizeof push);
   const double flop = 2.0 * 4 * 8 * iters * groups * 64.0;
   auto record = [&](CommandStream& cs) { cs.dispatch(pl, {out(sink)}, push, Groups{groups}, {"fma_ceiling", flop, 0}); };
   Timing t = time_gpu(ctx, 5, profile, record);
@@ -210,7 +211,7 @@ int main(int argc, char** argv) {
       if (!only.empty() && c.name.find(only) == std::string::npos) continue;
       const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
       HostTensor x = random_host({1, c.cin, c.h, c.w}, rng, 1.f);
-      Tensor xd = x.to_device(ctx);
+      Tensor xd = to_device(ctx, x);
       std::vector<std::string> algos;
       std::optional<Conv2d> conv;
       std::optional<ConvTranspose2d> deconv;
@@ -260,7 +261,7 @@ int main(int argc, char** argv) {
       if (naive && algos.front() != "naive") {
         const bool full = c.name == "RDBs.d.convs.1" || naive_full;
         naive_rows = full ? c.h : std::min<int64_t>(c.h, c.transposed ? 8 : 16 * c.s);
-        Tensor xb = random_host({1, c.cin, naive_rows, c.w}, rng, 1.f).to_device(ctx);
+        Tensor xb = to_device(ctx, random_host({1, c.cin, naive_rows, c.w}, rng, 1.f));
         const Shape ob = c.transposed ? deconv->output_shape(xb.shape()) : conv->output_shape(xb.shape());
         Tensor yb(ctx, ob);
         naive_flop = c.transposed ? deconv->flop(xb.shape()) : conv->flop(xb.shape());

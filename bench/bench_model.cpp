@@ -16,23 +16,23 @@
 #include <string>
 #include <unistd.h>
 
-#include "host/backend.hpp"
-#include "host/backend_vulkan.hpp"
-#include "host/model.hpp"
-#include "host/safetensors.hpp"
-#include "host/weights.hpp"
-#include "runtime/context.hpp"
-#include "runtime/memory.hpp"
-#include "runtime/profiler.hpp"
+#include "vkunroll/host/model/backend.hpp"
+#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/model.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/memory.hpp"
+#include "vkunroll/runtime/profiler.hpp"
 #include <iostream>
 
 using namespace vkunroll;
 
 namespace {
 
-HostArray random_array(std::mt19937& rng, int64_t b, int64_t c, int64_t h, int64_t w, bool events) {
+HostTensor random_array(std::mt19937& rng, int64_t b, int64_t c, int64_t h, int64_t w, bool events) {
   std::uniform_real_distribution<float> u(0.f, 1.f);
-  HostArray a{{b, c, h, w}, std::vector<float>(size_t(b * c * h * w))};
+  HostTensor a{{b, c, h, w}, std::vector<float>(size_t(b * c * h * w))};
   for (auto& v : a.data) v = events ? (u(rng) < 0.25f ? float(int(u(rng) * 4)) : 0.f) : u(rng);
   return a;
 }
@@ -89,8 +89,8 @@ int main(int argc, char** argv) {
   // Warm-up on a small crop: compiles every pipeline variant, so the timed run is steady-state.
   {
     ModelInputs small;
-    auto crop = [](const HostArray& a) {
-      HostArray r{{a.shape.n, a.shape.c, 32, 32}, {}};
+    auto crop = [](const HostTensor& a) {
+      HostTensor r{{a.shape.n, a.shape.c, 32, 32}, {}};
       for (int64_t n = 0; n < a.shape.n; ++n)
         for (int64_t c = 0; c < a.shape.c; ++c)
           for (int64_t y = 0; y < 32; ++y)
@@ -108,7 +108,7 @@ int main(int argc, char** argv) {
   RunOptions opt;
   opt.mode = md;
   double vk_s = 1e30, first_s = 0;
-  std::map<std::string, HostArray> out;
+  std::map<std::string, HostTensor> out;
   for (int r = 0; r < runs; ++r) {
     if (r > 0) profiler.clear();  // the table shows the last run
     t = std::chrono::steady_clock::now();
@@ -131,8 +131,8 @@ int main(int argc, char** argv) {
   const auto dir = std::filesystem::temp_directory_path() / ("vkunroll_bench_model_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   save_weights((dir / "w.safetensors").string(), w);
-  std::vector<StTensorView> views;
-  for (auto [name, a] : {std::pair<const char*, const HostArray*>{"rs", &in.rs}, {"ev1", &in.ev1}, {"ev2", &in.ev2}, {"ev3", &in.ev3}})
+  std::vector<SafetensorsTensorRef> views;
+  for (auto [name, a] : {std::pair<const char*, const HostTensor*>{"rs", &in.rs}, {"ev1", &in.ev1}, {"ev2", &in.ev2}, {"ev3", &in.ev3}})
     views.push_back({name, StDType::F32, {a->shape.n, a->shape.c, a->shape.h, a->shape.w}, a->data.data(), a->data.size() * 4});
   write_safetensors((dir / "in.safetensors").string(), views);
   const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_mirror.py " +

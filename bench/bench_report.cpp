@@ -25,11 +25,11 @@
 #include <string>
 #include <vector>
 
-#include "host/metrics.hpp"
-#include "host/sim_sequence.hpp"
-#include "host/unroll.hpp"
-#include "host/weights.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/host/unroll/metrics.hpp"
+#include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/unroll.hpp"
+#include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/base/error.hpp"
 
 using namespace vkunroll;
 namespace fs = std::filesystem;

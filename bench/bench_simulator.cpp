@@ -8,14 +8,12 @@
 #include <cstring>
 #include <string>
 
-#include "host/sim_sequence.hpp"
+#include "vkunroll/base/stopwatch.hpp"
+#include "vkunroll/host/sim/recording.hpp"
 
 using namespace vkunroll::sim;
-using Clock = std::chrono::steady_clock;
-
-static double ms_since(Clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-}
+using vkunroll::Clock;
+using vkunroll::ms_since;
 // CPU time of the whole process (all threads), ms: robust against a busy shared machine.
 static double cpu_ms() {
   timespec ts{};

@@ -5,7 +5,7 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "host/event_reader_detail.hpp"
+#include "vkunroll/host/events/event_reader_detail.hpp"
 
 namespace vkunroll::fuzz {
 

@@ -1,5 +1,5 @@
 // libFuzzer harness: the dat reader on arbitrary bytes (see fuzz_common.hpp).
-#include "fuzz/fuzz_common.hpp"
+#include "fuzz_common.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   return vkunroll::fuzz::run_reader(data, size, "fuzz.dat", vkunroll::detail::read_dat);

@@ -5,8 +5,8 @@
 // options (hdf5_image_builder.hpp). The file is built in memory (core driver) and read back
 // through read_hdf5's file-image path, so the fuzzer explores our layout detection, dtype
 // handling, window search and record rules.
-#include "fuzz/fuzz_common.hpp"
-#include "fuzz/hdf5_image_builder.hpp"
+#include "fuzz_common.hpp"
+#include "hdf5_image_builder.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);

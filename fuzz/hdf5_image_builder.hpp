@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "host/event_reader.hpp"
+#include "vkunroll/host/events/event_reader.hpp"
 
 namespace vkunroll::fuzz {
 

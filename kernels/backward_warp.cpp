@@ -1,9 +1,10 @@
-#include "kernels/backward_warp.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/backward_warp.hpp"
 
 #include <algorithm>
 #include <cmath>
 
-#include "runtime/context.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll {
 
@@ -31,7 +32,7 @@ void backward_warp(CommandStream& cs, Slice image, Slice flow, Slice out) {
                    bo = bind_slice(out, Access::write);
   WarpPush p{bi.offset, bi.batch_stride, bf.offset, bf.batch_stride, bo.offset, bo.batch_stride,
              static_cast<uint32_t>(is.c), static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w)};
-  cs.dispatch(image.t->context().pipeline("backward_warp", {}, sizeof p), {bi.arg, bf.arg, bo.arg}, p,
+  cs.dispatch(kernel_pipeline(image.t->context(), "backward_warp", {}, sizeof p), {bi.arg, bf.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((is.h * is.w + 63) / 64), 1, static_cast<uint32_t>(is.n)},
               {"backward_warp", 0, 4.0 * static_cast<double>(is.n * is.plane() * (5 * is.c + 2))});
 }

@@ -4,7 +4,7 @@
 // flow: 2 channels in pixels, channel 0 = x (column) displacement, channel 1 = y (row).
 // A NaN flow component samples index 0 of its axis (never out of range).
 #pragma once
-#include "kernels/common.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 namespace vkunroll {
 

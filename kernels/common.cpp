@@ -1,11 +1,11 @@
-#include "kernels/common.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <numeric>
 
-#include "runtime/context.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/base/error.hpp"
 
 namespace vkunroll {
 
@@ -31,30 +31,22 @@ const char* activation_name(Activation a) {
   return "unknown";
 }
 
-HostTensor::HostTensor(Shape s, float fill) : shape(s), data(static_cast<size_t>(s.count()), fill) {}
-
-HostTensor::HostTensor(Shape s, std::vector<float> values) : shape(s), data(std::move(values)) {
-  if (static_cast<int64_t>(data.size()) != s.count())
-    throw Error("HostTensor: " + std::to_string(data.size()) + " values given for shape " + s.str() + " (" +
-                std::to_string(s.count()) + " expected)");
-}
-
-Tensor HostTensor::to_device(Context& ctx) const {
-  Tensor t(ctx, shape, DType::f32);
-  t.upload(data);
+Tensor to_device(Context& ctx, const HostTensor& host) {
+  Tensor t(ctx, host.shape, DType::f32);
+  t.upload(host.data);
   return t;
 }
 
-void HostTensor::upload_to(Tensor& t) const {
-  if (!(t.shape() == shape) || t.dtype() != DType::f32)
-    throw Error("HostTensor::upload_to: host " + shape.str() + " f32 into device " + t.shape().str() + " " +
+void upload(const HostTensor& host, Tensor& t) {
+  if (!(t.shape() == host.shape) || t.dtype() != DType::f32)
+    throw Error("upload: host " + host.shape.str() + " f32 into device " + t.shape().str() + " " +
                 dtype_name(t.dtype()));
-  t.upload(data);
+  t.upload(host.data);
 }
 
-HostTensor HostTensor::download(const Tensor& t) {
+HostTensor to_host(const Tensor& t) {
   if (t.dtype() != DType::f32)
-    throw Error(std::string("HostTensor::download: tensor is ") + dtype_name(t.dtype()) + ", f32 expected");
+    throw Error(std::string("to_host: tensor is ") + dtype_name(t.dtype()) + ", f32 expected");
   return HostTensor(t.shape(), t.download<float>());
 }
 
@@ -98,7 +90,6 @@ BoundSlice bind_slice(const Slice& s, Access access) {
   return b;
 }
 
-std::string shape_str(const Shape& s) { return s.str(); }
 
 UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit) {
   UniformSlabChunks c;

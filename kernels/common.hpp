@@ -6,8 +6,9 @@
 #include <string>
 #include <vector>
 
-#include "runtime/command_stream.hpp"
-#include "runtime/tensor.hpp"
+#include "vkunroll/base/host_tensor.hpp"
+#include "vkunroll/runtime/command_stream.hpp"
+#include "vkunroll/runtime/tensor.hpp"
 
 namespace vkunroll {
 
@@ -46,26 +47,10 @@ struct UniformSlabChunks {
 };
 UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit);
 
-// An NCHW f32 array in host memory.
-struct HostTensor {
-  Shape shape;
-  std::vector<float> data;
-
-  HostTensor() = default;
-  explicit HostTensor(Shape s, float fill = 0.f);
-  HostTensor(Shape s, std::vector<float> values);  // values.size() must equal s.count()
-
-  size_t index(int64_t n, int64_t c, int64_t y, int64_t x) const {
-    return static_cast<size_t>(((n * shape.c + c) * shape.h + y) * shape.w + x);
-  }
-  float& at(int64_t n, int64_t c, int64_t y, int64_t x) { return data[index(n, c, y, x)]; }
-  float at(int64_t n, int64_t c, int64_t y, int64_t x) const { return data[index(n, c, y, x)]; }
-
-  // Device round trips (f32 tensors only).
-  Tensor to_device(Context& ctx) const;
-  void upload_to(Tensor& t) const;
-  static HostTensor download(const Tensor& t);
-};
+// Device round trips of host tensors (f32 tensors only).
+Tensor to_device(Context& ctx, const HostTensor& host);
+void upload(const HostTensor& host, Tensor& t);  // t must have the host tensor's shape
+HostTensor to_host(const Tensor& t);
 
 // A channel range [c0, c0+c) and batch range [n0, n0+n) of a tensor; c or n = -1 means "to the end".
 // T is `const Tensor` (device: `Slice`) or `const HostTensor` / `HostTensor` (CPU references).
@@ -115,8 +100,5 @@ struct BoundSlice {
   uint32_t batch_stride = 0;  // elements between batch items (C_total * H * W)
 };
 BoundSlice bind_slice(const Slice& s, Access access);
-
-// "2x48x130x173" for messages and dispatch names.
-std::string shape_str(const Shape& s);
 
 }  // namespace vkunroll

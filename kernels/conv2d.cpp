@@ -1,11 +1,12 @@
-#include "kernels/conv2d.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/conv2d.hpp"
 
 #include <algorithm>
 #include <cstdlib>
 #include <cstring>
 
-#include "runtime/context.hpp"
-#include "runtime/pipeline.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 
 namespace vkunroll {
 
@@ -125,7 +126,7 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   // subgroup) on first use, from this host copy.
   weight_host_ = weight;
   bias_host_ = b;
-  bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
+  bias_ = to_device(ctx, HostTensor(Shape{1, 1, 1, cout_}, b));
   blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
   if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
   direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
@@ -195,7 +196,7 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
             }
         }
     }
-    weight_winograd_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
+    weight_winograd_ = to_device(ctx, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u));
   }
   if (k == 1 && params.stride == 1 && params.pad == 0) {
     winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
@@ -205,7 +206,7 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
     for (int64_t co = 0; co < cout_; ++co)
       for (int64_t ci = 0; ci < cin_; ++ci)
         u[static_cast<size_t>(ci * winograd_cout_pad_ + co)] = weight.data[static_cast<size_t>(co * cin_ + ci)];
-    weight_gemm_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
+    weight_gemm_ = to_device(ctx, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u));
   }
   (void)kk;
   if (weight_winograd_.empty() && weight_gemm_.empty()) pack_blocked();
@@ -213,7 +214,7 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
 
 void Conv2d::pack_naive() const {
   if (!weight_.empty()) return;
-  weight_ = HostTensor(Shape{1, 1, 1, weight_host_.shape.count()}, weight_host_.data).to_device(ctx_);
+  weight_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, weight_host_.shape.count()}, weight_host_.data));
 }
 
 void Conv2d::pack_blocked() const {
@@ -232,8 +233,8 @@ void Conv2d::pack_blocked() const {
         wb[static_cast<size_t>((((co / BC) * cin_ + ci) * kk + t) * BC + co % BC)] =
             weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
   }
-  weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx_);
-  bias_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb).to_device(ctx_);
+  weight_blocked_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb));
+  bias_blocked_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb));
 }
 
 void Conv2d::pack_subgroup() const {
@@ -252,8 +253,8 @@ void Conv2d::pack_subgroup() const {
         ws[static_cast<size_t>(((((cg * c4 + ci / 4) * kk + t) * G + g) * 8 + lane) * 4 + ci % 4)] =
             weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
   }
-  weight_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws).to_device(ctx_);
-  bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx_);
+  weight_subgroup_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws));
+  bias_subgroup_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs));
 }
 
 UniformSlabChunks Conv2d::direct_chunks() const {
@@ -276,7 +277,7 @@ void Conv2d::pack_direct() const {
       for (int64_t t = 0; t < kk; ++t)
         wd[static_cast<size_t>((((co / cob) * cin_pad + ci) * kk + t) * cob + co % cob)] =
             weight_host_.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
-  weight_direct_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd).to_device(ctx_);
+  weight_direct_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd));
 }
 
 namespace {
@@ -428,7 +429,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   switch (algo) {
     case ConvAlgo::naive: {
       pack_naive();
-      const Pipeline& pl = ctx_.pipeline("conv2d_naive", spec, sizeof(ConvPush));
+      const Pipeline& pl = kernel_pipeline(ctx_, "conv2d_naive", spec, sizeof(ConvPush));
       cs.dispatch(pl, {bi.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, p,
                   Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
                          static_cast<uint32_t>(os.n * cout_)},
@@ -441,7 +442,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       std::vector<uint32_t> bspec = spec;
       bspec.push_back(px);
       bspec.push_back(static_cast<uint32_t>(blocked_cob_ / 4));
-      const Pipeline& pl = ctx_.pipeline("conv2d_blocked", bspec, sizeof(ConvPush));
+      const Pipeline& pl = kernel_pipeline(ctx_, "conv2d_blocked", bspec, sizeof(ConvPush));
       const auto cob = static_cast<uint32_t>((cout_ + kBlockCo - 1) / kBlockCo);
       cs.dispatch(pl, {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, br.arg, bo.arg},
                   p,
@@ -453,7 +454,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       pack_subgroup();
       std::vector<uint32_t> sspec = spec;
       sspec.push_back(subgroup_g_);
-      const Pipeline& pl = ctx_.pipeline("conv2d_subgroup", sspec, sizeof(ConvPush));
+      const Pipeline& pl = kernel_pipeline(ctx_, "conv2d_subgroup", sspec, sizeof(ConvPush));
       const int64_t tasks = os.h * ((os.w + 7) / 8), per_wg = 64 / 8;
       const auto cog = static_cast<uint32_t>((cout_ + 8 * subgroup_g_ - 1) / (8 * subgroup_g_));
       cs.dispatch(pl, {bi.arg, {weight_subgroup_.range(), Access::read}, {bias_subgroup_.range(), Access::read}, br.arg, bo.arg},
@@ -494,7 +495,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
           cp.pad = params_.pad;
           cp.co0 = u32(b * cob);
           const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * ch.cin_pad + c0) * kk * cob) * 4, slab_bytes);
-          cs.dispatch(ctx_.pipeline(texel_input ? "conv2d_direct_texel" : "conv2d_direct", dspec, sizeof(ConvPush)),
+          cs.dispatch(kernel_pipeline(ctx_, texel_input ? "conv2d_direct_texel" : "conv2d_direct", dspec, sizeof(ConvPush)),
                       {bi.arg, {wr, Access::read}, {bias_.range(), Access::read}, br.arg,
                        {bo.arg.range, first ? Access::write : Access::read_write}},
                       cp, groups, dispatch_part(info, cp.cin, std::min(cob, cout_ - b * cob), cin_, cout_, blocks));
@@ -520,14 +521,14 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         } ip{bi.offset, bi.batch_stride, u32(cin_), u32(is.h), u32(is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
              u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
              params_.kernel == 5 ? -1 : 0};
-        cs.dispatch(ctx_.pipeline("winograd_input", {}, sizeof ip), {bi.arg, {vr, Access::write}}, ip,
+        cs.dispatch(kernel_pipeline(ctx_, "winograd_input", {}, sizeof ip), {bi.arg, {vr, Access::write}}, ip,
                     Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1},
                     {info.name + "_wino_in", 0, 4.0 * 36.0 * (cn * wz.tiles_pad) * (1 + 16.0 / 36)});
         struct GemmPush {
           uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
         } gp{u32(cn), u32(wz.tiles_pad), u32(winograd_cout_pad_), u32(cv), u32(c0)};
         const uint32_t tv = gemm_tv();
-        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
+        cs.dispatch(kernel_pipeline(ctx_, "winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
                     {{vr, Access::read}, {weight_winograd_.range(), Access::read},
                      {mr, c0 > 0 ? Access::read_write : Access::write}},
                     gp, flat_groups(36 * (winograd_cout_pad_ / winograd_cob_) * (wz.tiles_pad / (4 * tv)), 1),
@@ -538,7 +539,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
       } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(cout_), u32(os.h), u32(os.w), u32(wz.tiles_x_pad),
            u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_cout_pad_)};
-      cs.dispatch(ctx_.pipeline("winograd_output", {spec[2], spec[3], spec[4]}, sizeof op),
+      cs.dispatch(kernel_pipeline(ctx_, "winograd_output", {spec[2], spec[3], spec[4]}, sizeof op),
                   {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
                   Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},
                   {info.name + "_wino_out", 0, 4.0 * (36.0 * cout_ * wz.tiles_pad + static_cast<double>(os.count()))});
@@ -557,14 +558,14 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
         struct PackPush {
           uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin;
         } pp{bi.offset, bi.batch_stride, u32(is.h * is.w), u32(npix), u32(pix_pad), u32(c0)};
-        cs.dispatch(ctx_.pipeline("conv1x1_pack", {}, sizeof pp), {bi.arg, {vr, Access::write}}, pp,
+        cs.dispatch(kernel_pipeline(ctx_, "conv1x1_pack", {}, sizeof pp), {bi.arg, {vr, Access::write}}, pp,
                     Groups{u32((pix_pad / 4 + 63) / 64), u32(cn), 1},
                     {info.name + "_gemm_pack", 0, 8.0 * static_cast<double>(cn * pix_pad)});
         struct GemmPush {
           uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
         } gp{u32(cn), u32(pix_pad), u32(winograd_cout_pad_), u32(cin_), u32(c0)};
         const uint32_t tv = gemm_tv();
-        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
+        cs.dispatch(kernel_pipeline(ctx_, "winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
                     {{vr, Access::read}, {weight_gemm_.range(), Access::read},
                      {mr, c0 > 0 ? Access::read_write : Access::write}},
                     gp, flat_groups((winograd_cout_pad_ / winograd_cob_) * (pix_pad / (4 * tv)), 1),
@@ -574,7 +575,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       struct OutPush {
         uint32_t res_off, res_bs, out_off, out_bs, plane, npix, pix_pad;
       } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(is.h * is.w), u32(npix), u32(pix_pad)};
-      cs.dispatch(ctx_.pipeline("conv1x1_output", {spec[2], spec[3], spec[4]}, sizeof op),
+      cs.dispatch(kernel_pipeline(ctx_, "conv1x1_output", {spec[2], spec[3], spec[4]}, sizeof op),
                   {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
                   Groups{u32((pix_pad / 4 + 63) / 64), u32(cout_), 1},
                   {info.name + "_gemm_out", 0, 8.0 * static_cast<double>(os.count())});

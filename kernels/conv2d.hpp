@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "kernels/common.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 namespace vkunroll {
 

@@ -1,10 +1,11 @@
-#include "kernels/conv_transpose2d.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/conv_transpose2d.hpp"
 
 #include <algorithm>
 #include <cstdlib>
 
-#include "runtime/context.hpp"
-#include "runtime/pipeline.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 
 namespace vkunroll {
 
@@ -93,8 +94,8 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
     throw Error(name_ + ": bias has " + std::to_string(bias.data.size()) + " values, " + std::to_string(cout_) +
                 " output channels expected");
   std::vector<float> b = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
-  weight_ = HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data).to_device(ctx);
-  bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
+  weight_ = to_device(ctx, HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data));
+  bias_ = to_device(ctx, HostTensor(Shape{1, 1, 1, cout_}, b));
   if (k == 4 && params.stride == 2 && params.pad == 1) {
     weight_host_ = weight;
     // 32 channels per invocation where they divide cout: 3-6% faster than 16 on lavapipe (fewer
@@ -111,8 +112,8 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
           wb[static_cast<size_t>((((co / 8) * cin_ + ci) * 16 + t) * 8 + co % 8)] =
               weight.data[static_cast<size_t>((ci * cout_ + co) * 16 + t)];
     }
-    weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx);
-    bias_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb).to_device(ctx);
+    weight_blocked_ = to_device(ctx, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb));
+    bias_blocked_ = to_device(ctx, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb));
   }
 }
 
@@ -132,7 +133,7 @@ void ConvTranspose2d::pack_direct() const {
       for (int64_t t = 0; t < 16; ++t)
         wd[static_cast<size_t>((((co / cob) * cin_pad + ci) * 16 + t) * cob + co % cob)] =
             weight_host_.data[static_cast<size_t>((ci * cout_ + co) * 16 + t)];
-  weight_direct_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd).to_device(ctx_);
+  weight_direct_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd));
 }
 
 bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
@@ -182,7 +183,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
   const DispatchInfo info{name_ + "_" + std::to_string(params_.kernel) + "x" + std::to_string(params_.kernel), flop(is),
                           bytes};
   if (algo == ConvTransposeAlgo::naive) {
-    cs.dispatch(ctx_.pipeline("conv_transpose2d_naive", spec, sizeof(ConvTPush)),
+    cs.dispatch(kernel_pipeline(ctx_, "conv_transpose2d_naive", spec, sizeof(ConvTPush)),
                 {bi.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, bo.arg}, p,
                 Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
                        static_cast<uint32_t>(os.n * cout_)},
@@ -191,7 +192,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
   }
   if (algo == ConvTransposeAlgo::blocked) {
     const auto half_w = static_cast<uint32_t>((os.w + 1) / 2);
-    cs.dispatch(ctx_.pipeline("conv_transpose2d_blocked", {spec[2], spec[3]}, sizeof(ConvTPush)),
+    cs.dispatch(kernel_pipeline(ctx_, "conv_transpose2d_blocked", {spec[2], spec[3]}, sizeof(ConvTPush)),
                 {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, bo.arg}, p,
                 flat_groups(os.h * 2 * ((half_w + 7) / 8), static_cast<uint32_t>(os.n * ((cout_ + 7) / 8))),
                 info);
@@ -216,7 +217,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
         cp.co0 = u32(b * cob);
         const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * ch.cin_pad + c0) * 16 * cob) * 4,
                                                     static_cast<size_t>(chunk * 16 * cob) * 4);
-        cs.dispatch(ctx_.pipeline(texel_input ? "conv_transpose2d_direct_texel" : "conv_transpose2d_direct",
+        cs.dispatch(kernel_pipeline(ctx_, texel_input ? "conv_transpose2d_direct_texel" : "conv_transpose2d_direct",
                                   {spec[2], spec[3], u32(px), u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u,
                                    u32(chunk * 16 * cob / 4)},
                                   sizeof(ConvTPush)),

@@ -3,7 +3,7 @@
 #pragma once
 #include <string>
 
-#include "kernels/common.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 namespace vkunroll {
 

@@ -1,9 +1,10 @@
-#include "kernels/elementwise.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/elementwise.hpp"
 
 #include <algorithm>
 
-#include "runtime/context.hpp"
-#include "runtime/pipeline.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 
 namespace vkunroll {
 
@@ -35,7 +36,7 @@ void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slic
            bo.batch_stride, static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.plane()), scale};
   Context& ctx = a.t->context();
   const double n = static_cast<double>(s.count());
-  cs.dispatch(ctx.pipeline("elementwise", {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)}, sizeof p),
+  cs.dispatch(kernel_pipeline(ctx, "elementwise", {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)}, sizeof p),
               {ba.arg, bb.arg, bm.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((s.plane() + 63) / 64), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},
               {name, (op == kCopy || op == kClamp01) ? 0 : (op == kBlend ? 3 : 1) * n,

@@ -1,14 +1,14 @@
 // Elementwise ops on slices (operands may be different channel ranges or batch items of one
 // tensor). The output may be the same slice as an input (in place); it must not partly overlap one.
 #pragma once
-#include "kernels/common.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 namespace vkunroll {
 
 void copy(CommandStream& cs, Slice in, Slice out);                      // out = in (builds concatenations)
 void add(CommandStream& cs, Slice a, Slice b, Slice out);               // out = a + b
 void scale_act(CommandStream& cs, Slice in, Slice out, Act act, float scale);  // out = scale * act(in)
-inline void scale_tanh(CommandStream& cs, Slice in, Slice out, float scale) {
+inline void tanh_scale(CommandStream& cs, Slice in, Slice out, float scale) {
   scale_act(cs, in, out, {Activation::tanh, 0.f}, scale);
 }
 // out = m * a + (1 - m) * b; m has one channel, broadcast over the channels of a and b.

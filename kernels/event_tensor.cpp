@@ -1,44 +1,19 @@
-#include "kernels/event_tensor.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
 
 #include <algorithm>
 #include <cstring>
 #include <limits>
 #include <string>
 
-#include "runtime/command_stream.hpp"
-#include "runtime/context.hpp"
-#include "runtime/error.hpp"
-#include "runtime/pipeline.hpp"
+#include "vkunroll/runtime/command_stream.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/base/error.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 
 namespace vkunroll {
 namespace {
 
-int128_t gcd128(int128_t a, int128_t b) {
-  if (a < 0) a = -a;
-  if (b < 0) b = -b;
-  while (b) {
-    const int128_t t = a % b;
-    a = b;
-    b = t;
-  }
-  return a;
-}
-int128_t floor_div(int128_t a, int128_t b) {  // b > 0
-  // 64-bit division when both fit: several times cheaper than the 128-bit library call, and the
-  // planner does N divisions per (job, row).
-  if (a >= INT64_MIN && a <= INT64_MAX && b <= INT64_MAX) {
-    const int64_t a64 = static_cast<int64_t>(a), b64 = static_cast<int64_t>(b);
-    int64_t q = a64 / b64;
-    if ((a64 % b64 != 0) && (a64 < 0)) --q;
-    return q;
-  }
-  int128_t q = a / b;
-  if ((a % b != 0) && (a < 0)) --q;
-  return q;
-}
-int128_t ceil_div(int128_t a, int128_t b) { return -floor_div(-a, b); }
-
-int128_t abs128(int128_t v) { return v < 0 ? -v : v; }
 
 // a and b of one row over a common denominator, relative to an integer origin:
 // a - origin = A / D, b - origin = B / D.
@@ -174,7 +149,7 @@ std::pair<int64_t, int64_t> event_time_window(const std::vector<RowIntervals>& j
 
 // ---- CPU reference ----------------------------------------------------------------------------
 
-std::vector<float> bin_events_cpu(const EventStream& events, const std::vector<RowIntervals>& jobs,
+std::vector<float> bin_events_ref(const EventStream& events, const std::vector<RowIntervals>& jobs,
                                   const EventTensorSpec& spec) {
   check_spec(spec);
   check_jobs(events, jobs);
@@ -244,7 +219,7 @@ EventTensors split_tensors(std::vector<float>&& flat, size_t pairs, const EventT
 }
 }  // namespace
 
-EventTensors build_event_tensors_cpu(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+EventTensors build_event_tensors_ref(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                                      const EventTensorSpec& spec) {
   const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
   for (const auto& p : pairs)
@@ -252,7 +227,7 @@ EventTensors build_event_tensors_cpu(const EventStream& events, const std::vecto
       throw Error("event tensor: frame timing has " + std::to_string(p.timing.rows) + " rows, the event sensor " +
                   std::to_string(events.height));
   const auto jobs = event_tensor_jobs(pairs);
-  auto t = split_tensors(bin_events_cpu(events, jobs, spec), pairs.size(), spec, c);
+  auto t = split_tensors(bin_events_ref(events, jobs, spec), pairs.size(), spec, c);
   std::vector<uint32_t> packed;
   t.events_considered = pack_events(events, plan_binning(events, jobs, spec), packed);
   return t;
@@ -509,7 +484,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
     off.upload(offsets);
     Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
     ev.upload(packed);
-    const Pipeline& pipe = ctx_.pipeline("event_tensor_pixels", {static_cast<uint32_t>(plan.bins)}, sizeof(PixelPush));
+    const Pipeline& pipe = kernel_pipeline(ctx_, "event_tensor_pixels", {static_cast<uint32_t>(plan.bins)}, sizeof(PixelPush));
     const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((plane + 63) / 64, 65535));
     // Loop iterations of one invocation per job: its pixels (grid stride) x (events + 4N).
     size_t busiest = 0, busiest_pixel = 0;
@@ -547,7 +522,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
     ev.upload(packed);
     Tensor rg(ctx_, Shape{1, 1, 1, static_cast<int64_t>(ranges.size())}, DType::u32);
     rg.upload(ranges);
-    const Pipeline& pipe = ctx_.pipeline("event_tensor_rows", {}, sizeof(RowPush));
+    const Pipeline& pipe = kernel_pipeline(ctx_, "event_tensor_rows", {}, sizeof(RowPush));
     const uint32_t pieces = row_pieces(ranges, 2, 0, ranges.size() / 2);  // <= 1024 for the 16M-event window
     for (const auto& [j0, nj] : chunks) {
       Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
@@ -571,7 +546,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
   const Binding eb = packed.size() * 4 > max_range ? Binding::ranged : Binding::whole;
   Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32, eb);
   ev.upload(packed);
-  const Pipeline& bin = ctx_.pipeline("event_tensor_bin", {}, sizeof(BinPush));
+  const Pipeline& bin = kernel_pipeline(ctx_, "event_tensor_bin", {}, sizeof(BinPush));
   // Events in pieces that fit one binding, at offsets the device accepts.
   const size_t align_ev = std::max<size_t>(1, info.min_storage_buffer_offset_alignment / 8);
   size_t per = std::min<size_t>(max_range / 8, 8192 * 64 * kEventsPerInvocation);
@@ -641,8 +616,8 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
 
   if (!stream_) stream_ = std::make_unique<CommandStream>(ctx_, profiler_);
   CommandStream& cs = *stream_;
-  const Pipeline& undo = ctx_.pipeline("event_tensor_undo", {}, sizeof(uint32_t));
-  const Pipeline& pipe = ctx_.pipeline("event_tensor_rows_sparse", {}, sizeof(RowPush));
+  const Pipeline& undo = kernel_pipeline(ctx_, "event_tensor_undo", {}, sizeof(uint32_t));
+  const Pipeline& pipe = kernel_pipeline(ctx_, "event_tensor_rows_sparse", {}, sizeof(RowPush));
   std::vector<Tensor> retired;  // undo lists replaced by bigger ones, alive until the submit
   try {
   for (size_t c = 0; c < chunks.size(); ++c) {

@@ -6,7 +6,7 @@
 // p > 0 else -1, flipped when t < a; its bin is k = floor(|t - a| * N / |b - a|), N -> N - 1;
 // it adds 1 at channel 2k + (sign > 0), pixel (y, x).
 //
-// Exactness: a[y] and b[y] are Rationals (host/row_timing.hpp) and event times are integers, so
+// Exactness: a[y] and b[y] are Rationals (base/row_timing.hpp) and event times are integers, so
 // every decision above is a comparison of the integer t with a rational. The CPU reference
 // evaluates the formula literally in 128-bit integers over a common denominator. The GPU path
 // precomputes, per (job, row), the integer thresholds where the answer changes:
@@ -23,9 +23,9 @@
 #include <optional>
 #include <vector>
 
-#include "host/events.hpp"
-#include "host/row_timing.hpp"
-#include "runtime/tensor.hpp"
+#include "vkunroll/base/events.hpp"
+#include "vkunroll/base/row_timing.hpp"
+#include "vkunroll/runtime/tensor.hpp"
 
 namespace vkunroll {
 
@@ -80,9 +80,9 @@ std::pair<int64_t, int64_t> event_time_window(const std::vector<RowIntervals>& j
 
 // ---- CPU reference ----------------------------------------------------------------------------
 // [jobs, 2N, h, w] float32 counts, the section-4 formula evaluated literally and exactly.
-std::vector<float> bin_events_cpu(const EventStream& events, const std::vector<RowIntervals>& jobs,
+std::vector<float> bin_events_ref(const EventStream& events, const std::vector<RowIntervals>& jobs,
                                   const EventTensorSpec& spec);
-EventTensors build_event_tensors_cpu(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+EventTensors build_event_tensors_ref(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                                      const EventTensorSpec& spec);
 
 // ---- GPU ---------------------------------------------------------------------------------------
@@ -138,7 +138,7 @@ class EventTensorBuilder {
   EventTensorBuilder(const EventTensorBuilder&) = delete;
   EventTensorBuilder& operator=(const EventTensorBuilder&) = delete;
 
-  // [jobs, 2N, h, w] float32, identical to bin_events_cpu. Splits jobs into chunks that fit one
+  // [jobs, 2N, h, w] float32, identical to bin_events_ref. Splits jobs into chunks that fit one
   // storage-buffer binding; events are uploaded once for all chunks.
   std::vector<float> bin(const EventStream& events, const std::vector<RowIntervals>& jobs,
                          const EventTensorSpec& spec);

@@ -1,11 +1,12 @@
-#include "kernels/physics_unroll.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/physics_unroll.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <limits>
 
-#include "runtime/context.hpp"
-#include "runtime/pipeline.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 
 namespace vkunroll {
 
@@ -182,7 +183,7 @@ void PhysicsUnroll::record(CommandStream& cs, const Tensor& rs, Tensor& result, 
     throw Error("PhysicsUnroll: max_value must be positive and finite");
   PhysicsPush p{width_, height_, static_cast<int32_t>(s.c), params.contrast, params.gamma, params.max_value};
   const double pixels = static_cast<double>(width_) * height_;
-  cs.dispatch(ctx_.pipeline("physics_unroll", {}, sizeof p),
+  cs.dispatch(kernel_pipeline(ctx_, "physics_unroll", {}, sizeof p),
               {in(offsets_), in(tau_), in(polarity_), in(rows_), in(rs), out(result)}, p,
               {static_cast<uint32_t>((width_ + 7) / 8), static_cast<uint32_t>((height_ + 7) / 8)},
               {"physics_unroll", 10.0 * (pixels + 2.0 * events_), 4.0 * (2 * events_ + pixels * (1 + 2 * s.c))});

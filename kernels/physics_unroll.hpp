@@ -10,9 +10,9 @@
 #include <cstdint>
 #include <vector>
 
-#include "host/events.hpp"
-#include "runtime/command_stream.hpp"
-#include "runtime/tensor.hpp"
+#include "vkunroll/base/events.hpp"
+#include "vkunroll/runtime/command_stream.hpp"
+#include "vkunroll/runtime/tensor.hpp"
 
 namespace vkunroll {
 

@@ -1,6 +1,7 @@
-#include "kernels/reflection_pad.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/reflection_pad.hpp"
 
-#include "runtime/context.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll {
 
@@ -15,7 +16,7 @@ void dispatch(CommandStream& cs, const char* shader, Slice in, Slice out, int64_
   PadPush p{bi.offset, bi.batch_stride, bo.offset, bo.batch_stride, static_cast<uint32_t>(os.c),
             static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w), static_cast<uint32_t>(os.h),
             static_cast<uint32_t>(os.w), static_cast<uint32_t>(top), static_cast<uint32_t>(left)};
-  cs.dispatch(in.t->context().pipeline(shader, {}, sizeof p), {bi.arg, bo.arg}, p,
+  cs.dispatch(kernel_pipeline(in.t->context(), shader, {}, sizeof p), {bi.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((os.h * os.w + 63) / 64), static_cast<uint32_t>(os.c),
                      static_cast<uint32_t>(os.n)},
               {shader, 0, 8.0 * static_cast<double>(os.count())});

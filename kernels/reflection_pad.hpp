@@ -5,7 +5,7 @@
 // (pad >= size, e.g. a 1xN image padded to 32 rows, which PyTorch refuses) the reflection keeps
 // folding back and forth (index period 2(size-1)), and an axis of size 1 repeats its one value.
 #pragma once
-#include "kernels/common.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 namespace vkunroll {
 

@@ -1,6 +1,7 @@
-#include "kernels/space_to_depth.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/space_to_depth.hpp"
 
-#include "runtime/context.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll {
 
@@ -22,7 +23,7 @@ void dispatch(CommandStream& cs, const char* shader, Slice in, Slice out) {
             static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w), static_cast<uint32_t>(os.h),
             static_cast<uint32_t>(os.w)};
   Context& ctx = in.t->context();
-  cs.dispatch(ctx.pipeline(shader, {}, sizeof p), {bi.arg, bo.arg}, p,
+  cs.dispatch(kernel_pipeline(ctx, shader, {}, sizeof p), {bi.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((os.h * os.w + 63) / 64), static_cast<uint32_t>(os.c),
                      static_cast<uint32_t>(os.n)},
               {shader, 0, 8.0 * static_cast<double>(os.count())});

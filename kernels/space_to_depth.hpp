@@ -4,7 +4,7 @@
 // Odd sizes: space_to_depth zero-pads the input to even height/width at the bottom/right, so the
 // output is ceil(H/2) x ceil(W/2) and the missing positions are 0. depth_to_space is always exact.
 #pragma once
-#include "kernels/common.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 namespace vkunroll {
 

@@ -1,12 +1,12 @@
-#include "runtime/command_stream.hpp"
+#include "vkunroll/runtime/command_stream.hpp"
 
 #include <algorithm>
 #include <cstdlib>
 #include <sstream>
 
-#include "runtime/context.hpp"
-#include "runtime/pipeline.hpp"
-#include "runtime/profiler.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
+#include "vkunroll/runtime/profiler.hpp"
 
 namespace vkunroll {
 

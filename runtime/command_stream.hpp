@@ -6,8 +6,8 @@
 #include <string>
 #include <vector>
 
-#include "runtime/shader_registry.hpp"
-#include "runtime/tensor.hpp"
+#include "vkunroll/runtime/shader_registry.hpp"
+#include "vkunroll/runtime/tensor.hpp"
 
 namespace vkunroll {
 
@@ -93,13 +93,13 @@ class CommandStream {
   // Buffer views of this submission's texel-buffer arguments (one per buffer, range and format),
   // destroyed once the submission finished (or with the stream): a tensor freed afterwards may
   // give its buffer range to another tensor.
-  struct View {
+  struct TexelView {
     VkBuffer buffer;
     VkDeviceSize offset, size;
     VkFormat format;
     VkBufferView view;
   };
-  std::vector<View> views_;
+  std::vector<TexelView> views_;
   std::vector<std::pair<VkFormat, VkFormatFeatureFlags>> format_features_;  // queried once per format
 };
 

@@ -1,4 +1,4 @@
-#include "runtime/context.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 #include <algorithm>
 #include <cctype>
@@ -9,8 +9,8 @@
 #include <iostream>
 #include <sstream>
 
-#include "runtime/memory.hpp"
-#include "runtime/pipeline.hpp"
+#include "vkunroll/runtime/memory.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 
 namespace vkunroll {
 namespace {
@@ -438,10 +438,10 @@ void Context::save_pipeline_cache() {
   std::filesystem::rename(tmp, pipeline_cache_path_, ec);
 }
 
-const Pipeline& Context::pipeline(const std::string& shader, const std::vector<uint32_t>& spec,
+const Pipeline& Context::pipeline(const ShaderModuleBlob& shader, const std::vector<uint32_t>& spec,
                                   uint32_t push_constant_bytes) {
   std::ostringstream key;
-  key << shader << "|" << push_constant_bytes;
+  key << shader.name << "|" << push_constant_bytes;
   for (uint32_t v : spec) key << "," << v;
   auto it = pipelines_.find(key.str());
   if (it == pipelines_.end())

@@ -9,12 +9,13 @@
 #include <string>
 #include <vector>
 
-#include "runtime/error.hpp"
+#include "vkunroll/runtime/vk_error.hpp"
 
 namespace vkunroll {
 
 class Allocator;
 class Pipeline;
+struct ShaderModuleBlob;
 
 struct ContextOptions {
   // Enable VK_LAYER_KHRONOS_validation. Also turned on by VKUNROLL_VALIDATION=1.
@@ -93,7 +94,8 @@ class Context {
   bool validation_enabled() const { return validation_; }
 
   // Pipelines are created once per (shader, specialization, push size) and kept here.
-  const Pipeline& pipeline(const std::string& shader, const std::vector<uint32_t>& spec = {},
+  // (The module's name identifies it: one name, one module.)
+  const Pipeline& pipeline(const ShaderModuleBlob& shader, const std::vector<uint32_t>& spec = {},
                            uint32_t push_constant_bytes = 0);
 
   // Messages the validation layer reported (warnings and errors) since creation / last clear.

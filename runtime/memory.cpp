@@ -1,9 +1,9 @@
-#include "runtime/memory.hpp"
+#include "vkunroll/runtime/memory.hpp"
 
 #include <algorithm>
 #include <sstream>
 
-#include "runtime/context.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll {
 

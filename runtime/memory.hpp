@@ -6,7 +6,7 @@
 #include <memory>
 #include <vector>
 
-#include "runtime/error.hpp"
+#include "vkunroll/runtime/vk_error.hpp"
 
 namespace vkunroll {
 

@@ -1,10 +1,10 @@
-#include "runtime/pipeline.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 
 #include <algorithm>
 #include <cstring>
 
-#include "runtime/context.hpp"
-#include "runtime/shader_registry.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/shader_registry.hpp"
 
 namespace vkunroll {
 
@@ -24,13 +24,14 @@ uint32_t spec_float(float f) {
   return u;
 }
 
-Pipeline::Pipeline(Context& ctx, const std::string& shader, const std::vector<uint32_t>& spec,
+Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vector<uint32_t>& spec,
                    uint32_t push_constant_bytes)
-    : ctx_(ctx), name_(shader), push_bytes_(push_constant_bytes) {
+    : ctx_(ctx), name_(module.name), push_bytes_(push_constant_bytes) {
+  const std::string& shader = name_;
   if (push_constant_bytes > 128 || push_constant_bytes > ctx.info().max_push_constants)
     throw Error("pipeline '" + shader + "': " + std::to_string(push_constant_bytes) +
                 " bytes of push constants exceed the portable limit of 128");
-  const auto words = find_shader(shader);
+  const std::span<const uint32_t> words(module.words, module.word_count);
   const auto bindings = spirv_bindings(words);
   for (uint32_t i = 0; i < bindings.size(); ++i) {
     if (bindings[i].binding != i) throw Error("shader '" + shader + "': bindings must be numbered 0..n-1");

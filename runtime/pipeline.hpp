@@ -1,12 +1,12 @@
-// Pipeline: one embedded SPIR-V module with its specialization constants and push-constant
+// Pipeline: one SPIR-V module (embedded by the layer that owns it) with its specialization constants and push-constant
 // size; the descriptor layout (storage, uniform and texel buffers at set 0) is derived from the module once.
 #pragma once
 #include <cstdint>
 #include <string>
 #include <vector>
 
-#include "runtime/error.hpp"
-#include "runtime/shader_registry.hpp"
+#include "vkunroll/runtime/vk_error.hpp"
+#include "vkunroll/runtime/shader_registry.hpp"
 
 namespace vkunroll {
 
@@ -17,7 +17,7 @@ class Pipeline {
   static constexpr uint32_t kMaxUniformBindings = 2;  // uniform buffers one shader may declare
   static constexpr uint32_t kMaxTexelBindings = 4;    // texel buffers (uniform + storage) one shader may declare
   // spec[i] is specialization constant id i (32-bit; floats bit-cast with spec_float()).
-  Pipeline(Context& ctx, const std::string& shader, const std::vector<uint32_t>& spec,
+  Pipeline(Context& ctx, const ShaderModuleBlob& shader, const std::vector<uint32_t>& spec,
            uint32_t push_constant_bytes);
   ~Pipeline();
   Pipeline(const Pipeline&) = delete;

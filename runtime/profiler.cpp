@@ -1,4 +1,4 @@
-#include "runtime/profiler.hpp"
+#include "vkunroll/runtime/profiler.hpp"
 
 #include <algorithm>
 #include <cstdio>

@@ -1,24 +1,18 @@
-#include "runtime/shader_registry.hpp"
+#include "vkunroll/runtime/shader_registry.hpp"
 
 #include <algorithm>
 #include <map>
 #include <set>
 
-#include "runtime/error.hpp"
+#include "vkunroll/runtime/vk_error.hpp"
 
 namespace vkunroll {
 
-std::span<const uint32_t> find_shader(std::string_view name) {
-  for (const ShaderModuleBlob* b = embedded::kShaderTable; b->name; ++b)
-    if (name == b->name) return {b->words, b->word_count};
-  throw Error("no embedded shader named '" + std::string(name) +
-              "' (shaders/*.comp are embedded at build time; was it added and rebuilt?)");
-}
-
-std::vector<std::string> shader_names() {
-  std::vector<std::string> names;
-  for (const ShaderModuleBlob* b = embedded::kShaderTable; b->name; ++b) names.emplace_back(b->name);
-  return names;
+const ShaderModuleBlob& find_shader(const ShaderModuleBlob* table, std::string_view table_name, std::string_view name) {
+  for (const ShaderModuleBlob* b = table; b->name; ++b)
+    if (name == b->name) return *b;
+  throw Error("no shader named '" + std::string(name) + "' among the " + std::string(table_name) +
+              " (.comp files are embedded at build time; was it added and rebuilt?)");
 }
 
 const char* descriptor_kind_name(DescriptorKind k) {

@@ -1,4 +1,5 @@
-// Embedded SPIR-V modules, looked up by the name of their shaders/*.comp file.
+// SPIR-V modules embedded by cmake/Shaders.cmake as null-terminated tables (one per layer that owns
+// shaders: kernels/shaders.hpp, the tests' own), and what the runtime reads from a module.
 #pragma once
 #include <cstddef>
 #include <cstdint>
@@ -15,9 +16,9 @@ struct ShaderModuleBlob {
   size_t word_count;
 };
 
-// The module compiled from shaders/<name>.comp; throws Error naming the shader if absent.
-std::span<const uint32_t> find_shader(std::string_view name);
-std::vector<std::string> shader_names();
+// The module named `name` (the stem of its .comp file) in a table ending with {nullptr}; throws
+// Error naming the shader and the table if absent.
+const ShaderModuleBlob& find_shader(const ShaderModuleBlob* table, std::string_view table_name, std::string_view name);
 
 // Descriptor bindings (set 0) declared by a module, read from its OpDecorate Binding words.
 std::vector<uint32_t> spirv_storage_bindings(std::span<const uint32_t> words);
@@ -40,9 +41,5 @@ struct SpirvBinding {
 };
 // The bindings sorted by number, with their kinds; throws on a malformed module.
 std::vector<SpirvBinding> spirv_bindings(std::span<const uint32_t> words);
-
-namespace embedded {
-extern const ShaderModuleBlob kShaderTable[];
-}
 
 }  // namespace vkunroll

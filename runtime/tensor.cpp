@@ -1,9 +1,9 @@
-#include "runtime/tensor.hpp"
+#include "vkunroll/runtime/tensor.hpp"
 
 #include <cstring>
 #include <sstream>
 
-#include "runtime/context.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll {
 
@@ -17,12 +17,6 @@ const char* dtype_name(DType t) {
     case DType::i32: return "i32";
   }
   return "?";
-}
-
-std::string Shape::str() const {
-  std::ostringstream os;
-  os << n << "x" << c << "x" << h << "x" << w;
-  return os.str();
 }
 
 namespace {

@@ -5,7 +5,8 @@
 #include <string>
 #include <vector>
 
-#include "runtime/memory.hpp"
+#include "vkunroll/base/shape.hpp"
+#include "vkunroll/runtime/memory.hpp"
 
 namespace vkunroll {
 
@@ -14,14 +15,6 @@ class Context;
 enum class DType : uint32_t { f32 = 0, f16 = 1, u32 = 2, i32 = 3 };
 size_t dtype_size(DType t);
 const char* dtype_name(DType t);
-
-struct Shape {
-  int64_t n = 1, c = 1, h = 1, w = 1;
-  int64_t count() const { return n * c * h * w; }
-  int64_t plane() const { return h * w; }
-  bool operator==(const Shape&) const = default;
-  std::string str() const;  // "1x3x48x64"
-};
 
 // A byte range of a buffer, as bound to one descriptor.
 struct BufferRange {

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "host/events.hpp"
+#include "vkunroll/base/events.hpp"
 
 namespace vkunroll::evtest {
 

@@ -4,7 +4,7 @@
 #include <random>
 #include <string>
 
-#include "kernels/common.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 namespace vkunroll::ktest {
 

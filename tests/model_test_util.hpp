@@ -5,8 +5,8 @@
 #include <random>
 #include <string>
 
-#include "host/model.hpp"
-#include "host/safetensors.hpp"
+#include "vkunroll/host/model/model.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
 
 namespace vkunroll::modeltest {
 
@@ -14,8 +14,8 @@ inline std::string fixture(const std::string& name) {
   return std::string(VKUNROLL_SOURCE_DIR) + "/tests/data/" + name;
 }
 
-inline HostArray array_from(const StTensor& t) {
-  HostArray a;
+inline HostTensor array_from(const SafetensorsTensor& t) {
+  HostTensor a;
   a.shape = Shape{t.shape.at(0), t.shape.at(1), t.shape.at(2), t.shape.at(3)};
   a.data = t.to_f32();
   return a;
@@ -25,8 +25,8 @@ inline ModelInputs inputs_from(const SafetensorsFile& f) {
   return {array_from(f.get("rs")), array_from(f.get("ev1")), array_from(f.get("ev2")), array_from(f.get("ev3"))};
 }
 
-inline HostArray take(const HostArray& a, int64_t i0, int64_t n) {
-  HostArray r;
+inline HostTensor take(const HostTensor& a, int64_t i0, int64_t n) {
+  HostTensor r;
   r.shape = a.shape;
   r.shape.n = n;
   const int64_t per = a.shape.c * a.shape.h * a.shape.w;
@@ -38,7 +38,7 @@ inline ModelInputs take_items(const ModelInputs& in, int64_t i0, int64_t n) {
   return {take(in.rs, i0, n), take(in.ev1, i0, n), take(in.ev2, i0, n), take(in.ev3, i0, n)};
 }
 
-inline double max_abs_diff(const HostArray& a, const HostArray& b) {
+inline double max_abs_diff(const HostTensor& a, const HostTensor& b) {
   if (!(a.shape == b.shape)) return INFINITY;
   double m = 0;
   for (size_t i = 0; i < a.data.size(); ++i) {
@@ -53,7 +53,7 @@ inline ModelInputs random_inputs(int64_t b, int64_t h, int64_t w, int n_bins, ui
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(0.f, 1.f);
   auto make = [&](int64_t c, bool events) {
-    HostArray a{{b, c, h, w}, std::vector<float>(size_t(b * c * h * w))};
+    HostTensor a{{b, c, h, w}, std::vector<float>(size_t(b * c * h * w))};
     if (values)
       for (auto& v : a.data) v = events ? (u(rng) < 0.25f ? float(int(u(rng) * 4)) : 0.f) : u(rng);
     return a;

@@ -2,8 +2,8 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
-#include "kernels/backward_warp.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/kernels/backward_warp.hpp"
+#include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -28,11 +28,11 @@ TEST(BackwardWarp, MatchesReference) {
     HostTensor flow = random_tensor({c.n, 2 + c.flow_c0, c.h, c.w}, rng, -6.f, 6.f);
     HostTensor out({c.n, c.c, c.h, c.w}), out_ref = out;
     backward_warp_ref(HostSlice(img, c.img_c0, c.c), HostSlice(flow, c.flow_c0, 2), HostSliceOut(out_ref));
-    Tensor id = img.to_device(ctx), fd = flow.to_device(ctx), od(ctx, out.shape);
+    Tensor id = to_device(ctx, img), fd = to_device(ctx, flow), od(ctx, out.shape);
     CommandStream cs(ctx);
     backward_warp(cs, Slice(id, c.img_c0, c.c), Slice(fd, c.flow_c0, 2), Slice(od));
     cs.submit_and_wait();
-    EXPECT_LE(max_abs_diff(HostTensor::download(od), out_ref), 1e-5) << c.h << "x" << c.w;
+    EXPECT_LE(max_abs_diff(to_host(od), out_ref), 1e-5) << c.h << "x" << c.w;
   }
 }
 
@@ -40,11 +40,11 @@ TEST(BackwardWarp, ZeroFlowIsIdentityAndWrongFlowShapeIsAnError) {
   Context& ctx = vktest::context();
   std::mt19937 rng(3);
   HostTensor img = random_tensor({1, 3, 5, 6}, rng);
-  Tensor id = img.to_device(ctx), fd = HostTensor({1, 2, 5, 6}).to_device(ctx), od(ctx, img.shape);
+  Tensor id = to_device(ctx, img), fd = to_device(ctx, HostTensor({1, 2, 5, 6})), od(ctx, img.shape);
   CommandStream cs(ctx);
   backward_warp(cs, Slice(id), Slice(fd), Slice(od));
   cs.submit_and_wait();
-  EXPECT_EQ(max_abs_diff(HostTensor::download(od), img), 0.0);
+  EXPECT_EQ(max_abs_diff(to_host(od), img), 0.0);
   Tensor bad(ctx, {1, 3, 5, 6});
   EXPECT_THROW(backward_warp(cs, Slice(id), Slice(bad), Slice(od)), Error);
 }

@@ -2,8 +2,8 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
-#include "kernels/conv2d.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/kernels/conv2d.hpp"
+#include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -71,12 +71,12 @@ void run_cases(Context& ctx, ConvAlgo algo, uint64_t winograd_scratch_limit = ~0
     HostTensor y_ref = y;
     conv2d_ref(HostSlice(x, c.in_c0, c.cin, c.in_n0, c.batch), HostSliceOut(y_ref, c.out_c0, c.cout, c.in_n0, c.batch), w,
                b, p, c.residual ? std::optional<HostSlice>(HostSlice(r, 0, -1, c.in_n0, c.batch)) : std::nullopt);
-    Tensor xd = x.to_device(ctx), yd = y.to_device(ctx), rd = r.to_device(ctx);
+    Tensor xd = to_device(ctx, x), yd = to_device(ctx, y), rd = to_device(ctx, r);
     CommandStream cs(ctx);
     conv.record(cs, Slice(xd, c.in_c0, c.cin, c.in_n0, c.batch), Slice(yd, c.out_c0, c.cout, c.in_n0, c.batch),
                 c.residual ? std::optional<Slice>(Slice(rd, 0, -1, c.in_n0, c.batch)) : std::nullopt, algo);
     cs.submit_and_wait();
-    const double err = max_abs_diff(HostTensor::download(yd), y_ref);
+    const double err = max_abs_diff(to_host(yd), y_ref);
     EXPECT_LE(err, kTol) << conv_algo_name(algo) << " k" << c.k << " s" << c.s << " " << c.cin << "->" << c.cout
                          << " " << c.h << "x" << c.w << " act " << activation_name(c.act.kind);
     ++ran;
@@ -127,20 +127,20 @@ TEST(Conv2d, AutomaticAvoidsChunkedDirectOnAnOverlappingResidual) {
   HostTensor x = random_tensor({1, cin, 4, 9}, rng), y = random_tensor({1, cout, 4, 9}, rng), y_ref = y;
   const HostTensor r = y;
   conv2d_ref(HostSlice(x), HostSliceOut(y_ref), w, b, p, HostSlice(r));
-  Tensor xd = x.to_device(ctx), yd = y.to_device(ctx);
+  Tensor xd = to_device(ctx, x), yd = to_device(ctx, y);
   CommandStream cs(ctx);
   EXPECT_THROW(conv.record(cs, Slice(xd), Slice(yd), Slice(yd), ConvAlgo::direct), Error);
   const size_t before = cs.recorded();
   conv.record(cs, Slice(xd), Slice(yd), Slice(yd));
   EXPECT_EQ(cs.recorded() - before, 3u);  // gemm: pack, GEMM, epilogue
   cs.submit_and_wait();
-  EXPECT_LE(max_abs_diff(HostTensor::download(yd), y_ref), kTol);
+  EXPECT_LE(max_abs_diff(to_host(yd), y_ref), kTol);
   // Without the overlap the same conv runs `direct` in 3 chunks.
-  Tensor y2(ctx, {1, cout, 4, 9}), rd = r.to_device(ctx);
+  Tensor y2(ctx, {1, cout, 4, 9}), rd = to_device(ctx, r);
   conv.record(cs, Slice(xd), Slice(y2), Slice(rd));
   EXPECT_EQ(cs.recorded(), 6u);  // direct: 2 blocks of 48 channels x 3 chunks of <= 50 inputs
   cs.submit_and_wait();
-  EXPECT_LE(max_abs_diff(HostTensor::download(y2), y_ref), kTol);
+  EXPECT_LE(max_abs_diff(to_host(y2), y_ref), kTol);
 }
 
 TEST(Conv2d, ReferenceKnownValues) {

@@ -2,8 +2,8 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
-#include "kernels/conv_transpose2d.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/kernels/conv_transpose2d.hpp"
+#include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -43,11 +43,11 @@ void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit 
     HostTensor y = random_tensor({c.batch, c.cout + c.out_extra_c, 2 * c.h, 2 * c.w}, rng);
     HostTensor y_ref = y;
     conv_transpose2d_ref(HostSlice(x, c.in_c0, c.cin), HostSliceOut(y_ref, c.out_c0, c.cout), w, b, p);
-    Tensor xd = x.to_device(ctx), yd = y.to_device(ctx);
+    Tensor xd = to_device(ctx, x), yd = to_device(ctx, y);
     CommandStream cs(ctx);
     deconv.record(cs, Slice(xd, c.in_c0, c.cin), Slice(yd, c.out_c0, c.cout), algo);
     cs.submit_and_wait();
-    EXPECT_LE(max_abs_diff(HostTensor::download(yd), y_ref), kTol)
+    EXPECT_LE(max_abs_diff(to_host(yd), y_ref), kTol)
         << conv_transpose_algo_name(algo) << " " << c.cin << "->" << c.cout << " " << c.h << "x" << c.w;
     ++ran;
   }

@@ -2,8 +2,8 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
-#include "kernels/elementwise.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/kernels/elementwise.hpp"
+#include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -20,7 +20,7 @@ TEST(Elementwise, EveryOpMatchesReference) {
     // One tensor holding two batch items and extra channels; ops read channel slices of it.
     HostTensor t = random_tensor({s.n, s.c * 2 + 1, s.h, s.w}, rng, -4.f, 4.f);
     HostTensor m = random_tensor({s.n, 1, s.h, s.w}, rng, 0.f, 1.f);
-    Tensor td = t.to_device(ctx), md = m.to_device(ctx);
+    Tensor td = to_device(ctx, t), md = to_device(ctx, m);
     const HostSlice a(t, 0, s.c), b(t, s.c, s.c);
     const Slice ad(td, 0, s.c), bd(td, s.c, s.c);
     const Shape half{1, s.c, s.h, s.w};
@@ -50,7 +50,7 @@ TEST(Elementwise, EveryOpMatchesReference) {
     for (size_t i = 0; i < outs.size(); ++i) {
       // scale_act multiplies by 100: its tolerance scales with it.
       const double tol = (i >= 3 && i < 8) ? 100 * kTol : kTol;
-      EXPECT_LE(max_abs_diff(HostTensor::download(outs[i].dev), outs[i].ref), tol) << "op " << i << " " << s.str();
+      EXPECT_LE(max_abs_diff(to_host(outs[i].dev), outs[i].ref), tol) << "op " << i << " " << s.str();
     }
   }
 }
@@ -59,13 +59,13 @@ TEST(Elementwise, InPlaceAddAndCopyIntoAConcatenation) {
   Context& ctx = vktest::context();
   std::mt19937 rng(2);
   HostTensor a = random_tensor({1, 3, 4, 5}, rng), b = random_tensor({1, 2, 4, 5}, rng);
-  Tensor ad = a.to_device(ctx), bd = b.to_device(ctx), cat(ctx, {1, 5, 4, 5});
+  Tensor ad = to_device(ctx, a), bd = to_device(ctx, b), cat(ctx, {1, 5, 4, 5});
   CommandStream cs(ctx);
   copy(cs, Slice(ad), Slice(cat, 0, 3));
   copy(cs, Slice(bd), Slice(cat, 3, 2));
   add(cs, Slice(cat, 0, 2), Slice(bd), Slice(cat, 0, 2));  // in place on a slice
   cs.submit_and_wait();
-  HostTensor c = HostTensor::download(cat);
+  HostTensor c = to_host(cat);
   for (int64_t y = 0; y < 4; ++y)
     for (int64_t x = 0; x < 5; ++x) {
       EXPECT_EQ(c.at(0, 0, y, x), a.at(0, 0, y, x) + b.at(0, 0, y, x));

@@ -14,11 +14,11 @@
 #include <vector>
 
 #include "event_test_encoders.hpp"
-#include "fuzz/fuzz_common.hpp"
-#include "fuzz/hdf5_image_builder.hpp"
-#include "host/event_reader.hpp"
-#include "host/event_reader_detail.hpp"
-#include "runtime/error.hpp"
+#include "../fuzz/fuzz_common.hpp"
+#include "../fuzz/hdf5_image_builder.hpp"
+#include "vkunroll/host/events/event_reader.hpp"
+#include "vkunroll/host/events/event_reader_detail.hpp"
+#include "vkunroll/base/error.hpp"
 #include "vk_test_env.hpp"
 
 namespace fs = std::filesystem;

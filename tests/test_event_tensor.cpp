@@ -8,10 +8,10 @@
 #include <random>
 #include <tuple>
 
-#include "host/row_timing.hpp"
-#include "host/safetensors.hpp"
-#include "kernels/event_tensor.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/base/row_timing.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
+#include "vkunroll/base/error.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -45,7 +45,7 @@ void expect_hits(const std::vector<float>& slice, int bins, int h, int w, const 
 
 // Runs jobs on CPU and GPU, checks they are identical, returns the CPU result.
 std::vector<float> both(const EventStream& ev, const std::vector<RowIntervals>& jobs, const EventTensorSpec& spec) {
-  auto cpu = bin_events_cpu(ev, jobs, spec);
+  auto cpu = bin_events_ref(ev, jobs, spec);
   for (auto algo : {EventBinAlgorithm::per_row, EventBinAlgorithm::per_event, EventBinAlgorithm::per_pixel}) {
     EventTensorBuilder b(vktest::context());
     b.set_algorithm(algo);
@@ -171,7 +171,7 @@ TEST(EventTensor, UnsortedStreamIsAnError) {
   ev.height = 1;
   ev.push(5, 0, 0, 1);
   ev.push(4, 1, 0, 1);
-  EXPECT_THROW(bin_events_cpu(ev, {uniform_job(1, 0, 10)}, {4, {}}), Error);
+  EXPECT_THROW(bin_events_ref(ev, {uniform_job(1, 0, 10)}, {4, {}}), Error);
   EventTensorBuilder b(vktest::context());
   EXPECT_THROW(b.bin(ev, {uniform_job(1, 0, 10)}, {4, {}}), Error);
 }
@@ -225,9 +225,9 @@ TEST(EventTensor, FirstAndLastRowsKeepTheirOwnTimesUnderACrop) {
   EventTensorSpec spec{2, {1, 1, 2, 2}};
   auto out = both(ev, {job}, spec);
   expect_hits(out, 2, 2, 2, {{3, 0, 0, 1}, {2, 1, 1, 1}, {3, 1, 0, 1}}, "crop");
-  EXPECT_THROW(bin_events_cpu(ev, {job}, {2, {3, 0, 2, 1}}), Error);  // crop beyond the sensor
-  EXPECT_THROW(bin_events_cpu(ev, {uniform_job(2, 0, 1)}, spec), Error);  // wrong row count
-  EXPECT_THROW(bin_events_cpu(ev, {job}, {0, {}}), Error);
+  EXPECT_THROW(bin_events_ref(ev, {job}, {2, {3, 0, 2, 1}}), Error);  // crop beyond the sensor
+  EXPECT_THROW(bin_events_ref(ev, {uniform_job(2, 0, 1)}, spec), Error);  // wrong row count
+  EXPECT_THROW(bin_events_ref(ev, {job}, {0, {}}), Error);
 }
 
 TEST(EventTensor, ThreeTensorsOfAPair) {
@@ -243,7 +243,7 @@ TEST(EventTensor, ThreeTensorsOfAPair) {
   ev.push(140, 0, 0, 1);  // ev2 row 0: (140-135)*2/15 = 0 -> ch 1; ev3: 5*2/50 = 0 -> ch 1
   ev.push(165, 0, 2, 1);  // ev2 row 2 ([135,170)): 30*2/35 = 1 -> ch 3; ev3: 30*2/50 = 1 -> ch 3
   EventTensorSpec spec{2, {}};
-  auto cpu = build_event_tensors_cpu(ev, {pair}, spec);
+  auto cpu = build_event_tensors_ref(ev, {pair}, spec);
   EventTensorBuilder b(vktest::context());
   auto gpu = b.build(ev, {pair}, spec);
   EXPECT_EQ(cpu.ev1, gpu.ev1);
@@ -282,7 +282,7 @@ TEST(EventTensor, GpuEqualsCpuRandomBatches) {
     const int64_t span = (next.last_end() - tm.t0).ceil();
     auto ev = random_stream(c.w, c.h, 40000, tm.t0.floor() - span / 2, tm.t0.floor() + 2 * span, 17);
     EventTensorSpec spec{c.bins, c.crop};
-    auto cpu = build_event_tensors_cpu(ev, pairs, spec);
+    auto cpu = build_event_tensors_ref(ev, pairs, spec);
     EventTensors gpu;
     for (auto algo : {EventBinAlgorithm::per_row, EventBinAlgorithm::per_event, EventBinAlgorithm::per_pixel}) {
       EventTensorBuilder b(vktest::context());
@@ -306,7 +306,7 @@ TEST(EventTensor, ChunkedJobsAndEventPiecesMatch) {
   for (const char* tau : {"0", "0.2", "0.4", "0.6", "0.8", "1"}) pairs.push_back({tm, tm.target_time(R(tau)), std::nullopt});
   auto ev = random_stream(16, 12, 20000, -500, 3500, 5);
   EventTensorSpec spec{16, {}};
-  auto cpu = build_event_tensors_cpu(ev, pairs, spec);
+  auto cpu = build_event_tensors_ref(ev, pairs, spec);
   EventTensorBuilder b(vktest::context());
   b.set_chunk_limits(4, 1000);  // 18 jobs in 5 chunks, events in ~pieces of 1000 (per-event path)
   for (auto algo : {EventBinAlgorithm::per_row, EventBinAlgorithm::per_event, EventBinAlgorithm::per_pixel}) {
@@ -331,7 +331,7 @@ TEST(EventTensor, LargeBinCountsWorkAndPerPixelRefusesThem) {
   std::vector<EventTensorPair> pairs = {{tm, tm.target_time(R("0.3")), std::nullopt}};
   auto ev = random_stream(10, 8, 5000, -100, 700, 8);
   EventTensorSpec spec{100, {}};
-  auto cpu = build_event_tensors_cpu(ev, pairs, spec);
+  auto cpu = build_event_tensors_ref(ev, pairs, spec);
   EventTensorBuilder b(vktest::context());
   auto gpu = b.build(ev, pairs, spec);
   EXPECT_EQ(b.last_algorithm(), EventBinAlgorithm::sparse);
@@ -390,7 +390,7 @@ TEST(EventTensor, MatchesNumpyGoldenExactly) {
                        c["texp"].is_null() ? std::nullopt : std::optional<Rational>(R(c["texp"]))});
     const auto crop = c["crop"];
     EventTensorSpec spec{c["bins"].get<int>(), {crop[0].get<int>(), crop[1].get<int>(), crop[2].get<int>(), crop[3].get<int>()}};
-    const auto cpu = build_event_tensors_cpu(ev, pairs, spec);
+    const auto cpu = build_event_tensors_ref(ev, pairs, spec);
     const auto gpu = builder.build(ev, pairs, spec);
     const std::vector<float>* mine_cpu[3] = {&cpu.ev1, &cpu.ev2, &cpu.ev3};
     const std::vector<float>* mine_gpu[3] = {&gpu.ev1, &gpu.ev2, &gpu.ev3};
@@ -444,7 +444,7 @@ TEST(EventTensor, SparseBuildsReuseTheirOutputExactly) {
       for (const char* tau : taus) pairs.push_back({tm, tm.target_time(R(tau)), std::nullopt});
       const auto ev = random_stream(16, 12, 6000, -500, 3500, seed);
       const EventTensorSpec spec{bins, {}};
-      const auto cpu = build_event_tensors_cpu(ev, pairs, spec);
+      const auto cpu = build_event_tensors_ref(ev, pairs, spec);
       const std::string what = std::string(resident ? "resident" : "build") + " step " + std::to_string(step++);
       if (resident) {
         if (chunk) continue;  // one tensor, no chunks
@@ -479,6 +479,6 @@ TEST(EventTensor, SparseBuildsReuseTheirOutputExactly) {
   EXPECT_THROW((void)b.build_resident(random_stream(16, 12, 100, -500, 3500, 7), pairs, spec), Error);
   b.set_algorithm(EventBinAlgorithm::sparse);
   auto ev = random_stream(16, 12, 6000, -500, 3500, 8);
-  EXPECT_EQ(build_event_tensors_cpu(ev, pairs, spec).ev2, b.build(ev, pairs, spec).ev2);
+  EXPECT_EQ(build_event_tensors_ref(ev, pairs, spec).ev2, b.build(ev, pairs, spec).ev2);
   EXPECT_THROW((void)b.build_on_device(ev, pairs, spec), Error);  // its tensor would be the builder's
 }

@@ -17,19 +17,19 @@
 
 #include <unistd.h>
 
-#include "host/backend_cpu.hpp"
-#include "host/backend_vulkan.hpp"
-#include "host/metrics.hpp"
-#include "host/model.hpp"
-#include "host/row_timing.hpp"
-#include "host/unroll.hpp"
-#include "host/weights.hpp"
-#include "kernels/event_tensor.hpp"
-#include "kernels/physics_unroll.hpp"
+#include "vkunroll/host/model/backend_cpu.hpp"
+#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/unroll/metrics.hpp"
+#include "vkunroll/host/model/model.hpp"
+#include "vkunroll/base/row_timing.hpp"
+#include "vkunroll/host/unroll/unroll.hpp"
+#include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
+#include "vkunroll/kernels/physics_unroll.hpp"
 #include "model_test_util.hpp"
-#include "runtime/command_stream.hpp"
-#include "runtime/context.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/runtime/command_stream.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/base/error.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -120,7 +120,7 @@ EventTensors build_checked(const EventStream& es, const std::vector<EventTensorP
                            bool per_pixel_refuses = false) {
   EventTensorSpec spec;
   spec.bins = kBins;
-  const EventTensors cpu = build_event_tensors_cpu(es, pairs, spec);
+  const EventTensors cpu = build_event_tensors_ref(es, pairs, spec);
   const size_t slice = cpu.slice(), P = pairs.size();
   if (hand) {
     const auto jobs = event_tensor_jobs(pairs);
@@ -151,8 +151,8 @@ EventTensors build_checked(const EventStream& es, const std::vector<EventTensorP
   return cpu;
 }
 
-HostArray host_array(const std::vector<float>& v, int64_t n, int64_t c) {
-  return HostArray{Shape{n, c, kH, kW}, v};
+HostTensor host_array(const std::vector<float>& v, int64_t n, int64_t c) {
+  return HostTensor{Shape{n, c, kH, kW}, v};
 }
 
 std::vector<float> random_image(int64_t n, uint32_t seed) {
@@ -438,7 +438,7 @@ TEST(HardCases, MoreThan2To24EventsInOnePixelIsAClearError) {
   const std::vector<EventTensorPair> pairs = {pair_at(timing(0, 10, 1000), Rational(595))};
   EventTensorSpec spec;
   spec.bins = kBins;
-  for (const std::string& msg : {error_of([&] { build_event_tensors_cpu(es, pairs, spec); }),
+  for (const std::string& msg : {error_of([&] { build_event_tensors_ref(es, pairs, spec); }),
                                 error_of([&] { EventTensorBuilder(vktest::context()).build(es, pairs, spec); })}) {
     EXPECT_NE(msg.find("pixel (x=3, y=2)"), std::string::npos) << msg;
     EXPECT_NE(msg.find("2^24"), std::string::npos) << msg;
@@ -495,7 +495,7 @@ TEST(HardCases, ZeroLengthSegments) {
     job.a.push_back(Rational(y % 2 ? 300 : 500));
     job.b.push_back(Rational(y % 2 ? 700 : 500));
   }
-  const auto cpu = bin_events_cpu(es, {job}, spec);
+  const auto cpu = bin_events_ref(es, {job}, spec);
   EXPECT_EQ(count_differences(cpu, hand_count(es, job, kBins)), 0u);
   for (auto algo : {EventBinAlgorithm::per_row, EventBinAlgorithm::per_event, EventBinAlgorithm::per_pixel}) {
     EventTensorBuilder b(vktest::context());
@@ -573,7 +573,7 @@ TEST(HardCases, BlackAndSaturatedPixels) {
       const std::string what = "t*=" + std::to_string(t_star) + " gamma " + std::to_string(gamma);
       const PhysicsOut o = physics(es, f, t_star, rs, prm);
       expect_physics_stable(o, prm, what);
-      // What the writers store: to_unit_float (host/metrics.hpp) clamps to [0, 1].
+      // What the writers store: to_unit_float (host/unroll/metrics.hpp) clamps to [0, 1].
       for (const auto* v : {&o.cpu, &o.gpu}) {
         cv::Mat unit = to_unit_float(cv::Mat(1, static_cast<int>(v->size()), CV_32F, const_cast<float*>(v->data())));
         double lo = 0, hi = 0;

@@ -4,8 +4,8 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
-#include "host/metrics.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/host/unroll/metrics.hpp"
+#include "vkunroll/base/error.hpp"
 
 using namespace vkunroll;
 

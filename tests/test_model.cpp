@@ -8,14 +8,14 @@
 #include <memory>
 #include <random>
 
-#include "host/backend_cpu.hpp"
-#include "host/backend_vulkan.hpp"
+#include "vkunroll/host/model/backend_cpu.hpp"
+#include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vk_test_env.hpp"
-#include "host/model.hpp"
-#include "host/safetensors.hpp"
-#include "host/weights.hpp"
+#include "vkunroll/host/model/model.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/model/weights.hpp"
 #include "model_test_util.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/base/error.hpp"
 
 using namespace vkunroll;
 using namespace vkunroll::modeltest;
@@ -32,7 +32,7 @@ void golden_parity(Backend& backend, const std::string& fixture_name, Mode mode)
   ASSERT_EQ(out.size(), mode == Mode::m ? 7u : 5u);
   for (const auto& [name, arr] : out) {
     ASSERT_TRUE(g.has(name)) << name;
-    const HostArray want = array_from(g.get(name));
+    const HostTensor want = array_from(g.get(name));
     ASSERT_EQ(arr.shape, want.shape) << name;
     EXPECT_LE(max_abs_diff(arr, want), 1e-4) << name << " (" << backend.name() << ", " << fixture_name << ")";
   }

@@ -4,9 +4,9 @@
 #include <cmath>
 #include <random>
 
-#include "kernels/physics_unroll.hpp"
-#include "runtime/command_stream.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/kernels/physics_unroll.hpp"
+#include "vkunroll/runtime/command_stream.hpp"
+#include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;

@@ -2,8 +2,8 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
-#include "kernels/reflection_pad.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/kernels/reflection_pad.hpp"
+#include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -41,13 +41,13 @@ TEST(ReflectionPad, PadAndCropMatchReference) {
     reflection_pad_ref(HostSlice(x, c.c0, c.c), HostSliceOut(padded_ref), pads);
     HostTensor y = random_tensor({c.n, c.c + c.extra, c.h, c.w}, rng), y_ref = y;
     crop_ref(HostSlice(padded_ref), HostSliceOut(y_ref, c.c0, c.c), pads.top, pads.left);
-    Tensor xd = x.to_device(ctx), pd(ctx, ps), yd = y.to_device(ctx);
+    Tensor xd = to_device(ctx, x), pd(ctx, ps), yd = to_device(ctx, y);
     CommandStream cs(ctx);
     reflection_pad(cs, Slice(xd, c.c0, c.c), Slice(pd), pads);
     crop(cs, Slice(pd), Slice(yd, c.c0, c.c), pads.top, pads.left);
     cs.submit_and_wait();
-    EXPECT_EQ(max_abs_diff(HostTensor::download(pd), padded_ref), 0.0) << c.h << "x" << c.w;
-    EXPECT_EQ(max_abs_diff(HostTensor::download(yd), y_ref), 0.0);
+    EXPECT_EQ(max_abs_diff(to_host(pd), padded_ref), 0.0) << c.h << "x" << c.w;
+    EXPECT_EQ(max_abs_diff(to_host(yd), y_ref), 0.0);
     EXPECT_EQ(max_abs_diff(y_ref, x, c.c0, c.c), 0.0);  // the crop undoes the pad
   }
   Tensor a(ctx, {1, 1, 4, 4}), b(ctx, {1, 1, 3, 3});

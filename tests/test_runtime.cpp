@@ -8,12 +8,12 @@
 #include <numeric>
 #include <sstream>
 
-#include "runtime/command_stream.hpp"
-#include "runtime/context.hpp"
-#include "runtime/pipeline.hpp"
-#include "runtime/profiler.hpp"
-#include "runtime/shader_registry.hpp"
-#include "runtime/tensor.hpp"
+#include "vkunroll/runtime/command_stream.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
+#include "vkunroll/runtime/profiler.hpp"
+#include "vkunroll/runtime/shader_registry.hpp"
+#include "vkunroll/runtime/tensor.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -27,7 +27,7 @@ struct AxpyPush {
 void axpy(CommandStream& cs, Context& ctx, const Tensor& x, Tensor& y, float a) {
   const auto n = static_cast<uint32_t>(x.shape().count());
   AxpyPush p{a, n};
-  cs.dispatch(ctx.pipeline("runtime_axpy", {}, sizeof(AxpyPush)), {in(x), inout(y)}, p, {(n + 63) / 64},
+  cs.dispatch(ctx.pipeline(vktest::test_shader("runtime_axpy"), {}, sizeof(AxpyPush)), {in(x), inout(y)}, p, {(n + 63) / 64},
               {"axpy", 2.0 * n, 12.0 * n});
 }
 }  // namespace
@@ -109,7 +109,7 @@ TEST(Runtime, SubRangesOfOneTensorAreIndependentBindings) {
   CommandStream cs(ctx);
   // Second half += 4 * first half: reads one range, writes a disjoint one of the same buffer.
   AxpyPush p{4.f, 64};
-  cs.dispatch(ctx.pipeline("runtime_axpy", {}, sizeof p),
+  cs.dispatch(ctx.pipeline(vktest::test_shader("runtime_axpy"), {}, sizeof p),
               {{t.range(0, 256), Access::read}, {t.range(256, 256), Access::read_write}}, p, {1}, {"axpy"});
   cs.submit_and_wait();
   auto o = t.download<float>();
@@ -145,7 +145,7 @@ TEST(Runtime, OverLimitTensorIsRefusedNamingTheLimit) {
   Tensor x(ctx, {1, 1, 1, 64});
   CommandStream cs(ctx);
   AxpyPush p{1.f, 64};
-  EXPECT_THROW(cs.dispatch(ctx.pipeline("runtime_axpy", {}, sizeof p), {in(x), inout(big)}, p, {1}, {"axpy"}), Error);
+  EXPECT_THROW(cs.dispatch(ctx.pipeline(vktest::test_shader("runtime_axpy"), {}, sizeof p), {in(x), inout(big)}, p, {1}, {"axpy"}), Error);
 }
 
 TEST(Runtime, WrongArgumentCountIsAnError) {
@@ -153,8 +153,8 @@ TEST(Runtime, WrongArgumentCountIsAnError) {
   Tensor x(ctx, {1, 1, 1, 64});
   CommandStream cs(ctx);
   AxpyPush p{1.f, 64};
-  EXPECT_THROW(cs.dispatch(ctx.pipeline("runtime_axpy", {}, sizeof p), {in(x)}, p, {1}, {"axpy"}), Error);
-  EXPECT_THROW(ctx.pipeline("no_such_shader"), Error);
+  EXPECT_THROW(cs.dispatch(ctx.pipeline(vktest::test_shader("runtime_axpy"), {}, sizeof p), {in(x)}, p, {1}, {"axpy"}), Error);
+  EXPECT_THROW(ctx.pipeline(vktest::test_shader("no_such_shader")), Error);
 }
 
 TEST(Runtime, DeviceChoiceByIndexNameAndPolicy) {
@@ -229,7 +229,7 @@ TEST(Runtime, ProfilerTablePerOp) {
 }
 
 TEST(Runtime, SpirvBindingsAreDerivedFromTheModule) {
-  auto b = spirv_storage_bindings(find_shader("runtime_axpy"));
+  auto b = spirv_storage_bindings(vktest::test_shader_words("runtime_axpy"));
   EXPECT_EQ(b, (std::vector<uint32_t>{0, 1}));
   EXPECT_THROW(spirv_storage_bindings(std::vector<uint32_t>{1, 2, 3, 4, 5}), Error);
 }
@@ -237,11 +237,11 @@ TEST(Runtime, SpirvBindingsAreDerivedFromTheModule) {
 TEST(Runtime, UniformBufferBindingsAreDerivedAndBound) {
   Context& ctx = vktest::context();
   using K = DescriptorKind;
-  EXPECT_EQ(spirv_bindings(find_shader("runtime_uniform_scale")),
+  EXPECT_EQ(spirv_bindings(vktest::test_shader_words("runtime_uniform_scale")),
             (std::vector<SpirvBinding>{{0, K::storage_buffer}, {1, K::uniform_buffer}, {2, K::storage_buffer}}));
-  EXPECT_EQ(spirv_bindings(find_shader("runtime_axpy")),
+  EXPECT_EQ(spirv_bindings(vktest::test_shader_words("runtime_axpy")),
             (std::vector<SpirvBinding>{{0, K::storage_buffer}, {1, K::storage_buffer}}));
-  const Pipeline& pl = ctx.pipeline("runtime_uniform_scale", {}, 4);
+  const Pipeline& pl = ctx.pipeline(vktest::test_shader("runtime_uniform_scale"), {}, 4);
   EXPECT_TRUE(pl.binding_is_uniform(1));
   EXPECT_FALSE(pl.binding_is_uniform(0));
   // The scales are the second 16 floats of a 64-float tensor: a uniform sub-range at offset 64 bytes.
@@ -269,10 +269,10 @@ TEST(Runtime, UniformBufferBindingsAreDerivedAndBound) {
 TEST(Runtime, TexelBufferBindingsAreDerivedAndBound) {
   Context& ctx = vktest::context();
   using K = DescriptorKind;
-  EXPECT_EQ(spirv_bindings(find_shader("runtime_texel_scale")),
+  EXPECT_EQ(spirv_bindings(vktest::test_shader_words("runtime_texel_scale")),
             (std::vector<SpirvBinding>{{0, K::uniform_texel_buffer}, {1, K::uniform_texel_buffer},
                                        {2, K::storage_texel_buffer}}));
-  const Pipeline& pl = ctx.pipeline("runtime_texel_scale", {}, 4);
+  const Pipeline& pl = ctx.pipeline(vktest::test_shader("runtime_texel_scale"), {}, 4);
   EXPECT_EQ(pl.binding_kind(1), K::uniform_texel_buffer);
   EXPECT_EQ(pl.binding_kind(2), K::storage_texel_buffer);
   // x: floats 16.. of a tensor (an R32 view at byte offset 64); q: an RGBA32 view at byte offset 32;
@@ -358,7 +358,7 @@ TEST(Runtime, PipelineCachePersistsAcrossContexts) {
   o.validation = true;
   {
     Context first(o);
-    first.pipeline("runtime_axpy", {}, sizeof(AxpyPush));
+    first.pipeline(vktest::test_shader("runtime_axpy"), {}, sizeof(AxpyPush));
   }
   ASSERT_TRUE(fs::exists(dir));
   size_t files = 0, bytes = 0;
@@ -372,7 +372,7 @@ TEST(Runtime, PipelineCachePersistsAcrossContexts) {
   EXPECT_GE(bytes, 32u);
   {
     Context second(o);  // loads the blob; creating the same pipeline hits the cache
-    second.pipeline("runtime_axpy", {}, sizeof(AxpyPush));
+    second.pipeline(vktest::test_shader("runtime_axpy"), {}, sizeof(AxpyPush));
     EXPECT_TRUE(second.validation_messages().empty());
   }
   fs::remove_all(dir);

@@ -7,8 +7,8 @@
 #include <filesystem>
 #include <fstream>
 
-#include "host/safetensors.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/base/error.hpp"
 
 using namespace vkunroll;
 namespace fs = std::filesystem;
@@ -41,10 +41,10 @@ fs::path temp_file(const std::string& name) {
 }  // namespace
 
 TEST(Safetensors, RoundTripEveryDtypeWithMetadata) {
-  std::vector<StTensor> ts;
+  std::vector<SafetensorsTensor> ts;
   uint8_t fill = 1;
   for (StDType dt : {StDType::F32, StDType::F16, StDType::BF16, StDType::I32, StDType::I64, StDType::U8, StDType::F64}) {
-    StTensor t;
+    SafetensorsTensor t;
     t.name = std::string("t_") + st_dtype_name(dt);
     t.dtype = dt;
     t.shape = {2, 3, 1};
@@ -52,7 +52,7 @@ TEST(Safetensors, RoundTripEveryDtypeWithMetadata) {
     for (auto& b : t.data) b = fill++;
     ts.push_back(t);
   }
-  StTensor empty;
+  SafetensorsTensor empty;
   empty.name = "empty";
   empty.shape = {0, 4};
   ts.push_back(empty);
@@ -91,7 +91,7 @@ TEST(Safetensors, ExactByteLayout) {
 }
 
 TEST(Safetensors, ToF32ConvertsHalfAndBfloat) {
-  StTensor h{"h", StDType::F16, {4}, {}};
+  SafetensorsTensor h{"h", StDType::F16, {4}, {}};
   for (uint16_t x : {0x3c00, 0xc000, 0x0001, 0x7c00}) {  // 1, -2, smallest subnormal, +inf
     h.data.push_back(x & 0xff);
     h.data.push_back(x >> 8);
@@ -101,7 +101,7 @@ TEST(Safetensors, ToF32ConvertsHalfAndBfloat) {
   EXPECT_EQ(f[1], -2.f);
   EXPECT_EQ(f[2], std::ldexp(1.f, -24));
   EXPECT_TRUE(std::isinf(f[3]));
-  StTensor b{"b", StDType::BF16, {1}, {0x80, 0x3f}};  // 1.0
+  SafetensorsTensor b{"b", StDType::BF16, {1}, {0x80, 0x3f}};  // 1.0
   EXPECT_EQ(b.to_f32()[0], 1.f);
 }
 
@@ -191,8 +191,8 @@ TEST(Safetensors, StreamWriterPiecesAndChecks) {
     SafetensorsStreamWriter w(path, {{"a", StDType::F32, {2}}});
   }
   EXPECT_FALSE(fs::exists(path));
-  EXPECT_THROW(write_safetensors(path, std::vector<StTensorView>{{"a", StDType::F32, {3}, a.data(), 8}}), Error);
-  EXPECT_THROW(write_safetensors(path, std::vector<StTensorView>{{"a", StDType::F32, {1}, a.data(), 4},
+  EXPECT_THROW(write_safetensors(path, std::vector<SafetensorsTensorRef>{{"a", StDType::F32, {3}, a.data(), 8}}), Error);
+  EXPECT_THROW(write_safetensors(path, std::vector<SafetensorsTensorRef>{{"a", StDType::F32, {1}, a.data(), 4},
                                                                  {"a", StDType::F32, {1}, a.data(), 4}}),
                Error);
 }

@@ -8,13 +8,13 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "event_test_encoders.hpp"
-#include "host/event_writer.hpp"
-#include "host/safetensors.hpp"
-#include "host/sequence.hpp"
-#include "host/sim_sequence.hpp"
-#include "host/value_list.hpp"
-#include "kernels/event_tensor.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/host/events/event_writer.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/events/sequence.hpp"
+#include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/value_list.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
+#include "vkunroll/base/error.hpp"
 
 using namespace vkunroll;
 namespace fs = std::filesystem;
@@ -246,7 +246,7 @@ TEST(Sequence, VoxelizeCliMatchesTheLibrary) {
   for (int k : {0, 1})
     for (const char* tau : {"0", "0.5", "1"})
       pairs.push_back({s.frames[k].timing, s.frames[k].timing.target_time(R(tau)), std::nullopt});
-  const auto want = build_event_tensors_cpu(s.read_events(-100000, 100000), pairs, {4, {2, 1, 10, 9}});
+  const auto want = build_event_tensors_ref(s.read_events(-100000, 100000), pairs, {4, {2, 1, 10, 9}});
   EXPECT_EQ(f.get("ev1").to_f32(), want.ev1);
   EXPECT_EQ(f.get("ev2").to_f32(), want.ev2);
   EXPECT_EQ(f.get("ev3").to_f32(), want.ev3);
@@ -293,7 +293,7 @@ TEST(Sequence, ReadsWhatTheSimulatorWrites) {
   // ev3 over a window holding the whole stream counts every event exactly once.
   ASSERT_GT(ev.size(), 0u);
   const EventTensorPair pair{s.frames[0].timing, Rational(ev.t.front()), Rational(ev.t.back() - ev.t.front() + 1)};
-  const auto t = build_event_tensors_cpu(ev, {pair}, {16, {}});
+  const auto t = build_event_tensors_ref(ev, {pair}, {16, {}});
   double total = 0;
   for (float x : t.ev3) total += x;
   EXPECT_EQ(total, static_cast<double>(ev.size()));

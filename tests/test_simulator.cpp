@@ -16,11 +16,11 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "host/event_reader.hpp"
-#include "host/sim_events.hpp"
-#include "host/sim_scene.hpp"
-#include "host/sim_sequence.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/host/events/event_reader.hpp"
+#include "vkunroll/host/sim/dvs.hpp"
+#include "vkunroll/host/sim/scene.hpp"
+#include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/base/error.hpp"
 
 namespace fs = std::filesystem;
 using namespace vkunroll;

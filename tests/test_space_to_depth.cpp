@@ -2,8 +2,8 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
-#include "kernels/space_to_depth.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/kernels/space_to_depth.hpp"
+#include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -20,15 +20,15 @@ TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlices) {
     const Shape os = space_to_depth_shape({c.n, c.c, c.h, c.w});
     HostTensor y = random_tensor({c.n, os.c + c.extra_out, os.h, os.w}, rng), y_ref = y;
     space_to_depth_ref(HostSlice(x, c.c0_in, c.c), HostSliceOut(y_ref, c.c0_out, os.c));
-    Tensor xd = x.to_device(ctx), yd = y.to_device(ctx);
+    Tensor xd = to_device(ctx, x), yd = to_device(ctx, y);
     // And back: depth_to_space of the result restores the input (cropped to its size).
     Tensor back(ctx, {c.n, c.c, os.h * 2, os.w * 2});
     CommandStream cs(ctx);
     space_to_depth(cs, Slice(xd, c.c0_in, c.c), Slice(yd, c.c0_out, os.c));
     depth_to_space(cs, Slice(yd, c.c0_out, os.c), Slice(back));
     cs.submit_and_wait();
-    EXPECT_EQ(max_abs_diff(HostTensor::download(yd), y_ref), 0.0) << c.h << "x" << c.w;
-    HostTensor b = HostTensor::download(back), b_ref({c.n, c.c, os.h * 2, os.w * 2});
+    EXPECT_EQ(max_abs_diff(to_host(yd), y_ref), 0.0) << c.h << "x" << c.w;
+    HostTensor b = to_host(back), b_ref({c.n, c.c, os.h * 2, os.w * 2});
     depth_to_space_ref(HostSlice(y_ref, c.c0_out, os.c), HostSliceOut(b_ref));
     EXPECT_EQ(max_abs_diff(b, b_ref), 0.0);
     for (int64_t ch = 0; ch < c.c; ++ch)

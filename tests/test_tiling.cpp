@@ -1,4 +1,4 @@
-// Tiled and sparse execution (host/tiling.hpp): plan geometry, receptive radii, a tiled CPU run
+// Tiled and sparse execution (host/model/tiling.hpp): plan geometry, receptive radii, a tiled CPU run
 // with halo >= the exact halo equal to the untiled run bit for bit, a smaller halo's measured
 // error, sparse policies (no events: RS and zero tiles; events in a corner: only nearby tiles),
 // lavapipe tiled vs CPU tiled, and tile choice under buffer limits (small and published model at
@@ -12,14 +12,14 @@
 #include <cstdio>
 #include <filesystem>
 
-#include "host/backend_cpu.hpp"
-#include "host/backend_vulkan.hpp"
-#include "host/sim_sequence.hpp"
-#include "host/tiling.hpp"
-#include "host/unroll.hpp"
-#include "host/weights.hpp"
+#include "vkunroll/host/model/backend_cpu.hpp"
+#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/model/tiling.hpp"
+#include "vkunroll/host/unroll/unroll.hpp"
+#include "vkunroll/host/model/weights.hpp"
 #include "model_test_util.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/base/error.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -46,7 +46,7 @@ Weights shallow_weights() {
   return w;
 }
 
-double max_abs(const HostArray& a) {
+double max_abs(const HostTensor& a) {
   double m = 0;
   for (float v : a.data) m = std::max(m, double(std::fabs(v)));
   return m;
@@ -54,7 +54,7 @@ double max_abs(const HostArray& a) {
 
 // Zeroes the events of ev1/ev2 outside rows [y0, y0+h) x cols [x0, x0+w) (all of them when h = 0).
 void keep_events_in(ModelInputs& in, int64_t y0, int64_t x0, int64_t h, int64_t w) {
-  for (HostArray* a : {&in.ev1, &in.ev2}) {
+  for (HostTensor* a : {&in.ev1, &in.ev2}) {
     const Shape s = a->shape;
     for (int64_t i = 0; i < s.n * s.c; ++i)
       for (int64_t y = 0; y < s.h; ++y)
@@ -184,8 +184,8 @@ TEST(TilingCpu, SparseExactWithoutEventsReturnsRsAndRunsNoTile) {
     const TiledResult r = run_tiled(model, in, opt, t);
     EXPECT_EQ(r.tiles_run, 0);
     EXPECT_EQ(r.active_fraction, 0.0);
-    const HostArray& o = r.outputs.at(opt.outputs[0]);
-    const HostArray rs = mode == Mode::m ? take(in.rs, 0, 1) : in.rs;
+    const HostTensor& o = r.outputs.at(opt.outputs[0]);
+    const HostTensor rs = mode == Mode::m ? take(in.rs, 0, 1) : in.rs;
     EXPECT_EQ(max_abs_diff(o, rs), 0.0);
   }
 }
@@ -211,8 +211,8 @@ TEST(TilingCpu, SparseRunsOnlyTilesNearTheEvents) {
   EXPECT_DOUBLE_EQ(sparse.active_fraction, 4.0 / 9);
   // Input rects 64x64, 64x96, 96x64, 96x96 (clipped at the image border) of a 96x96 image.
   EXPECT_DOUBLE_EQ(sparse.work_ratio, (64.0 * 64 + 2 * 64 * 96 + 96 * 96) / (96 * 96));
-  const HostArray& a = sparse.outputs.at("fused");
-  const HostArray& d = dense.outputs.at("fused");
+  const HostTensor& a = sparse.outputs.at("fused");
+  const HostTensor& d = dense.outputs.at("fused");
   for (const Tile& tl : sparse.plan.tiles) {
     const bool near = tl.interior.y < 64 && tl.interior.x < 64;
     double diff_dense = 0, diff_rs = 0;
@@ -261,8 +261,8 @@ TEST(TilingCpu, SparseMergesNeighbouringActiveTilesIntoOneRect) {
   big.tile = 64;
   big.halo = 32;
   const TiledResult one = run_tiled(model, in, opt, big);
-  const HostArray& a = merged.outputs.at("fused");
-  const HostArray& b = one.outputs.at("fused");
+  const HostTensor& a = merged.outputs.at("fused");
+  const HostTensor& b = one.outputs.at("fused");
   double inside = 0, outside_rs = 0;
   for (int64_t c = 0; c < 3; ++c)
     for (int64_t y = 0; y < 160; ++y)
@@ -399,7 +399,7 @@ TEST(TilingVulkan, SmallModel1280x720STarget) {
               (long long)r.tiles_run, (long long)r.tiles, s);
   EXPECT_EQ(r.tiles, 15);
   EXPECT_EQ(r.tiles_run, 10);  // tile rows 0 (input rows 0..319) and 1 reach the band 256..383
-  const HostArray& f = r.outputs.at("fused");
+  const HostTensor& f = r.outputs.at("fused");
   for (float v : f.data) ASSERT_TRUE(std::isfinite(v));
   // Tile row 2 (rows 512..719, input from row 448) saw no event: the RS pixels.
   for (int64_t c = 0; c < 3; ++c)

@@ -7,8 +7,8 @@
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
 
-#include "host/sim_sequence.hpp"
-#include "host/unroll.hpp"
+#include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/unroll.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;

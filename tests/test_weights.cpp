@@ -7,9 +7,9 @@
 #include <fstream>
 #include <functional>
 
-#include "host/safetensors.hpp"
-#include "host/weights.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/base/error.hpp"
 
 using namespace vkunroll;
 
@@ -27,8 +27,8 @@ ModelConfig tiny() {
 // The tensors of `w` as views, with metadata, serialized in memory.
 std::vector<uint8_t> serialize(const Weights& w, std::map<std::string, std::string> md,
                                const std::function<bool(const std::string&)>& keep = nullptr,
-                               std::vector<StTensorView> extra = {}) {
-  std::vector<StTensorView> views;
+                               std::vector<SafetensorsTensorRef> extra = {}) {
+  std::vector<SafetensorsTensorRef> views;
   for (const auto& [name, t] : w.tensors) {
     if (keep && !keep(name)) continue;
     views.push_back({name, StDType::F32, t.shape, t.data.data(), t.data.size() * 4});
@@ -114,7 +114,7 @@ TEST(Weights, WrongShapeIsNamed) {
 
 TEST(Weights, WrongDtypeIsNamed) {
   Weights r = random_weights(tiny(), 5);
-  std::vector<StTensorView> views;
+  std::vector<SafetensorsTensorRef> views;
   std::vector<int32_t> ints(16, 1);
   for (const auto& [name, t] : r.tensors) {
     if (name == "SFENet2.bias")
@@ -196,7 +196,7 @@ TEST(Weights, SaveAndLoadRoundTripF32AndF16) {
 TEST(Weights, Bf16TensorsLoadAsFloat) {
   const Weights r = random_weights(tiny(), 9);
   std::vector<std::vector<uint16_t>> storage;
-  std::vector<StTensorView> views;
+  std::vector<SafetensorsTensorRef> views;
   for (const auto& [name, t] : r.tensors) {
     std::vector<uint16_t> h(t.data.size());
     for (size_t i = 0; i < h.size(); ++i) {

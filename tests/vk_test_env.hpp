@@ -3,7 +3,10 @@
 #pragma once
 #include <string>
 
-#include "runtime/context.hpp"
+#include <span>
+
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/shader_registry.hpp"
 
 namespace vkunroll::vktest {
 
@@ -14,6 +17,12 @@ Context& context();
 Context& strict_uniform_context();
 // True when a context was created in this process (the listener only checks then).
 bool context_created();
+// The tests' own shaders (tests/shaders/*.comp), for runtime tests that know no kernel.
+const ShaderModuleBlob& test_shader(std::string_view name);
+inline std::span<const uint32_t> test_shader_words(std::string_view name) {
+  const ShaderModuleBlob& b = test_shader(name);
+  return {b.words, b.word_count};
+}
 // `../shared/<rel>` next to the checkout; empty when the folder is absent.
 std::string shared_path(const std::string& rel);
 

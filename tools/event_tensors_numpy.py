@@ -6,7 +6,7 @@ builder (golden fixture) and as the baseline of bench/bench_event_tensor.cpp.
   event_tensors_numpy.py --golden OUT.safetensors     write tests/data/event_tensor_golden.safetensors
   event_tensors_numpy.py --bench IN.safetensors       time the binning of the events in IN (see bench)
 
-Timing conventions (same as host/row_timing.hpp): row y is read as r = y (top-down) or H-1-y
+Timing conventions (same as base/row_timing.hpp): row y is read as r = y (top-down) or H-1-y
 (bottom-up); start[y] = t0 + r*delay, end[y] = start[y] + exposure; tau -> t* = t0 + tau *
 (t0 + (H-1)*delay + exposure - t0), i.e. start[0] + tau*(end[H-1]-start[0]) for top-down.
 """

@@ -1,4 +1,4 @@
-#include "host/cli/args.hpp"
+#include "vkunroll/host/cli/args.hpp"
 
 #include <cerrno>
 #include <cstdlib>

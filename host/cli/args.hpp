@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "runtime/error.hpp"
+#include "vkunroll/base/error.hpp"
 
 namespace vkunroll::cli {
 

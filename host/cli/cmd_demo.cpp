@@ -7,10 +7,10 @@
 #include <iomanip>
 #include <iostream>
 
-#include "host/cli/args.hpp"
-#include "host/cli/commands.hpp"
-#include "host/sim_sequence.hpp"
-#include "host/unroll.hpp"
+#include "vkunroll/host/cli/args.hpp"
+#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/unroll.hpp"
 
 namespace vkunroll::cli {
 

@@ -1,9 +1,9 @@
 #include <iomanip>
 #include <iostream>
 
-#include "host/cli/args.hpp"
-#include "host/cli/commands.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/host/cli/args.hpp"
+#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll::cli {
 

@@ -3,9 +3,9 @@
 #include <iostream>
 #include <limits>
 
-#include "host/cli/args.hpp"
-#include "host/cli/commands.hpp"
-#include "host/event_reader.hpp"
+#include "vkunroll/host/cli/args.hpp"
+#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/events/event_reader.hpp"
 
 namespace vkunroll::cli {
 

@@ -7,22 +7,22 @@
 #include <set>
 #include <sstream>
 
-#include "host/backend_cpu.hpp"
-#include "host/backend_vulkan.hpp"
-#include "host/cli/args.hpp"
-#include "host/cli/commands.hpp"
-#include "host/model.hpp"
-#include "host/safetensors.hpp"
-#include "host/weights.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/host/model/backend_cpu.hpp"
+#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/cli/args.hpp"
+#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/model/model.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll::cli {
 
 namespace {
 
-HostArray input_array(const SafetensorsFile& f, const std::string& path, const std::string& name) {
+HostTensor input_array(const SafetensorsFile& f, const std::string& path, const std::string& name) {
   if (!f.has(name)) throw Error(path + ": no tensor '" + name + "' (expected rs, ev1, ev2, ev3)");
-  const StTensor& t = f.get(name);
+  const SafetensorsTensor& t = f.get(name);
   if (t.shape.size() != 4) {
     std::ostringstream os;
     for (size_t i = 0; i < t.shape.size(); ++i) os << (i ? "x" : "") << t.shape[i];
@@ -105,7 +105,7 @@ int cmd_infer(const Argv& argv) {
   const auto out = model.run(in, opt);
   const auto t2 = std::chrono::steady_clock::now();
 
-  std::vector<StTensorView> views;
+  std::vector<SafetensorsTensorRef> views;
   for (const auto& [name, arr] : out)
     views.push_back({name, StDType::F32, {arr.shape.n, arr.shape.c, arr.shape.h, arr.shape.w}, arr.data.data(),
                      arr.data.size() * sizeof(float)});

@@ -3,9 +3,9 @@
 #include <fstream>
 #include <iostream>
 
-#include "host/cli/args.hpp"
-#include "host/cli/commands.hpp"
-#include "host/sim_sequence.hpp"
+#include "vkunroll/host/cli/args.hpp"
+#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/sim/recording.hpp"
 
 namespace vkunroll::cli {
 

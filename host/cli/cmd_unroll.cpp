@@ -1,10 +1,10 @@
-// vkunroll unroll: a recording -> GS video (host/unroll.hpp does the work).
+// vkunroll unroll: a recording -> GS video (host/unroll/unroll.hpp does the work).
 #include <iostream>
 
-#include "host/cli/args.hpp"
-#include "host/cli/commands.hpp"
-#include "host/unroll.hpp"
-#include "host/value_list.hpp"
+#include "vkunroll/host/cli/args.hpp"
+#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/unroll/unroll.hpp"
+#include "vkunroll/host/unroll/value_list.hpp"
 
 namespace vkunroll::cli {
 

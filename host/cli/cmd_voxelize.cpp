@@ -4,13 +4,13 @@
 #include <iostream>
 #include <nlohmann/json.hpp>
 
-#include "host/cli/args.hpp"
-#include "host/cli/commands.hpp"
-#include "host/value_list.hpp"
-#include "host/safetensors.hpp"
-#include "host/sequence.hpp"
-#include "kernels/event_tensor.hpp"
-#include "runtime/context.hpp"
+#include "vkunroll/host/cli/args.hpp"
+#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/unroll/value_list.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/events/sequence.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll::cli {
 
@@ -168,7 +168,7 @@ int cmd_voxelize(const Argv& argv) {
     events_read += ev.size();
     // Reused across batches: the builder overwrites the same host storage (no fresh pages).
     if (builder) builder->build(ev, part, spec, t);
-    else t = build_event_tensors_cpu(ev, part, spec);
+    else t = build_event_tensors_ref(ev, part, spec);
     events_used += t.events_considered;
     const size_t off = static_cast<size_t>(p0) * slice * 4, bytes = static_cast<size_t>(np) * slice * 4;
     writer.write("ev1", off, t.ev1.data(), bytes);

@@ -3,8 +3,8 @@
 #include <exception>
 #include <iostream>
 
-#include "host/cli/commands.hpp"
-#include "runtime/error.hpp"
+#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/base/error.hpp"
 
 namespace {
 

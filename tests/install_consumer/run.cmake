@@ -1,19 +1,40 @@
-# ctest: install vkunroll into a temporary prefix and build a consumer with find_package(vkunroll).
+# ctest: install vkunroll into a temporary prefix, then build and run two consumers with
+# find_package(vkunroll): the whole package, and the runtime layer alone with OpenCV, HDF5 and the
+# compression libraries made unfindable.
 file(REMOVE_RECURSE ${WORK})
 execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD} --prefix ${WORK}/prefix RESULT_VARIABLE r OUTPUT_QUIET)
 if(r)
   message(FATAL_ERROR "cmake --install failed: ${r}")
 endif()
-execute_process(COMMAND ${CMAKE_COMMAND} -S ${SRC} -B ${WORK}/build -G Ninja -DCMAKE_PREFIX_PATH=${WORK}/prefix RESULT_VARIABLE r)
-if(r)
-  message(FATAL_ERROR "configuring the consumer failed: ${r}")
+# Only public headers are installed, under include/vkunroll/.
+file(GLOB_RECURSE detail ${WORK}/prefix/include/*_detail.hpp)
+if(detail)
+  message(FATAL_ERROR "internal headers were installed: ${detail}")
 endif()
-execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK}/build RESULT_VARIABLE r)
-if(r)
-  message(FATAL_ERROR "building the consumer failed: ${r}")
+if(NOT EXISTS ${WORK}/prefix/include/vkunroll/runtime/context.hpp)
+  message(FATAL_ERROR "include/vkunroll/runtime/context.hpp was not installed")
 endif()
-execute_process(COMMAND ${WORK}/build/consumer RESULT_VARIABLE r OUTPUT_VARIABLE out)
-if(r OR NOT out MATCHES "device")
-  message(FATAL_ERROR "the consumer did not run: ${r} ${out}")
-endif()
+
+function(consumer name src expect)
+  execute_process(COMMAND ${CMAKE_COMMAND} -S ${src} -B ${WORK}/${name} -G Ninja -DCMAKE_PREFIX_PATH=${WORK}/prefix ${ARGN}
+                  RESULT_VARIABLE r)
+  if(r)
+    message(FATAL_ERROR "configuring the ${name} consumer failed: ${r}")
+  endif()
+  execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK}/${name} RESULT_VARIABLE r)
+  if(r)
+    message(FATAL_ERROR "building the ${name} consumer failed: ${r}")
+  endif()
+  file(GLOB exe ${WORK}/${name}/*consumer)
+  execute_process(COMMAND ${exe} RESULT_VARIABLE r OUTPUT_VARIABLE out)
+  if(r OR NOT out MATCHES "${expect}")
+    message(FATAL_ERROR "the ${name} consumer did not run: ${r} ${out}")
+  endif()
+  message(STATUS "${name}: ${out}")
+endfunction()
+
+consumer(whole ${SRC} "33914185 parameters")
+consumer(runtime_only ${SRC}/runtime_only "device"
+  -DCMAKE_DISABLE_FIND_PACKAGE_OpenCV=ON -DCMAKE_DISABLE_FIND_PACKAGE_HDF5=ON
+  -DCMAKE_DISABLE_FIND_PACKAGE_PkgConfig=ON -DCMAKE_DISABLE_FIND_PACKAGE_nlohmann_json=ON)
 file(REMOVE_RECURSE ${WORK})

@@ -1,0 +1,179 @@
+// Internals shared by the event readers: byte sources (file or memory, so the fuzzers can feed
+// bytes without touching the disk), and the EventSink that applies the record rules, the time
+// window and the bad-event policy for every format in one place.
+#pragma once
+#include <algorithm>
+#include <cstdint>
+#include <cstdio>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "vkunroll/host/events/event_reader.hpp"
+#include "vkunroll/base/error.hpp"
+
+namespace vkunroll::detail {
+
+// Random-access bytes. read_at returns fewer bytes than asked only at the end of the data.
+class ByteSource {
+ public:
+  explicit ByteSource(std::string name) : name_(std::move(name)) {}
+  virtual ~ByteSource() = default;
+  virtual uint64_t size() const = 0;
+  virtual size_t read_at(uint64_t offset, void* dst, size_t n) = 0;
+  // False for sources that are cheap only when read front to back (compressed zip members).
+  virtual bool seekable() const { return true; }
+  const std::string& name() const { return name_; }
+
+ private:
+  std::string name_;
+};
+
+class FileSource final : public ByteSource {
+ public:
+  explicit FileSource(const std::string& path);
+  ~FileSource() override;
+  uint64_t size() const override { return size_; }
+  size_t read_at(uint64_t offset, void* dst, size_t n) override;
+
+ private:
+  std::FILE* f_ = nullptr;
+  uint64_t size_ = 0;
+};
+
+class MemorySource final : public ByteSource {
+ public:
+  MemorySource(std::string name, const uint8_t* data, size_t size) : ByteSource(std::move(name)), data_(data), size_(size) {}
+  MemorySource(std::string name, std::vector<uint8_t> owned)
+      : ByteSource(std::move(name)), owned_(std::move(owned)), data_(owned_.data()), size_(owned_.size()) {}
+  uint64_t size() const override { return size_; }
+  size_t read_at(uint64_t offset, void* dst, size_t n) override;
+
+ private:
+  std::vector<uint8_t> owned_;
+  const uint8_t* data_;
+  size_t size_;
+};
+
+// Reads everything of a source (for small headers and the fuzzers' sanity checks).
+std::vector<uint8_t> read_range(ByteSource& src, uint64_t offset, size_t n);
+
+// Applies the rules to each decoded record, in file order, and collects the kept events.
+class EventSink {
+ public:
+  EventSink(const std::string& file, const EventReadOptions& options, EventReadReport& report,
+            std::function<void(const EventStream&)> on_chunk = nullptr, size_t chunk_events = 0);
+
+  // Sensor size found in the file (0 = unknown); options' width/height win when both are set.
+  void set_file_geometry(int width, int height, const std::string& source);
+  bool geometry_known() const { return width_ > 0 && height_ > 0; }
+  int width() const { return width_; }
+  int height() const { return height_; }
+
+  // Where the next record lives, for messages: its index in the file and (binary formats) byte offset.
+  void set_record_index(uint64_t index) { index_ = index; }
+  void set_byte_offset(int64_t offset) { byte_offset_ = offset; }
+  void set_line(uint64_t line) { line_ = line; }
+
+  // One record: t in microseconds; p raw (0/1, -1/+1, bool). Returns false once reading can stop
+  // (a valid record at or after t_end with a policy other than sort).
+  bool add(int64_t t_us, int64_t x, int64_t y, int64_t p);
+  // A record whose time is a float in microseconds (NaN/inf checked, rounded to the nearest us).
+  bool add_float_time(double t_us, int64_t x, int64_t y, int64_t p);
+  // A record whose coordinates are floats (checked to be integral and finite).
+  bool add_float(double t_us, double x, double y, double p);
+  // A word/line/record the reader does not understand: error, or counted as dropped_unknown_word.
+  // `what` is a string or a callable returning one (built only when it becomes an error).
+  void unknown_record(const std::string& what);
+  template <class Message>
+  void unknown_record_lazy(Message&& what) {
+    if (options_.on_bad == BadEventPolicy::error) unknown_record(what());
+    ++report_.records;
+    ++report_.dropped_unknown_word;
+    ++index_;
+  }
+  // A record of another kind the reader skips on purpose (trigger, IMU, ...): counted only.
+  void ignored(const std::string& kind, uint64_t n = 1) { report_.ignored[kind] += n; }
+  void note(const std::string& text) { report_.notes.push_back(text); }
+
+  // The reader's count of records it is about to decode: reserves memory (whole-file reads only,
+  // at most 16M events) so the arrays do not grow by copying.
+  void expect_records(uint64_t n) {
+    if (!on_chunk_ && !options_.t_begin_us && !options_.t_end_us) out_.reserve(size_t(std::min<uint64_t>(n, 1u << 24)));
+  }
+  bool done() const { return done_; }
+  const EventReadOptions& options() const { return options_; }
+  EventReadReport& report() { return report_; }
+  const std::string& file() const { return file_; }
+
+  // Flush, sort (policy sort), infer the size when unknown. Returns the kept stream (empty when
+  // chunks were delivered to on_chunk).
+  EventStream finish();
+
+  // "file: record N (byte B): " prefix for errors.
+  std::string where() const;
+  [[noreturn]] void fail(const std::string& rule) const;
+
+ private:
+  // Error (the rule's message is built only then) or count and drop.
+  template <class Rule>
+  bool reject(uint64_t EventReadReport::*counter, Rule&& rule) {
+    if (options_.on_bad == BadEventPolicy::error) fail_rule(rule());
+    ++(report_.*counter);
+    ++index_;
+    return !done_;
+  }
+  [[noreturn]] void fail_rule(const std::string& rule) const;
+  void flush_chunk();
+
+  std::string file_;
+  EventReadOptions options_;
+  EventReadReport& report_;
+  std::function<void(const EventStream&)> on_chunk_;
+  size_t chunk_events_;
+  EventStream out_;
+  int width_ = 0, height_ = 0;
+  bool override_size_ = false;
+  uint64_t index_ = 0;
+  int64_t byte_offset_ = -1;
+  uint64_t line_ = 0;
+  bool have_last_ = false;
+  int64_t last_t_ = 0;
+  bool unsorted_ = false;
+  bool done_ = false;
+  int max_x_ = -1, max_y_ = -1;
+};
+
+// Time unit name -> microseconds per unit as a power of ten exponent: s 6, ms 3, us 0, ns -3.
+int time_unit_exponent(const std::string& unit, const std::string& what);
+
+// The readers. Each reads the whole source (or stops at sink.done()).
+void read_text(ByteSource& src, EventSink& sink);
+void read_evt2(ByteSource& src, EventSink& sink);
+void read_evt3(ByteSource& src, EventSink& sink);
+void read_dat(ByteSource& src, EventSink& sink);
+void read_aedat4(ByteSource& src, EventSink& sink);
+void read_npy(ByteSource& src, EventSink& sink);
+// .npz from a file path, or from memory when `data` is non-null (fuzzing).
+void read_npz(const std::string& path, const uint8_t* data, size_t size, EventSink& sink);
+// HDF5 from a path, or from an in-memory file image when `image` is non-null (fuzzing).
+void read_hdf5(const std::string& path, const void* image, size_t image_size, EventSink& sink);
+
+// Prophesee '%' header lines: key/value pairs, the byte where binary data starts.
+struct PropheseeHeader {
+  std::vector<std::pair<std::string, std::string>> lines;
+  uint64_t data_offset = 0;
+  int width = 0, height = 0;
+  std::string geometry_source;
+  std::string evt;  // "2.0", "3.0", "2.1" or "" when the header does not say
+};
+PropheseeHeader parse_prophesee_header(ByteSource& src);
+
+// Format of a source from its magic bytes/header and the file name's extension.
+std::string detect_format(ByteSource& src, const std::string& path);
+
+// Reads `src` with the given (already detected) format into the sink; the fuzzers call this.
+void read_source(const std::string& format, ByteSource& src, EventSink& sink);
+
+}  // namespace vkunroll::detail

@@ -1,0 +1,443 @@
+#include "vkunroll/host/events/sequence.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <numeric>
+#include <opencv2/imgcodecs.hpp>
+#include <regex>
+
+#include "vkunroll/base/error.hpp"
+
+namespace vkunroll {
+namespace fs = std::filesystem;
+namespace {
+
+// Natural order: "2.png" < "10.png", so numbered frames without zero padding sort right.
+bool natural_less(const std::string& a, const std::string& b) {
+  size_t i = 0, j = 0;
+  while (i < a.size() && j < b.size()) {
+    if (std::isdigit(static_cast<unsigned char>(a[i])) && std::isdigit(static_cast<unsigned char>(b[j]))) {
+      size_t i2 = i, j2 = j;
+      while (i2 < a.size() && std::isdigit(static_cast<unsigned char>(a[i2]))) ++i2;
+      while (j2 < b.size() && std::isdigit(static_cast<unsigned char>(b[j2]))) ++j2;
+      std::string na = a.substr(i, i2 - i), nb = b.substr(j, j2 - j);
+      na.erase(0, std::min(na.find_first_not_of('0'), na.size()));
+      nb.erase(0, std::min(nb.find_first_not_of('0'), nb.size()));
+      if (na.size() != nb.size()) return na.size() < nb.size();
+      if (na != nb) return na < nb;
+      i = i2;
+      j = j2;
+    } else {
+      if (a[i] != b[j]) return a[i] < b[j];
+      ++i;
+      ++j;
+    }
+  }
+  return a.size() - i < b.size() - j;
+}
+
+std::string lower(std::string s) {
+  for (auto& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return s;
+}
+
+// Files in `dir` whose extension (lower case, with dot) is one of `exts`, natural order.
+std::vector<std::string> list_files(const fs::path& dir, const std::vector<std::string>& exts) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) return out;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (!e.is_regular_file()) continue;
+    const std::string ext = lower(e.path().extension().string());
+    if (std::find(exts.begin(), exts.end(), ext) != exts.end()) out.push_back(e.path().string());
+  }
+  std::sort(out.begin(), out.end(), [](const std::string& a, const std::string& b) {
+    return natural_less(fs::path(a).filename().string(), fs::path(b).filename().string());
+  });
+  return out;
+}
+
+const std::vector<std::string> kImageExts = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"};
+
+// The first existing subfolder among `names`.
+std::optional<fs::path> subdir(const fs::path& root, std::initializer_list<const char*> names) {
+  std::error_code ec;
+  for (const char* n : names)
+    if (fs::is_directory(root / n, ec)) return root / n;
+  return std::nullopt;
+}
+
+Rational json_time(const nlohmann::json& j, const std::string& where) {
+  if (j.is_number()) return j.is_number_integer() ? Rational(j.get<int64_t>()) : Rational::from_double(j.get<double>());
+  if (j.is_string()) return Rational::parse(j.get<std::string>(), where);
+  throw Error(where + " must be a number (or an exact string like \"73000/259\"), got " + std::string(j.type_name()) +
+              " " + j.dump());
+}
+
+int json_int(const nlohmann::json& obj, const char* key, const std::string& file) {
+  if (!obj.contains(key)) throw Error(file + ": missing field '" + key + "'");
+  const auto& v = obj[key];
+  if (!v.is_number_integer() || v.get<int64_t>() <= 0 || v.get<int64_t>() > 32767)
+    throw Error(file + ": field '" + key + "' must be a positive integer <= 32767, got " + v.dump());
+  return v.get<int>();
+}
+
+std::string json_string(const nlohmann::json& obj, const char* key, const std::string& where) {
+  if (!obj.contains(key)) throw Error(where + ": missing field '" + key + "'");
+  if (!obj[key].is_string()) throw Error(where + ": field '" + key + "' must be a string, got " + obj[key].dump());
+  return obj[key].get<std::string>();
+}
+
+std::string resolve(const fs::path& root, const std::string& rel) {
+  fs::path p(rel);
+  return (p.is_absolute() ? p : root / p).lexically_normal().string();
+}
+
+std::string one_file(const fs::path& root, const std::vector<std::string>& exts, const std::string& what) {
+  auto files = list_files(root, exts);
+  if (files.empty()) throw Error(root.string() + ": no " + what + " file found");
+  if (files.size() > 1)
+    throw Error(root.string() + ": " + std::to_string(files.size()) + " " + what + " files found, expected one (" +
+                fs::path(files[0]).filename().string() + ", " + fs::path(files[1]).filename().string() + ", ...)");
+  return files[0];
+}
+
+void load_generic(Sequence& s, const fs::path& root) {
+  const std::string meta_path = (root / "meta.json").string();
+  std::ifstream in(meta_path);
+  if (!in) throw Error(root.string() + ": no meta.json (generic layout, see sequence-format.md)");
+  nlohmann::json m;
+  try {
+    m = nlohmann::json::parse(in);
+  } catch (const std::exception& e) {
+    throw Error(meta_path + ": not valid JSON: " + e.what());
+  }
+  if (!m.is_object()) throw Error(meta_path + ": expected a JSON object at the top level");
+  s.width = json_int(m, "width", meta_path);
+  s.height = json_int(m, "height", meta_path);
+  if (!m.contains("line_delay_us")) throw Error(meta_path + ": missing field 'line_delay_us'");
+  if (!m.contains("exposure_us")) throw Error(meta_path + ": missing field 'exposure_us'");
+  const Rational delay = json_time(m["line_delay_us"], meta_path + ": field 'line_delay_us'");
+  const Rational exposure = json_time(m["exposure_us"], meta_path + ": field 'exposure_us'");
+  Readout readout = Readout::top_down;
+  if (m.contains("readout")) {
+    const std::string r = json_string(m, "readout", meta_path);
+    try {
+      readout = parse_readout(r);
+    } catch (const Error& e) {
+      throw Error(meta_path + ": field 'readout': " + e.what());
+    }
+  }
+  if (!m.contains("frames") || !m["frames"].is_array())
+    throw Error(meta_path + ": field 'frames' must be a list of {\"file\", \"t0_us\"}");
+  const auto& frames = m["frames"];
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const std::string where = meta_path + ": frames[" + std::to_string(i) + "]";
+    const auto& f = frames[i];
+    if (!f.is_object()) throw Error(where + " must be an object {\"file\", \"t0_us\"}, got " + f.dump());
+    SequenceFrame fr;
+    fr.image = resolve(root, json_string(f, "file", where));
+    if (!f.contains("t0_us")) throw Error(where + ": missing field 't0_us'");
+    fr.timing.t0 = json_time(f["t0_us"], where + ".t0_us");
+    fr.timing.line_delay = delay;
+    // Extension: a frame may carry its own exposure (e.g. converted DRE recordings).
+    fr.timing.exposure = f.contains("exposure_us") ? json_time(f["exposure_us"], where + ".exposure_us") : exposure;
+    fr.timing.rows = s.height;
+    fr.timing.readout = readout;
+    s.frames.push_back(fr);
+  }
+  s.event_files.push_back(resolve(root, json_string(m, "events", meta_path)));
+  if (m.contains("ground_truth")) {
+    const auto& g = m["ground_truth"];
+    if (!g.is_array()) throw Error(meta_path + ": field 'ground_truth' must be a list of {\"file\", \"t_us\"}");
+    for (size_t i = 0; i < g.size(); ++i) {
+      const std::string where = meta_path + ": ground_truth[" + std::to_string(i) + "]";
+      if (!g[i].is_object()) throw Error(where + " must be an object {\"file\", \"t_us\"}");
+      if (!g[i].contains("t_us")) throw Error(where + ": missing field 't_us'");
+      s.ground_truth.push_back({resolve(root, json_string(g[i], "file", where)), json_time(g[i]["t_us"], where + ".t_us")});
+    }
+  }
+  s.notes.push_back("generic layout: timing from meta.json");
+}
+
+void sensor_from_first_image(Sequence& s, const std::vector<std::string>& images, const std::string& folder) {
+  if (images.empty()) throw Error(folder + ": no frame images found");
+  const auto [w, h] = image_size(images[0]);
+  s.width = w;
+  s.height = h;
+}
+
+void load_gev_rs(Sequence& s, const fs::path& root, const SequenceOptions& o) {
+  const auto rs = subdir(root, {"rs", "RS"});
+  if (!rs) throw Error(root.string() + ": no rs/ folder (Gev-RS layout)");
+  const auto images = list_files(*rs, kImageExts);
+  sensor_from_first_image(s, images, rs->string());
+  s.event_files.push_back(one_file(root, {".h5", ".hdf5"}, "HDF5 event"));
+  // GS frames at 5000 fps (200 us); RS frame k starts at GS frame 100k; row step one GS period
+  // and exposure 16 GS frames, or half-row steps (100 us) and 8 frames.
+  const Rational gs_period(200);
+  const Rational delay = o.gev_half_row ? Rational(100) : gs_period;
+  const Rational exposure = gs_period * Rational(o.gev_half_row ? 8 : 16);
+  for (size_t k = 0; k < images.size(); ++k)
+    s.frames.push_back({images[k], {gs_period * Rational(100 * static_cast<int64_t>(k)), delay, exposure, s.height,
+                                    Readout::top_down}});
+  if (const auto gs = subdir(root, {"gs", "GS"})) {
+    const auto g = list_files(*gs, kImageExts);
+    for (size_t i = 0; i < g.size(); ++i) s.ground_truth.push_back({g[i], gs_period * Rational(static_cast<int64_t>(i))});
+  }
+  s.notes.push_back(std::string("Gev-RS: GS frame i at i*200 us (event time origin 0), RS frame k t0 = 20000k us, ") +
+                    (o.gev_half_row ? "half-row variant: line delay 100 us, exposure 1600 us"
+                                    : "line delay 200 us, exposure 3200 us"));
+}
+
+void load_gev_rs_real(Sequence& s, const fs::path& root, const SequenceOptions& o) {
+  static const std::regex name_re(R"(^(.+)_(\d+)_(\d+)$)");
+  const std::string name = root.filename().string();
+  std::smatch mt;
+  if (!std::regex_match(name, mt, name_re))
+    throw Error(root.string() + ": Gev-RS-Real folders are named <id>_<exposure_us>_<readout_us>, got '" + name + "'");
+  const Rational exposure = Rational::parse(mt[2].str(), "folder exposure"),
+                 readout = Rational::parse(mt[3].str(), "folder readout");
+  const auto img = subdir(root, {"image", "images"});
+  if (!img) throw Error(root.string() + ": no image/ folder (Gev-RS-Real layout)");
+  const auto images = list_files(*img, kImageExts);
+  sensor_from_first_image(s, images, img->string());
+  s.event_files.push_back(one_file(root, {".npz"}, "NumPy .npz event"));
+  if (s.height < 2) throw Error(root.string() + ": frames must have at least 2 rows");
+  const Rational delay = readout / Rational(s.height - 1);
+  // Frame times: the reference gives the rate (about 20.79 fps, 19.61 for two folders), not the
+  // t0s. Origin: the first event; period: the option, else whichever of the two rates best fits
+  // the recording's event span / frame count.
+  Rational period = Rational(100000000, 2079);
+  int64_t t_first = 0, t_last = 0;
+  bool any = false;
+  if (!o.t0s_us) {
+    EventReadOptions ro = s.event_options;
+    scan_events(s.event_files[0], ro, [&](const EventStream& c) {
+      if (c.empty()) return;
+      if (!any) t_first = c.t.front();
+      t_last = c.t.back();
+      any = true;
+    });
+  }
+  if (o.frame_period_us) {
+    period = *o.frame_period_us;
+  } else if (any && images.size() > 1) {
+    const double per = static_cast<double>(t_last - t_first) / static_cast<double>(images.size());
+    const double p1 = 1e6 / 20.79, p2 = 1e6 / 19.61;
+    if (std::abs(per - p2) < std::abs(per - p1)) period = Rational(100000000, 1961);
+    s.notes.push_back("Gev-RS-Real: event span / frames = " + std::to_string(per) + " us per frame; using " +
+                      (period == Rational(100000000, 1961) ? "19.61" : "20.79") + " fps");
+  }
+  for (size_t k = 0; k < images.size(); ++k)
+    s.frames.push_back({images[k], {Rational(t_first) + period * Rational(static_cast<int64_t>(k)), delay, exposure,
+                                    s.height, Readout::top_down}});
+  s.notes.push_back("Gev-RS-Real: exposure " + exposure.str() + " us, line delay readout/(H-1) = " + delay.str() +
+                    " us, frame k t0 = first event (" + std::to_string(t_first) + " us) + k * " + period.str() +
+                    " us (inferred; override with t0s / frame period)");
+}
+
+void load_dre(Sequence& s, const fs::path& root) {
+  const auto img = subdir(root, {"images", "image"});
+  if (!img) throw Error(root.string() + ": no images/ folder (DRE layout)");
+  const auto images = list_files(*img, kImageExts);
+  sensor_from_first_image(s, images, img->string());
+  const std::string h5 = one_file(root, {".h5", ".hdf5"}, "HDF5 event");
+  s.event_files.push_back(h5);
+  const ImageTimestamps ts = read_image_timestamps(h5);
+  if (ts.start_image_ts.empty() || ts.end_image_ts.empty())
+    throw Error(h5 + ": DRE needs start_image_ts and end_image_ts (exposure = end - start)");
+  if (ts.start_image_ts.size() != ts.end_image_ts.size())
+    throw Error(h5 + ": start_image_ts has " + std::to_string(ts.start_image_ts.size()) + " entries, end_image_ts " +
+                std::to_string(ts.end_image_ts.size()));
+  if (ts.start_image_ts.size() != images.size())
+    throw Error(h5 + ": " + std::to_string(ts.start_image_ts.size()) + " frame timestamps but " +
+                std::to_string(images.size()) + " images in " + img->string());
+  for (size_t k = 0; k < images.size(); ++k) {
+    const Rational st = Rational::from_double(ts.start_image_ts[k]), en = Rational::from_double(ts.end_image_ts[k]);
+    if (en <= st)
+      throw Error(h5 + ": frame " + std::to_string(k) + " has end_image_ts " + en.str() + " <= start_image_ts " + st.str());
+    s.frames.push_back({images[k], {st, Rational(70), en - st, s.height, Readout::top_down}});
+  }
+  s.notes.push_back("DRE: t0 = start_image_ts, exposure = end_image_ts - start_image_ts, line delay 70 us");
+}
+
+void load_fastec(Sequence& s, const fs::path& root, const SequenceOptions& o) {
+  const auto rs = subdir(root, {"RS", "rs"});
+  if (!rs) throw Error(root.string() + ": no RS/ folder (Fastec-RS layout)");
+  const auto images = list_files(*rs, kImageExts);
+  sensor_from_first_image(s, images, rs->string());
+  auto ev = list_files(root / "events", {".npz"});
+  if (ev.empty()) ev = list_files(root, {".npz"});
+  if (ev.empty()) throw Error(root.string() + ": no per-frame .npz event files (Fastec-RS layout)");
+  s.event_files = ev;
+  // GS at 2400 fps (P = 1250/3 us); rows advance half a GS frame (625/3 us); a row's exposure is
+  // one GS frame; RS frame k starts at GS frame step*k (260 by default).
+  const Rational P(1250, 3);
+  for (size_t k = 0; k < images.size(); ++k)
+    s.frames.push_back({images[k], {P * Rational(static_cast<int64_t>(k) * o.fastec_frame_step_gs), P / Rational(2), P,
+                                    s.height, Readout::top_down}});
+  if (const auto gs = subdir(root, {"GS", "gs"})) {
+    const auto g = list_files(*gs, kImageExts);
+    for (size_t i = 0; i < g.size(); ++i) s.ground_truth.push_back({g[i], P * Rational(static_cast<int64_t>(i))});
+  }
+  s.notes.push_back("Fastec-RS (interpretation): GS period 1250/3 us, line delay 625/3 us (half a GS frame), "
+                    "exposure 1250/3 us, frame k t0 = " + std::to_string(o.fastec_frame_step_gs) +
+                    "k GS periods; override with line delay / exposure / t0s");
+}
+
+}  // namespace
+
+const char* sequence_layout_name(SequenceLayout l) {
+  switch (l) {
+    case SequenceLayout::automatic: return "auto";
+    case SequenceLayout::generic: return "generic";
+    case SequenceLayout::gev_rs: return "gev-rs";
+    case SequenceLayout::gev_rs_real: return "gev-rs-real";
+    case SequenceLayout::dre: return "dre";
+    case SequenceLayout::fastec: return "fastec";
+  }
+  return "?";
+}
+
+SequenceLayout parse_sequence_layout(const std::string& s) {
+  for (auto l : {SequenceLayout::automatic, SequenceLayout::generic, SequenceLayout::gev_rs, SequenceLayout::gev_rs_real,
+                 SequenceLayout::dre, SequenceLayout::fastec})
+    if (s == sequence_layout_name(l)) return l;
+  throw Error("layout: '" + s + "' is not a sequence layout (expected auto, generic, gev-rs, gev-rs-real, dre, fastec)");
+}
+
+std::pair<int, int> image_size(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(path + ": cannot open image");
+  unsigned char h[24] = {};
+  in.read(reinterpret_cast<char*>(h), 24);
+  static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (in.gcount() == 24 && std::equal(sig, sig + 8, h)) {
+    if (std::string(reinterpret_cast<char*>(h + 12), 4) != "IHDR") throw Error(path + ": PNG without IHDR chunk first");
+    auto be32 = [&](int o) { return (uint32_t(h[o]) << 24) | (uint32_t(h[o + 1]) << 16) | (uint32_t(h[o + 2]) << 8) | h[o + 3]; };
+    return {static_cast<int>(be32(16)), static_cast<int>(be32(20))};
+  }
+  const cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
+  if (m.empty()) throw Error(path + ": not a readable image");
+  return {m.cols, m.rows};
+}
+
+SequenceLayout detect_sequence_layout(const std::string& path) {
+  const fs::path root(path);
+  std::error_code ec;
+  if (!fs::is_directory(root, ec)) throw Error(path + ": not a folder (a sequence is a folder)");
+  if (fs::exists(root / "meta.json")) return SequenceLayout::generic;
+  const bool h5 = !list_files(root, {".h5", ".hdf5"}).empty();
+  const size_t npz = list_files(root, {".npz"}).size() + list_files(root / "events", {".npz"}).size();
+  if (subdir(root, {"rs"}) && subdir(root, {"gs"}) && h5) return SequenceLayout::gev_rs;
+  if (subdir(root, {"images"}) && h5) return SequenceLayout::dre;
+  if (subdir(root, {"image"}) && npz == 1 && std::regex_match(root.filename().string(), std::regex(R"(^.+_\d+_\d+$)")))
+    return SequenceLayout::gev_rs_real;
+  if (subdir(root, {"RS", "rs"}) && npz >= 1) return SequenceLayout::fastec;
+  throw Error(path + ": cannot tell the layout: no meta.json (generic); not rs/+gs/+.h5 (Gev-RS), "
+              "images/+.h5 (DRE), <id>_<exp>_<readout>/image/+.npz (Gev-RS-Real) or RS/+per-frame .npz (Fastec)");
+}
+
+Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
+  Sequence s;
+  const fs::path root = fs::path(path).lexically_normal();
+  s.root = root.string();
+  s.layout = o.layout == SequenceLayout::automatic ? detect_sequence_layout(path) : o.layout;
+  s.event_options = o.events;
+  switch (s.layout) {
+    case SequenceLayout::generic: load_generic(s, root); break;
+    case SequenceLayout::gev_rs: load_gev_rs(s, root, o); break;
+    case SequenceLayout::gev_rs_real: load_gev_rs_real(s, root, o); break;
+    case SequenceLayout::dre: load_dre(s, root); break;
+    case SequenceLayout::fastec: load_fastec(s, root, o); break;
+    case SequenceLayout::automatic: break;
+  }
+  if (s.frames.empty()) throw Error(s.root + ": the sequence has no frames");
+  // Overrides.
+  if (o.t0s_us && o.t0s_us->size() != s.frames.size())
+    throw Error("t0s: " + std::to_string(o.t0s_us->size()) + " values given, the sequence has " +
+                std::to_string(s.frames.size()) + " frames");
+  for (size_t k = 0; k < s.frames.size(); ++k) {
+    auto& t = s.frames[k].timing;
+    if (o.line_delay_us) t.line_delay = *o.line_delay_us;
+    if (o.exposure_us) t.exposure = *o.exposure_us;
+    if (o.readout) t.readout = *o.readout;
+    if (o.t0s_us) t.t0 = (*o.t0s_us)[k];
+    t.validate(s.root + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ")");
+  }
+  if (o.line_delay_us || o.exposure_us || o.readout || o.t0s_us) s.notes.push_back("timing overridden by options");
+  if (o.check_frame_sizes) {
+    for (const auto& f : s.frames) {
+      std::error_code ec;
+      if (!fs::exists(f.image, ec)) throw Error(s.root + ": frame image '" + f.image + "' does not exist");
+      const auto [w, h] = image_size(f.image);
+      if (w != s.width || h != s.height)
+        throw Error(f.image + ": frame is " + std::to_string(w) + "x" + std::to_string(h) + ", the sensor is " +
+                    std::to_string(s.width) + "x" + std::to_string(s.height));
+    }
+  }
+  if (o.events_file) {
+    s.event_files = {*o.events_file};
+    s.notes.push_back("events read from " + *o.events_file + " (option)");
+  }
+  for (const auto& e : s.event_files) {
+    std::error_code ec;
+    if (!fs::exists(e, ec)) throw Error(s.root + ": event file '" + e + "' does not exist");
+  }
+  // The reader checks every event against the sensor (error, or drop and count, per policy).
+  s.event_options.width = s.width;
+  s.event_options.height = s.height;
+  return s;
+}
+
+const SequenceFrame& Sequence::frame(int index) const {
+  if (index < 0 || static_cast<size_t>(index) >= frames.size())
+    throw Error(root + ": frame " + std::to_string(index) + " does not exist (the sequence has " +
+                std::to_string(frames.size()) + " frames, 0.." + std::to_string(frames.size() - 1) + ")");
+  return frames[index];
+}
+
+EventStream Sequence::read_events(int64_t t_begin_us, int64_t t_end_us, EventReadReport* report) const {
+  EventReadOptions ro = event_options;
+  ro.t_begin_us = t_begin_us;
+  ro.t_end_us = t_end_us;
+  if (event_files.size() == 1) {
+    EventStream ev = vkunroll::read_events(event_files[0], ro, report);
+    ev.width = width;
+    ev.height = height;
+    return ev;
+  }
+  // Fastec: per-frame files, merged in time order.
+  EventStream all;
+  all.width = width;
+  all.height = height;
+  for (const auto& f : event_files) {
+    EventReadReport r;
+    const EventStream ev = vkunroll::read_events(f, ro, &r);
+    for (size_t i = 0; i < ev.size(); ++i) all.push(ev.t[i], ev.x[i], ev.y[i], ev.p[i]);
+    if (report) {
+      report->records += r.records;
+      report->kept += r.kept;
+      report->outside_window += r.outside_window;
+    }
+  }
+  if (!std::is_sorted(all.t.begin(), all.t.end())) {
+    std::vector<size_t> idx(all.size());
+    std::iota(idx.begin(), idx.end(), 0);
+    std::stable_sort(idx.begin(), idx.end(), [&](size_t a, size_t b) { return all.t[a] < all.t[b]; });
+    EventStream sorted;
+    sorted.width = width;
+    sorted.height = height;
+    sorted.reserve(all.size());
+    for (size_t i : idx) sorted.push(all.t[i], all.x[i], all.y[i], all.p[i]);
+    if (report) report->notes.push_back("per-frame event files overlap in time: merged and sorted");
+    return sorted;
+  }
+  return all;
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,71 @@
+// A recording: RS frames with their row timing, optional ground truth, and the event file(s).
+// Reads the project's generic layout (meta.json, sequence-format.md) and the reference datasets'
+// layouts (Gev-RS, Gev-RS-Real, DRE, Fastec-RS; selfunroll-network.md section 4), detected from
+// the folder or named explicitly. How each layout's timing is derived: docs/event_tensors.md.
+#pragma once
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "vkunroll/host/events/event_reader.hpp"
+#include "vkunroll/base/events.hpp"
+#include "vkunroll/base/row_timing.hpp"
+
+namespace vkunroll {
+
+enum class SequenceLayout { automatic, generic, gev_rs, gev_rs_real, dre, fastec };
+const char* sequence_layout_name(SequenceLayout l);           // "generic", "gev-rs", ...
+SequenceLayout parse_sequence_layout(const std::string& s);   // also "auto"; throws Error
+
+struct SequenceOptions {
+  SequenceLayout layout = SequenceLayout::automatic;
+  // Timing overrides (applied after the layout's own timing, to every frame).
+  std::optional<Rational> line_delay_us, exposure_us;
+  std::optional<Readout> readout;
+  std::optional<std::vector<Rational>> t0s_us;  // one per frame (exactly as many as frames)
+  // Gev-RS: the half-row variant (row step 100 us, exposure 8 GS frames).
+  bool gev_half_row = false;
+  // Gev-RS-Real: frame period; default inferred (see docs). Fastec: GS frames between RS frames.
+  std::optional<Rational> frame_period_us;
+  int fastec_frame_step_gs = 260;
+  // Passed to the event reader (bad-record policy, format, ...); sensor size is set by the loader.
+  EventReadOptions events;
+  // Replaces the layout's event file(s) by this one.
+  std::optional<std::string> events_file;
+  // Read every frame's image header and check its size against the sensor.
+  bool check_frame_sizes = true;
+};
+
+struct SequenceFrame {
+  std::string image;  // absolute or root-relative path as found
+  RowTiming timing;
+};
+
+struct SequenceGroundTruth {
+  std::string image;
+  Rational t_us;
+};
+
+struct Sequence {
+  std::string root;
+  SequenceLayout layout = SequenceLayout::generic;
+  int width = 0, height = 0;
+  std::vector<SequenceFrame> frames;
+  std::vector<SequenceGroundTruth> ground_truth;
+  std::vector<std::string> event_files;  // one file, or Fastec's per-frame files in order
+  EventReadOptions event_options;        // what read_events passes to the reader
+  std::vector<std::string> notes;        // how the timing was derived, for the user
+
+  // Events with t in [t_begin_us, t_end_us), read through the file's index where it has one.
+  EventStream read_events(int64_t t_begin_us, int64_t t_end_us, EventReadReport* report = nullptr) const;
+  const SequenceFrame& frame(int index) const;  // throws Error naming the index and the count
+};
+
+// Throws Error naming the file and field on a missing or malformed sequence.
+Sequence load_sequence(const std::string& path, const SequenceOptions& options = {});
+SequenceLayout detect_sequence_layout(const std::string& path);
+
+// Width and height of a PNG (IHDR) or any image OpenCV reads; throws Error naming the file.
+std::pair<int, int> image_size(const std::string& path);
+
+}  // namespace vkunroll

@@ -1,0 +1,64 @@
+#include "vkunroll/host/model/backend.hpp"
+
+#include <algorithm>
+
+#include "vkunroll/base/error.hpp"
+
+namespace vkunroll {
+
+int PlanningBackend::alloc(const Shape& shape, const std::string& what) {
+  const uint64_t bytes = static_cast<uint64_t>(shape.count()) * 4;
+  if (bytes > max_buffer_bytes_)
+    throw Error("plan: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
+                " MiB, above the storage-buffer limit of " + std::to_string(max_buffer_bytes_ >> 20) + " MiB");
+  if (bytes > largest_) {
+    largest_ = bytes;
+    largest_name_ = what + " " + shape.str();
+  }
+  shapes_.push_back(shape);
+  names_.push_back(what);
+  live_.push_back(true);
+  const uint64_t before = peak_bytes();
+  account_alloc(bytes);
+  if (peak_bytes() > before) {
+    std::vector<std::pair<uint64_t, std::string>> live;
+    for (size_t i = 0; i < shapes_.size(); ++i)
+      if (live_[i]) live.push_back({uint64_t(shapes_[i].count()) * 4, names_[i] + " " + shapes_[i].str()});
+    std::sort(live.begin(), live.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+    peak_buffers_.clear();
+    for (const auto& [b, n] : live) peak_buffers_ += (peak_buffers_.empty() ? "" : ", ") + n;
+  }
+  auto reuse = std::find(pooled_.begin(), pooled_.end(), shape);
+  if (reuse != pooled_.end()) {
+    pooled_.erase(reuse);
+    pooled_bytes_ -= bytes;
+  } else {
+    device_bytes_ += bytes;
+    device_peak_ = std::max(device_peak_, device_bytes_);
+  }
+  return static_cast<int>(shapes_.size() - 1);
+}
+
+void PlanningBackend::release(int buf) {
+  if (buf < 0 || buf >= static_cast<int>(shapes_.size()) || !live_[buf]) throw Error("plan: release of a dead buffer");
+  live_[buf] = false;
+  account_release(static_cast<uint64_t>(shapes_[buf].count()) * 4);
+  pooled_.push_back(shapes_[buf]);
+  pooled_bytes_ += static_cast<uint64_t>(shapes_[buf].count()) * 4;
+  if (pooled_bytes_ > kPoolFlushBytes) flush();
+}
+
+void PlanningBackend::flush() {
+  for (const auto& s : pooled_) device_bytes_ -= static_cast<uint64_t>(s.count()) * 4;
+  pooled_.clear();
+  pooled_bytes_ = 0;
+}
+
+Shape PlanningBackend::shape(int buf) const { return shapes_.at(static_cast<size_t>(buf)); }
+
+std::vector<float> PlanningBackend::download(const BufferSlice& v) {
+  const Shape s = shape(v.buf);
+  return std::vector<float>(static_cast<size_t>(v.n * v.c * s.h * s.w));
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,196 @@
+#include "vkunroll/host/model/backend_vulkan.hpp"
+
+#include <algorithm>
+#include <cstring>
+
+#include "vkunroll/kernels/backward_warp.hpp"
+#include "vkunroll/kernels/common.hpp"
+#include "vkunroll/kernels/conv2d.hpp"
+#include "vkunroll/kernels/conv_transpose2d.hpp"
+#include "vkunroll/kernels/elementwise.hpp"
+#include "vkunroll/kernels/reflection_pad.hpp"
+#include "vkunroll/kernels/space_to_depth.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/base/error.hpp"
+
+namespace vkunroll {
+
+struct VulkanBackend::Buf {
+  Tensor t;
+  bool live = false;
+  bool pooled = false;  // released, reusable by an alloc of the same shape until the next flush
+};
+
+VulkanBackend::VulkanBackend(Context& ctx, Profiler* profiler)
+    : ctx_(ctx), workspace_(std::make_shared<ConvWorkspace>()), cs_(std::make_unique<CommandStream>(ctx, profiler)) {}
+
+VulkanBackend::~VulkanBackend() = default;
+
+uint64_t VulkanBackend::max_buffer_bytes() const {
+  const uint64_t device = ctx_.info().max_storage_buffer_range;
+  return max_buffer_cap_ ? std::min(device, max_buffer_cap_) : device;
+}
+
+const Tensor& VulkanBackend::tensor(int id) const {
+  if (id < 0 || id >= static_cast<int>(bufs_.size()) || !bufs_[id] || !bufs_[id]->live)
+    throw Error("vulkan backend: buffer " + std::to_string(id) + " is not allocated");
+  return bufs_[id]->t;
+}
+
+int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
+  const uint64_t bytes = static_cast<uint64_t>(shape.count()) * 4;
+  account_alloc(bytes);
+  for (size_t i = 0; i < bufs_.size(); ++i)
+    if (bufs_[i] && bufs_[i]->pooled && bufs_[i]->t.shape() == shape) {
+      bufs_[i]->pooled = false;
+      bufs_[i]->live = true;
+      pooled_bytes_ -= bytes;
+      return static_cast<int>(i);
+    }
+  if (bytes > max_buffer_bytes())
+    throw Error("vulkan backend: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
+                " MiB, above the device's storage-buffer limit of " + std::to_string(max_buffer_bytes() >> 20) + " MiB");
+  auto b = std::make_unique<Buf>();
+  b->t = Tensor(ctx_, shape, DType::f32);
+  b->live = true;
+  device_bytes_ += bytes;
+  device_peak_ = std::max(device_peak_, device_bytes_);
+  for (size_t i = 0; i < bufs_.size(); ++i)
+    if (!bufs_[i]) {
+      bufs_[i] = std::move(b);
+      return static_cast<int>(i);
+    }
+  bufs_.push_back(std::move(b));
+  return static_cast<int>(bufs_.size() - 1);
+}
+
+void VulkanBackend::release(int id) {
+  tensor(id);
+  account_release(bufs_[id]->t.bytes());
+  bufs_[id]->live = false;
+  bufs_[id]->pooled = true;
+  pooled_bytes_ += bufs_[id]->t.bytes();
+  if (pooled_bytes_ > kPoolFlushBytes) flush();
+}
+
+Shape VulkanBackend::shape(int id) const { return tensor(id).shape(); }
+
+void VulkanBackend::flush() {
+  if (cs_->recorded()) cs_->submit_and_wait();
+  // Nothing recorded references the pooled buffers any more: give their memory back.
+  for (auto& b : bufs_)
+    if (b && b->pooled) {
+      device_bytes_ -= b->t.bytes();
+      b.reset();
+    }
+  pooled_bytes_ = 0;
+}
+
+namespace {
+Slice slice(const Tensor& t, const BufferSlice& v) { return Slice(t, v.c0, v.c, v.n0, v.n); }
+bool is_whole(const Tensor& t, const BufferSlice& v) {
+  return v.n0 == 0 && v.c0 == 0 && v.n == t.shape().n && v.c == t.shape().c;
+}
+}  // namespace
+
+void VulkanBackend::upload(const BufferSlice& v, std::span<const float> data) {
+  const Tensor& t = tensor(v.buf);
+  const Shape s{v.n, v.c, t.shape().h, t.shape().w};
+  if (static_cast<int64_t>(data.size()) != s.count())
+    throw Error("vulkan backend: upload of " + std::to_string(data.size()) + " values into " + s.str());
+  // The host write must not overtake recorded work that still reads this buffer's memory.
+  flush();
+  if (is_whole(t, v)) {
+    const_cast<Tensor&>(t).upload(data.data(), data.size() * 4);
+    return;
+  }
+  Tensor tmp(ctx_, s, DType::f32);
+  tmp.upload(data.data(), data.size() * 4);
+  vkunroll::copy(*cs_, Slice(tmp), slice(t, v));
+  cs_->submit_and_wait();
+}
+
+std::vector<float> VulkanBackend::download(const BufferSlice& v) {
+  flush();
+  const Tensor& t = tensor(v.buf);
+  if (is_whole(t, v)) return t.download<float>();
+  Tensor tmp(ctx_, {v.n, v.c, t.shape().h, t.shape().w}, DType::f32);
+  vkunroll::copy(*cs_, slice(t, v), Slice(tmp));
+  cs_->submit_and_wait();
+  return tmp.download<float>();
+}
+
+int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const WeightTensor& b) {
+  const HostTensor wt(Shape{w.shape.at(0), w.shape.at(1), w.shape.at(2), w.shape.at(3)}, w.data);
+  const HostTensor bt(Shape{1, 1, 1, static_cast<int64_t>(b.data.size())}, b.data);
+  const Act act = d.leaky ? leaky_relu(d.slope) : Act{};
+  if (d.transposed) {
+    deconvs_.push_back(std::make_unique<ConvTranspose2d>(ctx_, wt, bt, ConvTranspose2dParams{d.k, d.stride, d.pad, act}, d.name));
+    conv_index_.push_back(~static_cast<int>(deconvs_.size() - 1));
+  } else {
+    convs_.push_back(std::make_unique<Conv2d>(ctx_, wt, bt, Conv2dParams{d.k, d.stride, d.pad, act}, d.name, workspace_));
+    conv_index_.push_back(static_cast<int>(convs_.size() - 1));
+  }
+  weight_bytes_ += (w.data.size() + b.data.size()) * 4;
+  descs_.push_back(d);
+  return static_cast<int>(conv_index_.size() - 1);
+}
+
+void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) {
+  const int idx = conv_index_.at(static_cast<size_t>(id));
+  const Slice si = slice(tensor(in.buf), in), so = slice(tensor(out.buf), out);
+  if (idx < 0) {
+    if (residual) throw Error("vulkan backend: " + descs_[id].name + ": a transposed conv takes no residual");
+    deconvs_[static_cast<size_t>(~idx)]->record(*cs_, si, so);
+  } else {
+    std::optional<Slice> r;
+    if (residual) r = slice(tensor(residual->buf), *residual);
+    convs_[static_cast<size_t>(idx)]->record(*cs_, si, so, r);
+  }
+}
+
+void VulkanBackend::space_to_depth(const BufferSlice& in, const BufferSlice& out) {
+  vkunroll::space_to_depth(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out));
+}
+void VulkanBackend::depth_to_space(const BufferSlice& in, const BufferSlice& out) {
+  vkunroll::depth_to_space(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out));
+}
+void VulkanBackend::reflect_pad(const BufferSlice& in, const BufferSlice& out, int top, int left) {
+  const Shape si = tensor(in.buf).shape(), so = tensor(out.buf).shape();
+  reflection_pad(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out),
+                 Pads{top, so.h - si.h - top, left, so.w - si.w - left});
+}
+void VulkanBackend::crop(const BufferSlice& in, const BufferSlice& out, int top, int left) {
+  vkunroll::crop(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out), top, left);
+}
+void VulkanBackend::copy(const BufferSlice& in, const BufferSlice& out) {
+  vkunroll::copy(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out));
+}
+void VulkanBackend::add(const BufferSlice& a, const BufferSlice& b, const BufferSlice& out) {
+  vkunroll::add(*cs_, slice(tensor(a.buf), a), slice(tensor(b.buf), b), slice(tensor(out.buf), out));
+}
+void VulkanBackend::tanh_scale(const BufferSlice& in, const BufferSlice& out, float scale) {
+  vkunroll::tanh_scale(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out), scale);
+}
+void VulkanBackend::backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) {
+  vkunroll::backward_warp(*cs_, slice(tensor(img.buf), img), slice(tensor(flow.buf), flow), slice(tensor(out.buf), out));
+}
+
+void VulkanBackend::hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,
+                                      float forced) {
+  const Slice ms = slice(tensor(m.buf), m);
+  if (forced >= 0) {
+    // m = 0 * hardsigmoid(score) + forced, as scale_act(none, 0) then a constant: build it on
+    // the host once (tests only) through a tiny upload.
+    const Shape s = ms.shape();
+    Tensor c(ctx_, s, DType::f32);
+    c.upload(std::vector<float>(static_cast<size_t>(s.count()), forced));
+    vkunroll::copy(*cs_, Slice(c), ms);
+    cs_->submit_and_wait();
+  } else {
+    scale_act(*cs_, slice(tensor(score.buf), score), ms, Act{Activation::hardsigmoid, 0.f}, 1.f);
+  }
+  blend(*cs_, ms, slice(tensor(a.buf), a), slice(tensor(b.buf), b), slice(tensor(out.buf), out));
+}
+
+}  // namespace vkunroll

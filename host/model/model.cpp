@@ -1,0 +1,521 @@
+#include "vkunroll/host/model/model.hpp"
+
+#include <chrono>
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+
+#include "vkunroll/base/int_math.hpp"
+#include "vkunroll/base/stopwatch.hpp"
+#include "vkunroll/base/error.hpp"
+
+namespace vkunroll {
+
+namespace {
+
+BufferSlice whole(Backend& b, int buf) {
+  const Shape s = b.shape(buf);
+  return {buf, 0, s.n, 0, s.c};
+}
+BufferSlice items(Backend& b, int buf, int64_t n0, int64_t n) {
+  const Shape s = b.shape(buf);
+  return {buf, n0, n, 0, s.c};
+}
+BufferSlice chans(const BufferSlice& v, int64_t c0, int64_t c) { return {v.buf, v.n0, v.n, v.c0 + c0, c}; }
+
+void check_input(const HostTensor& a, const char* name, int64_t b, int64_t c, int64_t h, int64_t w) {
+  const Shape want{b, c, h, w};
+  if (!(a.shape == want))
+    throw Error(std::string("model input '") + name + "' has shape " + a.shape.str() + ", expected " + want.str());
+  if (static_cast<int64_t>(a.data.size()) != a.shape.count())
+    throw Error(std::string("model input '") + name + "' holds " + std::to_string(a.data.size()) + " values for shape " +
+                a.shape.str());
+}
+
+// NaN/Inf in an input would spread through every conv and come out as a NaN image; name the
+// first bad value instead. One pass over the inputs, negligible next to the network.
+void check_finite(const HostTensor& a, const char* name) {
+  const int64_t plane = a.shape.h * a.shape.w, item = a.shape.c * plane;
+  for (size_t i = 0; i < a.data.size(); ++i)
+    if (!std::isfinite(a.data[i])) {
+      const int64_t k = static_cast<int64_t>(i);
+      throw Error(std::string("model input '") + name + "' holds " + (std::isnan(a.data[i]) ? "NaN" : "an infinite value") +
+                  " at (batch " + std::to_string(k / item) + ", channel " + std::to_string(k % item / plane) + ", y " +
+                  std::to_string(k % plane / a.shape.w) + ", x " + std::to_string(k % a.shape.w) +
+                  "); inputs must be finite");
+    }
+}
+
+}  // namespace
+
+struct Model::Chunk {
+  int64_t n = 0, nt = 0;  // batch items; targets (M)
+  int64_t he = 0, we = 0; // even working size
+  int pad_top = -1, pad_left = -1;  // UNet input offsets (RunOptions::unet_pad_top / left)
+  int rs = -1, ev1 = -1, ev2 = -1, ev3 = -1;
+  int E = -1, sys = -1, flow = -1, warped = -1, fused = -1, m = -1, out = -1;
+};
+
+const std::vector<std::string>& Model::output_names() {
+  static const std::vector<std::string> names{"sys", "E", "flow", "warped", "fused", "m", "out"};
+  return names;
+}
+
+void Model::add_conv(const Weights& w, const std::string& name, int cin, int cout, int k, int stride, int pad,
+                     bool leaky, float slope, bool transposed) {
+  ConvDesc d{name, cin, cout, k, stride, pad, transposed, leaky, slope};
+  const int id = backend_.prepare_conv(d, w.get(name + ".weight"), w.get(name + ".bias"));
+  convs_[name] = Conv{id, d};
+}
+
+void Model::add_unet(const Weights& w, const std::string& p, int cin, int cout, const UnetConfig& u) {
+  const float s = cfg_.unet_slope;
+  add_conv(w, p + ".head", cin, u.base, 3, 1, 1, false, 0.f);
+  auto res = [&](const std::string& q, int c) {
+    add_conv(w, q + ".conv.0.0", c, c, 3, 1, 1, true, s);
+    add_conv(w, q + ".conv.1", c, c, 3, 1, 1, false, 0.f);
+  };
+  for (int i = 0; i < u.depth; ++i) {
+    const int c = u.base << i;
+    const std::string d = p + ".down_path." + std::to_string(i);
+    res(d + ".conv1", c);
+    add_conv(w, d + ".conv2.0", c, c, 1, 1, 0, true, s);
+    add_conv(w, d + ".down.0", c, 2 * c, 3, 2, 1, true, s);
+  }
+  res(p + ".bottom.0", u.base << u.depth);
+  res(p + ".bottom.1", u.base << u.depth);
+  for (int i = 0; i < u.depth; ++i) {
+    const int c = u.base << i;
+    const std::string q = p + ".up_path." + std::to_string(i);
+    add_conv(w, q + ".deconv.0", 2 * c, c, 4, 2, 1, true, s, /*transposed=*/true);
+    add_conv(w, q + ".conv_skip.0", c, c, 1, 1, 0, true, s);
+    add_conv(w, q + ".conv1.0", 2 * c, c, 3, 1, 1, true, s);
+    res(q + ".conv2", c);
+  }
+  add_conv(w, p + ".pred", u.base, cout, 3, 1, 1, false, 0.f);
+}
+
+Model::Model(Backend& backend, const Weights& w) : backend_(backend), cfg_(w.config) {
+  cfg_.validate();
+  const int ev = cfg_.ev_channels();
+  add_conv(w, "SFENet1", 4 * (3 + 3 * ev), cfg_.G0, 5, 1, 2, false, 0.f);
+  add_conv(w, "SFENet2", cfg_.G0, cfg_.G0, 3, 1, 1, false, 0.f);
+  for (int d = 0; d < cfg_.D; ++d) {
+    const std::string p = "RDBs." + std::to_string(d);
+    for (int c = 0; c < cfg_.C; ++c)
+      add_conv(w, p + ".convs." + std::to_string(c) + ".conv.0", cfg_.G0 + c * cfg_.G, cfg_.G, 3, 1, 1, true, cfg_.rdb_slope);
+    add_conv(w, p + ".LFF", cfg_.G0 + cfg_.C * cfg_.G, cfg_.G0, 1, 1, 0, false, 0.f);
+  }
+  // GFF.0 (1x1 over the D block outputs) as D partial 1x1 convs accumulated block by block, so the
+  // D * G0-channel concatenation never exists (it is 82 MiB per frame at 346x260 and above the
+  // 128 MiB binding limit of lavapipe at 640x360).
+  const WeightTensor& gw = w.get("GFF.0.weight");
+  const WeightTensor& gb = w.get("GFF.0.bias");
+  for (int d = 0; d < cfg_.D; ++d) {
+    WeightTensor pw{{cfg_.G0, cfg_.G0, 1, 1}, std::vector<float>(size_t(cfg_.G0) * cfg_.G0)};
+    for (int co = 0; co < cfg_.G0; ++co)
+      for (int ci = 0; ci < cfg_.G0; ++ci)
+        pw.data[size_t(co) * cfg_.G0 + ci] = gw.data[size_t(co) * cfg_.D * cfg_.G0 + size_t(d) * cfg_.G0 + ci];
+    WeightTensor pb{{cfg_.G0}, d == 0 ? gb.data : std::vector<float>(size_t(cfg_.G0), 0.f)};
+    const std::string name = "GFF.0.part" + std::to_string(d);
+    ConvDesc desc{name, cfg_.G0, cfg_.G0, 1, 1, 0, false, false, 0.f};
+    convs_[name] = Conv{backend_.prepare_conv(desc, pw, pb), desc};
+  }
+  add_conv(w, "GFF.1", cfg_.G0, cfg_.G0, 3, 1, 1, false, 0.f);
+  add_conv(w, "UPNet.0", cfg_.G0, cfg_.upnet_width, 3, 1, 1, false, 0.f);
+  add_conv(w, "UPNet.2", cfg_.upnet_width / 4, 3, 3, 1, 1, false, 0.f);
+  add_unet(w, "flownet", 2 * ev + 3, 2, cfg_.flownet);
+  add_unet(w, "fusion_net", 3 + 3 + 2 + ev + 3, 3, cfg_.fusion_net);
+  if (cfg_.moa) add_unet(w, "attfusion_net", 3 + 3 + 2 * ev + 2 + 2, 1, cfg_.attfusion_net);
+}
+
+std::vector<std::string> Model::resolve_outputs(const std::vector<std::string>& requested, Mode mode) {
+  const bool m_mode = mode == Mode::m;
+  std::vector<std::string> names;
+  if (requested.empty()) {
+    for (const auto& nme : output_names())
+      if (m_mode || (nme != "m" && nme != "out")) names.push_back(nme);
+    return names;
+  }
+  for (const auto& nme : requested) {
+    if (std::find(output_names().begin(), output_names().end(), nme) == output_names().end())
+      throw Error("model: unknown output '" + nme + "' (expected sys, E, flow, warped, fused, m, out)");
+    if (!m_mode && (nme == "m" || nme == "out")) throw Error("model: output '" + nme + "' exists in mode m only");
+    if (std::find(names.begin(), names.end(), nme) == names.end()) names.push_back(nme);
+  }
+  return names;
+}
+
+const Model::Conv& Model::conv(const std::string& name) const {
+  auto it = convs_.find(name);
+  if (it == convs_.end()) throw Error("model: no layer '" + name + "'");
+  return it->second;
+}
+
+// ---- sizes -----------------------------------------------------------------------------------
+
+int64_t Model::synthesis_item_bytes(int64_t he, int64_t we) const {
+  const int64_t plane = (he / 2) * (we / 2);
+  const int64_t ev = cfg_.ev_channels();
+  return 4 * std::max({int64_t(cfg_.G0 + cfg_.C * cfg_.G) * plane, 4 * (3 + 3 * ev) * plane,  // RDB, s2d
+                       int64_t(cfg_.upnet_width) * plane});
+}
+
+int64_t Model::unet_item_bytes(const UnetConfig& u, int cin, int64_t he, int64_t we, int top, int left) const {
+  const int64_t plane = round_up(he + top, 32) * round_up(we + left, 32);
+  return 4 * plane * std::max<int64_t>(cin, 2 * u.base);
+}
+
+int Model::sub_items(int64_t item_bytes, uint64_t memory_budget) const {
+  const int64_t limit = static_cast<int64_t>(backend_.max_buffer_bytes());
+  if (item_bytes > limit)
+    throw Error("model: one batch item needs a " + std::to_string(item_bytes >> 20) + " MiB buffer, above the device's " +
+                std::to_string(limit >> 20) + " MiB storage-buffer limit; use a smaller image");
+  int64_t n = limit / item_bytes;
+  // A stage holds about three buffers of its largest size at once.
+  if (memory_budget) n = std::min<int64_t>(n, int64_t(memory_budget) / (3 * item_bytes));
+  return static_cast<int>(std::max<int64_t>(1, n));
+}
+
+int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const {
+  const int64_t he = round_up(h, 2), we = round_up(w, 2);
+  // Per item the whole-chunk buffers (inputs and outputs) and the largest working set of a stage.
+  const int64_t ev = cfg_.ev_channels();
+  const int64_t plane = he * we * 4;
+  const int64_t persistent = plane * (3 + 3 * ev + 3 + 3 + 2 + 3 + 3 + (mode == Mode::m ? 2 : 0));
+  const int64_t limit = static_cast<int64_t>(backend_.max_buffer_bytes());
+  int64_t per_item = std::max<int64_t>(1, plane * ev);  // the largest whole-chunk buffer must fit one binding
+  int64_t n = std::max<int64_t>(1, limit / per_item);
+  if (memory_budget) {
+    // A stage's working set is about 3x its largest buffer (see docs/model.md, memory plan).
+    const int64_t work = 3 * std::max({synthesis_item_bytes(he, we),
+                                       unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we),
+                                       unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we)});
+    n = std::max<int64_t>(1, std::min<int64_t>(n, (int64_t(memory_budget) - work) / std::max<int64_t>(1, persistent)));
+  }
+  if (mode == Mode::m) n = std::max<int64_t>(2, n & ~int64_t(1));
+  return static_cast<int>(std::min<int64_t>(n, 1 << 20));
+}
+
+int64_t Model::item_buffer_bytes(int64_t h, int64_t w, Mode mode, int top, int left) const {
+  const int64_t he = round_up(h, 2), we = round_up(w, 2), ev = cfg_.ev_channels();
+  int64_t b = std::max({4 * he * we * ev, synthesis_item_bytes(he, we), unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, top, left),
+                        unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, top, left)});
+  if (mode == Mode::m && cfg_.moa)
+    b = std::max(b, unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, top, left));
+  return b;
+}
+
+// ---- stages ----------------------------------------------------------------------------------
+
+int Model::resblock(const std::string& p, int x) {
+  Backend& b = backend_;
+  const Shape s = b.shape(x);
+  const int t = b.alloc(s, p + ".conv.0");
+  b.conv(conv(p + ".conv.0.0").id, whole(b, x), whole(b, t), nullptr);
+  const int y = b.alloc(s, p);
+  const BufferSlice res = whole(b, x);
+  b.conv(conv(p + ".conv.1").id, whole(b, t), whole(b, y), &res);
+  b.release(t);
+  b.release(x);
+  return y;
+}
+
+void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out, int top,
+                 int left) {
+  Backend& b = backend_;
+  const Shape s0 = b.shape(pieces.at(0).buf);
+  const int64_t n = pieces[0].n, h = s0.h, w = s0.w;
+  // Size adapter: reflection pad to multiples of 32, the odd remainder at the bottom/right (or at
+  // the given offsets: tiles, host/model/tiling.cpp).
+  const int64_t hp = round_up(h + std::max(top, 0), 32), wp = round_up(w + std::max(left, 0), 32);
+  if (top < 0) top = static_cast<int>((hp - h) / 2);
+  if (left < 0) left = static_cast<int>((wp - w) / 2);
+  int64_t cin = 0;
+  for (const auto& v : pieces) cin += v.c;
+  const int xin = b.alloc({n, cin, hp, wp}, p + ".input");
+  int64_t c0 = 0;
+  for (const auto& v : pieces) {
+    b.reflect_pad(v, chans(whole(b, xin), c0, v.c), top, left);
+    c0 += v.c;
+  }
+  int x = b.alloc({n, u.base, hp, wp}, p + ".head");
+  b.conv(conv(p + ".head").id, whole(b, xin), whole(b, x), nullptr);
+  b.release(xin);
+  std::vector<int> skips;
+  for (int i = 0; i < u.depth; ++i) {
+    const std::string d = p + ".down_path." + std::to_string(i);
+    const Shape s = b.shape(x);
+    x = resblock(d + ".conv1", x);
+    const int sk = b.alloc(s, d + ".skip");
+    b.conv(conv(d + ".conv2.0").id, whole(b, x), whole(b, sk), nullptr);
+    skips.push_back(sk);
+    const int dn = b.alloc({n, s.c * 2, s.h / 2, s.w / 2}, d + ".down");
+    b.conv(conv(d + ".down.0").id, whole(b, x), whole(b, dn), nullptr);
+    b.release(x);
+    x = dn;
+  }
+  x = resblock(p + ".bottom.0", x);
+  x = resblock(p + ".bottom.1", x);
+  for (int i = u.depth - 1; i >= 0; --i) {
+    const std::string q = p + ".up_path." + std::to_string(i);
+    const Shape s = b.shape(skips[i]);
+    const int cat = b.alloc({n, 2 * s.c, s.h, s.w}, q + ".cat");
+    b.conv(conv(q + ".deconv.0").id, whole(b, x), chans(whole(b, cat), 0, s.c), nullptr);
+    b.release(x);
+    b.conv(conv(q + ".conv_skip.0").id, whole(b, skips[i]), chans(whole(b, cat), s.c, s.c), nullptr);
+    b.release(skips[i]);
+    x = b.alloc(s, q + ".conv1");
+    b.conv(conv(q + ".conv1.0").id, whole(b, cat), whole(b, x), nullptr);
+    b.release(cat);
+    x = resblock(q + ".conv2", x);
+  }
+  const int pred = b.alloc({n, out.c, hp, wp}, p + ".pred");
+  b.conv(conv(p + ".pred").id, whole(b, x), whole(b, pred), nullptr);
+  b.release(x);
+  b.crop(whole(b, pred), out, top, left);
+  b.release(pred);
+}
+
+void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
+  Backend& b = backend_;
+  const int64_t ev = cfg_.ev_channels(), h2 = ch.he / 2, w2 = ch.we / 2;
+  // space_to_depth(cat(rs, ev1, ev2, ev3)): input channel c lands in output channels 4c..4c+3,
+  // so each piece goes straight into its range and the 99-channel concatenation never exists.
+  const int xs = b.alloc({n, 4 * (3 + 3 * ev), h2, w2}, "space_to_depth");
+  b.space_to_depth(items(b, ch.rs, i0, n), chans(whole(b, xs), 0, 12));
+  b.space_to_depth(items(b, ch.ev1, i0, n), chans(whole(b, xs), 12, 4 * ev));
+  b.space_to_depth(items(b, ch.ev2, i0, n), chans(whole(b, xs), 12 + 4 * ev, 4 * ev));
+  b.space_to_depth(items(b, ch.ev3, i0, n), chans(whole(b, xs), 12 + 8 * ev, 4 * ev));
+  const int f1 = b.alloc({n, cfg_.G0, h2, w2}, "SFENet1");
+  b.conv(conv("SFENet1").id, whole(b, xs), whole(b, f1), nullptr);
+  b.release(xs);
+  // Each block works in one buffer whose first G0 channels are its input and whose growing tail
+  // holds its convs' outputs; LFF (+ block input) writes the block output to a G0-channel buffer,
+  // GFF.0 accumulates it, and it is copied back into the head of the block buffer for the next
+  // block. Only one block buffer and two G0-channel accumulators are live.
+  const int blk = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
+  const int block_out = b.alloc({n, cfg_.G0, h2, w2}, "RDB output");
+  int acc = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
+  int acc2 = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
+  b.conv(conv("SFENet2").id, whole(b, f1), chans(whole(b, blk), 0, cfg_.G0), nullptr);
+  for (int d = 0; d < cfg_.D; ++d) {
+    const std::string p = "RDBs." + std::to_string(d);
+    for (int c = 0; c < cfg_.C; ++c)
+      b.conv(conv(p + ".convs." + std::to_string(c) + ".conv.0").id, chans(whole(b, blk), 0, cfg_.G0 + c * cfg_.G),
+             chans(whole(b, blk), cfg_.G0 + c * cfg_.G, cfg_.G), nullptr);
+    const BufferSlice res = chans(whole(b, blk), 0, cfg_.G0);
+    b.conv(conv(p + ".LFF").id, whole(b, blk), whole(b, block_out), &res);
+    const BufferSlice prev = whole(b, acc);
+    b.conv(conv("GFF.0.part" + std::to_string(d)).id, whole(b, block_out), whole(b, acc2), d ? &prev : nullptr);
+    std::swap(acc, acc2);
+    if (d + 1 < cfg_.D) b.copy(whole(b, block_out), chans(whole(b, blk), 0, cfg_.G0));
+  }
+  b.release(blk);
+  b.release(block_out);
+  b.release(acc2);
+  const int g0 = acc;
+  const int g = b.alloc({n, cfg_.G0, h2, w2}, "GFF.1");
+  const BufferSlice f1v = whole(b, f1);
+  b.conv(conv("GFF.1").id, whole(b, g0), whole(b, g), &f1v);
+  b.release(g0);
+  b.release(f1);
+  const int up = b.alloc({n, cfg_.upnet_width, h2, w2}, "UPNet.0");
+  b.conv(conv("UPNet.0").id, whole(b, g), whole(b, up), nullptr);
+  b.release(g);
+  const int shuf = b.alloc({n, cfg_.upnet_width / 4, ch.he, ch.we}, "depth_to_space");
+  b.depth_to_space(whole(b, up), whole(b, shuf));
+  b.release(up);
+  const int e_raw = b.alloc({n, 3, ch.he, ch.we}, "UPNet.2");
+  b.conv(conv("UPNet.2").id, whole(b, shuf), whole(b, e_raw), nullptr);
+  b.release(shuf);
+  b.tanh_scale(whole(b, e_raw), items(b, ch.E, i0, n), 1.f);
+  b.release(e_raw);
+  b.add(items(b, ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
+}
+
+void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
+  Backend& b = backend_;
+  const int raw = b.alloc({n, 2, ch.he, ch.we}, "flownet");
+  unet("flownet", cfg_.flownet, {items(b, ch.ev1, i0, n), items(b, ch.ev2, i0, n), items(b, ch.rs, i0, n)},
+       whole(b, raw), ch.pad_top, ch.pad_left);
+  b.tanh_scale(whole(b, raw), items(b, ch.flow, i0, n), 100.f);
+  b.release(raw);
+  b.backward_warp(items(b, ch.rs, i0, n), items(b, ch.flow, i0, n), items(b, ch.warped, i0, n));
+}
+
+void Model::stage_fusion(Chunk& ch, int64_t i0, int64_t n) {
+  Backend& b = backend_;
+  unet("fusion_net", cfg_.fusion_net,
+       {items(b, ch.sys, i0, n), items(b, ch.warped, i0, n), items(b, ch.flow, i0, n), items(b, ch.ev3, i0, n),
+        items(b, ch.rs, i0, n)},
+       items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
+}
+
+void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
+  Backend& b = backend_;
+  const int64_t ev = cfg_.ev_channels();
+  // Frames 1 and 2 of a target are batch items 2k and 2k+1: gather them into channel pieces.
+  const int64_t cin = 3 + 3 + 2 * ev + 2 + 2;
+  const int gathered = b.alloc({nt, cin, ch.he, ch.we}, "attfusion_net.gather");
+  for (int64_t k = 0; k < nt; ++k) {
+    const int64_t f1 = 2 * (t0 + k), f2 = f1 + 1;
+    const BufferSlice dst = items(b, gathered, k, 1);
+    b.copy(items(b, ch.E, f1, 1), chans(dst, 0, 3));
+    b.copy(items(b, ch.E, f2, 1), chans(dst, 3, 3));
+    b.copy(items(b, ch.ev1, f1, 1), chans(dst, 6, ev));
+    b.copy(items(b, ch.ev1, f2, 1), chans(dst, 6 + ev, ev));
+    b.copy(items(b, ch.flow, f1, 1), chans(dst, 6 + 2 * ev, 2));
+    b.copy(items(b, ch.flow, f2, 1), chans(dst, 8 + 2 * ev, 2));
+  }
+  const int score = b.alloc({nt, 1, ch.he, ch.we}, "attfusion_net");
+  unet("attfusion_net", cfg_.attfusion_net, {whole(b, gathered)}, whole(b, score), ch.pad_top, ch.pad_left);
+  b.release(gathered);
+  for (int64_t k = 0; k < nt; ++k) {
+    const int64_t f1 = 2 * (t0 + k);
+    b.hardsigmoid_blend(items(b, score, k, 1), items(b, ch.fused, f1, 1), items(b, ch.fused, f1 + 1, 1),
+                        items(b, ch.m, t0 + k, 1), items(b, ch.out, t0 + k, 1), force_m);
+  }
+  b.release(score);
+}
+
+// ---- run -------------------------------------------------------------------------------------
+
+std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOptions& opt) {
+  Backend& b = backend_;
+  const int64_t B = in.rs.shape.n, H = in.rs.shape.h, W = in.rs.shape.w, ev = cfg_.ev_channels();
+  if (in.rs.shape.c != 3) throw Error("model input 'rs' has shape " + in.rs.shape.str() + ", expected 3 channels");
+  if (B < 1 || H < 2 || W < 2) throw Error("model input 'rs' has shape " + in.rs.shape.str() + ", expected B >= 1, H and W >= 2");
+  check_input(in.rs, "rs", B, 3, H, W);
+  check_input(in.ev1, "ev1", B, ev, H, W);
+  check_input(in.ev2, "ev2", B, ev, H, W);
+  check_input(in.ev3, "ev3", B, ev, H, W);
+  check_finite(in.rs, "rs");
+  check_finite(in.ev1, "ev1");
+  check_finite(in.ev2, "ev2");
+  check_finite(in.ev3, "ev3");
+  const bool m_mode = opt.mode == Mode::m;
+  if (m_mode && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
+  if (m_mode && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
+
+  const std::vector<std::string> wanted = resolve_outputs(opt.outputs, opt.mode);
+  const std::set<std::string> want(wanted.begin(), wanted.end());
+
+  const int64_t he = round_up(H, 2), we = round_up(W, 2);
+  int64_t per_chunk = opt.max_items > 0 ? opt.max_items : items_per_chunk(H, W, opt.mode, opt.memory_budget);
+  if (m_mode) per_chunk = std::max<int64_t>(2, per_chunk & ~int64_t(1));
+  per_chunk = std::min(per_chunk, B);
+  const uint64_t budget = opt.memory_budget;
+  const int sub_t = sub_items(synthesis_item_bytes(he, we), budget);
+  if (opt.unet_pad_top >= he || opt.unet_pad_left >= we)
+    throw Error("model: UNet input offset (" + std::to_string(opt.unet_pad_top) + ", " + std::to_string(opt.unet_pad_left) +
+                ") must lie inside the " + std::to_string(we) + "x" + std::to_string(he) + " input (reflection padding)");
+  const int ptop = std::max(opt.unet_pad_top, 0), pleft = std::max(opt.unet_pad_left, 0);
+  const int sub_f = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, ptop, pleft), budget);
+  const int sub_u = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, ptop, pleft), budget);
+  const int sub_m =
+      m_mode ? sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, ptop, pleft), budget) : 1;
+
+  std::map<std::string, HostTensor> result;
+  const int64_t K = m_mode ? B / 2 : 0;
+  auto shape_of = [&](const std::string& nme) -> Shape {
+    if (nme == "m") return {K, 1, H, W};
+    if (nme == "out") return {K, 3, H, W};
+    if (nme == "flow") return {B, 2, H, W};
+    return {B, 3, H, W};
+  };
+  for (const auto& nme : want) result[nme] = HostTensor{shape_of(nme), std::vector<float>(size_t(shape_of(nme).count()))};
+
+  for (int64_t c0 = 0; c0 < B; c0 += per_chunk) {
+    Chunk ch;
+    ch.n = std::min(per_chunk, B - c0);
+    ch.nt = m_mode ? ch.n / 2 : 0;
+    ch.he = he;
+    ch.we = we;
+    ch.pad_top = opt.unet_pad_top;
+    ch.pad_left = opt.unet_pad_left;
+    // Inputs: uploaded at H x W, reflected by one row/column to even sizes when odd.
+    auto input = [&](const HostTensor& a, const char* nme) {
+      const int64_t c = a.shape.c;
+      const int buf = b.alloc({ch.n, c, he, we}, nme);
+      std::span<const float> src(a.data.data() + c0 * c * H * W, size_t(ch.n * c * H * W));
+      if (he == H && we == W) {
+        b.upload(whole(b, buf), src);
+      } else {
+        const int tmp = b.alloc({ch.n, c, H, W}, std::string(nme) + ".odd");
+        b.upload(whole(b, tmp), src);
+        b.reflect_pad(whole(b, tmp), whole(b, buf), 0, 0);
+        b.release(tmp);
+      }
+      return buf;
+    };
+    ch.rs = input(in.rs, "rs");
+    ch.ev1 = input(in.ev1, "ev1");
+    ch.ev2 = input(in.ev2, "ev2");
+    ch.ev3 = input(in.ev3, "ev3");
+    ch.E = b.alloc({ch.n, 3, he, we}, "E");
+    ch.sys = b.alloc({ch.n, 3, he, we}, "sys");
+    ch.flow = b.alloc({ch.n, 2, he, we}, "flow");
+    ch.warped = b.alloc({ch.n, 3, he, we}, "warped");
+    ch.fused = b.alloc({ch.n, 3, he, we}, "fused");
+    auto stage_clock = std::chrono::steady_clock::now();
+    auto stage_done = [&](const char* stage) {
+      const auto now = std::chrono::steady_clock::now();
+      if (opt.stage_ms) (*opt.stage_ms)[stage] += std::chrono::duration<double, std::milli>(now - stage_clock).count();
+      stage_clock = now;
+    };
+    for (int64_t i = 0; i < ch.n; i += sub_t) {
+      stage_synthesis(ch, i, std::min<int64_t>(sub_t, ch.n - i));
+      b.flush();
+    }
+    for (int64_t i = 0; i < ch.n; i += sub_f) {
+      stage_flow(ch, i, std::min<int64_t>(sub_f, ch.n - i));
+      b.flush();
+    }
+    b.release(ch.ev2);
+    for (int64_t i = 0; i < ch.n; i += sub_u) {
+      stage_fusion(ch, i, std::min<int64_t>(sub_u, ch.n - i));
+      b.flush();
+    }
+    b.release(ch.ev3);
+    stage_done("eic");  // E-IC_T, E-IC_S and fusion: the SelfUnroll-S result
+    if (m_mode) {
+      ch.m = b.alloc({ch.nt, 1, he, we}, "m");
+      ch.out = b.alloc({ch.nt, 3, he, we}, "out");
+      for (int64_t t = 0; t < ch.nt; t += sub_m) {
+        stage_moa(ch, t, std::min<int64_t>(sub_m, ch.nt - t), opt.force_m);
+        b.flush();
+      }
+    }
+    if (m_mode) stage_done("moa");
+    // Download and crop to H x W.
+    auto fetch = [&](const std::string& nme, int buf, int64_t first) {
+      if (!want.count(nme)) return;
+      const BufferSlice v = whole(b, buf);
+      const std::vector<float> d = b.download(v);
+      HostTensor& dst = result[nme];
+      for (int64_t i = 0; i < v.n; ++i)
+        for (int64_t c = 0; c < v.c; ++c)
+          for (int64_t y = 0; y < H; ++y) {
+            const float* s = d.data() + ((i * v.c + c) * he + y) * we;
+            std::copy(s, s + W, dst.data.begin() + (((first + i) * v.c + c) * H + y) * W);
+          }
+    };
+    fetch("sys", ch.sys, c0);
+    fetch("E", ch.E, c0);
+    fetch("flow", ch.flow, c0);
+    fetch("warped", ch.warped, c0);
+    fetch("fused", ch.fused, c0);
+    if (m_mode) {
+      fetch("m", ch.m, c0 / 2);
+      fetch("out", ch.out, c0 / 2);
+      b.release(ch.m);
+      b.release(ch.out);
+    }
+    for (int buf : {ch.rs, ch.ev1, ch.E, ch.sys, ch.flow, ch.warped, ch.fused}) b.release(buf);
+  }
+  return result;
+}
+
+}  // namespace vkunroll

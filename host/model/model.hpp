@@ -1,0 +1,100 @@
+// SelfUnroll-S and -M (docs/model.md): the graph of ../shared/reference/selfunroll-network.md,
+// written once against the Backend interface (host/model/backend.hpp) and run by any backend.
+//
+//   Weights w = load_weights("model.safetensors");
+//   CpuBackend cpu;               // or VulkanBackend vk(ctx);
+//   Model model(cpu, w);
+//   auto out = model.run({rs, ev1, ev2, ev3}, {.mode = Mode::m});   // out["out"], out["fused"], ...
+#pragma once
+#include <map>
+#include <string>
+#include <vector>
+
+#include "vkunroll/base/host_tensor.hpp"
+#include "vkunroll/host/model/backend.hpp"
+#include "vkunroll/host/model/weights.hpp"
+
+namespace vkunroll {
+
+enum class Mode { s, m };
+
+struct ModelInputs {
+  // rs [B,3,H,W]; ev1, ev2, ev3 [B,2N,H,W]. SelfUnroll-S: B targets run independently.
+  // SelfUnroll-M: B = 2K, items 2k and 2k+1 are RS frames 1 and 2 toward target k.
+  HostTensor rs, ev1, ev2, ev3;
+};
+
+struct RunOptions {
+  Mode mode = Mode::s;
+  // Names to return among sys, E, flow, warped, fused, m, out; empty: all of the mode.
+  std::vector<std::string> outputs;
+  // >= 0: replaces the MOA blend map m by this constant (tests: m = 1 gives S of frame 1).
+  float force_m = -1.f;
+  // Most batch items (M: frames, always whole pairs) run together; 0: as many as the backend's
+  // buffer limit and `memory_budget` allow.
+  int max_items = 0;
+  // Bytes of intermediates the run should hold at once (0: no limit other than buffer size); it
+  // bounds the chunk and sub-batch sizes (a single item may still need more, see docs/model.md).
+  uint64_t memory_budget = 0;
+  // >= 0: every UNet's size adapter places its input at this row / column of the padded input
+  // (which then extends to the next multiple of 32) instead of centering it; host/model/tiling.cpp gives
+  // each tile the untiled run's offsets, so a tile sees the untiled run's stride grid.
+  int unet_pad_top = -1, unet_pad_left = -1;
+  // When set, wall milliseconds are added under "eic" (E-IC_T, E-IC_S, fusion) and "moa".
+  std::map<std::string, double>* stage_ms = nullptr;
+};
+
+class Model {
+ public:
+  Model(Backend& backend, const Weights& weights);
+  const ModelConfig& config() const { return cfg_; }
+  Backend& backend() { return backend_; }
+
+  // Runs the network; returns the requested intermediates by their reference names, cropped to
+  // the input's H x W (sys, E, flow, warped, fused: B items; m, out: K = B/2 items).
+  std::map<std::string, HostTensor> run(const ModelInputs& in, const RunOptions& opt);
+
+  // Batch items one chunk holds for inputs of this size (what run() uses when max_items = 0).
+  int items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const;
+  // Bytes of the largest single buffer one batch item of this size needs (run() throws when it
+  // exceeds the backend's max_buffer_bytes()); host/model/tiling.cpp sizes tiles with it.
+  // (pad_top, pad_left: RunOptions::unet_pad_top / left when set.)
+  int64_t item_buffer_bytes(int64_t h, int64_t w, Mode mode, int pad_top = 0, int pad_left = 0) const;
+
+  static const std::vector<std::string>& output_names();  // sys, E, flow, warped, fused, m, out
+  // The outputs a run returns: `requested`, or every output of the mode when empty (in
+  // output_names() order); throws Error for an unknown name or m/out outside mode m.
+  static std::vector<std::string> resolve_outputs(const std::vector<std::string>& requested, Mode mode);
+
+ private:
+  struct Conv {
+    int id = -1;
+    ConvDesc desc;
+  };
+  const Conv& conv(const std::string& name) const;
+  void add_conv(const Weights& w, const std::string& name, int cin, int cout, int k, int stride, int pad,
+                bool leaky, float slope, bool transposed = false);
+  void add_unet(const Weights& w, const std::string& p, int cin, int cout, const UnetConfig& u);
+
+  // Stages on batch items [i0, i0+n) of the chunk buffers.
+  struct Chunk;
+  void stage_synthesis(Chunk& ch, int64_t i0, int64_t n);
+  void stage_flow(Chunk& ch, int64_t i0, int64_t n);
+  void stage_fusion(Chunk& ch, int64_t i0, int64_t n);
+  void stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m);
+  // The UNet on `pieces` (views with n items, concatenated along channels), output to `out`.
+  // top, left >= 0: the input's offset in the padded input (RunOptions::unet_pad_top / left).
+  void unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out, int top = -1,
+            int left = -1);
+  int resblock(const std::string& p, int x);  // returns the output buffer; releases x
+
+  int64_t synthesis_item_bytes(int64_t h, int64_t w) const;
+  int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w, int top = 0, int left = 0) const;
+  int sub_items(int64_t item_bytes, uint64_t memory_budget) const;
+
+  Backend& backend_;
+  ModelConfig cfg_;
+  std::map<std::string, Conv> convs_;
+};
+
+}  // namespace vkunroll

@@ -1,0 +1,128 @@
+// Tiled and event-driven sparse execution of the SelfUnroll model (docs/tiling.md).
+//
+// The image is cut into tiles: an interior (the pixels a tile writes) grown by a halo (context the
+// network reads, clipped to the image). Each tile's input rect runs through Model::run, tiles of
+// equal shape batched together, and the interiors are stitched into full-size outputs. This bounds
+// every device tensor by the tile size (any image size runs), and lets tiles without events skip
+// the network (sparse policies).
+//
+//   TileOptions t;
+//   t.tile = 0;                       // 0: untiled if it fits the backend, else the largest tile that fits
+//   t.halo = 64;                      // exact when >= exact_halo(cfg, mode, max |flow|)
+//   t.sparse = SparsePolicy::exact;   // tiles with no ev1/ev2 event take the RS pixels
+//   TiledResult r = run_tiled(model, inputs, run_options, t);
+//   r.outputs["fused"], r.active_fraction, r.stage_ms["model"], ...
+//
+// Alignment (why tile and halo are multiples of 32): the model works at even size (space_to_depth)
+// and every UNet pads its input to multiples of 32. Tile origins on the 32-grid see the untiled
+// run's space_to_depth cells, and each tile's UNet places its input at the untiled run's offset
+// (RunOptions::unet_pad_top / left), so it sees the untiled stride grid and border reflection. A
+// tiled run with halo >= exact_halo() then equals the untiled one bit for bit on the CPU backend,
+// for any image size (tests/test_tiling.cpp); smaller halos differ by a measured tolerance.
+#pragma once
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "vkunroll/host/model/model.hpp"
+
+namespace vkunroll {
+
+// Tile origins, interiors and halos are multiples of this (see above).
+constexpr int64_t kTileAlign = 32;
+
+struct Rect {
+  int64_t y = 0, x = 0, h = 0, w = 0;
+  int64_t area() const { return h * w; }
+  bool operator==(const Rect&) const = default;
+};
+
+struct Tile {
+  Rect interior;  // pixels this tile writes; the interiors partition the image
+  Rect input;     // interior grown by the halo, clipped to the image: what the network reads
+};
+
+struct TilePlan {
+  int64_t height = 0, width = 0;
+  int64_t tile_h = 0, tile_w = 0;  // interior size (the last row/column of tiles may be smaller)
+  int64_t halo = 0;
+  std::vector<Tile> tiles;  // row-major
+  bool untiled() const { return tiles.size() == 1; }
+};
+
+// Tiles of tile_h x tile_w interior (multiples of kTileAlign, or >= the image side) with `halo`
+// (a multiple of kTileAlign) on every side. Throws Error naming the bad value.
+TilePlan make_tile_plan(int64_t height, int64_t width, int64_t tile_h, int64_t tile_w, int64_t halo);
+
+// Receptive-field radii (pixels of the full-resolution image, one side) of each branch, from the
+// layer list: how far an output pixel's value can depend on input pixels.
+struct ReceptiveRadius {
+  int64_t synthesis = 0;  // E-IC_T: E, sys (convs at half resolution after space_to_depth)
+  int64_t flownet = 0;    // flow
+  int64_t fusion_net = 0;
+  int64_t attfusion_net = 0;
+  int64_t fused = 0;      // fusion_net + max(synthesis, flownet): the S output, flow displacement excluded
+  int64_t out = 0;        // max(fused, attfusion_net + max(synthesis, flownet)): the M output, same
+};
+ReceptiveRadius receptive_radius(const ModelConfig& cfg);
+// One UNet: the head, each level's ResBlock + stride-2 conv, the bottom, each level's deconv,
+// conv1 and ResBlock, the pred conv: 12 * 2^depth - 6.
+int64_t unet_receptive_radius(const UnetConfig& u);
+
+// The halo for which a tiled run equals the untiled one: the output's receptive radius, where
+// backward_warp's displacement (it samples rs at +flow, up to 100 px) may reach further:
+// fusion_net + max(synthesis, flownet, ceil(max_flow) + 1); rounded up to kTileAlign.
+int64_t exact_halo(const ModelConfig& cfg, Mode mode, double max_flow);
+
+enum class SparsePolicy {
+  off,    // every tile runs the network
+  exact,  // tiles whose input rect holds no ev1/ev2 event take the RS pixels (nothing moved there)
+  fast,   // tiles whose ev1+ev2 events per pixel of the input rect are below `threshold` take the RS pixels
+};
+SparsePolicy parse_sparse_policy(const std::string& s, const std::string& what);  // "off" | "exact" | "fast"
+const char* sparse_policy_name(SparsePolicy p);
+
+struct TileOptions {
+  int64_t tile = 0;      // interior side (multiple of 32); 0: untiled if the image fits, else the largest that fits
+  int64_t halo = 64;     // multiple of 32; ignored when the run is untiled
+  SparsePolicy sparse = SparsePolicy::off;
+  double threshold = 0.01;  // fast: events per pixel (ev1 + ev2 |counts| over the input rect)
+  // Limit for any one tensor when choosing the tile (0: the backend's max_buffer_bytes()).
+  uint64_t max_buffer_bytes = 0;
+  // Most tile items (tiles x batch items) per Model::run call (0: as many tiles as hold no more
+  // pixels than one untiled target, and at most 256 MiB of input copies; M: whole pairs).
+  int max_batch = 0;
+  // Sparse only: per target, each 4-connected group of active tiles runs as one rect (the group's
+  // bounding box, one halo around it), so neighbouring active tiles do not each pay a halo. A group
+  // wider or taller than max(tile, max_region) runs tile by tile (max_region 0: the largest tile
+  // that fits the device, choose_tile()).
+  bool merge_active = true;
+  int64_t max_region = 0;
+};
+
+struct TiledResult {
+  std::map<std::string, HostTensor> outputs;  // as Model::run: full H x W
+  TilePlan plan;
+  int64_t tiles = 0;          // tiles x targets considered
+  int64_t tiles_run = 0;      // of them, run through the network
+  double active_fraction = 1; // tiles_run / tiles
+  std::vector<double> target_active_fraction;  // per target (S: batch item; M: pair)
+  // Pixels the network processed (input rects of the tiles run) / pixels of the untiled run of
+  // every target: the halo overhead times the active fraction (1 for an untiled dense run).
+  double work_ratio = 1;
+  // Wall milliseconds: "plan", "cut" (activity + input crops), "model" (Model::run, with its
+  // "eic" and "moa" split), "stitch".
+  std::map<std::string, double> stage_ms;
+};
+
+// The largest tile interior (multiple of 32, square, clamped to the image) whose input rect
+// (interior + 2 halo) fits every tensor of one batch item under the buffer limit; the whole
+// image (tile = max side) when the untiled run fits. Throws Error when even 32 + 2 halo does not fit.
+int64_t choose_tile(const Model& model, int64_t height, int64_t width, Mode mode, int64_t halo, uint64_t max_buffer_bytes);
+
+// Runs the model tile by tile (see the top of this file). Inactive tiles (sparse policy) take:
+// sys, warped, fused, out = rs (S: the item's frame; M: frame 1 of the pair), E = 0, flow = 0, m = 1.
+TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt, const TileOptions& topt);
+
+}  // namespace vkunroll

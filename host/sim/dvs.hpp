@@ -1,0 +1,99 @@
+// DVS event generation from a sequence of luminance images (ESIM / v2e style): per-pixel log
+// intensity with a memorized reference level, linear interpolation between samples, per-pixel
+// ON/OFF thresholds with mismatch, optional photoreceptor low-pass, refractory period, leak and
+// shot noise. Every event carries its own interpolated crossing time (rounded to integer us).
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "vkunroll/base/events.hpp"
+
+namespace vkunroll::sim {
+
+struct EventSimParams {
+  double c_on = 0.2;            // mean ON threshold, log-intensity units
+  double c_off = 0.2;           // mean OFF threshold
+  double sigma = 0.0;           // per-pixel threshold mismatch (std, absolute log units, like v2e's sigma_thres)
+  double c_min = 0.01;          // thresholds drawn below this are clipped to it
+  double refractory_us = 0.0;   // after an event a pixel cannot fire for this long (changes still tracked)
+  double leak_hz = 0.0;         // ON "leak" events per second per pixel (reference drifts down)
+  double shot_hz = 0.0;         // shot-noise events per second per pixel in the dark (ON and OFF halves)
+  double cutoff_hz = 0.0;       // photoreceptor 3 dB bandwidth at full intensity; 0 = unlimited
+  double eps = 0.05;            // log(eps + I): dark floor of the log response (I linear in [0, 1])
+  uint64_t seed = 1;            // thresholds, noise and leak phases
+
+  nlohmann::json to_json() const;
+};
+
+// Named parameter sets: "clean", "realistic", "noisy" (values and reasons in docs/simulator.md).
+EventSimParams event_preset(const std::string& name);
+
+struct EventSimStats {
+  uint64_t on = 0, off = 0;              // emitted events by polarity (all causes)
+  uint64_t shot = 0;                     // of which shot noise
+  uint64_t dropped_refractory = 0;       // threshold crossings suppressed by the refractory period
+  uint64_t samples = 0;                  // luminance samples processed (after the first)
+  nlohmann::json to_json() const;
+};
+
+class EventSimulator {
+ public:
+  EventSimulator(int width, int height, const EventSimParams& params);
+
+  // Starts at time t with the given luminance (CV_32FC1, linear): reference levels are set to it.
+  void reset(double t_us, const cv::Mat& luminance);
+  // Prepares a candidate next sample and returns the largest |change of log(eps + I)| of any
+  // pixel since the last accepted sample (what an adaptive time step controls).
+  double propose(const cv::Mat& luminance);
+  // Accepts the proposed sample at time t (> the last time) and emits the events in between.
+  void accept(double t_us);
+  // propose + accept.
+  void advance(double t_us, const cv::Mat& luminance) {
+    propose(luminance);
+    accept(t_us);
+  }
+
+  double time_us() const { return t_; }
+  const EventStream& events() const { return events_; }
+  EventStream take_events();
+  const EventSimStats& stats() const { return stats_; }
+  const EventSimParams& params() const { return params_; }
+  // The per-pixel thresholds actually used (CV_32FC1), for tests and diagnostics.
+  cv::Mat thresholds_on() const { return c_on_; }
+  cv::Mat thresholds_off() const { return c_off_; }
+
+ private:
+  struct RawEvent {
+    int64_t t;
+    uint16_t x, y;
+    int8_t p;
+  };
+  void log_of(const cv::Mat& luminance, cv::Mat& out) const;
+  // The next random draw of pixel i's shot-noise stream (each pixel has its own counter).
+  uint64_t draw_shot(size_t i);
+
+  int width_, height_;
+  EventSimParams params_;
+  bool started_ = false;
+  bool proposed_ = false;
+  double t_ = 0.0;
+  cv::Mat log_prev_, log_next_;          // raw log intensity at the last / proposed sample
+  cv::Mat lum_prev_, lum_next_;          // linear luminance (noise and bandwidth depend on it)
+  cv::Mat filt_;                         // low-pass-filtered log intensity (when cutoff_hz > 0)
+  cv::Mat ref_;                          // memorized reference level per pixel
+  cv::Mat c_on_, c_off_;                 // per-pixel thresholds
+  std::vector<double> last_event_;       // per-pixel time of the last emitted event
+  std::vector<double> next_shot_;        // per-pixel time of the next shot-noise candidate
+  std::vector<uint32_t> shot_draws_;     // per-pixel counter of random draws
+  std::vector<std::vector<RawEvent>> row_events_;
+  std::vector<uint64_t> row_dropped_, row_shot_;
+  std::vector<RawEvent> batch_;
+  EventStream events_;
+  EventSimStats stats_;
+};
+
+}  // namespace vkunroll::sim

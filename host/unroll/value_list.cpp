@@ -1,0 +1,64 @@
+#include "vkunroll/host/unroll/value_list.hpp"
+
+#include "vkunroll/base/error.hpp"
+
+namespace vkunroll {
+namespace {
+
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  size_t pos = 0;
+  while (true) {
+    const size_t n = s.find(sep, pos);
+    out.push_back(s.substr(pos, n == std::string::npos ? std::string::npos : n - pos));
+    if (n == std::string::npos) break;
+    pos = n + 1;
+  }
+  return out;
+}
+
+std::vector<Rational> parse_items(const std::string& text, const std::string& what, bool frames) {
+  if (text.empty()) throw Error(what + ": empty list");
+  std::vector<Rational> out;
+  for (const auto& item : split(text, ',')) {
+    if (item.empty()) throw Error(what + ": empty item in '" + text + "'");
+    const auto parts = split(item, ':');
+    if (parts.size() == 1) {
+      out.push_back(Rational::parse(item, what));
+    } else if (parts.size() == 2 && frames) {
+      const Rational a = Rational::parse(parts[0], what), b = Rational::parse(parts[1], what);
+      if (a.den() != 1 || b.den() != 1 || b < a)
+        throw Error(what + ": '" + item + "' must be a:b with integers a <= b");
+      for (int64_t v = a.floor(); v <= b.floor(); ++v) out.push_back(Rational(v));
+    } else if (parts.size() == 3) {
+      const Rational a = Rational::parse(parts[0], what), b = Rational::parse(parts[1], what);
+      const Rational n = Rational::parse(parts[2], what);
+      if (n.den() != 1 || n < Rational(1) || n > Rational(1000000))
+        throw Error(what + ": '" + item + "': the count (third number) must be an integer in [1, 1000000]");
+      const int64_t count = n.floor();
+      for (int64_t i = 0; i < count; ++i)
+        out.push_back(count == 1 ? a : a + (b - a) * Rational(i) / Rational(count - 1));
+    } else {
+      throw Error(what + ": '" + item + "' is not a value or start:stop:count" + (frames ? " or a:b" : ""));
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+std::vector<Rational> parse_value_list(const std::string& text, const std::string& what) {
+  return parse_items(text, what, false);
+}
+
+std::vector<int> parse_frame_list(const std::string& text, const std::string& what) {
+  std::vector<int> out;
+  for (const auto& v : parse_items(text, what, true)) {
+    if (v.den() != 1 || v < Rational(0) || v > Rational(1 << 30))
+      throw Error(what + ": frame " + v.str() + " is not a non-negative integer");
+    out.push_back(static_cast<int>(v.floor()));
+  }
+  return out;
+}
+
+}  // namespace vkunroll
