@@ -1,5 +1,6 @@
 #include "vkunroll/base/row_timing.hpp"
 
+#include <algorithm>
 #include <cctype>
 #include <cmath>
 #include <limits>
@@ -182,6 +183,18 @@ Rational RowTiming::start(int y) const {
   return t0 + line_delay * Rational(read_index(y));
 }
 Rational RowTiming::end(int y) const { return start(y) + exposure; }
+std::vector<double> RowTiming::start_times_us() const {
+  std::vector<double> v(static_cast<size_t>(std::max(rows, 0)));
+  for (int y = 0; y < rows; ++y) v[y] = start(y).to_double();
+  return v;
+}
+
+std::vector<double> RowTiming::end_times_us() const {
+  std::vector<double> v(static_cast<size_t>(std::max(rows, 0)));
+  for (int y = 0; y < rows; ++y) v[y] = end(y).to_double();
+  return v;
+}
+
 Rational RowTiming::last_end() const { return t0 + line_delay * Rational(rows - 1) + exposure; }
 
 void RowTiming::validate(const std::string& what) const {

@@ -77,6 +77,9 @@ struct RowTiming {
   int read_index(int y) const { return readout == Readout::top_down ? y : rows - 1 - y; }
   Rational start(int y) const;  // throws Error if y is not in [0, rows)
   Rational end(int y) const;
+  // start(y) / end(y) of every row as float64 microseconds (what the physics gatherer reads).
+  std::vector<double> start_times_us() const;
+  std::vector<double> end_times_us() const;
   // First row's start and last read-out row's end: the frame's full span.
   Rational first_start() const { return t0; }
   Rational last_end() const;

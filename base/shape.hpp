@@ -1,4 +1,4 @@
-// The extent of an NCHW tensor, on the host or on the device.
+// The extent of an NCHW tensor, on the host or on the device, and a rectangle of its pixels.
 #pragma once
 #include <cstdint>
 #include <string>
@@ -11,6 +11,13 @@ struct Shape {
   int64_t plane() const { return h * w; }
   bool operator==(const Shape&) const = default;
   std::string str() const { return std::to_string(n) + "x" + std::to_string(c) + "x" + std::to_string(h) + "x" + std::to_string(w); }
+};
+
+// A rectangle of pixels: rows [y, y + h), columns [x, x + w).
+struct Rect {
+  int64_t y = 0, x = 0, h = 0, w = 0;
+  int64_t area() const { return h * w; }
+  bool operator==(const Rect&) const = default;
 };
 
 }  // namespace vkunroll

@@ -122,7 +122,8 @@ double max_abs_diff(const fs::path& a_dir, const fs::path& b_dir) {
 double compute_ms(const nlohmann::json& s) {
   const auto& p = s.at("ms_per_gs_frame");
   double ms = 0;
-  for (const char* k : {"event_tensors", "eic", "moa", "physics", "tiling"})
+  // Everything but reading and writing files: host planning and recording, transfers, waiting for the device.
+  for (const char* k : {"event_tensors", "model", "physics", "transfer"})
     if (p.contains(k)) ms += p[k].get<double>();
   return ms;
 }
@@ -312,13 +313,13 @@ int main(int argc, char** argv) try {
         UnrollOptions o;
         o.sequence = seq_dir.string();
         o.out_dir = dir.string();
-        o.model_path = spec.mode == "physics" ? "" : model;
-        o.mode = spec.mode;
-        o.times = "gt";
+        o.session.model_path = spec.mode == "physics" ? "" : model;
+        o.mode = parse_unroll_mode(spec.mode, "mode");
+        o.times = {TargetTimes::Kind::ground_truth, {}};
         o.quiet = true;
-        o.video = false;
-        o.bit_depth = 16;
-        o.sparse = spec.sparse;
+        o.output.write_video = false;
+        o.output.bit_depth = 16;
+        o.sparse = parse_sparse_policy(spec.sparse, "sparse");
         o.sparse_threshold = spec.threshold;
         o.tile = spec.tile;
         o.halo = spec.halo;
@@ -358,12 +359,12 @@ int main(int argc, char** argv) try {
       UnrollOptions o;
       o.sequence = seq_dir.string();
       o.out_dir = (runs / ("published_" + size.str())).string();
-      o.model_path = wfile.string();
-      o.mode = mode;
-      o.times = "0.5";
-      o.frames = "0";
+      o.session.model_path = wfile.string();
+      o.mode = parse_unroll_mode(mode, "mode");
+      o.times = {TargetTimes::Kind::normalized, {Rational(1, 2)}};
+      o.frames = {0};
       o.quiet = true;
-      o.video = false;
+      o.output.write_video = false;
       std::cerr << "report: published configuration, one target at " << size.str() << " ..." << std::flush;
       try {
         const nlohmann::json s = run_unroll(o);

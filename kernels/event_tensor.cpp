@@ -219,6 +219,41 @@ EventTensors split_tensors(std::vector<float>&& flat, size_t pairs, const EventT
 }
 }  // namespace
 
+std::vector<std::vector<uint32_t>> selected_event_counts(const EventStream& events,
+                                                         const std::vector<EventTensorPair>& pairs,
+                                                         const EventTensorSpec& spec) {
+  check_spec(spec);
+  const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
+  const size_t plane = static_cast<size_t>(c.width) * c.height;
+  std::vector<std::vector<uint32_t>> out(pairs.size(), std::vector<uint32_t>(plane, 0));
+  for (size_t p = 0; p < pairs.size(); ++p) {
+    const RowIntervals jobs[2] = {ev1_intervals(pairs[p]), ev2_intervals(pairs[p])};
+    check_jobs(events, {jobs[0], jobs[1]});
+    // An integer t is selected iff min(a, b) <= t < max(a, b): ceil(min) <= t < ceil(max).
+    std::vector<int64_t> lo(2 * c.height), hi(2 * c.height);
+    int64_t t_lo = std::numeric_limits<int64_t>::max(), t_hi = std::numeric_limits<int64_t>::min();
+    for (int j = 0; j < 2; ++j)
+      for (int r = 0; r < c.height; ++r) {
+        const Rational& a = jobs[j].a[c.y0 + r];
+        const Rational& b = jobs[j].b[c.y0 + r];
+        lo[j * c.height + r] = std::min(a, b).ceil();
+        hi[j * c.height + r] = std::max(a, b).ceil();
+        if (a != b) t_lo = std::min(t_lo, lo[j * c.height + r]), t_hi = std::max(t_hi, hi[j * c.height + r]);
+      }
+    if (t_lo >= t_hi) continue;
+    const size_t e0 = std::lower_bound(events.t.begin(), events.t.end(), t_lo) - events.t.begin();
+    const size_t e1 = std::lower_bound(events.t.begin(), events.t.end(), t_hi) - events.t.begin();
+    uint32_t* o = out[p].data();
+    for (size_t i = e0; i < e1; ++i) {
+      const int x = events.x[i] - c.x0, y = events.y[i] - c.y0;
+      if (x < 0 || y < 0 || x >= c.width || y >= c.height) continue;
+      const int64_t t = events.t[i];
+      o[static_cast<size_t>(y) * c.width + x] += (t >= lo[y] && t < hi[y]) + (t >= lo[c.height + y] && t < hi[c.height + y]);
+    }
+  }
+  return out;
+}
+
 EventTensors build_event_tensors_ref(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                                      const EventTensorSpec& spec) {
   const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
@@ -454,7 +489,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
   if (algorithm_ == EventBinAlgorithm::sparse && !allow_sparse)
     throw Error("event tensor: the sparse algorithm keeps its output; use build, bin or build_resident");
   if ((algorithm_ == EventBinAlgorithm::automatic && allow_sparse) || algorithm_ == EventBinAlgorithm::sparse) {
-    if (execute_sparse(events, plan, chunks, done)) {
+    if (execute_sparse(events, plan, chunks, done, nullptr)) {
       last_algorithm_ = EventBinAlgorithm::sparse;
       return;
     }
@@ -573,7 +608,7 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
 
 bool EventTensorBuilder::execute_sparse(const EventStream& events, const BinningPlan& plan,
                                         const std::vector<std::pair<size_t, size_t>>& chunks,
-                                        const std::function<void(size_t, Tensor&)>& done) {
+                                        const std::function<void(size_t, Tensor&)>& done, CommandStream* external) {
   const size_t max_words = ctx_.info().max_storage_buffer_range / 4;
   if (2 * (plan.last_event - plan.first_event) > max_words) return false;
   last_events_ = pack_events_by_row(events, plan, packed_, ranges_);
@@ -606,19 +641,25 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
     sparse_.resize(chunks.size());
   }
 
+  if (!external && !stream_) stream_ = std::make_unique<CommandStream>(ctx_, profiler_);
+  CommandStream& cs = external ? *external : *stream_;
+  retired_.clear();  // the caller ran (or waited for) what recorded reads of them
+  // Into an external stream the uploads are recorded too: ordered, no queue wait on discrete GPUs.
+  auto upload = [&](Tensor& t, const void* data, size_t bytes) {
+    if (external) cs.upload(t, 0, data, bytes);
+    else t.upload_part(0, data, bytes);
+  };
   Tensor& ev = reserve_words(events_buf_, packed_.size(), DType::u32);
-  ev.upload_part(0, packed_.data(), packed_.size() * 4);
+  upload(ev, packed_.data(), packed_.size() * 4);
   Tensor& rec = reserve_words(records_buf_, plan.records.size(), DType::i32);
-  rec.upload_part(0, plan.records.data(), plan.records.size() * 4);
+  upload(rec, plan.records.data(), plan.records.size() * 4);
   Tensor& rg = reserve_words(ranges_buf_, ranges4_.size(), DType::u32);
-  rg.upload_part(0, ranges4_.data(), ranges4_.size() * 4);
+  upload(rg, ranges4_.data(), ranges4_.size() * 4);
   const auto words = [](const Tensor& t, size_t n) { return t.range(0, std::max<size_t>(n, 1) * 4); };
 
-  if (!stream_) stream_ = std::make_unique<CommandStream>(ctx_, profiler_);
-  CommandStream& cs = *stream_;
   const Pipeline& undo = kernel_pipeline(ctx_, "event_tensor_undo", {}, sizeof(uint32_t));
   const Pipeline& pipe = kernel_pipeline(ctx_, "event_tensor_rows_sparse", {}, sizeof(RowPush));
-  std::vector<Tensor> retired;  // undo lists replaced by bigger ones, alive until the submit
+  std::vector<Tensor>& retired = retired_;  // undo lists replaced by bigger ones, alive until the submit
   try {
   for (size_t c = 0; c < chunks.size(); ++c) {
     const auto [j0, nj] = chunks[c];
@@ -651,7 +692,7 @@ bool EventTensorBuilder::execute_sparse(const EventStream& events, const Binning
                 {"event_tensor_rows_sparse", 0, 16.0 * touched_n[c]});
     sc.touched_n = touched_n[c];
   }
-    cs.submit_and_wait();
+    if (!external) cs.submit_and_wait();
   } catch (...) {
     // The outputs' state is unknown now: start from fresh zeros and a fresh stream next time.
     sparse_.clear();
@@ -751,8 +792,23 @@ const Tensor& EventTensorBuilder::build_resident(const EventStream& events, cons
   if (algorithm_ != EventBinAlgorithm::automatic && algorithm_ != EventBinAlgorithm::sparse)
     throw Error(std::string("event tensor: build_resident runs the sparse algorithm, not ") +
                 event_bin_algorithm_name(algorithm_));
-  if (!execute_sparse(events, plan, {{0, jobs.size()}}, [](size_t, Tensor&) {}))
+  if (!execute_sparse(events, plan, {{0, jobs.size()}}, [](size_t, Tensor&) {}, nullptr))
     throw Error("event tensor: build_resident needs the window's events and its undo list in one binding");
+  last_algorithm_ = EventBinAlgorithm::sparse;
+  return sparse_[0].out;
+}
+
+const Tensor& EventTensorBuilder::record_resident(CommandStream& cs, const EventStream& events,
+                                                  const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec) {
+  if (pairs.empty()) throw Error("event tensor: record_resident needs at least one pair");
+  const auto jobs = event_tensor_jobs(pairs);
+  const BinningPlan plan = plan_binning(events, jobs, spec);
+  const Shape shape{static_cast<int64_t>(jobs.size()), 2 * plan.bins, plan.height, plan.width};
+  if (static_cast<uint64_t>(shape.count()) * 4 > ctx_.info().max_storage_buffer_range)
+    throw Error("event tensor: " + shape.str() + " exceeds one storage-buffer binding; use fewer pairs or a crop");
+  if (!execute_sparse(events, plan, {{0, jobs.size()}}, [](size_t, Tensor&) {}, &cs))
+    throw Error("event tensor: the window's " + std::to_string(plan.last_event - plan.first_event) +
+                " events and their undo list must fit one storage-buffer binding; use a crop or tiles");
   last_algorithm_ = EventBinAlgorithm::sparse;
   return sparse_[0].out;
 }

@@ -85,6 +85,14 @@ std::vector<float> bin_events_ref(const EventStream& events, const std::vector<R
 EventTensors build_event_tensors_ref(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                                      const EventTensorSpec& spec);
 
+// Per pair and crop pixel, how many events ev1 and ev2 select together: [pairs][h * w], equal to the
+// sum over the channels of ev1 + ev2 (each selected event adds 1 to exactly one channel). What the
+// sparse tile policy reads (host/model/tiling.hpp), computed from the events on the host, so the
+// device-resident tensors need no readback.
+std::vector<std::vector<uint32_t>> selected_event_counts(const EventStream& events,
+                                                         const std::vector<EventTensorPair>& pairs,
+                                                         const EventTensorSpec& spec);
+
 // ---- GPU ---------------------------------------------------------------------------------------
 // The host part of the GPU path, exposed for tests: per (job, crop row) records of N + 4 int32
 // [lo, hi, N-1 ascending thresholds, flags(bit0: a > b), s, c (float bits)], relative to
@@ -153,12 +161,16 @@ class EventTensorBuilder {
   // binding or the sparse path cannot run (window beyond one binding).
   const Tensor& build_resident(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                                const EventTensorSpec& spec);
+  // build_resident's work recorded into `cs` (uploads included) without submitting: the network's
+  // dispatches recorded after it read the result in order. The caller must have run (submitted and
+  // waited for) every earlier recording that read this builder's buffers before calling again.
+  const Tensor& record_resident(CommandStream& cs, const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                const EventTensorSpec& spec);
   // Device-resident result for the network: one f32 tensor [3 * pairs, 2N, h, w] whose ev1, ev2,
   // ev3 are the consecutive ranges of `pairs` slices each. Throws if it exceeds one binding.
   Tensor build_on_device(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                          const EventTensorSpec& spec);
 
-  size_t last_events_considered() const { return last_events_; }
   // Limits below the device's (0: device limits); tests use them to exercise chunking.
   void set_chunk_limits(size_t max_jobs_per_chunk, size_t max_events_per_dispatch) {
     max_jobs_ = max_jobs_per_chunk;
@@ -180,9 +192,10 @@ class EventTensorBuilder {
                const std::vector<std::pair<size_t, size_t>>& chunks,
                const std::function<void(size_t, Tensor&)>& done, bool allow_sparse);
   // The sparse path; false (nothing done) when a buffer would exceed one binding.
+  // external: record into that stream without submitting (record_resident).
   bool execute_sparse(const EventStream& events, const BinningPlan& plan,
                       const std::vector<std::pair<size_t, size_t>>& chunks,
-                      const std::function<void(size_t, Tensor&)>& done);
+                      const std::function<void(size_t, Tensor&)>& done, CommandStream* external);
   size_t jobs_per_chunk(const BinningPlan& plan) const;
   // Reuses `t` when it holds at least `count` u32/i32 words, else replaces it (grown by half).
   Tensor& reserve_words(Tensor& t, size_t count, DType dtype);
@@ -198,6 +211,7 @@ class EventTensorBuilder {
   };
   std::vector<SparseChunk> sparse_;
   std::vector<size_t> sparse_layout_;  // bins, h, w, then (first job, jobs) of every chunk
+  std::vector<Tensor> retired_;        // buffers replaced while an external recording may read them
   Tensor events_buf_, records_buf_, ranges_buf_;  // inputs, reused with spare capacity
   std::vector<uint32_t> packed_, ranges_, ranges4_;  // host scratch, reused
   size_t last_events_ = 0;

@@ -138,14 +138,12 @@ struct PhysicsPush {
   float contrast, gamma, max_value;
 };
 template <class T>
-Tensor upload_vector(Context& ctx, const std::vector<T>& v, DType dt) {
+Tensor upload_vector(Context& ctx, const std::vector<T>& v, DType dt, CommandStream* cs) {
   Tensor t(ctx, {1, 1, 1, std::max<int64_t>(1, static_cast<int64_t>(v.size()))}, dt);
-  if (v.empty()) {
-    std::vector<T> one(1, T{});
-    t.upload(one);
-  } else {
-    t.upload(v);
-  }
+  const std::vector<T> one(1, T{});
+  const std::vector<T>& data = v.empty() ? one : v;
+  if (cs) cs->upload(t, 0, data.data(), data.size() * sizeof(T));
+  else t.upload(data);
   return t;
 }
 }  // namespace
@@ -156,7 +154,7 @@ bool PhysicsUnroll::fits(const PixelEventLists& ev) {
   return true;
 }
 
-PhysicsUnroll::PhysicsUnroll(Context& ctx, const PixelEventLists& ev)
+PhysicsUnroll::PhysicsUnroll(Context& ctx, const PixelEventLists& ev, CommandStream* cs)
     : ctx_(ctx), width_(ev.width), height_(ev.height), events_(ev.tau.size()) {
   for (size_t k = 0; k + 1 < ev.offsets.size(); ++k)
     if (const uint32_t n = ev.offsets[k + 1] - ev.offsets[k]; n > kMaxPixelEvents)
@@ -164,12 +162,12 @@ PhysicsUnroll::PhysicsUnroll(Context& ctx, const PixelEventLists& ev)
                   ") has " + std::to_string(n) + " events in its window, more than the GPU kernel's " +
                   std::to_string(kMaxPixelEvents) +
                   " (lavapipe ends shader loops after 65535 iterations); use physics_unroll_ref");
-  offsets_ = upload_vector(ctx, ev.offsets, DType::u32);
-  tau_ = upload_vector(ctx, ev.tau, DType::f32);
-  polarity_ = upload_vector(ctx, ev.polarity, DType::i32);
+  offsets_ = upload_vector(ctx, ev.offsets, DType::u32, cs);
+  tau_ = upload_vector(ctx, ev.tau, DType::f32, cs);
+  polarity_ = upload_vector(ctx, ev.polarity, DType::i32, cs);
   std::vector<float> rows(ev.row_start);
   rows.insert(rows.end(), ev.row_end.begin(), ev.row_end.end());
-  rows_ = upload_vector(ctx, rows, DType::f32);
+  rows_ = upload_vector(ctx, rows, DType::f32, cs);
 }
 
 void PhysicsUnroll::record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const {

@@ -58,8 +58,9 @@ class PhysicsUnroll {
   static constexpr uint32_t kMaxPixelEvents = 29000;
   // Whether every pixel fits kMaxPixelEvents; the CPU reference has no such limit.
   static bool fits(const PixelEventLists& ev);
-  // Throws Error naming the first pixel over the limit when !fits(ev).
-  PhysicsUnroll(Context& ctx, const PixelEventLists& ev);
+  // Throws Error naming the first pixel over the limit when !fits(ev). With `cs`, the lists' uploads
+  // are recorded into it (ordered with its work, no wait); the op must then outlive that submission.
+  PhysicsUnroll(Context& ctx, const PixelEventLists& ev, CommandStream* cs = nullptr);
   // rs and out: [1, C, H, W] f32 tensors of the lists' size.
   void record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const;
 

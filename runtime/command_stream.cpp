@@ -1,6 +1,7 @@
 #include "vkunroll/runtime/command_stream.hpp"
 
 #include <algorithm>
+#include <cstring>
 #include <cstdlib>
 #include <sstream>
 
@@ -253,6 +254,43 @@ void CommandStream::fill(const Tensor& t, uint32_t value) {
   infos_.push_back({"fill", 0, static_cast<double>(r.size)});
 }
 
+void CommandStream::record_copy(const BufferRange& src, const BufferRange& dst, const char* name) {
+  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
+  begin_if_needed();
+  hazard_barrier({Span{src.buffer, src.offset, src.offset + src.size}}, {Span{dst.buffer, dst.offset, dst.offset + dst.size}});
+  const uint32_t q = static_cast<uint32_t>(names_.size()) * 2;
+  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
+  const VkBufferCopy region{src.offset, dst.offset, src.size};
+  vkCmdCopyBuffer(cb_, src.buffer, dst.buffer, 1, &region);
+  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
+  names_.push_back(name);
+  infos_.push_back({name, 0, static_cast<double>(src.size)});
+}
+
+void CommandStream::upload(const Tensor& dst, size_t byte_offset, const void* data, size_t bytes) {
+  if (bytes == 0) return;
+  const BufferRange d = dst.range(byte_offset, bytes);  // checks the range
+  // A submit inside record_copy would free the staging range before its copy ran: make room first.
+  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
+  staging_.push_back(ctx_.allocator().allocate(bytes, /*host_visible=*/true));
+  const Allocation& s = staging_.back();
+  std::memcpy(s.mapped, data, bytes);
+  ctx_.traffic().upload_bytes += bytes;
+  record_copy({s.buffer, s.offset, bytes}, d, "upload");
+  // The host wrote the staging memory before the submission: no barrier is needed for that.
+}
+
+void CommandStream::download(const Tensor& src, size_t byte_offset, void* host, size_t bytes) {
+  if (bytes == 0) return;
+  const BufferRange r = src.range(byte_offset, bytes);
+  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
+  staging_.push_back(ctx_.allocator().allocate(bytes, /*host_visible=*/true));
+  const Allocation& s = staging_.back();
+  record_copy(r, {s.buffer, s.offset, bytes}, "download");
+  readbacks_.push_back({host, s.mapped, bytes});
+  ctx_.traffic().download_bytes += bytes;
+}
+
 std::string CommandStream::in_flight_description() {
   std::ostringstream os;
   os << names_.size() << " dispatches submitted";
@@ -274,12 +312,20 @@ std::string CommandStream::in_flight_description() {
 
 void CommandStream::submit_and_wait() {
   if (!recording_) return;
+  if (!readbacks_.empty()) {
+    // The downloads' copies must be visible to the host reads after the fence.
+    VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
+    mb.srcAccessMask = VK_ACCESS_TRANSFER_WRITE_BIT;
+    mb.dstAccessMask = VK_ACCESS_HOST_READ_BIT;
+    vkCmdPipelineBarrier(cb_, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &mb, 0, nullptr, 0, nullptr);
+  }
   VK_CHECK(vkEndCommandBuffer(cb_));
   recording_ = false;
   VkSubmitInfo si{VK_STRUCTURE_TYPE_SUBMIT_INFO};
   si.commandBufferCount = 1;
   si.pCommandBuffers = &cb_;
   VkResult r = vkQueueSubmit(ctx_.queue(), 1, &si, fence_);
+  ctx_.traffic().submits++;
   if (r != VK_SUCCESS) {
     const std::string what = in_flight_description();
     reset();
@@ -299,7 +345,8 @@ void CommandStream::submit_and_wait() {
     reset();
     throw_vk_error(r, "vkWaitForFences", __FILE__, __LINE__, what);
   }
-  if (queries_ && profiler_ && !names_.empty()) {
+  for (const Readback& rb : readbacks_) std::memcpy(rb.host, rb.staging, rb.bytes);
+  if (queries_ && !names_.empty()) {
     std::vector<uint64_t> ts(names_.size() * 2);
     VK_CHECK(vkGetQueryPoolResults(ctx_.device(), queries_, 0, static_cast<uint32_t>(ts.size()),
                                    ts.size() * sizeof(uint64_t), ts.data(), sizeof(uint64_t),
@@ -307,7 +354,8 @@ void CommandStream::submit_and_wait() {
     const double period = ctx_.info().timestamp_period_ns;
     for (size_t i = 0; i < names_.size(); ++i) {
       const double ms = static_cast<double>(ts[2 * i + 1] - ts[2 * i]) * period * 1e-6;
-      profiler_->record(infos_[i].name, ms, infos_[i].flop, infos_[i].bytes);
+      ctx_.traffic().gpu_ms += ms;
+      if (profiler_) profiler_->record(infos_[i].name, ms, infos_[i].flop, infos_[i].bytes);
     }
   }
   reset();
@@ -325,6 +373,9 @@ void CommandStream::reset() {
   desc_pool_used_ = 0;
   for (const auto& v : views_) vkDestroyBufferView(ctx_.device(), v.view, nullptr);
   views_.clear();
+  for (const Allocation& a : staging_) ctx_.allocator().free(a);
+  staging_.clear();
+  readbacks_.clear();
   names_.clear();
   infos_.clear();
   pending_reads_.clear();

@@ -55,6 +55,13 @@ class CommandStream {
     dispatch(pipeline, args, &push, sizeof(P), groups, info);
   }
   void fill(const Tensor& t, uint32_t value);  // vkCmdFillBuffer, e.g. zeroing accumulators
+  // Host -> device copy of `bytes` bytes into `dst` at `byte_offset`, ordered with the recorded
+  // work: the data is copied now into staging memory the stream keeps until the submission has
+  // run, so no wait is needed for earlier readers of `dst` to finish.
+  void upload(const Tensor& dst, size_t byte_offset, const void* data, size_t bytes);
+  // Device -> host copy, ordered likewise: `host` receives the bytes when submit_and_wait() returns
+  // (it must stay valid until then).
+  void download(const Tensor& src, size_t byte_offset, void* host, size_t bytes);
 
   size_t recorded() const { return names_.size(); }
   // Submits everything recorded, waits, feeds the profiler, and leaves the stream ready to reuse.
@@ -100,6 +107,15 @@ class CommandStream {
     VkBufferView view;
   };
   std::vector<TexelView> views_;
+  // Staging memory of this submission's transfers, and the host copies to make once it has run.
+  struct Readback {
+    void* host;
+    const void* staging;
+    size_t bytes;
+  };
+  std::vector<Allocation> staging_;
+  std::vector<Readback> readbacks_;
+  void record_copy(const BufferRange& src, const BufferRange& dst, const char* name);
   std::vector<std::pair<VkFormat, VkFormatFeatureFlags>> format_features_;  // queried once per format
 };
 

@@ -64,6 +64,19 @@ struct DeviceInfo {
   std::string api_version_string() const;
 };
 
+// Host <-> device traffic and submissions through this context, counted where they happen
+// (Tensor uploads and downloads, CommandStream transfers and submits); callers take differences
+// around a piece of work (e.g. one GS frame) to report it.
+struct DeviceTraffic {
+  uint64_t upload_bytes = 0;    // host -> device
+  uint64_t download_bytes = 0;  // device -> host
+  uint64_t submits = 0;         // queue submissions, each waited for
+  double gpu_ms = 0;            // sum of the submitted dispatches' device time (timestamps; 0 without)
+  DeviceTraffic operator-(const DeviceTraffic& o) const {
+    return {upload_bytes - o.upload_bytes, download_bytes - o.download_bytes, submits - o.submits, gpu_ms - o.gpu_ms};
+  }
+};
+
 // Every device the loader sees, with the index `choose_device` would pick by policy.
 struct DeviceList {
   std::vector<DeviceInfo> devices;
@@ -92,6 +105,8 @@ class Context {
   VkPipelineCache pipeline_cache() const { return pipeline_cache_; }
   Allocator& allocator() { return *allocator_; }
   bool validation_enabled() const { return validation_; }
+  DeviceTraffic& traffic() { return traffic_; }
+  const DeviceTraffic& traffic() const { return traffic_; }
 
   // Pipelines are created once per (shader, specialization, push size) and kept here.
   // (The module's name identifies it: one name, one module.)
@@ -125,6 +140,7 @@ class Context {
   std::string pipeline_cache_path_;
   size_t pipeline_cache_loaded_bytes_ = 0;
   DeviceInfo info_;
+  DeviceTraffic traffic_;
   std::unique_ptr<Allocator> allocator_;
   std::map<std::string, std::unique_ptr<Pipeline>> pipelines_;
   mutable std::mutex messages_mutex_;

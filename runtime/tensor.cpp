@@ -43,6 +43,7 @@ void copy_buffer(Context& ctx, BufferRange src, BufferRange dst) {
   si.commandBufferCount = 1;
   si.pCommandBuffers = &cb;
   VK_CHECK(vkQueueSubmit(ctx.queue(), 1, &si, VK_NULL_HANDLE));
+  ctx.traffic().submits++;
   VK_CHECK(vkQueueWaitIdle(ctx.queue()));
   vkDestroyCommandPool(ctx.device(), pool, nullptr);
 }
@@ -86,6 +87,12 @@ void Tensor::release() {
   alloc_ = {};
 }
 
+void Tensor::reshape(const Shape& s) {
+  if (static_cast<size_t>(s.count()) * dtype_size(dtype_) != bytes())
+    throw Error("Tensor::reshape: " + shape_.str() + " to " + s.str() + " changes the byte size");
+  shape_ = s;
+}
+
 BufferRange Tensor::range() const { return {alloc_.buffer, alloc_.offset, bytes()}; }
 
 BufferRange Tensor::range(size_t byte_offset, size_t nbytes) const {
@@ -99,6 +106,7 @@ void Tensor::upload(const void* data, size_t nbytes) {
   if (nbytes != bytes())
     throw Error("Tensor::upload: " + std::to_string(nbytes) + " bytes given for a tensor " + shape_.str() + " " +
                 dtype_name(dtype_) + " of " + std::to_string(bytes()) + " bytes");
+  ctx_->traffic().upload_bytes += nbytes;
   if (alloc_.mapped) {
     std::memcpy(alloc_.mapped, data, nbytes);
     return;
@@ -120,6 +128,7 @@ void Tensor::upload_part(size_t byte_offset, const void* data, size_t nbytes) {
                 std::to_string(byte_offset + nbytes) + ") outside the tensor " + shape_.str() + " of " +
                 std::to_string(bytes()) + " bytes");
   if (nbytes == 0) return;
+  ctx_->traffic().upload_bytes += nbytes;
   if (alloc_.mapped) {
     std::memcpy(static_cast<char*>(alloc_.mapped) + byte_offset, data, nbytes);
     return;
@@ -139,6 +148,7 @@ void Tensor::download(void* data, size_t nbytes) const {
   if (nbytes != bytes())
     throw Error("Tensor::download: " + std::to_string(nbytes) + " bytes asked of a tensor " + shape_.str() + " " +
                 dtype_name(dtype_) + " of " + std::to_string(bytes()) + " bytes");
+  ctx_->traffic().download_bytes += nbytes;
   if (alloc_.mapped) {
     std::memcpy(data, alloc_.mapped, nbytes);
     return;

@@ -38,6 +38,8 @@ class Tensor {
   Tensor& operator=(const Tensor&) = delete;
 
   const Shape& shape() const { return shape_; }
+  // Gives the tensor another shape of the same byte size (its memory and contents stay).
+  void reshape(const Shape& s);
   DType dtype() const { return dtype_; }
   size_t bytes() const { return static_cast<size_t>(shape_.count()) * dtype_size(dtype_); }
   bool empty() const { return !alloc_; }

@@ -300,6 +300,33 @@ TEST(EventTensor, GpuEqualsCpuRandomBatches) {
   }
 }
 
+// What the sparse tiles decide on, computed from the events alone, equals the tensors' channel sums.
+TEST(EventTensor, SelectedEventCountsEqualTheTensorSums) {
+  const RowTiming tm{R("100"), R("37/3"), R("400"), 12, Readout::top_down};
+  const auto ev = random_stream(16, 12, 20000, -300, 1200, 21);
+  std::vector<EventTensorPair> pairs;
+  for (const char* t : {"-150", "0", "310.5", "1000/3", "900"}) pairs.push_back({tm, R(t), std::nullopt});
+  for (const SensorCrop crop : {SensorCrop{}, SensorCrop{3, 2, 9, 7}}) {
+    EventTensorSpec spec;
+    spec.bins = 5;
+    spec.crop = crop;
+    const EventTensors t = build_event_tensors_ref(ev, pairs, spec);
+    const auto counts = selected_event_counts(ev, pairs, spec);
+    ASSERT_EQ(counts.size(), pairs.size());
+    const size_t plane = static_cast<size_t>(t.height) * t.width;
+    size_t nonzero = 0;
+    for (size_t p = 0; p < pairs.size(); ++p)
+      for (size_t i = 0; i < plane; ++i) {
+        double sum = 0;
+        for (int c = 0; c < 2 * spec.bins; ++c)
+          sum += t.ev1[p * t.slice() + c * plane + i] + t.ev2[p * t.slice() + c * plane + i];
+        ASSERT_EQ(static_cast<double>(counts[p][i]), sum) << "pair " << p << " pixel " << i;
+        nonzero += counts[p][i] > 0;
+      }
+    EXPECT_GT(nonzero, plane);  // the case is not trivially empty
+  }
+}
+
 TEST(EventTensor, ChunkedJobsAndEventPiecesMatch) {
   RowTiming tm{R("0"), R("1000/7"), R("900"), 12, Readout::top_down};
   std::vector<EventTensorPair> pairs;

@@ -658,7 +658,8 @@ TEST(HardCases, Fp16IsRefusedNamingTheOption) {
   // `vkunroll unroll`: refused before the sequence is even read.
   UnrollOptions o;
   o.sequence = "/nonexistent/sequence";
-  o.precision = "fp16";
+  o.out_dir = "/nonexistent/out";
+  o.session.precision = Precision::fp16;
   const std::string msg = error_of([&] { run_unroll(o); });
   EXPECT_NE(msg.find("--precision 'fp16'"), std::string::npos) << msg;
   EXPECT_NE(msg.find("fp32 is the only precision"), std::string::npos) << msg;

@@ -377,3 +377,33 @@ TEST(Runtime, PipelineCachePersistsAcrossContexts) {
   }
   fs::remove_all(dir);
 }
+
+// CommandStream transfers are ordered with the recorded dispatches: a buffer is uploaded, read,
+// overwritten by a second upload and read again, all in one submission, and the downloads see each
+// state. The context counts the traffic and the one submit.
+TEST(Runtime, StreamTransfersAreOrderedWithDispatchesInOneSubmit) {
+  Context& ctx = vktest::context();
+  const size_t n = 1000;
+  Tensor x(ctx, {1, 1, 1, static_cast<int64_t>(n)}), y(ctx, {1, 1, 1, static_cast<int64_t>(n)});
+  std::vector<float> ones(n, 1.f), twos(n, 2.f), zeros(n, 0.f), after1(n, -1.f), after2(n, -1.f);
+  const DeviceTraffic before = ctx.traffic();
+  CommandStream cs(ctx);
+  cs.upload(y, 0, zeros.data(), n * 4);
+  cs.upload(x, 0, ones.data(), n * 4);
+  axpy(cs, ctx, x, y, 3.f);                     // y = 3
+  cs.download(y, 0, after1.data(), n * 4);
+  cs.upload(x, 0, twos.data(), n * 4);          // must not overtake the axpy above
+  axpy(cs, ctx, x, y, 0.5f);                    // y = 4
+  cs.download(y, 0, after2.data(), n * 4);
+  EXPECT_EQ(after1[0], -1.f);  // nothing before the submit
+  cs.submit_and_wait();
+  const DeviceTraffic d = ctx.traffic() - before;
+  for (size_t i = 0; i < n; ++i) {
+    ASSERT_EQ(after1[i], 3.f) << i;
+    ASSERT_EQ(after2[i], 4.f) << i;
+  }
+  EXPECT_EQ(d.submits, 1u);
+  EXPECT_EQ(d.upload_bytes, 3 * n * 4);
+  EXPECT_EQ(d.download_bytes, 2 * n * 4);
+  EXPECT_THROW(cs.upload(x, 4, ones.data(), n * 4), Error);  // past the end of x
+}

@@ -424,15 +424,15 @@ TEST(TilingUnroll, ChooseModeAndTiledSparseSummary) {
   o.sequence = (dir / "seq").string();
   o.out_dir = (dir / "out").string();
   o.quiet = true;
-  o.video = false;
-  o.backend = "cpu";
-  o.model_path = fixture("selfunroll_tiny.safetensors");
-  o.mode = "choose";
-  o.times = "-0.25,0.5";  // before the frame's exposure span, inside it
-  o.frames = "1:2";            // frame 2 is the last: M impossible there
+  o.output.write_video = false;
+  o.session.backend = BackendKind::cpu;
+  o.session.model_path = fixture("selfunroll_tiny.safetensors");
+  o.mode = UnrollMode::choose;
+  o.times = parse_target_times("-0.25,0.5");  // before the frame's exposure span, inside it
+  o.frames = {1, 2};                          // frame 2 is the last: M impossible there
   o.tile = 32;
   o.halo = 32;
-  o.sparse = "exact";
+  o.sparse = SparsePolicy::exact;
   const auto s = run_unroll(o);
   EXPECT_EQ(s["runs"]["m"].get<int>(), 1);  // frame 1: -0.25
   EXPECT_EQ(s["runs"]["s"].get<int>(), 3);  // frame 1: 0.5; frame 2: both
@@ -456,8 +456,6 @@ TEST(TilingUnroll, ChooseModeAndTiledSparseSummary) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("--tile 40"), std::string::npos) << e.what();
   }
-  o.tile = 0;
-  o.sparse = "sometimes";
-  EXPECT_THROW(run_unroll(o), Error);
+  EXPECT_THROW(parse_sparse_policy("sometimes", "--sparse"), Error);
   fs::remove_all(dir);
 }

@@ -41,7 +41,7 @@ UnrollOptions base(const fs::path& seq, const fs::path& out) {
   o.sequence = seq.string();
   o.out_dir = out.string();
   o.quiet = true;
-  o.device = "llvmpipe";
+  o.session.device = "llvmpipe";
   return o;
 }
 
@@ -52,7 +52,7 @@ TEST(Unroll, PhysicsOnACleanSceneBeatsTheRsInputAndWritesEverything) {
   const fs::path dir = temp_dir("physics");
   const fs::path seq = make_sequence(dir);
   UnrollOptions o = base(seq, dir / "out");
-  o.times = "gt";
+  o.times = parse_target_times("gt");
   const auto s = run_unroll(o);
   ASSERT_TRUE(s.contains("metrics"));
   EXPECT_EQ(s["targets"].get<int>(), 9);
@@ -79,16 +79,15 @@ TEST(Unroll, NormalizedAndAbsoluteTargets) {
   const fs::path dir = temp_dir("targets");
   const fs::path seq = make_sequence(dir);
   UnrollOptions o = base(seq, dir / "a");
-  o.times = "-0.25,0:1:3,1.25";
-  o.frames = "1:2";
+  o.times = parse_target_times("-0.25,0:1:3,1.25");
+  o.frames = {1, 2};
   o.contrast = 0.25;
-  o.video = false;
+  o.output.write_video = false;
   auto s = run_unroll(o);
   EXPECT_EQ(s["targets"].get<int>(), 10);  // 2 frames x 5 targets
   EXPECT_FALSE(fs::exists(dir / "a" / "gs_video.mp4"));
   o.out_dir = (dir / "b").string();
-  o.times = "0.5";
-  o.times_us = "30000,80000";
+  o.times = parse_target_times("0.5", "30000,80000");
   s = run_unroll(o);
   ASSERT_EQ(s["targets"].get<int>(), 2);
   EXPECT_DOUBLE_EQ(s["gs_frames"][0]["t_us"].get<double>(), 30000.0);
@@ -99,14 +98,14 @@ TEST(Unroll, LearnedModelSAndMOnGpuAndCpuAgree) {
   const fs::path dir = temp_dir("model");
   const fs::path seq = make_sequence(dir);
   UnrollOptions o = base(seq, dir / "vk");
-  o.model_path = fixture("selfunroll_tiny.safetensors");
-  o.times = "0.5";
-  o.frames = "1:2";
-  o.mode = "auto";
+  o.session.model_path = fixture("selfunroll_tiny.safetensors");
+  o.times = parse_target_times("0.5");
+  o.frames = {1, 2};
+  o.mode = UnrollMode::automatic;
   auto vk = run_unroll(o);
   EXPECT_EQ(vk["runs"]["m"].get<int>(), 1);  // frame 1 has a next frame
   EXPECT_EQ(vk["runs"]["s"].get<int>(), 1);  // frame 2 is the last
-  o.backend = "cpu";
+  o.session.backend = BackendKind::cpu;
   o.out_dir = (dir / "cpu").string();
   auto cpu = run_unroll(o);
   for (int i = 0; i < 2; ++i) {
@@ -117,11 +116,10 @@ TEST(Unroll, LearnedModelSAndMOnGpuAndCpuAgree) {
     cv::minMaxLoc(cv::abs(a - b), nullptr, &mx);
     EXPECT_LE(mx, 1.0) << "8-bit outputs of the two backends differ by more than rounding";
   }
-  o.mode = "physics";
-  o.model_path.clear();
-  o.backend = "vulkan";
+  o.session.model_path.clear();
+  o.session.backend = BackendKind::vulkan;
   o.out_dir = (dir / "needs").string();
-  o.mode = "m";
+  o.mode = UnrollMode::m;
   EXPECT_THROW(run_unroll(o), Error);  // M without a model
   fs::remove_all(dir);
 }
@@ -146,7 +144,7 @@ TEST(Unroll, BadFoldersGiveClearErrors) {
   expect_error(base(wrong, dir / "o2"), "000001.png");
   // Times outside the recording.
   UnrollOptions far = base(seq, dir / "o3");
-  far.times_us = "9000000";
+  far.times = parse_target_times("0.5", "9000000");
   expect_error(far, "outside the recording");
   // An event outside the sensor.
   const fs::path outside = dir / "outside";

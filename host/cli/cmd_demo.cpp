@@ -77,19 +77,19 @@ int cmd_demo(const Argv& argv) {
 
   UnrollOptions o;
   o.sequence = (out / "sequence").string();
-  o.times = "gt";
-  o.device = args.get_or("device", "");
+  o.times = {TargetTimes::Kind::ground_truth, {}};
+  o.session.device = args.get_or("device", "");
   o.quiet = true;
   o.out_dir = (out / "physics").string();
-  o.mode = "physics";
+  o.mode = UnrollMode::physics;
   const nlohmann::json phys = run_unroll(o);
   nlohmann::json learned;
   std::error_code ec;
   const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
   const std::string model = args.has("physics-only") ? std::string() : args.get_or("model", find_shipped_model(exe));
   if (!model.empty()) {
-    o.model_path = model;
-    o.mode = "auto";
+    o.session.model_path = model;
+    o.mode = UnrollMode::automatic;
     o.out_dir = (out / "model").string();
     learned = run_unroll(o);
   }

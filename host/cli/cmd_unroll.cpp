@@ -44,7 +44,7 @@ int cmd_unroll(const Argv& argv) {
         "  --channel-order O    rgb | bgr (default: from the model's metadata)\n"
         "  --contrast C         physics: contrast threshold (default: estimated from the sequence)\n"
         "  --gamma G            physics: decode gamma of the frames (default: meta.json source.settings.gamma, else 1)\n"
-        "  --device D --backend vulkan|cpu --precision fp32   where and how to run\n"
+        "  --device D --backend vulkan|cpu --precision fp32|fp16   where and how to run\n"
         "  --bit-depth 8|16     PNG depth of the GS frames                                      [8]\n"
         "  --no-video           skip gs_video.mp4;  --quiet  print nothing but errors\n";
     return args.help() ? 0 : 2;
@@ -53,26 +53,24 @@ int cmd_unroll(const Argv& argv) {
   UnrollOptions o;
   o.sequence = args.positionals()[0];
   o.out_dir = args.require("out");
-  o.model_path = args.get_or("model", "");
-  o.mode = args.get_or("mode", "auto");
-  o.times = args.get_or("times", "0.5");
-  o.times_us = args.get_or("times-us", "");
+  o.session.model_path = args.get_or("model", "");
+  o.mode = parse_unroll_mode(args.get_or("mode", "auto"), "--mode");
   if (args.has("times") && args.has("times-us")) throw Error("vkunroll unroll: give --times or --times-us, not both");
-  o.frames = args.get_or("frames", "");
-  o.channel_order = args.get_or("channel-order", "");
-  o.device = args.get_or("device", "");
-  o.backend = args.get_or("backend", "vulkan");
-  o.precision = args.get_or("precision", "fp32");
+  o.times = parse_target_times(args.get_or("times", "0.5"), args.get_or("times-us", ""));
+  if (auto v = args.get("frames")) o.frames = parse_frame_list(*v, "--frames");
+  if (auto v = args.get("channel-order")) o.channel_order = parse_channel_order(*v, "--channel-order");
+  o.session.device = args.get_or("device", "");
+  o.session.backend = parse_backend_kind(args.get_or("backend", "vulkan"), "--backend");
+  o.session.precision = parse_precision(args.get_or("precision", "fp32"), "--precision");
   if (args.has("contrast")) o.contrast = args.number("contrast", 0.2);
   if (args.has("gamma")) o.gamma = args.number("gamma", 1.0);
-  o.bit_depth = static_cast<int>(args.integer("bit-depth", 8));
-  if (o.bit_depth != 8 && o.bit_depth != 16) throw Error("--bit-depth must be 8 or 16");
+  o.output.bit_depth = static_cast<int>(args.integer("bit-depth", 8));
   o.tile = args.integer("tile", 0);
   o.halo = args.integer("halo", -1);
-  o.sparse = args.get_or("sparse", "exact");
+  o.sparse = parse_sparse_policy(args.get_or("sparse", "exact"), "--sparse");
   o.sparse_threshold = args.number("sparse-threshold", 0.05);
   o.quiet = args.has("quiet");
-  o.video = !args.has("no-video");
+  o.output.write_video = !args.has("no-video");
   SequenceOptions& so = o.sequence_options;
   if (auto l = args.get("layout")) so.layout = parse_sequence_layout(*l);
   if (auto v = args.get("line-delay-us")) so.line_delay_us = Rational::parse(*v, "--line-delay-us");

@@ -28,7 +28,8 @@ int PlanningBackend::alloc(const Shape& shape, const std::string& what) {
     peak_buffers_.clear();
     for (const auto& [b, n] : live) peak_buffers_ += (peak_buffers_.empty() ? "" : ", ") + n;
   }
-  auto reuse = std::find(pooled_.begin(), pooled_.end(), shape);
+  // As VulkanBackend: a pooled buffer of the same size is reused.
+  auto reuse = std::find_if(pooled_.begin(), pooled_.end(), [&](const Shape& p) { return p.count() == shape.count(); });
   if (reuse != pooled_.end()) {
     pooled_.erase(reuse);
     pooled_bytes_ -= bytes;
@@ -45,7 +46,7 @@ void PlanningBackend::release(int buf) {
   account_release(static_cast<uint64_t>(shapes_[buf].count()) * 4);
   pooled_.push_back(shapes_[buf]);
   pooled_bytes_ += static_cast<uint64_t>(shapes_[buf].count()) * 4;
-  if (pooled_bytes_ > kPoolFlushBytes) flush();
+  if (pooled_bytes_ > pool_flush_bytes_) flush();
 }
 
 void PlanningBackend::flush() {
@@ -54,11 +55,20 @@ void PlanningBackend::flush() {
   pooled_bytes_ = 0;
 }
 
+int PlanningBackend::event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                   const EventTensorSpec& spec) {
+  const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
+  return alloc({3 * static_cast<int64_t>(pairs.size()), 2 * spec.bins, c.height, c.width}, "event tensors");
+}
+
 Shape PlanningBackend::shape(int buf) const { return shapes_.at(static_cast<size_t>(buf)); }
 
-std::vector<float> PlanningBackend::download(const BufferSlice& v) {
+std::vector<float> Backend::download(const BufferSlice& v) {
   const Shape s = shape(v.buf);
-  return std::vector<float>(static_cast<size_t>(v.n * v.c * s.h * s.w));
+  std::vector<float> out(static_cast<size_t>(v.n * v.c * s.h * s.w));
+  download(v, out);
+  flush();
+  return out;
 }
 
 }  // namespace vkunroll

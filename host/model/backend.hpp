@@ -10,7 +10,10 @@
 #include <string>
 #include <vector>
 
+#include "vkunroll/base/events.hpp"
 #include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
+#include "vkunroll/kernels/physics_unroll.hpp"
 #include "vkunroll/runtime/tensor.hpp"
 
 namespace vkunroll {
@@ -40,9 +43,12 @@ class Backend {
   virtual int alloc(const Shape& shape, const std::string& what) = 0;
   virtual void release(int buf) = 0;
   virtual Shape shape(int buf) const = 0;
-  // Host data in NCHW order with the view's extent.
+  // Host data in NCHW order with the slice's extent. Both are ordered with the recorded work:
+  // upload() copies `data` before returning (no wait); download() fills `dst` by the next flush().
   virtual void upload(const BufferSlice& dst, std::span<const float> data) = 0;
-  virtual std::vector<float> download(const BufferSlice& src) = 0;
+  virtual void download(const BufferSlice& src, std::span<float> dst) = 0;
+  // download() and flush(): the slice's values now.
+  std::vector<float> download(const BufferSlice& src);
 
   virtual int prepare_conv(const ConvDesc& desc, const WeightTensor& weight, const WeightTensor& bias) = 0;
   // out = act(conv(in)) (+ residual, only for convs without activation). Views of equal batch.
@@ -58,6 +64,17 @@ class Backend {
   virtual void add(const BufferSlice& a, const BufferSlice& b, const BufferSlice& out) = 0;
   virtual void tanh_scale(const BufferSlice& in, const BufferSlice& out, float scale) = 0;  // out = scale * tanh(in)
   virtual void backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) = 0;
+  // out[.., dst_y + i, dst_x + j] = in[.., src.y + i, src.x + j] (tiles cut and stitched in place).
+  virtual void copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) = 0;
+  virtual void fill_rect(const BufferSlice& out, const Rect& rect, float value) = 0;
+
+  // Event tensors ev1, ev2, ev3 of `pairs` from the events: one buffer [3P, 2N, h, w] (ev1 is items
+  // [0, P), ev2 [P, 2P), ev3 [2P, 3P)) to read only; release() it when done. It stays valid until
+  // the next event_tensors() call, which may reuse its memory (the backend orders the reuse).
+  virtual int event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                            const EventTensorSpec& spec) = 0;
+  // The weight-free physics unroller for one target: out [1, C, H, W] from rs [1, C, H, W] (whole buffers).
+  virtual void physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) = 0;
   // m = hardsigmoid(score) (or `forced` when >= 0); out = m * a + (1 - m) * b.
   virtual void hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m,
                                  const BufferSlice& out, float forced) = 0;
@@ -83,10 +100,11 @@ class Backend {
   uint64_t live_bytes_ = 0, peak_bytes_ = 0;
 };
 
-// Released device buffers wait in a pool (reusable by an allocation of the same shape) until the
-// recorded work that may still read them has run; past this many pooled bytes the backend
-// submits and frees them, so device memory stays close to the live bytes.
-constexpr uint64_t kPoolFlushBytes = 32ull << 20;
+// Released device buffers wait in a pool (reusable by an allocation of the same size) until the
+// recorded work that may still read them has run; past this many pooled bytes the backend submits
+// and frees them (a wait inside the work, counted), so device memory stays near the live bytes.
+// The default holds the pool of a whole SelfUnroll frame at the DAVIS346 size (tests/test_session.cpp).
+constexpr uint64_t kPoolFlushBytes = 256ull << 20;
 
 // A backend that computes nothing and only tracks buffers: the memory plan of a run.
 class PlanningBackend final : public Backend {
@@ -96,7 +114,8 @@ class PlanningBackend final : public Backend {
   void release(int buf) override;
   Shape shape(int buf) const override;
   void upload(const BufferSlice&, std::span<const float>) override {}
-  std::vector<float> download(const BufferSlice& src) override;
+  void download(const BufferSlice&, std::span<float>) override {}
+  using Backend::download;
   int prepare_conv(const ConvDesc&, const WeightTensor&, const WeightTensor&) override { return 0; }
   void conv(int, const BufferSlice&, const BufferSlice&, const BufferSlice*) override {}
   void space_to_depth(const BufferSlice&, const BufferSlice&) override {}
@@ -107,10 +126,15 @@ class PlanningBackend final : public Backend {
   void add(const BufferSlice&, const BufferSlice&, const BufferSlice&) override {}
   void tanh_scale(const BufferSlice&, const BufferSlice&, float) override {}
   void backward_warp(const BufferSlice&, const BufferSlice&, const BufferSlice&) override {}
+  void copy_rect(const BufferSlice&, const BufferSlice&, const Rect&, int64_t, int64_t) override {}
+  void fill_rect(const BufferSlice&, const Rect&, float) override {}
+  int event_tensors(const EventStream&, const std::vector<EventTensorPair>&, const EventTensorSpec&) override;
+  void physics_unroll(int, const PixelEventLists&, const PhysicsUnrollParams&, int) override {}
   void hardsigmoid_blend(const BufferSlice&, const BufferSlice&, const BufferSlice&, const BufferSlice&, const BufferSlice&, float) override {}
   void flush() override;
   uint64_t max_buffer_bytes() const override { return max_buffer_bytes_; }
   void set_max_buffer_bytes(uint64_t b) { max_buffer_bytes_ = b; }
+  void set_pool_flush_bytes(uint64_t b) { pool_flush_bytes_ = b; }  // as VulkanBackend's
   // Device memory under VulkanBackend's policy (released buffers stay allocated until the next
   // flush unless an allocation of the same shape reuses them): its peak.
   uint64_t device_peak_bytes() const { return device_peak_; }
@@ -128,6 +152,7 @@ class PlanningBackend final : public Backend {
   std::vector<Shape> pooled_;
   uint64_t pooled_bytes_ = 0, device_bytes_ = 0, device_peak_ = 0;
   uint64_t max_buffer_bytes_ = 128ull << 20;
+  uint64_t pool_flush_bytes_ = kPoolFlushBytes;
   uint64_t largest_ = 0;
   std::string largest_name_;
 };

@@ -3,10 +3,13 @@
 #include <algorithm>
 #include <thread>
 
+#include <opencv2/core/utility.hpp>
+
 #include "vkunroll/kernels/backward_warp.hpp"
 #include "vkunroll/kernels/common.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
+#include "vkunroll/kernels/copy_rect.hpp"
 #include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 #include "vkunroll/kernels/space_to_depth.hpp"
@@ -31,7 +34,9 @@ struct CpuBackend::Impl {
   };
   std::vector<Buf> bufs;
   std::vector<Conv> convs;
-  unsigned threads = std::max(1u, std::min(8u, std::thread::hardware_concurrency()));
+  unsigned threads = 1;
+  // The last event tensors built, handed out as a buffer (event_tensors()).
+  EventTensors events;
 
   HostTensor& buf(int id) {
     if (id < 0 || id >= static_cast<int>(bufs.size()) || !bufs[id].live)
@@ -42,7 +47,9 @@ struct CpuBackend::Impl {
   HostSliceOut out(const BufferSlice& v) { return HostSliceOut(buf(v.buf), v.c0, v.c, v.n0, v.n); }
 };
 
-CpuBackend::CpuBackend() : impl_(std::make_unique<Impl>()) {}
+CpuBackend::CpuBackend(unsigned threads) : impl_(std::make_unique<Impl>()) {
+  impl_->threads = threads ? threads : std::max(1u, std::min(8u, std::thread::hardware_concurrency()));
+}
 CpuBackend::~CpuBackend() = default;
 
 int CpuBackend::alloc(const Shape& shape, const std::string&) {
@@ -71,11 +78,13 @@ void CpuBackend::upload(const BufferSlice& v, std::span<const float> data) {
   copy_ref(HostSlice(src), impl_->out(v));
 }
 
-std::vector<float> CpuBackend::download(const BufferSlice& v) {
+void CpuBackend::download(const BufferSlice& v, std::span<float> dst) {
   const HostSlice s = impl_->in(v);
-  HostTensor dst(s.shape());
-  copy_ref(s, HostSliceOut(dst));
-  return std::move(dst.data);
+  if (static_cast<int64_t>(dst.size()) != s.shape().count())
+    throw Error("cpu backend: download of " + s.shape().str() + " into " + std::to_string(dst.size()) + " values");
+  HostTensor out(s.shape());
+  copy_ref(s, HostSliceOut(out));
+  std::copy(out.data.begin(), out.data.end(), dst.begin());
 }
 
 int CpuBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const WeightTensor& b) {
@@ -123,17 +132,18 @@ void CpuBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, con
     run_part(cv.parts[0]);
     return;
   }
-  std::vector<std::thread> pool;
+  // One stripe per part on OpenCV's persistent pool (no thread is started per call).
   std::vector<std::exception_ptr> errors(cv.parts.size());
-  for (size_t i = 0; i < cv.parts.size(); ++i)
-    pool.emplace_back([&, i] {
-      try {
-        run_part(cv.parts[i]);
-      } catch (...) {
-        errors[i] = std::current_exception();
-      }
-    });
-  for (auto& t : pool) t.join();
+  cv::parallel_for_(
+      cv::Range(0, static_cast<int>(cv.parts.size())),
+      [&](const cv::Range& r) {
+        for (int i = r.start; i < r.end; ++i) try {
+            run_part(cv.parts[static_cast<size_t>(i)]);
+          } catch (...) {
+            errors[static_cast<size_t>(i)] = std::current_exception();
+          }
+      },
+      static_cast<double>(cv.parts.size()));
   for (auto& e : errors)
     if (e) std::rethrow_exception(e);
 }
@@ -159,6 +169,33 @@ void CpuBackend::tanh_scale(const BufferSlice& in, const BufferSlice& out, float
 }
 void CpuBackend::backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) {
   backward_warp_ref(impl_->in(img), impl_->in(flow), impl_->out(out));
+}
+
+void CpuBackend::copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) {
+  copy_rect_ref(impl_->in(in), impl_->out(out), src, dst_y, dst_x);
+}
+void CpuBackend::fill_rect(const BufferSlice& out, const Rect& rect, float value) { fill_rect_ref(impl_->out(out), rect, value); }
+
+int CpuBackend::event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                              const EventTensorSpec& spec) {
+  EventTensors& t = impl_->events;
+  t = build_event_tensors_ref(events, pairs, spec);
+  const int64_t P = t.pairs;
+  const int buf = alloc({3 * P, 2 * t.bins, t.height, t.width}, "event tensors");
+  HostTensor& dst = impl_->buf(buf);
+  const size_t part = static_cast<size_t>(P) * t.slice();
+  std::copy(t.ev1.begin(), t.ev1.end(), dst.data.begin());
+  std::copy(t.ev2.begin(), t.ev2.end(), dst.data.begin() + part);
+  std::copy(t.ev3.begin(), t.ev3.end(), dst.data.begin() + 2 * part);
+  return buf;
+}
+
+void CpuBackend::physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) {
+  HostTensor& src = impl_->buf(rs);
+  HostTensor& dst = impl_->buf(out);
+  if (src.shape.n != 1 || !(dst.shape == src.shape))
+    throw Error("cpu backend: physics_unroll takes [1, C, H, W] buffers, got " + src.shape.str() + " -> " + dst.shape.str());
+  dst.data = physics_unroll_ref(src.data, static_cast<int>(src.shape.c), lists, params);
 }
 
 void CpuBackend::hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,

@@ -1,4 +1,5 @@
-// The CPU reference backend: every op of the graph on host memory, in fp32, eagerly.
+// The CPU reference backend: every op of the graph on host memory, in fp32, eagerly. Convolutions
+// run their output-channel parts on OpenCV's thread pool (cv::parallel_for_), `threads` at a time.
 #pragma once
 #include <memory>
 
@@ -8,14 +9,16 @@ namespace vkunroll {
 
 class CpuBackend final : public Backend {
  public:
-  CpuBackend();
+  // threads: convolution parts run in parallel (0: the machine's cores, at most 8).
+  explicit CpuBackend(unsigned threads = 0);
   ~CpuBackend() override;
   std::string name() const override { return "cpu"; }
   int alloc(const Shape& shape, const std::string& what) override;
   void release(int buf) override;
   Shape shape(int buf) const override;
   void upload(const BufferSlice& dst, std::span<const float> data) override;
-  std::vector<float> download(const BufferSlice& src) override;
+  void download(const BufferSlice& src, std::span<float> dst) override;
+  using Backend::download;
   int prepare_conv(const ConvDesc& desc, const WeightTensor& weight, const WeightTensor& bias) override;
   void conv(int conv, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) override;
   void space_to_depth(const BufferSlice& in, const BufferSlice& out) override;
@@ -26,6 +29,11 @@ class CpuBackend final : public Backend {
   void add(const BufferSlice& a, const BufferSlice& b, const BufferSlice& out) override;
   void tanh_scale(const BufferSlice& in, const BufferSlice& out, float scale) override;
   void backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) override;
+  void copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) override;
+  void fill_rect(const BufferSlice& out, const Rect& rect, float value) override;
+  int event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                    const EventTensorSpec& spec) override;
+  void physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) override;
   void hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,
                          float forced) override;
   void flush() override {}

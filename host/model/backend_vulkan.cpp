@@ -7,6 +7,7 @@
 #include "vkunroll/kernels/common.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
+#include "vkunroll/kernels/copy_rect.hpp"
 #include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 #include "vkunroll/kernels/space_to_depth.hpp"
@@ -19,10 +20,13 @@ struct VulkanBackend::Buf {
   Tensor t;
   bool live = false;
   bool pooled = false;  // released, reusable by an alloc of the same shape until the next flush
+  const Tensor* external = nullptr;  // a tensor the backend does not own (event_tensors())
+  const Tensor& tensor() const { return external ? *external : t; }
 };
 
-VulkanBackend::VulkanBackend(Context& ctx, Profiler* profiler)
-    : ctx_(ctx), workspace_(std::make_shared<ConvWorkspace>()), cs_(std::make_unique<CommandStream>(ctx, profiler)) {}
+VulkanBackend::VulkanBackend(Context& ctx, Profiler* profiler, uint64_t pool_flush_bytes)
+    : ctx_(ctx), workspace_(std::make_shared<ConvWorkspace>()), cs_(std::make_unique<CommandStream>(ctx, profiler)),
+      pool_flush_bytes_(pool_flush_bytes) {}
 
 VulkanBackend::~VulkanBackend() = default;
 
@@ -34,14 +38,17 @@ uint64_t VulkanBackend::max_buffer_bytes() const {
 const Tensor& VulkanBackend::tensor(int id) const {
   if (id < 0 || id >= static_cast<int>(bufs_.size()) || !bufs_[id] || !bufs_[id]->live)
     throw Error("vulkan backend: buffer " + std::to_string(id) + " is not allocated");
-  return bufs_[id]->t;
+  return bufs_[id]->tensor();
 }
 
 int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
   const uint64_t bytes = static_cast<uint64_t>(shape.count()) * 4;
   account_alloc(bytes);
+  // A pooled buffer of the same size takes the new shape: only recorded dispatches (ordered by the
+  // stream's barriers) write a backend buffer, never the host directly.
   for (size_t i = 0; i < bufs_.size(); ++i)
-    if (bufs_[i] && bufs_[i]->pooled && bufs_[i]->t.shape() == shape) {
+    if (bufs_[i] && bufs_[i]->pooled && bufs_[i]->t.bytes() == bytes) {
+      bufs_[i]->t.reshape(shape);
       bufs_[i]->pooled = false;
       bufs_[i]->live = true;
       pooled_bytes_ -= bytes;
@@ -66,17 +73,27 @@ int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
 
 void VulkanBackend::release(int id) {
   tensor(id);
+  if (bufs_[id]->external) {
+    bufs_[id].reset();
+    if (id == events_buf_) events_buf_ = -1;
+    return;
+  }
   account_release(bufs_[id]->t.bytes());
   bufs_[id]->live = false;
   bufs_[id]->pooled = true;
   pooled_bytes_ += bufs_[id]->t.bytes();
-  if (pooled_bytes_ > kPoolFlushBytes) flush();
+  if (pooled_bytes_ > pool_flush_bytes_) {
+    pool_flushes_++;
+    flush();
+  }
 }
 
 Shape VulkanBackend::shape(int id) const { return tensor(id).shape(); }
 
 void VulkanBackend::flush() {
   if (cs_->recorded()) cs_->submit_and_wait();
+  physics_.clear();
+  events_recorded_ = false;
   // Nothing recorded references the pooled buffers any more: give their memory back.
   for (auto& b : bufs_)
     if (b && b->pooled) {
@@ -88,36 +105,32 @@ void VulkanBackend::flush() {
 
 namespace {
 Slice slice(const Tensor& t, const BufferSlice& v) { return Slice(t, v.c0, v.c, v.n0, v.n); }
-bool is_whole(const Tensor& t, const BufferSlice& v) {
-  return v.n0 == 0 && v.c0 == 0 && v.n == t.shape().n && v.c == t.shape().c;
-}
 }  // namespace
 
+// A slice's batch items are contiguous byte ranges (its channels of one item): one transfer each,
+// recorded in the stream, so uploads wait for nothing and downloads for one submission.
 void VulkanBackend::upload(const BufferSlice& v, std::span<const float> data) {
   const Tensor& t = tensor(v.buf);
-  const Shape s{v.n, v.c, t.shape().h, t.shape().w};
-  if (static_cast<int64_t>(data.size()) != s.count())
-    throw Error("vulkan backend: upload of " + std::to_string(data.size()) + " values into " + s.str());
-  // The host write must not overtake recorded work that still reads this buffer's memory.
-  flush();
-  if (is_whole(t, v)) {
-    const_cast<Tensor&>(t).upload(data.data(), data.size() * 4);
-    return;
-  }
-  Tensor tmp(ctx_, s, DType::f32);
-  tmp.upload(data.data(), data.size() * 4);
-  vkunroll::copy(*cs_, Slice(tmp), slice(t, v));
-  cs_->submit_and_wait();
+  check_slice(slice(t, v), "vulkan backend upload", "destination");
+  const int64_t plane = t.shape().h * t.shape().w, item = v.c * plane;
+  if (static_cast<int64_t>(data.size()) != v.n * item)
+    throw Error("vulkan backend: upload of " + std::to_string(data.size()) + " values into " +
+                Shape{v.n, v.c, t.shape().h, t.shape().w}.str());
+  for (int64_t i = 0; i < v.n; ++i)
+    cs_->upload(t, static_cast<size_t>(((v.n0 + i) * t.shape().c + v.c0) * plane) * 4, data.data() + i * item,
+                static_cast<size_t>(item) * 4);
 }
 
-std::vector<float> VulkanBackend::download(const BufferSlice& v) {
-  flush();
+void VulkanBackend::download(const BufferSlice& v, std::span<float> dst) {
   const Tensor& t = tensor(v.buf);
-  if (is_whole(t, v)) return t.download<float>();
-  Tensor tmp(ctx_, {v.n, v.c, t.shape().h, t.shape().w}, DType::f32);
-  vkunroll::copy(*cs_, slice(t, v), Slice(tmp));
-  cs_->submit_and_wait();
-  return tmp.download<float>();
+  check_slice(slice(t, v), "vulkan backend download", "source");
+  const int64_t plane = t.shape().h * t.shape().w, item = v.c * plane;
+  if (static_cast<int64_t>(dst.size()) != v.n * item)
+    throw Error("vulkan backend: download of " + Shape{v.n, v.c, t.shape().h, t.shape().w}.str() + " into " +
+                std::to_string(dst.size()) + " values");
+  for (int64_t i = 0; i < v.n; ++i)
+    cs_->download(t, static_cast<size_t>(((v.n0 + i) * t.shape().c + v.c0) * plane) * 4, dst.data() + i * item,
+                  static_cast<size_t>(item) * 4);
 }
 
 int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const WeightTensor& b) {
@@ -176,17 +189,45 @@ void VulkanBackend::backward_warp(const BufferSlice& img, const BufferSlice& flo
   vkunroll::backward_warp(*cs_, slice(tensor(img.buf), img), slice(tensor(flow.buf), flow), slice(tensor(out.buf), out));
 }
 
+void VulkanBackend::copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) {
+  vkunroll::copy_rect(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out), src, dst_y, dst_x);
+}
+void VulkanBackend::fill_rect(const BufferSlice& out, const Rect& rect, float value) {
+  vkunroll::fill_rect(*cs_, slice(tensor(out.buf), out), rect, value);
+}
+
+int VulkanBackend::event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                 const EventTensorSpec& spec) {
+  if (!events_) events_ = std::make_unique<EventTensorBuilder>(ctx_);
+  // The builder reuses its buffers: what was recorded reading the previous build runs first.
+  if (events_recorded_) flush();
+  if (events_buf_ >= 0 && bufs_[events_buf_]) bufs_[events_buf_].reset();  // stale: no longer readable
+  const Tensor& t = events_->record_resident(*cs_, events, pairs, spec);
+  events_recorded_ = true;
+  auto b = std::make_unique<Buf>();
+  b->external = &t;
+  b->live = true;
+  for (size_t i = 0; i <= bufs_.size(); ++i)
+    if (i == bufs_.size() || !bufs_[i]) {
+      if (i == bufs_.size()) bufs_.push_back(nullptr);
+      bufs_[i] = std::move(b);
+      events_buf_ = static_cast<int>(i);
+      break;
+    }
+  return events_buf_;
+}
+
+void VulkanBackend::physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) {
+  // The caller checked the image (check_physics_image); the lists' uploads are recorded in order.
+  physics_.push_back(std::make_unique<PhysicsUnroll>(ctx_, lists, cs_.get()));
+  physics_.back()->record(*cs_, tensor(rs), const_cast<Tensor&>(tensor(out)), params);
+}
+
 void VulkanBackend::hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,
                                       float forced) {
   const Slice ms = slice(tensor(m.buf), m);
   if (forced >= 0) {
-    // m = 0 * hardsigmoid(score) + forced, as scale_act(none, 0) then a constant: build it on
-    // the host once (tests only) through a tiny upload.
-    const Shape s = ms.shape();
-    Tensor c(ctx_, s, DType::f32);
-    c.upload(std::vector<float>(static_cast<size_t>(s.count()), forced));
-    vkunroll::copy(*cs_, Slice(c), ms);
-    cs_->submit_and_wait();
+    vkunroll::fill_rect(*cs_, ms, Rect{0, 0, ms.height(), ms.width()}, forced);
   } else {
     scale_act(*cs_, slice(tensor(score.buf), score), ms, Act{Activation::hardsigmoid, 0.f}, 1.f);
   }

@@ -1,7 +1,7 @@
 // The Vulkan backend: the kernels' GPU ops recorded into one CommandStream per flush. Buffers are
 // device Tensors; a released buffer is reused by a later alloc() of the same shape within the same
 // recording (the stream's hazard barriers order the reuse) and destroyed at the next flush (also
-// forced once kPoolFlushBytes are pooled), so device memory follows the graph's liveness.
+// forced once pool_flush_bytes are pooled), so device memory follows the graph's liveness.
 #pragma once
 #include <map>
 #include <memory>
@@ -15,18 +15,22 @@ namespace vkunroll {
 class Conv2d;
 class ConvTranspose2d;
 class ConvWorkspace;
+class EventTensorBuilder;
+class PhysicsUnroll;
 class Profiler;
 
 class VulkanBackend final : public Backend {
  public:
-  explicit VulkanBackend(Context& ctx, Profiler* profiler = nullptr);
+  // pool_flush_bytes: pooled bytes past which released buffers are freed (kPoolFlushBytes).
+  explicit VulkanBackend(Context& ctx, Profiler* profiler = nullptr, uint64_t pool_flush_bytes = kPoolFlushBytes);
   ~VulkanBackend() override;
   std::string name() const override { return "vulkan"; }
   int alloc(const Shape& shape, const std::string& what) override;
   void release(int buf) override;
   Shape shape(int buf) const override;
   void upload(const BufferSlice& dst, std::span<const float> data) override;
-  std::vector<float> download(const BufferSlice& src) override;
+  void download(const BufferSlice& src, std::span<float> dst) override;
+  using Backend::download;
   int prepare_conv(const ConvDesc& desc, const WeightTensor& weight, const WeightTensor& bias) override;
   void conv(int conv, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) override;
   void space_to_depth(const BufferSlice& in, const BufferSlice& out) override;
@@ -37,6 +41,11 @@ class VulkanBackend final : public Backend {
   void add(const BufferSlice& a, const BufferSlice& b, const BufferSlice& out) override;
   void tanh_scale(const BufferSlice& in, const BufferSlice& out, float scale) override;
   void backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) override;
+  void copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) override;
+  void fill_rect(const BufferSlice& out, const Rect& rect, float value) override;
+  int event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                    const EventTensorSpec& spec) override;
+  void physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) override;
   void hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,
                          float forced) override;
   void flush() override;
@@ -50,6 +59,9 @@ class VulkanBackend final : public Backend {
   uint64_t device_peak_bytes() const { return device_peak_; }
   // Bytes of prepared weights on the device (all packings the conv kernels keep).
   uint64_t weight_bytes() const { return weight_bytes_; }
+  // Submissions the backend made on its own because released buffers held more than
+  // kPoolFlushBytes (memory forced a wait inside the work).
+  uint64_t pool_flushes() const { return pool_flushes_; }
 
  private:
   struct Buf;
@@ -62,8 +74,16 @@ class VulkanBackend final : public Backend {
   std::vector<std::unique_ptr<ConvTranspose2d>> deconvs_;
   std::vector<int> conv_index_;        // conv id -> index in convs_ (>= 0) or ~index in deconvs_
   std::vector<ConvDesc> descs_;
+  // Event tensors are built into the builder's persistent output (the sparse path), recorded into
+  // this backend's stream; a new build waits for the recorded readers of the previous one.
+  std::unique_ptr<EventTensorBuilder> events_;
+  bool events_recorded_ = false;  // since the last flush
+  int events_buf_ = -1;           // the buffer naming the builder's output, -1: none
+  std::vector<std::unique_ptr<PhysicsUnroll>> physics_;  // ops whose uploads and dispatch are recorded
   uint64_t device_bytes_ = 0, device_peak_ = 0, weight_bytes_ = 0, pooled_bytes_ = 0;
   uint64_t max_buffer_cap_ = 0;
+  uint64_t pool_flushes_ = 0;
+  uint64_t pool_flush_bytes_ = kPoolFlushBytes;
 };
 
 }  // namespace vkunroll

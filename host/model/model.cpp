@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <set>
+#include <tuple>
 
 #include "vkunroll/base/int_math.hpp"
 #include "vkunroll/base/stopwatch.hpp"
@@ -23,6 +24,7 @@ BufferSlice items(Backend& b, int buf, int64_t n0, int64_t n) {
   return {buf, n0, n, 0, s.c};
 }
 BufferSlice chans(const BufferSlice& v, int64_t c0, int64_t c) { return {v.buf, v.n0, v.n, v.c0 + c0, c}; }
+BufferSlice sub(const BufferSlice& v, int64_t i0, int64_t n) { return {v.buf, v.n0 + i0, n, v.c0, v.c}; }
 
 void check_input(const HostTensor& a, const char* name, int64_t b, int64_t c, int64_t h, int64_t w) {
   const Shape want{b, c, h, w};
@@ -53,7 +55,7 @@ struct Model::Chunk {
   int64_t n = 0, nt = 0;  // batch items; targets (M)
   int64_t he = 0, we = 0; // even working size
   int pad_top = -1, pad_left = -1;  // UNet input offsets (RunOptions::unet_pad_top / left)
-  int rs = -1, ev1 = -1, ev2 = -1, ev3 = -1;
+  BufferSlice rs, ev1, ev2, ev3;  // inputs: slices of the caller's buffers, or even-size copies
   int E = -1, sys = -1, flow = -1, warped = -1, fused = -1, m = -1, out = -1;
 };
 
@@ -284,10 +286,10 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   // space_to_depth(cat(rs, ev1, ev2, ev3)): input channel c lands in output channels 4c..4c+3,
   // so each piece goes straight into its range and the 99-channel concatenation never exists.
   const int xs = b.alloc({n, 4 * (3 + 3 * ev), h2, w2}, "space_to_depth");
-  b.space_to_depth(items(b, ch.rs, i0, n), chans(whole(b, xs), 0, 12));
-  b.space_to_depth(items(b, ch.ev1, i0, n), chans(whole(b, xs), 12, 4 * ev));
-  b.space_to_depth(items(b, ch.ev2, i0, n), chans(whole(b, xs), 12 + 4 * ev, 4 * ev));
-  b.space_to_depth(items(b, ch.ev3, i0, n), chans(whole(b, xs), 12 + 8 * ev, 4 * ev));
+  b.space_to_depth(sub(ch.rs, i0, n), chans(whole(b, xs), 0, 12));
+  b.space_to_depth(sub(ch.ev1, i0, n), chans(whole(b, xs), 12, 4 * ev));
+  b.space_to_depth(sub(ch.ev2, i0, n), chans(whole(b, xs), 12 + 4 * ev, 4 * ev));
+  b.space_to_depth(sub(ch.ev3, i0, n), chans(whole(b, xs), 12 + 8 * ev, 4 * ev));
   const int f1 = b.alloc({n, cfg_.G0, h2, w2}, "SFENet1");
   b.conv(conv("SFENet1").id, whole(b, xs), whole(b, f1), nullptr);
   b.release(xs);
@@ -332,24 +334,24 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   b.release(shuf);
   b.tanh_scale(whole(b, e_raw), items(b, ch.E, i0, n), 1.f);
   b.release(e_raw);
-  b.add(items(b, ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
+  b.add(sub(ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
 }
 
 void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
   const int raw = b.alloc({n, 2, ch.he, ch.we}, "flownet");
-  unet("flownet", cfg_.flownet, {items(b, ch.ev1, i0, n), items(b, ch.ev2, i0, n), items(b, ch.rs, i0, n)},
+  unet("flownet", cfg_.flownet, {sub(ch.ev1, i0, n), sub(ch.ev2, i0, n), sub(ch.rs, i0, n)},
        whole(b, raw), ch.pad_top, ch.pad_left);
   b.tanh_scale(whole(b, raw), items(b, ch.flow, i0, n), 100.f);
   b.release(raw);
-  b.backward_warp(items(b, ch.rs, i0, n), items(b, ch.flow, i0, n), items(b, ch.warped, i0, n));
+  b.backward_warp(sub(ch.rs, i0, n), items(b, ch.flow, i0, n), items(b, ch.warped, i0, n));
 }
 
 void Model::stage_fusion(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
   unet("fusion_net", cfg_.fusion_net,
-       {items(b, ch.sys, i0, n), items(b, ch.warped, i0, n), items(b, ch.flow, i0, n), items(b, ch.ev3, i0, n),
-        items(b, ch.rs, i0, n)},
+       {items(b, ch.sys, i0, n), items(b, ch.warped, i0, n), items(b, ch.flow, i0, n), sub(ch.ev3, i0, n),
+        sub(ch.rs, i0, n)},
        items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
 }
 
@@ -364,8 +366,8 @@ void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
     const BufferSlice dst = items(b, gathered, k, 1);
     b.copy(items(b, ch.E, f1, 1), chans(dst, 0, 3));
     b.copy(items(b, ch.E, f2, 1), chans(dst, 3, 3));
-    b.copy(items(b, ch.ev1, f1, 1), chans(dst, 6, ev));
-    b.copy(items(b, ch.ev1, f2, 1), chans(dst, 6 + ev, ev));
+    b.copy(sub(ch.ev1, f1, 1), chans(dst, 6, ev));
+    b.copy(sub(ch.ev1, f2, 1), chans(dst, 6 + ev, ev));
     b.copy(items(b, ch.flow, f1, 1), chans(dst, 6 + 2 * ev, 2));
     b.copy(items(b, ch.flow, f2, 1), chans(dst, 8 + 2 * ev, 2));
   }
@@ -395,10 +397,61 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
   check_finite(in.ev1, "ev1");
   check_finite(in.ev2, "ev2");
   check_finite(in.ev3, "ev3");
+  // Chunks of batch items, each uploaded, run and downloaded on its own: every input buffer stays
+  // within the backend's binding limit (run_on_backend takes the inputs as they are).
   const bool m_mode = opt.mode == Mode::m;
-  if (m_mode && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
-  if (m_mode && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
+  int64_t per_chunk = opt.max_items > 0 ? opt.max_items : items_per_chunk(H, W, opt.mode, opt.memory_budget);
+  if (m_mode) per_chunk = std::max<int64_t>(2, per_chunk & ~int64_t(1));
+  per_chunk = std::min(per_chunk, B);
+  std::map<std::string, HostTensor> result;
+  for (int64_t c0 = 0; c0 < B; c0 += per_chunk) {
+    const int64_t n = std::min(per_chunk, B - c0);
+    ModelBuffers buffers;
+    for (const auto& [a, dst, name] : {std::tuple{&in.rs, &buffers.rs, "rs"}, std::tuple{&in.ev1, &buffers.ev1, "ev1"},
+                                       std::tuple{&in.ev2, &buffers.ev2, "ev2"}, std::tuple{&in.ev3, &buffers.ev3, "ev3"}}) {
+      const int64_t item = a->shape.c * H * W;
+      const int buf = b.alloc({n, a->shape.c, H, W}, name);
+      *dst = whole(b, buf);
+      b.upload(*dst, std::span<const float>(a->data.data() + c0 * item, size_t(n * item)));
+    }
+    RunOptions ro = opt;
+    ro.max_items = static_cast<int>(n);
+    buffers.consume = true;
+    const std::map<std::string, int> outs = run_on_backend(buffers, ro);
+    for (const auto& [name, buf] : outs) {
+      const Shape s = b.shape(buf);
+      HostTensor& t = result[name];
+      const int64_t items = (name == "m" || name == "out") ? B / 2 : B, first = (name == "m" || name == "out") ? c0 / 2 : c0;
+      if (t.data.empty()) t = HostTensor(Shape{items, s.c, s.h, s.w});
+      b.download(whole(b, buf), std::span<float>(t.data.data() + first * s.c * s.h * s.w, size_t(s.count())));
+    }
+    b.flush();
+    for (const auto& [name, buf] : outs) b.release(buf);
+  }
+  return result;
+}
 
+void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt) const {
+  const Shape rs = backend_.shape(in.rs.buf);
+  const int64_t B = in.rs.n, H = rs.h, W = rs.w, ev = cfg_.ev_channels();
+  if (in.rs.c != 3) throw Error("model input 'rs' has " + std::to_string(in.rs.c) + " channels, expected 3");
+  if (B < 1 || H < 2 || W < 2) throw Error("model input 'rs' is " + std::to_string(B) + " items of " + std::to_string(H) + "x" +
+                                           std::to_string(W) + ", expected B >= 1, H and W >= 2");
+  for (const auto& [v, name] : {std::pair{&in.ev1, "ev1"}, std::pair{&in.ev2, "ev2"}, std::pair{&in.ev3, "ev3"}}) {
+    const Shape s = backend_.shape(v->buf);
+    if (v->n != B || v->c != ev || s.h != H || s.w != W)
+      throw Error(std::string("model input '") + name + "' is " + Shape{v->n, v->c, s.h, s.w}.str() + ", expected " +
+                  Shape{B, ev, H, W}.str());
+  }
+  if (opt.mode == Mode::m && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
+  if (opt.mode == Mode::m && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
+}
+
+std::map<std::string, int> Model::run_on_backend(const ModelBuffers& in, const RunOptions& opt) {
+  Backend& b = backend_;
+  check_buffers(in, opt);
+  const int64_t B = in.rs.n, H = b.shape(in.rs.buf).h, W = b.shape(in.rs.buf).w, ev = cfg_.ev_channels();
+  const bool m_mode = opt.mode == Mode::m;
   const std::vector<std::string> wanted = resolve_outputs(opt.outputs, opt.mode);
   const std::set<std::string> want(wanted.begin(), wanted.end());
 
@@ -417,15 +470,13 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
   const int sub_m =
       m_mode ? sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, ptop, pleft), budget) : 1;
 
-  std::map<std::string, HostTensor> result;
   const int64_t K = m_mode ? B / 2 : 0;
-  auto shape_of = [&](const std::string& nme) -> Shape {
-    if (nme == "m") return {K, 1, H, W};
-    if (nme == "out") return {K, 3, H, W};
-    if (nme == "flow") return {B, 2, H, W};
-    return {B, 3, H, W};
-  };
-  for (const auto& nme : want) result[nme] = HostTensor{shape_of(nme), std::vector<float>(size_t(shape_of(nme).count()))};
+  std::map<std::string, int> result;
+  for (const auto& nme : want) {
+    const int64_t items = (nme == "m" || nme == "out") ? K : B;
+    const int64_t c = nme == "m" ? 1 : (nme == "flow" ? 2 : 3);
+    result[nme] = b.alloc({items, c, H, W}, nme);
+  }
 
   for (int64_t c0 = 0; c0 < B; c0 += per_chunk) {
     Chunk ch;
@@ -435,85 +486,64 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
     ch.we = we;
     ch.pad_top = opt.unet_pad_top;
     ch.pad_left = opt.unet_pad_left;
-    // Inputs: uploaded at H x W, reflected by one row/column to even sizes when odd.
-    auto input = [&](const HostTensor& a, const char* nme) {
-      const int64_t c = a.shape.c;
-      const int buf = b.alloc({ch.n, c, he, we}, nme);
-      std::span<const float> src(a.data.data() + c0 * c * H * W, size_t(ch.n * c * H * W));
-      if (he == H && we == W) {
-        b.upload(whole(b, buf), src);
-      } else {
-        const int tmp = b.alloc({ch.n, c, H, W}, std::string(nme) + ".odd");
-        b.upload(whole(b, tmp), src);
-        b.reflect_pad(whole(b, tmp), whole(b, buf), 0, 0);
-        b.release(tmp);
-      }
-      return buf;
+    // Inputs are read in place; at an odd size they are reflected by one row/column to even size.
+    std::vector<int> owned;
+    auto input = [&](const BufferSlice& v, const char* nme) {
+      const BufferSlice part = sub(v, c0, ch.n);
+      if (he == H && we == W) return part;
+      const int buf = b.alloc({ch.n, v.c, he, we}, std::string(nme) + ".even");
+      owned.push_back(buf);
+      b.reflect_pad(part, whole(b, buf), 0, 0);
+      return whole(b, buf);
     };
     ch.rs = input(in.rs, "rs");
     ch.ev1 = input(in.ev1, "ev1");
     ch.ev2 = input(in.ev2, "ev2");
     ch.ev3 = input(in.ev3, "ev3");
-    ch.E = b.alloc({ch.n, 3, he, we}, "E");
-    ch.sys = b.alloc({ch.n, 3, he, we}, "sys");
-    ch.flow = b.alloc({ch.n, 2, he, we}, "flow");
-    ch.warped = b.alloc({ch.n, 3, he, we}, "warped");
-    ch.fused = b.alloc({ch.n, 3, he, we}, "fused");
-    auto stage_clock = std::chrono::steady_clock::now();
-    auto stage_done = [&](const char* stage) {
-      const auto now = std::chrono::steady_clock::now();
-      if (opt.stage_ms) (*opt.stage_ms)[stage] += std::chrono::duration<double, std::milli>(now - stage_clock).count();
-      stage_clock = now;
+    // One chunk at an even size computes straight into the outputs; otherwise into chunk buffers
+    // that are cropped into them.
+    const bool direct = ch.n == B && he == H && we == W;
+    auto chunk_buffer = [&](const char* nme, const Shape& s) {
+      return direct && want.count(nme) ? result.at(nme) : b.alloc(s, nme);
     };
-    for (int64_t i = 0; i < ch.n; i += sub_t) {
-      stage_synthesis(ch, i, std::min<int64_t>(sub_t, ch.n - i));
-      b.flush();
-    }
-    for (int64_t i = 0; i < ch.n; i += sub_f) {
-      stage_flow(ch, i, std::min<int64_t>(sub_f, ch.n - i));
-      b.flush();
-    }
-    b.release(ch.ev2);
-    for (int64_t i = 0; i < ch.n; i += sub_u) {
-      stage_fusion(ch, i, std::min<int64_t>(sub_u, ch.n - i));
-      b.flush();
-    }
-    b.release(ch.ev3);
-    stage_done("eic");  // E-IC_T, E-IC_S and fusion: the SelfUnroll-S result
-    if (m_mode) {
-      ch.m = b.alloc({ch.nt, 1, he, we}, "m");
-      ch.out = b.alloc({ch.nt, 3, he, we}, "out");
-      for (int64_t t = 0; t < ch.nt; t += sub_m) {
-        stage_moa(ch, t, std::min<int64_t>(sub_m, ch.nt - t), opt.force_m);
-        b.flush();
-      }
-    }
-    if (m_mode) stage_done("moa");
-    // Download and crop to H x W.
-    auto fetch = [&](const std::string& nme, int buf, int64_t first) {
-      if (!want.count(nme)) return;
-      const BufferSlice v = whole(b, buf);
-      const std::vector<float> d = b.download(v);
-      HostTensor& dst = result[nme];
-      for (int64_t i = 0; i < v.n; ++i)
-        for (int64_t c = 0; c < v.c; ++c)
-          for (int64_t y = 0; y < H; ++y) {
-            const float* s = d.data() + ((i * v.c + c) * he + y) * we;
-            std::copy(s, s + W, dst.data.begin() + (((first + i) * v.c + c) * H + y) * W);
-          }
+    ch.E = chunk_buffer("E", {ch.n, 3, he, we});
+    ch.sys = chunk_buffer("sys", {ch.n, 3, he, we});
+    ch.flow = chunk_buffer("flow", {ch.n, 2, he, we});
+    ch.warped = chunk_buffer("warped", {ch.n, 3, he, we});
+    ch.fused = chunk_buffer("fused", {ch.n, 3, he, we});
+    // Stages are recorded back to back; the backend submits only where memory forces it.
+    for (int64_t i = 0; i < ch.n; i += sub_t) stage_synthesis(ch, i, std::min<int64_t>(sub_t, ch.n - i));
+    // Handed-over inputs go as soon as the last chunk has read them.
+    const bool last = c0 + ch.n >= B;
+    auto consumed = [&](const BufferSlice& chunk_view, const BufferSlice& given) {
+      if (chunk_view.buf != given.buf) b.release(chunk_view.buf), owned.erase(std::find(owned.begin(), owned.end(), chunk_view.buf));
+      if (in.consume && last) b.release(given.buf);
     };
-    fetch("sys", ch.sys, c0);
-    fetch("E", ch.E, c0);
-    fetch("flow", ch.flow, c0);
-    fetch("warped", ch.warped, c0);
-    fetch("fused", ch.fused, c0);
+    for (int64_t i = 0; i < ch.n; i += sub_f) stage_flow(ch, i, std::min<int64_t>(sub_f, ch.n - i));
+    consumed(ch.ev2, in.ev2);
+    for (int64_t i = 0; i < ch.n; i += sub_u) stage_fusion(ch, i, std::min<int64_t>(sub_u, ch.n - i));
+    consumed(ch.ev3, in.ev3);
     if (m_mode) {
-      fetch("m", ch.m, c0 / 2);
-      fetch("out", ch.out, c0 / 2);
-      b.release(ch.m);
-      b.release(ch.out);
+      ch.m = chunk_buffer("m", {ch.nt, 1, he, we});
+      ch.out = chunk_buffer("out", {ch.nt, 3, he, we});
+      for (int64_t t = 0; t < ch.nt; t += sub_m) stage_moa(ch, t, std::min<int64_t>(sub_m, ch.nt - t), opt.force_m);
     }
-    for (int buf : {ch.rs, ch.ev1, ch.E, ch.sys, ch.flow, ch.warped, ch.fused}) b.release(buf);
+    // The chunk's results, cropped to H x W, into the outputs.
+    auto keep = [&](const std::string& nme, int buf, int64_t first) {
+      if (want.count(nme) && buf != result.at(nme)) b.crop(whole(b, buf), items(b, result.at(nme), first, b.shape(buf).n), 0, 0);
+      if (!want.count(nme) || buf != result.at(nme)) b.release(buf);
+    };
+    keep("sys", ch.sys, c0);
+    keep("E", ch.E, c0);
+    keep("flow", ch.flow, c0);
+    keep("warped", ch.warped, c0);
+    keep("fused", ch.fused, c0);
+    if (m_mode) {
+      keep("m", ch.m, c0 / 2);
+      keep("out", ch.out, c0 / 2);
+    }
+    for (int buf : owned) b.release(buf);
+    if (in.consume && last) b.release(in.rs.buf), b.release(in.ev1.buf);
   }
   return result;
 }

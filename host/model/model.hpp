@@ -18,6 +18,15 @@ namespace vkunroll {
 
 enum class Mode { s, m };
 
+// The inputs as slices of backend buffers (e.g. the event tensors where Backend::event_tensors put
+// them): rs [B, 3, H, W], ev1, ev2, ev3 [B, 2N, H, W], read in place.
+struct ModelBuffers {
+  BufferSlice rs, ev1, ev2, ev3;
+  // The four are whole buffers handed over: run_on_backend releases each once its last reader is
+  // recorded (ev2 after the flow, ev3 after the fusion), which lowers the peak memory.
+  bool consume = false;
+};
+
 struct ModelInputs {
   // rs [B,3,H,W]; ev1, ev2, ev3 [B,2N,H,W]. SelfUnroll-S: B targets run independently.
   // SelfUnroll-M: B = 2K, items 2k and 2k+1 are RS frames 1 and 2 toward target k.
@@ -40,8 +49,6 @@ struct RunOptions {
   // (which then extends to the next multiple of 32) instead of centering it; host/model/tiling.cpp gives
   // each tile the untiled run's offsets, so a tile sees the untiled run's stride grid.
   int unet_pad_top = -1, unet_pad_left = -1;
-  // When set, wall milliseconds are added under "eic" (E-IC_T, E-IC_S, fusion) and "moa".
-  std::map<std::string, double>* stage_ms = nullptr;
 };
 
 class Model {
@@ -53,6 +60,10 @@ class Model {
   // Runs the network; returns the requested intermediates by their reference names, cropped to
   // the input's H x W (sys, E, flow, warped, fused: B items; m, out: K = B/2 items).
   std::map<std::string, HostTensor> run(const ModelInputs& in, const RunOptions& opt);
+  // The same on inputs already in the backend, recorded without waiting: returns the outputs as
+  // new backend buffers (the caller downloads and releases them). Nothing is submitted unless the
+  // backend's memory forces it.
+  std::map<std::string, int> run_on_backend(const ModelBuffers& in, const RunOptions& opt);
 
   // Batch items one chunk holds for inputs of this size (what run() uses when max_items = 0).
   int items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const;
@@ -88,6 +99,7 @@ class Model {
             int left = -1);
   int resblock(const std::string& p, int x);  // returns the output buffer; releases x
 
+  void check_buffers(const ModelBuffers& in, const RunOptions& opt) const;
   int64_t synthesis_item_bytes(int64_t h, int64_t w) const;
   int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w, int top = 0, int left = 0) const;
   int sub_items(int64_t item_bytes, uint64_t memory_budget) const;

@@ -11,7 +11,7 @@
 //   t.halo = 64;                      // exact when >= exact_halo(cfg, mode, max |flow|)
 //   t.sparse = SparsePolicy::exact;   // tiles with no ev1/ev2 event take the RS pixels
 //   TiledResult r = run_tiled(model, inputs, run_options, t);
-//   r.outputs["fused"], r.active_fraction, r.stage_ms["model"], ...
+//   r.outputs["fused"], r.active_fraction, r.stage_ms["record"], ...
 //
 // Alignment (why tile and halo are multiples of 32): the model works at even size (space_to_depth)
 // and every UNet pads its input to multiples of 32. Tile origins on the 32-grid see the untiled
@@ -25,18 +25,13 @@
 #include <string>
 #include <vector>
 
+#include "vkunroll/base/shape.hpp"
 #include "vkunroll/host/model/model.hpp"
 
 namespace vkunroll {
 
 // Tile origins, interiors and halos are multiples of this (see above).
 constexpr int64_t kTileAlign = 32;
-
-struct Rect {
-  int64_t y = 0, x = 0, h = 0, w = 0;
-  int64_t area() const { return h * w; }
-  bool operator==(const Rect&) const = default;
-};
 
 struct Tile {
   Rect interior;  // pixels this tile writes; the interiors partition the image
@@ -101,8 +96,8 @@ struct TileOptions {
   int64_t max_region = 0;
 };
 
-struct TiledResult {
-  std::map<std::string, HostTensor> outputs;  // as Model::run: full H x W
+// Which tiles and targets ran, and how much work that was.
+struct TileStats {
   TilePlan plan;
   int64_t tiles = 0;          // tiles x targets considered
   int64_t tiles_run = 0;      // of them, run through the network
@@ -111,18 +106,43 @@ struct TiledResult {
   // Pixels the network processed (input rects of the tiles run) / pixels of the untiled run of
   // every target: the halo overhead times the active fraction (1 for an untiled dense run).
   double work_ratio = 1;
-  // Wall milliseconds: "plan", "cut" (activity + input crops), "model" (Model::run, with its
-  // "eic" and "moa" split), "stitch".
+  // Host wall milliseconds: "plan" (tile choice, activity), "record" (the network, cuts and
+  // stitches; on the device only recorded, GPU time is the context's DeviceTraffic::gpu_ms).
   std::map<std::string, double> stage_ms;
 };
+
+struct TiledResult : TileStats {
+  std::map<std::string, HostTensor> outputs;  // as Model::run: full H x W
+};
+struct TiledBuffers : TileStats {
+  std::map<std::string, int> outputs;  // backend buffers [B or K, c, H, W]; the caller releases them
+};
+
+// Per batch item, the summed-area table ((H + 1) x (W + 1)) of the events ev1 and ev2 select at
+// each pixel: what the sparse policies decide on.
+using ActivityTables = std::vector<std::vector<double>>;
+// From host tensors: the sum of |ev1| + |ev2| over the channels.
+ActivityTables activity_tables(const ModelInputs& in);
+// From per-pixel counts ([items][H * W], e.g. kernels' selected_event_counts), no tensor readback.
+ActivityTables activity_tables(const std::vector<std::vector<uint32_t>>& counts, int64_t height, int64_t width);
 
 // The largest tile interior (multiple of 32, square, clamped to the image) whose input rect
 // (interior + 2 halo) fits every tensor of one batch item under the buffer limit; the whole
 // image (tile = max side) when the untiled run fits. Throws Error when even 32 + 2 halo does not fit.
 int64_t choose_tile(const Model& model, int64_t height, int64_t width, Mode mode, int64_t halo, uint64_t max_buffer_bytes);
 
-// Runs the model tile by tile (see the top of this file). Inactive tiles (sparse policy) take:
-// sys, warped, fused, out = rs (S: the item's frame; M: frame 1 of the pair), E = 0, flow = 0, m = 1.
+// Runs the model tile by tile (see the top of this file) on inputs in the backend, recorded without
+// waiting: tiles are cut (crop) and stitched (copy_rect) on the device. Inactive tiles (sparse
+// policy) take: sys, warped, fused, out = rs (S: the item's frame; M: frame 1 of the pair), E = 0,
+// flow = 0, m = 1. `activity` (per batch item) is needed unless topt.sparse is off.
+TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const RunOptions& opt, const TileOptions& topt,
+                                  const ActivityTables* activity);
+// The same from and to the host: tiles cut from the host inputs and uploaded batch by batch, so inputs
+// of any size run (each upload stays within one binding); one submission per batch.
 TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt, const TileOptions& topt);
+
+// The untiled run's UNet input offset along one axis (half the padding of the even size to 32):
+// every tile's UNets place their input there (RunOptions::unet_pad_top / left).
+int unet_offset(int64_t size);
 
 }  // namespace vkunroll

@@ -1,0 +1,401 @@
+// Tiled and sparse execution on the backend (host/model/tiling.hpp): activity, the tiles that run,
+// cuts and stitches recorded on the device, and the host-in/host-out wrapper.
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <tuple>
+
+#include "vkunroll/base/error.hpp"
+#include "vkunroll/base/stopwatch.hpp"
+#include "vkunroll/host/model/tiling.hpp"
+#include "vkunroll/kernels/copy_rect.hpp"
+#include "vkunroll/kernels/reflection_pad.hpp"
+
+namespace vkunroll {
+
+namespace {
+
+bool per_target(const std::string& name) { return name == "m" || name == "out"; }
+
+BufferSlice item_of(Backend& b, int buf, int64_t i) {
+  const Shape s = b.shape(buf);
+  return {buf, i, 1, 0, s.c};
+}
+BufferSlice item_of(const BufferSlice& v, int64_t i) { return {v.buf, v.n0 + i, 1, v.c0, v.c}; }
+
+std::vector<double> summed_area(const std::vector<double>& plane, int64_t H, int64_t W) {
+  std::vector<double> sat(size_t((H + 1) * (W + 1)), 0.0);
+  for (int64_t y = 0; y < H; ++y) {
+    double row = 0;
+    for (int64_t x = 0; x < W; ++x) {
+      row += plane[size_t(y * W + x)];
+      sat[size_t((y + 1) * (W + 1) + x + 1)] = sat[size_t(y * (W + 1) + x + 1)] + row;
+    }
+  }
+  return sat;
+}
+
+double rect_sum(const std::vector<double>& sat, int64_t W, const Rect& r) {
+  const int64_t s = W + 1;
+  return sat[size_t((r.y + r.h) * s + r.x + r.w)] - sat[size_t(r.y * s + r.x + r.w)] - sat[size_t((r.y + r.h) * s + r.x)] +
+         sat[size_t(r.y * s + r.x)];
+}
+
+// active[t][k]: whether tile t of target k runs (a target runs where any of its frames is active).
+std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOptions& topt, const ActivityTables* activity,
+                                             int64_t B, int64_t per) {
+  const size_t T = plan.tiles.size(), K = size_t(B / per);
+  std::vector<std::vector<bool>> active(T, std::vector<bool>(K, true));
+  if (topt.sparse == SparsePolicy::off) return active;
+  if (!activity || static_cast<int64_t>(activity->size()) != B)
+    throw Error("run_tiled: the sparse policy needs the activity of every batch item (" + std::to_string(B) + "), got " +
+                std::to_string(activity ? activity->size() : 0));
+  for (int64_t i = 0; i < B; ++i)
+    for (size_t t = 0; t < T; ++t) {
+      const Rect& r = plan.tiles[t].input;
+      const double sum = rect_sum((*activity)[size_t(i)], plan.width, r);
+      const bool on = topt.sparse == SparsePolicy::exact ? sum > 0 : (sum > 0 && sum / double(r.area()) >= topt.threshold);
+      const size_t k = size_t(i / per);
+      active[t][k] = (i % per == 0) ? on : (active[t][k] || on);
+    }
+  return active;
+}
+
+// Inactive (tile, target): nothing moved there; the RS frame stands (E and flow 0, m 1).
+void fill_inactive(Backend& b, const ModelBuffers& in, const TilePlan& plan, const std::vector<std::vector<bool>>& active,
+                   const std::map<std::string, int>& outputs, int64_t per) {
+  for (size_t t = 0; t < plan.tiles.size(); ++t)
+    for (size_t k = 0; k < active[t].size(); ++k) {
+      if (active[t][k]) continue;
+      const Rect& r = plan.tiles[t].interior;
+      for (const auto& [n, buf] : outputs) {
+        const int64_t first = per_target(n) ? int64_t(k) : int64_t(k) * per, count = per_target(n) ? 1 : per;
+        for (int64_t i = first; i < first + count; ++i) {
+          const BufferSlice dst = item_of(b, buf, i);
+          if (n == "m") b.fill_rect(dst, r, 1.f);
+          else if (n == "E" || n == "flow") b.fill_rect(dst, r, 0.f);
+          else b.copy_rect(item_of(in.rs, per_target(n) ? int64_t(k) * per : i), dst, r, r.y, r.x);
+        }
+      }
+    }
+}
+
+struct RunItem {
+  size_t run = 0;  // index in the run list
+  int64_t target = 0;
+};
+
+// What runs: the active tiles, or (merge_active) per target the bounding box of each 4-connected
+// group of active tiles as one rect with one halo, so neighbours share their halos. A group larger
+// than `max_side` runs tile by tile (any image size still runs in bounded memory).
+void active_runs(const TilePlan& plan, const std::vector<std::vector<bool>>& active, const TileOptions& topt, int64_t max_side,
+                 std::vector<Tile>& runs, std::vector<RunItem>& work) {
+  const size_t T = plan.tiles.size(), K = active.empty() ? 0 : active[0].size();
+  if (topt.sparse == SparsePolicy::off || !topt.merge_active || plan.untiled()) {
+    runs = plan.tiles;
+    for (size_t t = 0; t < T; ++t)
+      for (size_t k = 0; k < K; ++k)
+        if (active[t][k]) work.push_back({t, int64_t(k)});
+    return;
+  }
+  const int64_t cols = (plan.width + plan.tile_w - 1) / plan.tile_w;
+  for (size_t k = 0; k < K; ++k) {
+    std::vector<int> seen(T, 0);
+    for (size_t t0 = 0; t0 < T; ++t0) {
+      if (seen[t0] || !active[t0][k]) continue;
+      std::vector<size_t> comp{t0}, stack{t0};
+      seen[t0] = 1;
+      while (!stack.empty()) {
+        const size_t t = stack.back();
+        stack.pop_back();
+        const int64_t r = int64_t(t) / cols, c = int64_t(t) % cols;
+        const std::pair<int64_t, int64_t> nb[] = {{r - 1, c}, {r + 1, c}, {r, c - 1}, {r, c + 1}};
+        for (const auto& [nr, nc] : nb) {
+          if (nr < 0 || nc < 0 || nc >= cols || nr * cols + nc >= int64_t(T)) continue;
+          const size_t u = size_t(nr * cols + nc);
+          if (seen[u] || !active[u][k]) continue;
+          seen[u] = 1;
+          comp.push_back(u);
+          stack.push_back(u);
+        }
+      }
+      Rect box = plan.tiles[comp[0]].interior;
+      for (size_t t : comp) {
+        const Rect& q = plan.tiles[t].interior;
+        const int64_t y1 = std::max(box.y + box.h, q.y + q.h), x1 = std::max(box.x + box.w, q.x + q.w);
+        box.y = std::min(box.y, q.y), box.x = std::min(box.x, q.x);
+        box.h = y1 - box.y, box.w = x1 - box.x;
+      }
+      if (box.h <= max_side && box.w <= max_side) {
+        Tile region;
+        region.interior = box;
+        const int64_t y0 = std::max<int64_t>(0, box.y - topt.halo), x0 = std::max<int64_t>(0, box.x - topt.halo);
+        region.input = {y0, x0, std::min(plan.height, box.y + box.h + topt.halo) - y0,
+                        std::min(plan.width, box.x + box.w + topt.halo) - x0};
+        runs.push_back(region);
+        work.push_back({runs.size() - 1, int64_t(k)});
+      } else {
+        for (size_t t : comp) {
+          runs.push_back(plan.tiles[t]);
+          work.push_back({runs.size() - 1, int64_t(k)});
+        }
+      }
+    }
+  }
+}
+
+// Where a batch's inputs come from and where its interiors go: the device (cut with crop, stitched
+// with copy_rect into full-size buffers) or the host (crops uploaded, outputs downloaded and
+// stitched in host memory: run_tiled, for inputs too large for one binding).
+struct TileIO {
+  // Writes the input rect `r` of source item `item` into batch item `q` of `batch`.
+  std::function<void(const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r)> cut;
+  // Takes one batch's outputs (backend buffers) for the listed (batch item, target, tile) triples.
+  std::function<void(const std::map<std::string, int>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed)> stitch;
+};
+
+// The rects of `work`, grouped by input-rect shape, run in batches.
+void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const TileOptions& topt, const std::vector<Tile>& runs,
+                 const std::vector<RunItem>& work, int64_t per, const TileIO& io) {
+  Backend& b = model.backend();
+  const int64_t ev = model.config().ev_channels();
+  std::map<std::pair<int64_t, int64_t>, std::vector<RunItem>> groups;
+  for (const RunItem& w : work) groups[{runs[w.run].input.h, runs[w.run].input.w}].push_back(w);
+  // Largest rects first: scratch buffers the conv kernels grow (and keep) reach their size once.
+  std::vector<std::pair<std::pair<int64_t, int64_t>, std::vector<RunItem>>> ordered(groups.begin(), groups.end());
+  std::stable_sort(ordered.begin(), ordered.end(),
+                   [](const auto& x, const auto& y) { return x.first.first * x.first.second > y.first.first * y.first.second; });
+  for (const auto& [shape, items] : ordered) {
+    const auto [rh, rw] = shape;
+    // Unless max_batch says otherwise, one batch holds no more pixels than the untiled run of one
+    // target (so device memory stays near the untiled run's, or one tile's when larger), and its
+    // input copies stay under 256 MiB.
+    const int64_t item_bytes = 4 * rh * rw * (3 + 3 * ev);
+    const int64_t by_pixels = std::max<int64_t>(1, (H * W) / (rh * rw)) * per;
+    const int64_t cap_items =
+        topt.max_batch > 0 ? topt.max_batch : std::max<int64_t>(per, std::min(by_pixels, (int64_t(256) << 20) / item_bytes));
+    const size_t targets_per_batch = size_t(std::max<int64_t>(1, cap_items / per));
+    for (size_t w0 = 0; w0 < items.size(); w0 += targets_per_batch) {
+      const size_t nw = std::min(targets_per_batch, items.size() - w0);
+      const int64_t nb = int64_t(nw) * per;
+      ModelBuffers tin;
+      BufferSlice* cut[4] = {&tin.rs, &tin.ev1, &tin.ev2, &tin.ev3};
+      const int64_t channels[4] = {3, ev, ev, ev};
+      const char* names[4] = {"tile rs", "tile ev1", "tile ev2", "tile ev3"};
+      for (int a = 0; a < 4; ++a) {
+        const int buf = b.alloc({nb, channels[a], rh, rw}, names[a]);
+        *cut[a] = {buf, 0, nb, 0, channels[a]};
+      }
+      std::vector<std::pair<int64_t, const Tile*>> placed;
+      for (size_t q = 0; q < nw; ++q) {
+        const RunItem& it = items[w0 + q];
+        for (int64_t j = 0; j < per; ++j) io.cut(tin, int64_t(q) * per + j, it.target * per + j, runs[it.run].input);
+        placed.push_back({it.target, &runs[it.run]});
+      }
+      const std::map<std::string, int> out = model.run_on_backend(tin, ro);
+      for (BufferSlice* c : cut) b.release(c->buf);
+      io.stitch(out, placed);
+      for (const auto& [n, buf] : out) b.release(buf);
+    }
+  }
+}
+
+// Plan, activity and the runs of a tiled execution: what the device and the host executors share.
+struct TiledPlan {
+  TileStats stats;
+  RunOptions ro;
+  int64_t B = 0, H = 0, W = 0, per = 1, K = 0;
+  bool direct = false;  // untiled and dense: the model itself
+  std::vector<std::vector<bool>> active;
+  std::vector<Tile> runs;
+  std::vector<RunItem> work;
+};
+
+TiledPlan plan_tiled(Model& model, int64_t B, int64_t rs_channels, int64_t H, int64_t W, const RunOptions& opt,
+                     const TileOptions& topt, const ActivityTables* activity) {
+  TiledPlan p;
+  Backend& b = model.backend();
+  const auto t_plan = Clock::now();
+  const bool m_mode = opt.mode == Mode::m;
+  p.B = B, p.H = H, p.W = W, p.per = m_mode ? 2 : 1;
+  if (rs_channels != 3 || B < 1 || (m_mode && B % 2))
+    throw Error("run_tiled: input 'rs' is " + Shape{B, rs_channels, H, W}.str() + ", expected [B,3,H,W] (B even in mode m)");
+  if (topt.sparse == SparsePolicy::fast && !(topt.threshold >= 0))
+    throw Error("run_tiled: sparse threshold " + std::to_string(topt.threshold) + " (expected >= 0 events per pixel)");
+  const uint64_t limit = topt.max_buffer_bytes ? std::min(topt.max_buffer_bytes, b.max_buffer_bytes()) : b.max_buffer_bytes();
+  const int64_t tile = topt.tile > 0 ? topt.tile : choose_tile(model, H, W, opt.mode, topt.halo, limit);
+  TileStats& st = p.stats;
+  st.plan = make_tile_plan(H, W, tile, tile, topt.halo);
+  p.K = B / p.per;
+  p.ro = opt;
+  p.ro.outputs = Model::resolve_outputs(opt.outputs, opt.mode);
+  if (!st.plan.untiled()) {
+    // Every input rect starts on the 32-grid, so placing each tile's UNet input at the untiled run's
+    // offset puts it on the untiled run's stride grid, and the border tiles get the untiled run's
+    // reflection at the image border (docs/tiling.md, alignment).
+    p.ro.unet_pad_top = unet_offset(H);
+    p.ro.unet_pad_left = unet_offset(W);
+  }
+  p.direct = st.plan.untiled() && topt.sparse == SparsePolicy::off;
+  if (p.direct) {
+    st.tiles = st.tiles_run = p.K;
+    st.target_active_fraction.assign(size_t(p.K), 1.0);
+    st.stage_ms["plan"] = ms_since(t_plan);
+    return p;
+  }
+  p.active = tile_activity(st.plan, topt, activity, B, p.per);
+  const size_t T = st.plan.tiles.size();
+  st.tiles = int64_t(T) * p.K;
+  std::vector<int64_t> target_runs(size_t(p.K), 0);
+  for (size_t t = 0; t < T; ++t)
+    for (int64_t k = 0; k < p.K; ++k)
+      if (p.active[t][size_t(k)]) st.tiles_run++, target_runs[size_t(k)]++;
+  st.active_fraction = st.tiles ? double(st.tiles_run) / double(st.tiles) : 0.0;
+  for (int64_t r : target_runs) st.target_active_fraction.push_back(double(r) / double(T));
+  const int64_t max_side = topt.max_region > 0 ? std::max(tile, topt.max_region)
+                           : topt.tile > 0     ? choose_tile(model, H, W, opt.mode, topt.halo, limit)
+                                               : tile;  // `tile` is already that choice
+  active_runs(st.plan, p.active, topt, max_side, p.runs, p.work);
+  double run_pixels = 0;
+  for (const RunItem& w : p.work) run_pixels += double(p.runs[w.run].input.area());
+  st.work_ratio = run_pixels / (double(p.K) * double(H * W));
+  st.stage_ms["plan"] = ms_since(t_plan);
+  return p;
+}
+
+int64_t output_channels(const std::string& n) { return n == "flow" ? 2 : (n == "m" ? 1 : 3); }
+
+}  // namespace
+
+ActivityTables activity_tables(const ModelInputs& in) {
+  const int64_t B = in.ev1.shape.n, C = in.ev1.shape.c, H = in.ev1.shape.h, W = in.ev1.shape.w;
+  ActivityTables tables;
+  for (int64_t item = 0; item < B; ++item) {
+    std::vector<double> plane(size_t(H * W), 0.0);
+    for (const HostTensor* a : {&in.ev1, &in.ev2})
+      for (int64_t c = 0; c < C; ++c) {
+        const float* s = a->data.data() + (item * C + c) * H * W;
+        for (int64_t i = 0; i < H * W; ++i) plane[size_t(i)] += std::fabs(s[i]);
+      }
+    tables.push_back(summed_area(plane, H, W));
+  }
+  return tables;
+}
+
+ActivityTables activity_tables(const std::vector<std::vector<uint32_t>>& counts, int64_t height, int64_t width) {
+  ActivityTables tables;
+  for (const auto& c : counts) {
+    if (static_cast<int64_t>(c.size()) != height * width)
+      throw Error("activity_tables: " + std::to_string(c.size()) + " counts for a " + std::to_string(width) + "x" +
+                  std::to_string(height) + " image");
+    tables.push_back(summed_area(std::vector<double>(c.begin(), c.end()), height, width));
+  }
+  return tables;
+}
+
+TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const RunOptions& opt, const TileOptions& topt,
+                                  const ActivityTables* activity) {
+  Backend& b = model.backend();
+  TiledPlan p = plan_tiled(model, in.rs.n, in.rs.c, b.shape(in.rs.buf).h, b.shape(in.rs.buf).w, opt, topt, activity);
+  TiledBuffers res;
+  static_cast<TileStats&>(res) = p.stats;
+  const auto t_record = Clock::now();
+  if (p.direct) {
+    res.outputs = model.run_on_backend(in, p.ro);
+    res.stage_ms["record"] = ms_since(t_record);
+    return res;
+  }
+  for (const auto& n : p.ro.outputs) res.outputs[n] = b.alloc({per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W}, n);
+  fill_inactive(b, in, res.plan, p.active, res.outputs, p.per);
+  const BufferSlice* full[4] = {&in.rs, &in.ev1, &in.ev2, &in.ev3};
+  TileIO io;
+  io.cut = [&](const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r) {
+    const BufferSlice* cut[4] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3};
+    for (int a = 0; a < 4; ++a) b.crop(item_of(*full[a], item), item_of(*cut[a], q), int(r.y), int(r.x));
+  };
+  io.stitch = [&](const std::map<std::string, int>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
+    for (size_t q = 0; q < placed.size(); ++q) {
+      const auto [target, t] = placed[q];
+      const Rect src{t->interior.y - t->input.y, t->interior.x - t->input.x, t->interior.h, t->interior.w};
+      for (const auto& [n, buf] : out) {
+        const int64_t count = per_target(n) ? 1 : p.per;
+        for (int64_t j = 0; j < count; ++j)
+          b.copy_rect(item_of(b, buf, int64_t(q) * count + j), item_of(b, res.outputs.at(n), target * count + j), src,
+                      t->interior.y, t->interior.x);
+      }
+    }
+  };
+  run_batches(model, p.H, p.W, p.ro, topt, p.runs, p.work, p.per, io);
+  res.stage_ms["record"] = ms_since(t_record);
+  return res;
+}
+
+TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt, const TileOptions& topt) {
+  Backend& b = model.backend();
+  const Shape ev_shape{in.rs.shape.n, model.config().ev_channels(), in.rs.shape.h, in.rs.shape.w};
+  for (const auto& [a, name] : {std::pair{&in.ev1, "ev1"}, std::pair{&in.ev2, "ev2"}, std::pair{&in.ev3, "ev3"}})
+    if (!(a->shape == ev_shape) || static_cast<int64_t>(a->data.size()) != ev_shape.count())
+      throw Error(std::string("run_tiled: input '") + name + "' has shape " + a->shape.str() + ", expected " + ev_shape.str());
+  if (static_cast<int64_t>(in.rs.data.size()) != in.rs.shape.count())
+    throw Error("run_tiled: input 'rs' holds " + std::to_string(in.rs.data.size()) + " values for shape " + in.rs.shape.str());
+  const ActivityTables activity = topt.sparse == SparsePolicy::off ? ActivityTables{} : activity_tables(in);
+  TiledPlan p = plan_tiled(model, in.rs.shape.n, in.rs.shape.c, in.rs.shape.h, in.rs.shape.w, opt, topt, &activity);
+  TiledResult res;
+  static_cast<TileStats&>(res) = p.stats;
+  const auto t_run = Clock::now();
+  if (p.direct) {
+    res.outputs = model.run(in, p.ro);
+    res.stage_ms["record"] = ms_since(t_run);
+    return res;
+  }
+  for (const auto& n : p.ro.outputs)
+    res.outputs[n] = HostTensor(Shape{per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W});
+  // Inactive (tile, target): the RS frame stands (E and flow 0, m 1).
+  for (size_t t = 0; t < res.plan.tiles.size(); ++t)
+    for (int64_t k = 0; k < p.K; ++k) {
+      if (p.active[t][size_t(k)]) continue;
+      const Rect& r = res.plan.tiles[t].interior;
+      for (auto& [n, arr] : res.outputs) {
+        const int64_t first = per_target(n) ? k : k * p.per, count = per_target(n) ? 1 : p.per;
+        for (int64_t i = first; i < first + count; ++i) {
+          HostSliceOut dst(arr, 0, -1, i, 1);
+          if (n == "m") fill_rect_ref(dst, r, 1.f);
+          else if (n == "E" || n == "flow") fill_rect_ref(dst, r, 0.f);
+          else copy_rect_ref(HostSlice(in.rs, 0, -1, per_target(n) ? k * p.per : i, 1), dst, r, r.y, r.x);
+        }
+      }
+    }
+  const HostTensor* full[4] = {&in.rs, &in.ev1, &in.ev2, &in.ev3};
+  TileIO io;
+  io.cut = [&](const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r) {
+    const BufferSlice* cut[4] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3};
+    for (int a = 0; a < 4; ++a) {
+      HostTensor crop(Shape{1, full[a]->shape.c, r.h, r.w});
+      crop_ref(HostSlice(*full[a], 0, -1, item, 1), HostSliceOut(crop), r.y, r.x);
+      b.upload(item_of(*cut[a], q), crop.data);
+    }
+  };
+  io.stitch = [&](const std::map<std::string, int>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
+    std::map<std::string, HostTensor> host;
+    for (const auto& [n, buf] : out) {
+      host[n] = HostTensor(b.shape(buf));
+      b.download({buf, 0, host[n].shape.n, 0, host[n].shape.c}, host[n].data);
+    }
+    b.flush();
+    for (size_t q = 0; q < placed.size(); ++q) {
+      const auto [target, t] = placed[q];
+      const Rect src{t->interior.y - t->input.y, t->interior.x - t->input.x, t->interior.h, t->interior.w};
+      for (const auto& [n, tile_out] : host) {
+        const int64_t count = per_target(n) ? 1 : p.per;
+        for (int64_t j = 0; j < count; ++j)
+          copy_rect_ref(HostSlice(tile_out, 0, -1, int64_t(q) * count + j, 1),
+                        HostSliceOut(res.outputs.at(n), 0, -1, target * count + j, 1), src, t->interior.y, t->interior.x);
+      }
+    }
+  };
+  run_batches(model, p.H, p.W, p.ro, topt, p.runs, p.work, p.per, io);
+  res.stage_ms["record"] = ms_since(t_run);
+  return res;
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,233 @@
+#include "vkunroll/host/unroll/session.hpp"
+
+#include <algorithm>
+
+#include "vkunroll/base/error.hpp"
+#include "vkunroll/base/stopwatch.hpp"
+#include "vkunroll/host/model/backend_cpu.hpp"
+#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/model.hpp"
+#include "vkunroll/host/unroll/image_planes.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
+
+namespace vkunroll {
+
+namespace {
+
+BufferSlice whole(Backend& b, int buf) {
+  const Shape s = b.shape(buf);
+  return {buf, 0, s.n, 0, s.c};
+}
+
+}  // namespace
+
+UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
+  if (o.precision != Precision::fp32)
+    throw Error(std::string("--precision '") + precision_name(o.precision) +
+                "': fp32 is the only precision of the unroll job so far (the kernels compute in fp32)");
+  if (!o.model_path.empty()) {
+    weights_ = std::make_unique<Weights>(load_weights(o.model_path));
+    rgb_ = weights_->config.channel_order != "bgr";
+  }
+  if (o.backend == BackendKind::vulkan) {
+    ContextOptions co;
+    co.device = o.device;
+    co.announce = o.announce;
+    ctx_ = std::make_unique<Context>(co);
+    backend_ = std::make_unique<VulkanBackend>(*ctx_);
+  } else {
+    backend_ = std::make_unique<CpuBackend>(o.cpu_threads);
+  }
+  if (weights_) model_ = std::make_unique<Model>(*backend_, *weights_);
+}
+
+UnrollSession::~UnrollSession() = default;
+
+const Weights& UnrollSession::weights() const {
+  if (!weights_) throw Error("unroll session: no model was given (physics only)");
+  return *weights_;
+}
+
+DeviceTraffic UnrollSession::traffic() const { return ctx_ ? ctx_->traffic() : DeviceTraffic{}; }
+
+uint64_t UnrollSession::memory_forced_submits() const {
+  const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get());
+  return vb ? vb->pool_flushes() : 0;
+}
+
+uint64_t UnrollSession::peak_device_bytes() const {
+  uint64_t peak = ctx_ ? ctx_->allocator().stats().peak_used_bytes : 0;
+  if (const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get())) peak = std::max(peak, vb->device_peak_bytes());
+  return peak;
+}
+
+int UnrollSession::upload_image(const cv::Mat& bgr, bool rgb) {
+  const int buf = backend_->alloc({1, 3, bgr.rows, bgr.cols}, rgb ? "rs (rgb)" : "rs (bgr)");
+  backend_->upload(whole(*backend_, buf), image_planes(bgr, rgb));
+  return buf;
+}
+
+void UnrollSession::add_tile_stats(const TileStats& run, size_t targets, int H, int W) {
+  stats_.tiles += run.tiles;
+  stats_.tiles_run += run.tiles_run;
+  stats_.work_pixels += run.work_ratio * double(targets);
+  stats_.tile_used = run.plan.tile_h == H && run.plan.tile_w == W ? 0 : std::max(run.plan.tile_h, run.plan.tile_w);
+  stats_.tiles_per_target = static_cast<int64_t>(run.plan.tiles.size());
+  for (double a : run.target_active_fraction) stats_.target_active_fraction.push_back(a);
+}
+
+std::vector<cv::Mat> UnrollSession::unroll(const FrameInput& in, const std::vector<FrameTarget>& targets) {
+  if (!in.events) throw Error("unroll session: the frame's events are missing");
+  if (in.rs1.type() != CV_32FC3 || in.rs1.cols != in.events->width || in.rs1.rows != in.events->height)
+    throw Error("unroll session: the RS frame must be a float BGR image of the event sensor's size (" +
+                std::to_string(in.events->width) + "x" + std::to_string(in.events->height) + ")");
+  std::vector<size_t> groups[3];  // s, m, physics
+  for (size_t j = 0; j < targets.size(); ++j) groups[static_cast<int>(targets[j].method)].push_back(j);
+  if ((!groups[0].empty() || !groups[1].empty()) && !model_)
+    throw Error("unroll session: SelfUnroll-S/-M targets need a model (--model FILE.safetensors)");
+  if (!groups[1].empty() && (in.rs2.empty() || in.rs2.size() != in.rs1.size()))
+    throw Error("unroll session: SelfUnroll-M targets need the next RS frame");
+  std::vector<cv::Mat> results(targets.size());
+  if (!groups[2].empty()) run_physics(in, targets, groups[2], results);
+  if (!groups[0].empty()) run_model(in, targets, groups[0], false, results);
+  if (!groups[1].empty()) run_model(in, targets, groups[1], true, results);
+  return results;
+}
+
+void UnrollSession::run_physics(const FrameInput& in, const std::vector<FrameTarget>& targets,
+                                const std::vector<size_t>& which, std::vector<cv::Mat>& results) {
+  Backend& b = *backend_;
+  const int H = in.rs1.rows, W = in.rs1.cols;
+  auto t0 = Clock::now();
+  const std::vector<float> rs = image_planes(in.rs1, /*rgb=*/false);
+  const auto starts = in.timing1.start_times_us(), ends = in.timing1.end_times_us();
+  const int rs_buf = upload_image(in.rs1, false);
+  std::vector<std::pair<size_t, int>> on_device;  // (target, output buffer)
+  for (size_t j : which) {
+    const PixelEventLists lists = gather_pixel_events(*in.events, targets[j].t_us.to_double(), starts, ends, 0, 0, W, H);
+    check_physics_image(rs, 3, lists);
+    if (!PhysicsUnroll::fits(lists)) {
+      // A pixel beyond the GPU kernel's loop limit: the CPU reference has none.
+      const std::vector<float> gs = physics_unroll_ref(rs, 3, lists, physics_);
+      results[j] = planes_image(gs.data(), H, W, false);
+      stats_.physics_on_cpu++;
+      continue;
+    }
+    const int out = b.alloc({1, 3, H, W}, "physics");
+    b.physics_unroll(rs_buf, lists, physics_, out);
+    on_device.push_back({j, out});
+  }
+  stats_.ms["physics"] += ms_since(t0);
+  t0 = Clock::now();
+  std::vector<std::vector<float>> planes(on_device.size(), std::vector<float>(size_t(3) * H * W));
+  for (size_t q = 0; q < on_device.size(); ++q) b.download(whole(b, on_device[q].second), planes[q]);
+  b.flush();
+  for (size_t q = 0; q < on_device.size(); ++q) {
+    results[on_device[q].first] = planes_image(planes[q].data(), H, W, false);
+    b.release(on_device[q].second);
+  }
+  b.release(rs_buf);
+  stats_.ms["transfer"] += ms_since(t0);
+  stats_.runs_physics += which.size();
+}
+
+void UnrollSession::run_model(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which,
+                              bool m, std::vector<cv::Mat>& results) {
+  Backend& b = *backend_;
+  const int H = in.rs1.rows, W = in.rs1.cols;
+  const int64_t per = m ? 2 : 1;
+  // The event tensors of a build ([3B, 2N, H, W]) live in one binding: as many targets per build as fit.
+  const uint64_t per_target = uint64_t(3 * per) * 2 * model_->config().N * H * W * 4;
+  const size_t fit = static_cast<size_t>(b.max_buffer_bytes() / per_target);
+  if (fit == 0) return run_model_on_host(in, targets, which, m, results);
+  if (which.size() > fit) {
+    for (size_t i = 0; i < which.size(); i += fit)
+      run_model(in, targets, std::vector<size_t>(which.begin() + i, which.begin() + std::min(which.size(), i + fit)), m, results);
+    return;
+  }
+  const int64_t B = static_cast<int64_t>(which.size()) * per;
+  auto t0 = Clock::now();
+  // The RS frame(s) uploaded once, repeated on the device for every target of the batch.
+  const int rs1 = upload_image(in.rs1, rgb_);
+  const int rs2 = m ? upload_image(in.rs2, rgb_) : -1;
+  int rs = rs1;
+  if (B > 1) {
+    rs = b.alloc({B, 3, H, W}, "rs batch");
+    for (int64_t i = 0; i < B; ++i) b.copy(whole(b, (m && i % 2) ? rs2 : rs1), {rs, i, 1, 0, 3});
+  }
+  std::vector<EventTensorPair> pairs;
+  for (size_t j : which) {
+    pairs.push_back({in.timing1, targets[j].t_us, std::nullopt});
+    if (m) pairs.push_back({in.timing2, targets[j].t_us, std::nullopt});
+  }
+  EventTensorSpec spec;
+  spec.bins = model_->config().N;
+  stats_.ms["transfer"] += ms_since(t0);
+  t0 = Clock::now();
+  const int ev = b.event_tensors(*in.events, pairs, spec);
+  const int64_t C = 2 * spec.bins;
+  const ModelBuffers inputs{{rs, 0, B, 0, 3}, {ev, 0, B, 0, C}, {ev, B, B, 0, C}, {ev, 2 * B, B, 0, C}};
+  ActivityTables activity;
+  if (tiling_.sparse != SparsePolicy::off) activity = activity_tables(selected_event_counts(*in.events, pairs, spec), H, W);
+  stats_.ms["event_tensors"] += ms_since(t0);
+  t0 = Clock::now();
+  RunOptions ro;
+  ro.mode = m ? Mode::m : Mode::s;
+  const std::string name = m ? "out" : "fused";
+  ro.outputs = {name};
+  const TiledBuffers run = run_tiled_on_backend(*model_, inputs, ro, tiling_, &activity);
+  stats_.ms["model"] += ms_since(t0);
+  t0 = Clock::now();
+  const int out = run.outputs.at(name);
+  std::vector<float> planes(static_cast<size_t>(which.size()) * 3 * H * W);
+  b.download(whole(b, out), planes);
+  b.flush();
+  for (size_t q = 0; q < which.size(); ++q)
+    results[which[q]] = planes_image(planes.data() + q * 3 * H * W, H, W, rgb_);
+  b.release(out);
+  b.release(ev);
+  if (rs != rs1) b.release(rs);
+  b.release(rs1);
+  if (rs2 >= 0) b.release(rs2);
+  stats_.ms["transfer"] += ms_since(t0);
+  add_tile_stats(run, which.size(), H, W);
+  (m ? stats_.runs_m : stats_.runs_s) += which.size();
+}
+
+void UnrollSession::run_model_on_host(const FrameInput& in, const std::vector<FrameTarget>& targets,
+                                      const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results) {
+  const int H = in.rs1.rows, W = in.rs1.cols;
+  const int64_t per = m ? 2 : 1;
+  EventTensorSpec spec;
+  spec.bins = model_->config().N;
+  const std::vector<float> p1 = image_planes(in.rs1, rgb_), p2 = m ? image_planes(in.rs2, rgb_) : std::vector<float>{};
+  for (size_t j : which) {  // one target at a time: the host copies of its tensors are large already
+    auto t0 = Clock::now();
+    std::vector<EventTensorPair> pairs{{in.timing1, targets[j].t_us, std::nullopt}};
+    if (m) pairs.push_back({in.timing2, targets[j].t_us, std::nullopt});
+    if (ctx_ && !host_builder_) host_builder_ = std::make_unique<EventTensorBuilder>(*ctx_);
+    EventTensors et = host_builder_ ? host_builder_->build(*in.events, pairs, spec) : build_event_tensors_ref(*in.events, pairs, spec);
+    const Shape es{per, 2 * spec.bins, H, W};
+    ModelInputs mi;
+    mi.rs = HostTensor(Shape{per, 3, H, W});
+    std::copy(p1.begin(), p1.end(), mi.rs.data.begin());
+    if (m) std::copy(p2.begin(), p2.end(), mi.rs.data.begin() + p1.size());
+    mi.ev1 = HostTensor(es, std::move(et.ev1));
+    mi.ev2 = HostTensor(es, std::move(et.ev2));
+    mi.ev3 = HostTensor(es, std::move(et.ev3));
+    stats_.ms["event_tensors"] += ms_since(t0);
+    t0 = Clock::now();
+    RunOptions ro;
+    ro.mode = m ? Mode::m : Mode::s;
+    const std::string name = m ? "out" : "fused";
+    ro.outputs = {name};
+    const TiledResult run = run_tiled(*model_, mi, ro, tiling_);
+    stats_.ms["model"] += ms_since(t0);
+    results[j] = planes_image(run.outputs.at(name).data.data(), H, W, rgb_);
+    add_tile_stats(run, 1, H, W);
+    stats_.host_path_targets++;
+  }
+  (m ? stats_.runs_m : stats_.runs_s) += which.size();
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,117 @@
+// UnrollSession: everything one unroll job holds, built once from typed options — the device
+// context, the backend (Vulkan or CPU, behind one interface), the model, the event-tensor builder
+// and the physics unroller — and the per-frame work: RS frame(s) + events -> GS images.
+//
+// Per frame the data stays on the device: one upload of the RS image and of the frame's events,
+// event tensors built into device buffers the network reads in place, tiles cut and stitched on the
+// device, the GS images downloaded once. A group of targets (physics, S, M) is one submission.
+//
+//   UnrollSession session({.backend = BackendKind::vulkan, .model_path = "m.safetensors"});
+//   auto images = session.unroll(frame_input, {{t_us, FrameTarget::Method::s}});
+#pragma once
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "vkunroll/base/events.hpp"
+#include "vkunroll/base/row_timing.hpp"
+#include "vkunroll/host/model/tiling.hpp"
+#include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/host/unroll/unroll_options.hpp"
+#include "vkunroll/kernels/physics_unroll.hpp"
+#include "vkunroll/runtime/context.hpp"
+
+namespace vkunroll {
+
+class Backend;
+class EventTensorBuilder;
+class Model;
+
+struct FrameTarget {
+  enum class Method { s, m, physics };
+  Rational t_us;
+  Method method = Method::s;
+};
+
+// One RS frame's inputs.
+struct FrameInput {
+  cv::Mat rs1;          // BGR float32 in [0, 1], the sensor's size
+  cv::Mat rs2;          // the next frame (needed by M targets)
+  RowTiming timing1, timing2;
+  // The events of every target's window: [min(t*, first row start), max(t* + exposure, last row end)].
+  const EventStream* events = nullptr;
+};
+
+// What the session did, summed over its frames.
+struct SessionStats {
+  size_t runs_s = 0, runs_m = 0, runs_physics = 0;
+  size_t physics_on_cpu = 0;  // physics targets with a pixel beyond the GPU kernel's event limit
+  // Targets whose full-frame event tensors exceed one storage-buffer binding: memory forced the host
+  // path (tensors built, downloaded, and cut into tiles on the host).
+  size_t host_path_targets = 0;
+  int64_t tiles = 0, tiles_run = 0;
+  int64_t tile_used = 0;        // tile interior of the last model run (0: untiled)
+  int64_t tiles_per_target = 0;
+  double work_pixels = 0;       // sum over targets of the tiled run's work ratio
+  std::vector<double> target_active_fraction;
+  // Host wall milliseconds: "event_tensors" (planning, recording), "model" (tiling plan, recording
+  // the network), "physics" (gathering, recording), "transfer" (uploads, downloads, waiting for the device).
+  std::map<std::string, double> ms;
+};
+
+class UnrollSession {
+ public:
+  explicit UnrollSession(const SessionOptions& options);
+  ~UnrollSession();
+  UnrollSession(const UnrollSession&) = delete;
+  UnrollSession& operator=(const UnrollSession&) = delete;
+
+  bool has_model() const { return model_ != nullptr; }
+  const Weights& weights() const;  // throws Error without a model
+  const ModelConfig& model_config() const { return weights().config; }
+  BackendKind backend_kind() const { return options_.backend; }
+  Backend& backend() { return *backend_; }
+  const Context* context() const { return ctx_.get(); }  // null on the CPU backend
+  // Host <-> device traffic and submissions since the session started (zeros on the CPU backend).
+  DeviceTraffic traffic() const;
+  // Submissions the backend made because released buffers held too much memory.
+  uint64_t memory_forced_submits() const;
+  uint64_t peak_device_bytes() const;
+
+  // The model's input channel order (default: the weights' metadata), tiling, physics parameters.
+  void set_model_rgb(bool rgb) { rgb_ = rgb; }
+  bool model_rgb() const { return rgb_; }
+  void set_tiling(const TileOptions& t) { tiling_ = t; }
+  void set_physics(const PhysicsUnrollParams& p) { physics_ = p; }
+
+  // The GS images (BGR float32 in [0, 1], the sensor's size) of `targets`, in their order.
+  std::vector<cv::Mat> unroll(const FrameInput& in, const std::vector<FrameTarget>& targets);
+  const SessionStats& stats() const { return stats_; }
+
+ private:
+  void run_physics(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which,
+                   std::vector<cv::Mat>& results);
+  void run_model(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which, bool m,
+                 std::vector<cv::Mat>& results);
+  void run_model_on_host(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which,
+                         bool m, std::vector<cv::Mat>& results);
+  void add_tile_stats(const TileStats& run, size_t targets, int H, int W);
+  int upload_image(const cv::Mat& bgr, bool rgb);  // a [1, 3, H, W] buffer
+
+  SessionOptions options_;
+  std::unique_ptr<Context> ctx_;
+  std::unique_ptr<Backend> backend_;
+  std::unique_ptr<Weights> weights_;
+  std::unique_ptr<Model> model_;
+  std::unique_ptr<EventTensorBuilder> host_builder_;  // the host path's event tensors (Vulkan)
+  bool rgb_ = true;
+  TileOptions tiling_;
+  PhysicsUnrollParams physics_;
+  SessionStats stats_;
+};
+
+}  // namespace vkunroll

@@ -1,0 +1,83 @@
+// What `vkunroll unroll` (and the library's UnrollSession) is asked to do, as typed values. The CLI
+// and the Python bindings only parse their inputs into these; validate_unroll_options() checks the
+// combinations before any work starts, naming the option.
+#pragma once
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "vkunroll/base/precision.hpp"
+#include "vkunroll/base/row_timing.hpp"
+#include "vkunroll/host/events/sequence.hpp"
+#include "vkunroll/host/model/tiling.hpp"
+#include "vkunroll/host/unroll/unroll_output.hpp"
+
+namespace vkunroll {
+
+// s | m: SelfUnroll-S / -M for every target. physics: the weight-free event double integral.
+// automatic: M where the next frame exists, else S; physics without a model. choose: per target,
+// S when t* lies in the frame's exposure span, M between frames (when the next frame exists).
+enum class UnrollMode { automatic, s, m, physics, choose };
+UnrollMode parse_unroll_mode(const std::string& s, const std::string& what);  // "auto" | "s" | ...
+const char* unroll_mode_name(UnrollMode m);                                   // "auto", "s", ...
+
+enum class BackendKind { vulkan, cpu };
+BackendKind parse_backend_kind(const std::string& s, const std::string& what);
+const char* backend_kind_name(BackendKind b);
+
+// The image channel order of the model's input; `model`: the weights' metadata says.
+enum class ChannelOrder { model, rgb, bgr };
+ChannelOrder parse_channel_order(const std::string& s, const std::string& what);
+
+// Which instants to render.
+struct TargetTimes {
+  enum class Kind {
+    normalized,    // per frame: 0 = first row's exposure start, 1 = last row's exposure end
+    absolute_us,   // absolute microseconds; each goes to the frame whose span holds it
+    ground_truth,  // exactly the sequence's ground-truth instants
+  };
+  Kind kind = Kind::normalized;
+  std::vector<Rational> values{Rational(1, 2)};
+};
+
+// From the CLI's texts: `times_us` a value list (absolute; empty: not given), else `times` a value
+// list of normalized instants or "gt". Errors name the option.
+TargetTimes parse_target_times(const std::string& times, const std::string& times_us = {});
+
+// What the session holds: where it runs and which model.
+struct SessionOptions {
+  BackendKind backend = BackendKind::vulkan;
+  std::string device;             // index, name substring; empty: VKUNROLL_DEVICE, then policy
+  Precision precision = Precision::fp32;
+  std::string model_path;         // safetensors; empty: physics only
+  bool announce = true;           // say the chosen device on stderr
+  unsigned cpu_threads = 0;       // CPU backend threads (0: the machine's, at most 8)
+};
+
+struct UnrollOptions {
+  std::string sequence;           // folder
+  SequenceOptions sequence_options;
+  std::string out_dir;
+  SessionOptions session;
+  UnrollMode mode = UnrollMode::automatic;
+  TargetTimes times;
+  std::vector<int> frames;        // empty: all frames
+  ChannelOrder channel_order = ChannelOrder::model;
+  std::optional<double> contrast;  // physics: c; empty: estimated (see estimate_contrast)
+  std::optional<double> gamma;     // physics: decode gamma of the frames; empty: meta.json's source gamma or 1
+  bool quiet = false;
+  UnrollOutputOptions output;
+  // Tiled / sparse model execution (host/model/tiling.hpp, docs/tiling.md). Defaults from the
+  // speed-against-error report: sparse exact on 32-pixel tiles with a 32-pixel halo never lost PSNR
+  // there and ran 1.8-2x faster on a static scene.
+  int64_t tile = 0;               // interior side, multiple of 32; 0: sparse: 32; dense: untiled if it fits, else the largest that fits
+  int64_t halo = -1;              // multiple of 32; -1: sparse 32, dense tiles 64
+  SparsePolicy sparse = SparsePolicy::exact;
+  double sparse_threshold = 0.05; // fast: ev1 + ev2 events per pixel of a tile's input rect
+};
+
+// Throws Error naming the option when a value or a combination is refused (before any work).
+void validate_unroll_options(const UnrollOptions& o);
+
+}  // namespace vkunroll

@@ -1,0 +1,164 @@
+// UnrollSession: the device-resident frame pipeline equals the host path it replaced, and its
+// host <-> device traffic per GS frame is what the design says (one RS upload, the events, the GS
+// image down, a submission per group of targets).
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <opencv2/imgcodecs.hpp>
+
+#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/model.hpp"
+#include "vkunroll/host/model/tiling.hpp"
+#include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/image_planes.hpp"
+#include "vkunroll/host/unroll/metrics.hpp"
+#include "vkunroll/host/unroll/session.hpp"
+#include "vkunroll/host/unroll/unroll.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+namespace fs = std::filesystem;
+
+namespace {
+fs::path temp_dir(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / ("vkunroll-test-session-" + name + "-" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+fs::path make_sequence(const fs::path& dir, int width, int height, int frames) {
+  sim::SimulationConfig cfg = sim::simulation_preset("realistic");
+  cfg.seed = 5;
+  cfg.width = width;
+  cfg.height = height;
+  cfg.frames = frames;
+  cfg.gt_per_frame = 1;
+  cfg.line_delay_us = 25900.0 / height;
+  const auto seq = sim::simulate(cfg);
+  sim::write_sequence(cfg, seq, (dir / "seq").string());
+  return dir / "seq";
+}
+
+std::string fixture(const std::string& name) { return std::string(VKUNROLL_SOURCE_DIR) + "/tests/data/" + name; }
+
+double max_abs(const cv::Mat& a, const cv::Mat& b) {
+  double m = 0;
+  const cv::Mat d = cv::abs(a - b);
+  cv::minMaxLoc(d.reshape(1), nullptr, &m);
+  return m;
+}
+
+// The path unroll took before the session: event tensors on the host, Model::run / run_tiled on host arrays.
+cv::Mat host_path(Model& model, const FrameInput& in, const Rational& t, bool m, const TileOptions* tiles) {
+  const int H = in.rs1.rows, W = in.rs1.cols;
+  std::vector<EventTensorPair> pairs{{in.timing1, t, std::nullopt}};
+  if (m) pairs.push_back({in.timing2, t, std::nullopt});
+  EventTensorSpec spec;
+  spec.bins = model.config().N;
+  EventTensors et = build_event_tensors_ref(*in.events, pairs, spec);
+  const int64_t B = m ? 2 : 1;
+  const Shape es{B, 2 * spec.bins, H, W};
+  ModelInputs mi;
+  std::vector<float> rs = image_planes(in.rs1, true);
+  if (m) {
+    const std::vector<float> rs2 = image_planes(in.rs2, true);
+    rs.insert(rs.end(), rs2.begin(), rs2.end());
+  }
+  mi.rs = HostTensor(Shape{B, 3, H, W}, rs);
+  mi.ev1 = HostTensor(es, std::move(et.ev1));
+  mi.ev2 = HostTensor(es, std::move(et.ev2));
+  mi.ev3 = HostTensor(es, std::move(et.ev3));
+  RunOptions ro;
+  ro.mode = m ? Mode::m : Mode::s;
+  ro.outputs = {m ? "out" : "fused"};
+  const HostTensor out = tiles ? run_tiled(model, mi, ro, *tiles).outputs.at(ro.outputs[0]) : model.run(mi, ro).at(ro.outputs[0]);
+  return planes_image(out.data.data(), H, W, true);
+}
+
+FrameInput frame_input(const Sequence& seq, int k, const EventStream& ev) {
+  FrameInput in;
+  in.rs1 = to_unit_float(cv::imread(seq.frames[k].image, cv::IMREAD_COLOR));
+  in.rs2 = to_unit_float(cv::imread(seq.frames[k + 1].image, cv::IMREAD_COLOR));
+  in.timing1 = seq.frames[k].timing;
+  in.timing2 = seq.frames[k + 1].timing;
+  in.events = &ev;
+  return in;
+}
+}  // namespace
+
+TEST(Session, DeviceResidentFrameEqualsTheHostPath) {
+  const fs::path dir = temp_dir("parity");
+  const Sequence seq = load_sequence(make_sequence(dir, 64, 48, 3).string(), {});
+  const EventStream ev = seq.read_events(-100000, 400000);
+  const FrameInput in = frame_input(seq, 1, ev);
+  const RowTiming& t1 = in.timing1;
+  const std::vector<FrameTarget> targets{{t1.target_time(Rational(1, 2)), FrameTarget::Method::s},
+                                         {t1.target_time(Rational(-1, 4)), FrameTarget::Method::s},
+                                         {t1.target_time(Rational(3, 2)), FrameTarget::Method::m}};
+  SessionOptions so;
+  so.model_path = fixture("selfunroll_tiny.safetensors");
+  so.device = "llvmpipe";
+  so.announce = false;
+  UnrollSession session(so);
+  VulkanBackend reference_backend(vktest::context());
+  Model reference(reference_backend, session.weights());
+  TileOptions dense;  // untiled, every pixel through the network
+  TileOptions sparse;
+  sparse.tile = 32, sparse.halo = 32, sparse.sparse = SparsePolicy::exact;
+  for (const TileOptions* tiles : {&dense, &sparse}) {
+    session.set_tiling(*tiles);
+    const DeviceTraffic before = session.traffic();
+    const std::vector<cv::Mat> got = session.unroll(in, targets);
+    const DeviceTraffic d = session.traffic() - before;
+    ASSERT_EQ(got.size(), targets.size());
+    for (size_t j = 0; j < targets.size(); ++j) {
+      const bool m = targets[j].method == FrameTarget::Method::m;
+      const cv::Mat want = host_path(reference, in, targets[j].t_us, m, tiles == &sparse ? tiles : nullptr);
+      EXPECT_LE(max_abs(got[j], want), 2e-5) << "target " << j << (tiles == &sparse ? " (sparse tiles)" : " (dense)");
+    }
+    // S and M: one submission each; down: the three GS images at fp32 and nothing else.
+    EXPECT_EQ(d.submits, 2u);
+    EXPECT_EQ(d.download_bytes, uint64_t(3) * 3 * 48 * 64 * 4);
+    // Up: the RS frames and the events' records, far below the event tensors the host path uploaded
+    // (ev1, ev2, ev3 of four frame-target pairs).
+    const uint64_t host_tensors = uint64_t(4) * 3 * 2 * session.model_config().N * 48 * 64 * 4;
+    EXPECT_LT(d.upload_bytes, host_tensors / 4) << d.upload_bytes << " bytes up";
+  }
+  fs::remove_all(dir);
+}
+
+// The bound, end to end with the shipped model at the DAVIS346 size: the bytes downloaded
+// per GS frame are at most twice the output image at fp32, and the event tensors never cross.
+TEST(Session, ShippedModelTrafficPerGsFrameAt346x260) {
+  const fs::path model = fs::path(VKUNROLL_SOURCE_DIR) / "models" / "selfunroll_small.safetensors";
+  if (!fs::exists(model)) GTEST_SKIP() << model << " is not in the checkout";
+  const fs::path dir = temp_dir("traffic");
+  const fs::path seq = make_sequence(dir, 346, 260, 2);
+  for (const SparsePolicy sparse : {SparsePolicy::off, SparsePolicy::exact}) {
+    UnrollOptions o;
+    o.sequence = seq.string();
+    o.out_dir = (dir / (sparse == SparsePolicy::off ? "dense" : "sparse")).string();
+    o.quiet = true;
+    o.session.device = "llvmpipe";
+    o.session.model_path = model.string();
+    o.mode = UnrollMode::s;
+    o.times = parse_target_times("0.25,0.75");
+    o.frames = {0};
+    o.sparse = sparse;
+    o.output.write_video = false;
+    const auto s = run_unroll(o);
+    const auto& t = s.at("device_traffic_per_gs_frame");
+    const double image = 3.0 * 260 * 346 * 4;
+    EXPECT_LE(t.at("download_bytes").get<double>(), 2 * image) << t.dump();
+    EXPECT_GT(t.at("download_bytes").get<double>(), 0.99 * image) << t.dump();
+    // ev1, ev2, ev3 of one target: what the host path uploaded per GS frame on top of the image.
+    const double tensors = 3.0 * 2 * load_weights(model.string()).config.N * 260 * 346 * 4;
+    EXPECT_LT(t.at("upload_bytes").get<double>(), tensors) << t.dump();
+    EXPECT_LE(t.at("submits").get<double>(), 1.0) << t.dump();  // both targets in one submission
+    EXPECT_EQ(s.at("memory_forced_submits").get<int>(), 0) << t.dump();
+  }
+  fs::remove_all(dir);
+}
