@@ -75,6 +75,7 @@ class UnrollSession {
   const ModelConfig& model_config() const { return weights().config; }
   BackendKind backend_kind() const { return options_.backend; }
   Backend& backend() { return *backend_; }
+  const Backend& backend() const { return *backend_; }
   const Context* context() const { return ctx_.get(); }  // null on the CPU backend
   // Host <-> device traffic and submissions since the session started (zeros on the CPU backend).
   DeviceTraffic traffic() const;

@@ -178,6 +178,63 @@ nlohmann::json traffic_json(const DeviceTraffic& t, size_t targets) {
           {"submits", double(t.submits) / n}};
 }
 
+// summary.json's job fields (everything but the per-frame records and metrics UnrollOutput adds).
+nlohmann::json job_summary(const UnrollOptions& o, const Sequence& seq, UnrollMode mode, const UnrollSession& session,
+                           const TileOptions& tile_options, const PhysicsUnrollParams& prm, const std::string& contrast_source,
+                           const std::map<std::string, double>& stage_ms, double total_ms, size_t frames, size_t total_targets,
+                           const DeviceTraffic& traffic, std::map<std::string, int> notes) {
+  const SessionStats& st = session.stats();
+  nlohmann::json extra;
+  extra["sequence"] = {{"path", o.sequence}, {"layout", sequence_layout_name(seq.layout)},
+                       {"width", seq.width}, {"height", seq.height}, {"frames_in_sequence", seq.frames.size()},
+                       {"notes", seq.notes}};
+  extra["mode"] = unroll_mode_name(mode);
+  extra["runs"] = {{"s", st.runs_s}, {"m", st.runs_m}, {"physics", st.runs_physics}, {"physics_on_cpu", st.physics_on_cpu},
+                   {"host_path", st.host_path_targets}};
+  if (session.has_model())
+    extra["model"] = {{"path", o.session.model_path}, {"config", session.model_config().summary()},
+                      {"channel_order", session.model_rgb() ? "rgb" : "bgr"}};
+  if (mode == UnrollMode::physics)
+    extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma}};
+  if (session.has_model()) {
+    nlohmann::json tj{{"tile", tile_options.tile}, {"tile_used", st.tile_used}, {"halo", tile_options.halo},
+                      {"sparse", sparse_policy_name(o.sparse)}, {"sparse_threshold", o.sparse_threshold},
+                      {"tiles_per_target", st.tiles_per_target}, {"tiles", st.tiles}, {"tiles_run", st.tiles_run},
+                      {"active_tile_fraction", st.tiles ? double(st.tiles_run) / double(st.tiles) : 0.0},
+                      {"work_ratio", st.target_active_fraction.empty() ? 0.0 : st.work_pixels / double(st.target_active_fraction.size())}};
+    if (!st.target_active_fraction.empty()) {
+      double lo = 1, hi = 0, sum = 0;
+      for (double a : st.target_active_fraction) lo = std::min(lo, a), hi = std::max(hi, a), sum += a;
+      tj["target_active_fraction"] = {{"min", lo}, {"mean", sum / st.target_active_fraction.size()}, {"max", hi}};
+    }
+    extra["tiling"] = tj;
+  }
+  extra["frames"] = frames;
+  extra["targets"] = total_targets;
+  extra["backend"] = backend_kind_name(session.backend_kind());
+  extra["precision"] = precision_name(o.session.precision);
+  if (session.context()) extra["device"] = session.context()->info().name;
+  nlohmann::json per_frame;
+  for (const auto& [name, ms] : stage_ms) per_frame[name] = total_targets ? ms / total_targets : 0.0;
+  extra["ms_per_gs_frame"] = per_frame;
+  extra["ms_per_gs_frame_total"] = total_targets ? total_ms / total_targets : 0.0;
+  extra["device_traffic_per_gs_frame"] = traffic_json(traffic, total_targets);
+  // Device time against wall time: on a GPU most of a frame should be device work.
+  extra["gpu_ms_per_gs_frame"] = total_targets ? traffic.gpu_ms / total_targets : 0.0;
+  extra["memory_forced_submits"] = session.memory_forced_submits();
+  extra["peak_device_bytes"] = session.peak_device_bytes();
+  extra["notes"] = nlohmann::json::array();
+  if (st.host_path_targets)
+    notes[std::to_string(st.host_path_targets) + " target(s) too large for device-resident event tensors (one binding " +
+          "holds at most " + std::to_string(session.backend().max_buffer_bytes() >> 20) +
+          " MiB): built, downloaded and tiled on the host"]++;
+  if (session.memory_forced_submits())
+    notes["the device's memory forced " + std::to_string(session.memory_forced_submits()) +
+          " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
+  for (const auto& [n, c] : notes) extra["notes"].push_back(n + (c > 1 ? " (x" + std::to_string(c) + ")" : ""));
+  return extra;
+}
+
 }  // namespace
 
 double estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma) {
@@ -327,55 +384,9 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   const SessionStats& st = session.stats();
   for (const auto& [name, ms] : st.ms) stage_ms[name] += ms;
 
-  const double total_ms = ms_since(t_start);
-  nlohmann::json extra;
-  extra["sequence"] = {{"path", o.sequence}, {"layout", sequence_layout_name(seq.layout)},
-                       {"width", seq.width}, {"height", seq.height}, {"frames_in_sequence", seq.frames.size()},
-                       {"notes", seq.notes}};
-  extra["mode"] = unroll_mode_name(mode);
-  extra["runs"] = {{"s", st.runs_s}, {"m", st.runs_m}, {"physics", st.runs_physics}, {"physics_on_cpu", st.physics_on_cpu},
-                   {"host_path", st.host_path_targets}};
-  if (session.has_model())
-    extra["model"] = {{"path", o.session.model_path}, {"config", session.model_config().summary()},
-                      {"channel_order", session.model_rgb() ? "rgb" : "bgr"}};
-  if (mode == UnrollMode::physics)
-    extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma}};
-  if (session.has_model()) {
-    nlohmann::json tj{{"tile", tile_options.tile}, {"tile_used", st.tile_used}, {"halo", tile_options.halo},
-                      {"sparse", sparse_policy_name(o.sparse)}, {"sparse_threshold", o.sparse_threshold},
-                      {"tiles_per_target", st.tiles_per_target}, {"tiles", st.tiles}, {"tiles_run", st.tiles_run},
-                      {"active_tile_fraction", st.tiles ? double(st.tiles_run) / double(st.tiles) : 0.0},
-                      {"work_ratio", st.target_active_fraction.empty() ? 0.0 : st.work_pixels / double(st.target_active_fraction.size())}};
-    if (!st.target_active_fraction.empty()) {
-      double lo = 1, hi = 0, sum = 0;
-      for (double a : st.target_active_fraction) lo = std::min(lo, a), hi = std::max(hi, a), sum += a;
-      tj["target_active_fraction"] = {{"min", lo}, {"mean", sum / st.target_active_fraction.size()}, {"max", hi}};
-    }
-    extra["tiling"] = tj;
-  }
-  extra["frames"] = frames.size();
-  extra["targets"] = total_targets;
-  extra["backend"] = backend_kind_name(session.backend_kind());
-  extra["precision"] = precision_name(o.session.precision);
-  if (session.context()) extra["device"] = session.context()->info().name;
-  nlohmann::json per_frame;
-  for (const auto& [name, ms] : stage_ms) per_frame[name] = total_targets ? ms / total_targets : 0.0;
-  extra["ms_per_gs_frame"] = per_frame;
-  extra["ms_per_gs_frame_total"] = total_targets ? total_ms / total_targets : 0.0;
-  extra["device_traffic_per_gs_frame"] = traffic_json(traffic, total_targets);
-  // Device time against wall time: on a GPU most of a frame should be device work.
-  extra["gpu_ms_per_gs_frame"] = total_targets ? traffic.gpu_ms / total_targets : 0.0;
-  extra["memory_forced_submits"] = session.memory_forced_submits();
-  extra["peak_device_bytes"] = session.peak_device_bytes();
-  extra["notes"] = nlohmann::json::array();
-  if (st.host_path_targets)
-    notes[std::to_string(st.host_path_targets) + " target(s) too large for device-resident event tensors (one binding " +
-          "holds at most " + std::to_string(session.backend().max_buffer_bytes() >> 20) +
-          " MiB): built, downloaded and tiled on the host"]++;
-  if (session.memory_forced_submits())
-    notes["the device's memory forced " + std::to_string(session.memory_forced_submits()) +
-          " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
-  for (const auto& [n, c] : notes) extra["notes"].push_back(n + (c > 1 ? " (x" + std::to_string(c) + ")" : ""));
+  const nlohmann::json extra = job_summary(o, seq, mode, session, tile_options, prm, contrast_source, stage_ms,
+                                           ms_since(t_start), frames.size(), total_targets, traffic, notes);
+  const double total_ms = extra["ms_per_gs_frame_total"].get<double>() * double(total_targets);
   nlohmann::json summary = output.finish(extra);
 
   if (!o.quiet) {
