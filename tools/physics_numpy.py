@@ -32,6 +32,25 @@ def physics_log_ratio(ev, src_start: np.ndarray, src_end: np.ndarray, target, co
     """log(T / integral) [h, w] (float64) for the crop (x0, y0, w, h). src_start/src_end: float64
     exposure start/end per full-sensor row; target: t* (scalar) or one target time per row.
     `ev` = (t, x, y, p) with at least the events of each row's [min(S, t*), max(E, t*)]."""
+    return log_ratio_from_segments(exposure_segments(ev, src_start, src_end, target, crop), contrast)
+
+
+def log_ratio_from_segments(segs, contrast: float) -> np.ndarray:
+    """log(T / sum_j len_j exp(c * level_j)) per pixel (log-sum-exp as the C++ reference)."""
+    seg_pix, log_len, lvl, T, h, w = segs
+    npx = h * w
+    term = log_len + (np.float32(contrast) * lvl.astype(np.float32)).astype(np.float64)
+    m = np.full(npx, -np.inf)
+    np.maximum.at(m, seg_pix, term)
+    acc = np.bincount(seg_pix, weights=np.exp(term - m[seg_pix]), minlength=npx)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lr = np.where(T > 0, np.log(T) - (m + np.log(acc)), 0.0)
+    return lr.reshape(h, w)
+
+
+def exposure_segments(ev, src_start: np.ndarray, src_end: np.ndarray, target, crop):
+    """The exposure of every pixel cut at its events: (pixel, log length, level F - F(t*)) of each
+    non-empty segment, the exposure length T per pixel, h, w. Independent of c."""
     x0, y0, w, h = crop
     t, x, y, p = ev
     H = len(src_start)
@@ -67,7 +86,6 @@ def physics_log_ratio(ev, src_start: np.ndarray, src_end: np.ndarray, target, co
     cp = cs - (cs[start_idx] - poli[start_idx]) if n else cs  # cumulative polarity within the pixel
     # segment after event i: [t_i, next event or E), level F = fS + cp_i
     t_next = np.where(last, rowE[pi], np.r_[ti[1:], 0.0]) if n else ti
-    c32 = np.float32(contrast)
     seg_len = np.concatenate([np.where(first, ti - rowS[pi], 0.0) if n else ti, t_next - ti])
     seg_pix = np.concatenate([pi, pi])
     lvl = np.concatenate([fS[pi] - f0[pi], fS[pi] + cp - f0[pi]]) if n else np.zeros(0, np.int64)
@@ -80,15 +98,7 @@ def physics_log_ratio(ev, src_start: np.ndarray, src_end: np.ndarray, target, co
     seg_pix = np.concatenate([seg_pix, np.nonzero(empty)[0]])
     lvl = np.concatenate([lvl, (fS - f0)[empty]])
     pos = seg_len > 0
-    seg_len, seg_pix, lvl = seg_len[pos], seg_pix[pos], lvl[pos]
-    term = np.log(seg_len) + (c32 * lvl.astype(np.float32)).astype(np.float64)
-    m = np.full(npx, -np.inf)
-    np.maximum.at(m, seg_pix, term)
-    acc = np.bincount(seg_pix, weights=np.exp(term - m[seg_pix]), minlength=npx)
-    T = rowE - rowS
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lr = np.where(T > 0, np.log(T) - (m + np.log(acc)), 0.0)
-    return lr.reshape(h, w)
+    return seg_pix[pos], np.log(seg_len[pos]), lvl[pos], rowE - rowS, h, w
 
 
 def apply_log_ratio(img: np.ndarray, log_ratio: np.ndarray, gamma: float, max_value: float = MAX_VALUE) -> np.ndarray:
@@ -155,13 +165,15 @@ def estimate_contrast(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0
         lo = min(seq.frame_span(a)[0], t)
         hi = max(seq.frame_span(b)[1], t)
         ev = seq.events_in(np.floor(lo), np.ceil(hi), full)
-        data.append((seq.frame(a), seq.frame(b), ev, seq.row_times(a), seq.row_times(b), t))
+        (s1, e1), (s2, e2) = seq.row_times(a), seq.row_times(b)
+        data.append((seq.frame(a), seq.frame(b), exposure_segments(ev, s1, e1, t, full),
+                     exposure_segments(ev, s2, e2, t, full)))
     best_c, best_err = 0.2, 1e300
     for c in contrast_grid():
         err, n = 0.0, 0
-        for rs1, rs2, ev, (s1, e1), (s2, e2), t in data:
-            g1 = apply_log_ratio(rs1, physics_log_ratio(ev, s1, e1, t, c, full), gamma).astype(np.float64)
-            g2 = apply_log_ratio(rs2, physics_log_ratio(ev, s2, e2, t, c, full), gamma).astype(np.float64)
+        for rs1, rs2, seg1, seg2 in data:
+            g1 = apply_log_ratio(rs1, log_ratio_from_segments(seg1, c), gamma).astype(np.float64)
+            g2 = apply_log_ratio(rs2, log_ratio_from_segments(seg2, c), gamma).astype(np.float64)
             err += float(np.abs(np.log(g1 + 0.01) - np.log(g2 + 0.01)).sum())
             n += g1.size
         err /= max(n, 1)
