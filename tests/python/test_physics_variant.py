@@ -19,6 +19,7 @@ sys.path.insert(0, os.path.join(ROOT, "tools"))
 sys.path.insert(0, HERE)
 
 import convert_checkpoint  # noqa: E402
+import natural_eval  # noqa: E402
 import physics_numpy as pn  # noqa: E402
 import safetensors_io  # noqa: E402
 import train  # noqa: E402
@@ -88,6 +89,10 @@ def test_physics_numpy_equals_vkunroll_unroll_physics(tmp_path):
         for row in rows:
             k, t = int(row[0]), float(row[1])
             assert pn.frame_for_time(s, frames, t) == k
+            # tools/natural_eval.py's metrics are host/metrics.cpp's (RS input vs ground truth: both PNGs)
+            gt = read_image(row[4])
+            assert abs(natural_eval.psnr(s.frame(k), gt) - float(row[7])) < 1e-4
+            assert abs(natural_eval.ssim(s.frame(k), gt) - float(row[8])) < 1e-5
             mine = np.clip(pn.unroll_physics(s, k, t, c, gamma), 0, 1)
             cpp = read_image(str(out / row[3]))
             err = float(np.abs(mine - cpp).max())
