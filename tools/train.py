@@ -112,7 +112,8 @@ def init_model(net: SelfUnroll, seed: int, fusion_passthrough: bool = True) -> N
         if hasattr(m, "reset_parameters"):
             m.reset_parameters()
     with torch.no_grad():
-        for conv in (net.flownet.pred, net.UPNet[2]):
+        heads = (net.flownet.pred, net.UPNet[2]) + ((net.attfusion_net.pred,) if net.cfg.physics_input and net.cfg.moa else ())
+        for conv in heads:
             conv.weight.mul_(0.0 if net.cfg.physics_input and conv is net.UPNet[2] else 0.01)
             conv.bias.zero_()
         if fusion_passthrough:
@@ -129,7 +130,9 @@ def lift_to_physics(src: SelfUnroll, seed: int) -> SelfUnroll:
     init_model(net, seed)
     sd = net.state_dict()
     for k, v in src.state_dict().items():
-        if k.startswith("fusion_net.") or k.startswith("UPNet.2."):
+        # attfusion_net.pred restarts near 0 (m ~ 0.5): a trained MOA whose score sits beyond
+        # hardsigmoid's +-3 has zero gradient there, and stage 2 could not move it
+        if k.startswith("fusion_net.") or k.startswith("UPNet.2.") or k.startswith("attfusion_net.pred."):
             continue
         if k == "SFENet1.weight":
             w = torch.zeros_like(sd[k])

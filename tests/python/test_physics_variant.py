@@ -145,6 +145,7 @@ def test_lifting_a_trained_model_keeps_its_trunk_and_starts_at_physics():
     n_old = src.SFENet1.weight.shape[1]
     assert torch.equal(w[:, :n_old], src.SFENet1.weight) and float(w[:, n_old:].abs().max()) == 0.0
     assert torch.equal(net.flownet.head.weight, src.flownet.head.weight)
+    assert float(net.attfusion_net.pred.bias.abs().max()) == 0.0  # MOA restarts near m = 0.5
     rs, ev, phys = random_inputs(net.cfg, seed=3)
     with torch.no_grad():
         fused = net(rs, *ev, phys=phys, moa=False)[4]
