@@ -172,6 +172,14 @@ std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFr
   return {lo, hi};
 }
 
+// v^exponent (negative values to 0 first): a frame in another gamma encoding; exponent 1: as it is.
+cv::Mat encode_for_model(const cv::Mat& image, double exponent) {
+  if (std::abs(exponent - 1.0) < 1e-12) return image;
+  cv::Mat v = cv::max(image, 0.0), out;
+  cv::pow(v, exponent, out);
+  return out;
+}
+
 nlohmann::json traffic_json(const DeviceTraffic& t, size_t targets) {
   const double n = static_cast<double>(std::max<size_t>(targets, 1));
   return {{"upload_bytes", double(t.upload_bytes) / n}, {"download_bytes", double(t.download_bytes) / n},
@@ -181,6 +189,7 @@ nlohmann::json traffic_json(const DeviceTraffic& t, size_t targets) {
 // summary.json's job fields (everything but the per-frame records and metrics UnrollOutput adds).
 nlohmann::json job_summary(const UnrollOptions& o, const Sequence& seq, UnrollMode mode, const UnrollSession& session,
                            const TileOptions& tile_options, const PhysicsUnrollParams& prm, const std::string& contrast_source,
+                           double seq_gamma,
                            const std::map<std::string, double>& stage_ms, double total_ms, size_t frames, size_t total_targets,
                            const DeviceTraffic& traffic, std::map<std::string, int> notes) {
   const SessionStats& st = session.stats();
@@ -194,8 +203,13 @@ nlohmann::json job_summary(const UnrollOptions& o, const Sequence& seq, UnrollMo
   if (session.has_model())
     extra["model"] = {{"path", o.session.model_path}, {"config", session.model_config().summary()},
                       {"channel_order", session.model_rgb() ? "rgb" : "bgr"}};
-  if (mode == UnrollMode::physics)
-    extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma}};
+  const bool variant = session.has_model() && session.model_config().physics_input;
+  if (mode == UnrollMode::physics || variant)
+    extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma},
+                        {"role", variant ? "the model's physics input" : "the unroller"}};
+  if (session.has_model())
+    extra["encoding"] = {{"sequence_gamma", seq_gamma},
+                         {"model_gamma", session.model_config().gamma ? nlohmann::json(*session.model_config().gamma) : nlohmann::json()}};
   if (session.has_model()) {
     nlohmann::json tj{{"tile", tile_options.tile}, {"tile_used", st.tile_used}, {"halo", tile_options.halo},
                       {"sparse", sparse_policy_name(o.sparse)}, {"sparse_threshold", o.sparse_threshold},
@@ -302,21 +316,33 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   size_t total_targets = 0;
   for (const auto& [k, ts] : targets) total_targets += ts.size();
 
+  // The sequence's encoding, and the model's: frames go into a model with a known gamma in its
+  // encoding (v^(g_f/g_m)) and its results come back (docs/model.md, "unroll").
+  const double seq_gamma = o.gamma ? *o.gamma : read_meta_gamma(seq);
+  const std::optional<double> model_gamma = session.has_model() ? session.model_config().gamma : std::nullopt;
+  const double to_model = model_gamma ? seq_gamma / *model_gamma : 1.0;
+  const bool variant = session.has_model() && session.model_config().physics_input;
   PhysicsUnrollParams prm;
   std::string contrast_source = "given";
-  if (mode == UnrollMode::physics) {
-    prm.gamma = static_cast<float>(o.gamma ? *o.gamma : read_meta_gamma(seq));
+  if (mode == UnrollMode::physics || variant) {
+    // --mode physics decodes the frames with the sequence's gamma; the variant's physics input is
+    // computed on the model-encoded frame (docs/model.md).
+    prm.gamma = static_cast<float>(mode == UnrollMode::physics ? seq_gamma : model_gamma.value_or(1.0));
+    const std::string& from_model = variant ? session.model_config().physics_contrast : std::string("estimate");
     if (o.contrast) {
       prm.contrast = static_cast<float>(*o.contrast);
+    } else if (from_model != "estimate") {
+      prm.contrast = std::stof(from_model);  // validated when the weights were loaded
+      contrast_source = "the model's metadata";
     } else {
       const auto t = Clock::now();
-      prm.contrast = static_cast<float>(estimate_contrast(seq, frames, prm.gamma));
+      prm.contrast = static_cast<float>(estimate_contrast(seq, frames, seq_gamma));
       stage_ms["contrast_estimate"] = ms_since(t);
       contrast_source = "estimated (temporal consistency of consecutive frames)";
     }
     if (!o.quiet)
-      std::cerr << "unroll: physics unroller, contrast c = " << prm.contrast << " (" << contrast_source << "), gamma "
-                << prm.gamma << "\n";
+      std::cerr << "unroll: " << (variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
+                << prm.contrast << " (" << contrast_source << "), gamma " << prm.gamma << "\n";
   }
   session.set_physics(prm);
   TileOptions tile_options;
@@ -355,17 +381,20 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
     const SequenceFrame* f2 = any_m ? &seq.frames[k + 1] : nullptr;
     t_read = Clock::now();
     FrameInput in;
-    in.rs1 = read_image(f1.image, seq.width, seq.height);
+    const cv::Mat rs_input = read_image(f1.image, seq.width, seq.height);
+    in.rs1 = encode_for_model(rs_input, to_model);
     in.timing1 = f1.timing;
     if (f2) {
-      in.rs2 = read_image(f2->image, seq.width, seq.height);
+      in.rs2 = encode_for_model(read_image(f2->image, seq.width, seq.height), to_model);
       in.timing2 = f2->timing;
     }
     const auto [lo, hi] = frame_window(f1, f2, ts, methods);
     const EventStream ev = read_window(seq, lo, hi);
     in.events = &ev;
     stage_ms["read"] += ms_since(t_read);
-    const std::vector<cv::Mat> results = session.unroll(in, methods);
+    std::vector<cv::Mat> results = session.unroll(in, methods);
+    for (size_t j = 0; j < results.size(); ++j)
+      if (methods[j].method != FrameTarget::Method::physics) results[j] = encode_for_model(results[j], 1.0 / to_model);
     const auto t_write = Clock::now();
     for (size_t j = 0; j < ts.size(); ++j) {
       cv::Mat gt;
@@ -374,7 +403,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
         gt_file = seq.ground_truth[ts[j].gt].image;
         gt = read_image(gt_file, seq.width, seq.height);
       }
-      output.add(k, ts[j].t_us.to_double(), ts[j].tau, results[j], in.rs1, gt, gt_file, ts[j].name);
+      output.add(k, ts[j].t_us.to_double(), ts[j].tau, results[j], rs_input, gt, gt_file, ts[j].name);
       progress.update(++done, "frame " + std::to_string(k));
     }
     stage_ms["write"] += ms_since(t_write);
@@ -384,7 +413,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   const SessionStats& st = session.stats();
   for (const auto& [name, ms] : st.ms) stage_ms[name] += ms;
 
-  const nlohmann::json extra = job_summary(o, seq, mode, session, tile_options, prm, contrast_source, stage_ms,
+  const nlohmann::json extra = job_summary(o, seq, mode, session, tile_options, prm, contrast_source, seq_gamma, stage_ms,
                                            ms_since(t_start), frames.size(), total_targets, traffic, notes);
   const double total_ms = extra["ms_per_gs_frame_total"].get<double>() * double(total_targets);
   nlohmann::json summary = output.finish(extra);
