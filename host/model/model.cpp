@@ -159,7 +159,6 @@ const Model::Conv& Model::conv(const std::string& name) const {
 
 int64_t Model::synthesis_item_bytes(int64_t he, int64_t we) const {
   const int64_t plane = (he / 2) * (we / 2);
-  const int64_t ev = cfg_.ev_channels();
   return 4 * std::max({int64_t(cfg_.G0 + cfg_.C * cfg_.G) * plane, 4 * int64_t(cfg_.synthesis_channels()) * plane,  // RDB, s2d
                        int64_t(cfg_.upnet_width) * plane});
 }
@@ -288,11 +287,11 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   const int xs = b.alloc({n, 4 * int64_t(cfg_.synthesis_channels()), h2, w2}, "space_to_depth");
   b.space_to_depth(sub(ch.rs, i0, n), chans(whole(b, xs), 0, 12));
   // The variant: p = clamp(phys, 0, 1) is the last piece of E-IC_T's input and the base of sys.
-  int p = -1;
+  int phys_clamped = -1;
   if (cfg_.physics_input) {
-    p = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
-    b.clamp01(sub(ch.phys, i0, n), whole(b, p));
-    b.space_to_depth(whole(b, p), chans(whole(b, xs), 12 + 12 * ev, 12));
+    phys_clamped = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
+    b.clamp01(sub(ch.phys, i0, n), whole(b, phys_clamped));
+    b.space_to_depth(whole(b, phys_clamped), chans(whole(b, xs), 12 + 12 * ev, 12));
   }
   b.space_to_depth(sub(ch.ev1, i0, n), chans(whole(b, xs), 12, 4 * ev));
   b.space_to_depth(sub(ch.ev2, i0, n), chans(whole(b, xs), 12 + 4 * ev, 4 * ev));
@@ -341,8 +340,8 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   b.release(shuf);
   b.tanh_scale(whole(b, e_raw), items(b, ch.E, i0, n), 1.f);
   b.release(e_raw);
-  b.add(p >= 0 ? whole(b, p) : sub(ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
-  if (p >= 0) b.release(p);
+  b.add(phys_clamped >= 0 ? whole(b, phys_clamped) : sub(ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
+  if (phys_clamped >= 0) b.release(phys_clamped);
 }
 
 void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
