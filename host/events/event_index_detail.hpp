@@ -1,5 +1,5 @@
 // The per-file index of the streamed event formats (text, EVT 2.0/3.0, .dat, AEDAT 4): decoder
-// checkpoints every ~64 KiB, each with the time range of the valid records up to the next one, so a
+// checkpoints every ~32 KiB, each with the time range of the valid records up to the next one, so a
 // windowed read resumes near its window instead of re-parsing from the start. Built incrementally
 // by the reads themselves (a read that decodes past the indexed part extends it). See
 // docs/events.md, "Windowed reads".
@@ -7,6 +7,7 @@
 #include <array>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <optional>
 #include <utility>
 #include <vector>
@@ -35,10 +36,11 @@ struct Segment {
 };
 
 struct StreamIndex {
-  static constexpr uint64_t kStride = uint64_t(1) << 16;  // bytes between checkpoints
+  static constexpr uint64_t kStride = uint64_t(1) << 15;  // bytes between checkpoints
   std::vector<Segment> segments;  // complete, contiguous from the data start
   std::optional<Checkpoint> tail; // where the indexed part ends (the next segment's start)
   bool complete = false;          // the segments cover the whole file
+  std::shared_ptr<const void> header;  // a reader's parsed header, kept between reads (text: its layout)
 };
 
 // Disjoint, sorted [lo, hi) ranges of record indices (what a reader's totals already counted).

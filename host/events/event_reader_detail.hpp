@@ -116,6 +116,7 @@ class EventSink {
   // they reach the end. Without an index they read from the start and never checkpoint.
   void use_index(StreamIndex* index, const Checkpoint* from, uint64_t stop_offset);
   bool indexing() const { return index_map_ != nullptr; }
+  StreamIndex* index() const { return index_map_; }
   const Checkpoint* resume_point() const { return from_ ? &*from_ : nullptr; }
   // Restores the record index and time-order state of a checkpoint the reader resumes at.
   void resume(const Checkpoint& c);

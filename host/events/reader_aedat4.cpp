@@ -327,7 +327,7 @@ void read_aedat4(ByteSource& src, EventSink& sink) {
     c.offset = offset, c.record = record;
     return c;
   };
-  uint64_t next = off;  // a checkpoint at the first packet, then every ~64 KiB of packets
+  uint64_t next = off;  // a checkpoint at the first packet, then every ~32 KiB of packets
   std::vector<uint8_t> in, out;
   while (off < h.data_end && !sink.done()) {
     if (off >= next) {

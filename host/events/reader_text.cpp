@@ -291,6 +291,9 @@ namespace {
 
 // What the first 1000 data lines say: column order, header or E2VID size line, time unit.
 struct TextLayout {
+  int width = 0, height = 0;        // from a size comment or E2VID's first line
+  std::string size_source, unit;
+  std::vector<std::string> notes;
   std::string columns;
   bool skip_first = false;  // the first data line is a header or E2VID's "W H"
   int unit_exp = 0;
@@ -309,8 +312,7 @@ void check_columns(const std::string& file, const std::string& c, const std::str
                   "' (allowed: t, x, y, p, _)");
 }
 
-TextLayout prescan_text(ByteSource& src, EventSink& sink) {
-  const EventReadOptions& o = sink.options();
+TextLayout prescan_text(ByteSource& src, const EventReadOptions& o) {
   const std::string& file = src.name();
   // Column layout: user option, possibly replaced by a header line of names when left default.
   TextLayout L;
@@ -352,7 +354,7 @@ TextLayout prescan_text(ByteSource& src, EventSink& sink) {
           if (complete) {
             while (!c.empty() && c.back() == '_') c.pop_back();
             L.columns = c;
-            sink.note("column order '" + L.columns + "' from the header line");
+            L.notes.push_back("column order '" + L.columns + "' from the header line");
           }
         }
         continue;
@@ -370,15 +372,15 @@ TextLayout prescan_text(ByteSource& src, EventSink& sink) {
       }
     }
   }
-  if (size_w > 0 && size_h > 0) sink.set_file_geometry(size_w, size_h, size_source);
+  if (size_w > 0 && size_h > 0) L.width = size_w, L.height = size_h, L.size_source = size_source;
   std::string unit = o.text_time_unit;
   if (unit.empty()) {
-    if (e2vid) unit = "s", sink.note("time unit: seconds (E2VID 'W H' first line)");
-    else if (many_decimals) unit = "s", sink.note("time unit: seconds (time values with more than 3 decimals)");
+    if (e2vid) unit = "s", L.notes.push_back("time unit: seconds (E2VID 'W H' first line)");
+    else if (many_decimals) unit = "s", L.notes.push_back("time unit: seconds (time values with more than 3 decimals)");
     else unit = "us";
   }
   L.unit_exp = time_unit_exponent(unit, file);
-  sink.report().time_unit = unit;
+  L.unit = unit;
   for (size_t i = 0; i < L.columns.size(); ++i) {
     if (L.columns[i] == 't') L.ct = int(i);
     if (L.columns[i] == 'x') L.cx = int(i);
@@ -418,11 +420,24 @@ bool text_record(const TextLayout& L, std::vector<std::string_view>& tok, EventS
   return tn == Num::nan ? sink.add_float_time(td, x, y, p) : sink.add(t, x, y, p);
 }
 
+// The layout of the file: parsed from its first lines, or kept from an earlier read of the index.
+std::shared_ptr<const TextLayout> text_layout(ByteSource& src, EventSink& sink) {
+  StreamIndex* ix = sink.index();
+  if (ix && ix->header) return std::static_pointer_cast<const TextLayout>(ix->header);
+  refuse_binary(src);
+  auto L = std::make_shared<const TextLayout>(prescan_text(src, sink.options()));
+  if (ix) ix->header = L;
+  return L;
+}
+
 }  // namespace
 
 void read_text(ByteSource& src, EventSink& sink) {
-  refuse_binary(src);
-  const TextLayout L = prescan_text(src, sink);
+  const std::shared_ptr<const TextLayout> layout = text_layout(src, sink);
+  const TextLayout& L = *layout;
+  if (L.width > 0 && L.height > 0) sink.set_file_geometry(L.width, L.height, L.size_source);
+  for (const auto& n : L.notes) sink.note(n);
+  sink.report().time_unit = L.unit;
   uint64_t start = 0, lines_before = 0, record = 0;
   bool first = true;  // no data line seen yet (it may be a header to skip)
   if (const Checkpoint* c = sink.resume_point()) {
