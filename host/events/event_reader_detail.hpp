@@ -87,6 +87,11 @@ class EventSink {
   bool add_float_time(double t_us, int64_t x, int64_t y, int64_t p);
   // A record whose coordinates are floats (checked to be integral and finite).
   bool add_float(double t_us, double x, double y, double p);
+  // A record whose time cannot be used (beyond int64 us, ...): counted with NaN times.
+  template <class Message>
+  bool bad_time(Message&& what) {
+    return reject(Outcome::nan, what);
+  }
   // A word/line/record the reader does not understand: error, or counted as dropped_unknown_word.
   // `what` is a string or a callable returning one (built only when it becomes an error).
   void unknown_record(const std::string& what);

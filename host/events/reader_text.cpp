@@ -42,7 +42,7 @@ void split(std::string_view line, std::vector<std::string_view>& out) {
   }
 }
 
-enum class Num { ok, nan, bad };
+enum class Num { ok, nan, overflow, bad };  // nan: NaN or +-inf (as_double says which)
 
 // Exact decimal -> integer microseconds: value * 10^unit_exp, rounded half away from zero.
 Num parse_time(std::string_view s, int unit_exp, int64_t& out, double& as_double) {
@@ -96,12 +96,7 @@ Num parse_time(std::string_view s, int unit_exp, int64_t& out, double& as_double
   (void)dropped_nonzero;
   exp10 += unit_exp;
   const I128 limit = (I128(1) << 62);
-  // Beyond int64 microseconds: the float path rejects the value with its magnitude in the message.
-  auto too_large = [&] {
-    as_double = std::strtod(std::string(s).c_str(), nullptr) * std::pow(10.0, unit_exp);
-    if (!std::isfinite(as_double)) as_double = neg ? -1e300 : 1e300;
-    return Num::nan;
-  };
+  auto too_large = [&] { return Num::overflow; };  // beyond int64 microseconds
   if (exp10 >= 0) {
     for (int k = 0; k < exp10 && mant != 0; ++k) {
       mant *= 10;
@@ -169,21 +164,17 @@ class LineReader {
   bool next(std::string_view& line) {
     for (;;) {
       const size_t nl = static_cast<size_t>(std::find(buf_.begin() + long(pos_), buf_.end(), '\n') - buf_.begin());
-      if (nl < buf_.size()) {
-        line = std::string_view(buf_.data() + pos_, nl - pos_);
+      if (nl < buf_.size() || (eof_ && pos_ < buf_.size())) {
+        const size_t end = nl < buf_.size() ? nl : buf_.size();
+        line = std::string_view(buf_.data() + pos_, end - pos_);
         line_offset_ = base_ + pos_;
-        pos_ = nl + 1;
+        pos_ = nl < buf_.size() ? nl + 1 : buf_.size();
         ++line_no_;
+        // A UTF-8 byte-order mark (spreadsheet exports) would hide the header line's first name.
+        if (line_offset_ == 0 && line.substr(0, 3) == "\xEF\xBB\xBF") line.remove_prefix(3);
         return true;
       }
-      if (eof_) {
-        if (pos_ >= buf_.size()) return false;
-        line = std::string_view(buf_.data() + pos_, buf_.size() - pos_);
-        line_offset_ = base_ + pos_;
-        pos_ = buf_.size();
-        ++line_no_;
-        return true;
-      }
+      if (eof_) return false;
       if (buf_.size() - pos_ > kMaxLine)
         throw Error(src_.name() + ": line " + std::to_string(line_no_ + 1) + " is longer than " +
                     std::to_string(kMaxLine) + " bytes (not a text event file?)");
@@ -408,6 +399,10 @@ bool text_record(const TextLayout& L, std::vector<std::string_view>& tok, EventS
     sink.unknown_record_lazy([&] { return "time '" + shown(tt) + "' is not a number"; });
     return true;
   }
+  if (tn == Num::overflow)
+    return sink.bad_time([&] {
+      return "time '" + shown(tt) + "' (" + L.unit + ") does not fit in int64 microseconds (rule: |t| < 2^62 us)";
+    });
   if (!parse_int(tx, x) || !parse_int(ty, y)) {
     sink.unknown_record_lazy(
         [&] { return "x '" + shown(tx) + "' / y '" + shown(ty) + "' is not an integer pixel coordinate"; });

@@ -71,7 +71,15 @@ std::optional<fs::path> subdir(const fs::path& root, std::initializer_list<const
 }
 
 Rational json_time(const nlohmann::json& j, const std::string& where) {
-  if (j.is_number()) return j.is_number_integer() ? Rational(j.get<int64_t>()) : Rational::from_double(j.get<double>());
+  if (j.is_number_unsigned() && j.get<uint64_t>() > uint64_t(INT64_MAX))
+    throw Error(where + " = " + j.dump() + " us is beyond int64 microseconds");
+  if (j.is_number()) {
+    try {
+      return j.is_number_integer() ? Rational(j.get<int64_t>()) : Rational::from_double(j.get<double>());
+    } catch (const Error& e) {
+      throw Error(where + " = " + j.dump() + ": " + e.what());
+    }
+  }
   if (j.is_string()) return Rational::parse(j.get<std::string>(), where);
   throw Error(where + " must be a number (or an exact string like \"73000/259\"), got " + std::string(j.type_name()) +
               " " + j.dump());
@@ -289,6 +297,30 @@ void load_fastec(Sequence& s, const fs::path& root, const SequenceOptions& o) {
                     "k GS periods; override with line delay / exposure / t0s");
 }
 
+// A frame or ground-truth image exists, has the sensor's size and (PNG) is not cut short: its last
+// chunk is IEND. Only the header is decoded here; the pixels are read when the frame is used.
+void check_image(const Sequence& s, const std::string& image, const char* what) {
+  std::error_code ec;
+  if (!fs::exists(image, ec)) throw Error(s.root + ": " + what + " image '" + image + "' does not exist");
+  if (fs::is_directory(image, ec)) throw Error(image + ": " + what + " image is a folder");
+  const auto [w, h] = image_size(image);
+  if (w != s.width || h != s.height)
+    throw Error(image + ": " + what + " image is " + std::to_string(w) + "x" + std::to_string(h) + ", the sensor is " +
+                std::to_string(s.width) + "x" + std::to_string(s.height));
+  std::ifstream in(image, std::ios::binary);
+  unsigned char sig[8] = {};
+  in.read(reinterpret_cast<char*>(sig), 8);
+  if (in.gcount() != 8 || sig[0] != 0x89 || sig[1] != 'P' || sig[2] != 'N' || sig[3] != 'G') return;
+  const uint64_t size = fs::file_size(image, ec);
+  const uint64_t tail = std::min<uint64_t>(size, 4096);
+  std::string end(tail, '\0');
+  in.seekg(std::streamoff(size - tail));
+  in.read(end.data(), std::streamsize(tail));
+  if (end.find("IEND") == std::string::npos)
+    throw Error(image + ": " + what + " image is a truncated PNG (no IEND chunk at its end; " + std::to_string(size) +
+                " bytes)");
+}
+
 // Where frame k's t0 came from, for messages.
 std::string t0_source(const Sequence& s, size_t k, const SequenceOptions& o) {
   const std::string n = std::to_string(k);
@@ -392,14 +424,8 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
   check_frame_times(s, o);
   if (o.line_delay_us || o.exposure_us || o.readout || o.t0s_us) s.notes.push_back("timing overridden by options");
   if (o.check_frame_sizes) {
-    for (const auto& f : s.frames) {
-      std::error_code ec;
-      if (!fs::exists(f.image, ec)) throw Error(s.root + ": frame image '" + f.image + "' does not exist");
-      const auto [w, h] = image_size(f.image);
-      if (w != s.width || h != s.height)
-        throw Error(f.image + ": frame is " + std::to_string(w) + "x" + std::to_string(h) + ", the sensor is " +
-                    std::to_string(s.width) + "x" + std::to_string(s.height));
-    }
+    for (const auto& f : s.frames) check_image(s, f.image, "frame");
+    for (const auto& g : s.ground_truth) check_image(s, g.image, "ground-truth");
   }
   if (o.events_file) {
     s.event_files = {*o.events_file};
