@@ -96,6 +96,7 @@ int run_windows(size_t n, int frames) {
     const size_t total = read_events(path).size();
     const double full = seconds_since(t0);
     size_t got_old = 0, got_new = 0;
+    (void)got_new;
     t0 = std::chrono::steady_clock::now();
     for (int k = 0; k < frames; ++k) {
       EventReadOptions o;

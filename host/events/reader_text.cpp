@@ -230,8 +230,9 @@ void refuse_binary(ByteSource& src) {
       if (c == 0) break;
     }
   }
+  // A NUL, or many control bytes (a stray one in a line is a bad record, reported as such).
   const bool has_nul = std::find(head.begin(), head.end(), uint8_t(0)) != head.end();
-  if (!has_nul && control * 100 <= head.size()) return;
+  if (!has_nul && (control <= 4 || control * 50 <= head.size())) return;
   const BinaryGuess g = guess_binary_format(src);
   std::string msg = src.name() + ": not a text event file: byte " + std::to_string(first_bad) + " is binary (0x" +
                     [&] {
