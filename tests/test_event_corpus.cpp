@@ -10,6 +10,7 @@
 #include "event_test_encoders.hpp"
 #include "event_test_util.hpp"
 #include "../fuzz/fuzz_common.hpp"
+#include "../fuzz/fuzz_index.hpp"
 #include "../fuzz/hdf5_image_builder.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #include "vkunroll/host/events/event_reader_detail.hpp"
@@ -63,6 +64,25 @@ TEST(EventReadersFuzzCorpus, EveryReaderSurvivesEveryCorpusFile) {
       });
     }
   }
+  EXPECT_GE(files, 20u);
+}
+
+// The index's differential check (fuzz/fuzz_index.hpp) over every corpus file: indexed windows
+// equal the full scan, and throw where it throws.
+TEST(EventReadersFuzzCorpus, IndexMatchesTheFullScanOnEveryCorpusFile) {
+  const fs::path root = fs::path(VKUNROLL_SOURCE_DIR) / "tests" / "fuzz_corpus";
+  size_t files = 0, index_files = 0;
+  for (const auto& dir : fs::directory_iterator(root)) {
+    if (!dir.is_directory()) continue;
+    for (const auto& entry : fs::directory_iterator(dir.path())) {
+      const std::vector<uint8_t> bytes = read_bytes(entry.path().string());
+      SCOPED_TRACE(entry.path().string());
+      EXPECT_TRUE(fuzz::index_matches_full_scan(bytes.data(), bytes.size()));
+      ++files;
+      index_files += dir.path().filename() == "index";
+    }
+  }
+  EXPECT_GE(index_files, 8u);
   EXPECT_GE(files, 20u);
 }
 

@@ -149,6 +149,12 @@ TEST(EventReliability, HostileInputsGetClearErrors) {
       {"evt21.raw", text_bytes("% evt 2.1\nxxxx"), {"EVT 2.1 is not supported"}},
       {"hugeline.raw", text_bytes("% " + std::string(70000, 'x') + "\n"), {"longer than 64 KiB"}},
       {"neg.txt", text_bytes("10 -1 2 1\n"), {"record 0 (line 1)", "x=-1", "outside"}},
+      {"neg.npy", [] {
+         std::vector<uint8_t> d;
+         for (int64_t v : {int64_t(10), int64_t(-1), int64_t(2), int64_t(1)})
+           for (int k = 0; k < 8; ++k) d.push_back(uint8_t(uint64_t(v) >> (8 * k)));
+         return encode_npy("{'descr': '<i8', 'fortran_order': False, 'shape': (1, 4), }", d);
+       }(), {"record 0", "x=-1", "outside"}},
       {"order.txt", text_bytes("10 1 2 1\n5 1 2 1\n"), {"record 1 (line 2)", "earlier than the previous"}},
       {"pol.txt", text_bytes("10 1 2 0.5\n"), {"polarity '0.5'"}},
       {"fields.txt", text_bytes("10 1 2\n"), {"has 3 fields, expected at least 4"}},

@@ -24,7 +24,8 @@ struct FileReaderState {
   EventReadOptions options;
   std::string format;
   bool empty = false;
-  std::unique_ptr<FileSource> src;   // every format but h5 and npz
+  std::unique_ptr<ByteSource> src;   // every format but h5 and npz
+  bool in_memory = false;            // a memory source (fuzzing): never released
   std::unique_ptr<NpzArchive> npz;   // members opened once: CRC checked, inflate index kept
   StreamIndex index;
   std::vector<int64_t> prefix_max;   // running max of the segments' t_max (for the binary search)
@@ -173,9 +174,31 @@ bool EventFileReader::may_have_events_in(int64_t t_begin_us, int64_t t_end_us) {
 }
 
 void EventFileReader::release_files() {
+  if (s_->in_memory) return;
   s_->src.reset();
   s_->npz.reset();
 }
+
+EventFileReader::EventFileReader(std::unique_ptr<detail::FileReaderState> state) : s_(std::move(state)) {}
+
+namespace detail {
+
+EventFileReader memory_file_reader(const std::string& name, const uint8_t* data, size_t size, const std::string& format,
+                                   const EventReadOptions& options) {
+  auto s = std::make_unique<FileReaderState>();
+  s->path = name;
+  s->options = options;
+  s->options.t_begin_us.reset();
+  s->options.t_end_us.reset();
+  s->format = canonical_format(format);
+  s->src = std::make_unique<MemorySource>(name, data, size);
+  s->in_memory = true;
+  if (!s->streamed() && s->format != "npy")
+    throw Error(name + ": memory readers take the streamed formats and npy, not '" + format + "'");
+  return EventFileReader(std::move(s));
+}
+
+}  // namespace detail
 
 const EventTotals& EventFileReader::totals() const { return s_->totals; }
 const std::string& EventFileReader::path() const { return s_->path; }

@@ -47,6 +47,9 @@ class EventFileReader {
   // Checkpoints of the streamed formats' index so far (0 for random-access formats).
   size_t checkpoints() const;
 
+  // For detail::memory_file_reader (the fuzzers read bytes from memory).
+  explicit EventFileReader(std::unique_ptr<detail::FileReaderState> state);
+
  private:
   std::unique_ptr<detail::FileReaderState> s_;
 };

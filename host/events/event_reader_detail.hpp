@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "vkunroll/host/events/event_file_reader.hpp"
 #include "vkunroll/host/events/event_index_detail.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #include "vkunroll/base/error.hpp"
@@ -239,6 +240,11 @@ std::string canonical_format(const std::string& format);
 void check_event_file(const std::string& path);
 // A 0-byte event file: an empty stream, the report says so (empty_file, records 0).
 EventStream read_empty_file(EventSink& sink);
+
+// An EventFileReader over bytes in memory (a streamed format or npy; the index fuzzer uses it).
+// `data` must outlive the reader.
+EventFileReader memory_file_reader(const std::string& name, const uint8_t* data, size_t size, const std::string& format,
+                                   const EventReadOptions& options);
 
 // Reads `src` with the given (already detected) format into the sink; the fuzzers call this.
 void read_source(const std::string& format, ByteSource& src, EventSink& sink);

@@ -76,8 +76,8 @@ Rational json_time(const nlohmann::json& j, const std::string& where) {
   if (j.is_number()) {
     try {
       return j.is_number_integer() ? Rational(j.get<int64_t>()) : Rational::from_double(j.get<double>());
-    } catch (const Error& e) {
-      throw Error(where + " = " + j.dump() + ": " + e.what());
+    } catch (const Error&) {
+      throw Error(where + " = " + j.dump() + " us is out of range (not representable as an exact time)");
     }
   }
   if (j.is_string()) return Rational::parse(j.get<std::string>(), where);
