@@ -8,6 +8,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "event_test_encoders.hpp"
+#include "event_test_util.hpp"
 #include "vkunroll/host/events/event_writer.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/host/events/sequence.hpp"
@@ -505,4 +506,52 @@ TEST(SequenceIssue18, TwoHundredFrameWindowsEqualOneOffReads) {
   }
   EXPECT_EQ(s.event_totals().records, ev.size());
   EXPECT_EQ(s.event_totals().reads, 200u);
+}
+
+// Fastec's per-frame .npz files: each window reads only the files whose rows overlap it (each file
+// opened once), and returns the merged events of a full read of every file.
+TEST(SequenceIssue18, PerFrameFilesAreSkippedOutsideTheWindow) {
+  const fs::path d = fresh_dir("fastec_files");
+  const int frames = 20;
+  EventStream all;
+  for (int k = 0; k < frames; ++k) {
+    png(d / "RS" / (std::to_string(k) + ".png"), 16, 12);
+    const EventStream ev = evtest::random_stream(300, 16, 12, uint32_t(60 + k), 100000 * k, 550);
+    std::vector<std::pair<std::string, std::vector<uint8_t>>> members;
+    auto column = [&](const char* name, const std::string& descr, auto get) {
+      std::vector<uint8_t> b;
+      for (size_t i = 0; i < ev.size(); ++i) {
+        const int64_t v = get(i);
+        for (int byte = 0; byte < (descr == "<i8" ? 8 : 2); ++byte) b.push_back(uint8_t(uint64_t(v) >> (8 * byte)));
+      }
+      members.emplace_back(std::string(name) + ".npy", evtest::encode_npy("{'descr': '" + descr + "', 'fortran_order': False, "
+                                                                           "'shape': (" + std::to_string(ev.size()) + ",), }", b));
+    };
+    column("x", "<i2", [&](size_t i) { return int64_t(ev.x[i]); });
+    column("y", "<i2", [&](size_t i) { return int64_t(ev.y[i]); });
+    column("p", "<i2", [&](size_t i) { return int64_t(ev.p[i] > 0 ? 1 : 0); });
+    column("t", "<i8", [&](size_t i) { return ev.t[i]; });
+    fs::create_directories(d / "events");
+    evtest::write_npz((d / "events" / (std::to_string(k) + ".npz")).string(), members, k % 2 == 0);
+    for (size_t i = 0; i < ev.size(); ++i) all.push(ev.t[i], ev.x[i], ev.y[i], ev.p[i]);
+  }
+  EXPECT_EQ(detect_sequence_layout(d.string()), SequenceLayout::fastec);
+  for (const BadEventPolicy policy : {BadEventPolicy::error, BadEventPolicy::sort}) {
+    SequenceOptions o;
+    o.events.on_bad = policy;
+    const Sequence s = load_sequence(d.string(), o);
+    for (int k = 0; k + 1 < frames; ++k) {
+      const int64_t a = 100000 * k + 50000, b = a + 100000;
+      EventReadReport rep;
+      const EventStream got = s.read_events(a, b, &rep);
+      std::vector<int64_t> want;
+      for (int64_t t : all.t)
+        if (t >= a && t < b) want.push_back(t);
+      std::sort(want.begin(), want.end());
+      ASSERT_EQ(got.t, want) << "window " << k;
+      if (policy == BadEventPolicy::error || k > 0)  // sort learns each file's span on its first read
+        EXPECT_NE(rep.notes.back().find("2 of 20 per-frame event files"), std::string::npos) << rep.notes.back();
+    }
+    EXPECT_EQ(s.event_totals().reads, uint64_t(frames - 1));
+  }
 }

@@ -10,6 +10,7 @@
 #include "vkunroll/host/events/event_file_reader.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 
 #include "vkunroll/host/events/event_reader_detail.hpp"
@@ -146,8 +147,16 @@ EventStream EventFileReader::read(std::optional<int64_t> t_begin_us, std::option
     s.totals.empty_files = 1;
     return detail::read_empty_file(sink);
   }
-  if (!s.streamed()) detail::run_random(s, sink);
-  else if (o.on_bad == BadEventPolicy::sort) detail::read_all_overlapping(s, sink);
+  if (!s.streamed()) {
+    detail::run_random(s, sink);
+    if (o.on_bad == BadEventPolicy::sort && !s.span_known) {
+      // A sort read decodes every record: the file's valid-time span, for skipping it later.
+      const auto [lo, hi] = sink.valid_time_range();
+      if (lo <= hi) s.span = std::make_pair(double(lo), double(hi));
+      else s.span = std::make_pair(INFINITY, -INFINITY);  // no valid record: no window has events
+      s.span_known = true;
+    }
+  } else if (o.on_bad == BadEventPolicy::sort) detail::read_all_overlapping(s, sink);
   else detail::read_ordered(s, sink);
   EventStream ev = sink.finish();
   s.totals.delivered += ev.size();
@@ -157,7 +166,8 @@ EventStream EventFileReader::read(std::optional<int64_t> t_begin_us, std::option
 bool EventFileReader::may_have_events_in(int64_t t_begin_us, int64_t t_end_us) {
   detail::FileReaderState& s = *s_;
   if (s.empty) return false;
-  if (s.streamed() || s.options.on_bad == BadEventPolicy::sort) return true;
+  if (s.streamed()) return true;
+  if (s.options.on_bad == BadEventPolicy::sort && !s.span_known) return true;  // known after the first read
   if (!s.span_known) {
     if (!s.src && s.format == "npy") s.src = std::make_unique<detail::FileSource>(s.path);
     EventReadReport rep;
@@ -167,9 +177,9 @@ bool EventFileReader::may_have_events_in(int64_t t_begin_us, int64_t t_end_us) {
     const auto [first, last] = sink.probe_result();
     if (first <= last) s.span = std::make_pair(first, last);  // else unsorted or empty: no shortcut
     s.span_known = true;
-    if (!s.span) return true;
   }
   if (!s.span) return true;
+  if (s.span->first > s.span->second) return false;  // sort found no valid record
   return !(s.span->second < double(t_begin_us) || s.span->first >= double(t_end_us));
 }
 

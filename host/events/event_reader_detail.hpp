@@ -142,6 +142,9 @@ class EventSink {
   bool probing() const { return probe_; }
   void probed(double t_first_us, double t_last_us) { probe_first_ = t_first_us, probe_last_ = t_last_us; }
   std::pair<double, double> probe_result() const { return {probe_first_, probe_last_}; }
+  // Smallest and largest time of the valid records since the last checkpoint (of the whole read
+  // for the random-access formats, which have none); min > max when there were none.
+  std::pair<int64_t, int64_t> valid_time_range() const { return {seg_min_, seg_max_}; }
 
   // Flush, sort (policy sort), infer the size when unknown. Returns the kept stream (empty when
   // chunks were delivered to on_chunk).
