@@ -549,8 +549,9 @@ TEST(SequenceIssue18, PerFrameFilesAreSkippedOutsideTheWindow) {
         if (t >= a && t < b) want.push_back(t);
       std::sort(want.begin(), want.end());
       ASSERT_EQ(got.t, want) << "window " << k;
-      if (policy == BadEventPolicy::error || k > 0)  // sort learns each file's span on its first read
+      if (policy == BadEventPolicy::error || k > 0) {  // sort learns each file's span on its first read
         EXPECT_NE(rep.notes.back().find("2 of 20 per-frame event files"), std::string::npos) << rep.notes.back();
+      }
     }
     EXPECT_EQ(s.event_totals().reads, uint64_t(frames - 1));
   }

@@ -70,7 +70,8 @@ struct Sequence {
   const SequenceFrame& frame(int index) const;  // throws Error naming the index and the count
 
  private:
-  mutable std::shared_ptr<SequenceEventReaders> event_readers_;
+  static std::shared_ptr<SequenceEventReaders> make_event_readers();
+  std::shared_ptr<SequenceEventReaders> event_readers_ = make_event_readers();  // never null
 };
 
 // Throws Error naming the file and field on a missing or malformed sequence.

@@ -61,8 +61,10 @@ class SequenceEventReaders {
   }
 };
 
+std::shared_ptr<SequenceEventReaders> Sequence::make_event_readers() { return std::make_shared<SequenceEventReaders>(); }
+
 EventStream Sequence::read_events(int64_t t_begin_us, int64_t t_end_us, EventReadReport* report) const {
-  if (!event_readers_) event_readers_ = std::make_shared<SequenceEventReaders>();
+  if (!event_readers_) throw Error(root + ": read_events on a Sequence that was moved from");
   SequenceEventReaders& c = *event_readers_;
   std::lock_guard<std::mutex> lock(c.mutex);
   c.sync(event_files, event_options);

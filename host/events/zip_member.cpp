@@ -54,8 +54,14 @@ ZipMemberSource::ZipMemberSource(zip_t* z, zip_uint64_t index, const std::string
     corrupt("a stored member of " + std::to_string(size_) + " bytes occupies " + std::to_string(comp_size_));
   raw_ = zip_fopen_index(z_, index_, ZIP_FL_COMPRESSED);
   if (!raw_) throw Error(name() + ": cannot open the zip member (" + zip_strerror(z_) + ")");
-  if (stored_) verify_stored();
-  else index_deflated();
+  try {
+    if (stored_) verify_stored();
+    else index_deflated();
+  } catch (...) {
+    zip_fclose(raw_);  // the destructor does not run for a constructor that throws
+    raw_ = nullptr;
+    throw;
+  }
 }
 
 ZipMemberSource::~ZipMemberSource() {
