@@ -150,6 +150,7 @@ double ceiling_gflops(Context& ctx, Profiler* profile) {
 
 int main(int argc, char** argv) {
   std::string json_path, only;
+  std::vector<ConvShape> custom;  // --shape: these instead of the model's shapes
   bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false;
   std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
   auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
@@ -174,17 +175,33 @@ int main(int argc, char** argv) {
       algo_filter = "," + value() + ",";
     }
     else if (a == "--only") only = value();
+    else if (a == "--shape") {
+      const std::string v = value();
+      ConvShape c;
+      c.name = "custom";
+      long long k, st, ci, co, h, w;
+      char tail = 0;
+      if (std::sscanf(v.c_str(), "%lld,%lld,%lld,%lld,%lld,%lld%c", &k, &st, &ci, &co, &h, &w, &tail) != 6 || k < 1 ||
+          st < 1 || ci < 1 || co < 1 || h < 1 || w < 1) {
+        std::cerr << "vkunroll-bench-kernels: --shape '" << v << "': expected K,STRIDE,CIN,COUT,H,W (positive integers)\n";
+        return 2;
+      }
+      c.k = static_cast<int>(k), c.s = static_cast<int>(st), c.cin = ci, c.cout = co, c.h = h, c.w = w;
+      custom.push_back(c);
+    }
     else if (a == "--reps") reps = std::max(1, std::atoi(value().c_str()));
     else if (a == "-h" || a == "--help") {
       std::cout << "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"
                    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
+                   "                              [--shape K,S,CIN,COUT,H,W]...\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
                    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
                    "Times are the best of --reps (default 2) after a warm-up. The naive shader runs on the\n"
                    "full shape for the 3x3 RDB conv 144->48 and on a band of rows elsewhere (--naive-full:\n"
                    "everywhere; slow). --all-algos also times every other applicable algorithm, --algos A,B\n"
-                   "only the named ones (e.g. direct,gemm).\n";
+                   "only the named ones (e.g. direct,gemm). --shape (repeatable) times that conv2d shape\n"
+                   "(pad K/2) instead of the model's.\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
@@ -205,7 +222,7 @@ int main(int argc, char** argv) {
     std::mt19937 rng(42);
     double worst_fraction = 1e9;
     std::string worst;
-    for (const ConvShape& c : model_shapes()) {
+    for (const ConvShape& c : custom.empty() ? model_shapes() : custom) {
       if (quick && !c.quick) continue;
       if (!only.empty() && c.name.find(only) == std::string::npos) continue;
       const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
