@@ -442,7 +442,8 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       bspec.push_back(px);
       bspec.push_back(static_cast<uint32_t>(blocked_cob_ / 4));
       const Pipeline& pl = ctx_.pipeline("conv2d_blocked", bspec, sizeof(ConvPush));
-      const auto cob = static_cast<uint32_t>((cout_ + kBlockCo - 1) / kBlockCo);
+      // One workgroup layer per batch item and block of blocked_cob_ channels: the shader's COB.
+      const auto cob = static_cast<uint32_t>((cout_ + blocked_cob_ - 1) / blocked_cob_);
       cs.dispatch(pl, {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, br.arg, bo.arg},
                   p,
                   flat_groups(os.h * ((os.w + px - 1) / px), static_cast<uint32_t>(os.n) * cob),
