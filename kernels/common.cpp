@@ -92,9 +92,14 @@ BoundSlice bind_slice(const Slice& s, Access access) {
   const uint64_t begin = first_bytes / align * align;
   const uint64_t end = static_cast<uint64_t>(last) * 4;
   BoundSlice b;
+  b.batch_stride = static_cast<uint32_t>(f.c * plane);
+  if (s.t->context().options().whole_tensor_bindings && s.t->bytes() <= info.max_storage_buffer_range) {
+    b.arg = {s.t->range(), access};
+    b.offset = static_cast<uint32_t>(first);
+    return b;
+  }
   b.arg = {s.t->range(begin, end - begin), access};
   b.offset = static_cast<uint32_t>((first_bytes - begin) / 4);
-  b.batch_stride = static_cast<uint32_t>(f.c * plane);
   return b;
 }
 

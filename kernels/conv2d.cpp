@@ -26,6 +26,16 @@ struct ConvPush {
   uint32_t co0 = 0;  // direct: first output channel of the dispatch (the other shaders ignore it)
 };
 
+// Buffer bytes [begin, end) from a slice's first element to its last (the batch items between included).
+std::pair<uint64_t, uint64_t> element_span(const Slice& s) {
+  const Shape& f = s.t->shape();
+  const uint64_t e = dtype_size(s.t->dtype()), plane = static_cast<uint64_t>(f.h * f.w);
+  const uint64_t first = static_cast<uint64_t>(s.n0 * f.c + s.c0) * plane;
+  const uint64_t last = static_cast<uint64_t>((s.n0 + s.batch() - 1) * f.c + s.c0 + s.channels()) * plane;
+  const uint64_t base = s.t->range().offset;
+  return {base + first * e, base + last * e};
+}
+
 std::string conv_label(const std::string& name, const Conv2dParams& p) {
   // Appends (not operator+ chains): GCC 12 reports a false -Wrestrict on those at -O3.
   std::string label = name;
@@ -400,8 +410,9 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   // direct in several chunks accumulates in the output, so it cannot add a residual that overlaps it.
   const auto residual_overlaps_output = [&] {
     if (!residual || residual->t->range().buffer != out.t->range().buffer) return false;
-    const BufferRange ro = bind_slice(*residual, Access::read).arg.range, oo = bind_slice(out, Access::write).arg.range;
-    return oo.offset < ro.offset + ro.size && ro.offset < oo.offset + oo.size;
+    const auto [rb, re] = element_span(*residual);
+    const auto [ob, oe] = element_span(out);
+    return ob < re && rb < oe;
   };
   if (algo == ConvAlgo::automatic) {
     algo = choose_algorithm(is.h, is.w);

@@ -31,6 +31,10 @@ struct ContextOptions {
   // Enforce at least this minUniformBufferOffsetAlignment (bytes; 0: the device's). Tests use it to
   // check on a lenient device (lavapipe: 16) what a strict one (NVIDIA: 64, others up to 256) needs.
   uint64_t min_uniform_offset_alignment = 0;
+  // Tests: bind_slice binds the whole tensor of every slice (the shader's element offsets then count
+  // from the tensor's start), so a shader that writes outside its slice hits the canary values
+  // around the slice inside the binding instead of past its end, where lavapipe drops the write.
+  bool whole_tensor_bindings = false;
 };
 
 // Limits and features of a physical device, read once.
@@ -83,6 +87,7 @@ class Context {
   static DeviceList enumerate(bool validation = false);
 
   const DeviceInfo& info() const { return info_; }
+  const ContextOptions& options() const { return options_; }
   VkInstance instance() const { return instance_; }
   VkPhysicalDevice physical_device() const { return physical_; }
   VkDevice device() const { return device_; }

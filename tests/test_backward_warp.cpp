@@ -17,8 +17,9 @@ TEST(BackwardWarp, ReferenceKnownValues) {
   EXPECT_EQ(out.data, (std::vector<float>{10, 15, 0, 30}));
 }
 
-TEST(BackwardWarp, MatchesReference) {
-  Context& ctx = vktest::context();
+namespace {
+// The output is a slice among canaries that must survive.
+void run_cases(Context& ctx) {
   std::mt19937 rng(11);
   struct C { int64_t n, c, h, w, img_extra, img_c0, flow_c0; };
   // fp32 bilinear of values in [0, 1]: max abs error 1e-5.
@@ -26,15 +27,23 @@ TEST(BackwardWarp, MatchesReference) {
                                    {1, 2, 10, 1, 0, 0, 0}, {1, 1, 1, 1, 0, 0, 1}}) {
     HostTensor img = random_tensor({c.n, c.c + c.img_extra, c.h, c.w}, rng, 0.f, 1.f);
     HostTensor flow = random_tensor({c.n, 2 + c.flow_c0, c.h, c.w}, rng, -6.f, 6.f);
-    HostTensor out({c.n, c.c, c.h, c.w}), out_ref = out;
-    backward_warp_ref(HostSlice(img, c.img_c0, c.c), HostSlice(flow, c.flow_c0, 2), HostSliceOut(out_ref));
-    Tensor id = img.to_device(ctx), fd = flow.to_device(ctx), od(ctx, out.shape);
+    const CanarySlice os = canary_slice({c.n, c.c, c.h, c.w}, rng);
+    HostTensor out_ref = os.host;
+    backward_warp_ref(HostSlice(img, c.img_c0, c.c), HostSlice(flow, c.flow_c0, 2), os.of(out_ref));
+    Tensor id = img.to_device(ctx), fd = flow.to_device(ctx), od = os.host.to_device(ctx);
     CommandStream cs(ctx);
-    backward_warp(cs, Slice(id, c.img_c0, c.c), Slice(fd, c.flow_c0, 2), Slice(od));
+    backward_warp(cs, Slice(id, c.img_c0, c.c), Slice(fd, c.flow_c0, 2), os.of(od));
     cs.submit_and_wait();
-    EXPECT_LE(max_abs_diff(HostTensor::download(od), out_ref), 1e-5) << c.h << "x" << c.w;
+    const HostTensor out = HostTensor::download(od);
+    EXPECT_LE(max_abs_diff(out, out_ref, os), 1e-5) << c.h << "x" << c.w;
+    EXPECT_EQ(canary_damage(out, os), "") << c.h << "x" << c.w;
   }
 }
+}  // namespace
+
+TEST(BackwardWarp, MatchesReference) { run_cases(vktest::context()); }
+// On a context that binds whole tensors a write outside the output slice lands on a canary.
+TEST(BackwardWarp, WritesNothingOutsideItsSlice) { run_cases(vktest::whole_binding_context()); }
 
 TEST(BackwardWarp, ZeroFlowIsIdentityAndWrongFlowShapeIsAnError) {
   Context& ctx = vktest::context();

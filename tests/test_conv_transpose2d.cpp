@@ -40,15 +40,20 @@ void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit 
     deconv.set_direct_texel_input(direct_texel_input);
     if (!deconv.supports(algo)) continue;
     HostTensor x = random_tensor({c.batch, c.cin + c.in_extra_c, c.h, c.w}, rng);
-    HostTensor y = random_tensor({c.batch, c.cout + c.out_extra_c, 2 * c.h, 2 * c.w}, rng);
-    HostTensor y_ref = y;
-    conv_transpose2d_ref(HostSlice(x, c.in_c0, c.cin), HostSliceOut(y_ref, c.out_c0, c.cout), w, b, p);
-    Tensor xd = x.to_device(ctx), yd = y.to_device(ctx);
+    // The output slice among canaries that must survive (kernel_test_util.hpp).
+    const CanarySlice ys =
+        canary_slice({c.batch, c.cout, 2 * c.h, 2 * c.w}, rng, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1);
+    HostTensor y_ref = ys.host;
+    conv_transpose2d_ref(HostSlice(x, c.in_c0, c.cin), ys.of(y_ref), w, b, p);
+    Tensor xd = x.to_device(ctx), yd = ys.host.to_device(ctx);
     CommandStream cs(ctx);
-    deconv.record(cs, Slice(xd, c.in_c0, c.cin), Slice(yd, c.out_c0, c.cout), algo);
+    deconv.record(cs, Slice(xd, c.in_c0, c.cin), ys.of(yd), algo);
     cs.submit_and_wait();
-    EXPECT_LE(max_abs_diff(HostTensor::download(yd), y_ref), kTol)
-        << conv_transpose_algo_name(algo) << " " << c.cin << "->" << c.cout << " " << c.h << "x" << c.w;
+    const HostTensor y = HostTensor::download(yd);
+    const std::string what = std::string(conv_transpose_algo_name(algo)) + " " + std::to_string(c.cin) + "->" +
+                             std::to_string(c.cout) + " " + std::to_string(c.h) + "x" + std::to_string(c.w);
+    EXPECT_LE(max_abs_diff(y, y_ref, ys), kTol) << what;
+    EXPECT_EQ(canary_damage(y, ys), "") << what;
     ++ran;
   }
   EXPECT_GT(ran, 0);
@@ -70,6 +75,16 @@ TEST(ConvTranspose2d, DirectInChunksOnAStrictUniformAlignment) {
 // The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
 TEST(ConvTranspose2d, DirectStorageInputMatchesReference) { run_cases(ConvTransposeAlgo::direct, 0, false); }
 TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases(ConvTransposeAlgo::automatic); }
+
+// Every algorithm on a context that binds whole tensors: a write outside the output slice lands on
+// a canary inside the binding (lavapipe drops writes past a binding).
+TEST(ConvTranspose2d, WritesNothingOutsideItsSlice) {
+  Context& ctx = vktest::whole_binding_context();
+  for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+    run_cases(ctx, a);
+  run_cases(ctx, ConvTransposeAlgo::direct, 3);
+  run_cases(ctx, ConvTransposeAlgo::direct, 0, false);
+}
 
 TEST(ConvTranspose2d, ReferenceKnownValues) {
   // One input pixel of value 1: output (oy, ox) of the 2x2 result is weight (oy+1, ox+1) + bias.

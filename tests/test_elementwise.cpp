@@ -13,8 +13,9 @@ namespace {
 constexpr double kTol = 1e-6;  // one or two fp32 roundings of values of order 1 (tanh/exp: 1e-6)
 }
 
-TEST(Elementwise, EveryOpMatchesReference) {
-  Context& ctx = vktest::context();
+namespace {
+// Every op into a slice among canaries that must survive.
+void run_cases(Context& ctx) {
   std::mt19937 rng(17);
   for (Shape s : {Shape{2, 5, 7, 9}, Shape{2, 3, 1, 1}, Shape{2, 6, 1, 13}}) {
     // One tensor holding two batch items and extra channels; ops read channel slices of it.
@@ -24,36 +25,50 @@ TEST(Elementwise, EveryOpMatchesReference) {
     const HostSlice a(t, 0, s.c), b(t, s.c, s.c);
     const Slice ad(td, 0, s.c), bd(td, s.c, s.c);
     const Shape half{1, s.c, s.h, s.w};
-    struct Out { HostTensor ref; Tensor dev; };
+    struct Out {
+      CanarySlice cs;
+      HostTensor ref;
+      Tensor dev;
+    };
     std::vector<Out> outs;
     CommandStream cs(ctx);
     auto next = [&](Shape os) -> Out& {
-      outs.push_back({HostTensor(os), Tensor(ctx, os)});
+      CanarySlice c = canary_slice(os, rng);
+      HostTensor ref = c.host;
+      Tensor dev = c.host.to_device(ctx);
+      outs.push_back({std::move(c), std::move(ref), std::move(dev)});
       return outs.back();
     };
     outs.reserve(16);
-    { Out& o = next(s); add_ref(a, b, HostSliceOut(o.ref)); add(cs, ad, bd, Slice(o.dev)); }
-    { Out& o = next(s); copy_ref(b, HostSliceOut(o.ref)); copy(cs, bd, Slice(o.dev)); }
-    { Out& o = next(s); clamp01_ref(a, HostSliceOut(o.ref)); clamp01(cs, ad, Slice(o.dev)); }
+    { Out& o = next(s); add_ref(a, b, o.cs.of(o.ref)); add(cs, ad, bd, o.cs.of(o.dev)); }
+    { Out& o = next(s); copy_ref(b, o.cs.of(o.ref)); copy(cs, bd, o.cs.of(o.dev)); }
+    { Out& o = next(s); clamp01_ref(a, o.cs.of(o.ref)); clamp01(cs, ad, o.cs.of(o.dev)); }
     for (Activation k : {Activation::none, Activation::leaky_relu, Activation::tanh, Activation::sigmoid,
                          Activation::hardsigmoid}) {
       Out& o = next(s);
-      scale_act_ref(a, HostSliceOut(o.ref), {k, 0.2f}, 100.f);
-      scale_act(cs, ad, Slice(o.dev), {k, 0.2f}, 100.f);
+      scale_act_ref(a, o.cs.of(o.ref), {k, 0.2f}, 100.f);
+      scale_act(cs, ad, o.cs.of(o.dev), {k, 0.2f}, 100.f);
     }
     {  // MOA: m * (item 0) + (1 - m) * (item 1), the mask from item 0 of m.
       Out& o = next(half);
-      blend_ref(HostSlice(m, 0, 1, 0, 1), HostSlice(t, 0, s.c, 0, 1), HostSlice(t, 0, s.c, 1, 1), HostSliceOut(o.ref));
-      blend(cs, Slice(md, 0, 1, 0, 1), Slice(td, 0, s.c, 0, 1), Slice(td, 0, s.c, 1, 1), Slice(o.dev));
+      blend_ref(HostSlice(m, 0, 1, 0, 1), HostSlice(t, 0, s.c, 0, 1), HostSlice(t, 0, s.c, 1, 1), o.cs.of(o.ref));
+      blend(cs, Slice(md, 0, 1, 0, 1), Slice(td, 0, s.c, 0, 1), Slice(td, 0, s.c, 1, 1), o.cs.of(o.dev));
     }
     cs.submit_and_wait();
     for (size_t i = 0; i < outs.size(); ++i) {
       // scale_act multiplies by 100: its tolerance scales with it.
       const double tol = (i >= 3 && i < 8) ? 100 * kTol : kTol;
-      EXPECT_LE(max_abs_diff(HostTensor::download(outs[i].dev), outs[i].ref), tol) << "op " << i << " " << s.str();
+      const HostTensor got = HostTensor::download(outs[i].dev);
+      EXPECT_LE(max_abs_diff(got, outs[i].ref, outs[i].cs), tol) << "op " << i << " " << s.str();
+      EXPECT_EQ(canary_damage(got, outs[i].cs), "") << "op " << i << " " << s.str();
     }
   }
 }
+}  // namespace
+
+TEST(Elementwise, EveryOpMatchesReference) { run_cases(vktest::context()); }
+// On a context that binds whole tensors a write outside an output slice lands on a canary.
+TEST(Elementwise, WritesNothingOutsideItsSlice) { run_cases(vktest::whole_binding_context()); }
 
 TEST(Elementwise, InPlaceAddAndCopyIntoAConcatenation) {
   Context& ctx = vktest::context();

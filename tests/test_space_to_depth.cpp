@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
+#include "kernels/elementwise.hpp"
 #include "kernels/space_to_depth.hpp"
 #include "runtime/context.hpp"
 #include "vk_test_env.hpp"
@@ -9,27 +10,35 @@
 using namespace vkunroll;
 using namespace vkunroll::ktest;
 
-// Pure data movement: the GPU result must be bit-exact (tolerance 0).
-TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlices) {
-  Context& ctx = vktest::context();
+namespace {
+// Pure data movement: the GPU result must be bit-exact (tolerance 0). Both outputs are slices among
+// canaries that must survive.
+void run_cases(Context& ctx) {
   std::mt19937 rng(5);
   struct C { int64_t n, c, h, w, extra_in, c0_in, extra_out, c0_out; };
   for (const C& c : std::vector<C>{{1, 3, 8, 6, 0, 0, 0, 0}, {2, 5, 7, 9, 2, 1, 4, 4}, {1, 1, 1, 1, 0, 0, 0, 0},
                                    {1, 2, 1, 13, 1, 1, 0, 0}, {1, 99, 12, 10, 0, 0, 0, 0}}) {
     HostTensor x = random_tensor({c.n, c.c + c.extra_in, c.h, c.w}, rng);
     const Shape os = space_to_depth_shape({c.n, c.c, c.h, c.w});
-    HostTensor y = random_tensor({c.n, os.c + c.extra_out, os.h, os.w}, rng), y_ref = y;
-    space_to_depth_ref(HostSlice(x, c.c0_in, c.c), HostSliceOut(y_ref, c.c0_out, os.c));
-    Tensor xd = x.to_device(ctx), yd = y.to_device(ctx);
+    const CanarySlice ys = canary_slice(os, rng, c.c0_out + 1, c.extra_out - c.c0_out + 1);
+    HostTensor y_ref = ys.host;
+    space_to_depth_ref(HostSlice(x, c.c0_in, c.c), ys.of(y_ref));
+    Tensor xd = x.to_device(ctx), yd = ys.host.to_device(ctx);
     // And back: depth_to_space of the result restores the input (cropped to its size).
-    Tensor back(ctx, {c.n, c.c, os.h * 2, os.w * 2});
+    const CanarySlice bs = canary_slice({c.n, c.c, os.h * 2, os.w * 2}, rng);
+    Tensor back = bs.host.to_device(ctx);
     CommandStream cs(ctx);
-    space_to_depth(cs, Slice(xd, c.c0_in, c.c), Slice(yd, c.c0_out, os.c));
-    depth_to_space(cs, Slice(yd, c.c0_out, os.c), Slice(back));
+    space_to_depth(cs, Slice(xd, c.c0_in, c.c), ys.of(yd));
+    depth_to_space(cs, ys.of(yd), bs.of(back));
     cs.submit_and_wait();
-    EXPECT_EQ(max_abs_diff(HostTensor::download(yd), y_ref), 0.0) << c.h << "x" << c.w;
-    HostTensor b = HostTensor::download(back), b_ref({c.n, c.c, os.h * 2, os.w * 2});
-    depth_to_space_ref(HostSlice(y_ref, c.c0_out, os.c), HostSliceOut(b_ref));
+    const HostTensor y = HostTensor::download(yd);
+    EXPECT_EQ(max_abs_diff(y, y_ref, ys), 0.0) << c.h << "x" << c.w;
+    EXPECT_EQ(canary_damage(y, ys), "") << "space_to_depth " << c.h << "x" << c.w;
+    const HostTensor bd = HostTensor::download(back);
+    EXPECT_EQ(canary_damage(bd, bs), "") << "depth_to_space " << c.h << "x" << c.w;
+    HostTensor b({c.n, c.c, os.h * 2, os.w * 2}), b_ref = b;
+    copy_ref(HostSlice(bd, bs.c0, bs.c, bs.n0, bs.n), HostSliceOut(b));
+    depth_to_space_ref(HostSlice(y_ref, ys.c0, ys.c, ys.n0, ys.n), HostSliceOut(b_ref));
     EXPECT_EQ(max_abs_diff(b, b_ref), 0.0);
     for (int64_t ch = 0; ch < c.c; ++ch)
       for (int64_t yy = 0; yy < os.h * 2; ++yy)
@@ -37,6 +46,11 @@ TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlices) {
           ASSERT_EQ(b.at(0, ch, yy, xx), (yy < c.h && xx < c.w) ? x.at(0, c.c0_in + ch, yy, xx) : 0.f);
   }
 }
+}  // namespace
+
+TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlices) { run_cases(vktest::context()); }
+// On a context that binds whole tensors a write outside an output slice lands on a canary.
+TEST(SpaceToDepth, WritesNothingOutsideItsSlice) { run_cases(vktest::whole_binding_context()); }
 
 TEST(SpaceToDepth, PixelUnshuffleChannelOrder) {
   // 1 channel 2x2 [[a b] [c d]] -> 4 channels a, b, c, d (channel = i*2 + j).

@@ -17,6 +17,11 @@ std::unique_ptr<Context>& strict_slot() {
   return ctx;
 }
 
+std::unique_ptr<Context>& whole_slot() {
+  static std::unique_ptr<Context> ctx;
+  return ctx;
+}
+
 class ValidationListener : public ::testing::EmptyTestEventListener {
   void OnTestStart(const ::testing::TestInfo&) override {
     if (context_created()) context().clear_validation_messages();
@@ -52,6 +57,19 @@ Context& strict_uniform_context() {
   return *strict;
 }
 
+Context& whole_binding_context() {
+  std::unique_ptr<Context>& whole = whole_slot();
+  if (!whole) {
+    ContextOptions o;
+    o.validation = true;
+    o.validation_fatal = true;
+    o.announce = false;
+    o.whole_tensor_bindings = true;
+    whole = std::make_unique<Context>(o);
+  }
+  return *whole;
+}
+
 bool context_created() { return slot() != nullptr; }
 
 std::string shared_path(const std::string& rel) {
@@ -66,6 +84,7 @@ int main(int argc, char** argv) {
   ::testing::UnitTest::GetInstance()->listeners().Append(new vkunroll::vktest::ValidationListener);
   const int rc = RUN_ALL_TESTS();
   vkunroll::vktest::strict_slot().reset();
+  vkunroll::vktest::whole_slot().reset();
   vkunroll::vktest::slot().reset();
   return rc;
 }
