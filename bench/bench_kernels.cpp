@@ -151,6 +151,12 @@ double ceiling_gflops(Context& ctx, Profiler* profile) {
 int main(int argc, char** argv) {
   std::string json_path, only;
   std::vector<ConvShape> custom;  // --shape: these instead of the model's shapes
+  ConvOptions conv_options;       // --blocked-cob ... (validated by the convs)
+  const std::vector<std::pair<std::string, int*>> option_flags{
+      {"--blocked-cob", &conv_options.blocked_cob}, {"--blocked-px", &conv_options.blocked_px},
+      {"--direct-cob", &conv_options.direct_cob},   {"--direct-px", &conv_options.direct_px},
+      {"--direct-py", &conv_options.direct_py},     {"--gemm-cob", &conv_options.gemm_cob},
+      {"--gemm-tv", &conv_options.gemm_tv}};
   bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false;
   std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
   auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
@@ -164,7 +170,9 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (a == "--json") json_path = value();
+    const auto flag = std::find_if(option_flags.begin(), option_flags.end(), [&](const auto& f) { return f.first == a; });
+    if (flag != option_flags.end()) *flag->second = std::atoi(value().c_str());
+    else if (a == "--json") json_path = value();
     else if (a == "--profile") profile = true;
     else if (a == "--quick") quick = true;
     else if (a == "--no-naive") naive = false;
@@ -193,7 +201,9 @@ int main(int argc, char** argv) {
     else if (a == "-h" || a == "--help") {
       std::cout << "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"
                    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
-                   "                              [--shape K,S,CIN,COUT,H,W]...\n"
+                   "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
+                   "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
+                   "                              [--gemm-tv N]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
                    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
@@ -201,7 +211,8 @@ int main(int argc, char** argv) {
                    "full shape for the 3x3 RDB conv 144->48 and on a band of rows elsewhere (--naive-full:\n"
                    "everywhere; slow). --all-algos also times every other applicable algorithm, --algos A,B\n"
                    "only the named ones (e.g. direct,gemm). --shape (repeatable) times that conv2d shape\n"
-                   "(pad K/2) instead of the model's.\n";
+                   "(pad K/2) instead of the model's. The --blocked-cob ... flags set the convs' ConvOptions\n"
+                   "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice).\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
@@ -235,7 +246,7 @@ int main(int argc, char** argv) {
       double flop = 0;
       if (c.transposed) {
         deconv.emplace(ctx, random_host({c.cin, c.cout, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
-                       ConvTranspose2dParams{c.k, c.s, 1, leaky_relu(0.1f)}, c.name);
+                       ConvTranspose2dParams{c.k, c.s, 1, leaky_relu(0.1f)}, c.name, conv_options);
         os = deconv->output_shape(xd.shape());
         flop = deconv->flop(xd.shape());
         const ConvTransposeAlgo chosen = deconv->choose_algorithm(c.h, c.w);
@@ -246,13 +257,13 @@ int main(int argc, char** argv) {
               algos.push_back(conv_transpose_algo_name(a));
       } else {
         conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
-                     Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name);
+                     Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name, nullptr, conv_options);
         os = conv->output_shape(xd.shape());
         flop = conv->flop(xd.shape());
         const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
         algos.push_back(conv_algo_name(chosen));
         if (all_algos)
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
             if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
       }
       Tensor yd(ctx, os);
@@ -261,7 +272,7 @@ int main(int argc, char** argv) {
           for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
             if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
         } else {
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
             if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
         }
       };

@@ -103,8 +103,6 @@ BoundSlice bind_slice(const Slice& s, Access access) {
   return b;
 }
 
-std::string shape_str(const Shape& s) { return s.str(); }
-
 UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit) {
   UniformSlabChunks c;
   const int64_t a = static_cast<int64_t>(info.min_uniform_buffer_offset_alignment);

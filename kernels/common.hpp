@@ -116,7 +116,4 @@ struct BoundSlice {
 };
 BoundSlice bind_slice(const Slice& s, Access access);
 
-// "2x48x130x173" for messages and dispatch names.
-std::string shape_str(const Shape& s);
-
 }  // namespace vkunroll

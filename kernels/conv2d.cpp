@@ -1,8 +1,6 @@
 #include "kernels/conv2d.hpp"
 
 #include <algorithm>
-#include <cstdlib>
-#include <cstring>
 
 #include "runtime/context.hpp"
 #include "runtime/pipeline.hpp"
@@ -10,7 +8,6 @@
 namespace vkunroll {
 
 namespace {
-constexpr int64_t kBlockCo = 8;  // output channels per invocation in the blocked path (or 16)
 constexpr int64_t kDirectWideMinCin = 128;  // 1x1 convs from here use the wide direct blocks
 
 // Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
@@ -50,7 +47,6 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::automatic: return "automatic";
     case ConvAlgo::naive: return "naive";
     case ConvAlgo::blocked: return "blocked";
-    case ConvAlgo::subgroup: return "subgroup";
     case ConvAlgo::winograd: return "winograd";
     case ConvAlgo::gemm: return "gemm";
     case ConvAlgo::direct: return "direct";
@@ -115,8 +111,9 @@ const Tensor& ConvWorkspace::get(Context& ctx, int slot, int64_t floats) {
 }
 
 Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
-               std::string name, std::shared_ptr<ConvWorkspace> workspace)
+               std::string name, std::shared_ptr<ConvWorkspace> workspace, const ConvOptions& options)
     : ctx_(ctx), name_(std::move(name)), params_(params), workspace_(std::move(workspace)) {
+  options.validate(name_);
   const int k = params.kernel;
   if (k < 1 || params.stride < 1 || params.pad < 0)
     throw Error(name_ + ": invalid kernel " + std::to_string(k) + " stride " + std::to_string(params.stride) +
@@ -132,12 +129,13 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   std::vector<float> b = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
 
   // Only the packing `automatic` uses is uploaded now; the others (naive, blocked as the fallback,
-  // subgroup) on first use, from this host copy.
+  // direct) on first use, from this host copy.
   weight_host_ = weight;
   bias_host_ = b;
   bias_ = HostTensor(Shape{1, 1, 1, cout_}, b).to_device(ctx);
-  blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
-  if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
+  // 16 channels per invocation halve the input loads per FMA where cout allows it without waste.
+  blocked_cob_ = options.blocked_cob ? options.blocked_cob : (cout_ % 16 == 0 ? 16 : 8);
+  blocked_px_ = static_cast<uint32_t>(options.blocked_px ? options.blocked_px : 8);
   direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
   // Wide 1x1 convs: more output channels per invocation, so each loaded input value feeds more
   // FMAs; 4 pixels x 48 or 8 x 32 measured best there (bench_kernels on lavapipe).
@@ -149,14 +147,14 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   } else if (k == 1 && params.stride == 1 && direct_cob_ == 16) {
     direct_px_ = 12;  // narrower 1x1 convs (32->32, 64->64): 12 px x 16 channels, 1.1-1.2x over 8 px
   }
-  if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
+  if (options.direct_cob) direct_cob_ = options.direct_cob;
   // Heads (1-4 output channels): 8 rows per invocation, 1.1-1.5x over 4 (lavapipe, pred convs).
   direct_py_ = (cout_ <= 4 && k > 1) ? 8 : 1;
-  if (const char* c = std::getenv("VKUNROLL_DIRECT_PX")) direct_px_ = static_cast<uint32_t>(std::atoi(c));
-  if (const char* c = std::getenv("VKUNROLL_DIRECT_PY")) direct_py_ = static_cast<uint32_t>(std::atoi(c));
-  if (const char* g = std::getenv("VKUNROLL_CONV_G")) subgroup_g_ = static_cast<uint32_t>(std::atoi(g));
-  else subgroup_g_ = (cout_ % 24 == 0 || cout_ == 3) ? 3 : 2;
-  const int64_t kk = static_cast<int64_t>(k) * k;
+  if (options.direct_px) direct_px_ = static_cast<uint32_t>(options.direct_px);
+  if (options.direct_py) direct_py_ = static_cast<uint32_t>(options.direct_py);
+  gemm_cob_ = options.gemm_cob ? options.gemm_cob : (cout_ % 16 == 0 ? 16 : 8);
+  gemm_tv_ = static_cast<uint32_t>(options.gemm_tv ? options.gemm_tv : 4);
+  gemm_cout_pad_ = (cout_ + gemm_cob_ - 1) / gemm_cob_ * gemm_cob_;
 
   const bool wino_s2 = k == 3 && params.stride == 2 && params.pad == 1;
   if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2) || wino_s2) {
@@ -166,13 +164,10 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
     // Stride 2: four phase images (a, b); tap (i', j') of the 3x3 kernel on phase a reads kernel row
     // 1 (a = 0, i' = 1) or rows 0 and 2 (a = 1, i' = 0 and 1); every other tap is zero.
     winograd_ks_ = (k == 5 || wino_s2) ? 2 : 1;
-    winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
-    if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
-    winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
     const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
     static const double Gm[6][3] = {{1.0 / 4, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
                                     {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
-    std::vector<float> u(static_cast<size_t>(36 * cv * winograd_cout_pad_), 0.f);
+    std::vector<float> u(static_cast<size_t>(36 * cv * gemm_cout_pad_), 0.f);
     for (int64_t sblk = 0; sblk < winograd_ks_ * winograd_ks_; ++sblk) {
       const int64_t oy = 3 * (sblk / winograd_ks_), ox = 3 * (sblk % winograd_ks_);
       const int64_t pa = sblk / 2, pb = sblk % 2;
@@ -201,23 +196,19 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
             for (int j = 0; j < 6; ++j) {
               double acc = 0;
               for (int t = 0; t < 3; ++t) acc += gg[i][t] * Gm[j][t];
-              u[static_cast<size_t>(((i * 6 + j) * cv + vc) * winograd_cout_pad_ + co)] = static_cast<float>(acc);
+              u[static_cast<size_t>(((i * 6 + j) * cv + vc) * gemm_cout_pad_ + co)] = static_cast<float>(acc);
             }
         }
     }
     weight_winograd_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
   }
   if (k == 1 && params.stride == 1 && params.pad == 0) {
-    winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
-    if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
-    winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
-    std::vector<float> u(static_cast<size_t>(cin_ * winograd_cout_pad_), 0.f);
+    std::vector<float> u(static_cast<size_t>(cin_ * gemm_cout_pad_), 0.f);
     for (int64_t co = 0; co < cout_; ++co)
       for (int64_t ci = 0; ci < cin_; ++ci)
-        u[static_cast<size_t>(ci * winograd_cout_pad_ + co)] = weight.data[static_cast<size_t>(co * cin_ + ci)];
+        u[static_cast<size_t>(ci * gemm_cout_pad_ + co)] = weight.data[static_cast<size_t>(co * cin_ + ci)];
     weight_gemm_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u).to_device(ctx);
   }
-  (void)kk;
   if (weight_winograd_.empty() && weight_gemm_.empty()) pack_blocked();
 }
 
@@ -229,7 +220,6 @@ void Conv2d::pack_naive() const {
 void Conv2d::pack_blocked() const {
   if (!weight_blocked_.empty()) return;
   // Blocked layout: [cout/COB][cin][k][k][COB], output channels zero-padded to a multiple of COB.
-  // 16 channels per invocation halve the input loads per FMA where cout allows it without waste.
   const HostTensor& weight = weight_host_;
   const std::vector<float>& b = bias_host_;
   const int64_t BC = blocked_cob_, kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
@@ -244,26 +234,6 @@ void Conv2d::pack_blocked() const {
   }
   weight_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb).to_device(ctx_);
   bias_blocked_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb).to_device(ctx_);
-}
-
-void Conv2d::pack_subgroup() const {
-  if (!weight_subgroup_.empty()) return;
-  // Subgroup layout: [cout/(8G)][cin/4][k*k][G][8] of vec4 (4 input channels), zero-padded.
-  const HostTensor& weight = weight_host_;
-  const std::vector<float>& b = bias_host_;
-  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
-  const int64_t G = subgroup_g_, cog = (cout_ + 8 * G - 1) / (8 * G), c4 = (cin_ + 3) / 4;
-  std::vector<float> ws(static_cast<size_t>(cog * c4 * kk * G * 8 * 4), 0.f), bs(static_cast<size_t>(cog * G * 8), 0.f);
-  for (int64_t co = 0; co < cout_; ++co) {
-    bs[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
-    const int64_t cg = co / (8 * G), g = (co / 8) % G, lane = co % 8;
-    for (int64_t ci = 0; ci < cin_; ++ci)
-      for (int64_t t = 0; t < kk; ++t)
-        ws[static_cast<size_t>(((((cg * c4 + ci / 4) * kk + t) * G + g) * 8 + lane) * 4 + ci % 4)] =
-            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
-  }
-  weight_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws).to_device(ctx_);
-  bias_subgroup_ = HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs).to_device(ctx_);
 }
 
 UniformSlabChunks Conv2d::direct_chunks() const {
@@ -306,11 +276,6 @@ WinogradSizes winograd_sizes(const Shape& in) {
 void Conv2d::set_winograd_scratch_limit(uint64_t bytes) { winograd_scratch_limit_ = bytes; }
 
 static int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 15) / 16 * 16; }
-// vec4s of tiles (pixels) per GEMM invocation; VKUNROLL_GEMM_TV overrides (tuning).
-static uint32_t gemm_tv() {
-  const char* e = std::getenv("VKUNROLL_GEMM_TV");
-  return e ? static_cast<uint32_t>(std::atoi(e)) : 4u;
-}
 
 int64_t Conv2d::winograd_chunk(const Shape& in) const {
   const uint64_t limit = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
@@ -327,12 +292,12 @@ int64_t Conv2d::winograd_chunk(const Shape& in) const {
 bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
   if (!supports(algo)) return false;
   if (algo == ConvAlgo::gemm)
-    return static_cast<uint64_t>(winograd_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
+    return static_cast<uint64_t>(gemm_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
            winograd_chunk(in) >= 1;
   if (algo != ConvAlgo::winograd) return true;
   // V is transformed in chunks of input channels; M (all output channels) must fit one binding.
   const WinogradSizes ws = winograd_sizes(output_shape(in));
-  const uint64_t m_bytes = 36ull * static_cast<uint64_t>(winograd_cout_pad_ * ws.tiles_pad) * 4;
+  const uint64_t m_bytes = 36ull * static_cast<uint64_t>(gemm_cout_pad_ * ws.tiles_pad) * 4;
   return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
 }
 
@@ -344,7 +309,6 @@ bool Conv2d::supports(ConvAlgo algo) const {
     case ConvAlgo::naive:
     case ConvAlgo::blocked: return true;
     case ConvAlgo::direct: return direct_cob_ % 4 == 0 && direct_chunks().chunk >= 1;
-    case ConvAlgo::subgroup: return ctx_.info().subgroup_size == 8 && params_.kernel <= 5 && params_.stride <= 2;
     default: return false;
   }
 }
@@ -447,7 +411,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       return;
     }
     case ConvAlgo::blocked: {
-      const uint32_t px = std::getenv("VKUNROLL_PX") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_PX"))) : 8u;
+      const uint32_t px = blocked_px_;
       pack_blocked();
       std::vector<uint32_t> bspec = spec;
       bspec.push_back(px);
@@ -459,17 +423,6 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
                   p,
                   flat_groups(os.h * ((os.w + px - 1) / px), static_cast<uint32_t>(os.n) * cob),
                   info);
-      return;
-    }
-    case ConvAlgo::subgroup: {
-      pack_subgroup();
-      std::vector<uint32_t> sspec = spec;
-      sspec.push_back(subgroup_g_);
-      const Pipeline& pl = ctx_.pipeline("conv2d_subgroup", sspec, sizeof(ConvPush));
-      const int64_t tasks = os.h * ((os.w + 7) / 8), per_wg = 64 / 8;
-      const auto cog = static_cast<uint32_t>((cout_ + 8 * subgroup_g_ - 1) / (8 * subgroup_g_));
-      cs.dispatch(pl, {bi.arg, {weight_subgroup_.range(), Access::read}, {bias_subgroup_.range(), Access::read}, br.arg, bo.arg},
-                  p, Groups{static_cast<uint32_t>((tasks + per_wg - 1) / per_wg), 1, static_cast<uint32_t>(os.n) * cog}, info);
       return;
     }
     case ConvAlgo::direct: {
@@ -520,8 +473,8 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, chunk = winograd_chunk(is);
       const bool s2 = params_.stride == 2;
       const Tensor& vt = workspace_->get(ctx_, 0, 36 * chunk * wz.tiles_pad);
-      const Tensor& mt = workspace_->get(ctx_, 1, 36 * winograd_cout_pad_ * wz.tiles_pad);
-      const BufferRange mr = mt.range(0, static_cast<size_t>(36 * winograd_cout_pad_ * wz.tiles_pad) * 4);
+      const Tensor& mt = workspace_->get(ctx_, 1, 36 * gemm_cout_pad_ * wz.tiles_pad);
+      const BufferRange mr = mt.range(0, static_cast<size_t>(36 * gemm_cout_pad_ * wz.tiles_pad) * 4);
       // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
       for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
         const int64_t cn = std::min(chunk, cv - c0);
@@ -537,19 +490,19 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
                     {info.name + "_wino_in", 0, 4.0 * 36.0 * (cn * wz.tiles_pad) * (1 + 16.0 / 36)});
         struct GemmPush {
           uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
-        } gp{u32(cn), u32(wz.tiles_pad), u32(winograd_cout_pad_), u32(cv), u32(c0)};
-        const uint32_t tv = gemm_tv();
-        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
+        } gp{u32(cn), u32(wz.tiles_pad), u32(gemm_cout_pad_), u32(cv), u32(c0)};
+        const uint32_t tv = gemm_tv_;
+        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
                     {{vr, Access::read}, {weight_winograd_.range(), Access::read},
                      {mr, c0 > 0 ? Access::read_write : Access::write}},
-                    gp, flat_groups(36 * (winograd_cout_pad_ / winograd_cob_) * (wz.tiles_pad / (4 * tv)), 1),
+                    gp, flat_groups(36 * (gemm_cout_pad_ / gemm_cob_) * (wz.tiles_pad / (4 * tv)), 1),
                     {info.name + "_wino_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cv),
-                     4.0 * 36 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * wz.tiles_pad});
+                     4.0 * 36 * (cn + gemm_cout_pad_ * (c0 > 0 ? 2 : 1)) * wz.tiles_pad});
       }
       struct OutPush {
         uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
       } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(cout_), u32(os.h), u32(os.w), u32(wz.tiles_x_pad),
-           u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_cout_pad_)};
+           u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(gemm_cout_pad_)};
       cs.dispatch(ctx_.pipeline("winograd_output", {spec[2], spec[3], spec[4]}, sizeof op),
                   {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
                   Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},
@@ -561,8 +514,8 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
       const int64_t pix_pad = gemm_pix_pad(is), npix = is.n * is.h * is.w, chunk = winograd_chunk(is);
       const Tensor& vt = workspace_->get(ctx_, 0, chunk * pix_pad);
-      const Tensor& mt = workspace_->get(ctx_, 1, winograd_cout_pad_ * pix_pad);
-      const BufferRange mr = mt.range(0, static_cast<size_t>(winograd_cout_pad_ * pix_pad) * 4);
+      const Tensor& mt = workspace_->get(ctx_, 1, gemm_cout_pad_ * pix_pad);
+      const BufferRange mr = mt.range(0, static_cast<size_t>(gemm_cout_pad_ * pix_pad) * 4);
       for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
         const int64_t cn = std::min(chunk, cin_ - c0);
         const BufferRange vr = vt.range(0, static_cast<size_t>(cn * pix_pad) * 4);
@@ -574,14 +527,14 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
                     {info.name + "_gemm_pack", 0, 8.0 * static_cast<double>(cn * pix_pad)});
         struct GemmPush {
           uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
-        } gp{u32(cn), u32(pix_pad), u32(winograd_cout_pad_), u32(cin_), u32(c0)};
-        const uint32_t tv = gemm_tv();
-        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
+        } gp{u32(cn), u32(pix_pad), u32(gemm_cout_pad_), u32(cin_), u32(c0)};
+        const uint32_t tv = gemm_tv_;
+        cs.dispatch(ctx_.pipeline("winograd_gemm", {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
                     {{vr, Access::read}, {weight_gemm_.range(), Access::read},
                      {mr, c0 > 0 ? Access::read_write : Access::write}},
-                    gp, flat_groups((winograd_cout_pad_ / winograd_cob_) * (pix_pad / (4 * tv)), 1),
+                    gp, flat_groups((gemm_cout_pad_ / gemm_cob_) * (pix_pad / (4 * tv)), 1),
                     {info.name + "_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
-                     4.0 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * pix_pad});
+                     4.0 * (cn + gemm_cout_pad_ * (c0 > 0 ? 2 : 1)) * pix_pad});
       }
       struct OutPush {
         uint32_t res_off, res_bs, out_off, out_bs, plane, npix, pix_pad;

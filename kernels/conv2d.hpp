@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "kernels/common.hpp"
+#include "kernels/conv_options.hpp"
 
 namespace vkunroll {
 
@@ -21,7 +22,7 @@ enum class ConvAlgo : uint32_t {
   automatic = 0,  // chosen per shape (see choose_algorithm)
   naive = 1,      // one invocation per output value: the baseline
   blocked = 2,    // register blocking: 8 pixels x 8 or 16 output channels per invocation, packed weights
-  subgroup = 3,   // 8-wide subgroups: lanes = 8 output channels, inputs shared by subgroup broadcast
+                  // (3 was `subgroup`, removed: no device choice used it)
   winograd = 4,   // Winograd F(4x4, 3x3): input transform, batched GEMM, output transform; 3x3 stride 1
                   // (pad 1), 5x5 stride 1 (pad 2) as four 3x3 blocks on shifted inputs, 3x3 stride 2
                   // (pad 1) as four 3x3 stride-1 convs on the 2x2 phase images
@@ -57,8 +58,10 @@ class Conv2d {
  public:
   // Uploads (and repacks) the weights once. weight [cout, cin, k, k]; bias count cout or empty.
   // `workspace`: scratch shared with other convs; null creates a private one when first needed.
+  // `options`: tuning knobs (validated here: an Error names a bad field).
   Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
-         std::string name = "conv2d", std::shared_ptr<ConvWorkspace> workspace = nullptr);
+         std::string name = "conv2d", std::shared_ptr<ConvWorkspace> workspace = nullptr,
+         const ConvOptions& options = {});
 
   // Records out = act(conv(in) + bias) [+ residual]; out and residual have the output's extent.
   void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual = {}) const;
@@ -91,7 +94,6 @@ class Conv2d {
   // Packings other than the automatic path's are uploaded on first use (record is const).
   void pack_naive() const;
   void pack_blocked() const;
-  void pack_subgroup() const;
   void pack_direct() const;
   UniformSlabChunks direct_chunks() const;  // input-channel chunks of the uniform weight slabs
 
@@ -105,10 +107,8 @@ class Conv2d {
   Tensor bias_;                    // [cout]
   mutable Tensor weight_blocked_;  // [ceil(cout/COB)][cin][k*k][COB], zero-padded output channels
   mutable Tensor bias_blocked_;    // [ceil(cout/COB)*COB]
-  int64_t blocked_cob_ = 8;  // output channels per invocation of the blocked path (8 or 16)
-  mutable Tensor weight_subgroup_;  // [cout/(8G)][cin/4][k*k][G][8] vec4 over 4 input channels
-  mutable Tensor bias_subgroup_;    // [cout/(8G)*8G]
-  uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
+  int64_t blocked_cob_ = 8;  // output channels per invocation of the blocked path (4, 8 or 16)
+  uint32_t blocked_px_ = 8;  // output pixels per invocation of the blocked path
   mutable Tensor weight_direct_;  // [ceil(cout/COB)][cin (+ one chunk of padding)][k*k][COB]
   int64_t direct_cob_ = 16;  // output channels per invocation of the direct path
   uint32_t direct_px_ = 8;   // output pixels per row and invocation of the direct path
@@ -117,7 +117,9 @@ class Conv2d {
   bool direct_texel_input_ = true;
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
   Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
-  int64_t winograd_cob_ = 8, winograd_cout_pad_ = 0, winograd_ks_ = 1;
+  int64_t gemm_cob_ = 8;     // output channels per GEMM invocation (winograd and gemm)
+  uint32_t gemm_tv_ = 4;     // vec4s of tiles per GEMM invocation
+  int64_t gemm_cout_pad_ = 0, winograd_ks_ = 1;
   uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
   mutable std::shared_ptr<ConvWorkspace> workspace_;
 };

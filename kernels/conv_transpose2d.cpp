@@ -1,7 +1,6 @@
 #include "kernels/conv_transpose2d.hpp"
 
 #include <algorithm>
-#include <cstdlib>
 
 #include "runtime/context.hpp"
 #include "runtime/pipeline.hpp"
@@ -78,8 +77,9 @@ void conv_transpose2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weig
 }
 
 ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const HostTensor& bias,
-                                 const ConvTranspose2dParams& params, std::string name)
+                                 const ConvTranspose2dParams& params, std::string name, const ConvOptions& options)
     : ctx_(ctx), name_(std::move(name)), params_(params) {
+  options.validate(name_);
   const int k = params.kernel;
   if (k < 1 || params.stride < 1 || params.pad < 0 || params.pad >= k)
     throw Error(name_ + ": invalid kernel " + std::to_string(k) + " stride " + std::to_string(params.stride) +
@@ -100,7 +100,7 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
     // 32 channels per invocation where they divide cout: 3-6% faster than 16 on lavapipe (fewer
     // input loads per FMA), even on 512->256 where the chunks halve.
     direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : (cout_ % 32 == 0 ? 32 : 16));
-    if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
+    if (options.direct_cob) direct_cob_ = options.direct_cob;
     // Blocked layout [cout/8][cin][4][4][8], output channels zero-padded to a multiple of 8.
     const int64_t cob = (cout_ + 7) / 8;
     std::vector<float> wb(static_cast<size_t>(cob * cin_ * 16 * 8), 0.f), bb(static_cast<size_t>(cob * 8), 0.f);

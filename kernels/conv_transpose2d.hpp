@@ -4,6 +4,7 @@
 #include <string>
 
 #include "kernels/common.hpp"
+#include "kernels/conv_options.hpp"
 
 namespace vkunroll {
 
@@ -30,8 +31,10 @@ void conv_transpose2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weig
 
 class ConvTranspose2d {
  public:
+  // `options`: tuning knobs (validated here; only direct_cob applies to transposed convs).
   ConvTranspose2d(Context& ctx, const HostTensor& weight, const HostTensor& bias,
-                  const ConvTranspose2dParams& params = {}, std::string name = "conv_transpose2d");
+                  const ConvTranspose2dParams& params = {}, std::string name = "conv_transpose2d",
+                  const ConvOptions& options = {});
 
   void record(CommandStream& cs, Slice in, Slice out, ConvTransposeAlgo algo = ConvTransposeAlgo::automatic) const;
 

@@ -158,7 +158,6 @@ class EventTensorBuilder {
   Tensor build_on_device(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                          const EventTensorSpec& spec);
 
-  size_t last_events_considered() const { return last_events_; }
   // Limits below the device's (0: device limits); tests use them to exercise chunking.
   void set_chunk_limits(size_t max_jobs_per_chunk, size_t max_events_per_dispatch) {
     max_jobs_ = max_jobs_per_chunk;

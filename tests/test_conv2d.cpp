@@ -3,6 +3,7 @@
 
 #include "kernel_test_util.hpp"
 #include "kernels/conv2d.hpp"
+#include "kernels/conv_transpose2d.hpp"
 #include "runtime/context.hpp"
 #include "vk_test_env.hpp"
 
@@ -68,6 +69,7 @@ struct Limits {
   uint64_t winograd_scratch = ~0ull;
   int64_t direct_chunk = 0;
   bool direct_texel_input = true;
+  ConvOptions options;
 };
 
 // Every case against the reference; the output slice sits among canaries (kernel_test_util.hpp),
@@ -80,7 +82,7 @@ void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const
     const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
     HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
     HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
-    Conv2d conv(ctx, w, b, p);
+    Conv2d conv(ctx, w, b, p, "conv2d", nullptr, lim.options);
     conv.set_winograd_scratch_limit(lim.winograd_scratch);
     conv.set_direct_chunk_limit(lim.direct_chunk);
     conv.set_direct_texel_input(lim.direct_texel_input);
@@ -114,11 +116,6 @@ void run_cases(ConvAlgo algo, const Limits& lim = {}) { run_cases(vktest::contex
 
 TEST(Conv2d, NaiveMatchesReference) { run_cases(ConvAlgo::naive); }
 TEST(Conv2d, BlockedMatchesReference) { run_cases(ConvAlgo::blocked); }
-TEST(Conv2d, SubgroupMatchesReference) {
-  // The subgroup algorithm is written for 8-wide subgroups (lavapipe); elsewhere it never applies.
-  if (vktest::context().info().subgroup_size != 8) GTEST_SKIP() << "subgroup size is not 8";
-  run_cases(ConvAlgo::subgroup);
-}
 TEST(Conv2d, WinogradMatchesReference) { run_cases(ConvAlgo::winograd); }
 // Scratch for 3 input channels' tiles only: several chunks accumulated by the GEMM.
 TEST(Conv2d, WinogradInChunksMatchesReference) { run_cases(ConvAlgo::winograd, {3 * 36 * 4 * 64}); }
@@ -141,13 +138,73 @@ TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
 // by 8 output channels while its shader used 16 (fixed) wrote batch items past the slice here.
 TEST(Conv2d, WritesNothingOutsideItsSlice) {
   Context& ctx = vktest::whole_binding_context();
-  for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm,
-                     ConvAlgo::direct, ConvAlgo::automatic})
+  for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
+                     ConvAlgo::automatic})
     run_cases(ctx, a, canary_cases());
   run_cases(ctx, ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64});
   run_cases(ctx, ConvAlgo::gemm, canary_cases(), {2 * 4 * 80});
   run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 2});
   run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 0, false});
+}
+
+// Non-default tuning knobs change the blocking, never the result.
+TEST(Conv2d, OptionsChangeSpeedNotResults) {
+  Context& ctx = vktest::context();
+  const std::vector<Case> all = canary_cases(), few{all[0], all[2], all[3], all[5]};
+  Limits lim;
+  lim.options.blocked_cob = 4;
+  lim.options.blocked_px = 5;
+  run_cases(ctx, ConvAlgo::blocked, few, lim);
+  lim.options = {};
+  lim.options.direct_cob = 8;
+  lim.options.direct_px = 3;
+  lim.options.direct_py = 2;
+  run_cases(ctx, ConvAlgo::direct, few, lim);
+  lim.options = {};
+  lim.options.gemm_cob = 4;
+  lim.options.gemm_tv = 1;
+  run_cases(ctx, ConvAlgo::winograd, few, lim);
+  run_cases(ctx, ConvAlgo::gemm, few, lim);
+}
+
+TEST(Conv2d, OptionsAreValidatedByName) {
+  Context& ctx = vktest::context();
+  const HostTensor w({8, 4, 3, 3}), b;
+  auto expect_error = [&](ConvOptions o, const std::string& field) {
+    try {
+      Conv2d conv(ctx, w, b, {3, 1, 1, {}}, "my_conv", nullptr, o);
+      ADD_FAILURE() << field << ": no error";
+    } catch (const Error& e) {
+      const std::string m = e.what();
+      EXPECT_NE(m.find("my_conv"), std::string::npos) << m;
+      EXPECT_NE(m.find("ConvOptions::" + field), std::string::npos) << m;
+    }
+  };
+  ConvOptions o;
+  o.blocked_cob = 3;  // was VKUNROLL_BLOCKED_COB (0 there divided by zero)
+  expect_error(o, "blocked_cob");
+  o = {};
+  o.blocked_px = 17;
+  expect_error(o, "blocked_px");
+  o = {};
+  o.direct_cob = 6;
+  expect_error(o, "direct_cob");
+  o = {};
+  o.direct_px = -1;
+  expect_error(o, "direct_px");
+  o = {};
+  o.direct_py = 9;
+  expect_error(o, "direct_py");
+  o = {};
+  o.gemm_cob = 12;
+  expect_error(o, "gemm_cob");
+  o = {};
+  o.gemm_tv = 3;
+  expect_error(o, "gemm_tv");
+  EXPECT_NO_THROW(Conv2d(ctx, w, b, {3, 1, 1, {}}, "ok", nullptr, ConvOptions{}));  // 0 everywhere: defaults
+  ConvOptions t;
+  t.direct_cob = 5;
+  EXPECT_THROW(ConvTranspose2d(ctx, HostTensor({4, 8, 4, 4}), b, {}, "deconv", t), Error);
 }
 
 TEST(Conv2d, AutomaticAvoidsChunkedDirectOnAnOverlappingResidual) {
