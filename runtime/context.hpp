@@ -35,6 +35,9 @@ struct ContextOptions {
   // from the tensor's start), so a shader that writes outside its slice hits the canary values
   // around the slice inside the binding instead of past its end, where lavapipe drops the write.
   bool whole_tensor_bindings = false;
+  // Create the device without its 16-bit storage and fp16 arithmetic features, as on a device that
+  // lacks them (tests of the fp16 refusal).
+  bool without_fp16 = false;
 };
 
 // Limits and features of a physical device, read once.
@@ -46,8 +49,8 @@ struct DeviceInfo {
   uint32_t vendor_id = 0, device_id = 0;
   std::string driver_name, driver_info;
   uint32_t subgroup_size = 0;
-  bool shader_float16 = false;          // fp16 arithmetic in shaders
-  bool storage_buffer_16bit = false;    // fp16 values in storage buffers
+  bool shader_float16 = false;          // fp16 arithmetic in shaders (enabled when present)
+  bool storage_buffer_16bit = false;    // fp16 values in storage buffers (enabled; the fp16 kernels need it)
   uint64_t max_storage_buffer_range = 0;
   uint32_t max_shared_memory = 0;
   uint32_t max_push_constants = 0;
