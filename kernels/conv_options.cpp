@@ -27,6 +27,9 @@ void check_range(const std::string& who, const char* field, int v, int lo, int h
 }  // namespace
 
 void ConvOptions::validate(const std::string& who) const {
+  if (precision != Precision::fp32 && precision != Precision::fp16)
+    throw Error(who + ": ConvOptions::precision = " + std::to_string(static_cast<uint32_t>(precision)) +
+                " is not allowed (fp32 or fp16)");
   check_one_of(who, "blocked_cob", blocked_cob, {4, 8, 16});
   check_range(who, "blocked_px", blocked_px, 1, 16);
   check_range(who, "direct_cob", direct_cob, 4, 64, 4);

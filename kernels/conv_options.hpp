@@ -1,12 +1,17 @@
-// Tuning knobs of the conv kernels (Conv2d, ConvTranspose2d), validated at construction. 0 keeps
-// the kernel's own choice for the shape (docs/kernels.md, "Conv options"). They change speed, never
-// the result beyond rounding.
+// Precision and tuning knobs of the conv kernels (Conv2d, ConvTranspose2d), validated at
+// construction. A knob at 0 keeps the kernel's own choice for the shape (docs/kernels.md, "Conv
+// options"); the knobs change speed, never the result beyond rounding.
 #pragma once
 #include <string>
+
+#include "kernels/common.hpp"
 
 namespace vkunroll {
 
 struct ConvOptions {
+  // The one field that changes results: fp16 stores weights and activations as float16 (measured
+  // errors and the per-op arithmetic: docs/kernels.md, "Precision").
+  Precision precision = Precision::fp32;
   int blocked_cob = 0;  // conv2d blocked: output channels per invocation, 4, 8 or 16 (0: 16 where 16 | cout, else 8)
   int blocked_px = 0;   // conv2d blocked: output pixels per invocation, 1-16 (0: 8)
   int direct_cob = 0;   // direct (conv2d, conv_transpose2d): output channels per invocation, a multiple of 4 up to 64

@@ -1,10 +1,12 @@
 // Helpers of the kernel parity tests: seeded random host tensors and the max abs difference.
 #pragma once
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <string>
 
 #include "kernels/common.hpp"
+#include "runtime/half.hpp"
 #include "runtime/tensor.hpp"
 
 namespace vkunroll::ktest {
@@ -89,6 +91,35 @@ inline std::string canary_damage(const HostTensor& t, const CanarySlice& cs) {
         }
     }
   return bad == 0 ? std::string() : std::to_string(bad) + " canaries overwritten, first " + first;
+}
+
+// Largest |a - b| inside the canary slice over the range of the reference b there, max(1, max |b|),
+// counting only where |b| <= `limit` (fp16: its range) — fp16's error scales with the values' range.
+inline double max_range_rel_diff(const HostTensor& a, const HostTensor& b, const CanarySlice& cs,
+                                 double limit = INFINITY) {
+  if (!(a.shape == b.shape)) return INFINITY;
+  double m = 0, range = 1;
+  for (int pass = 0; pass < 2; ++pass)
+    for (int64_t n = cs.n0; n < cs.n0 + cs.n; ++n)
+      for (int64_t ch = cs.c0; ch < cs.c0 + cs.c; ++ch)
+        for (int64_t y = 0; y < a.shape.h; ++y)
+          for (int64_t x = 0; x < a.shape.w; ++x) {
+            const double r = b.at(n, ch, y, x);
+            if (!(std::fabs(r) <= limit)) continue;
+            if (pass == 0) {
+              range = std::max(range, std::fabs(r));
+              continue;
+            }
+            const double d = std::fabs(static_cast<double>(a.at(n, ch, y, x)) - r) / range;
+            if (!(d <= m)) m = std::isnan(d) ? INFINITY : d;
+          }
+  return m;
+}
+
+// The tensor as fp16 storage keeps it (each value rounded to nearest even half).
+inline HostTensor rounded_to_half(HostTensor t) {
+  for (auto& v : t.data) v = round_to_half(v);
+  return t;
 }
 
 // Largest |a - b| inside the canary slice of two tensors of its layout.

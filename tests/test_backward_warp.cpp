@@ -1,6 +1,9 @@
 // backward_warp: grid_sample(align_corners=True, padding_mode='border') semantics.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cstdio>
+
 #include "kernel_test_util.hpp"
 #include "kernels/backward_warp.hpp"
 #include "runtime/context.hpp"
@@ -18,9 +21,13 @@ TEST(BackwardWarp, ReferenceKnownValues) {
 }
 
 namespace {
-// The output is a slice among canaries that must survive.
-void run_cases(Context& ctx) {
+// The output is a slice among canaries that must survive. fp16: image, flow and output stored as
+// half, against the same fp32 reference (docs/kernels.md, "Precision").
+constexpr double kTolFp16 = 5e-3;
+void run_cases(Context& ctx, Precision prec = Precision::fp32) {
   std::mt19937 rng(11);
+  const DType dt = precision_dtype(prec);
+  double worst = 0;
   struct C { int64_t n, c, h, w, img_extra, img_c0, flow_c0; };
   // fp32 bilinear of values in [0, 1]: max abs error 1e-5.
   for (const C& c : std::vector<C>{{1, 3, 12, 16, 0, 0, 0}, {2, 3, 9, 7, 2, 1, 3}, {1, 3, 1, 11, 0, 0, 0},
@@ -30,20 +37,27 @@ void run_cases(Context& ctx) {
     const CanarySlice os = canary_slice({c.n, c.c, c.h, c.w}, rng);
     HostTensor out_ref = os.host;
     backward_warp_ref(HostSlice(img, c.img_c0, c.c), HostSlice(flow, c.flow_c0, 2), os.of(out_ref));
-    Tensor id = img.to_device(ctx), fd = flow.to_device(ctx), od = os.host.to_device(ctx);
+    Tensor id = img.to_device(ctx, dt), fd = flow.to_device(ctx, dt), od = os.host.to_device(ctx, dt);
     CommandStream cs(ctx);
     backward_warp(cs, Slice(id, c.img_c0, c.c), Slice(fd, c.flow_c0, 2), os.of(od));
     cs.submit_and_wait();
     const HostTensor out = HostTensor::download(od);
-    EXPECT_LE(max_abs_diff(out, out_ref, os), 1e-5) << c.h << "x" << c.w;
+    const double err = max_abs_diff(out, out_ref, os);
+    worst = std::max(worst, err);
+    EXPECT_LE(err, prec == Precision::fp16 ? kTolFp16 : 1e-5) << c.h << "x" << c.w << " " << precision_name(prec);
     EXPECT_EQ(canary_damage(out, os), "") << c.h << "x" << c.w;
   }
+  std::printf("[ measured ] backward_warp %s: max abs error %.3g\n", precision_name(prec), worst);
 }
 }  // namespace
 
 TEST(BackwardWarp, MatchesReference) { run_cases(vktest::context()); }
+TEST(BackwardWarp, Fp16MatchesReference) { run_cases(vktest::context(), Precision::fp16); }
 // On a context that binds whole tensors a write outside the output slice lands on a canary.
-TEST(BackwardWarp, WritesNothingOutsideItsSlice) { run_cases(vktest::whole_binding_context()); }
+TEST(BackwardWarp, WritesNothingOutsideItsSlice) {
+  run_cases(vktest::whole_binding_context());
+  run_cases(vktest::whole_binding_context(), Precision::fp16);
+}
 
 TEST(BackwardWarp, ZeroFlowIsIdentityAndWrongFlowShapeIsAnError) {
   Context& ctx = vktest::context();

@@ -1,6 +1,8 @@
 // conv2d parity: every algorithm against the CPU reference on odd shapes, slices and activations.
 #include <gtest/gtest.h>
 
+#include <cstdio>
+
 #include "kernel_test_util.hpp"
 #include "kernels/conv2d.hpp"
 #include "kernels/conv_transpose2d.hpp"
@@ -13,6 +15,9 @@ using namespace vkunroll::ktest;
 namespace {
 // fp32 with values of order 1 (weights scaled by 1/sqrt(fan-in)): max abs error 1e-4.
 constexpr double kTol = 1e-4;
+// fp16 storage (inputs, weights, residual and output rounded to half; fp32 arithmetic) against the
+// same fp32 reference: see docs/kernels.md, "Precision" for the measured errors.
+constexpr double kTolFp16 = 1e-2;
 
 struct Case {
   int k, s;
@@ -77,6 +82,8 @@ struct Limits {
 void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const Limits& lim = {}) {
   std::mt19937 rng(1234);
   int ran = 0;
+  double worst = 0;
+  const bool fp16 = lim.options.precision == Precision::fp16;
   for (const Case& c : list) {
     const Conv2dParams p{c.k, c.s, c.k / 2, c.act};
     const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
@@ -95,7 +102,8 @@ void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const
     HostTensor y_ref = ys.host;
     conv2d_ref(HostSlice(x, c.in_c0, c.cin, c.in_n0, c.batch), ys.of(y_ref), w, b, p,
                c.residual ? std::optional<HostSlice>(HostSlice(r, 0, -1, c.in_n0, c.batch)) : std::nullopt);
-    Tensor xd = x.to_device(ctx), yd = ys.host.to_device(ctx), rd = r.to_device(ctx);
+    const DType dt = precision_dtype(lim.options.precision);
+    Tensor xd = x.to_device(ctx, dt), yd = ys.host.to_device(ctx, dt), rd = r.to_device(ctx, dt);
     CommandStream cs(ctx);
     conv.record(cs, Slice(xd, c.in_c0, c.cin, c.in_n0, c.batch), ys.of(yd),
                 c.residual ? std::optional<Slice>(Slice(rd, 0, -1, c.in_n0, c.batch)) : std::nullopt, algo);
@@ -105,13 +113,21 @@ void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const
                              std::to_string(c.s) + " " + std::to_string(c.cin) + "->" + std::to_string(c.cout) + " " +
                              std::to_string(c.h) + "x" + std::to_string(c.w) + " batch " + std::to_string(c.batch) +
                              " act " + activation_name(c.act.kind);
-    EXPECT_LE(max_abs_diff(y, y_ref, ys), kTol) << what;
+    const double err = max_abs_diff(y, y_ref, ys);
+    worst = std::max(worst, err);
+    EXPECT_LE(err, fp16 ? kTolFp16 : kTol) << what << " " << precision_name(lim.options.precision);
     EXPECT_EQ(canary_damage(y, ys), "") << what;
     ++ran;
   }
   EXPECT_GT(ran, 0) << "no case applies to " << conv_algo_name(algo);
+  std::printf("[ measured ] conv2d %s %s: max abs error %.3g over %d cases\n", conv_algo_name(algo),
+              precision_name(lim.options.precision), worst, ran);
 }
 void run_cases(ConvAlgo algo, const Limits& lim = {}) { run_cases(vktest::context(), algo, cases(), lim); }
+Limits fp16(Limits lim = {}) {
+  lim.options.precision = Precision::fp16;
+  return lim;
+}
 }  // namespace
 
 TEST(Conv2d, NaiveMatchesReference) { run_cases(ConvAlgo::naive); }
@@ -132,6 +148,25 @@ TEST(Conv2d, DirectInChunksOnAStrictUniformAlignment) {
 // The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
 TEST(Conv2d, DirectStorageInputMatchesReference) { run_cases(ConvAlgo::direct, {~0ull, 0, false}); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
+
+// fp16: the same cases for every algorithm, against the same fp32 reference.
+TEST(Conv2d, Fp16NaiveMatchesReference) { run_cases(ConvAlgo::naive, fp16()); }
+TEST(Conv2d, Fp16BlockedMatchesReference) { run_cases(ConvAlgo::blocked, fp16()); }
+TEST(Conv2d, Fp16WinogradMatchesReference) { run_cases(ConvAlgo::winograd, fp16()); }
+TEST(Conv2d, Fp16GemmMatchesReference) { run_cases(ConvAlgo::gemm, fp16()); }
+TEST(Conv2d, Fp16DirectMatchesReference) { run_cases(ConvAlgo::direct, fp16()); }
+TEST(Conv2d, Fp16AutomaticMatchesReference) { run_cases(ConvAlgo::automatic, fp16()); }
+// The chunked variants on the shorter list: Winograd and GEMM scratch for a few channels, direct's
+// fp16 slabs (8 halves per uniform entry) in 2-channel chunks on a 256-byte uniform alignment, the
+// storage-buffer input, and direct on the whole-binding context (its slab geometry is the one
+// dispatch layout that differs between the precisions).
+TEST(Conv2d, Fp16ChunkedVariantsMatchReference) {
+  run_cases(vktest::context(), ConvAlgo::winograd, canary_cases(), fp16({3 * 36 * 4 * 64}));
+  run_cases(vktest::context(), ConvAlgo::gemm, canary_cases(), fp16({2 * 4 * 80}));
+  run_cases(vktest::strict_uniform_context(), ConvAlgo::direct, canary_cases(), fp16({~0ull, 2}));
+  run_cases(vktest::context(), ConvAlgo::direct, canary_cases(), fp16({~0ull, 0, false}));
+  run_cases(vktest::whole_binding_context(), ConvAlgo::direct, canary_cases(), fp16({~0ull, 2}));
+}
 
 // Every algorithm (and the chunked variants) on a context that binds whole tensors: a write
 // outside the output slice lands on a canary inside the binding. The blocked path's dispatch sized

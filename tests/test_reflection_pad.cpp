@@ -28,14 +28,17 @@ TEST(ReflectionPad, ReflectIndexMatchesPyTorchWherePyTorchWorks) {
 }
 
 namespace {
-// Pure data movement: bit-exact. Both outputs are slices among canaries that must survive.
-void run_cases(Context& ctx) {
+// Pure data movement: bit-exact, in fp16 too (against the reference on the inputs as fp16 stores
+// them). Both outputs are slices among canaries that must survive.
+void run_cases(Context& ctx, Precision prec = Precision::fp32) {
   std::mt19937 rng(7);
+  const DType dt = precision_dtype(prec);
   struct C { int64_t n, c, h, w, extra, c0; };
   for (const C& c : std::vector<C>{{1, 3, 20, 30, 0, 0}, {2, 5, 33, 7, 3, 2}, {1, 2, 1, 13, 0, 0}, {1, 1, 1, 1, 1, 1},
                                    {1, 67, 5, 9, 0, 0}}) {
     const Pads pads = size_adapter_pads(c.h, c.w);
     HostTensor x = random_tensor({c.n, c.c + c.extra, c.h, c.w}, rng);
+    if (prec == Precision::fp16) x = rounded_to_half(x);
     const Shape ps{c.n, c.c, c.h + pads.top + pads.bottom, c.w + pads.left + pads.right};
     const CanarySlice pcs = canary_slice(ps, rng);
     HostTensor padded_ref = pcs.host;
@@ -43,7 +46,7 @@ void run_cases(Context& ctx) {
     const CanarySlice ycs = canary_slice({c.n, c.c, c.h, c.w}, rng, c.c0 + 1, c.extra - c.c0 + 1);
     HostTensor y_ref = ycs.host;
     crop_ref(HostSlice(padded_ref, pcs.c0, pcs.c, pcs.n0, pcs.n), ycs.of(y_ref), pads.top, pads.left);
-    Tensor xd = x.to_device(ctx), pd = pcs.host.to_device(ctx), yd = ycs.host.to_device(ctx);
+    Tensor xd = x.to_device(ctx, dt), pd = pcs.host.to_device(ctx, dt), yd = ycs.host.to_device(ctx, dt);
     CommandStream cs(ctx);
     reflection_pad(cs, Slice(xd, c.c0, c.c), pcs.of(pd), pads);
     crop(cs, pcs.of(pd), ycs.of(yd), pads.top, pads.left);
@@ -73,4 +76,8 @@ TEST(ReflectionPad, PadAndCropMatchReference) {
 }
 
 // On a context that binds whole tensors a write outside an output slice lands on a canary.
-TEST(ReflectionPad, WritesNothingOutsideItsSlice) { run_cases(vktest::whole_binding_context()); }
+TEST(ReflectionPad, Fp16PadAndCropMatchReference) { run_cases(vktest::context(), Precision::fp16); }
+TEST(ReflectionPad, WritesNothingOutsideItsSlice) {
+  run_cases(vktest::whole_binding_context());
+  run_cases(vktest::whole_binding_context(), Precision::fp16);
+}

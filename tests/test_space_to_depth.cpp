@@ -11,22 +11,24 @@ using namespace vkunroll;
 using namespace vkunroll::ktest;
 
 namespace {
-// Pure data movement: the GPU result must be bit-exact (tolerance 0). Both outputs are slices among
-// canaries that must survive.
-void run_cases(Context& ctx) {
+// Pure data movement: the GPU result must be bit-exact (tolerance 0), in fp16 too (against the
+// reference on the inputs as fp16 stores them). Both outputs are slices among canaries that must survive.
+void run_cases(Context& ctx, Precision prec = Precision::fp32) {
   std::mt19937 rng(5);
+  const DType dt = precision_dtype(prec);
   struct C { int64_t n, c, h, w, extra_in, c0_in, extra_out, c0_out; };
   for (const C& c : std::vector<C>{{1, 3, 8, 6, 0, 0, 0, 0}, {2, 5, 7, 9, 2, 1, 4, 4}, {1, 1, 1, 1, 0, 0, 0, 0},
                                    {1, 2, 1, 13, 1, 1, 0, 0}, {1, 99, 12, 10, 0, 0, 0, 0}}) {
     HostTensor x = random_tensor({c.n, c.c + c.extra_in, c.h, c.w}, rng);
+    if (prec == Precision::fp16) x = rounded_to_half(x);
     const Shape os = space_to_depth_shape({c.n, c.c, c.h, c.w});
     const CanarySlice ys = canary_slice(os, rng, c.c0_out + 1, c.extra_out - c.c0_out + 1);
     HostTensor y_ref = ys.host;
     space_to_depth_ref(HostSlice(x, c.c0_in, c.c), ys.of(y_ref));
-    Tensor xd = x.to_device(ctx), yd = ys.host.to_device(ctx);
+    Tensor xd = x.to_device(ctx, dt), yd = ys.host.to_device(ctx, dt);
     // And back: depth_to_space of the result restores the input (cropped to its size).
     const CanarySlice bs = canary_slice({c.n, c.c, os.h * 2, os.w * 2}, rng);
-    Tensor back = bs.host.to_device(ctx);
+    Tensor back = bs.host.to_device(ctx, dt);
     CommandStream cs(ctx);
     space_to_depth(cs, Slice(xd, c.c0_in, c.c), ys.of(yd));
     depth_to_space(cs, ys.of(yd), bs.of(back));
@@ -49,8 +51,12 @@ void run_cases(Context& ctx) {
 }  // namespace
 
 TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlices) { run_cases(vktest::context()); }
+TEST(SpaceToDepth, Fp16MatchesReferenceOnOddSizesAndSlices) { run_cases(vktest::context(), Precision::fp16); }
 // On a context that binds whole tensors a write outside an output slice lands on a canary.
-TEST(SpaceToDepth, WritesNothingOutsideItsSlice) { run_cases(vktest::whole_binding_context()); }
+TEST(SpaceToDepth, WritesNothingOutsideItsSlice) {
+  run_cases(vktest::whole_binding_context());
+  run_cases(vktest::whole_binding_context(), Precision::fp16);
+}
 
 TEST(SpaceToDepth, PixelUnshuffleChannelOrder) {
   // 1 channel 2x2 [[a b] [c d]] -> 4 channels a, b, c, d (channel = i*2 + j).
