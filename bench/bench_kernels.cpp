@@ -133,13 +133,16 @@ Timing time_gpu(Context& ctx, int reps, Profiler* total, F record) {
   return {best, reps};
 }
 
-double ceiling_gflops(Context& ctx, Profiler* profile) {
+// The FMA ceiling: fma_ceiling.comp (fp32 vec4 chains) or, with `half`, fma_ceiling_half.comp
+// (f16vec4 chains, needs shaderFloat16; 0 without it).
+double ceiling_gflops(Context& ctx, Profiler* profile, bool half = false) {
+  if (half && !ctx.info().shader_float16) return 0;
   const uint32_t iters = 2048, groups = 256;
   Tensor sink(ctx, {1, 1, 1, groups * 64 * 4});
   struct {
     float a, b;
   } push{0.999f, 0.001f};
-  const Pipeline& pl = ctx.pipeline("fma_ceiling", {iters}, sizeof push);
+  const Pipeline& pl = ctx.pipeline(half ? "fma_ceiling_half" : "fma_ceiling", {iters}, sizeof push);
   const double flop = 2.0 * 4 * 8 * iters * groups * 64.0;
   auto record = [&](CommandStream& cs) { cs.dispatch(pl, {out(sink)}, push, Groups{groups}, {"fma_ceiling", flop, 0}); };
   Timing t = time_gpu(ctx, 5, profile, record);
@@ -152,6 +155,7 @@ int main(int argc, char** argv) {
   std::string json_path, only;
   std::vector<ConvShape> custom;  // --shape: these instead of the model's shapes
   ConvOptions conv_options;       // --blocked-cob ... (validated by the convs)
+  std::vector<Precision> precisions{Precision::fp32};  // --precision fp32,fp16
   const std::vector<std::pair<std::string, int*>> option_flags{
       {"--blocked-cob", &conv_options.blocked_cob}, {"--blocked-px", &conv_options.blocked_px},
       {"--direct-cob", &conv_options.direct_cob},   {"--direct-px", &conv_options.direct_px},
@@ -183,6 +187,19 @@ int main(int argc, char** argv) {
       algo_filter = "," + value() + ",";
     }
     else if (a == "--only") only = value();
+    else if (a == "--precision") {
+      precisions.clear();
+      std::string list = value() + ",";
+      for (size_t pos; (pos = list.find(',')) != std::string::npos; list.erase(0, pos + 1)) {
+        const std::string name = list.substr(0, pos);
+        if (name != "fp32" && name != "fp16") break;
+        precisions.push_back(parse_precision(name));
+      }
+      if (precisions.empty() || !list.empty()) {
+        std::cerr << "vkunroll-bench-kernels: --precision: expected fp32, fp16 or fp32,fp16\n";
+        return 2;
+      }
+    }
     else if (a == "--shape") {
       const std::string v = value();
       ConvShape c;
@@ -203,7 +220,7 @@ int main(int argc, char** argv) {
                    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
                    "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
                    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
-                   "                              [--gemm-tv N]\n"
+                   "                              [--gemm-tv N] [--precision fp32|fp16|fp32,fp16]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
                    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
@@ -212,7 +229,9 @@ int main(int argc, char** argv) {
                    "everywhere; slow). --all-algos also times every other applicable algorithm, --algos A,B\n"
                    "only the named ones (e.g. direct,gemm). --shape (repeatable) times that conv2d shape\n"
                    "(pad K/2) instead of the model's. The --blocked-cob ... flags set the convs' ConvOptions\n"
-                   "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice).\n";
+                   "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice). --precision fp32,fp16 times\n"
+                   "each shape in both precisions (fp16 rows judged against the better of the fp32 and the fp16\n"
+                   "FMA ceiling, the latter from fma_ceiling_half.comp where the device has shaderFloat16).\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
@@ -224,133 +243,147 @@ int main(int argc, char** argv) {
     Context ctx(opt);
     Profiler total;
     Profiler* prof = profile ? &total : nullptr;
-    const double ceiling = ceiling_gflops(ctx, prof);
+    const double ceiling32 = ceiling_gflops(ctx, prof);
+    const bool any16 = std::find(precisions.begin(), precisions.end(), Precision::fp16) != precisions.end();
+    const double ceiling16 = any16 ? ceiling_gflops(ctx, prof, true) : 0;
     std::printf("device: %s\nFMA ceiling: %.2f GFLOP/s (fma_ceiling, 8 vec4 chains per invocation)\n",
-                ctx.info().name.c_str(), ceiling);
-    std::printf("%-34s %-26s %-9s %9s %8s %6s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "algo",
-                "ms", "GFLOP/s", "%ceil", "naive ms", "naive GF", "speedup");
+                ctx.info().name.c_str(), ceiling32);
+    if (any16)
+      std::printf("fp16 FMA ceiling: %.2f GFLOP/s (fma_ceiling_half, 8 f16vec4 chains; 0: no shaderFloat16)\n", ceiling16);
+    std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "prec",
+                "algo", "ms", "GFLOP/s", "%ceil", "naive ms", "naive GF", "speedup");
     nlohmann::json rows = nlohmann::json::array();
     std::mt19937 rng(42);
-    double worst_fraction = 1e9;
-    std::string worst;
     for (const ConvShape& c : custom.empty() ? model_shapes() : custom) {
       if (quick && !c.quick) continue;
       if (!only.empty() && c.name.find(only) == std::string::npos) continue;
-      const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
-      HostTensor x = random_host({1, c.cin, c.h, c.w}, rng, 1.f);
-      Tensor xd = x.to_device(ctx);
-      std::vector<std::string> algos;
-      std::optional<Conv2d> conv;
-      std::optional<ConvTranspose2d> deconv;
-      Shape os;
-      double flop = 0;
-      if (c.transposed) {
-        deconv.emplace(ctx, random_host({c.cin, c.cout, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
-                       ConvTranspose2dParams{c.k, c.s, 1, leaky_relu(0.1f)}, c.name, conv_options);
-        os = deconv->output_shape(xd.shape());
-        flop = deconv->flop(xd.shape());
-        const ConvTransposeAlgo chosen = deconv->choose_algorithm(c.h, c.w);
-        algos.push_back(conv_transpose_algo_name(chosen));
-        if (all_algos)
-          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
-            if (a != chosen && deconv->supports(a) && wanted(conv_transpose_algo_name(a)))
-              algos.push_back(conv_transpose_algo_name(a));
-      } else {
-        conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
-                     Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name, nullptr, conv_options);
-        os = conv->output_shape(xd.shape());
-        flop = conv->flop(xd.shape());
-        const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
-        algos.push_back(conv_algo_name(chosen));
-        if (all_algos)
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
-            if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
-      }
-      Tensor yd(ctx, os);
-      auto record_algo = [&](CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) {
+      for (const Precision prec : precisions) {
+        ConvOptions options = conv_options;
+        options.precision = prec;
+        const DType dt = precision_dtype(prec);
+        // fp16 kernels compute in fp32 from fp16 storage: judged against the better of both ceilings.
+        const double ceiling = prec == Precision::fp16 ? std::max(ceiling32, ceiling16) : ceiling32;
+        const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
+        HostTensor x = random_host({1, c.cin, c.h, c.w}, rng, 1.f);
+        Tensor xd = x.to_device(ctx, dt);
+        std::vector<std::string> algos;
+        std::optional<Conv2d> conv;
+        std::optional<ConvTranspose2d> deconv;
+        Shape os;
+        double flop = 0;
         if (c.transposed) {
-          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
-            if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
+          deconv.emplace(ctx, random_host({c.cin, c.cout, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
+                         ConvTranspose2dParams{c.k, c.s, 1, leaky_relu(0.1f)}, c.name, options);
+          os = deconv->output_shape(xd.shape());
+          flop = deconv->flop(xd.shape());
+          const ConvTransposeAlgo chosen = deconv->choose_algorithm(c.h, c.w);
+          algos.push_back(conv_transpose_algo_name(chosen));
+          if (all_algos)
+            for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+              if (a != chosen && deconv->supports(a) && wanted(conv_transpose_algo_name(a)))
+                algos.push_back(conv_transpose_algo_name(a));
         } else {
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
-            if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
+          conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
+                       Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name, nullptr, options);
+          os = conv->output_shape(xd.shape());
+          flop = conv->flop(xd.shape());
+          const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
+          algos.push_back(conv_algo_name(chosen));
+          if (all_algos)
+            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+              if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
         }
-      };
-      auto run = [&](const std::string& algo, int n) {
-        return time_gpu(ctx, n, prof, [&](CommandStream& cs) { record_algo(cs, algo, xd, yd); });
-      };
-      // The naive shader is 10-50x slower: it runs on the full shape for the target shape
-      // (the 3x3 RDB conv 144->48) and on a band of input rows (same width and channels, so the
-      // same per-pixel work) elsewhere; its GFLOP/s is that of what it ran.
-      std::optional<Timing> naive_t;
-      double naive_flop = 0;
-      int64_t naive_rows = c.h;
-      if (naive && algos.front() != "naive") {
-        const bool full = c.name == "RDBs.d.convs.1" || naive_full;
-        naive_rows = full ? c.h : std::min<int64_t>(c.h, c.transposed ? 8 : 16 * c.s);
-        Tensor xb = random_host({1, c.cin, naive_rows, c.w}, rng, 1.f).to_device(ctx);
-        const Shape ob = c.transposed ? deconv->output_shape(xb.shape()) : conv->output_shape(xb.shape());
-        Tensor yb(ctx, ob);
-        naive_flop = c.transposed ? deconv->flop(xb.shape()) : conv->flop(xb.shape());
-        naive_t = time_gpu(ctx, 1, prof, [&](CommandStream& cs) { record_algo(cs, "naive", xb, yb); });
-      }
-      for (size_t ai = 0; ai < algos.size(); ++ai) {
-        const Timing t = run(algos[ai], reps);
-        const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
-        if (ai == 0 && frac < worst_fraction) worst_fraction = frac, worst = c.name;
-        const double nms = naive_t ? naive_t->ms : 0;
-        const double ngf = naive_t ? naive_flop / (nms * 1e6) : 0;
-        std::printf("%-34s %-26s %-9s %9.2f %8.2f %5.1f%% %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(), c.shape_str().c_str(),
-                    algos[ai].c_str(), t.ms, gf, 100 * frac, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
-                    naive_t && naive_rows < c.h ? (" (naive: " + std::to_string(naive_rows) + " rows)").c_str() : "",
-                    ai == 0 ? "" : "  (forced)");
-        std::fflush(stdout);
-        nlohmann::json row{{"op", c.transposed ? "conv_transpose2d" : "conv2d"},
-                           {"name", c.name},
-                           {"shape", c.shape_str()},
-                           {"kernel", c.k},
-                           {"stride", c.s},
-                           {"cin", c.cin},
-                           {"cout", c.cout},
-                           {"h", c.h},
-                           {"w", c.w},
-                           {"uses", c.uses},
-                           {"algo", algos[ai]},
-                           {"chosen", ai == 0},
-                           {"ms", t.ms},
-                           {"gflop", flop * 1e-9},
-                           {"gflops", gf},
-                           {"ceiling_gflops", ceiling},
-                           {"fraction_of_ceiling", frac}};
-        if (naive_t) {
-          row["naive_ms"] = nms;
-          row["naive_rows"] = naive_rows;
-          row["naive_gflops"] = ngf;
-          row["speedup_vs_naive"] = gf / ngf;
+        Tensor yd(ctx, os, dt);
+        auto record_algo = [&](CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) {
+          if (c.transposed) {
+            for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+              if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
+          } else {
+            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+              if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
+          }
+        };
+        auto run = [&](const std::string& algo, int n) {
+          return time_gpu(ctx, n, prof, [&](CommandStream& cs) { record_algo(cs, algo, xd, yd); });
+        };
+        // The naive shader is 10-50x slower: it runs on the full shape for the target shape
+        // (the 3x3 RDB conv 144->48) and on a band of input rows (same width and channels, so the
+        // same per-pixel work) elsewhere; its GFLOP/s is that of what it ran.
+        std::optional<Timing> naive_t;
+        double naive_flop = 0;
+        int64_t naive_rows = c.h;
+        if (naive && algos.front() != "naive") {
+          const bool full = c.name == "RDBs.d.convs.1" || naive_full;
+          naive_rows = full ? c.h : std::min<int64_t>(c.h, c.transposed ? 8 : 16 * c.s);
+          Tensor xb = random_host({1, c.cin, naive_rows, c.w}, rng, 1.f).to_device(ctx, dt);
+          const Shape ob = c.transposed ? deconv->output_shape(xb.shape()) : conv->output_shape(xb.shape());
+          Tensor yb(ctx, ob, dt);
+          naive_flop = c.transposed ? deconv->flop(xb.shape()) : conv->flop(xb.shape());
+          naive_t = time_gpu(ctx, 1, prof, [&](CommandStream& cs) { record_algo(cs, "naive", xb, yb); });
         }
-        rows.push_back(row);
-      }
+        for (size_t ai = 0; ai < algos.size(); ++ai) {
+          const Timing t = run(algos[ai], reps);
+          const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
+          const double nms = naive_t ? naive_t->ms : 0;
+          const double ngf = naive_t ? naive_flop / (nms * 1e6) : 0;
+          std::printf("%-34s %-26s %-4s %-9s %9.2f %8.2f %5.1f%% %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(),
+                      c.shape_str().c_str(), precision_name(prec), algos[ai].c_str(), t.ms, gf, 100 * frac, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
+                      naive_t && naive_rows < c.h ? (" (naive: " + std::to_string(naive_rows) + " rows)").c_str() : "",
+                      ai == 0 ? "" : "  (forced)");
+          std::fflush(stdout);
+          nlohmann::json row{{"op", c.transposed ? "conv_transpose2d" : "conv2d"},
+                             {"name", c.name},
+                             {"shape", c.shape_str()},
+                             {"kernel", c.k},
+                             {"stride", c.s},
+                             {"cin", c.cin},
+                             {"cout", c.cout},
+                             {"h", c.h},
+                             {"w", c.w},
+                             {"uses", c.uses},
+                             {"algo", algos[ai]},
+                             {"precision", precision_name(prec)},
+                             {"chosen", ai == 0},
+                             {"ms", t.ms},
+                             {"gflop", flop * 1e-9},
+                             {"gflops", gf},
+                             {"ceiling_gflops", ceiling},
+                             {"fraction_of_ceiling", frac}};
+          if (naive_t) {
+            row["naive_ms"] = nms;
+            row["naive_rows"] = naive_rows;
+            row["naive_gflops"] = ngf;
+            row["speedup_vs_naive"] = gf / ngf;
+          }
+          rows.push_back(row);
+        }
+      }  // precisions
     }
     // The machine is shared: measure the ceiling again and judge every shape against the better
     // of the two (the conservative fraction).
     const double ceiling_end = ceiling_gflops(ctx, prof);
-    const double ceil_best = std::max(ceiling, ceiling_end);
+    const double ceil_best = std::max(ceiling32, ceiling_end);
     std::printf("FMA ceiling again at the end: %.2f GFLOP/s; fractions below use %.2f\n", ceiling_end, ceil_best);
-    worst_fraction = 1e9;
+    const double ceil16_best = any16 ? std::max({ceil_best, ceiling16, ceiling_gflops(ctx, prof, true)}) : 0;
+    if (any16) std::printf("fp16 rows use the better of both ceilings in both measurements: %.2f\n", ceil16_best);
+    std::map<std::string, std::pair<double, std::string>> worst_by_prec;  // lowest fraction per precision
     for (auto& row : rows) {
-      row["ceiling_gflops"] = ceil_best;
-      row["fraction_of_ceiling"] = row["gflops"].get<double>() / ceil_best;
-      if (row["chosen"].get<bool>() && row["fraction_of_ceiling"].get<double>() < worst_fraction) {
-        worst_fraction = row["fraction_of_ceiling"].get<double>();
-        worst = row["name"].get<std::string>() + " [" + row["shape"].get<std::string>() + "]";
-      }
+      const std::string pr = row["precision"].get<std::string>();
+      const double cb = pr == "fp16" ? ceil16_best : ceil_best;
+      row["ceiling_gflops"] = cb;
+      row["fraction_of_ceiling"] = row["gflops"].get<double>() / cb;
+      auto& w = worst_by_prec.try_emplace(pr, 1e9, "").first->second;
+      if (row["chosen"].get<bool>() && row["fraction_of_ceiling"].get<double>() < w.first)
+        w = {row["fraction_of_ceiling"].get<double>(), row["name"].get<std::string>() + " [" + row["shape"].get<std::string>() + "]"};
       if (row["chosen"].get<bool>() && row["name"] == "RDBs.d.convs.1" && row.contains("speedup_vs_naive"))
-        std::printf("target 3x3 RDB conv 144->48 @130x173: %s %.2f GFLOP/s = %.1f%% of the ceiling, %.1fx the naive shader\n",
-                    row["algo"].get<std::string>().c_str(), row["gflops"].get<double>(),
+        std::printf("target 3x3 RDB conv 144->48 @130x173 (%s): %s %.2f GFLOP/s = %.1f%% of the ceiling, %.1fx the naive shader\n",
+                    pr.c_str(), row["algo"].get<std::string>().c_str(), row["gflops"].get<double>(),
                     100 * row["fraction_of_ceiling"].get<double>(), row["speedup_vs_naive"].get<double>());
     }
-    if (worst_fraction < 1e9)
-      std::printf("lowest fraction of the ceiling (chosen algorithms): %.1f%% (%s)\n", 100 * worst_fraction, worst.c_str());
+    for (const auto& [pr, w] : worst_by_prec)
+      if (w.first < 1e9)
+        std::printf("lowest fraction of the ceiling (chosen algorithms, %s): %.1f%% (%s)\n", pr.c_str(), 100 * w.first,
+                    w.second.c_str());
     if (!json_path.empty()) {
       std::ofstream f(json_path);
       if (!f) throw Error("cannot write --json file '" + json_path + "'");
