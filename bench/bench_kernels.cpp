@@ -19,6 +19,7 @@
 #include "kernels/conv2d.hpp"
 #include "kernels/conv_transpose2d.hpp"
 #include "runtime/context.hpp"
+#include "runtime/half.hpp"
 #include "runtime/pipeline.hpp"
 #include "runtime/profiler.hpp"
 
@@ -149,6 +150,113 @@ double ceiling_gflops(Context& ctx, Profiler* profile, bool half = false) {
   return flop / (t.ms * 1e6);
 }
 
+// ---- --fp16-error-model: CPU emulations behind the fp16 kernels' arithmetic (docs/kernels.md) -------
+// One conv output = sum of n products of fp16 inputs in [-1, 1] and fp16 weights +-1/sqrt(n):
+// accumulated in fp32 (then stored as fp16) or in fp16 (a fused multiply-add rounded to half
+// after every step); max and rms error against the exact sum over 20000 outputs.
+void accumulation_error_table() {
+  std::mt19937 rng(7);
+  std::printf("fp16 accumulation (emulated), error against the exact sum of n fp16 products:\n");
+  for (int n : {27, 153, 864, 1296, 2592, 960}) {
+    std::uniform_real_distribution<float> dx(-1, 1), dw(-1 / std::sqrt(float(n)), 1 / std::sqrt(float(n)));
+    double m32 = 0, m16 = 0;
+    for (int t = 0; t < 20000; ++t) {
+      double exact = 0;
+      float a32 = 0, a16 = 0;
+      for (int i = 0; i < n; ++i) {
+        const float x = round_to_half(dx(rng)), w = round_to_half(dw(rng));
+        exact += static_cast<double>(x) * w;
+        a32 = std::fma(x, w, a32);
+        a16 = round_to_half(std::fma(x, w, a16));
+      }
+      m32 = std::max(m32, std::fabs(round_to_half(a32) - exact));
+      m16 = std::max(m16, std::fabs(a16 - exact));
+    }
+    std::printf("  n %4d: max |error| fp32 accumulation %.2e, fp16 accumulation %.2e\n", n, m32, m16);
+  }
+}
+
+// Winograd F(4x4, 3x3) on a cin x 16 x 16 fp16 input, 16 output channels, weights +-1/sqrt(9 cin):
+// max error against the direct conv when V, U or both are rounded to fp16, beside a direct conv
+// with fp16 weights.
+void winograd_rounding_table() {
+  static const double BT[6][6] = {{4, 0, -5, 0, 1, 0},  {0, -4, -4, 1, 1, 0}, {0, 4, -4, -1, 1, 0},
+                                  {0, -2, -1, 2, 1, 0}, {0, 2, -1, -2, 1, 0}, {0, 4, 0, -5, 0, 1}};
+  static const double G[6][3] = {{1.0 / 4, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                 {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
+  static const double AT[4][6] = {{1, 1, 1, 1, 1, 0}, {0, 1, -1, 2, -2, 0}, {0, 1, 1, 4, 4, 0}, {0, 1, -1, 8, -8, 1}};
+  std::printf("Winograd F(4,3) with fp16 operands (emulated), max error against the exact conv:\n");
+  const int H = 16, W = 16, cout = 16;
+  for (int cin : {17, 96, 288}) {
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<float> d(-1, 1), dw(-1 / std::sqrt(9.f * cin), 1 / std::sqrt(9.f * cin));
+    std::vector<float> x(static_cast<size_t>(cin * H * W)), w(static_cast<size_t>(cout * cin * 9));
+    for (auto& v : x) v = round_to_half(d(rng));
+    for (auto& v : w) v = dw(rng);
+    double err[4] = {0, 0, 0, 0};  // direct with fp16 weights; V fp16; U fp16; both
+    for (int co = 0; co < cout; ++co)
+      for (int t = 0; t < (H / 4) * (W / 4); ++t) {
+        const int ty = t / (W / 4), tx = t % (W / 4);
+        double M[3][6][6] = {};
+        for (int ci = 0; ci < cin; ++ci) {
+          double dd[6][6], tv[6][6], V[6][6], gg[6][3], U[6][6];
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              const int yy = ty * 4 - 1 + i, xx = tx * 4 - 1 + j;
+              dd[i][j] = (yy >= 0 && yy < H && xx >= 0 && xx < W) ? x[static_cast<size_t>((ci * H + yy) * W + xx)] : 0;
+            }
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              tv[i][j] = 0;
+              for (int k = 0; k < 6; ++k) tv[i][j] += BT[i][k] * dd[k][j];
+            }
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              V[i][j] = 0;
+              for (int k = 0; k < 6; ++k) V[i][j] += tv[i][k] * BT[j][k];
+            }
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 3; ++j) {
+              gg[i][j] = 0;
+              for (int k = 0; k < 3; ++k) gg[i][j] += G[i][k] * w[static_cast<size_t>(((co * cin + ci) * 3 + k) * 3 + j)];
+            }
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              U[i][j] = 0;
+              for (int k = 0; k < 3; ++k) U[i][j] += gg[i][k] * G[j][k];
+              const double v16 = round_to_half(static_cast<float>(V[i][j])), u16 = round_to_half(static_cast<float>(U[i][j]));
+              M[0][i][j] += U[i][j] * v16;
+              M[1][i][j] += u16 * V[i][j];
+              M[2][i][j] += u16 * v16;
+            }
+        }
+        for (int i = 0; i < 4; ++i)
+          for (int j = 0; j < 4; ++j) {
+            const int oy = ty * 4 + i, ox = tx * 4 + j;
+            double ref = 0, ref16 = 0;
+            for (int ci = 0; ci < cin; ++ci)
+              for (int k = 0; k < 9; ++k) {
+                const int yy = oy - 1 + k / 3, xx = ox - 1 + k % 3;
+                if (yy < 0 || yy >= H || xx < 0 || xx >= W) continue;
+                const double xv = x[static_cast<size_t>((ci * H + yy) * W + xx)];
+                const float wv = w[static_cast<size_t>((co * cin + ci) * 9 + k)];
+                ref += xv * wv;
+                ref16 += xv * round_to_half(wv);
+              }
+            err[0] = std::max(err[0], std::fabs(ref16 - ref));
+            for (int m = 0; m < 3; ++m) {
+              double y = 0;
+              for (int a = 0; a < 6; ++a)
+                for (int b = 0; b < 6; ++b) y += AT[i][a] * M[m][a][b] * AT[j][b];
+              err[m + 1] = std::max(err[m + 1], std::fabs(y - ref));
+            }
+          }
+      }
+    std::printf("  cin %3d: direct, fp16 weights %.2e; Winograd V fp16 %.2e, U fp16 %.2e, both %.2e\n", cin, err[0],
+                err[1], err[2], err[3]);
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -187,6 +295,11 @@ int main(int argc, char** argv) {
       algo_filter = "," + value() + ",";
     }
     else if (a == "--only") only = value();
+    else if (a == "--fp16-error-model") {
+      accumulation_error_table();
+      winograd_rounding_table();
+      return 0;
+    }
     else if (a == "--precision") {
       precisions.clear();
       std::string list = value() + ",";
@@ -220,7 +333,7 @@ int main(int argc, char** argv) {
                    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
                    "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
                    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
-                   "                              [--gemm-tv N] [--precision fp32|fp16|fp32,fp16]\n"
+                   "                              [--gemm-tv N] [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
                    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
@@ -231,7 +344,9 @@ int main(int argc, char** argv) {
                    "(pad K/2) instead of the model's. The --blocked-cob ... flags set the convs' ConvOptions\n"
                    "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice). --precision fp32,fp16 times\n"
                    "each shape in both precisions (fp16 rows judged against the better of the fp32 and the fp16\n"
-                   "FMA ceiling, the latter from fma_ceiling_half.comp where the device has shaderFloat16).\n";
+                   "FMA ceiling, the latter from fma_ceiling_half.comp where the device has shaderFloat16).\n"
+                   "--fp16-error-model prints the CPU emulations behind the fp16 kernels' fp32 arithmetic\n"
+                   "(fp16 accumulation, Winograd with fp16 operands) and exits.\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
