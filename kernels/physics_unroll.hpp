@@ -60,7 +60,7 @@ class PhysicsUnroll {
   static bool fits(const PixelEventLists& ev);
   // Throws Error naming the first pixel over the limit when !fits(ev).
   PhysicsUnroll(Context& ctx, const PixelEventLists& ev);
-  // rs and out: [1, C, H, W] f32 tensors of the lists' size.
+  // rs and out: [1, C, H, W] f32 tensors of the lists' size (fp32 only: an f16 tensor is an Error).
   void record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const;
 
  private:
