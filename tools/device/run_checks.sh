@@ -23,6 +23,7 @@ if [ "$PHASE" = tests ]; then
 VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 timeout ${TEST_S:-150} $B/vkunroll_gpu_tests --gtest_brief=1 ${GTEST_ARGS} > $OUT/gpu_tests.log 2>&1; echo "tests rc=$?"
 grep -E '^\[  (PASSED|FAILED)|^\[  FAILED|tests ran|device' $OUT/gpu_tests.log | head -60
 timeout 150 $B/vkunroll-bench-kernels --reps 3 --json $OUT/bench_kernels_h100.json > $OUT/bench_kernels_h100.txt 2>&1; echo "kernels rc=$?"; tail -8 $OUT/bench_kernels_h100.txt
+timeout 30 $B/vkunroll-bench-dispatch > $OUT/bench_dispatch.txt 2>&1; echo "dispatch rc=$?"; tail -3 $OUT/bench_dispatch.txt
 timeout 100 $B/vkunroll-bench-event-tensor > $OUT/bench_event_tensor_h100.txt 2>&1; echo "events rc=$?"; cat $OUT/bench_event_tensor_h100.txt
 timeout 120 $B/vkunroll-bench-model --torch-threads 16 --runs 3 --profile > $OUT/bench_model_h100.txt 2>&1; echo "model rc=$?"; head -30 $OUT/bench_model_h100.txt
 exit 0
