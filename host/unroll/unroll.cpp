@@ -2,14 +2,20 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
+#include <optional>
 
 #include "vkunroll/base/stopwatch.hpp"
+#include "vkunroll/host/unroll/provenance.hpp"
+#include "vkunroll/host/unroll/sha256.hpp"
 #include "vkunroll/host/unroll/image_planes.hpp"
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/host/unroll/progress.hpp"
@@ -32,14 +38,25 @@ struct UnrollTarget {
 
 cv::Mat read_image(const std::string& path, int width, int height) {
   cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (m.empty()) throw Error(path + ": cannot read the image");
+  if (m.empty()) {
+    std::error_code ec;
+    if (!fs::exists(path, ec)) throw InputMissingError(path + ": no such image");
+    throw DataError(path + ": cannot read the image (not a PNG, JPEG, TIFF or other format OpenCV reads)");
+  }
   if (m.cols != width || m.rows != height)
-    throw Error(path + ": image is " + std::to_string(m.cols) + "x" + std::to_string(m.rows) + ", the sensor is " +
+    throw DataError(path + ": image is " + std::to_string(m.cols) + "x" + std::to_string(m.rows) + ", the sensor is " +
                 std::to_string(width) + "x" + std::to_string(height));
   if (m.channels() == 4) cv::cvtColor(m, m, cv::COLOR_BGRA2BGR);
   if (m.channels() == 1) cv::cvtColor(m, m, cv::COLOR_GRAY2BGR);
-  if (!cv::checkRange(m, true, nullptr)) throw Error(path + ": image holds NaN or Inf values");
+  if (!cv::checkRange(m, true, nullptr)) throw DataError(path + ": image holds NaN or Inf values");
   return to_unit_float(m);  // [0,1] float, BGR
+}
+
+// Microseconds for messages: integers as such (1700000000000000, not 1.7e+15), else shortest.
+std::string us_text(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, std::abs(v) < 1e18 && v == std::floor(v) ? "%.0f" : "%.17g", v);
+  return buf;
 }
 
 double frame_mid(const SequenceFrame& f) {
@@ -74,9 +91,9 @@ double read_meta_gamma(const Sequence& seq) {
   return 1.0;
 }
 
-// The events of [lo, hi] microseconds, read once per frame.
-EventStream read_window(const Sequence& seq, double lo, double hi) {
-  return seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1);
+// The events of [lo, hi] microseconds, read once per frame; `report` gets the reader's counts.
+EventStream read_window(const Sequence& seq, double lo, double hi, EventReadReport* report = nullptr) {
+  return seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1, report);
 }
 
 std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requested) {
@@ -99,7 +116,7 @@ std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const
   };
   switch (times.kind) {
     case TargetTimes::Kind::ground_truth:
-      if (seq.ground_truth.empty()) throw Error(where + ": --times gt, but the sequence has no ground-truth frames");
+      if (seq.ground_truth.empty()) throw UsageError("--times gt: " + where + " has no ground-truth frames");
       for (size_t g = 0; g < seq.ground_truth.size(); ++g) {
         const auto& gt = seq.ground_truth[g];
         const int k = frame_for_time(seq, frames, gt.t_us.to_double());
@@ -121,15 +138,18 @@ std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const
         }
       break;
   }
-  const double rec_lo = seq.frames.front().timing.first_start().to_double(),
-               rec_hi = seq.frames.back().timing.last_end().to_double();
+  // Over all frames: a sequence whose frames are out of time order still names its true span.
+  double rec_lo = seq.frames.front().timing.first_start().to_double(), rec_hi = seq.frames.front().timing.last_end().to_double();
+  for (const auto& f : seq.frames)
+    rec_lo = std::min(rec_lo, f.timing.first_start().to_double()), rec_hi = std::max(rec_hi, f.timing.last_end().to_double());
   const double margin = seq.frames.size() > 1 ? frame_mid(seq.frames[1]) - frame_mid(seq.frames[0])
                                               : seq.frames[0].timing.last_end().to_double() - rec_lo;
   for (const auto& [k, ts] : targets)
     for (const auto& t : ts)
       if (t.t_us.to_double() < rec_lo - margin || t.t_us.to_double() > rec_hi + margin)
-        throw Error("target t* = " + std::to_string(t.t_us.to_double()) + " us is outside the recording [" +
-                    std::to_string(rec_lo) + ", " + std::to_string(rec_hi) + "] us by more than a frame period");
+        throw UsageError(std::string(times.kind == TargetTimes::Kind::absolute_us ? "--times-us" : "--times") +
+                         ": target t* = " + us_text(t.t_us.to_double()) + " us is outside the recording [" + us_text(rec_lo) +
+                         ", " + us_text(rec_hi) + "] us by more than a frame period");
   return targets;
 }
 
@@ -178,6 +198,181 @@ nlohmann::json traffic_json(const DeviceTraffic& t, size_t targets) {
           {"submits", double(t.submits) / n}};
 }
 
+// Records the readers dropped (--on-bad drop) or sorted (--on-bad sort), by rule.
+struct DropCounts {
+  std::map<std::string, uint64_t> by_rule;
+  uint64_t total = 0;
+  size_t sorted = 0;  // reads that found records out of time order and sorted them
+  void add(const EventReadReport& r) {
+    const std::pair<const char*, uint64_t> kinds[] = {{"out_of_sensor", r.dropped_out_of_sensor}, {"time_order", r.dropped_time_order},
+                                                      {"nan", r.dropped_nan}, {"unknown_word", r.dropped_unknown_word},
+                                                      {"bad_polarity", r.dropped_bad_polarity}};
+    for (const auto& [k, n] : kinds)
+      if (n) by_rule[k] += n;
+    total += r.dropped();
+    sorted += r.sorted;
+  }
+  std::string kinds() const {
+    std::string t;
+    for (const auto& [k, n] : by_rule) t += (t.empty() ? "" : ", ") + std::to_string(n) + " " + k;
+    return t;
+  }
+};
+
+// The frame loop's state: where results go, what was counted.
+struct FrameLoop {
+  UnrollSession& session;
+  UnrollOutput& output;
+  Progress& progress;
+  UnrollMode mode;
+  bool resume = false;
+  std::map<std::string, double> stage_ms{{"read", 0}, {"write", 0}};
+  std::map<std::string, int> notes;
+  size_t done = 0;
+  // Events read per frame window (frames whose targets were all reused read none).
+  nlohmann::json events_per_frame = nlohmann::json::array();
+  uint64_t events_in_windows = 0;
+  std::vector<int> frames_without_events;
+  size_t frames_read = 0;
+  // Records the readers dropped (--on-bad drop) or sorted (--on-bad sort) in the windows read. A
+  // record decoded for several windows (overlapping windows; readers without an index decode the
+  // whole file) is counted in each: events_report() counts the files once when this is not zero.
+  // Lead: the per-file totals of the events branch (ReadStats) can replace that extra pass.
+  DropCounts window_drops;
+};
+
+// Unrolls frame k's targets (those a resume cannot reuse) and files every result.
+void unroll_frame(const Sequence& seq, int k, const std::vector<UnrollTarget>& ts, FrameLoop& L) {
+  const SequenceFrame& f1 = seq.frames[k];
+  const bool has_next = k + 1 < static_cast<int>(seq.frames.size());
+  const bool moa = L.session.has_model() && L.session.model_config().moa;
+  std::vector<std::optional<cv::Mat>> reused(ts.size());
+  std::vector<GsFrameRecord> reused_record(ts.size());
+  std::vector<UnrollTarget> todo;
+  std::vector<FrameTarget> methods;
+  for (size_t j = 0; j < ts.size(); ++j) {
+    if (L.resume) reused[j] = L.output.find_reusable(k, ts[j].t_us.str(), ts[j].name, &reused_record[j]);
+    if (reused[j]) continue;
+    const double tv = ts[j].t_us.to_double();
+    const bool inside = tv >= f1.timing.first_start().to_double() && tv <= f1.timing.last_end().to_double();
+    todo.push_back(ts[j]);
+    methods.push_back({ts[j].t_us, target_method(L.mode, moa, has_next, inside, k, L.notes)});
+  }
+  auto t_read = Clock::now();
+  FrameInput in;
+  in.rs1 = read_image(f1.image, seq.width, seq.height);
+  in.timing1 = f1.timing;
+  std::vector<cv::Mat> results;
+  if (!todo.empty()) {
+    const bool any_m = std::any_of(methods.begin(), methods.end(), [](const FrameTarget& t) { return t.method == FrameTarget::Method::m; });
+    const SequenceFrame* f2 = any_m ? &seq.frames[k + 1] : nullptr;
+    if (f2) {
+      in.rs2 = read_image(f2->image, seq.width, seq.height);
+      in.timing2 = f2->timing;
+    }
+    const auto [lo, hi] = frame_window(f1, f2, todo, methods);
+    EventReadReport read_report;
+    const EventStream ev = read_window(seq, lo, hi, &read_report);
+    L.window_drops.add(read_report);
+    in.events = &ev;
+    L.stage_ms["read"] += ms_since(t_read);
+    L.events_per_frame.push_back({{"frame", k}, {"events", ev.size()}});
+    L.events_in_windows += ev.size();
+    L.frames_read++;
+    if (ev.empty()) L.frames_without_events.push_back(k);
+    results = L.session.unroll(in, methods);
+  } else {
+    L.stage_ms["read"] += ms_since(t_read);
+  }
+  const auto t_write = Clock::now();
+  size_t next = 0;
+  for (size_t j = 0; j < ts.size(); ++j) {
+    cv::Mat gt;
+    std::string gt_file;
+    if (ts[j].gt >= 0) {
+      gt_file = seq.ground_truth[ts[j].gt].image;
+      gt = read_image(gt_file, seq.width, seq.height);
+    }
+    if (reused[j]) {
+      L.output.add_reused(reused_record[j], *reused[j], in.rs1, gt);
+    } else {
+      L.output.add(k, ts[j].t_us.to_double(), ts[j].t_us.str(), ts[j].tau, results[next++], in.rs1, gt, gt_file, ts[j].name);
+    }
+    L.progress.update(++L.done, "frame " + std::to_string(k) + (reused[j] ? " (reused)" : ""));
+  }
+  L.stage_ms["write"] += ms_since(t_write);
+}
+
+// What decides the pixels of a GS frame: frames written under another key are not reused.
+std::string resume_key(const UnrollOptions& o, UnrollMode mode, const UnrollSession& session,
+                       const PhysicsUnrollParams& prm, const std::string& model_sha256) {
+  const BuildInfo b = build_info();
+  nlohmann::json opts = unroll_options_json(o);
+  for (const char* k : {"out", "frames", "times", "video", "fps", "existing_output", "device", "cpu_threads", "model"}) opts.erase(k);
+  nlohmann::json key = {{"vkunroll", b.version}, {"git", b.git_revision}, {"options", opts},
+                        {"sequence", fs::absolute(o.sequence).lexically_normal().string()},
+                        {"mode", unroll_mode_name(mode)}, {"model_sha256", model_sha256}};
+  if (mode == UnrollMode::physics) key["physics"] = {{"contrast", prm.contrast}, {"gamma", prm.gamma}};
+  if (session.has_model()) key["rgb"] = session.model_rgb();
+  return sha256_hex(key.dump());
+}
+
+// Threads this process runs with: OpenCV's pool and lavapipe's rasterizer workers ("llvmpipe-N").
+nlohmann::json thread_report(const UnrollOptions& o) {
+  int lavapipe = 0;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator("/proc/self/task", ec)) {
+    std::ifstream comm(e.path() / "comm");
+    std::string name;
+    std::getline(comm, name);
+    lavapipe += name.rfind("llvmpipe-", 0) == 0;
+  }
+  const char* lp = std::getenv("LP_NUM_THREADS");
+  return {{"requested", o.session.cpu_threads}, {"opencv", cv::getNumThreads()},
+          {"lavapipe_workers", lavapipe}, {"LP_NUM_THREADS", lp ? nlohmann::json(lp) : nlohmann::json()}};
+}
+
+// The events every frame window held, and the warnings they call for.
+// Lead: the event readers' per-file totals (Sequence::event_totals(), events branch) go into
+// "file_totals" here, with a warning when records were dropped (--on-bad drop) or a file is empty.
+nlohmann::json events_report(const FrameLoop& L, const Sequence& seq, std::vector<std::string>& warnings) {
+  nlohmann::json j = {{"in_frame_windows", L.events_in_windows}, {"frames_read", L.frames_read},
+                      {"per_frame", L.events_per_frame}, {"frames_without_events", L.frames_without_events},
+                      {"files", seq.event_files}, {"file_totals", nullptr},  // set below when records were dropped
+                      {"dropped_in_windows", L.window_drops.total}, {"dropped_by_rule_in_windows", L.window_drops.by_rule},
+                      {"windows_sorted", L.window_drops.sorted}};
+  std::string files;
+  for (const auto& f : seq.event_files) files += (files.empty() ? "" : ", ") + f;
+  if (L.window_drops.total) {
+    // Exact counts: one streaming pass over the event file(s), paid only when records were dropped.
+    DropCounts once;
+    uint64_t records = 0;
+    for (const auto& f : seq.event_files) {
+      EventReadReport r;
+      scan_events(f, seq.event_options, [](const EventStream&) {}, &r);
+      once.add(r);
+      records += r.records;
+    }
+    j["file_totals"] = {{"records", records}, {"dropped", once.total}, {"dropped_by_rule", once.by_rule}};
+    warnings.push_back("--on-bad drop: " + std::to_string(once.total) + " of " + std::to_string(records) +
+                       " event record(s) broke a rule and were dropped (" + once.kinds() + ") in " + files);
+  }
+  if (L.window_drops.sorted)
+    warnings.push_back("--on-bad sort: the events of " + std::to_string(L.window_drops.sorted) +
+                       " frame window(s) were out of time order and were sorted");
+  if (L.frames_read && L.events_in_windows == 0) {
+    warnings.push_back("no events: the frame windows of " + std::to_string(L.frames_read) + " frame(s) hold no event (" +
+                       files + "); the GS frames are the RS input, unchanged");
+  } else if (!L.frames_without_events.empty()) {
+    std::string list;
+    for (size_t i = 0; i < L.frames_without_events.size() && i < 20; ++i) list += (i ? ", " : "") + std::to_string(L.frames_without_events[i]);
+    if (L.frames_without_events.size() > 20) list += ", ...";
+    warnings.push_back(std::to_string(L.frames_without_events.size()) + " of " + std::to_string(L.frames_read) +
+                       " frame(s) have no event in their window (frames " + list + "): their GS frames are the RS input");
+  }
+  return j;
+}
+
 }  // namespace
 
 double estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma) {
@@ -223,111 +418,14 @@ double estimate_contrast(const Sequence& seq, const std::vector<int>& frames, do
   return best_c;
 }
 
-nlohmann::json run_unroll(const UnrollOptions& o) {
-  const auto t_start = Clock::now();
-  validate_unroll_options(o);  // a refused option does not wait for the sequence to load
-  const UnrollMode mode = o.mode == UnrollMode::automatic && o.session.model_path.empty() ? UnrollMode::physics : o.mode;
-  SessionOptions so = o.session;
-  so.announce = so.announce && !o.quiet;
-  if (mode == UnrollMode::physics) so.model_path.clear();
-  UnrollSession session(so);  // the model and the device before the sequence: their errors come first
-  if (mode == UnrollMode::m && !session.model_config().moa)
-    throw Error(o.session.model_path + ": the model has no MOA weights (attfusion_net), so it runs SelfUnroll-S only; use --mode s");
-  if (o.channel_order != ChannelOrder::model) session.set_model_rgb(o.channel_order == ChannelOrder::rgb);
-  std::map<std::string, double> stage_ms{{"read", 0}, {"write", 0}};
-  auto t_read = Clock::now();
-  const Sequence seq = load_sequence(o.sequence, o.sequence_options);
-  stage_ms["read"] += ms_since(t_read);
-  if (seq.frames.empty()) throw Error(o.sequence + ": the sequence has no frames");
-  const std::vector<int> frames = chosen_frames(seq, o.frames);
+namespace {
 
-  const std::map<int, std::vector<UnrollTarget>> targets = plan_targets(seq, frames, o.times, o.sequence);
-  size_t total_targets = 0;
-  for (const auto& [k, ts] : targets) total_targets += ts.size();
-
-  PhysicsUnrollParams prm;
-  std::string contrast_source = "given";
-  if (mode == UnrollMode::physics) {
-    prm.gamma = static_cast<float>(o.gamma ? *o.gamma : read_meta_gamma(seq));
-    if (o.contrast) {
-      prm.contrast = static_cast<float>(*o.contrast);
-    } else {
-      const auto t = Clock::now();
-      prm.contrast = static_cast<float>(estimate_contrast(seq, frames, prm.gamma));
-      stage_ms["contrast_estimate"] = ms_since(t);
-      contrast_source = "estimated (temporal consistency of consecutive frames)";
-    }
-    if (!o.quiet)
-      std::cerr << "unroll: physics unroller, contrast c = " << prm.contrast << " (" << contrast_source << "), gamma "
-                << prm.gamma << "\n";
-  }
-  session.set_physics(prm);
-  TileOptions tile_options;
-  tile_options.sparse = o.sparse;
-  const bool sparse_on = o.sparse != SparsePolicy::off;
-  tile_options.tile = o.tile > 0 ? o.tile : (sparse_on ? kTileAlign : 0);
-  tile_options.halo = o.halo >= 0 ? o.halo : (sparse_on ? kTileAlign : 2 * kTileAlign);
-  tile_options.threshold = o.sparse_threshold;
-  session.set_tiling(tile_options);
-
-  UnrollOutputOptions uo = o.output;
-  if (seq.frames.size() > 1) {
-    const double period = frame_mid(seq.frames[1]) - frame_mid(seq.frames[0]);
-    const double per_frame = static_cast<double>(total_targets) / frames.size();
-    if (period > 0) uo.video_fps = std::clamp(per_frame * 1e6 / period / 10.0, 1.0, 60.0);  // 10x slow motion
-  }
-  UnrollOutput output(o.out_dir, uo);
-  Progress progress("unroll", total_targets, Progress::automatic(o.quiet));
-  std::map<std::string, int> notes;
-  const DeviceTraffic traffic_before = session.traffic();
-  size_t done = 0;
-  for (int k : frames) {
-    auto it = targets.find(k);
-    if (it == targets.end()) continue;
-    const auto& ts = it->second;
-    const SequenceFrame& f1 = seq.frames[k];
-    const bool has_next = k + 1 < static_cast<int>(seq.frames.size());
-    const bool moa = session.has_model() && session.model_config().moa;
-    std::vector<FrameTarget> methods;
-    for (const auto& t : ts) {
-      const double tv = t.t_us.to_double();
-      const bool inside = tv >= f1.timing.first_start().to_double() && tv <= f1.timing.last_end().to_double();
-      methods.push_back({t.t_us, target_method(mode, moa, has_next, inside, k, notes)});
-    }
-    const bool any_m = std::any_of(methods.begin(), methods.end(), [](const FrameTarget& t) { return t.method == FrameTarget::Method::m; });
-    const SequenceFrame* f2 = any_m ? &seq.frames[k + 1] : nullptr;
-    t_read = Clock::now();
-    FrameInput in;
-    in.rs1 = read_image(f1.image, seq.width, seq.height);
-    in.timing1 = f1.timing;
-    if (f2) {
-      in.rs2 = read_image(f2->image, seq.width, seq.height);
-      in.timing2 = f2->timing;
-    }
-    const auto [lo, hi] = frame_window(f1, f2, ts, methods);
-    const EventStream ev = read_window(seq, lo, hi);
-    in.events = &ev;
-    stage_ms["read"] += ms_since(t_read);
-    const std::vector<cv::Mat> results = session.unroll(in, methods);
-    const auto t_write = Clock::now();
-    for (size_t j = 0; j < ts.size(); ++j) {
-      cv::Mat gt;
-      std::string gt_file;
-      if (ts[j].gt >= 0) {
-        gt_file = seq.ground_truth[ts[j].gt].image;
-        gt = read_image(gt_file, seq.width, seq.height);
-      }
-      output.add(k, ts[j].t_us.to_double(), ts[j].tau, results[j], in.rs1, gt, gt_file, ts[j].name);
-      progress.update(++done, "frame " + std::to_string(k));
-    }
-    stage_ms["write"] += ms_since(t_write);
-  }
-  progress.finish();
-  const DeviceTraffic traffic = session.traffic() - traffic_before;
+// Everything summary.json says beyond the frames and outputs (UnrollOutput::finish adds those).
+nlohmann::json summary_extra(const UnrollOptions& o, UnrollMode mode, const UnrollSession& session, const Sequence& seq,
+                             const std::vector<int>& frames, size_t total_targets, const PhysicsUnrollParams& prm,
+                             const std::string& contrast_source, const TileOptions& tile_options,
+                             const std::string& model_sha256) {
   const SessionStats& st = session.stats();
-  for (const auto& [name, ms] : st.ms) stage_ms[name] += ms;
-
-  const double total_ms = ms_since(t_start);
   nlohmann::json extra;
   extra["sequence"] = {{"path", o.sequence}, {"layout", sequence_layout_name(seq.layout)},
                        {"width", seq.width}, {"height", seq.height}, {"frames_in_sequence", seq.frames.size()},
@@ -336,7 +434,8 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   extra["runs"] = {{"s", st.runs_s}, {"m", st.runs_m}, {"physics", st.runs_physics}, {"physics_on_cpu", st.physics_on_cpu},
                    {"host_path", st.host_path_targets}};
   if (session.has_model())
-    extra["model"] = {{"path", o.session.model_path}, {"config", session.model_config().summary()},
+    extra["model"] = {{"path", o.session.model_path}, {"sha256", model_sha256},
+                      {"bytes", fs::file_size(o.session.model_path)}, {"config", session.model_config().summary()},
                       {"channel_order", session.model_rgb() ? "rgb" : "bgr"}};
   if (mode == UnrollMode::physics)
     extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma}};
@@ -358,8 +457,133 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   extra["backend"] = backend_kind_name(session.backend_kind());
   extra["precision"] = precision_name(o.session.precision);
   if (session.context()) extra["device"] = session.context()->info().name;
+  const BuildInfo b = build_info();
+  extra["provenance"] = {{"vkunroll_version", b.version},
+                         {"git_revision", b.git_revision},
+                         {"git_dirty", b.git_dirty < 0 ? nlohmann::json() : nlohmann::json(b.git_dirty == 1)},
+                         {"command_line", o.command_line},
+                         {"working_directory", fs::current_path().string()},
+                         {"host", host_name()},
+                         {"options", unroll_options_json(o)},
+                         {"backend", backend_kind_name(session.backend_kind())},
+                         {"device", session.context() ? device_json(session.context()->info()) : nlohmann::json()},
+                         {"precision", precision_name(o.session.precision)},
+                         {"threads", thread_report(o)}};
+  if (session.has_model())
+    extra["provenance"]["model"] = {{"path", fs::absolute(o.session.model_path).string()}, {"sha256", model_sha256},
+                                    {"config", session.model_config().summary()}};
+  return extra;
+}
+
+void report(const UnrollOptions& o, UnrollMode mode, const nlohmann::json& summary, const FrameLoop& L,
+            const UnrollSession& session, const DeviceTraffic& traffic, double total_ms, size_t frames, size_t total_targets) {
+  const double n = static_cast<double>(std::max<size_t>(total_targets, 1));
+  std::cerr << "unroll: " << frames << " frame(s), " << total_targets << " GS frame(s), mode " << unroll_mode_name(mode)
+            << ", " << total_ms / n << " ms per GS frame (";
+  bool first = true;
+  for (const auto& [name, ms] : L.stage_ms) std::cerr << (first ? "" : ", ") << name << " " << ms / n, first = false;
+  std::cerr << "; GPU " << traffic.gpu_ms / n << "), per GS frame " << traffic.upload_bytes / n / 1e6 << " MB up, "
+            << traffic.download_bytes / n / 1e6 << " MB down, " << traffic.submits / n << " submits; peak device memory "
+            << (session.peak_device_bytes() >> 20) << " MiB\n";
+  if (summary.contains("resume"))
+    std::cerr << "unroll: resume: " << summary["resume"]["reused"] << " GS frame(s) reused, " << summary["resume"]["computed"]
+              << " computed\n";
+  if (summary.contains("metrics"))
+    std::cerr << "unroll: vs ground truth (" << summary["metrics"]["count"] << " frames): PSNR "
+              << summary["metrics"]["mean_psnr"] << " dB, SSIM " << summary["metrics"]["mean_ssim"]
+              << "; RS input: PSNR " << summary["metrics"]["rs_mean_psnr"] << " dB, SSIM "
+              << summary["metrics"]["rs_mean_ssim"] << "\n";
+  std::cerr << "unroll: wrote " << o.out_dir << "\n";
+}
+
+// Targets planned from the options; a time the rationals cannot hold names the option.
+std::map<int, std::vector<UnrollTarget>> planned_targets(const Sequence& seq, const std::vector<int>& frames,
+                                                         const UnrollOptions& o) {
+  try {
+    return plan_targets(seq, frames, o.times, o.sequence);
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::unspecified || std::string(e.what()).rfind("Rational", 0) != 0) throw;
+    const char* opt = o.times.kind == TargetTimes::Kind::absolute_us ? "--times-us"
+                      : o.times.kind == TargetTimes::Kind::normalized ? "--times" : "--times gt";
+    throw UsageError(std::string(opt) + ": a target instant is out of the range of exact time arithmetic (" + e.what() +
+                     "); targets must lie within +-2^53 us of the recording");
+  }
+}
+
+}  // namespace
+
+nlohmann::json run_unroll(const UnrollOptions& o) {
+  const auto t_start = Clock::now();
+  validate_unroll_options(o);  // a refused option does not wait for the sequence to load
+  const UnrollMode mode = o.mode == UnrollMode::automatic && o.session.model_path.empty() ? UnrollMode::physics : o.mode;
+  SessionOptions so = o.session;
+  so.announce = so.announce && !o.quiet;
+  if (mode == UnrollMode::physics) so.model_path.clear();
+  UnrollSession session(so);  // the model and the device before the sequence: their errors come first
+  if (mode == UnrollMode::m && !session.model_config().moa)
+    throw UsageError(o.session.model_path + ": the model has no MOA weights (attfusion_net), so it runs SelfUnroll-S only; use --mode s");
+  if (o.channel_order != ChannelOrder::model) session.set_model_rgb(o.channel_order == ChannelOrder::rgb);
+  auto t_read = Clock::now();
+  const Sequence seq = load_sequence(o.sequence, o.sequence_options);
+  const double load_ms = ms_since(t_read);
+  if (seq.frames.empty()) throw DataError(o.sequence + ": the sequence has no frames");
+  const std::vector<int> frames = chosen_frames(seq, o.frames);
+  const std::map<int, std::vector<UnrollTarget>> targets = planned_targets(seq, frames, o);
+  size_t total_targets = 0;
+  for (const auto& [k, ts] : targets) total_targets += ts.size();
+
+  PhysicsUnrollParams prm;
+  std::string contrast_source = "given";
+  double contrast_ms = -1;
+  if (mode == UnrollMode::physics) {
+    prm.gamma = static_cast<float>(o.gamma ? *o.gamma : read_meta_gamma(seq));
+    if (o.contrast) {
+      prm.contrast = static_cast<float>(*o.contrast);
+    } else {
+      const auto t = Clock::now();
+      prm.contrast = static_cast<float>(estimate_contrast(seq, frames, prm.gamma));
+      contrast_ms = ms_since(t);
+      contrast_source = "estimated (temporal consistency of consecutive frames)";
+    }
+    if (!o.quiet)
+      std::cerr << "unroll: physics unroller, contrast c = " << prm.contrast << " (" << contrast_source << "), gamma "
+                << prm.gamma << "\n";
+  }
+  session.set_physics(prm);
+  TileOptions tile_options;
+  tile_options.sparse = o.sparse;
+  const bool sparse_on = o.sparse != SparsePolicy::off;
+  tile_options.tile = o.tile > 0 ? o.tile : (sparse_on ? kTileAlign : 0);
+  tile_options.halo = o.halo >= 0 ? o.halo : (sparse_on ? kTileAlign : 2 * kTileAlign);
+  tile_options.threshold = o.sparse_threshold;
+  session.set_tiling(tile_options);
+
+  const std::string model_sha = session.has_model() ? sha256_file(o.session.model_path) : std::string();
+  UnrollOutputOptions uo = o.output;
+  if (!uo.video_fps && seq.frames.size() > 1) {
+    const double period = frame_mid(seq.frames[1]) - frame_mid(seq.frames[0]);
+    const double per_frame = static_cast<double>(total_targets) / frames.size();
+    if (period > 0) uo.video_fps = std::clamp(per_frame * 1e6 / period / 10.0, 1.0, 60.0);  // 10x slow motion
+  }
+  uo.resume_key = resume_key(o, mode, session, prm, model_sha);
+  UnrollOutput output(o.out_dir, uo);
+  Progress progress("unroll", total_targets, Progress::automatic(o.quiet));
+  FrameLoop loop{session, output, progress, mode, o.output.existing == ExistingOutput::resume};
+  loop.stage_ms["read"] += load_ms;
+  if (contrast_ms >= 0) loop.stage_ms["contrast_estimate"] = contrast_ms;
+  const DeviceTraffic traffic_before = session.traffic();
+  for (int k : frames) {
+    auto it = targets.find(k);
+    if (it != targets.end()) unroll_frame(seq, k, it->second, loop);
+  }
+  progress.finish();
+  const DeviceTraffic traffic = session.traffic() - traffic_before;
+  for (const auto& [name, ms] : session.stats().ms) loop.stage_ms[name] += ms;
+
+  const double total_ms = ms_since(t_start);
+  nlohmann::json extra = summary_extra(o, mode, session, seq, frames, total_targets, prm, contrast_source, tile_options, model_sha);
   nlohmann::json per_frame;
-  for (const auto& [name, ms] : stage_ms) per_frame[name] = total_targets ? ms / total_targets : 0.0;
+  for (const auto& [name, ms] : loop.stage_ms) per_frame[name] = total_targets ? ms / total_targets : 0.0;
   extra["ms_per_gs_frame"] = per_frame;
   extra["ms_per_gs_frame_total"] = total_targets ? total_ms / total_targets : 0.0;
   extra["device_traffic_per_gs_frame"] = traffic_json(traffic, total_targets);
@@ -367,33 +591,32 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   extra["gpu_ms_per_gs_frame"] = total_targets ? traffic.gpu_ms / total_targets : 0.0;
   extra["memory_forced_submits"] = session.memory_forced_submits();
   extra["peak_device_bytes"] = session.peak_device_bytes();
-  extra["notes"] = nlohmann::json::array();
+  const SessionStats& st = session.stats();
   if (st.host_path_targets)
-    notes[std::to_string(st.host_path_targets) + " target(s) too large for device-resident event tensors (one binding " +
-          "holds at most " + std::to_string(session.backend().max_buffer_bytes() >> 20) +
-          " MiB): built, downloaded and tiled on the host"]++;
+    loop.notes[std::to_string(st.host_path_targets) + " target(s) too large for device-resident event tensors (one binding " +
+               "holds at most " + std::to_string(session.backend().max_buffer_bytes() >> 20) +
+               " MiB): built, downloaded and tiled on the host"]++;
   if (session.memory_forced_submits())
-    notes["the device's memory forced " + std::to_string(session.memory_forced_submits()) +
-          " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
-  for (const auto& [n, c] : notes) extra["notes"].push_back(n + (c > 1 ? " (x" + std::to_string(c) + ")" : ""));
+    loop.notes["the device's memory forced " + std::to_string(session.memory_forced_submits()) +
+               " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
+  extra["notes"] = nlohmann::json::array();
+  for (const auto& [n, c] : loop.notes) extra["notes"].push_back(n + (c > 1 ? " (x" + std::to_string(c) + ")" : ""));
+  std::vector<std::string> warnings;
+  extra["events"] = events_report(loop, seq, warnings);
+  std::error_code ec;
+  if (o.sequence_options.layout == SequenceLayout::automatic && seq.layout != SequenceLayout::generic &&
+      !fs::exists(fs::path(seq.root) / "meta.json", ec))
+    warnings.push_back(o.sequence + " has no meta.json: read as the " + std::string(sequence_layout_name(seq.layout)) +
+                       " layout with its fixed timing (" + (seq.notes.empty() ? std::string("see docs") : seq.notes.front()) +
+                       "); pass --layout to say so, or restore meta.json");
+  if (output.replaces_existing())
+    extra["notes"].push_back("replaced the earlier output in " + output.dir().string() + " (" +
+                             existing_output_name(o.output.existing) + ")");
+  extra["warnings"] = warnings;
+  extra["provenance"]["finished_utc"] = utc_now();
+  for (const auto& w : warnings) std::cerr << "unroll: warning: " << w << "\n";  // even under --quiet
   nlohmann::json summary = output.finish(extra);
-
-  if (!o.quiet) {
-    const double n = static_cast<double>(std::max<size_t>(total_targets, 1));
-    std::cerr << "unroll: " << frames.size() << " frame(s), " << total_targets << " GS frame(s), mode " << unroll_mode_name(mode)
-              << ", " << total_ms / n << " ms per GS frame (";
-    bool first = true;
-    for (const auto& [name, ms] : stage_ms) std::cerr << (first ? "" : ", ") << name << " " << ms / n, first = false;
-    std::cerr << "; GPU " << traffic.gpu_ms / n << "), per GS frame " << traffic.upload_bytes / n / 1e6 << " MB up, "
-              << traffic.download_bytes / n / 1e6 << " MB down, " << traffic.submits / n << " submits; peak device memory "
-              << (session.peak_device_bytes() >> 20) << " MiB\n";
-    if (summary.contains("metrics"))
-      std::cerr << "unroll: vs ground truth (" << summary["metrics"]["count"] << " frames): PSNR "
-                << summary["metrics"]["mean_psnr"] << " dB, SSIM " << summary["metrics"]["mean_ssim"]
-                << "; RS input: PSNR " << summary["metrics"]["rs_mean_psnr"] << " dB, SSIM "
-                << summary["metrics"]["rs_mean_ssim"] << "\n";
-    std::cerr << "unroll: wrote " << o.out_dir << "\n";
-  }
+  if (!o.quiet) report(o, mode, summary, loop, session, traffic, total_ms, frames.size(), total_targets);
   return summary;
 }
 
