@@ -228,14 +228,17 @@ TEST(Cli, EmptyEventFileWarnsOnStderrAndInSummary) {
 // Found: a sequence whose meta.json was deleted silently switched to the Gev-RS layout.
 TEST(Cli, MissingMetaJsonIsSaid) {
   const fs::path dir = temp_dir("nometa");
-  const fs::path seq = make_sequence(dir), out = dir / "out";
+  // With events.h5 beside rs/ and gs/, the folder also looks like Gev-RS (200 us rows, 3200 us exposure).
+  const fs::path seq = dir / "seq", out = dir / "out";
+  ASSERT_EQ(cli("simulate --out " + seq.string() + " --preset clean --size 64x48 --frames 3 --events-format h5 --quiet").rc, 0);
   fs::remove(seq / "meta.json");
   const CliRun r = cli("unroll " + seq.string() + " --out " + out.string() + " --quiet");
   if (r.rc == 0) {  // read with another layout's timing: said on stderr and in summary.json
     EXPECT_TRUE(has(r, "no meta.json")) << r.out;
     const auto s = read_json(out / "summary.json");
     EXPECT_NE(s["warnings"].dump().find("no meta.json"), std::string::npos) << s["warnings"];
-  } else {  // or refused, naming the file
+  } else {  // or refused as bad or missing input, naming the file
+    EXPECT_TRUE(r.rc == 65 || r.rc == 66) << r.out;
     EXPECT_TRUE(has(r, "meta.json")) << r.out;
   }
   fs::remove_all(dir);
