@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <signal.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -96,6 +97,16 @@ TEST(Cli, VoxelizeRefusesZeroBinsNegativeExposureAndEmptyCrop) {
   EXPECT_EQ(r.rc, 2) << r.out;
   EXPECT_TRUE(has(r, "--crop '0,0,0,0'")) << r.out;
   EXPECT_FALSE(fs::exists(out));
+  // A device, FIFO or folder as --out is refused: the temporary file would be renamed over it
+  // (run as root, --out /dev/full replaced the device by a regular file). A FIFO stands in here.
+  const fs::path fifo = dir / "fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
+  r = cli("voxelize " + seq.string() + " --frames 0 --times 0.5 --out " + fifo.string());
+  EXPECT_EQ(r.rc, 2) << r.out;
+  EXPECT_TRUE(has(r, "--out " + fifo.string() + ": exists and is not a regular file")) << r.out;
+  EXPECT_TRUE(fs::is_fifo(fifo));
+  r = cli("voxelize " + seq.string() + " --frames 0 --times 0.5 --out " + dir.string());
+  EXPECT_EQ(r.rc, 2) << r.out;
   r = cli(base + " --bins 2");
   EXPECT_EQ(r.rc, 0) << r.out;
   EXPECT_TRUE(fs::exists(out));
@@ -285,6 +296,7 @@ TEST(Cli, MessagesNameTheOptionAndExitCodesFollowSysexits) {
       {"simulate --out " + (dir / "s").string() + " --size 0x48", "", "--size '0x48'", 2},
       {"unroll " + (dir / "nothere").string() + " --out " + out.string(), "", "nothere", 66},
       {"frobnicate", "", "unknown command 'frobnicate'", 2},
+      {u + " --frames 99", "", "--frames: " + seq.string() + ": frame 99 does not exist", 2},
   };
   for (const auto& c : cases) {
     const CliRun r = cli(c.args, c.env);

@@ -59,6 +59,11 @@ void apply_threads(unsigned threads);
 CLI::Validator finite_at_least(double lo, bool open = false);  // x >= lo (x > lo when open), finite
 CLI::Validator int_range(long long lo, long long hi);
 
+// An output file that is written under a temporary name and renamed over `path`: refused
+// (UsageError naming `option`) when `path` exists and is not a regular file (a folder, a device
+// such as /dev/full, a FIFO), which the rename would replace.
+void check_output_file(const std::string& path, const std::string& option);
+
 // Numbers in messages: inf, -inf, nan by name; integers without an exponent.
 std::string number_text(double v);
 

@@ -51,6 +51,7 @@ int run_infer(const InferArgs& a) {
   if (a.precision != "fp32")
     throw UsageError("--precision '" + a.precision + "': fp32 is the only precision (there are no fp16 kernels; the " +
                      "kernels compute in fp32)");
+  check_output_file(a.out, "--out");
   std::error_code ec;
   for (const auto& [opt, path] : {std::pair<const char*, std::string>{"--model", a.model}, {"--inputs", a.inputs}})
     if (!std::filesystem::exists(path, ec)) throw InputMissingError(std::string(opt) + " " + path + ": no such file");

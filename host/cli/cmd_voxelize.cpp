@@ -61,6 +61,7 @@ void output_io(F&& f) {
 
 int run_voxelize(const VoxelizeArgs& a) {
   SequenceOptions so = sequence_options(a.timing);
+  check_output_file(a.out, "--out");
   const bool tau = !a.times.empty();
   if (tau == !a.times_us.empty()) throw UsageError("give exactly one of --times and --times-us");
   std::vector<Rational> targets;

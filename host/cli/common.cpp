@@ -1,6 +1,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <iostream>
 #include <opencv2/core/utility.hpp>
 
@@ -148,6 +149,15 @@ CLI::Validator int_range(long long lo, long long hi) {
         return {};
       },
       "[" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+}
+
+void check_output_file(const std::string& path, const std::string& option) {
+  std::error_code ec;
+  const auto st = std::filesystem::status(path, ec);
+  if (std::filesystem::exists(st) && !std::filesystem::is_regular_file(st))
+    throw UsageError(option + " " + path + ": exists and is not a regular file (" +
+                     (std::filesystem::is_directory(st) ? "a folder" : "a device, FIFO or socket") +
+                     "); the output is written under a temporary name and renamed over it: name a file");
 }
 
 std::string number_text(double v) {

@@ -100,7 +100,12 @@ std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requ
   std::vector<int> frames = requested;
   if (frames.empty())
     for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) frames.push_back(k);
-  for (int k : frames) seq.frame(k);  // throws naming the index and the count
+  try {
+    for (int k : frames) seq.frame(k);  // throws naming the index and the count
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::unspecified) throw;
+    throw UsageError(std::string("--frames: ") + e.what());
+  }
   return frames;
 }
 
