@@ -1,5 +1,5 @@
 // Exit codes of `vkunroll`, after BSD sysexits.h, so a scheduler can tell "bad data, don't retry"
-// (65, 66, 2) from "device lost, retry" (75). Documented in README and docs/reliability.md.
+// (65, 66, 2) from "device lost, retry" (75). Documented in docs/reliability.md and `vkunroll --help`.
 #pragma once
 #include <exception>
 #include <string>
