@@ -331,7 +331,7 @@ TEST(Cli, SummaryCarriesProvenanceAndMetricsKeepUnixMicroseconds) {
   const auto list = nlohmann::json::parse(devs.out.substr(devs.out.find('{')));
   const std::string uuid = list["devices"][0]["uuid"];
   const CliRun r = cli("unroll " + seq.string() + " --out " + out.string() + " --quiet --no-video --contrast 0.2 --device uuid:" +
-                    uuid + " --t0s-us 1700000000010000,1700000000060000,1700000000110000 --times 0.5");
+                    uuid + " --t0s-us 1700000000010000,1700000000060000,1700000000110000 --times 0.5 --threads 1 --frame-format npy");
   ASSERT_EQ(r.rc, 0) << r.out;
   const auto s = read_json(out / "summary.json");
   const auto& p = s["provenance"];
@@ -340,9 +340,39 @@ TEST(Cli, SummaryCarriesProvenanceAndMetricsKeepUnixMicroseconds) {
   EXPECT_FALSE(p["device"]["driver_version"].get<std::string>().empty());
   EXPECT_EQ(p["precision"], "fp32");
   EXPECT_EQ(p["command_line"][1], "unroll");
+  EXPECT_EQ(p["threads"]["lavapipe_workers"], 1) << p["threads"];  // --threads bounds lavapipe's workers
+  EXPECT_EQ(p["threads"]["opencv"], 1) << p["threads"];
+  // --frame-format npy: float32 [H, W, 3] NumPy arrays.
+  const std::string npy = slurp(out / s["gs_frames"][0]["file"].get<std::string>());
+  EXPECT_EQ(npy.substr(0, 6), "\x93NUMPY");
+  EXPECT_NE(npy.find("'descr': '<f4'"), std::string::npos);
+  EXPECT_NE(npy.find("'shape': (48, 64, 3)"), std::string::npos);
   const std::string csv = slurp(out / "metrics.csv");
   EXPECT_EQ(csv.find("e+"), std::string::npos) << csv;
   EXPECT_NE(csv.find("\n0,1700000000013850,0.5,"), std::string::npos) << csv;  // t* of frame 0, to the us
   EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 4) << csv;       // a row per GS frame without ground truth
+  fs::remove_all(dir);
+}
+
+// A second run into an output another run is writing is refused as temporary (exit 75: retry).
+TEST(Cli, ConcurrentRunIntoTheSameOutputIsBusy) {
+  const fs::path dir = temp_dir("busy");
+  const fs::path seq = make_sequence(dir), out = dir / "out", stage = dir / ".out.partial";
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    ::execl(VKUNROLL_CLI_PATH, VKUNROLL_CLI_PATH, "unroll", seq.c_str(), "--out", out.c_str(), "--times", "0:1:300", "--quiet",
+            static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+  while (files_in(stage / "frames").empty() && std::chrono::steady_clock::now() < until)
+    std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  const CliRun r = cli("unroll " + seq.string() + " --out " + out.string() + " --overwrite --quiet");
+  ::kill(pid, SIGKILL);
+  int st = 0;
+  ::waitpid(pid, &st, 0);
+  EXPECT_EQ(r.rc, 75) << r.out;
+  EXPECT_TRUE(has(r, "another vkunroll run is writing this output")) << r.out;
   fs::remove_all(dir);
 }
