@@ -27,6 +27,7 @@ run() {  # run NAME COMMAND (through bash -c, for ulimit and environment prefixe
   local rc=$?
   local out; out=$(grep -v '^vkunroll: device\|^unroll: [0-9]\|^unroll: physics\|^usage:\|^(see' "$T/err" | head -1)
   out=${out//$T/\$T}
+  out=$(sed -E "s/\.tmp[0-9]+/.tmpPID/g" <<< "$out")
   echo "| $n | $name | $rc | ${out//|/\\|} |"
 }
 U="$V unroll $S --quiet --no-video"

@@ -60,9 +60,17 @@ int run_infer(const InferArgs& a) {
   const SafetensorsFile in_file = read_safetensors(a.inputs);
   ModelInputs in{input_array(in_file, a.inputs, "rs"), input_array(in_file, a.inputs, "ev1"),
                  input_array(in_file, a.inputs, "ev2"), input_array(in_file, a.inputs, "ev3")};
+  // The physics-informed variant also reads the physics estimate; other models refuse it.
+  if (weights.config.physics_input) {
+    if (!in_file.has("phys"))
+      throw DataError(a.inputs + ": tensor 'phys' [B, 3, H, W] is missing: " + a.model + " is the physics-informed variant");
+    in.phys = input_array(in_file, a.inputs, "phys");
+  } else if (in_file.has("phys")) {
+    throw DataError(a.inputs + ": tensor 'phys' is given, but " + a.model + " is not the physics-informed variant");
+  }
   std::vector<std::string> ignored;
   for (const auto& n : in_file.names())
-    if (n != "rs" && n != "ev1" && n != "ev2" && n != "ev3") ignored.push_back(n);
+    if (n != "rs" && n != "ev1" && n != "ev2" && n != "ev3" && n != "phys") ignored.push_back(n);
   if (!ignored.empty()) {
     std::cerr << "note: " << a.inputs << ": ignoring " << ignored.size() << " other tensor(s):";
     for (const auto& n : ignored) std::cerr << " " << n;

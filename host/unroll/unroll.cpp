@@ -197,32 +197,19 @@ std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFr
   return {lo, hi};
 }
 
+// v^exponent (negative values to 0 first): a frame in another gamma encoding; exponent 1: as it is.
+cv::Mat encode_for_model(const cv::Mat& image, double exponent) {
+  if (std::abs(exponent - 1.0) < 1e-12) return image;
+  cv::Mat v = cv::max(image, 0.0), out;
+  cv::pow(v, exponent, out);
+  return out;
+}
+
 nlohmann::json traffic_json(const DeviceTraffic& t, size_t targets) {
   const double n = static_cast<double>(std::max<size_t>(targets, 1));
   return {{"upload_bytes", double(t.upload_bytes) / n}, {"download_bytes", double(t.download_bytes) / n},
           {"submits", double(t.submits) / n}};
 }
-
-// Records the readers dropped (--on-bad drop) or sorted (--on-bad sort), by rule.
-struct DropCounts {
-  std::map<std::string, uint64_t> by_rule;
-  uint64_t total = 0;
-  size_t sorted = 0;  // reads that found records out of time order and sorted them
-  void add(const EventReadReport& r) {
-    const std::pair<const char*, uint64_t> kinds[] = {{"out_of_sensor", r.dropped_out_of_sensor}, {"time_order", r.dropped_time_order},
-                                                      {"nan", r.dropped_nan}, {"unknown_word", r.dropped_unknown_word},
-                                                      {"bad_polarity", r.dropped_bad_polarity}};
-    for (const auto& [k, n] : kinds)
-      if (n) by_rule[k] += n;
-    total += r.dropped();
-    sorted += r.sorted;
-  }
-  std::string kinds() const {
-    std::string t;
-    for (const auto& [k, n] : by_rule) t += (t.empty() ? "" : ", ") + std::to_string(n) + " " + k;
-    return t;
-  }
-};
 
 // The frame loop's state: where results go, what was counted.
 struct FrameLoop {
@@ -239,11 +226,8 @@ struct FrameLoop {
   uint64_t events_in_windows = 0;
   std::vector<int> frames_without_events;
   size_t frames_read = 0;
-  // Records the readers dropped (--on-bad drop) or sorted (--on-bad sort) in the windows read. A
-  // record decoded for several windows (overlapping windows; readers without an index decode the
-  // whole file) is counted in each: events_report() counts the files once when this is not zero.
-  // Lead: the per-file totals of the events branch (ReadStats) can replace that extra pass.
-  DropCounts window_drops;
+  // The frames' encoding into the model's (v^to_model, docs/model.md "unroll"); 1: as they are.
+  double to_model = 1.0;
 };
 
 // Unrolls frame k's targets (those a resume cannot reuse) and files every result.
@@ -265,20 +249,19 @@ void unroll_frame(const Sequence& seq, int k, const std::vector<UnrollTarget>& t
   }
   auto t_read = Clock::now();
   FrameInput in;
-  in.rs1 = read_image(f1.image, seq.width, seq.height);
+  const cv::Mat rs_input = read_image(f1.image, seq.width, seq.height);
+  in.rs1 = encode_for_model(rs_input, L.to_model);
   in.timing1 = f1.timing;
   std::vector<cv::Mat> results;
   if (!todo.empty()) {
     const bool any_m = std::any_of(methods.begin(), methods.end(), [](const FrameTarget& t) { return t.method == FrameTarget::Method::m; });
     const SequenceFrame* f2 = any_m ? &seq.frames[k + 1] : nullptr;
     if (f2) {
-      in.rs2 = read_image(f2->image, seq.width, seq.height);
+      in.rs2 = encode_for_model(read_image(f2->image, seq.width, seq.height), L.to_model);
       in.timing2 = f2->timing;
     }
     const auto [lo, hi] = frame_window(f1, f2, todo, methods);
-    EventReadReport read_report;
-    const EventStream ev = read_window(seq, lo, hi, &read_report);
-    L.window_drops.add(read_report);
+    const EventStream ev = read_window(seq, lo, hi);
     in.events = &ev;
     L.stage_ms["read"] += ms_since(t_read);
     L.events_per_frame.push_back({{"frame", k}, {"events", ev.size()}});
@@ -286,6 +269,8 @@ void unroll_frame(const Sequence& seq, int k, const std::vector<UnrollTarget>& t
     L.frames_read++;
     if (ev.empty()) L.frames_without_events.push_back(k);
     results = L.session.unroll(in, methods);
+    for (size_t j = 0; j < results.size(); ++j)
+      if (methods[j].method != FrameTarget::Method::physics) results[j] = encode_for_model(results[j], 1.0 / L.to_model);
   } else {
     L.stage_ms["read"] += ms_since(t_read);
   }
@@ -299,9 +284,9 @@ void unroll_frame(const Sequence& seq, int k, const std::vector<UnrollTarget>& t
       gt = read_image(gt_file, seq.width, seq.height);
     }
     if (reused[j]) {
-      L.output.add_reused(reused_record[j], *reused[j], in.rs1, gt);
+      L.output.add_reused(reused_record[j], *reused[j], rs_input, gt);
     } else {
-      L.output.add(k, ts[j].t_us.to_double(), ts[j].t_us.str(), ts[j].tau, results[next++], in.rs1, gt, gt_file, ts[j].name);
+      L.output.add(k, ts[j].t_us.to_double(), ts[j].t_us.str(), ts[j].tau, results[next++], rs_input, gt, gt_file, ts[j].name);
     }
     L.progress.update(++L.done, "frame " + std::to_string(k) + (reused[j] ? " (reused)" : ""));
   }
@@ -337,34 +322,35 @@ nlohmann::json thread_report(const UnrollOptions& o) {
           {"lavapipe_workers", lavapipe}, {"LP_NUM_THREADS", lp ? nlohmann::json(lp) : nlohmann::json()}};
 }
 
-// The events every frame window held, and the warnings they call for.
-// Lead: the event readers' per-file totals (Sequence::event_totals(), events branch) go into
-// "file_totals" here, with a warning when records were dropped (--on-bad drop) or a file is empty.
+// The events every frame window held (Sequence::event_totals(): each record counted once over
+// the windows), and the warnings they call for.
 nlohmann::json events_report(const FrameLoop& L, const Sequence& seq, std::vector<std::string>& warnings) {
+  const EventTotals totals = seq.event_totals();
   nlohmann::json j = {{"in_frame_windows", L.events_in_windows}, {"frames_read", L.frames_read},
                       {"per_frame", L.events_per_frame}, {"frames_without_events", L.frames_without_events},
-                      {"files", seq.event_files}, {"file_totals", nullptr},  // set below when records were dropped
-                      {"dropped_in_windows", L.window_drops.total}, {"dropped_by_rule_in_windows", L.window_drops.by_rule},
-                      {"windows_sorted", L.window_drops.sorted}};
+                      {"files", seq.event_files},
+                      {"file_totals", {{"records", totals.records}, {"valid", totals.valid}, {"dropped", totals.dropped()},
+                                       {"dropped_out_of_sensor", totals.dropped_out_of_sensor},
+                                       {"dropped_time_order", totals.dropped_time_order}, {"dropped_nan", totals.dropped_nan},
+                                       {"dropped_unknown_word", totals.dropped_unknown_word},
+                                       {"dropped_bad_polarity", totals.dropped_bad_polarity},
+                                       {"reordered", totals.reordered}, {"empty_files", totals.empty_files},
+                                       {"summary", totals.summary()}}}};
   std::string files;
   for (const auto& f : seq.event_files) files += (files.empty() ? "" : ", ") + f;
-  if (L.window_drops.total) {
-    // Exact counts: one streaming pass over the event file(s), paid only when records were dropped.
-    DropCounts once;
-    uint64_t records = 0;
-    for (const auto& f : seq.event_files) {
-      EventReadReport r;
-      scan_events(f, seq.event_options, [](const EventStream&) {}, &r);
-      once.add(r);
-      records += r.records;
-    }
-    j["file_totals"] = {{"records", records}, {"dropped", once.total}, {"dropped_by_rule", once.by_rule}};
-    warnings.push_back("--on-bad drop: " + std::to_string(once.total) + " of " + std::to_string(records) +
-                       " event record(s) broke a rule and were dropped (" + once.kinds() + ") in " + files);
+  if (totals.dropped()) {
+    std::string kinds;
+    for (const auto& [n, what] : {std::pair<uint64_t, const char*>{totals.dropped_out_of_sensor, "out of sensor"},
+                                  {totals.dropped_time_order, "out of time order"}, {totals.dropped_nan, "NaN time"},
+                                  {totals.dropped_unknown_word, "unknown word"}, {totals.dropped_bad_polarity, "bad polarity"}})
+      if (n) kinds += (kinds.empty() ? "" : ", ") + std::to_string(n) + " " + what;
+    warnings.push_back("--on-bad drop: " + std::to_string(totals.dropped()) + " of " + std::to_string(totals.records) +
+                       " event record(s) broke a rule and were dropped (" + kinds + ") in " + files);
   }
-  if (L.window_drops.sorted)
-    warnings.push_back("--on-bad sort: the events of " + std::to_string(L.window_drops.sorted) +
-                       " frame window(s) were out of time order and were sorted");
+  if (totals.reordered)
+    warnings.push_back("--on-bad sort: " + std::to_string(totals.reordered) + " event record(s) were out of time order and were sorted");
+  if (totals.empty_files)
+    warnings.push_back(std::to_string(totals.empty_files) + " event file(s) are empty (0 bytes): " + files);
   if (L.frames_read && L.events_in_windows == 0) {
     warnings.push_back("no events: the frame windows of " + std::to_string(L.frames_read) + " frame(s) hold no event (" +
                        files + "); the GS frames are the RS input, unchanged");
@@ -428,7 +414,7 @@ namespace {
 // Everything summary.json says beyond the frames and outputs (UnrollOutput::finish adds those).
 nlohmann::json summary_extra(const UnrollOptions& o, UnrollMode mode, const UnrollSession& session, const Sequence& seq,
                              const std::vector<int>& frames, size_t total_targets, const PhysicsUnrollParams& prm,
-                             const std::string& contrast_source, const TileOptions& tile_options,
+                             const std::string& contrast_source, double seq_gamma, const TileOptions& tile_options,
                              const std::string& model_sha256) {
   const SessionStats& st = session.stats();
   nlohmann::json extra;
@@ -442,8 +428,13 @@ nlohmann::json summary_extra(const UnrollOptions& o, UnrollMode mode, const Unro
     extra["model"] = {{"path", o.session.model_path}, {"sha256", model_sha256},
                       {"bytes", fs::file_size(o.session.model_path)}, {"config", session.model_config().summary()},
                       {"channel_order", session.model_rgb() ? "rgb" : "bgr"}};
-  if (mode == UnrollMode::physics)
-    extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma}};
+  const bool variant = session.has_model() && session.model_config().physics_input;
+  if (mode == UnrollMode::physics || variant)
+    extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma},
+                        {"role", variant ? "the model's physics input" : "the unroller"}};
+  if (session.has_model())
+    extra["encoding"] = {{"sequence_gamma", seq_gamma},
+                         {"model_gamma", session.model_config().gamma ? nlohmann::json(*session.model_config().gamma) : nlohmann::json()}};
   if (session.has_model()) {
     nlohmann::json tj{{"tile", tile_options.tile}, {"tile_used", st.tile_used}, {"halo", tile_options.halo},
                       {"sparse", sparse_policy_name(o.sparse)}, {"sparse_threshold", o.sparse_threshold},
@@ -537,22 +528,34 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   size_t total_targets = 0;
   for (const auto& [k, ts] : targets) total_targets += ts.size();
 
+  // The sequence's encoding, and the model's: frames go into a model with a known gamma in its
+  // encoding (v^(g_f/g_m)) and its results come back (docs/model.md, "unroll").
+  const double seq_gamma = o.gamma ? *o.gamma : read_meta_gamma(seq);
+  const std::optional<double> model_gamma = session.has_model() ? session.model_config().gamma : std::nullopt;
+  const double to_model = model_gamma ? seq_gamma / *model_gamma : 1.0;
+  const bool variant = session.has_model() && session.model_config().physics_input;
   PhysicsUnrollParams prm;
   std::string contrast_source = "given";
   double contrast_ms = -1;
-  if (mode == UnrollMode::physics) {
-    prm.gamma = static_cast<float>(o.gamma ? *o.gamma : read_meta_gamma(seq));
+  if (mode == UnrollMode::physics || variant) {
+    // --mode physics decodes the frames with the sequence's gamma; the variant's physics input is
+    // computed on the model-encoded frame (docs/model.md).
+    prm.gamma = static_cast<float>(mode == UnrollMode::physics ? seq_gamma : model_gamma.value_or(1.0));
+    const std::string& from_model = variant ? session.model_config().physics_contrast : std::string("estimate");
     if (o.contrast) {
       prm.contrast = static_cast<float>(*o.contrast);
+    } else if (from_model != "estimate") {
+      prm.contrast = std::stof(from_model);  // validated when the weights were loaded
+      contrast_source = "the model's metadata";
     } else {
       const auto t = Clock::now();
-      prm.contrast = static_cast<float>(estimate_contrast(seq, frames, prm.gamma));
+      prm.contrast = static_cast<float>(estimate_contrast(seq, frames, seq_gamma));
       contrast_ms = ms_since(t);
       contrast_source = "estimated (temporal consistency of consecutive frames)";
     }
     if (!o.quiet)
-      std::cerr << "unroll: physics unroller, contrast c = " << prm.contrast << " (" << contrast_source << "), gamma "
-                << prm.gamma << "\n";
+      std::cerr << "unroll: " << (variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
+                << prm.contrast << " (" << contrast_source << "), gamma " << prm.gamma << "\n";
   }
   session.set_physics(prm);
   TileOptions tile_options;
@@ -574,6 +577,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   UnrollOutput output(o.out_dir, uo);
   Progress progress("unroll", total_targets, Progress::automatic(o.quiet));
   FrameLoop loop{session, output, progress, mode, o.output.existing == ExistingOutput::resume};
+  loop.to_model = to_model;
   loop.stage_ms["read"] += load_ms;
   if (contrast_ms >= 0) loop.stage_ms["contrast_estimate"] = contrast_ms;
   const DeviceTraffic traffic_before = session.traffic();
@@ -586,7 +590,8 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   for (const auto& [name, ms] : session.stats().ms) loop.stage_ms[name] += ms;
 
   const double total_ms = ms_since(t_start);
-  nlohmann::json extra = summary_extra(o, mode, session, seq, frames, total_targets, prm, contrast_source, tile_options, model_sha);
+  nlohmann::json extra = summary_extra(o, mode, session, seq, frames, total_targets, prm, contrast_source, seq_gamma,
+                                     tile_options, model_sha);
   nlohmann::json per_frame;
   for (const auto& [name, ms] : loop.stage_ms) per_frame[name] = total_targets ? ms / total_targets : 0.0;
   extra["ms_per_gs_frame"] = per_frame;
@@ -608,12 +613,6 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   for (const auto& [n, c] : loop.notes) extra["notes"].push_back(n + (c > 1 ? " (x" + std::to_string(c) + ")" : ""));
   std::vector<std::string> warnings;
   extra["events"] = events_report(loop, seq, warnings);
-  std::error_code ec;
-  if (o.sequence_options.layout == SequenceLayout::automatic && seq.layout != SequenceLayout::generic &&
-      !fs::exists(fs::path(seq.root) / "meta.json", ec))
-    warnings.push_back(o.sequence + " has no meta.json: read as the " + std::string(sequence_layout_name(seq.layout)) +
-                       " layout with its fixed timing (" + (seq.notes.empty() ? std::string("see docs") : seq.notes.front()) +
-                       "); pass --layout to say so, or restore meta.json");
   if (output.replaces_existing())
     extra["notes"].push_back("replaced the earlier output in " + output.dir().string() + " (" +
                              existing_output_name(o.output.existing) + ")");
