@@ -83,7 +83,7 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
       ->check(finite_at_least(0))->capture_default_str()->group(g)->type_name("X");
   c->add_option("--backend", a.backend, "vulkan | cpu (the CPU reference backend)")
       ->check(CLI::IsMember({"vulkan", "cpu"}))->capture_default_str()->group(g)->type_name("B");
-  c->add_option("--precision", a.precision, "fp32 (fp16 is refused: the kernels compute in fp32)")
+  c->add_option("--precision", a.precision, "fp32 | fp16 (Vulkan backend: weights and buffers in f16, event tensors and physics in f32; docs/model.md)")
       ->check(CLI::IsMember({"fp32", "fp16"}))->capture_default_str()->group(g)->type_name("P");
 }
 

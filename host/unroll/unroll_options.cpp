@@ -98,14 +98,13 @@ void validate_sequence_options(const SequenceOptions& o) {
 }
 
 void validate_unroll_options(const UnrollOptions& o) {
-  if (o.session.precision != Precision::fp32)  // said before anything else: no input is read for it
-    throw UsageError(std::string("--precision '") + precision_name(o.session.precision) +
-                     "': fp32 is the only precision of the unroll job so far (the kernels compute in fp32)");
   if (o.sequence.empty()) throw UsageError("no SEQUENCE folder given");
   if (o.out_dir.empty()) throw UsageError("--out DIR is required");
   const bool needs_model = o.mode == UnrollMode::s || o.mode == UnrollMode::m || o.mode == UnrollMode::choose;
   if (needs_model && o.session.model_path.empty())
     throw UsageError(std::string("--mode ") + unroll_mode_name(o.mode) + " needs --model FILE.safetensors");
+  if (o.session.precision == Precision::fp16 && o.session.backend == BackendKind::cpu)
+    throw UsageError("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
   if (o.tile < 0 || o.tile % kTileAlign)
     throw UsageError("--tile " + std::to_string(o.tile) + ": expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
   if (o.halo < -1 || (o.halo >= 0 && o.halo % kTileAlign))
