@@ -318,7 +318,7 @@ int main(int argc, char** argv) try {
         o.times = {TargetTimes::Kind::ground_truth, {}};
         o.quiet = true;
         o.output.write_video = false;
-        o.output.bit_depth = 16;
+        o.output.frame_format = FrameFormat::png16;
         o.sparse = parse_sparse_policy(spec.sparse, "sparse");
         o.sparse_threshold = spec.threshold;
         o.tile = spec.tile;
@@ -359,6 +359,7 @@ int main(int argc, char** argv) try {
       UnrollOptions o;
       o.sequence = seq_dir.string();
       o.out_dir = (runs / ("published_" + size.str())).string();
+      o.output.existing = ExistingOutput::overwrite;  // the report's own folder from an earlier report
       o.session.model_path = wfile.string();
       o.mode = parse_unroll_mode(mode, "mode");
       o.times = {TargetTimes::Kind::normalized, {Rational(1, 2)}};

@@ -1,6 +1,7 @@
 #include "vkunroll/runtime/context.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cctype>
 #include <cstdlib>
 #include <cstring>
@@ -8,6 +9,8 @@
 #include <fstream>
 #include <iostream>
 #include <sstream>
+
+#include <unistd.h>
 
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
@@ -119,15 +122,19 @@ DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
   info.max_texel_buffer_elements = props.limits.maxTexelBufferElements;
   info.min_texel_buffer_offset_alignment = std::max<uint64_t>(1, props.limits.minTexelBufferOffsetAlignment);
   info.timestamp_period_ns = props.limits.timestampPeriod;
+  info.driver_version = props.driverVersion;
   std::memcpy(info.pipeline_cache_uuid, props.pipelineCacheUUID, VK_UUID_SIZE);
 
   const bool v12 = VK_API_VERSION_MINOR(props.apiVersion) >= 2 || VK_API_VERSION_MAJOR(props.apiVersion) > 1;
+  VkPhysicalDeviceIDProperties ids{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ID_PROPERTIES};  // core in 1.1
   VkPhysicalDeviceSubgroupProperties subgroup{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
   VkPhysicalDeviceDriverProperties driver{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES};
   VkPhysicalDeviceProperties2 props2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2};
-  props2.pNext = &subgroup;
+  props2.pNext = &ids;
+  ids.pNext = &subgroup;
   if (v12 || device_extension_available(pd, VK_KHR_DRIVER_PROPERTIES_EXTENSION_NAME)) subgroup.pNext = &driver;
   vkGetPhysicalDeviceProperties2(pd, &props2);
+  std::memcpy(info.device_uuid, ids.deviceUUID, VK_UUID_SIZE);
   info.subgroup_size = subgroup.subgroupSize;
   if (subgroup.pNext) {
     info.driver_name = driver.driverName;
@@ -175,7 +182,7 @@ VkInstance make_instance(bool validation, bool* messenger_ok) {
   uint32_t loader_version = VK_API_VERSION_1_0;
   if (vkEnumerateInstanceVersion) vkEnumerateInstanceVersion(&loader_version);
   if (loader_version < VK_API_VERSION_1_1)
-    throw Error("the Vulkan loader is older than 1.1; vkunroll needs Vulkan 1.1 or newer");
+    throw DeviceUnavailableError("the Vulkan loader is older than 1.1; vkunroll needs Vulkan 1.1 or newer");
   VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
   app.pApplicationName = "vkunroll";
   app.applicationVersion = VK_MAKE_VERSION(0, 1, 0);
@@ -185,7 +192,7 @@ VkInstance make_instance(bool validation, bool* messenger_ok) {
   std::vector<const char*> layers, exts;
   if (validation) {
     if (!layer_available(kValidationLayer))
-      throw Error(std::string("validation was requested but ") + kValidationLayer +
+      throw DeviceUnavailableError(std::string("validation was requested but ") + kValidationLayer +
                   " is not installed (apt-get install vulkan-validationlayers)");
     layers.push_back(kValidationLayer);
   }
@@ -244,24 +251,60 @@ std::string DeviceInfo::api_version_string() const {
   return os.str();
 }
 
-uint32_t choose_device(const std::vector<DeviceInfo>& devices, const std::string& selector) {
-  if (devices.empty()) throw Error(kNoDriverHelp);
+std::string DeviceInfo::uuid_string() const {
+  std::ostringstream os;
+  for (uint32_t i = 0; i < VK_UUID_SIZE; ++i) {
+    if (i == 4 || i == 6 || i == 8 || i == 10) os << '-';
+    os << std::hex << (device_uuid[i] >> 4) << (device_uuid[i] & 15);
+  }
+  return os.str();
+}
+
+std::string DeviceInfo::driver_version_string() const {
+  const uint32_t v = driver_version;
+  std::ostringstream os;
+  if (vendor_id == 0x10DE)  // NVIDIA: 10.8.8.6 bits
+    os << (v >> 22) << "." << ((v >> 14) & 0xff) << "." << ((v >> 6) & 0xff) << "." << (v & 0x3f);
+  else
+    os << VK_API_VERSION_MAJOR(v) << "." << VK_API_VERSION_MINOR(v) << "." << VK_API_VERSION_PATCH(v);
+  return os.str();
+}
+
+uint32_t choose_device(const std::vector<DeviceInfo>& devices, const std::string& selector, const std::string& source) {
+  if (devices.empty()) throw DeviceUnavailableError(kNoDriverHelp);
   auto list = [&] {
     std::ostringstream os;
-    for (const auto& d : devices) os << "\n  [" << d.index << "] " << d.name << " (" << d.type_name() << ")";
+    for (const auto& d : devices) os << "\n  [" << d.index << "] " << d.name << " (" << d.type_name() << ", uuid:" << d.uuid_string() << ")";
     return os.str();
   };
   if (!selector.empty()) {
+    const std::string said = source + " '" + selector + "'";
+    if (lower(selector).rfind("uuid:", 0) == 0) {
+      std::string want;
+      for (char c : lower(selector.substr(5)))
+        if (c != '-') want.push_back(c);
+      const bool hex = !want.empty() && want.size() <= 32 && std::all_of(want.begin(), want.end(), [](unsigned char c) { return std::isxdigit(c); });
+      if (!hex) throw DeviceUnavailableError(said + ": expected uuid: followed by up to 32 hex digits (dashes optional); devices are:" + list());
+      std::vector<uint32_t> hits;
+      for (const auto& d : devices) {
+        std::string have;
+        for (char c : d.uuid_string())
+          if (c != '-') have.push_back(c);
+        if (have.rfind(want, 0) == 0) hits.push_back(d.index);
+      }
+      if (hits.size() == 1) return hits.front();
+      throw DeviceUnavailableError(said + (hits.empty() ? ": no device has that UUID" : ": more than one device's UUID starts so") +
+                                   "; devices are:" + list());
+    }
     const bool numeric = std::all_of(selector.begin(), selector.end(), [](unsigned char c) { return std::isdigit(c); });
     if (numeric) {
-      const unsigned long idx = std::stoul(selector);
-      if (idx >= devices.size())
-        throw Error("--device " + selector + ": no device with that index; devices are:" + list());
+      const unsigned long idx = selector.size() > 9 ? devices.size() : std::stoul(selector);
+      if (idx >= devices.size()) throw DeviceUnavailableError(said + ": no device with that index; devices are:" + list());
       return static_cast<uint32_t>(idx);
     }
     for (const auto& d : devices)
       if (lower(d.name).find(lower(selector)) != std::string::npos) return d.index;
-    throw Error("--device '" + selector + "': no device name contains it; devices are:" + list());
+    throw DeviceUnavailableError(said + ": no device name contains it; devices are:" + list());
   }
   uint32_t best = 0;
   for (const auto& d : devices)
@@ -277,7 +320,7 @@ DeviceList Context::enumerate(bool validation) {
     auto pds = physical_devices(instance);
     for (uint32_t i = 0; i < pds.size(); ++i) list.devices.push_back(read_device_info(pds[i], i));
     const char* env = std::getenv("VKUNROLL_DEVICE");
-    list.policy_choice = choose_device(list.devices, env ? env : "");
+    list.policy_choice = choose_device(list.devices, env ? env : "", "VKUNROLL_DEVICE");
   } catch (...) {
     vkDestroyInstance(instance, nullptr);
     throw;
@@ -349,17 +392,17 @@ void Context::create_device() {
   auto pds = physical_devices(instance_);
   std::vector<DeviceInfo> infos;
   for (uint32_t i = 0; i < pds.size(); ++i) infos.push_back(read_device_info(pds[i], i));
-  std::string selector = options_.device;
+  std::string selector = options_.device, source = "--device";
   if (selector.empty())
-    if (const char* env = std::getenv("VKUNROLL_DEVICE")) selector = env;
-  const uint32_t chosen = choose_device(infos, selector);
+    if (const char* env = std::getenv("VKUNROLL_DEVICE")) selector = env, source = "VKUNROLL_DEVICE";
+  const uint32_t chosen = choose_device(infos, selector, source);
   physical_ = pds[chosen];
   info_ = infos[chosen];
   info_.min_uniform_buffer_offset_alignment =
       std::max<uint64_t>(info_.min_uniform_buffer_offset_alignment, options_.min_uniform_offset_alignment);
   if (options_.without_fp16) info_.shader_float16 = info_.storage_buffer_16bit = false;
   queue_family_ = queue_family_for_compute(physical_);
-  if (queue_family_ == UINT32_MAX) throw Error("device '" + info_.name + "' has no compute queue");
+  if (queue_family_ == UINT32_MAX) throw DeviceUnavailableError("device '" + info_.name + "' has no compute queue");
 
   const float priority = 1.f;
   VkDeviceQueueCreateInfo qci{VK_STRUCTURE_TYPE_DEVICE_QUEUE_CREATE_INFO};
@@ -404,7 +447,7 @@ void Context::create_device() {
   if (options_.announce)
     std::cerr << "vkunroll: device [" << info_.index << "] " << info_.name << " (" << info_.type_name()
               << ", Vulkan " << info_.api_version_string()
-              << (info_.driver_info.empty() ? "" : ", " + info_.driver_info)
+              << (info_.driver_info.empty() ? "" : ", " + info_.driver_info) << ", uuid:" << info_.uuid_string()
               << (validation_ ? ", validation on" : "") << ")\n";
 }
 
@@ -443,13 +486,22 @@ void Context::save_pipeline_cache() {
   if (vkGetPipelineCacheData(device_, pipeline_cache_, &size, blob.data()) != VK_SUCCESS) return;
   std::error_code ec;
   std::filesystem::create_directories(std::filesystem::path(pipeline_cache_path_).parent_path(), ec);
-  const std::string tmp = pipeline_cache_path_ + ".tmp";
+  // Unique per process (and per save): concurrent runs sharing the cache directory never write,
+  // truncate or rename each other's temporary file; the last rename wins, whole.
+  static std::atomic<unsigned> saves{0};
+  const std::string tmp = pipeline_cache_path_ + ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(saves++);
   {
     std::ofstream out(tmp, std::ios::binary);
     if (!out) return;  // an unwritable cache directory only costs compile time next run
     out.write(blob.data(), static_cast<std::streamsize>(size));
+    out.close();
+    if (!out) {  // a short write (disk full): never rename a torn cache into place
+      std::filesystem::remove(tmp, ec);
+      return;
+    }
   }
   std::filesystem::rename(tmp, pipeline_cache_path_, ec);
+  if (ec) std::filesystem::remove(tmp, ec);
 }
 
 const Pipeline& Context::pipeline(const ShaderModuleBlob& shader, const std::vector<uint32_t>& spec,

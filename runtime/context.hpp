@@ -20,7 +20,8 @@ struct ShaderModuleBlob;
 struct ContextOptions {
   // Enable VK_LAYER_KHRONOS_validation. Also turned on by VKUNROLL_VALIDATION=1.
   bool validation = false;
-  // Device by index or by case-insensitive name substring; empty: VKUNROLL_DEVICE, then policy.
+  // Device by index, by "uuid:<deviceUUID>" (as `vkunroll devices` shows it; dashes optional, a
+  // unique prefix is enough) or by case-insensitive name substring; empty: VKUNROLL_DEVICE, then policy.
   std::string device;
   // Say the chosen device in one line on stderr.
   bool announce = true;
@@ -71,6 +72,11 @@ struct DeviceInfo {
   bool timestamps = false;              // the compute queue writes timestamps
   uint64_t device_local_bytes = 0;
   uint8_t pipeline_cache_uuid[VK_UUID_SIZE] = {};
+  uint8_t device_uuid[VK_UUID_SIZE] = {};  // VkPhysicalDeviceIDProperties: the same GPU in every process
+  uint32_t driver_version = 0;             // VkPhysicalDeviceProperties::driverVersion (vendor encoding)
+
+  std::string uuid_string() const;            // "6d657361-3232-2e33-2e36-000000000000"
+  std::string driver_version_string() const;  // decoded the vendor's way (NVIDIA 10.8.8.6 bits, else Vulkan's)
 
   std::string type_name() const;        // "discrete", "integrated", "virtual", "cpu", "other"
   std::string api_version_string() const;
@@ -95,8 +101,11 @@ struct DeviceList {
   uint32_t policy_choice = 0;
 };
 
-// Policy: discrete > integrated > virtual > cpu > other; ties keep enumeration order.
-uint32_t choose_device(const std::vector<DeviceInfo>& devices, const std::string& selector);
+// Policy: discrete > integrated > virtual > cpu > other; ties keep enumeration order. `selector`: an
+// index, "uuid:<hex>" or a name substring; `source` names where it came from in errors ("--device",
+// "VKUNROLL_DEVICE"). Throws DeviceUnavailableError when nothing matches.
+uint32_t choose_device(const std::vector<DeviceInfo>& devices, const std::string& selector,
+                       const std::string& source = "--device");
 
 class Context {
  public:
@@ -118,6 +127,9 @@ class Context {
   VkQueue queue() const { return queue_; }
   uint32_t queue_family() const { return queue_family_; }
   VkPipelineCache pipeline_cache() const { return pipeline_cache_; }
+  // Where the pipeline cache is persisted (empty: not persisted). Saved through a temporary file
+  // unique to this process, then renamed: concurrent runs never write one file.
+  const std::string& pipeline_cache_path() const { return pipeline_cache_path_; }
   Allocator& allocator() { return *allocator_; }
   bool validation_enabled() const { return validation_; }
   DeviceTraffic& traffic() { return traffic_; }

@@ -7,8 +7,7 @@
 #include <iomanip>
 #include <iostream>
 
-#include "vkunroll/host/cli/args.hpp"
-#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 
@@ -43,33 +42,40 @@ void print_result(const char* what, const nlohmann::json& s) {
               << s["metrics"]["mean_ssim"].get<double>() << std::setprecision(2) << "  ";
   std::cout << s["ms_per_gs_frame_total"].get<double>() << " ms per GS frame\n";
 }
-}  // namespace
 
-int cmd_demo(const Argv& argv) {
-  Args args("demo", argv, {"out", "model", "device", "size", "frames", "seed"}, {"physics-only"});
-  if (args.help()) {
-    std::cout << "usage: vkunroll demo [--out DIR] [--model FILE] [--size WxH] [--frames K] [--seed S] [--physics-only]\n\n"
-                 "Simulates a built-in scene (deterministic; realistic event noise) with ground truth, unrolls it with\n"
-                 "the shipped model (models/*.safetensors, or --model, or VKUNROLL_MODEL) and with the weight-free\n"
-                 "physics unroller, and prints where the outputs are and their PSNR/SSIM against the truth, beside\n"
-                 "the RS input's.\n";
-    return 0;
-  }
-  const fs::path out = args.get_or("out", "vkunroll-demo");
+
+struct DemoArgs {
+  std::string out = "vkunroll-demo", model, size = "160x120";
+  int frames = 4;
+  long long seed = 2024;
+  bool physics_only = false;
+  DeviceArgs device;
+};
+
+int run_demo(const DemoArgs& a) {
+  const fs::path out = a.out;
   sim::SimulationConfig cfg = sim::simulation_preset("realistic");
-  cfg.seed = static_cast<uint64_t>(args.integer("seed", 2024));
-  cfg.width = 160;
-  cfg.height = 120;
-  if (auto s = args.get("size")) {
-    if (std::sscanf(s->c_str(), "%dx%d", &cfg.width, &cfg.height) != 2) throw Error("--size expects WxH, got '" + *s + "'");
-  }
-  cfg.frames = static_cast<int>(args.integer("frames", 4));
+  cfg.seed = static_cast<uint64_t>(a.seed);
+  char x = 0, extra = 0;
+  if (std::sscanf(a.size.c_str(), "%d%c%d%c", &cfg.width, &x, &cfg.height, &extra) != 3 || x != 'x' || cfg.width < 16 ||
+      cfg.height < 16 || cfg.width > 4096 || cfg.height > 4096)
+    throw UsageError("--size '" + a.size + "': expected WxH, each 16 to 4096, e.g. 160x120");
+  cfg.frames = a.frames;
   cfg.gt_per_frame = 3;
   cfg.line_delay_us = 25900.0 / cfg.height;  // the same 25.9 ms readout as the 260-row default
-  cfg.validate();
+  try {
+    cfg.validate();
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
   const auto t0 = std::chrono::steady_clock::now();
   const auto seq = sim::simulate(cfg);
-  sim::write_sequence(cfg, seq, (out / "sequence").string());
+  try {
+    sim::write_sequence(cfg, seq, (out / "sequence").string());
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::unspecified) throw;
+    throw IoError(e.what());
+  }
   const double sim_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   std::cout << "demo: simulated " << cfg.frames << " RS frames at " << cfg.width << "x" << cfg.height << " with "
             << seq.events.size() << " events (preset realistic, seed " << cfg.seed << ") in " << std::setprecision(3)
@@ -78,15 +84,18 @@ int cmd_demo(const Argv& argv) {
   UnrollOptions o;
   o.sequence = (out / "sequence").string();
   o.times = {TargetTimes::Kind::ground_truth, {}};
-  o.session.device = args.get_or("device", "");
+  o.session.device = a.device.device;
+  o.session.cpu_threads = a.device.threads;
   o.quiet = true;
   o.out_dir = (out / "physics").string();
   o.mode = UnrollMode::physics;
+  o.output.existing = ExistingOutput::overwrite;  // the demo's own folders from an earlier demo
+  o.command_line = command_line();
   const nlohmann::json phys = run_unroll(o);
   nlohmann::json learned;
   std::error_code ec;
   const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  const std::string model = args.has("physics-only") ? std::string() : args.get_or("model", find_shipped_model(exe));
+  const std::string model = a.physics_only ? std::string() : (a.model.empty() ? find_shipped_model(exe) : a.model);
   if (!model.empty()) {
     o.session.model_path = model;
     o.mode = UnrollMode::automatic;
@@ -99,10 +108,33 @@ int cmd_demo(const Argv& argv) {
             << phys["metrics"]["rs_mean_ssim"].get<double>() << "\n";
   print_result("physics unroller", phys);
   if (!learned.is_null()) print_result(("model " + fs::path(model).filename().string() + " (" + learned["mode"].get<std::string>() + ")").c_str(), learned);
-  else if (!args.has("physics-only")) std::cout << "  (no shipped model found in models/: only the physics unroller ran)\n";
+  else if (!a.physics_only) std::cout << "  (no shipped model found in models/: only the physics unroller ran)\n";
   std::cout << "demo: outputs in " << fs::absolute(out).string() << " (physics/"
             << (learned.is_null() ? "" : ", model/") << ": frames/, gs_video.mp4, contact_sheet.png, summary.json)\n";
   return 0;
+}
+
+}  // namespace
+
+Command add_demo(CLI::App& parent) {
+  auto a = std::make_shared<DemoArgs>();
+  CLI::App* c = parent.add_subcommand("demo", "simulate a built-in scene and unroll it (the shipped model and physics)");
+  c->description(
+      "Simulates a built-in scene (deterministic; realistic event noise) with ground truth, unrolls it with\n"
+      "the shipped model (models/*.safetensors, or --model, or VKUNROLL_MODEL) and with the weight-free\n"
+      "physics unroller, and prints where the outputs are and their PSNR/SSIM against the truth, beside\n"
+      "the RS input's. Earlier demo outputs in --out are replaced.");
+  c->add_option("--out", a->out, "output folder")->capture_default_str()->type_name("DIR");
+  c->add_option("--model", a->model, "weights to run instead of the shipped model")->type_name("FILE");
+  c->add_option("--size", a->size, "sensor size")->capture_default_str()->type_name("WxH");
+  c->add_option("--frames", a->frames, "RS frames")->check(int_range(2, 1000))->capture_default_str()->type_name("K");
+  c->add_option("--seed", a->seed, "scene seed")->check(int_range(0, 1LL << 62))->capture_default_str()->type_name("S");
+  c->add_flag("--physics-only", a->physics_only, "run only the physics unroller");
+  add_device_options(c, a->device);
+  return {c, [a] {
+            apply_threads(a->device.threads);
+            return run_demo(*a);
+          }};
 }
 
 }  // namespace vkunroll::cli

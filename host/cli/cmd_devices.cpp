@@ -1,28 +1,46 @@
-#include <iomanip>
 #include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
 
-#include "vkunroll/host/cli/args.hpp"
-#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/cli/cli.hpp"
+#include "vkunroll/host/unroll/provenance.hpp"
 #include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll::cli {
 
-int cmd_devices(const Argv& argv) {
-  Args args("devices", argv, {"device"});
-  if (args.help()) {
-    std::cout << "usage: vkunroll devices [--device INDEX|NAME]\n\n"
-                 "Lists every Vulkan device with its type, API version, driver, subgroup size, fp16 support,\n"
-                 "max storage buffer range and shared memory. '*' marks the device vkunroll would use\n"
-                 "(--device, else VKUNROLL_DEVICE, else discrete > integrated > virtual > cpu).\n";
-    return 0;
-  }
+namespace {
+
+struct DevicesArgs {
+  std::string device;
+  bool json = false;
+};
+
+int run_devices(const DevicesArgs& a) {
   const DeviceList list = Context::enumerate();
   uint32_t chosen = list.policy_choice;
-  if (auto sel = args.get("device")) chosen = choose_device(list.devices, *sel);
+  if (!a.device.empty()) chosen = choose_device(list.devices, a.device, "--device");
+  if (a.json) {
+    nlohmann::json out = {{"chosen", chosen}, {"devices", nlohmann::json::array()}};
+    for (const auto& d : list.devices) {
+      nlohmann::json j = device_json(d);
+      j["subgroup_size"] = d.subgroup_size;
+      j["shader_float16"] = d.shader_float16;
+      j["storage_buffer_16bit"] = d.storage_buffer_16bit;
+      j["max_storage_buffer_range"] = d.max_storage_buffer_range;
+      j["max_shared_memory"] = d.max_shared_memory;
+      j["device_local_bytes"] = d.device_local_bytes;
+      j["timestamps"] = d.timestamps;
+      out["devices"].push_back(j);
+    }
+    std::cout << out.dump(2) << "\n";
+    return 0;
+  }
   for (const auto& d : list.devices) {
     std::cout << (d.index == chosen ? "* " : "  ") << "[" << d.index << "] " << d.name << "\n"
+              << "      uuid:" << d.uuid_string() << "\n"
               << "      type " << d.type_name() << ", Vulkan " << d.api_version_string() << ", driver "
-              << (d.driver_name.empty() ? "?" : d.driver_name) << (d.driver_info.empty() ? "" : " " + d.driver_info) << "\n"
+              << (d.driver_name.empty() ? "?" : d.driver_name) << (d.driver_info.empty() ? "" : " " + d.driver_info)
+              << " (version " << d.driver_version_string() << ")\n"
               << "      subgroup " << d.subgroup_size << ", fp16 arithmetic " << (d.shader_float16 ? "yes" : "no")
               << ", 16-bit storage " << (d.storage_buffer_16bit ? "yes" : "no") << "\n"
               << "      max storage buffer range " << (d.max_storage_buffer_range >> 20) << " MiB, shared memory "
@@ -31,6 +49,21 @@ int cmd_devices(const Argv& argv) {
   }
   std::cout << "vkunroll would use [" << chosen << "] " << list.devices[chosen].name << "\n";
   return 0;
+}
+
+}  // namespace
+
+Command add_devices(CLI::App& parent) {
+  auto a = std::make_shared<DevicesArgs>();
+  CLI::App* c = parent.add_subcommand("devices", "list Vulkan devices and mark the one vkunroll would use");
+  c->description(
+      "Lists every Vulkan device with its UUID, type, API version, driver, subgroup size, fp16 support, max\n"
+      "storage buffer range and shared memory. '*' marks the device vkunroll would use (--device, else\n"
+      "VKUNROLL_DEVICE, else discrete > integrated > virtual > cpu). Jobs on multi-GPU nodes choose theirs\n"
+      "with --device uuid:UUID (Vulkan ignores CUDA_VISIBLE_DEVICES).");
+  c->add_option("--device", a->device, "INDEX, uuid:UUID or a name substring: mark this one")->type_name("D");
+  c->add_flag("--json", a->json, "print the list as JSON (what summary.json records of the device, and limits)");
+  return {c, [a] { return run_devices(*a); }};
 }
 
 }  // namespace vkunroll::cli

@@ -1,22 +1,23 @@
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <limits>
+#include <memory>
+#include <nlohmann/json.hpp>
 
-#include "vkunroll/host/cli/args.hpp"
-#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 
 namespace vkunroll::cli {
 
 namespace {
 
-BadEventPolicy parse_policy(const std::string& s) {
-  if (s == "error") return BadEventPolicy::error;
-  if (s == "drop") return BadEventPolicy::drop;
-  if (s == "sort") return BadEventPolicy::sort;
-  throw Error("vkunroll events: --on-bad expects error, drop or sort, got '" + s + "'");
-}
+struct EventsArgs {
+  std::string file, format, on_bad = "error", window, columns = "txyp", time_unit, array_time_unit;
+  std::optional<int> width, height;
+  bool json = false;
+};
 
 int64_t parse_time(const std::string& s, const std::string& whole) {
   try {
@@ -25,57 +26,45 @@ int64_t parse_time(const std::string& s, const std::string& whole) {
     if (used != s.size()) throw std::invalid_argument(s);
     return v;
   } catch (const std::exception&) {
-    throw Error("vkunroll events: --window-us expects A:B in integer microseconds (either side may be empty), got '" +
-                whole + "'");
+    throw UsageError("--window-us expects A:B in integer microseconds (either side may be empty), got '" + whole + "'");
   }
 }
 
-}  // namespace
-
-int cmd_events(const Argv& argv) {
-  Args args("events", argv, {"format", "on-bad", "window-us", "width", "height", "columns", "time-unit", "array-time-unit"});
-  if (args.help() || args.positionals().size() != 1) {
-    std::cout << "usage: vkunroll events FILE [--format F] [--on-bad error|drop|sort] [--window-us A:B]\n"
-                 "                        [--width W --height H] [--columns txyp] [--time-unit s|ms|us|ns]\n"
-                 "                        [--array-time-unit s|ms|us|ns]\n\n"
-                 "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt3 .raw and .dat, AEDAT 4) in\n"
-                 "bounded memory and prints the event count, time span, rate, sensor size, polarity balance,\n"
-                 "read speed, and what was dropped or ignored.\n"
-                 "  --format      txt, h5, npy, npz, evt2, evt3, dat, aedat4 (default: detect)\n"
-                 "  --on-bad      error (default): stop at the first bad record; drop: drop and count bad\n"
-                 "                records; sort: keep out-of-order records and sort by t\n"
-                 "  --window-us   A:B reads only A <= t < B (microseconds; 'A:' or ':B' for open ends)\n"
-                 "  --width/--height  sensor size when the file lacks it (or to override it)\n"
-                 "  --columns     text column order (default txyp; '_' skips a column)\n"
-                 "  --time-unit   unit of text times (default: auto, see docs/events.md)\n"
-                 "  --array-time-unit  unit of float time arrays in npy/npz/h5 (default us)\n";
-    return args.help() ? 0 : 2;
-  }
-  const std::string path = args.positionals()[0];
+EventReadOptions to_options(const EventsArgs& a) {
   EventReadOptions o;
-  o.format = args.get_or("format", "");
-  o.on_bad = parse_policy(args.get_or("on-bad", "error"));
-  if (auto w = args.get("window-us")) {
-    const auto colon = w->find(':');
-    if (colon == std::string::npos)
-      throw Error("vkunroll events: --window-us expects A:B (microseconds), got '" + *w + "'");
-    const std::string a = w->substr(0, colon), b = w->substr(colon + 1);
-    if (!a.empty()) o.t_begin_us = parse_time(a, *w);
-    if (!b.empty()) o.t_end_us = parse_time(b, *w);
+  o.format = a.format;
+  o.on_bad = a.on_bad == "drop" ? BadEventPolicy::drop : a.on_bad == "sort" ? BadEventPolicy::sort : BadEventPolicy::error;
+  if (!a.window.empty()) {
+    const auto colon = a.window.find(':');
+    if (colon == std::string::npos) throw UsageError("--window-us expects A:B (microseconds), got '" + a.window + "'");
+    const std::string lo = a.window.substr(0, colon), hi = a.window.substr(colon + 1);
+    if (!lo.empty()) o.t_begin_us = parse_time(lo, a.window);
+    if (!hi.empty()) o.t_end_us = parse_time(hi, a.window);
+    if (o.t_begin_us && o.t_end_us && *o.t_end_us < *o.t_begin_us)
+      throw UsageError("--window-us " + a.window + ": the window ends before it begins");
   }
-  o.width = int(args.integer("width", 0));
-  o.height = int(args.integer("height", 0));
-  if ((o.width > 0) != (o.height > 0)) throw Error("vkunroll events: give both --width and --height");
-  o.text_columns = args.get_or("columns", "txyp");
-  o.text_time_unit = args.get_or("time-unit", "");
-  o.array_time_unit = args.get_or("array-time-unit", "");
+  if (a.width.has_value() != a.height.has_value())
+    throw UsageError(std::string(a.width ? "--width" : "--height") + " given without " + (a.width ? "--height" : "--width") +
+                     ": the sensor size needs both");
+  o.width = a.width.value_or(0);
+  o.height = a.height.value_or(0);
+  o.text_columns = a.columns;
+  o.text_time_unit = a.time_unit;
+  o.array_time_unit = a.array_time_unit;
+  return o;
+}
 
+int run_events(const EventsArgs& a) {
+  std::error_code ec;
+  if (!std::filesystem::exists(a.file, ec)) throw InputMissingError(a.file + ": no such event file");
+  if (std::filesystem::is_directory(a.file, ec)) throw DataError(a.file + ": is a folder, expected an event file");
+  const EventReadOptions o = to_options(a);
   uint64_t n = 0, pos = 0;
   int64_t t_first = 0, t_last = 0;
   int64_t t_min = std::numeric_limits<int64_t>::max(), t_max = std::numeric_limits<int64_t>::min();
   EventReadReport report;
   const auto start = std::chrono::steady_clock::now();
-  scan_events(path, o,
+  scan_events(a.file, o,
               [&](const EventStream& c) {
                 if (n == 0 && !c.empty()) t_first = c.t.front();
                 for (size_t i = 0; i < c.size(); ++i) {
@@ -88,12 +77,29 @@ int cmd_events(const Argv& argv) {
               },
               &report);
   const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::printf("file        %s\n", path.c_str());
+  const double span = n ? double(t_max - t_min) : 0.0;
+  if (a.json) {
+    nlohmann::json j = {{"file", a.file}, {"format", report.format}, {"events", n},
+                        {"sensor", {{"width", report.width}, {"height", report.height}, {"inferred", report.size_inferred}}},
+                        {"records", report.records}, {"outside_window", report.outside_window},
+                        {"dropped", {{"total", report.dropped()}, {"out_of_sensor", report.dropped_out_of_sensor},
+                                     {"time_order", report.dropped_time_order}, {"nan_time", report.dropped_nan},
+                                     {"bad_polarity", report.dropped_bad_polarity}, {"unknown_word", report.dropped_unknown_word}}},
+                        {"sorted", report.sorted}, {"ignored", report.ignored}, {"notes", report.notes}, {"read_s", secs}};
+    if (n) {
+      j["t_first_us"] = t_first, j["t_last_us"] = t_last, j["t_min_us"] = t_min, j["t_max_us"] = t_max;
+      j["span_s"] = span * 1e-6;
+      j["rate_mev_s"] = span > 0 ? nlohmann::json(double(n) / span) : nlohmann::json();
+      j["polarity"] = {{"on", pos}, {"off", n - pos}};
+    }
+    std::cout << j.dump(2) << "\n";
+    return 0;
+  }
+  std::printf("file        %s\n", a.file.c_str());
   std::printf("format      %s\n", report.format.c_str());
   std::printf("events      %llu\n", static_cast<unsigned long long>(n));
   std::printf("sensor      %dx%d%s\n", report.width, report.height, report.size_inferred ? " (inferred from max x, y)" : "");
   if (n > 0) {
-    const double span = double(t_max - t_min);
     std::printf("time        %lld .. %lld us (span %.6f s)\n", static_cast<long long>(t_first),
                 static_cast<long long>(t_last), span * 1e-6);
     if (span > 0) std::printf("rate        %.3f Mev/s\n", double(n) / span);
@@ -116,6 +122,35 @@ int cmd_events(const Argv& argv) {
   for (const auto& note : report.notes) std::printf("note        %s\n", note.c_str());
   std::printf("read speed  %.2f Mev/s (%.3f s)\n", secs > 0 ? double(report.records) / secs * 1e-6 : 0.0, secs);
   return 0;
+}
+
+}  // namespace
+
+Command add_events(CLI::App& parent) {
+  auto a = std::make_shared<EventsArgs>();
+  CLI::App* c = parent.add_subcommand("events", "read an event file: count, time span, rate, sensor size, polarity, drops");
+  c->description(
+      "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt3 .raw and .dat, AEDAT 4) in bounded\n"
+      "memory and prints the event count, time span, rate, sensor size, polarity balance, read speed, and\n"
+      "what was dropped or ignored.");
+  c->add_option("FILE", a->file, "the event file")->required();
+  c->add_option("--format", a->format, "txt, h5, npy, npz, evt2, evt3, dat, aedat4 (default: detect)")
+      ->check(CLI::IsMember({"txt", "h5", "npy", "npz", "evt2", "evt3", "dat", "aedat4"}))->type_name("F");
+  c->add_option("--on-bad", a->on_bad,
+                "error: stop at the first bad record | drop: drop and count bad records | sort: keep out-of-order "
+                "records and sort by t")
+      ->check(CLI::IsMember({"error", "drop", "sort"}))->capture_default_str()->type_name("P");
+  c->add_option("--window-us", a->window, "read only A <= t < B (microseconds; 'A:' or ':B' for open ends)")->type_name("A:B");
+  c->add_option("--width", a->width, "sensor width when the file lacks it (or to override it; with --height)")
+      ->check(int_range(1, 32767))->type_name("W");
+  c->add_option("--height", a->height, "sensor height (with --width)")->check(int_range(1, 32767))->type_name("H");
+  c->add_option("--columns", a->columns, "text column order ('_' skips a column)")->capture_default_str()->type_name("ORDER");
+  c->add_option("--time-unit", a->time_unit, "unit of text times: s, ms, us, ns (default: auto, see docs/events.md)")
+      ->check(CLI::IsMember({"s", "ms", "us", "ns"}))->type_name("U");
+  c->add_option("--array-time-unit", a->array_time_unit, "unit of float time arrays in npy/npz/h5 (default us)")
+      ->check(CLI::IsMember({"s", "ms", "us", "ns"}))->type_name("U");
+  c->add_flag("--json", a->json, "print the report as JSON");
+  return {c, [a] { return run_events(*a); }};
 }
 
 }  // namespace vkunroll::cli

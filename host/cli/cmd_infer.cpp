@@ -2,6 +2,7 @@
 // every intermediate written under the reference's names. This is how anyone checks vkunroll
 // against a PyTorch run of the same weights.
 #include <chrono>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <set>
@@ -9,8 +10,7 @@
 
 #include "vkunroll/host/model/backend_cpu.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
-#include "vkunroll/host/cli/args.hpp"
-#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/host/model/weights.hpp"
@@ -41,71 +41,59 @@ std::vector<std::string> split(const std::string& s) {
   return out;
 }
 
-}  // namespace
+struct InferArgs {
+  std::string model, inputs, out, mode, precision = "fp32", backend = "vulkan", outputs;
+  int max_items = 0;
+  DeviceArgs device;
+};
 
-int cmd_infer(const Argv& argv) {
-  Args args("infer", argv, {"model", "inputs", "out", "mode", "device", "precision", "backend", "outputs", "max-items"});
-  if (args.help()) {
-    std::cout
-        << "usage: vkunroll infer --model M.safetensors --inputs IN.safetensors --out OUT.safetensors\n"
-           "                      [--mode s|m] [--backend vulkan|cpu] [--device INDEX|NAME] [--precision fp32]\n"
-           "                      [--outputs sys,E,flow,warped,fused,m,out] [--max-items K]\n\n"
-           "Runs SelfUnroll on raw tensors: rs [B,3,H,W], ev1/ev2/ev3 [B,2N,H,W] (F32/F16/BF16), fed as given\n"
-           "(images in the model's channel order, see its metadata). --mode m needs B even: items 2k and 2k+1\n"
-           "are RS frames 1 and 2 toward target k (default: m when the model has MOA weights and B is even,\n"
-           "else s). Writes every intermediate (sys, E, flow, warped, fused; m and out in mode m) as F32 under\n"
-           "the reference's names. --backend cpu runs the CPU reference (slow); --max-items bounds the batch\n"
-           "items run together. fp16 is not available yet (the kernels compute in fp32).\n";
-    return 0;
-  }
-  const std::string model_path = args.require("model"), inputs_path = args.require("inputs"), out_path = args.require("out");
-  const std::string precision = args.get_or("precision", "fp32");
-  if (precision != "fp32")
-    throw Error("--precision '" + precision + "': fp32 is the only precision (there are no fp16 kernels; the " +
-                "kernels compute in fp32)");
-  const std::string backend_name = args.get_or("backend", "vulkan");
-  if (backend_name != "vulkan" && backend_name != "cpu")
-    throw Error("--backend '" + backend_name + "' (expected vulkan or cpu)");
-
-  const Weights weights = load_weights(model_path);
-  for (const auto& n : weights.notes) std::cerr << "note: " << model_path << ": " << n << "\n";
-  const SafetensorsFile in_file = read_safetensors(inputs_path);
-  ModelInputs in{input_array(in_file, inputs_path, "rs"), input_array(in_file, inputs_path, "ev1"),
-                 input_array(in_file, inputs_path, "ev2"), input_array(in_file, inputs_path, "ev3")};
+int run_infer(const InferArgs& a) {
+  if (a.precision != "fp32")
+    throw UsageError("--precision '" + a.precision + "': fp32 is the only precision (there are no fp16 kernels; the " +
+                     "kernels compute in fp32)");
+  check_output_file(a.out, "--out");
+  std::error_code ec;
+  for (const auto& [opt, path] : {std::pair<const char*, std::string>{"--model", a.model}, {"--inputs", a.inputs}})
+    if (!std::filesystem::exists(path, ec)) throw InputMissingError(std::string(opt) + " " + path + ": no such file");
+  const Weights weights = load_weights(a.model);
+  for (const auto& n : weights.notes) std::cerr << "note: " << a.model << ": " << n << "\n";
+  const SafetensorsFile in_file = read_safetensors(a.inputs);
+  ModelInputs in{input_array(in_file, a.inputs, "rs"), input_array(in_file, a.inputs, "ev1"),
+                 input_array(in_file, a.inputs, "ev2"), input_array(in_file, a.inputs, "ev3")};
   // The physics-informed variant also reads the physics estimate; other models refuse it.
   if (weights.config.physics_input) {
     if (!in_file.has("phys"))
-      throw Error(inputs_path + ": tensor 'phys' [B, 3, H, W] is missing: " + model_path + " is the physics-informed variant");
-    in.phys = input_array(in_file, inputs_path, "phys");
+      throw DataError(a.inputs + ": tensor 'phys' [B, 3, H, W] is missing: " + a.model + " is the physics-informed variant");
+    in.phys = input_array(in_file, a.inputs, "phys");
   } else if (in_file.has("phys")) {
-    throw Error(inputs_path + ": tensor 'phys' is given, but " + model_path + " is not the physics-informed variant");
+    throw DataError(a.inputs + ": tensor 'phys' is given, but " + a.model + " is not the physics-informed variant");
   }
   std::vector<std::string> ignored;
   for (const auto& n : in_file.names())
     if (n != "rs" && n != "ev1" && n != "ev2" && n != "ev3" && n != "phys") ignored.push_back(n);
   if (!ignored.empty()) {
-    std::cerr << "note: " << inputs_path << ": ignoring " << ignored.size() << " other tensor(s):";
+    std::cerr << "note: " << a.inputs << ": ignoring " << ignored.size() << " other tensor(s):";
     for (const auto& n : ignored) std::cerr << " " << n;
     std::cerr << "\n";
   }
 
   RunOptions opt;
   const int64_t B = in.rs.shape.n;
-  const std::string mode = args.get_or("mode", weights.config.moa && B % 2 == 0 ? "m" : "s");
-  if (mode != "s" && mode != "m") throw Error("--mode '" + mode + "' (expected s or m)");
+  const std::string mode = a.mode.empty() ? (weights.config.moa && B % 2 == 0 ? "m" : "s") : a.mode;
+  if (mode == "m" && B % 2) throw UsageError("--mode m needs an even batch (items 2k and 2k+1 are frames 1 and 2), " + a.inputs + " has " + std::to_string(B));
   opt.mode = mode == "m" ? Mode::m : Mode::s;
-  if (auto o = args.get("outputs")) opt.outputs = split(*o);
-  opt.max_items = static_cast<int>(args.integer("max-items", 0));
+  if (!a.outputs.empty()) opt.outputs = split(a.outputs);
+  opt.max_items = a.max_items;
 
   std::unique_ptr<Context> ctx;
   std::unique_ptr<Backend> backend;
-  if (backend_name == "vulkan") {
+  if (a.backend == "vulkan") {
     ContextOptions co;
-    co.device = args.get_or("device", "");
+    co.device = a.device.device;
     ctx = std::make_unique<Context>(co);
     backend = std::make_unique<VulkanBackend>(*ctx);
   } else {
-    backend = std::make_unique<CpuBackend>();
+    backend = std::make_unique<CpuBackend>(a.device.threads);
   }
   const auto t0 = std::chrono::steady_clock::now();
   Model model(*backend, weights);
@@ -117,18 +105,51 @@ int cmd_infer(const Argv& argv) {
   for (const auto& [name, arr] : out)
     views.push_back({name, StDType::F32, {arr.shape.n, arr.shape.c, arr.shape.h, arr.shape.w}, arr.data.data(),
                      arr.data.size() * sizeof(float)});
-  std::map<std::string, std::string> md{{"mode", mode},
-                                        {"backend", backend->name()},
-                                        {"device", ctx ? ctx->info().name : "cpu"},
-                                        {"model", model_path},
-                                        {"config", weights.config.summary()}};
-  write_safetensors(out_path, views, md);
+  const std::map<std::string, std::string> md{{"mode", mode},
+                                              {"backend", backend->name()},
+                                              {"device", ctx ? ctx->info().name : "cpu"},
+                                              {"model", a.model},
+                                              {"config", weights.config.summary()}};
+  try {
+    write_safetensors(a.out, views, md);
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::unspecified) throw;
+    throw IoError(e.what());
+  }
   std::cerr << "infer: SelfUnroll-" << (mode == "m" ? "M" : "S") << " on " << in.rs.shape.str() << " ("
             << weights.config.summary() << ") on " << backend->name() << ": weights "
             << std::chrono::duration<double>(t1 - t0).count() << " s, run " << std::chrono::duration<double>(t2 - t1).count()
             << " s, peak intermediates " << (backend->peak_bytes() >> 20) << " MiB; wrote " << out.size() << " tensors to "
-            << out_path << "\n";
+            << a.out << "\n";
   return 0;
+}
+
+}  // namespace
+
+Command add_infer(CLI::App& parent) {
+  auto a = std::make_shared<InferArgs>();
+  CLI::App* c = parent.add_subcommand("infer", "run SelfUnroll-S/-M on raw input tensors, write every intermediate");
+  c->description(
+      "Runs SelfUnroll on raw tensors: rs [B,3,H,W], ev1/ev2/ev3 [B,2N,H,W] (F32/F16/BF16), fed as given\n"
+      "(images in the model's channel order, see its metadata). --mode m needs B even: items 2k and 2k+1\n"
+      "are RS frames 1 and 2 toward target k. Writes every intermediate (sys, E, flow, warped, fused; m and\n"
+      "out in mode m) as F32 under the reference's names.");
+  c->add_option("--model", a->model, "SelfUnroll weights (safetensors)")->required()->type_name("FILE");
+  c->add_option("--inputs", a->inputs, "input tensors rs, ev1, ev2, ev3 (safetensors)")->required()->type_name("FILE");
+  c->add_option("--out", a->out, "the safetensors file to write")->required()->type_name("FILE");
+  c->add_option("--mode", a->mode, "s | m (default: m when the model has MOA weights and B is even, else s)")
+      ->check(CLI::IsMember({"s", "m"}))->type_name("M");
+  c->add_option("--backend", a->backend, "vulkan | cpu (the CPU reference, slow)")
+      ->check(CLI::IsMember({"vulkan", "cpu"}))->capture_default_str()->type_name("B");
+  c->add_option("--precision", a->precision, "fp32 (fp16 is refused: the kernels compute in fp32)")
+      ->check(CLI::IsMember({"fp32", "fp16"}))->capture_default_str()->type_name("P");
+  c->add_option("--outputs", a->outputs, "the tensors to write, e.g. sys,E,flow,warped,fused,m,out (default: all)")->type_name("LIST");
+  c->add_option("--max-items", a->max_items, "batch items run together (0: all)")->check(int_range(0, 1 << 20))->type_name("K");
+  add_device_options(c, a->device);
+  return {c, [a] {
+            apply_threads(a->device.threads);
+            return run_infer(*a);
+          }};
 }
 
 }  // namespace vkunroll::cli

@@ -2,129 +2,108 @@
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <memory>
 
-#include "vkunroll/host/cli/args.hpp"
-#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 
 namespace vkunroll::cli {
 
 namespace {
 
+struct SimulateArgs {
+  std::string out, preset = "realistic", size, readout, motion = "mixed", texture, events_format;
+  long long seed = 1;
+  bool gray = false, quiet = false;
+  // Overrides of the preset's values (unset: the preset's).
+  std::optional<int> frames, gt_per_frame, sprites, bit_depth, supersample;
+  std::optional<double> fps, line_delay_us, exposure_us, speed, flicker_amp, flicker_hz, gamma, lead_in_us, step_fraction,
+      c_on, c_off, sigma, refractory_us, leak_hz, shot_hz, cutoff_hz, eps, full_well, read_noise;
+};
+
 void parse_size(const std::string& s, int& w, int& h) {
   int a = 0, b = 0;
   char x = 0, extra = 0;
-  if (std::sscanf(s.c_str(), "%d%c%d%c", &a, &x, &b, &extra) != 3 || (x != 'x' && x != 'X') || a < 2 || b < 2)
-    throw Error("vkunroll simulate: --size '" + s + "': expected WIDTHxHEIGHT, e.g. 346x260");
+  if (std::sscanf(s.c_str(), "%d%c%d%c", &a, &x, &b, &extra) != 3 || (x != 'x' && x != 'X') || a < 2 || b < 2 ||
+      a > 32767 || b > 32767)
+    throw UsageError("--size '" + s + "': expected WIDTHxHEIGHT, each 2 to 32767, e.g. 346x260");
   w = a;
   h = b;
 }
 
-const char* kHelp =
-    "usage: vkunroll simulate --out DIR [options]\n\n"
-    "Simulates a rolling-shutter camera + event camera looking at a moving scene and writes the generic\n"
-    "sequence layout: rs/*.png, gs/*.png (sharp global-shutter truth), events.h5|events.txt, meta.json.\n"
-    "The same options and seed give the same bytes. See docs/simulator.md.\n\n"
-    "  --out DIR               output folder (created)\n"
-    "  --preset NAME           clean | realistic | noisy (event + frame noise model)   [realistic]\n"
-    "  --seed S                scene, motion, thresholds and noise                     [1]\n"
-    "  --size WxH              sensor size                                             [346x260]\n"
-    "  --frames K              RS frames                                               [10]\n"
-    "  --gt-per-frame M        ground-truth instants per frame period                  [5]\n"
-    "  --fps F                 RS frame rate                                           [20]\n"
-    "  --line-delay-us D       row-to-row start delay                                  [100]\n"
-    "  --exposure-us E         row exposure                                            [3000]\n"
-    "  --readout DIR           top-down | bottom-up                                    [top-down]\n"
-    "  --motion NAME           static | pan | accelerate | rotate | zoom | shake | mixed [mixed]\n"
-    "  --speed X               multiply all motion speeds                              [1]\n"
-    "  --texture NAME|FILE     checkerboard | bars | noise | text | mixed | an image   [mixed]\n"
-    "  --sprites N             foreground objects                                      [2]\n"
-    "  --flicker-amp A         global flicker depth, 0..1                              [0]\n"
-    "  --flicker-hz F          flicker frequency                                       [100]\n"
-    "  --events-format FMT     h5 | txt | both                                         [h5]\n"
-    "  --bit-depth B           8 | 16                                                  [8]\n"
-    "  --gray                  write 1-channel PNGs (default: 3-channel color)\n"
-    "  --gamma G               output encoding gamma (textures are linearized with it) [2.2]\n"
-    "  --supersample S         anti-aliasing samples per pixel per axis                [1]\n"
-    "  --lead-in-us T          events start this long before frame 0                   [10000]\n"
-    "  --step-fraction F       adaptive step: max log change per sample / min(C)       [0.5]\n"
-    "  event model overrides (default: the preset's values):\n"
-    "  --c-on C --c-off C --sigma S --refractory-us R --leak-hz L --shot-hz N --cutoff-hz F --eps E\n"
-    "  --full-well E --read-noise R   frame sensor noise overrides\n"
-    "  --quiet                 print nothing on success\n";
+template <class T>
+void set(T& field, const std::optional<T>& v) {
+  if (v) field = *v;
+}
 
-}  // namespace
-
-int cmd_simulate(const Argv& argv) {
-  Args args("simulate", argv,
-            {"out", "preset", "seed", "size", "frames", "gt-per-frame", "fps", "line-delay-us", "exposure-us",
-             "readout", "motion", "speed", "texture", "sprites", "flicker-amp", "flicker-hz", "events-format",
-             "bit-depth", "gamma", "supersample", "lead-in-us", "step-fraction", "c-on", "c-off", "sigma",
-             "refractory-us", "leak-hz", "shot-hz", "cutoff-hz", "eps", "full-well", "read-noise"},
-            {"gray", "quiet"});
-  if (args.help()) {
-    std::cout << kHelp;
-    return 0;
+sim::SimulationConfig to_config(const SimulateArgs& a) {
+  sim::SimulationConfig c;
+  try {
+    c = sim::simulation_preset(a.preset);
+    c.motion = sim::parse_motion_kind(a.motion);
+  } catch (const Error& e) {
+    throw UsageError(e.what());
   }
-  if (!args.positionals().empty())
-    throw Error("vkunroll simulate: unexpected argument '" + args.positionals()[0] + "' (see vkunroll simulate --help)");
-  const std::string out = args.require("out");
-  sim::SimulationConfig c = sim::simulation_preset(args.get_or("preset", "realistic"));
-  const long long seed = args.integer("seed", 1);
-  if (seed < 0) throw Error("vkunroll simulate: --seed must be >= 0");
-  c.seed = static_cast<uint64_t>(seed);
+  c.seed = static_cast<uint64_t>(a.seed);
   c.events.seed = c.seed;
-  if (auto s = args.get("size")) parse_size(*s, c.width, c.height);
-  c.frames = static_cast<int>(args.integer("frames", c.frames));
-  c.gt_per_frame = static_cast<int>(args.integer("gt-per-frame", c.gt_per_frame));
-  c.fps = args.number("fps", c.fps);
-  c.line_delay_us = args.number("line-delay-us", c.line_delay_us);
-  c.exposure_us = args.number("exposure-us", c.exposure_us);
-  c.readout = args.get_or("readout", c.readout);
-  c.motion = sim::parse_motion_kind(args.get_or("motion", "mixed"));
-  c.speed_scale = args.number("speed", c.speed_scale);
-  if (auto t = args.get("texture")) {
+  if (!a.size.empty()) parse_size(a.size, c.width, c.height);
+  set(c.frames, a.frames);
+  set(c.gt_per_frame, a.gt_per_frame);
+  set(c.fps, a.fps);
+  set(c.line_delay_us, a.line_delay_us);
+  set(c.exposure_us, a.exposure_us);
+  if (!a.readout.empty()) c.readout = a.readout;
+  set(c.speed_scale, a.speed);
+  if (!a.texture.empty()) {
     try {
-      c.texture = sim::parse_texture_kind(*t);
+      c.texture = sim::parse_texture_kind(a.texture);
     } catch (const Error&) {
       // Not a procedural name: an image file.
-      if (!std::ifstream(*t))
-        throw Error("vkunroll simulate: --texture '" + *t +
-                    "' is neither checkerboard, bars, noise, text, mixed nor a readable image file");
-      c.texture_file = *t;
+      if (!std::ifstream(a.texture))
+        throw InputMissingError("--texture '" + a.texture +
+                                "' is neither checkerboard, bars, noise, text, mixed nor a readable image file");
+      c.texture_file = a.texture;
     }
   }
-  c.sprites = static_cast<int>(args.integer("sprites", c.sprites));
-  c.flicker_amplitude = args.number("flicker-amp", c.flicker_amplitude);
-  c.flicker_hz = args.number("flicker-hz", c.flicker_hz);
-  c.events_format = args.get_or("events-format", c.events_format);
-  c.bit_depth = static_cast<int>(args.integer("bit-depth", c.bit_depth));
-  c.color = !args.has("gray");
-  c.gamma = args.number("gamma", c.gamma);
-  c.supersample = static_cast<int>(args.integer("supersample", c.supersample));
-  c.lead_in_us = args.number("lead-in-us", c.lead_in_us);
-  c.step_fraction = args.number("step-fraction", c.step_fraction);
-  c.events.c_on = args.number("c-on", c.events.c_on);
-  c.events.c_off = args.number("c-off", c.events.c_off);
-  c.events.sigma = args.number("sigma", c.events.sigma);
-  c.events.refractory_us = args.number("refractory-us", c.events.refractory_us);
-  c.events.leak_hz = args.number("leak-hz", c.events.leak_hz);
-  c.events.shot_hz = args.number("shot-hz", c.events.shot_hz);
-  c.events.cutoff_hz = args.number("cutoff-hz", c.events.cutoff_hz);
-  c.events.eps = args.number("eps", c.events.eps);
-  c.frame_noise.full_well_e = args.number("full-well", c.frame_noise.full_well_e);
-  c.frame_noise.read_noise = args.number("read-noise", c.frame_noise.read_noise);
-  c.validate();
+  set(c.sprites, a.sprites);
+  set(c.flicker_amplitude, a.flicker_amp);
+  set(c.flicker_hz, a.flicker_hz);
+  if (!a.events_format.empty()) c.events_format = a.events_format;
+  set(c.bit_depth, a.bit_depth);
+  c.color = !a.gray;
+  set(c.gamma, a.gamma);
+  set(c.supersample, a.supersample);
+  set(c.lead_in_us, a.lead_in_us);
+  set(c.step_fraction, a.step_fraction);
+  set(c.events.c_on, a.c_on);
+  set(c.events.c_off, a.c_off);
+  set(c.events.sigma, a.sigma);
+  set(c.events.refractory_us, a.refractory_us);
+  set(c.events.leak_hz, a.leak_hz);
+  set(c.events.shot_hz, a.shot_hz);
+  set(c.events.cutoff_hz, a.cutoff_hz);
+  set(c.events.eps, a.eps);
+  set(c.frame_noise.full_well_e, a.full_well);
+  set(c.frame_noise.read_noise, a.read_noise);
+  try {
+    c.validate();
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
+  return c;
+}
 
+int run_simulate(const SimulateArgs& a) {
+  const sim::SimulationConfig c = to_config(a);
   const auto t0 = std::chrono::steady_clock::now();
   const sim::SimulatedSequence seq = sim::simulate(c);
   const auto t1 = std::chrono::steady_clock::now();
-  if (!args.has("quiet")) {
-    const auto ms = [](auto a, auto b) { return std::chrono::duration<double, std::milli>(b - a).count(); };
+  if (!a.quiet) {
+    const auto ms = [](auto x, auto y) { return std::chrono::duration<double, std::milli>(y - x).count(); };
     const auto& s = seq.event_stats;
     std::printf("wrote %s: %d RS frames %dx%d, %zu ground-truth frames, %zu events (%llu ON, %llu OFF, %llu shot noise, "
                 "%llu dropped by refractory)\n",
-                out.c_str(), c.frames, c.width, c.height, seq.gt.size(), seq.events.size(),
+                a.out.c_str(), c.frames, c.width, c.height, seq.gt.size(), seq.events.size(),
                 static_cast<unsigned long long>(s.on), static_cast<unsigned long long>(s.off),
                 static_cast<unsigned long long>(s.shot), static_cast<unsigned long long>(s.dropped_refractory));
     std::printf("time steps: %llu samples (mean %.1f us, min %.2f us), %llu split, %llu over the limit at the minimum step\n",
@@ -132,10 +111,65 @@ int cmd_simulate(const Argv& argv) {
                 static_cast<unsigned long long>(seq.steps.rejected), static_cast<unsigned long long>(seq.steps.over_limit));
     std::printf("simulate %.0f ms\n", ms(t0, t1));
   }
-  sim::write_sequence(c, seq, out);
-  if (!args.has("quiet"))
+  try {
+    sim::write_sequence(c, seq, a.out);
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::unspecified) throw;
+    throw IoError(e.what());
+  }
+  if (!a.quiet)
     std::printf("write %.0f ms\n", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count());
   return 0;
+}
+
+}  // namespace
+
+Command add_simulate(CLI::App& parent) {
+  auto a = std::make_shared<SimulateArgs>();
+  CLI::App* c = parent.add_subcommand("simulate", "simulate RS frames, GS ground truth and events from a moving scene");
+  c->description(
+      "Simulates a rolling-shutter camera + event camera looking at a moving scene and writes the generic\n"
+      "sequence layout: rs/*.png, gs/*.png (sharp global-shutter truth), events.h5|events.txt, meta.json.\n"
+      "The same options and seed give the same bytes. See docs/simulator.md. Unset values: the preset's.");
+  c->add_option("--out", a->out, "output folder (created)")->required()->type_name("DIR");
+  c->add_option("--preset", a->preset, "clean | realistic | noisy (event + frame noise model)")
+      ->check(CLI::IsMember({"clean", "realistic", "noisy"}))->capture_default_str()->type_name("NAME");
+  c->add_option("--seed", a->seed, "scene, motion, thresholds and noise")->check(int_range(0, 1LL << 62))->capture_default_str();
+  c->add_option("--size", a->size, "sensor size WxH (default 346x260)")->type_name("WxH");
+  c->add_option("--frames", a->frames, "RS frames (default 10)")->check(int_range(1, 100000));
+  c->add_option("--gt-per-frame", a->gt_per_frame, "ground-truth instants per frame period (default 5)")->check(int_range(0, 10000));
+  c->add_option("--fps", a->fps, "RS frame rate (default 20)")->check(finite_at_least(0, true));
+  c->add_option("--line-delay-us", a->line_delay_us, "row-to-row start delay (default 100)")->check(finite_at_least(0));
+  c->add_option("--exposure-us", a->exposure_us, "row exposure (default 3000)")->check(finite_at_least(0, true));
+  c->add_option("--readout", a->readout, "top-down | bottom-up")->check(CLI::IsMember({"top-down", "bottom-up"}))->type_name("DIR");
+  c->add_option("--motion", a->motion, "static | pan | accelerate | rotate | zoom | shake | mixed")
+      ->check(CLI::IsMember({"static", "pan", "accelerate", "rotate", "zoom", "shake", "mixed"}))->capture_default_str()->type_name("NAME");
+  c->add_option("--speed", a->speed, "multiply all motion speeds (default 1)")->check(finite_at_least(0));
+  c->add_option("--texture", a->texture, "checkerboard | bars | noise | text | mixed | an image file (default mixed)")->type_name("NAME|FILE");
+  c->add_option("--sprites", a->sprites, "foreground objects (default 2)")->check(int_range(0, 1000));
+  c->add_option("--flicker-amp", a->flicker_amp, "global flicker depth, 0..1 (default 0)")->check(finite_at_least(0) & CLI::Range(0.0, 1.0));
+  c->add_option("--flicker-hz", a->flicker_hz, "flicker frequency (default 100)")->check(finite_at_least(0));
+  c->add_option("--events-format", a->events_format, "h5 | txt | both (default h5)")->check(CLI::IsMember({"h5", "txt", "both"}))->type_name("FMT");
+  c->add_option("--bit-depth", a->bit_depth, "8 | 16 (default 8)")->check(CLI::IsMember({8, 16}));
+  c->add_flag("--gray", a->gray, "write 1-channel PNGs (default: 3-channel color)");
+  c->add_option("--gamma", a->gamma, "output encoding gamma; textures are linearized with it (default 2.2)")->check(finite_at_least(0, true));
+  c->add_option("--supersample", a->supersample, "anti-aliasing samples per pixel per axis (default 1)")->check(int_range(1, 16));
+  c->add_option("--lead-in-us", a->lead_in_us, "events start this long before frame 0 (default 10000)")->check(finite_at_least(0));
+  c->add_option("--step-fraction", a->step_fraction, "adaptive step: max log change per sample / min(C) (default 0.5)")
+      ->check(finite_at_least(0, true));
+  const std::string g = "Event and frame noise model (default: the preset's)";
+  c->add_option("--c-on", a->c_on, "ON contrast threshold")->check(finite_at_least(0, true))->group(g);
+  c->add_option("--c-off", a->c_off, "OFF contrast threshold")->check(finite_at_least(0, true))->group(g);
+  c->add_option("--sigma", a->sigma, "threshold mismatch (std)")->check(finite_at_least(0))->group(g);
+  c->add_option("--refractory-us", a->refractory_us, "refractory period")->check(finite_at_least(0))->group(g);
+  c->add_option("--leak-hz", a->leak_hz, "leak event rate")->check(finite_at_least(0))->group(g);
+  c->add_option("--shot-hz", a->shot_hz, "shot noise rate")->check(finite_at_least(0))->group(g);
+  c->add_option("--cutoff-hz", a->cutoff_hz, "photoreceptor cutoff")->check(finite_at_least(0))->group(g);
+  c->add_option("--eps", a->eps, "log offset")->check(finite_at_least(0, true))->group(g);
+  c->add_option("--full-well", a->full_well, "frame sensor full well (electrons)")->check(finite_at_least(0, true))->group(g);
+  c->add_option("--read-noise", a->read_noise, "frame sensor read noise (electrons)")->check(finite_at_least(0))->group(g);
+  c->add_flag("--quiet", a->quiet, "print nothing on success");
+  return {c, [a] { return run_simulate(*a); }};
 }
 
 }  // namespace vkunroll::cli

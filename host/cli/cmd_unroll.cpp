@@ -1,92 +1,141 @@
 // vkunroll unroll: a recording -> GS video (host/unroll/unroll.hpp does the work).
 #include <iostream>
+#include <memory>
 
-#include "vkunroll/host/cli/args.hpp"
-#include "vkunroll/host/cli/commands.hpp"
+#include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 #include "vkunroll/host/unroll/value_list.hpp"
 
 namespace vkunroll::cli {
 
-int cmd_unroll(const Argv& argv) {
-  Args args("unroll", argv,
-            {"out", "model", "mode", "times", "times-us", "frames", "layout", "events", "line-delay-us", "exposure-us",
-             "readout", "t0s-us", "channel-order", "device", "backend", "precision", "contrast", "gamma", "bit-depth",
-             "on-bad", "tile", "halo", "sparse", "sparse-threshold"},
-            {"quiet", "no-video", "gev-half-row"});
-  if (args.help() || args.positionals().empty()) {
-    std::cout <<
-        "usage: vkunroll unroll SEQUENCE --out DIR [--model M.safetensors] [--mode s|m|choose|physics|auto]\n"
-        "                       [--times LIST|gt | --times-us LIST] [--frames A:B] [options]\n\n"
-        "Turns a recording into global-shutter frames: a PNG per GS frame (frames/), gs_video.mp4, a contact\n"
-        "sheet, metrics.csv and summary.json (PSNR/SSIM where the sequence has ground truth).\n\n"
-        "  SEQUENCE             a folder: the generic layout (meta.json), Gev-RS, Gev-RS-Real, DRE or Fastec\n"
-        "  --layout L           generic | gev-rs | gev-rs-real | dre | fastec (default: detected)\n"
-        "  --model FILE         SelfUnroll weights (safetensors, see tools/convert_checkpoint.py)\n"
-        "  --mode M             s | m | physics | auto: M when the next frame exists, else S; physics\n"
-        "                       (the weight-free event double integral) when no model is given  [auto]\n"
-        "                       choose: per target, S when t* lies in the frame's exposure span, else M\n"
-        "  --tile N             run the model on N x N tiles (multiple of 32); 0: 32 when sparse, else whole\n"
-        "                       frames when they fit the device's buffers, else the largest tile that fits [0]\n"
-        "  --halo N             context pixels around each tile (multiple of 32; see docs/tiling.md);\n"
-        "                       -1: 32 when sparse, 64 for dense tiles                             [-1]\n"
-        "  --sparse P           off: every tile runs | exact: tiles with no ev1/ev2 event in them or their\n"
-        "                       halo keep the RS pixels | fast: also tiles below --sparse-threshold  [exact]\n"
-        "  --sparse-threshold X events per pixel (ev1 + ev2 over a tile and its halo) for fast   [0.05]\n"
-        "  --times LIST         normalized targets per frame: 0 = first row's exposure start, 1 = last\n"
-        "                       row's exposure end; ranges start:stop:count, lists -0.25,0.5,1.25;\n"
-        "                       'gt' renders exactly the ground-truth instants, named after their files [0.5]\n"
-        "  --times-us LIST      absolute targets in microseconds (each goes to the frame that spans it)\n"
-        "  --frames A:B         frames to unroll (inclusive; or a list)                         [all]\n"
-        "  --events FILE        override the sequence's event file\n"
-        "  --line-delay-us D --exposure-us E --readout top-down|bottom-up --t0s-us LIST   timing overrides\n"
-        "  --on-bad P           events breaking a rule: error | drop | sort                    [error]\n"
-        "  --channel-order O    rgb | bgr (default: from the model's metadata)\n"
-        "  --contrast C         physics: contrast threshold (default: estimated from the sequence)\n"
-        "  --gamma G            physics: decode gamma of the frames (default: meta.json source.settings.gamma, else 1)\n"
-        "  --device D --backend vulkan|cpu --precision fp32|fp16   where and how to run\n"
-        "  --bit-depth 8|16     PNG depth of the GS frames                                      [8]\n"
-        "  --no-video           skip gs_video.mp4;  --quiet  print nothing but errors\n";
-    return args.help() ? 0 : 2;
-  }
-  if (args.positionals().size() != 1) throw Error("vkunroll unroll: exactly one SEQUENCE folder expected");
+namespace {
+
+struct UnrollArgs {
+  std::string sequence, out, model, mode = "auto", times = "0.5", times_us, frames, channel_order, backend = "vulkan",
+                           precision = "fp32", sparse = "exact", frame_format, bit_depth;
+  std::optional<double> contrast, gamma, fps;
+  double sparse_threshold = 0.05;
+  int64_t tile = 0, halo = -1;
+  bool quiet = false, no_video = false, overwrite = false, resume = false;
+  SequenceTimingArgs timing;
+  DeviceArgs device;
+};
+
+UnrollOptions to_options(const UnrollArgs& a) {
   UnrollOptions o;
-  o.sequence = args.positionals()[0];
-  o.out_dir = args.require("out");
-  o.session.model_path = args.get_or("model", "");
-  o.mode = parse_unroll_mode(args.get_or("mode", "auto"), "--mode");
-  if (args.has("times") && args.has("times-us")) throw Error("vkunroll unroll: give --times or --times-us, not both");
-  o.times = parse_target_times(args.get_or("times", "0.5"), args.get_or("times-us", ""));
-  if (auto v = args.get("frames")) o.frames = parse_frame_list(*v, "--frames");
-  if (auto v = args.get("channel-order")) o.channel_order = parse_channel_order(*v, "--channel-order");
-  o.session.device = args.get_or("device", "");
-  o.session.backend = parse_backend_kind(args.get_or("backend", "vulkan"), "--backend");
-  o.session.precision = parse_precision(args.get_or("precision", "fp32"), "--precision");
-  if (args.has("contrast")) o.contrast = args.number("contrast", 0.2);
-  if (args.has("gamma")) o.gamma = args.number("gamma", 1.0);
-  o.output.bit_depth = static_cast<int>(args.integer("bit-depth", 8));
-  o.tile = args.integer("tile", 0);
-  o.halo = args.integer("halo", -1);
-  o.sparse = parse_sparse_policy(args.get_or("sparse", "exact"), "--sparse");
-  o.sparse_threshold = args.number("sparse-threshold", 0.05);
-  o.quiet = args.has("quiet");
-  o.output.write_video = !args.has("no-video");
-  SequenceOptions& so = o.sequence_options;
-  if (auto l = args.get("layout")) so.layout = parse_sequence_layout(*l);
-  if (auto v = args.get("line-delay-us")) so.line_delay_us = Rational::parse(*v, "--line-delay-us");
-  if (auto v = args.get("exposure-us")) so.exposure_us = Rational::parse(*v, "--exposure-us");
-  if (auto v = args.get("readout")) so.readout = parse_readout(*v);
-  if (auto v = args.get("t0s-us")) so.t0s_us = parse_value_list(*v, "--t0s-us");
-  so.gev_half_row = args.has("gev-half-row");
-  if (auto v = args.get("on-bad")) {
-    if (*v == "error") so.events.on_bad = BadEventPolicy::error;
-    else if (*v == "drop") so.events.on_bad = BadEventPolicy::drop;
-    else if (*v == "sort") so.events.on_bad = BadEventPolicy::sort;
-    else throw Error("--on-bad '" + *v + "' (expected error, drop or sort)");
+  o.sequence = a.sequence;
+  o.out_dir = a.out;
+  o.session.model_path = a.model;
+  o.mode = parse_unroll_mode(a.mode, "--mode");
+  try {
+    o.times = parse_target_times(a.times, a.times_us);
+    if (!a.frames.empty()) o.frames = parse_frame_list(a.frames, "--frames");
+  } catch (const Error& e) {
+    throw UsageError(e.what());
   }
-  if (auto v = args.get("events")) so.events_file = *v;
-  run_unroll(o);
-  return 0;
+  if (!a.channel_order.empty()) o.channel_order = parse_channel_order(a.channel_order, "--channel-order");
+  o.session.device = a.device.device;
+  o.session.cpu_threads = a.device.threads;
+  o.session.backend = parse_backend_kind(a.backend, "--backend");
+  o.session.precision = parse_precision(a.precision, "--precision");
+  o.contrast = a.contrast;
+  o.gamma = a.gamma;
+  o.tile = a.tile;
+  o.halo = a.halo;
+  o.sparse = parse_sparse_policy(a.sparse, "--sparse");
+  o.sparse_threshold = a.sparse_threshold;
+  o.quiet = a.quiet;
+  o.output.write_video = !a.no_video;
+  o.output.video_fps = a.fps;
+  if (!a.bit_depth.empty()) o.output.frame_format = a.bit_depth == "16" ? FrameFormat::png16 : FrameFormat::png8;
+  if (!a.frame_format.empty()) o.output.frame_format = parse_frame_format(a.frame_format, "--frame-format");
+  o.output.existing = a.resume ? ExistingOutput::resume : a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse;
+  o.sequence_options = sequence_options(a.timing);
+  o.command_line = command_line();
+  return o;
+}
+
+void add_model_options(CLI::App* c, UnrollArgs& a) {
+  const std::string g = "Model";
+  c->add_option("--model", a.model, "SelfUnroll weights (safetensors; tools/convert_checkpoint.py converts checkpoints)")
+      ->group(g)->type_name("FILE");
+  c->add_option("--mode", a.mode,
+                "s | m | physics | auto: M when the next frame exists, else S; physics (the weight-free event double "
+                "integral) without a model | choose: per target, S inside the frame's exposure span, else M")
+      ->check(CLI::IsMember({"auto", "s", "m", "physics", "choose"}))->capture_default_str()->group(g)->type_name("M");
+  c->add_option("--channel-order", a.channel_order, "rgb | bgr: the model's input order (default: its metadata)")
+      ->check(CLI::IsMember({"rgb", "bgr"}))->group(g)->type_name("O");
+  c->add_option("--contrast", a.contrast, "physics: the contrast threshold c (default: estimated from the sequence)")
+      ->check(finite_at_least(0, true))->group(g)->type_name("C");
+  c->add_option("--gamma", a.gamma, "physics: decode gamma of the frames (default: meta.json source.settings.gamma, else 1)")
+      ->check(finite_at_least(0, true))->group(g)->type_name("G");
+  c->add_option("--tile", a.tile,
+                "run the model on N x N tiles (a multiple of 32); 0: 32 when sparse, else whole frames when they fit "
+                "the device's buffers, else the largest tile that fits")
+      ->check(int_range(0, 1 << 20))->capture_default_str()->group(g)->type_name("N");
+  c->add_option("--halo", a.halo, "context pixels around each tile (a multiple of 32); -1: 32 when sparse, 64 for dense tiles")
+      ->check(int_range(-1, 1 << 20))->capture_default_str()->group(g)->type_name("N");
+  c->add_option("--sparse", a.sparse,
+                "off: every tile runs | exact: tiles without an ev1/ev2 event in them or their halo keep the RS pixels | "
+                "fast: also tiles below --sparse-threshold")
+      ->check(CLI::IsMember({"off", "exact", "fast"}))->capture_default_str()->group(g)->type_name("P");
+  c->add_option("--sparse-threshold", a.sparse_threshold, "fast: events per pixel (ev1 + ev2 over a tile and its halo)")
+      ->check(finite_at_least(0))->capture_default_str()->group(g)->type_name("X");
+  c->add_option("--backend", a.backend, "vulkan | cpu (the CPU reference backend)")
+      ->check(CLI::IsMember({"vulkan", "cpu"}))->capture_default_str()->group(g)->type_name("B");
+  c->add_option("--precision", a.precision, "fp32 | fp16 (Vulkan backend: weights and buffers in f16, event tensors and physics in f32; docs/model.md)")
+      ->check(CLI::IsMember({"fp32", "fp16"}))->capture_default_str()->group(g)->type_name("P");
+}
+
+void add_output_options(CLI::App* c, UnrollArgs& a) {
+  const std::string g = "Output";
+  c->add_option("--out", a.out,
+                "output folder: frames/, gs_video.mp4, contact_sheet.png, metrics.csv, frames.jsonl, summary.json "
+                "(written into .<name>.partial and renamed into place at the end)")
+      ->required()->group(g)->type_name("DIR");
+  auto* ow = c->add_flag("--overwrite", a.overwrite, "replace an existing output folder (at the end, whole)")->group(g);
+  c->add_flag("--resume", a.resume,
+              "continue an output (or a killed run's staging folder): GS frames already written and valid are kept")
+      ->excludes(ow)->group(g);
+  auto* ff = c->add_option("--frame-format", a.frame_format,
+                           "png8 | png16 | npy (float32 [H,W,3] RGB, not clamped; see docs/reliability.md)  [png8]")
+                 ->check(CLI::IsMember({"png8", "png16", "npy"}))->group(g)->type_name("F");
+  c->add_option("--bit-depth", a.bit_depth, "8 | 16: same as --frame-format png8 | png16 (kept for older scripts)")
+      ->check(CLI::IsMember({"8", "16"}))->excludes(ff)->group(g)->type_name("B");
+  c->add_option("--fps", a.fps, "frame rate of gs_video.mp4 (default: 10x slow motion of the recording, 1 to 60)")
+      ->check(finite_at_least(0, true) & CLI::Range(0.0, 1000.0))->group(g)->type_name("F");
+  c->add_flag("--no-video", a.no_video, "skip gs_video.mp4")->group(g);
+  c->add_flag("--quiet", a.quiet, "print nothing but warnings and errors")->group(g);
+}
+
+}  // namespace
+
+Command add_unroll(CLI::App& parent) {
+  auto a = std::make_shared<UnrollArgs>();
+  CLI::App* c = parent.add_subcommand("unroll", "turn a recording (RS frames + events) into GS frames, video and metrics");
+  c->description(
+      "Turns a recording into global-shutter frames: a file per GS frame (frames/), gs_video.mp4, a contact\n"
+      "sheet, metrics.csv and summary.json (PSNR/SSIM where the sequence has ground truth; provenance).");
+  c->add_option("SEQUENCE", a->sequence, "a folder: the generic layout (meta.json), Gev-RS, Gev-RS-Real, DRE or Fastec")
+      ->required();
+  const std::string gi = "Targets";
+  auto* times = c->add_option("--times", a->times,
+                              "normalized targets per frame: 0 = first row's exposure start, 1 = last row's exposure end; "
+                              "ranges start:stop:count, lists -0.25,0.5,1.25; 'gt': exactly the ground-truth instants, "
+                              "named after their files")
+                    ->capture_default_str()->group(gi)->type_name("LIST");
+  c->add_option("--times-us", a->times_us, "absolute targets in microseconds (each goes to the frame that spans it)")
+      ->excludes(times)->group(gi)->type_name("LIST");
+  c->add_option("--frames", a->frames, "frames to unroll: 'a:b' (inclusive) or a list (default: all)")->group(gi)->type_name("A:B");
+  add_model_options(c, *a);
+  add_output_options(c, *a);
+  add_device_options(c, a->device);
+  add_sequence_timing(c, a->timing);
+  return {c, [a] {
+            apply_threads(a->device.threads);
+            run_unroll(to_options(*a));
+            return 0;
+          }};
 }
 
 }  // namespace vkunroll::cli

@@ -2,13 +2,14 @@
 // sequence, written as float32 safetensors [frames x targets, 2N, H, W], frame-major.
 #include <chrono>
 #include <iostream>
+#include <memory>
 #include <nlohmann/json.hpp>
 
-#include "vkunroll/host/cli/args.hpp"
-#include "vkunroll/host/cli/commands.hpp"
-#include "vkunroll/host/unroll/value_list.hpp"
-#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/events/sequence.hpp"
+#include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/unroll/unroll_options.hpp"
+#include "vkunroll/host/unroll/value_list.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/runtime/context.hpp"
 
@@ -16,25 +17,14 @@ namespace vkunroll::cli {
 
 namespace {
 
-const char* kUsage =
-    "usage: vkunroll voxelize SEQUENCE --frames LIST (--times LIST | --times-us LIST) --out FILE.safetensors\n"
-    "                         [--bins N] [--crop x,y,w,h] [--target-exposure US] [--cpu] [--device D]\n"
-    "                         [--layout auto|generic|gev-rs|gev-rs-real|dre|fastec] [--line-delay US]\n"
-    "                         [--exposure US] [--readout top-down|bottom-up] [--t0s LIST] [--frame-period US]\n"
-    "                         [--gev-half-row] [--on-bad error|drop|sort] [--batch PAIRS]\n\n"
-    "Writes float32 tensors ev1, ev2, ev3 of shape [frames x targets, 2N, H, W] (frame-major: pair i is\n"
-    "frame i / targets, target i % targets) and, in __metadata__, every pair's frame and exact t* (us).\n\n"
-    "  --frames LIST      frame indices: '0,3,7', 'a:b' (a..b inclusive) or 'a:b:n' (n evenly spaced)\n"
-    "  --times LIST       normalized targets tau (t* = t0 + tau * (last row end - t0); <0 or >1 is\n"
-    "                     inter-frame): '-0.25,0.5,1.25' or 'start:stop:count' (count values, both ends\n"
-    "                     included: 0:1:5 = 0,0.25,0.5,0.75,1). Values are exact ('1/3', '0.1').\n"
-    "  --times-us LIST    absolute targets t* in microseconds, same syntax (the same t* for every frame)\n"
-    "  --bins N           temporal bins (default 16; 2N channels)\n"
-    "  --crop x,y,w,h     sensor window; rows keep their own full-sensor times\n"
-    "  --target-exposure  ev3 window length in us (default: the frame's exposure)\n"
-    "  --cpu              use the CPU reference instead of the GPU builder\n"
-    "  timing overrides   --line-delay, --exposure (us, exact: '73000/259'), --readout, --t0s LIST (one per\n"
-    "                     frame of the sequence), --frame-period (Gev-RS-Real), --gev-half-row (Gev-RS)\n";
+struct VoxelizeArgs {
+  std::string sequence, frames, times, times_us, out, crop, target_exposure;
+  int bins = 16;
+  int64_t batch = 0;
+  bool cpu = false;
+  SequenceTimingArgs timing;
+  DeviceArgs device;
+};
 
 SensorCrop parse_crop(const std::string& s) {
   std::vector<int> v;
@@ -47,72 +37,82 @@ SensorCrop parse_crop(const std::string& s) {
       v.push_back(std::stoi(item, &used));
       if (used != item.size()) throw std::invalid_argument("trailing");
     } catch (const std::exception&) {
-      throw Error("--crop: '" + s + "' is not x,y,w,h (four integers)");
+      throw UsageError("--crop '" + s + "': expected x,y,w,h (four integers)");
     }
     if (comma == std::string::npos) break;
     pos = comma + 1;
   }
-  if (v.size() != 4) throw Error("--crop: '" + s + "' is not x,y,w,h (four integers)");
+  if (v.size() != 4) throw UsageError("--crop '" + s + "': expected x,y,w,h (four integers)");
+  if (v[0] < 0 || v[1] < 0) throw UsageError("--crop '" + s + "': x and y must be >= 0");
+  if (v[2] <= 0 || v[3] <= 0) throw UsageError("--crop '" + s + "': the width and height must be positive");
   return {v[0], v[1], v[2], v[3]};
 }
 
-}  // namespace
-
-int cmd_voxelize(const Argv& argv) {
-  Args args("voxelize", argv,
-            {"frames", "times", "times-us", "bins", "crop", "out", "target-exposure", "device", "layout", "line-delay",
-             "exposure", "readout", "t0s", "frame-period", "on-bad", "batch"},
-            {"cpu", "gev-half-row"});
-  if (args.help()) {
-    std::cout << kUsage;
-    return 0;
+// Writes of the output file failing are I/O errors (exit 74), whatever the writer calls them.
+template <class F>
+void output_io(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::unspecified) throw;
+    throw IoError(e.what());
   }
-  if (args.positionals().size() != 1) throw Error("voxelize: expected one SEQUENCE folder\n" + std::string(kUsage));
-  if (args.has("times") == args.has("times-us")) throw Error("voxelize: give exactly one of --times and --times-us");
-  const std::string out_path = args.require("out");
-  const std::string seq_path = args.positionals()[0];
+}
 
-  SequenceOptions so;
-  if (auto v = args.get("layout")) so.layout = parse_sequence_layout(*v);
-  if (auto v = args.get("line-delay")) so.line_delay_us = Rational::parse(*v, "--line-delay");
-  if (auto v = args.get("exposure")) so.exposure_us = Rational::parse(*v, "--exposure");
-  if (auto v = args.get("readout")) so.readout = parse_readout(*v);
-  if (auto v = args.get("t0s")) so.t0s_us = parse_value_list(*v, "--t0s");
-  if (auto v = args.get("frame-period")) so.frame_period_us = Rational::parse(*v, "--frame-period");
-  so.gev_half_row = args.has("gev-half-row");
-  if (auto v = args.get("on-bad")) {
-    if (*v == "error") so.events.on_bad = BadEventPolicy::error;
-    else if (*v == "drop") so.events.on_bad = BadEventPolicy::drop;
-    else if (*v == "sort") so.events.on_bad = BadEventPolicy::sort;
-    else throw Error("--on-bad: '" + *v + "' (expected error, drop or sort)");
-  }
-  const Sequence seq = load_sequence(seq_path, so);
-
-  const std::vector<int> frames = parse_frame_list(args.require("frames"), "--frames");
-  for (int f : frames) (void)seq.frame(f);
-  const bool tau = args.has("times");
-  const std::vector<Rational> targets =
-      parse_value_list(tau ? *args.get("times") : *args.get("times-us"), tau ? "--times" : "--times-us");
-  EventTensorSpec spec;
-  spec.bins = static_cast<int>(args.integer("bins", 16));
-  if (auto c = args.get("crop")) spec.crop = parse_crop(*c);
-  const SensorCrop crop = resolve_crop(spec.crop, seq.width, seq.height);
+int run_voxelize(const VoxelizeArgs& a) {
+  SequenceOptions so = sequence_options(a.timing);
+  check_output_file(a.out, "--out");
+  const bool tau = !a.times.empty();
+  if (tau == !a.times_us.empty()) throw UsageError("give exactly one of --times and --times-us");
+  std::vector<Rational> targets;
+  std::vector<int> frames;
   std::optional<Rational> texp;
-  if (auto v = args.get("target-exposure")) texp = Rational::parse(*v, "--target-exposure");
+  try {
+    targets = parse_value_list(tau ? a.times : a.times_us, tau ? "--times" : "--times-us");
+    frames = parse_frame_list(a.frames, "--frames");
+    if (!a.target_exposure.empty()) texp = Rational::parse(a.target_exposure, "--target-exposure");
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
+  for (const Rational& v : targets)
+    if (!(std::abs(v.to_double()) <= (tau ? kMaxTau : kMaxTimeUs)))
+      throw UsageError(std::string(tau ? "--times " : "--times-us ") + v.str() + ": out of range (" +
+                       (tau ? "a normalized target must lie within +-1e6 frame spans)" : "times must lie within +-2^53 us)"));
+  if (texp && (*texp <= Rational(0) || texp->to_double() > kMaxTimeUs))
+    throw UsageError("--target-exposure " + texp->str() + ": expected a window length > 0 us (and within 2^53 us)");
+  EventTensorSpec spec;
+  spec.bins = a.bins;
+  if (!a.crop.empty()) spec.crop = parse_crop(a.crop);
+  std::error_code ec;
+  if (!std::filesystem::exists(a.sequence, ec)) throw InputMissingError("SEQUENCE " + a.sequence + ": no such folder");
+  const Sequence seq = load_sequence(a.sequence, so);
+  for (int f : frames) (void)seq.frame(f);
+  SensorCrop crop;
+  try {
+    crop = resolve_crop(spec.crop, seq.width, seq.height);
+  } catch (const Error& e) {
+    throw UsageError("--crop " + a.crop + ": " + e.what());
+  }
 
   // Pairs, frame-major.
   std::vector<EventTensorPair> pairs;
   nlohmann::json pair_meta = nlohmann::json::array();
-  for (int f : frames)
-    for (const auto& v : targets) {
-      const RowTiming& tm = seq.frame(f).timing;
-      const Rational ts = tau ? tm.target_time(v) : v;
-      pairs.push_back({tm, ts, texp});
-      pair_meta.push_back({{"frame", f}, {"target", v.str()}, {"t_star_us", ts.str()}, {"t_star_us_float", ts.to_double()}});
-    }
+  try {
+    for (int f : frames)
+      for (const auto& v : targets) {
+        const RowTiming& tm = seq.frame(f).timing;
+        const Rational ts = tau ? tm.target_time(v) : v;
+        pairs.push_back({tm, ts, texp});
+        pair_meta.push_back({{"frame", f}, {"target", v.str()}, {"t_star_us", ts.str()}, {"t_star_us_float", ts.to_double()}});
+      }
+  } catch (const Error& e) {
+    if (std::string(e.what()).rfind("Rational", 0) != 0) throw;
+    throw UsageError(std::string(tau ? "--times" : "--times-us") + ": a target is out of the range of exact time arithmetic (" +
+                     e.what() + ")");
+  }
   const int64_t P = static_cast<int64_t>(pairs.size());
   const std::vector<int64_t> shape = {P, 2 * spec.bins, crop.height, crop.width};
-  const size_t slice = static_cast<size_t>(2 * spec.bins) * crop.height * crop.width;
+  const size_t slice = static_cast<size_t>(2 * spec.bins) * crop.height * crop.width;  // > 0: bins and crop checked
 
   nlohmann::json frames_meta = nlohmann::json::array();
   for (int f : frames) {
@@ -121,7 +121,7 @@ int cmd_voxelize(const Argv& argv) {
                            {"line_delay_us", tm.line_delay.str()}, {"exposure_us", tm.exposure.str()},
                            {"readout", readout_name(tm.readout)}});
   }
-  std::map<std::string, std::string> meta = {
+  const std::map<std::string, std::string> meta = {
       {"format", "vkunroll-event-tensors-1"},
       {"sequence", seq.root},
       {"layout", sequence_layout_name(seq.layout)},
@@ -133,20 +133,23 @@ int cmd_voxelize(const Argv& argv) {
       {"pairs", pair_meta.dump()},
       {"order", "frame-major: pair = frame_index * targets + target_index"},
   };
-  SafetensorsStreamWriter writer(out_path,
-                                 {{"ev1", StDType::F32, shape}, {"ev2", StDType::F32, shape}, {"ev3", StDType::F32, shape}},
-                                 meta);
+  std::unique_ptr<SafetensorsStreamWriter> writer;
+  output_io([&] {
+    writer = std::make_unique<SafetensorsStreamWriter>(
+        a.out, std::vector<SafetensorsStreamWriter::Spec>{{"ev1", StDType::F32, shape}, {"ev2", StDType::F32, shape}, {"ev3", StDType::F32, shape}},
+        meta);
+  });
 
   std::unique_ptr<Context> ctx;
   std::unique_ptr<EventTensorBuilder> builder;
-  if (!args.has("cpu")) {
+  if (!a.cpu) {
     ContextOptions co;
-    if (auto d = args.get("device")) co.device = *d;
+    co.device = a.device.device;
     ctx = std::make_unique<Context>(co);
     builder = std::make_unique<EventTensorBuilder>(*ctx);
   }
   // Pairs in batches that keep host memory bounded (three tensors of `batch` pairs).
-  int64_t batch = args.integer("batch", 0);
+  int64_t batch = a.batch;
   if (batch <= 0) batch = std::max<int64_t>(1, static_cast<int64_t>((256ull << 20) / (3 * slice * 4)));
   const auto t_start = std::chrono::steady_clock::now();
   size_t events_read = 0, events_used = 0;
@@ -171,18 +174,54 @@ int cmd_voxelize(const Argv& argv) {
     else t = build_event_tensors_ref(ev, part, spec);
     events_used += t.events_considered;
     const size_t off = static_cast<size_t>(p0) * slice * 4, bytes = static_cast<size_t>(np) * slice * 4;
-    writer.write("ev1", off, t.ev1.data(), bytes);
-    writer.write("ev2", off, t.ev2.data(), bytes);
-    writer.write("ev3", off, t.ev3.data(), bytes);
+    output_io([&] {
+      writer->write("ev1", off, t.ev1.data(), bytes);
+      writer->write("ev2", off, t.ev2.data(), bytes);
+      writer->write("ev3", off, t.ev3.data(), bytes);
+    });
   }
-  writer.finish();
+  output_io([&] { writer->finish(); });
   const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
-  std::cout << "wrote " << out_path << ": ev1, ev2, ev3 float32 [" << P << ", " << 2 * spec.bins << ", " << crop.height
-            << ", " << crop.width << "] (" << frames.size() << " frames x " << targets.size() << " targets), "
-            << events_read << " events read, " << events_used << " in the tensors' windows, "
-            << (builder ? "GPU" : "CPU") << ", " << secs << " s\n";
+  std::cout << "wrote " << a.out << ": ev1, ev2, ev3 float32 [" << P << ", " << 2 * spec.bins << ", " << crop.height << ", "
+            << crop.width << "] (" << frames.size() << " frames x " << targets.size() << " targets), " << events_read
+            << " events read, " << events_used << " in the tensors' windows, " << (builder ? "GPU" : "CPU") << ", " << secs
+            << " s\n";
+  if (events_read == 0) std::cerr << "voxelize: warning: no events in the pairs' windows: every tensor is zero\n";
   for (const auto& n : seq.notes) std::cout << "  timing: " << n << "\n";
   return 0;
+}
+
+}  // namespace
+
+Command add_voxelize(CLI::App& parent) {
+  auto a = std::make_shared<VoxelizeArgs>();
+  CLI::App* c = parent.add_subcommand("voxelize", "row-aware event tensors ev1/ev2/ev3 of (frame, target) pairs -> safetensors");
+  c->description(
+      "Writes float32 tensors ev1, ev2, ev3 of shape [frames x targets, 2N, H, W] (frame-major: pair i is\n"
+      "frame i / targets, target i % targets) and, in __metadata__, every pair's frame and exact t* (us).");
+  c->add_option("SEQUENCE", a->sequence, "a sequence folder (any layout unroll reads)")->required();
+  c->add_option("--frames", a->frames, "frame indices: '0,3,7', 'a:b' (a..b inclusive) or 'a:b:n' (n evenly spaced)")
+      ->required()->type_name("LIST");
+  auto* times = c->add_option("--times", a->times,
+                              "normalized targets tau (t* = t0 + tau * (last row end - t0); <0 or >1 is inter-frame): "
+                              "'-0.25,0.5,1.25' or 'start:stop:count'; exact ('1/3', '0.1')")
+                    ->type_name("LIST");
+  c->add_option("--times-us", a->times_us, "absolute targets t* in microseconds, same syntax (the same t* for every frame)")
+      ->excludes(times)->type_name("LIST");
+  c->add_option("--out", a->out, "the safetensors file to write (written under a temporary name, renamed when complete)")
+      ->required()->type_name("FILE");
+  c->add_option("--bins", a->bins, "temporal bins N (2N channels)")->check(int_range(1, 4096))->capture_default_str()->type_name("N");
+  c->add_option("--crop", a->crop, "sensor window x,y,w,h (w, h > 0); rows keep their own full-sensor times")->type_name("X,Y,W,H");
+  c->add_option("--target-exposure", a->target_exposure, "ev3 window length in us, > 0 (default: the frame's exposure)")
+      ->type_name("US");
+  c->add_flag("--cpu", a->cpu, "use the CPU reference instead of the GPU builder");
+  c->add_option("--batch", a->batch, "pairs per batch (0: as many as fit in 256 MiB)")->check(int_range(0, 1 << 30))->type_name("PAIRS");
+  add_device_options(c, a->device);
+  add_sequence_timing(c, a->timing);
+  return {c, [a] {
+            apply_threads(a->device.threads);
+            return run_voxelize(*a);
+          }};
 }
 
 }  // namespace vkunroll::cli

@@ -1,61 +1,83 @@
 // vkunroll: rolling-shutter + events -> global-shutter video, on any Vulkan GPU.
+#include <csignal>
 #include <cstring>
 #include <exception>
 #include <iostream>
 
-#include "vkunroll/host/cli/commands.hpp"
-#include "vkunroll/base/error.hpp"
+#include "vkunroll/host/cli/cli.hpp"
+#include "vkunroll/host/cli/exit_codes.hpp"
+#include "vkunroll/host/unroll/provenance.hpp"
 
 namespace {
 
-struct Command {
-  const char* name;
-  int (*run)(const vkunroll::cli::Argv&);
-  const char* summary;
-};
+const char* kFooter =
+    "Run 'vkunroll <command> --help' for a command's options.\n\n"
+    "Environment: VKUNROLL_DEVICE (index, uuid:UUID or name), VKUNROLL_VALIDATION=1, VKUNROLL_CACHE_DIR,\n"
+    "VKUNROLL_FENCE_TIMEOUT_S, VK_DRIVER_FILES.\n\n"
+    "Exit codes (sysexits): 0 success; 2 usage (refused option, existing output without --overwrite);\n"
+    "65 bad input data; 66 missing input; 69 no usable device; 70 internal error; 71 out of memory;\n"
+    "74 I/O error writing outputs; 75 temporary failure, retry (device lost, timeout, device memory,\n"
+    "output busy). See docs/reliability.md.";
 
-const Command kCommands[] = {
-    {"devices", vkunroll::cli::cmd_devices, "list Vulkan devices and mark the one vkunroll would use"},
-    {"simulate", vkunroll::cli::cmd_simulate, "simulate RS frames, GS ground truth and events from a moving scene"},
-    {"events", vkunroll::cli::cmd_events, "read an event file: count, time span, rate, sensor size, polarity, drops"},
-    {"voxelize", vkunroll::cli::cmd_voxelize, "row-aware event tensors ev1/ev2/ev3 of (frame, target) pairs -> safetensors"},
-    {"demo", vkunroll::cli::cmd_demo, "simulate a built-in scene and unroll it (the shipped model and physics)"},
-    {"unroll", vkunroll::cli::cmd_unroll, "turn a recording (RS frames + events) into GS frames, video and metrics"},
-    {"infer", vkunroll::cli::cmd_infer, "run SelfUnroll-S/-M on raw input tensors, write every intermediate"},
-};
-
-void usage(std::ostream& os) {
-  os << "vkunroll " << VKUNROLL_VERSION << ": rolling-shutter images + events -> global-shutter video (SelfUnroll on Vulkan)\n\n"
-     << "usage: vkunroll <command> [options]   (vkunroll <command> --help for its options)\n\ncommands:\n";
-  for (const auto& c : kCommands) {
-    os << "  " << c.name;
-    for (size_t i = std::strlen(c.name); i < 12; ++i) os << ' ';
-    os << c.summary << "\n";
-  }
-  os << "\nenvironment: VKUNROLL_DEVICE (index or name), VKUNROLL_VALIDATION=1, VKUNROLL_CACHE_DIR\n";
+// A message must not repeat the "vkunroll unroll: error:" prefix it is printed under.
+std::string without_prefix(std::string msg, const std::string& command) {
+  for (const std::string& p : {"vkunroll " + command + ": ", command + ": ", std::string("vkunroll: ")})
+    if (!command.empty() && msg.rfind(p, 0) == 0) msg = msg.substr(p.size());
+  return msg;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h") || !std::strcmp(argv[1], "help")) {
-    usage(std::cout);
-    return argc < 2 ? 2 : 0;
+  using namespace vkunroll::cli;
+  // A file-size limit (ulimit -f) fails the write (EFBIG, exit 74) instead of killing the process.
+  std::signal(SIGXFSZ, SIG_IGN);
+  set_command_line(argc, argv);
+  CLI::App app{"vkunroll " + vkunroll::build_info_line() +
+                   ": rolling-shutter images + events -> global-shutter video (SelfUnroll on Vulkan)",
+               "vkunroll"};
+  auto formatter = std::make_shared<Formatter>();
+  app.formatter(formatter);
+  app.footer(kFooter);
+  app.set_version_flag("--version", "vkunroll " + vkunroll::build_info_line());
+  app.require_subcommand(1, 1);
+  app.fallthrough(false);
+  std::vector<Command> commands = {add_devices(app), add_simulate(app), add_events(app), add_voxelize(app),
+                                   add_demo(app),    add_unroll(app),   add_infer(app)};
+  for (auto& c : commands) c.app->formatter(formatter);
+  if (argc == 2 && !std::strcmp(argv[1], "help")) {
+    std::cout << app.help();
+    return kExitOk;
   }
-  if (!std::strcmp(argv[1], "--version")) {
-    std::cout << "vkunroll " << VKUNROLL_VERSION << "\n";
-    return 0;
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
+    const auto selected = app.get_subcommands();
+    const CLI::App* where = selected.empty() ? &app : selected.front();
+    std::string msg = e.what();
+    if (selected.empty() && argc > 1 && argv[1][0] != '-') {
+      msg = std::string("unknown command '") + argv[1] + "'; the commands are";
+      for (const auto& c : commands) msg += " " + c.app->get_name();
+    }
+    else if (selected.empty() && argc < 2)
+      msg = "no command given";
+    const std::string prefix = where == &app ? "vkunroll" : "vkunroll " + where->get_name();
+    std::cerr << prefix << ": error: " << msg << "\n" << formatter->usage(where);
+    std::cerr << "(see '" << prefix << " --help')\n";
+    return kExitUsage;
   }
-  for (const auto& c : kCommands) {
-    if (std::strcmp(argv[1], c.name) != 0) continue;
+  for (const auto& c : commands) {
+    if (!c.app->parsed()) continue;
     try {
-      return c.run(vkunroll::cli::Argv(argv + 2, argv + argc));
+      return c.run();
     } catch (const std::exception& e) {
-      std::cerr << "vkunroll " << c.name << ": error: " << e.what() << "\n";
-      return 1;
+      std::string category;
+      const int code = exit_code_for(e, &category);
+      std::cerr << "vkunroll " << c.app->get_name() << ": error: " << without_prefix(e.what(), c.app->get_name()) << "\n";
+      if (code == kExitUsage) std::cerr << formatter->usage(c.app) << "(see 'vkunroll " << c.app->get_name() << " --help')\n";
+      return code;
     }
   }
-  std::cerr << "vkunroll: unknown command '" << argv[1] << "'\n\n";
-  usage(std::cerr);
-  return 2;
+  return kExitUsage;
 }

@@ -296,6 +296,12 @@ SafetensorsFile parse_safetensors(std::span<const uint8_t> bytes, const std::str
 }
 
 SafetensorsFile read_safetensors(const std::string& path) {
+  std::error_code ec;
+  const auto st = std::filesystem::status(path, ec);
+  if (!std::filesystem::exists(st)) throw InputMissingError("safetensors '" + path + "': no such file");
+  if (!std::filesystem::is_regular_file(st))  // a folder "opens" on Linux and reads as a huge size
+    throw DataError("safetensors '" + path + "': is " + (std::filesystem::is_directory(st) ? "a folder" : "not a regular file") +
+                    ", expected a .safetensors file");
   std::ifstream f(path, std::ios::binary);
   if (!f) throw Error("safetensors '" + path + "': cannot open for reading");
   f.seekg(0, std::ios::end);

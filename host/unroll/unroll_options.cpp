@@ -1,9 +1,41 @@
 #include "vkunroll/host/unroll/unroll_options.hpp"
 
+#include <cmath>
+#include <filesystem>
+
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/host/unroll/value_list.hpp"
 
 namespace vkunroll {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// "1e+300" is no good in a message about 1e300; inf and nan by name.
+std::string number_text(double v) {
+  if (std::isnan(v)) return "nan";
+  if (std::isinf(v)) return v > 0 ? "inf" : "-inf";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.17g", v);
+  return buf;
+}
+
+void check_time(const Rational& v, const std::string& what) {
+  const double d = v.to_double();
+  if (!(std::abs(d) <= kMaxTimeUs))
+    throw UsageError(what + " " + v.str() + " us is out of range: times must lie within +-2^53 us (285 years)");
+}
+
+void check_exists(const std::string& path, const std::string& what, bool folder) {
+  std::error_code ec;
+  const auto st = fs::status(path, ec);
+  if (!fs::exists(st)) throw InputMissingError(what + " " + path + ": no such " + (folder ? "folder" : "file"));
+  if (folder && !fs::is_directory(st)) throw DataError(what + " " + path + ": is not a folder");
+  if (!folder && fs::is_directory(st)) throw DataError(what + " " + path + ": is a folder, expected a file");
+}
+
+}  // namespace
 
 UnrollMode parse_unroll_mode(const std::string& s, const std::string& what) {
   if (s == "auto") return UnrollMode::automatic;
@@ -11,7 +43,7 @@ UnrollMode parse_unroll_mode(const std::string& s, const std::string& what) {
   if (s == "m") return UnrollMode::m;
   if (s == "physics") return UnrollMode::physics;
   if (s == "choose") return UnrollMode::choose;
-  throw Error(what + " '" + s + "' (expected s, m, choose, physics or auto)");
+  throw UsageError(what + " '" + s + "' (expected s, m, choose, physics or auto)");
 }
 
 const char* unroll_mode_name(UnrollMode m) {
@@ -28,7 +60,7 @@ const char* unroll_mode_name(UnrollMode m) {
 BackendKind parse_backend_kind(const std::string& s, const std::string& what) {
   if (s == "vulkan") return BackendKind::vulkan;
   if (s == "cpu") return BackendKind::cpu;
-  throw Error(what + " '" + s + "' (expected vulkan or cpu)");
+  throw UsageError(what + " '" + s + "' (expected vulkan or cpu)");
 }
 
 const char* backend_kind_name(BackendKind b) { return b == BackendKind::cpu ? "cpu" : "vulkan"; }
@@ -36,7 +68,7 @@ const char* backend_kind_name(BackendKind b) { return b == BackendKind::cpu ? "c
 ChannelOrder parse_channel_order(const std::string& s, const std::string& what) {
   if (s == "rgb") return ChannelOrder::rgb;
   if (s == "bgr") return ChannelOrder::bgr;
-  throw Error(what + " '" + s + "' (expected rgb or bgr)");
+  throw UsageError(what + " '" + s + "' (expected rgb or bgr)");
 }
 
 TargetTimes parse_target_times(const std::string& times, const std::string& times_us) {
@@ -45,28 +77,102 @@ TargetTimes parse_target_times(const std::string& times, const std::string& time
   return {TargetTimes::Kind::normalized, parse_value_list(times, "--times")};
 }
 
+void validate_sequence_options(const SequenceOptions& o) {
+  if (o.line_delay_us) {
+    check_time(*o.line_delay_us, "--line-delay-us");
+    if (*o.line_delay_us < Rational(0)) throw UsageError("--line-delay-us " + o.line_delay_us->str() + ": expected >= 0 us");
+  }
+  if (o.exposure_us) {
+    check_time(*o.exposure_us, "--exposure-us");
+    if (*o.exposure_us <= Rational(0)) throw UsageError("--exposure-us " + o.exposure_us->str() + ": expected > 0 us");
+  }
+  if (o.frame_period_us) {
+    check_time(*o.frame_period_us, "--frame-period-us");
+    if (*o.frame_period_us <= Rational(0)) throw UsageError("--frame-period-us " + o.frame_period_us->str() + ": expected > 0 us");
+  }
+  if (o.t0s_us) {
+    if (o.t0s_us->empty()) throw UsageError("--t0s-us: no value given");
+    for (size_t i = 0; i < o.t0s_us->size(); ++i) check_time((*o.t0s_us)[i], "--t0s-us value " + std::to_string(i + 1));
+  }
+  if (o.events_file) check_exists(*o.events_file, "--events", false);
+}
+
 void validate_unroll_options(const UnrollOptions& o) {
-  if (o.sequence.empty()) throw Error("unroll: no SEQUENCE folder given");
-  if (o.out_dir.empty()) throw Error("unroll: --out DIR is required");
+  if (o.sequence.empty()) throw UsageError("no SEQUENCE folder given");
+  if (o.out_dir.empty()) throw UsageError("--out DIR is required");
   const bool needs_model = o.mode == UnrollMode::s || o.mode == UnrollMode::m || o.mode == UnrollMode::choose;
   if (needs_model && o.session.model_path.empty())
-    throw Error(std::string("--mode ") + unroll_mode_name(o.mode) + " needs --model FILE.safetensors");
+    throw UsageError(std::string("--mode ") + unroll_mode_name(o.mode) + " needs --model FILE.safetensors");
   if (o.session.precision == Precision::fp16 && o.session.backend == BackendKind::cpu)
-    throw Error("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
+    throw UsageError("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
   if (o.tile < 0 || o.tile % kTileAlign)
-    throw Error("--tile " + std::to_string(o.tile) + ": expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
+    throw UsageError("--tile " + std::to_string(o.tile) + ": expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
   if (o.halo < -1 || (o.halo >= 0 && o.halo % kTileAlign))
-    throw Error("--halo " + std::to_string(o.halo) + ": expected -1 (automatic) or a non-negative multiple of " + std::to_string(kTileAlign));
-  if (!(o.sparse_threshold >= 0))
-    throw Error("--sparse-threshold " + std::to_string(o.sparse_threshold) + ": expected >= 0 events per pixel");
-  if (o.output.bit_depth != 8 && o.output.bit_depth != 16)
-    throw Error("--bit-depth " + std::to_string(o.output.bit_depth) + ": expected 8 or 16");
-  if (o.contrast && !(*o.contrast > 0)) throw Error("--contrast " + std::to_string(*o.contrast) + ": expected a positive value");
-  if (o.gamma && !(*o.gamma > 0)) throw Error("--gamma " + std::to_string(*o.gamma) + ": expected a positive value");
+    throw UsageError("--halo " + std::to_string(o.halo) + ": expected -1 (automatic) or a non-negative multiple of " + std::to_string(kTileAlign));
+  if (!(o.sparse_threshold >= 0) || std::isinf(o.sparse_threshold))
+    throw UsageError("--sparse-threshold " + number_text(o.sparse_threshold) + ": expected a finite value >= 0 events per pixel");
+  if (o.contrast && !(*o.contrast > 0 && std::isfinite(*o.contrast)))
+    throw UsageError("--contrast " + number_text(*o.contrast) + ": expected a finite positive value");
+  if (o.gamma && !(*o.gamma > 0 && std::isfinite(*o.gamma)))
+    throw UsageError("--gamma " + number_text(*o.gamma) + ": expected a finite positive value");
+  if (o.output.video_fps && !(*o.output.video_fps > 0 && *o.output.video_fps <= 1000))
+    throw UsageError("--fps " + number_text(*o.output.video_fps) + ": expected a frame rate in (0, 1000]");
   if (o.times.kind != TargetTimes::Kind::ground_truth && o.times.values.empty())
-    throw Error(o.times.kind == TargetTimes::Kind::absolute_us ? "--times-us: no target given" : "--times: no target given");
+    throw UsageError(o.times.kind == TargetTimes::Kind::absolute_us ? "--times-us: no target given" : "--times: no target given");
+  for (const Rational& v : o.times.values) {
+    if (o.times.kind == TargetTimes::Kind::absolute_us) check_time(v, "--times-us");
+    else if (!(std::abs(v.to_double()) <= kMaxTau))
+      throw UsageError("--times " + v.str() + ": a normalized target must lie within +-1e6 frame spans");
+  }
   for (int k : o.frames)
-    if (k < 0) throw Error("--frames: frame index " + std::to_string(k) + " is negative");
+    if (k < 0) throw UsageError("--frames: frame index " + std::to_string(k) + " is negative");
+  validate_sequence_options(o.sequence_options);
+  check_exists(o.sequence, "SEQUENCE", true);
+  if (!o.session.model_path.empty() && o.mode != UnrollMode::physics) check_exists(o.session.model_path, "--model", false);
+}
+
+nlohmann::json unroll_options_json(const UnrollOptions& o) {
+  const SequenceOptions& so = o.sequence_options;
+  auto opt_rational = [](const std::optional<Rational>& r) { return r ? nlohmann::json(r->str()) : nlohmann::json(); };
+  nlohmann::json times = nlohmann::json::array();
+  for (const auto& v : o.times.values) times.push_back(v.str());
+  nlohmann::json t0s;
+  if (so.t0s_us)
+    for (const auto& v : *so.t0s_us) t0s.push_back(v.str());
+  const char* kinds[] = {"normalized", "absolute_us", "ground_truth"};
+  return {
+      {"sequence", o.sequence},
+      {"out", o.out_dir},
+      {"mode", unroll_mode_name(o.mode)},
+      {"times", {{"kind", kinds[static_cast<int>(o.times.kind)]}, {"values", times}}},
+      {"frames", o.frames},
+      {"model", o.session.model_path},
+      {"backend", backend_kind_name(o.session.backend)},
+      {"device", o.session.device},
+      {"precision", precision_name(o.session.precision)},
+      {"cpu_threads", o.session.cpu_threads},
+      {"channel_order", o.channel_order == ChannelOrder::model ? "model" : o.channel_order == ChannelOrder::rgb ? "rgb" : "bgr"},
+      {"contrast", o.contrast ? nlohmann::json(*o.contrast) : nlohmann::json()},
+      {"gamma", o.gamma ? nlohmann::json(*o.gamma) : nlohmann::json()},
+      {"tile", o.tile},
+      {"halo", o.halo},
+      {"sparse", sparse_policy_name(o.sparse)},
+      {"sparse_threshold", o.sparse_threshold},
+      {"frame_format", frame_format_name(o.output.frame_format)},
+      {"video", o.output.write_video},
+      {"fps", o.output.video_fps ? nlohmann::json(*o.output.video_fps) : nlohmann::json()},
+      {"existing_output", existing_output_name(o.output.existing)},
+      {"sequence_options",
+       {{"layout", sequence_layout_name(so.layout)},
+        {"line_delay_us", opt_rational(so.line_delay_us)},
+        {"exposure_us", opt_rational(so.exposure_us)},
+        {"readout", so.readout ? nlohmann::json(readout_name(*so.readout)) : nlohmann::json()},
+        {"t0s_us", t0s},
+        {"frame_period_us", opt_rational(so.frame_period_us)},
+        {"gev_half_row", so.gev_half_row},
+        {"on_bad", so.events.on_bad == BadEventPolicy::error ? "error" : so.events.on_bad == BadEventPolicy::drop ? "drop" : "sort"},
+        {"events_file", so.events_file ? nlohmann::json(*so.events_file) : nlohmann::json()}}},
+  };
 }
 
 }  // namespace vkunroll

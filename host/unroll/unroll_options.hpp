@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "vkunroll/base/precision.hpp"
 #include "vkunroll/base/row_timing.hpp"
 #include "vkunroll/host/events/sequence.hpp"
@@ -55,6 +57,12 @@ struct SessionOptions {
   unsigned cpu_threads = 0;       // CPU backend threads (0: the machine's, at most 8)
 };
 
+// The largest time a target or a timing override may name: +-2^53 us (285 years), where a double
+// still holds every microsecond (the readers keep frame times within the same range).
+constexpr double kMaxTimeUs = 9007199254740992.0;
+// The largest normalized target |tau| accepted (a million frame spans).
+constexpr double kMaxTau = 1e6;
+
 struct UnrollOptions {
   std::string sequence;           // folder
   SequenceOptions sequence_options;
@@ -66,8 +74,10 @@ struct UnrollOptions {
   ChannelOrder channel_order = ChannelOrder::model;
   std::optional<double> contrast;  // physics: c; empty: estimated (see estimate_contrast)
   std::optional<double> gamma;     // physics: decode gamma of the frames; empty: meta.json's source gamma or 1
-  bool quiet = false;
-  UnrollOutputOptions output;
+  bool quiet = false;             // nothing on stderr but warnings and errors
+  UnrollOutputOptions output;     // frame format, video, what to do with an existing folder (--overwrite, --resume)
+  // Provenance: the command line that asked for this run (summary.json; empty for library calls).
+  std::vector<std::string> command_line;
   // Tiled / sparse model execution (host/model/tiling.hpp, docs/tiling.md). Defaults from the
   // speed-against-error report: sparse exact on 32-pixel tiles with a 32-pixel halo never lost PSNR
   // there and ran 1.8-2x faster on a static scene.
@@ -77,7 +87,16 @@ struct UnrollOptions {
   double sparse_threshold = 0.05; // fast: ev1 + ev2 events per pixel of a tile's input rect
 };
 
-// Throws Error naming the option when a value or a combination is refused (before any work).
+// Throws UsageError naming the option when a value or a combination is refused, and
+// InputMissingError naming the path when the sequence, the model or the event file does not
+// exist (before any work).
 void validate_unroll_options(const UnrollOptions& o);
+
+// The timing overrides of a sequence (shared by unroll and voxelize): finite, within kMaxTimeUs,
+// line delay >= 0, exposure and frame period > 0. UsageError names the option (`--line-delay-us`, ...).
+void validate_sequence_options(const SequenceOptions& o);
+
+// Every option as resolved, for summary.json's provenance.
+nlohmann::json unroll_options_json(const UnrollOptions& o);
 
 }  // namespace vkunroll

@@ -142,13 +142,13 @@ def test_vkunroll_infer_bad_inputs_fail_clearly(tmp_path):
                               capture_output=True, text=True)
 
     r = infer({k: v for k, v in inputs.items() if k != "ev3"})
-    assert r.returncode == 1 and "no tensor 'ev3'" in r.stderr
+    assert r.returncode == 65 and "no tensor 'ev3'" in r.stderr  # sysexits EX_DATAERR: bad input data
     r = infer(dict(inputs, ev2=inputs["ev2"][:, :6]))
-    assert r.returncode == 1 and "'ev2' has shape 1x6x32x32, expected 1x8x32x32" in r.stderr
+    assert r.returncode == 65 and "'ev2' has shape 1x6x32x32, expected 1x8x32x32" in r.stderr
     r = infer(inputs, "--mode", "m")
-    assert r.returncode == 1 and "even batch" in r.stderr
+    assert r.returncode == 2 and "even batch" in r.stderr  # usage: --mode m with this batch
     r = infer(inputs, "--precision", "fp16")
-    assert r.returncode == 1 and "fp16" in r.stderr
+    assert r.returncode == 2 and "fp16" in r.stderr
     assert not (tmp_path / "out.safetensors").exists()
 
 

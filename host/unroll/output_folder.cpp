@@ -1,0 +1,298 @@
+#include "vkunroll/host/unroll/output_folder.hpp"
+
+#include <fcntl.h>
+#include <stdio.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstring>
+#include <ctime>
+#include <set>
+
+#include "vkunroll/base/error.hpp"
+#include "vkunroll/host/unroll/sha256.hpp"
+
+namespace vkunroll {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr const char* kLockName = ".lock";
+
+std::string errno_text(int e) { return std::strerror(e); }
+
+[[noreturn]] void io_fail(const std::string& path, const std::string& what, int e) {
+  throw IoError(path + ": " + what + " (" + errno_text(e) + ")");
+}
+
+// Writes all of `bytes` to fd (short writes retried); false with errno set on failure.
+bool write_all(int fd, const char* p, size_t n) {
+  while (n) {
+    const ssize_t w = ::write(fd, p, n);
+    if (w < 0) {
+      if (errno == EINTR) continue;
+      return false;
+    }
+    p += w, n -= static_cast<size_t>(w);
+  }
+  return true;
+}
+
+void fsync_path(const fs::path& p, bool directory) {
+  const int fd = ::open(p.c_str(), (directory ? O_RDONLY | O_DIRECTORY : O_RDONLY) | O_CLOEXEC);
+  if (fd < 0) return;
+  ::fsync(fd);  // best effort for folders (some filesystems refuse fsync on them)
+  ::close(fd);
+}
+
+std::string host_name() {
+  char buf[256] = {};
+  if (::gethostname(buf, sizeof buf - 1) != 0) return "?";
+  return buf;
+}
+
+bool is_empty_dir(const fs::path& p) {
+  std::error_code ec;
+  return fs::is_directory(p, ec) && fs::directory_iterator(p, ec) == fs::directory_iterator();
+}
+
+}  // namespace
+
+const char* existing_output_name(ExistingOutput e) {
+  switch (e) {
+    case ExistingOutput::refuse: return "refuse";
+    case ExistingOutput::overwrite: return "overwrite";
+    case ExistingOutput::resume: return "resume";
+  }
+  return "?";
+}
+
+const std::vector<std::string>& output_folder_names() {
+  static const std::vector<std::string> names = {"frames",      "gs_video.mp4", "contact_sheet.png",
+                                                 "metrics.csv", "summary.json", "frames.jsonl"};
+  return names;
+}
+
+std::string sha256_file(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) io_fail(path.string(), "cannot open for reading", errno);
+  Sha256 h;
+  char buf[1 << 16];
+  while (true) {
+    const ssize_t n = ::read(fd, buf, sizeof buf);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      const int e = errno;
+      ::close(fd);
+      io_fail(path.string(), "read failed", e);
+    }
+    if (n == 0) break;
+    h.update(buf, static_cast<size_t>(n));
+  }
+  ::close(fd);
+  return h.hex();
+}
+
+OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing) : existing_(existing) {
+  std::string text = final_dir.string();
+  while (text.size() > 1 && text.back() == '/') text.pop_back();
+  if (text.empty()) throw UsageError("--out: empty folder name");
+  final_ = fs::absolute(fs::path(text)).lexically_normal();
+  const std::string name = final_.filename().string();
+  if (name.empty() || name == "." || name == "..")
+    throw UsageError("--out '" + final_dir.string() + "': name a folder to create (not '.', '..' or '/')");
+  staging_ = final_.parent_path() / ("." + name + ".partial");
+  std::error_code ec;
+  fs::create_directories(final_.parent_path(), ec);
+  if (ec) throw IoError(final_.parent_path().string() + ": cannot create the output's parent folder (" + ec.message() + ")");
+  lock();
+  try {
+    check_final();
+    if (existing_ != ExistingOutput::resume) clear_staging();
+    fs::create_directories(staging_ / "frames", ec);
+    if (ec) throw IoError(staging_.string() + ": cannot create the staging folder (" + ec.message() + ")");
+  } catch (...) {
+    // A staging folder made only for this attempt goes; a killed run's files stay for --resume.
+    std::error_code ec2;
+    bool only_lock = true;
+    for (const auto& e : fs::directory_iterator(staging_, ec2)) only_lock = only_lock && e.path().filename() == kLockName;
+    if (only_lock) fs::remove_all(staging_, ec2);
+    ::close(lock_fd_);
+    lock_fd_ = -1;
+    throw;
+  }
+}
+
+void OutputFolder::lock() {
+  const fs::path lock_path = staging_ / kLockName;
+  for (int attempt = 0; attempt < 100; ++attempt) {
+    if (::mkdir(staging_.c_str(), 0755) != 0 && errno != EEXIST) io_fail(staging_.string(), "cannot create the staging folder", errno);
+    const int fd = ::open(lock_path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+    if (fd < 0) {
+      if (errno == ENOENT) continue;  // the folder was renamed away meanwhile (a run committed)
+      io_fail(lock_path.string(), "cannot open the lock file", errno);
+    }
+    if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+      char who[512] = {};
+      const ssize_t n = ::pread(fd, who, sizeof who - 1, 0);
+      ::close(fd);
+      std::string holder = n > 0 ? std::string(who, static_cast<size_t>(n)) : std::string("unknown");
+      while (!holder.empty() && holder.back() == '\n') holder.pop_back();
+      throw OutputBusyError(final_.string() + ": another vkunroll run is writing this output (" + holder +
+                            "); wait for it to finish or choose another --out");
+    }
+    // The lock file must still be the one at the path (not one a committing run just unlinked).
+    struct stat a {}, b {};
+    if (::fstat(fd, &a) != 0 || ::stat(lock_path.c_str(), &b) != 0 || a.st_ino != b.st_ino || a.st_dev != b.st_dev) {
+      ::close(fd);
+      continue;
+    }
+    const std::string who = "pid " + std::to_string(::getpid()) + " on " + host_name() + ", since " +
+                            std::to_string(static_cast<long long>(std::time(nullptr))) + " (Unix s)\n";
+    if (::ftruncate(fd, 0) != 0 || ::pwrite(fd, who.data(), who.size(), 0) < 0) {
+      const int e = errno;
+      ::close(fd);
+      io_fail(lock_path.string(), "cannot write the lock file", e);
+    }
+    lock_fd_ = fd;
+    return;
+  }
+  throw OutputBusyError(final_.string() + ": could not take the output's lock (other runs keep committing into it)");
+}
+
+void OutputFolder::check_final() {
+  std::error_code ec;
+  const auto st = fs::symlink_status(final_, ec);
+  if (!fs::exists(st)) return;
+  if (!fs::is_directory(st))
+    throw UsageError("--out " + final_.string() + ": exists and is not a folder (" +
+                     (fs::is_symlink(st) ? "a symbolic link" : "a file") + ")");
+  if (is_empty_dir(final_)) return;
+  if (existing_ == ExistingOutput::refuse)
+    throw UsageError("--out " + final_.string() +
+                     ": the folder exists and is not empty; pass --overwrite to replace it, or --resume to "
+                     "continue it (its valid GS frames are kept)");
+  const auto& names = output_folder_names();
+  for (const auto& e : fs::directory_iterator(final_, ec)) {
+    const std::string n = e.path().filename().string();
+    if (std::find(names.begin(), names.end(), n) == names.end())
+      throw UsageError("--out " + final_.string() + ": holds '" + n +
+                       "', which is not part of a vkunroll output; refusing to replace the folder (choose another --out)");
+  }
+  replaces_ = true;
+}
+
+void OutputFolder::clear_staging() const {
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(staging_, ec)) {
+    if (e.path().filename() == kLockName) continue;
+    fs::remove_all(e.path(), ec);
+    if (ec) throw IoError(e.path().string() + ": cannot remove a stale staged file (" + ec.message() + ")");
+  }
+}
+
+OutputFolder::~OutputFolder() {
+  if (append_fd_ >= 0) ::close(append_fd_);
+  if (!committed_ && lock_fd_ >= 0 && existing_ != ExistingOutput::resume) {
+    std::error_code ec;
+    fs::remove_all(staging_, ec);  // nothing of a failed run stays behind (--resume keeps it)
+  }
+  if (lock_fd_ >= 0) ::close(lock_fd_);
+}
+
+void OutputFolder::write(const std::string& rel, std::string_view bytes) const {
+  const fs::path target = staging_ / rel;
+  const fs::path tmp = target.parent_path() / ("." + target.filename().string() + ".tmp-" + std::to_string(::getpid()));
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) io_fail(shown(rel), "cannot create", errno);
+  if (!write_all(fd, bytes.data(), bytes.size()) || ::fsync(fd) != 0) {
+    const int e = errno;
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    io_fail(shown(rel), "cannot write " + std::to_string(bytes.size()) + " bytes", e);
+  }
+  if (::close(fd) != 0) {
+    const int e = errno;
+    ::unlink(tmp.c_str());
+    io_fail(shown(rel), "cannot write (close failed)", e);
+  }
+  if (::rename(tmp.c_str(), target.c_str()) != 0) {
+    const int e = errno;
+    ::unlink(tmp.c_str());
+    io_fail(shown(rel), "cannot rename the written file into place", e);
+  }
+}
+
+void OutputFolder::append_line(const std::string& rel, const std::string& line) {
+  if (append_fd_ < 0 || append_rel_ != rel) {
+    if (append_fd_ >= 0) ::close(append_fd_);
+    append_fd_ = ::open((staging_ / rel).c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+    if (append_fd_ < 0) io_fail(shown(rel), "cannot open for appending", errno);
+    append_rel_ = rel;
+  }
+  const std::string l = line + "\n";
+  if (!write_all(append_fd_, l.data(), l.size())) io_fail(shown(rel), "cannot append", errno);
+}
+
+void OutputFolder::adopt(const fs::path& src, const std::string& rel) const {
+  const fs::path target = staging_ / rel;
+  std::error_code ec;
+  if (fs::equivalent(src, target, ec)) return;
+  fs::remove(target, ec);
+  fs::create_hard_link(src, target, ec);
+  if (!ec) return;
+  fs::copy_file(src, target, fs::copy_options::overwrite_existing, ec);
+  if (ec) throw IoError(shown(rel) + ": cannot bring in the earlier output's " + src.string() + " (" + ec.message() + ")");
+}
+
+void OutputFolder::prune(const std::vector<std::string>& keep) const {
+  const std::set<std::string> wanted(keep.begin(), keep.end());
+  std::error_code ec;
+  std::vector<fs::path> extra;
+  for (const auto& e : fs::recursive_directory_iterator(staging_, ec)) {
+    const std::string rel = e.path().lexically_relative(staging_).string();
+    if (rel != kLockName && !e.is_directory() && !wanted.count(rel)) extra.push_back(e.path());
+  }
+  for (const auto& p : extra) fs::remove(p, ec);
+  for (const auto& e : fs::directory_iterator(staging_, ec))  // folders this run made no use of
+    if (e.is_directory() && !wanted.count(e.path().filename().string()) && is_empty_dir(e.path())) fs::remove(e.path(), ec);
+}
+
+void OutputFolder::commit() {
+  if (committed_) return;
+  if (append_fd_ >= 0) {
+    ::fsync(append_fd_);
+    ::close(append_fd_);
+    append_fd_ = -1;
+  }
+  fsync_path(staging_ / "frames", true);
+  fsync_path(staging_, true);
+  // The lock file stays out of the final folder; the lock itself is held until the rename is done.
+  ::unlink((staging_ / kLockName).c_str());
+  std::error_code ec;
+  const bool final_exists = fs::exists(fs::symlink_status(final_, ec));
+  if (!final_exists) {
+    if (::renameat2(AT_FDCWD, staging_.c_str(), AT_FDCWD, final_.c_str(), RENAME_NOREPLACE) != 0) {
+      if (errno != EINVAL && errno != ENOSYS) io_fail(final_.string(), "cannot rename the staged output into place", errno);
+      if (::rename(staging_.c_str(), final_.c_str()) != 0) io_fail(final_.string(), "cannot rename the staged output into place", errno);
+    }
+  } else if (::renameat2(AT_FDCWD, staging_.c_str(), AT_FDCWD, final_.c_str(), RENAME_EXCHANGE) == 0) {
+    fs::remove_all(staging_, ec);  // now the old output
+  } else {
+    // No atomic exchange on this filesystem: move the old output aside first.
+    const fs::path old = final_.parent_path() / ("." + final_.filename().string() + ".old-" + std::to_string(::getpid()));
+    if (::rename(final_.c_str(), old.c_str()) != 0) io_fail(final_.string(), "cannot move the old output aside", errno);
+    if (::rename(staging_.c_str(), final_.c_str()) != 0) io_fail(final_.string(), "cannot rename the staged output into place", errno);
+    fs::remove_all(old, ec);
+  }
+  fsync_path(final_.parent_path(), true);
+  committed_ = true;
+  ::close(lock_fd_);
+  lock_fd_ = -1;
+}
+
+}  // namespace vkunroll

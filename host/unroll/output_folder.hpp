@@ -1,0 +1,82 @@
+// An output folder that survives faults: a run writes into a staging sibling `.<name>.partial`,
+// locked against concurrent runs, and renames it into place only at the end (commit). A killed
+// run leaves no final-named output; an existing output is replaced whole (never mixed with new
+// files) and only when asked. Every write is checked and names the file (IoError).
+//
+//   OutputFolder out("/data/run1", ExistingOutput::refuse);
+//   out.write("frames/a.png", bytes);   // staged: tmp + fsync + rename inside the staging folder
+//   out.commit();                       // the staging folder becomes /data/run1
+#pragma once
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace vkunroll {
+
+// What to do with an output folder that exists and is not empty.
+enum class ExistingOutput {
+  refuse,     // an error (UsageError naming --overwrite and --resume)
+  overwrite,  // replace it at commit (it must look like a vkunroll output: see OutputFolder)
+  resume,     // replace it at commit, reusing its valid GS frames and a killed run's staged ones
+};
+const char* existing_output_name(ExistingOutput e);
+
+class OutputFolder {
+ public:
+  // Creates the parent folders, takes the lock (OutputBusyError when another run holds it) and
+  // prepares the staging folder: emptied, except under `resume` (a killed run's files are kept).
+  // Refuses (UsageError) a final folder that exists, is not empty and `existing` is refuse, or
+  // that holds anything but vkunroll's output names (nothing else is ever deleted).
+  OutputFolder(std::filesystem::path final_dir, ExistingOutput existing);
+  // Without commit: the staging folder is removed (kept under `resume`, for the next --resume).
+  ~OutputFolder();
+  OutputFolder(const OutputFolder&) = delete;
+  OutputFolder& operator=(const OutputFolder&) = delete;
+
+  const std::filesystem::path& final_dir() const { return final_; }
+  const std::filesystem::path& staging() const { return staging_; }
+  ExistingOutput existing() const { return existing_; }
+  // The final folder existed with content when the run started (it is replaced at commit).
+  bool replaces_existing() const { return replaces_; }
+
+  // Writes `rel` (a path inside the folder) completely or throws IoError naming the final path:
+  // a temporary file in the same folder, checked writes, fsync, rename.
+  void write(const std::string& rel, std::string_view bytes) const;
+  // Appends one line to `rel` (opened once, O_APPEND; one write per line).
+  void append_line(const std::string& rel, const std::string& line);
+  // Brings `src` (a file of an earlier output) into the staging folder as `rel`: a hard link,
+  // else a copy.
+  void adopt(const std::filesystem::path& src, const std::string& rel) const;
+  // Deletes what the staging folder holds beyond `keep` (relative paths; folders listed keep
+  // only the files listed under them): leftovers of a killed run that this run did not list.
+  void prune(const std::vector<std::string>& keep) const;
+  // The final path of `rel`, for messages.
+  std::string shown(const std::string& rel) const { return (final_ / rel).string(); }
+
+  // fsyncs, unlocks and renames the staging folder into place (atomically exchanging it with an
+  // existing final folder where the filesystem can), then deletes the old one.
+  void commit();
+
+ private:
+  void lock();
+  void check_final();
+  void clear_staging() const;
+
+  std::filesystem::path final_, staging_;
+  ExistingOutput existing_;
+  bool replaces_ = false;
+  bool committed_ = false;
+  int lock_fd_ = -1;
+  int append_fd_ = -1;
+  std::string append_rel_;
+};
+
+// The names a vkunroll output folder holds (what --overwrite may replace).
+const std::vector<std::string>& output_folder_names();
+
+// SHA-256 of a file's bytes (hex); throws IoError naming the file.
+std::string sha256_file(const std::filesystem::path& path);
+
+}  // namespace vkunroll
