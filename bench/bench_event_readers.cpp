@@ -2,6 +2,13 @@
 // 2,000,000 events at 1280x720) written in each format, then read with read_events (best of 3),
 // printed as Mev/s and as a ratio to the text reader. The real samples are timed too when present.
 // usage: vkunroll-bench-event-readers [EVENTS] [SHARED_DIR]
+//
+// `windows` mode: a 200-frame sequence read window by window (frame k: [k P, k P + 1.5 P), as
+// `vkunroll unroll` reads overlapping frame windows), per format: one full scan; 200 one-off
+// windowed read_events calls (each scans from the start: the behaviour before the index); 200 reads
+// through one EventFileReader (indexed). Also compiles against a tree without EventFileReader
+// (then only the one-off column), so the same file measures the code before the change.
+// usage: vkunroll-bench-event-readers windows [EVENTS] [FRAMES]
 #include <zip.h>
 
 #include <algorithm>
@@ -14,6 +21,10 @@
 #include <vector>
 
 #include "vkunroll/host/events/event_reader.hpp"
+#if __has_include("vkunroll/host/events/event_file_reader.hpp")
+#include "vkunroll/host/events/event_file_reader.hpp"
+#define VKUNROLL_HAVE_FILE_READER 1
+#endif
 #include "../tests/event_test_encoders.hpp"
 
 namespace fs = std::filesystem;
@@ -46,27 +57,95 @@ double time_read(const std::string& path, size_t& n) {
   return best;
 }
 
-}  // namespace
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
 
-int main(int argc, char** argv) {
-  const size_t n = argc > 1 ? size_t(std::stoull(argv[1])) : 2000000;
-  const std::string shared = argc > 2 ? argv[2] : std::string(VKUNROLL_SOURCE_DIR) + "/../shared";
-  const fs::path dir = fs::temp_directory_path() / ("vkunroll_bench_readers_" + std::to_string(::getpid()));
-  fs::create_directories(dir);
-  const EventStream ev = evtest::random_stream(n, 1280, 720, 42, 1000, 3);
-  std::vector<std::pair<std::string, std::string>> files;  // label, path
+// Writes `ev` in every format into `dir`: (label, path).
+std::vector<std::pair<std::string, std::string>> write_all(const fs::path& dir, const EventStream& ev) {
+  std::vector<std::pair<std::string, std::string>> files;
   auto add = [&](const std::string& label, const std::string& name) { files.emplace_back(label, (dir / name).string()); };
+  const std::string geometry = "% geometry " + std::to_string(ev.width) + "x" + std::to_string(ev.height) + "\n";
   write_events_text((dir / "ev.txt").string(), ev), add("text t x y p", "ev.txt");
   write_events_hdf5((dir / "ev.h5").string(), ev), add("hdf5 events/{t,x,y,p}", "ev.h5");
   const auto npy = evtest::encode_npy_nx4<int64_t>(ev, "<i8");
   write_bytes((dir / "ev.npy").string(), npy), add("npy N x 4 int64", "ev.npy");
   write_npz((dir / "ev_stored.npz").string(), npy, false), add("npz stored", "ev_stored.npz");
   write_npz((dir / "ev_deflate.npz").string(), npy, true), add("npz deflate", "ev_deflate.npz");
-  write_bytes((dir / "ev2.raw").string(), evtest::encode_evt2(ev, "% evt 2.0\n% geometry 1280x720\n")), add("EVT 2.0 .raw", "ev2.raw");
-  write_bytes((dir / "ev3.raw").string(), evtest::encode_evt3(ev, "% evt 3.0\n% geometry 1280x720\n", true)), add("EVT 3.0 .raw", "ev3.raw");
+  write_bytes((dir / "ev2.raw").string(), evtest::encode_evt2(ev, "% evt 2.0\n" + geometry)), add("EVT 2.0 .raw", "ev2.raw");
+  write_bytes((dir / "ev3.raw").string(), evtest::encode_evt3(ev, "% evt 3.0\n" + geometry, true)), add("EVT 3.0 .raw", "ev3.raw");
   write_bytes((dir / "ev.dat").string(), evtest::encode_dat(ev)), add("Prophesee .dat", "ev.dat");
   write_bytes((dir / "lz4.aedat4").string(), evtest::encode_aedat4(ev, 1, 5000)), add("AEDAT 4 LZ4", "lz4.aedat4");
   write_bytes((dir / "zstd.aedat4").string(), evtest::encode_aedat4(ev, 3, 5000)), add("AEDAT 4 zstd", "zstd.aedat4");
+  return files;
+}
+
+// The windows mode (see the top of the file).
+int run_windows(size_t n, int frames) {
+  const fs::path dir = fs::temp_directory_path() / ("vkunroll_bench_windows_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const EventStream ev = evtest::random_stream(n, 346, 260, 42, 1000, 3);
+  const auto files = write_all(dir, ev);
+  const int64_t first = ev.t.front(), period = (ev.t.back() - first) / frames + 1;
+  std::printf("%d frame windows [k P, k P + 1.5 P) over %zu synthetic events at 346x260 (P = %lld us)\n", frames, n,
+              static_cast<long long>(period));
+  std::printf("%-22s %8s %9s %11s %9s %11s %9s %9s %11s %9s\n", "format", "MiB", "full s", "one-off s", "/full",
+              "indexed s", "/full", "1 win ms", "idx/1 win", "speedup");
+  for (const auto& [label, path] : files) {
+    auto t0 = std::chrono::steady_clock::now();
+    const size_t total = read_events(path).size();
+    const double full = seconds_since(t0);
+    size_t got_old = 0, got_new = 0;
+    (void)got_new;
+    t0 = std::chrono::steady_clock::now();
+    for (int k = 0; k < frames; ++k) {
+      EventReadOptions o;
+      o.t_begin_us = first + k * period;
+      o.t_end_us = first + k * period + period * 3 / 2;
+      got_old += read_events(path, o).size();
+    }
+    const double old_s = seconds_since(t0);
+    double new_s = 0, one_ms = 0;
+#ifdef VKUNROLL_HAVE_FILE_READER
+    t0 = std::chrono::steady_clock::now();
+    EventFileReader reader(path, {});
+    for (int k = 0; k < frames; ++k) got_new += reader.read(first + k * period, first + k * period + period * 3 / 2).size();
+    new_s = seconds_since(t0);
+    // One frame's window once the file is indexed (median of 21 frames spread over the recording).
+    std::vector<double> one;
+    for (int k = 0; k < frames; k += std::max(1, frames / 21)) {
+      t0 = std::chrono::steady_clock::now();
+      reader.read(first + k * period, first + k * period + period * 3 / 2);
+      one.push_back(seconds_since(t0) * 1e3);
+    }
+    std::nth_element(one.begin(), one.begin() + long(one.size() / 2), one.end());
+    one_ms = one[one.size() / 2];
+    if (got_new != got_old) {
+      std::fprintf(stderr, "%s: indexed reads gave %zu events, one-off reads %zu\n", label.c_str(), got_new, got_old);
+      return 1;
+    }
+#endif
+    std::printf("%-22s %8.1f %9.3f %11.3f %9.1f %11.3f %9.2f %9.3f %11.0f %9.1f\n", label.c_str(),
+                double(fs::file_size(path)) / (1 << 20), full, old_s, old_s / full, new_s, new_s / full, one_ms,
+                one_ms > 0 ? new_s * 1e3 / one_ms : 0.0, new_s > 0 ? old_s / new_s : 0.0);
+    (void)total;
+    std::fflush(stdout);
+  }
+  fs::remove_all(dir);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc > 1 && std::string(argv[1]) == "windows")
+    return run_windows(argc > 2 ? size_t(std::stoull(argv[2])) : 1000000, argc > 3 ? std::stoi(argv[3]) : 200);
+  const size_t n = argc > 1 ? size_t(std::stoull(argv[1])) : 2000000;
+  const std::string shared = argc > 2 ? argv[2] : std::string(VKUNROLL_SOURCE_DIR) + "/../shared";
+  const fs::path dir = fs::temp_directory_path() / ("vkunroll_bench_readers_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const EventStream ev = evtest::random_stream(n, 1280, 720, 42, 1000, 3);
+  const auto files = write_all(dir, ev);
 
   std::printf("event reader speed, %zu synthetic events at 1280x720 (best of 3 reads each)\n", n);
   std::printf("%-24s %12s %10s %10s %12s\n", "format", "file MiB", "seconds", "Mev/s", "x text");

@@ -95,6 +95,24 @@ int main(int argc, char** argv) {
     for (auto& b : r) b = uint8_t(rng());
     put(out / "hdf5", "seed_random_" + std::to_string(k), r);
   }
+  // The index fuzzer: first byte = format (text, evt2, evt3, dat, aedat4) + 5 * policy (error,
+  // drop, sort); files past the 32 KiB checkpoint stride, with records out of time order.
+  {
+    EventStream many = random_stream(9000, 64, 48, 4, 1000, 5);
+    for (size_t i = 0; i < many.size(); i += 37) many.t[i] -= 3;
+    std::string txt = "# width 64 height 48\n";
+    for (size_t i = 0; i < many.size() / 2; ++i)
+      txt += std::to_string(many.t[i]) + " " + std::to_string(many.x[i]) + " " + std::to_string(many.y[i]) + " 1\n";
+    const std::vector<std::vector<uint8_t>> bodies = {
+        text_bytes(txt), encode_evt2(many, "% evt 2.0\n% geometry 64x48\n"),
+        encode_evt3(many, "% evt 3.0\n% geometry 64x48\n", true), encode_dat(many), encode_aedat4(many, 1, 700)};
+    for (int f = 0; f < 5; ++f)
+      for (int policy = 0; policy < 3; policy += (f == 2 ? 1 : 2)) {
+        std::vector<uint8_t> b{uint8_t(f + 5 * policy)};
+        b.insert(b.end(), bodies[size_t(f)].begin(), bodies[size_t(f)].end());
+        put(out / "index", "seed_" + std::to_string(f) + "_" + std::to_string(policy), b);
+      }
+  }
   if (argc > 2) {
     const fs::path shared = argv[2];
     if (fs::exists(shared / "data/real-events/evt3_sample.raw"))

@@ -315,7 +315,10 @@ void Context::release() {
     device_ = VK_NULL_HANDLE;
   }
   if (messenger_) {
-    vkDestroyDebugUtilsMessengerEXT(instance_, messenger_, nullptr);
+    // This instance's own entry: the process-wide one follows the last instance volk loaded.
+    if (auto destroy = reinterpret_cast<PFN_vkDestroyDebugUtilsMessengerEXT>(
+            vkGetInstanceProcAddr(instance_, "vkDestroyDebugUtilsMessengerEXT")))
+      destroy(instance_, messenger_, nullptr);
     messenger_ = VK_NULL_HANDLE;
   }
   if (instance_) {
@@ -334,7 +337,10 @@ void Context::create_instance(bool validation) {
                      VK_DEBUG_UTILS_MESSAGE_TYPE_PERFORMANCE_BIT_EXT;
     ci.pfnUserCallback = debug_callback;
     ci.pUserData = this;
-    VK_CHECK(vkCreateDebugUtilsMessengerEXT(instance_, &ci, nullptr, &messenger_));
+    auto create = reinterpret_cast<PFN_vkCreateDebugUtilsMessengerEXT>(
+        vkGetInstanceProcAddr(instance_, "vkCreateDebugUtilsMessengerEXT"));
+    if (!create) throw Error("the validation layer is enabled but vkCreateDebugUtilsMessengerEXT is missing");
+    VK_CHECK(create(instance_, &ci, nullptr, &messenger_));
   }
 }
 
@@ -385,7 +391,10 @@ void Context::create_device() {
   dci.enabledExtensionCount = static_cast<uint32_t>(exts.size());
   dci.ppEnabledExtensionNames = exts.data();
   VK_CHECK(vkCreateDevice(physical_, &dci, nullptr, &device_));
-  volkLoadDevice(device_);
+  // No volkLoadDevice: it would point the process-wide device functions at this device's driver
+  // (or layer) entries, and every other Context's calls would then go through them (a crash with
+  // one validated and one plain context). The loader's trampolines, set by volkLoadInstance,
+  // dispatch on the handle and serve any number of contexts.
   vkGetDeviceQueue(device_, queue_family_, 0, &queue_);
   if (options_.announce)
     std::cerr << "vkunroll: device [" << info_.index << "] " << info_.name << " (" << info_.type_name()

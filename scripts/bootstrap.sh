@@ -13,7 +13,7 @@ packages=(
   libvulkan-dev libvulkan-volk-dev mesa-vulkan-drivers vulkan-validationlayers vulkan-tools
   glslang-tools spirv-tools
   libglm-dev libopencv-dev libhdf5-dev hdf5-filter-plugin-blosc-serial hdf5-tools
-  liblz4-dev libzstd-dev libflatbuffers-dev flatbuffers-compiler libzip-dev nlohmann-json3-dev
+  liblz4-dev libzstd-dev libflatbuffers-dev flatbuffers-compiler libzip-dev zlib1g-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev
   python3-torch python3-numpy python3-h5py python3-matplotlib python3-pytest
   python3-dev pybind11-dev python3-pybind11

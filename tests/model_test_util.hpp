@@ -22,7 +22,9 @@ inline HostTensor array_from(const SafetensorsTensor& t) {
 }
 
 inline ModelInputs inputs_from(const SafetensorsFile& f) {
-  return {array_from(f.get("rs")), array_from(f.get("ev1")), array_from(f.get("ev2")), array_from(f.get("ev3"))};
+  ModelInputs in{array_from(f.get("rs")), array_from(f.get("ev1")), array_from(f.get("ev2")), array_from(f.get("ev3"))};
+  if (f.has("phys")) in.phys = array_from(f.get("phys"));  // the physics-informed variant's fixtures
+  return in;
 }
 
 inline HostTensor take(const HostTensor& a, int64_t i0, int64_t n) {

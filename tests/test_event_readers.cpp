@@ -1,5 +1,5 @@
 // Event readers: every format read from a file this test writes, round trips through the
-// writers, the real samples, every bad-input rule, and the fuzz corpus as regression inputs.
+// writers, the real samples, every bad-input rule (the fuzz corpus: test_event_corpus.cpp).
 #include <gtest/gtest.h>
 #include <hdf5.h>
 #include <unistd.h>
@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "event_test_encoders.hpp"
+#include "event_test_util.hpp"
 #include "../fuzz/fuzz_common.hpp"
 #include "../fuzz/hdf5_image_builder.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
@@ -25,60 +26,6 @@ namespace fs = std::filesystem;
 using namespace vkunroll;
 using namespace vkunroll::evtest;
 
-namespace {
-
-// A folder of this test process; removed at exit by the OS's tmp cleaning, not relied on.
-std::string tmp(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("vkunroll_readers_" + std::to_string(::getpid()));
-  fs::create_directories(dir);
-  return (dir / name).string();
-}
-
-void write_file(const std::string& path, const std::string& text) {
-  std::ofstream f(path, std::ios::binary);
-  f << text;
-}
-
-void write_bytes(const std::string& path, const std::vector<uint8_t>& b) {
-  std::ofstream f(path, std::ios::binary);
-  f.write(reinterpret_cast<const char*>(b.data()), std::streamsize(b.size()));
-}
-
-// Expects read_events to throw vkunroll::Error whose message contains every fragment.
-void expect_error(const std::string& path, const EventReadOptions& o, std::initializer_list<const char*> fragments) {
-  try {
-    read_events(path, o);
-    ADD_FAILURE() << path << ": expected an error";
-  } catch (const Error& e) {
-    const std::string msg = e.what();
-    for (const char* f : fragments) EXPECT_NE(msg.find(f), std::string::npos) << "missing '" << f << "' in: " << msg;
-  }
-}
-
-void expect_same(const EventStream& a, const EventStream& b) {
-  ASSERT_EQ(a.size(), b.size());
-  EXPECT_EQ(a.width, b.width);
-  EXPECT_EQ(a.height, b.height);
-  for (size_t i = 0; i < a.size(); ++i) {
-    ASSERT_EQ(a.t[i], b.t[i]) << "event " << i;
-    ASSERT_EQ(a.x[i], b.x[i]) << "event " << i;
-    ASSERT_EQ(a.y[i], b.y[i]) << "event " << i;
-    ASSERT_EQ(a.p[i], b.p[i]) << "event " << i;
-  }
-}
-
-bool python_has(const std::string& modules) {
-  const std::string cmd = "/usr/bin/python3 -c 'import " + modules + "' >/dev/null 2>&1";
-  return std::system(cmd.c_str()) == 0;
-}
-
-void run_python(const std::string& code) {
-  const std::string script = tmp("script.py");
-  write_file(script, code);
-  ASSERT_EQ(std::system(("/usr/bin/python3 " + script).c_str()), 0) << code;
-}
-
-}  // namespace
 
 // ---- text ------------------------------------------------------------------------------------
 
@@ -773,117 +720,4 @@ TEST(EventReaders, CliEventsPrintsCountsAndDrops) {
   std::ifstream g(out);
   const std::string err((std::istreambuf_iterator<char>(g)), {});
   EXPECT_NE(err.find("record 1 (line 3)"), std::string::npos) << err;
-}
-
-// ---- fuzz corpus and findings -----------------------------------------------------------------
-
-// Every reader over every committed corpus and crash file (tests/fuzz_corpus/<reader>/*), the way
-// the libFuzzer harnesses call them: each must return or throw vkunroll::Error.
-TEST(EventReadersFuzzCorpus, EveryReaderSurvivesEveryCorpusFile) {
-  const fs::path root = fs::path(VKUNROLL_SOURCE_DIR) / "tests" / "fuzz_corpus";
-  ASSERT_TRUE(fs::exists(root)) << root;
-  using detail::ByteSource;
-  using detail::EventSink;
-  const std::vector<std::pair<std::string, std::function<void(ByteSource&, EventSink&)>>> readers = {
-      {"evt2", detail::read_evt2}, {"evt3", detail::read_evt3}, {"dat", detail::read_dat},
-      {"aedat4", detail::read_aedat4}, {"npy", detail::read_npy}, {"text", detail::read_text}};
-  size_t files = 0;
-  for (const auto& dir : fs::directory_iterator(root)) {
-    if (!dir.is_directory()) continue;
-    for (const auto& entry : fs::directory_iterator(dir.path())) {
-      std::ifstream f(entry.path(), std::ios::binary);
-      const std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(f)), {});
-      SCOPED_TRACE(entry.path().string());
-      ++files;
-      for (const auto& [name, read] : readers) {
-        SCOPED_TRACE(name);
-        EXPECT_NO_THROW(fuzz::run_reader(bytes.data(), bytes.size(), name.c_str(), read));
-      }
-      EXPECT_NO_THROW(fuzz::run_reader(bytes.data(), bytes.size(), "npz", [&](ByteSource&, EventSink& sink) {
-        detail::read_npz("corpus.npz", bytes.data(), bytes.size(), sink);
-      }));
-      // The HDF5 harness builds a file from the bytes (fuzz/hdf5_image_builder.hpp).
-      EXPECT_NO_THROW({
-        fuzz::FuzzBytes fb(bytes.data(), bytes.size());
-        const EventReadOptions o = fuzz::options_from(fb);
-        const std::vector<uint8_t> image = fuzz::build_file(fb);
-        if (!image.empty()) {
-          EventReadReport rep;
-          try {
-            EventSink sink("corpus.h5", o, rep);
-            detail::read_hdf5("corpus.h5", image.data(), image.size(), sink);
-            EXPECT_EQ(sink.finish().size(), rep.kept);
-          } catch (const Error&) {
-          }
-        }
-      });
-    }
-  }
-  EXPECT_GE(files, 20u);
-}
-
-// Fuzz finding (aedat4): a packet that decompressed to fewer than 12 bytes was compared with
-// "EVTS" past its end (heap overflow). Now a clear error.
-TEST(EventReadersFuzzCorpus, Aedat4TinyPacketIsAnError) {
-  const fs::path crash = fs::path(VKUNROLL_SOURCE_DIR) / "tests/fuzz_corpus/aedat4/crash-f9f37f955c8e1d6a94ef3091934124ebed5377fc";
-  ASSERT_TRUE(fs::exists(crash));
-  const std::string path = tmp("tiny.aedat4");
-  fs::copy_file(crash, path, fs::copy_options::overwrite_existing);
-  expect_error(path, {}, {"tiny.aedat4", "corrupt flatbuffer"});
-}
-
-// Fuzz finding (hdf5): events/t + t_offset overflowed int64 (undefined behaviour). Now the record
-// breaks the time rule: an error, or dropped and counted.
-TEST(EventReadersFuzzCorpus, DsecTimeOffsetOverflowIsAnError) {
-  const std::string path = tmp("overflow.h5");
-  {
-    hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-    hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-    const uint32_t t[2] = {5, 3000000000u};
-    const uint16_t x[2] = {1, 2}, y[2] = {1, 2};
-    const uint8_t p[2] = {1, 0};
-    h5_write_1d(g, "t", H5T_STD_U32LE, H5T_NATIVE_UINT32, t, 2);
-    h5_write_1d(g, "x", H5T_STD_U16LE, H5T_NATIVE_UINT16, x, 2);
-    h5_write_1d(g, "y", H5T_STD_U16LE, H5T_NATIVE_UINT16, y, 2);
-    h5_write_1d(g, "p", H5T_STD_U8LE, H5T_NATIVE_UINT8, p, 2);
-    const int64_t off = INT64_MAX - 100;
-    hid_t s = H5Screate(H5S_SCALAR);
-    hid_t d = H5Dcreate2(f, "t_offset", H5T_STD_I64LE, s, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-    H5Dwrite(d, H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &off);
-    H5Dclose(d);
-    H5Sclose(s);
-    H5Gclose(g);
-    H5Fclose(f);
-  }
-  expect_error(path, {}, {"overflow.h5", "record 1", "does not fit in int64"});
-  EventReadOptions o;
-  o.on_bad = BadEventPolicy::drop;
-  EventReadReport rep;
-  EXPECT_EQ(read_events(path, o, &rep).size(), 1u);
-  EXPECT_EQ(rep.dropped_nan, 1u);
-}
-
-// Fuzz finding (hdf5, 10-minute run): a float ms_to_idx holding 1e169 was converted to int64
-// (undefined behaviour) during a window read. Now an error naming the dataset.
-TEST(EventReadersFuzzCorpus, FloatIndexOutOfRangeIsAnError) {
-  const EventStream ev = random_stream(100, 16, 12, 16);
-  const std::string path = tmp("float_index.h5");
-  {
-    hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
-    hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
-    std::vector<int8_t> p(ev.size());
-    for (size_t i = 0; i < ev.size(); ++i) p[i] = ev.p[i] > 0 ? 1 : 0;
-    h5_write_1d(g, "t", H5T_STD_I64LE, H5T_NATIVE_INT64, ev.t.data(), ev.size());
-    h5_write_1d(g, "x", H5T_STD_U16LE, H5T_NATIVE_UINT16, ev.x.data(), ev.size());
-    h5_write_1d(g, "y", H5T_STD_U16LE, H5T_NATIVE_UINT16, ev.y.data(), ev.size());
-    h5_write_1d(g, "p", H5T_STD_I8LE, H5T_NATIVE_INT8, p.data(), ev.size());
-    const double ms[2] = {0.0, 1.13531e169};
-    h5_write_1d(f, "ms_to_idx", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, ms, 2);
-    H5Gclose(g);
-    H5Fclose(f);
-  }
-  EXPECT_EQ(read_events(path).size(), ev.size());  // the index is only used for windows
-  EventReadOptions o;
-  o.t_begin_us = ev.t[10];
-  expect_error(path, o, {"float_index.h5", "ms_to_idx", "not an integer index"});
 }

@@ -22,8 +22,9 @@ using namespace vkunroll::modeltest;
 
 namespace {
 
-void golden_parity(Backend& backend, const std::string& fixture_name, Mode mode) {
-  const Weights w = load_weights(fixture("selfunroll_tiny.safetensors"));
+void golden_parity(Backend& backend, const std::string& fixture_name, Mode mode,
+                   const std::string& model_name = "selfunroll_tiny.safetensors") {
+  const Weights w = load_weights(fixture(model_name));
   const SafetensorsFile g = read_safetensors(fixture(fixture_name));
   Model model(backend, w);
   RunOptions opt;
@@ -47,6 +48,42 @@ TEST(ModelCpu, GoldenMOddSize37x29) { CpuBackend cpu; golden_parity(cpu, "selfun
 TEST(ModelVulkan, GoldenS64x48) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_s_64x48.safetensors", Mode::s); }
 TEST(ModelVulkan, GoldenM64x48) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_m_64x48.safetensors", Mode::m); }
 TEST(ModelVulkan, GoldenMOddSize37x29) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_m_37x29.safetensors", Mode::m); }
+
+// The physics-informed variant (docs/model.md): phys is E-IC_T's last input and sys = clamp(phys) + E.
+const char* kPhysicsModel = "selfunroll_tiny_physics.safetensors";
+TEST(ModelCpu, PhysicsGoldenS64x48) { CpuBackend cpu; golden_parity(cpu, "selfunroll_golden_physics_s_64x48.safetensors", Mode::s, kPhysicsModel); }
+TEST(ModelCpu, PhysicsGoldenM64x48) { CpuBackend cpu; golden_parity(cpu, "selfunroll_golden_physics_m_64x48.safetensors", Mode::m, kPhysicsModel); }
+TEST(ModelCpu, PhysicsGoldenMOddSize37x29) { CpuBackend cpu; golden_parity(cpu, "selfunroll_golden_physics_m_37x29.safetensors", Mode::m, kPhysicsModel); }
+TEST(ModelVulkan, PhysicsGoldenS64x48) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_physics_s_64x48.safetensors", Mode::s, kPhysicsModel); }
+TEST(ModelVulkan, PhysicsGoldenM64x48) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_physics_m_64x48.safetensors", Mode::m, kPhysicsModel); }
+TEST(ModelVulkan, PhysicsGoldenMOddSize37x29) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_physics_m_37x29.safetensors", Mode::m, kPhysicsModel); }
+
+TEST(ModelCpu, PhysicsInputIsRequiredByTheVariantAndRefusedOtherwise) {
+  CpuBackend cpu;
+  const SafetensorsFile g = read_safetensors(fixture("selfunroll_golden_physics_s_64x48.safetensors"));
+  ModelInputs in = inputs_from(g);
+  {
+    Model variant(cpu, load_weights(fixture(kPhysicsModel)));
+    EXPECT_TRUE(variant.config().physics_input);
+    EXPECT_EQ(variant.config().gamma.value_or(0), 2.2);
+    ModelInputs without = in;
+    without.phys = {};
+    try {
+      variant.run(without, {});
+      ADD_FAILURE() << "the variant ran without 'phys'";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("'phys'"), std::string::npos) << e.what();
+    }
+  }
+  Model family(cpu, load_weights(fixture("selfunroll_tiny.safetensors")));
+  EXPECT_FALSE(family.config().physics_input);
+  try {  // phys given to a model that does not read it
+    family.run(in, {});
+    ADD_FAILURE() << "the family model accepted 'phys'";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("not the physics-informed variant"), std::string::npos) << e.what();
+  }
+}
 
 namespace {
 void m_forced_to_one_is_s(Backend& backend) {

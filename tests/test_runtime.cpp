@@ -407,3 +407,24 @@ TEST(Runtime, StreamTransfersAreOrderedWithDispatchesInOneSubmit) {
   EXPECT_EQ(d.download_bytes, 2 * n * 4);
   EXPECT_THROW(cs.upload(x, 4, ones.data(), n * 4), Error);  // past the end of x
 }
+
+// Two contexts in one process, one with the validation layer and one without, each created after
+// the other has been used: every call must go to its own device (no process-wide device table).
+TEST(Runtime, ContextsWithAndWithoutValidationCoexist) {
+  Context& validated = vktest::context();
+  ContextOptions plain_options;
+  plain_options.validation = false;
+  plain_options.announce = false;
+  plain_options.persistent_pipeline_cache = false;
+  Context plain(plain_options);
+  const size_t n = 256;
+  for (Context* ctx : {&validated, &plain, &validated}) {
+    Tensor x(*ctx, {1, 1, 1, static_cast<int64_t>(n)}), y(*ctx, {1, 1, 1, static_cast<int64_t>(n)});
+    x.upload(std::vector<float>(n, 1.f));
+    y.upload(std::vector<float>(n, 2.f));
+    CommandStream cs(*ctx);
+    axpy(cs, *ctx, x, y, 4.f);
+    cs.submit_and_wait();
+    EXPECT_EQ(y.download<float>(), std::vector<float>(n, 6.f)) << (ctx == &plain ? "plain" : "validated");
+  }
+}

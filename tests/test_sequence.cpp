@@ -8,6 +8,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "event_test_encoders.hpp"
+#include "event_test_util.hpp"
 #include "vkunroll/host/events/event_writer.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/host/events/sequence.hpp"
@@ -320,4 +321,238 @@ TEST(Sequence, GevRsRealInfersTheFrameRateFromTheRecording) {
   SequenceOptions o;
   o.frame_period_us = R("48000");
   EXPECT_EQ(load_sequence(g.string(), o).frames[1].timing.t0, R("53000"));
+}
+
+// ---- issue 18: nothing silent (each of these failed before its fix) ---------------------------
+
+namespace {
+
+// A generic sequence of `frames` 16x12 frames, t0 = 1000 k, events.txt holding `events_txt`.
+fs::path make_text_sequence(const std::string& name, int frames, const std::string& events_txt,
+                            const std::string& t0s = "") {
+  const fs::path d = fresh_dir(name);
+  std::string list;
+  for (int k = 0; k < frames; ++k) {
+    char file[32];
+    std::snprintf(file, sizeof file, "rs/%06d.png", k);
+    png(d / file, 16, 12);
+    list += std::string(k ? ", " : "") + "{\"file\": \"" + file + "\", \"t0_us\": " + std::to_string(1000 * k) + "}";
+  }
+  text(d / "events.txt", events_txt);
+  text(d / "meta.json", "{\"width\": 16, \"height\": 12, \"line_delay_us\": 10, \"exposure_us\": 500, \"events\": "
+                        "\"events.txt\", \"frames\": [" + (t0s.empty() ? list : t0s) + "]}");
+  return d;
+}
+
+}  // namespace
+
+// A generic sequence whose meta.json was deleted (rs/, gs/, the project's events.h5) used to be
+// read as Gev-RS with its 200 us / 3200 us convention, silently.
+TEST(SequenceIssue18, MissingMetaJsonIsRefusedNotGuessedAsGevRs) {
+  const fs::path d = fresh_dir("no_meta");
+  for (int k = 0; k < 3; ++k) png(d / "rs" / (std::to_string(k) + ".png"), 16, 12);
+  for (int k = 0; k < 3; ++k) png(d / "gs" / (std::to_string(k) + ".png"), 16, 12);
+  write_events_hdf5((d / "events.h5").string(), evtest::random_stream(300, 16, 12, 40, 0, 5));
+  const std::string e = error_of([&] { load_sequence(d.string()); });
+  for (const char* part : {"no_meta", "no meta.json", "rs/ (3 images)", "gs/ (3 images)", "events.h5",
+                           "events/{t,x,y,p}", "meta.json is missing", "--layout gev-rs"})
+    EXPECT_NE(e.find(part), std::string::npos) << "missing '" << part << "' in: " << e;
+  // Choosing the layout explicitly still works.
+  SequenceOptions o;
+  o.layout = SequenceLayout::gev_rs;
+  EXPECT_EQ(load_sequence(d.string(), o).frames[1].timing.line_delay, R("200"));
+  // The same folder with Gev-RS's own N x 4 events + img_to_idx is unambiguous (GevRsLayout test).
+  fs::remove(d / "events.h5");
+  evtest::write_h5_nx4((d / "seq.h5").string(), evtest::random_stream(300, 16, 12, 40, 0, 5), H5T_STD_I64LE, true);
+  EXPECT_EQ(detect_sequence_layout(d.string()), SequenceLayout::gev_rs);
+  // DRE's timing needs its timestamps in the file; Fastec one .npz per frame.
+  const fs::path r = fresh_dir("no_meta_dre");
+  png(r / "images" / "0.png", 16, 12);
+  write_events_hdf5((r / "events.h5").string(), evtest::random_stream(30, 16, 12, 41, 0, 5));
+  EXPECT_NE(error_of([&] { detect_sequence_layout(r.string()); }).find("DRE needs"), std::string::npos);
+  const fs::path f = fresh_dir("no_meta_fastec");
+  for (int k = 0; k < 5; ++k) png(f / "RS" / (std::to_string(k) + ".png"), 16, 12);
+  text(f / "events.npz", "x");
+  EXPECT_NE(error_of([&] { detect_sequence_layout(f.string()); }).find("5 frames, 1 .npz"), std::string::npos);
+}
+
+// A t0 near the int64 limit gave a window ending at -9223372036854775807; swapped t0s reported the
+// recording as [110000, 17700]. Both are now errors at load naming the field and the frame.
+TEST(SequenceIssue18, FrameTimesOutOfRangeOrOutOfOrderNameTheFieldAndFrame) {
+  const std::string frames_huge =
+      R"({"file": "rs/000000.png", "t0_us": 0}, {"file": "rs/000001.png", "t0_us": 9223372036854775000})";
+  fs::path d = make_text_sequence("t0_huge", 2, "10 1 1 1\n", frames_huge);
+  std::string e = error_of([&] { load_sequence(d.string()); });
+  for (const char* part : {"meta.json: frames[1].t0_us", "frame 1", "2^53"})
+    EXPECT_NE(e.find(part), std::string::npos) << "missing '" << part << "' in: " << e;
+  const std::string frames_beyond = R"({"file": "rs/000000.png", "t0_us": 18446744073709551615})";
+  d = make_text_sequence("t0_beyond", 1, "10 1 1 1\n", frames_beyond);
+  e = error_of([&] { load_sequence(d.string()); });
+  EXPECT_NE(e.find("frames[0].t0_us"), std::string::npos) << e;
+  const std::string frames_swapped =
+      R"({"file": "rs/000000.png", "t0_us": 110000}, {"file": "rs/000001.png", "t0_us": 17700})";
+  d = make_text_sequence("t0_swapped", 2, "10 1 1 1\n", frames_swapped);
+  e = error_of([&] { load_sequence(d.string()); });
+  for (const char* part : {"frames[1].t0_us", "frame 1", "17700", "110000", "t0s must increase"})
+    EXPECT_NE(e.find(part), std::string::npos) << "missing '" << part << "' in: " << e;
+  SequenceOptions o;  // the same through the --t0s-us option
+  o.t0s_us = std::vector<Rational>{R("5000"), R("5000")};
+  d = make_text_sequence("t0_option", 2, "10 1 1 1\n");
+  e = error_of([&] { load_sequence(d.string(), o); });
+  EXPECT_NE(e.find("t0s value 2"), std::string::npos) << e;
+  text(d / "meta.json", R"({"width": 16, "height": 12, "line_delay_us": 10, "exposure_us": 1e300, "events": "events.txt",
+                            "frames": [{"file": "rs/000000.png", "t0_us": 0}]})");
+  e = error_of([&] { load_sequence(d.string()); });
+  EXPECT_NE(e.find("exposure_us"), std::string::npos) << e;
+}
+
+// An empty event file gave exit 0 and the RS input back with nothing said; now the stream is
+// empty without an error and the totals say "no event records".
+TEST(SequenceIssue18, EmptyEventFileIsVisibleInTheTotals) {
+  const fs::path d = make_text_sequence("empty_events", 3, "");
+  const Sequence s = load_sequence(d.string());
+  EventReadReport rep;
+  EXPECT_TRUE(s.read_events(0, 5000, &rep).empty());
+  EXPECT_TRUE(rep.empty_file);
+  const EventTotals t = s.event_totals();
+  EXPECT_EQ(t.records, 0u);
+  EXPECT_EQ(t.empty_files, 1u);
+  EXPECT_EQ(t.reads, 1u);
+  EXPECT_NE(t.summary().find("no event records"), std::string::npos) << t.summary();
+  EXPECT_NE(t.summary().find("empty"), std::string::npos) << t.summary();
+}
+
+// --on-bad drop never said how many it dropped. The totals count each record once, however many
+// overlapping frame windows read it.
+TEST(SequenceIssue18, DroppedEventsAreCountedOnceAcrossOverlappingWindows) {
+  std::string ev;
+  uint64_t n = 0, out_of_order = 0;
+  for (int i = 0; i < 22219; ++i, ++n) {
+    const int64_t t = 10 + i / 2;
+    const bool late = i % 2 == 1;  // every other record 5 us early: out of time order
+    out_of_order += late && i > 1;
+    ev += std::to_string(late ? std::max<int64_t>(t - 5, 0) : t) + " " + std::to_string(i % 16) + " " +
+          std::to_string(i % 12) + " 1\n";
+  }
+  const fs::path d = make_text_sequence("drops", 12, ev);
+  SequenceOptions o;
+  o.events.on_bad = BadEventPolicy::drop;
+  const Sequence s = load_sequence(d.string(), o);
+  EventReadReport full;
+  EventReadOptions ro = s.event_options;
+  read_events(s.event_files[0], ro, &full);
+  ASSERT_GT(full.dropped_time_order, 10000u);
+  uint64_t summed = 0;
+  for (int k = 0; k + 1 < 12; ++k) {  // windows over frames k and k+1: each event is read twice
+    EventReadReport r;
+    s.read_events(1000 * k, 1000 * (k + 2), &r);
+    summed += r.dropped_time_order;
+  }
+  const EventTotals t = s.event_totals();
+  EXPECT_EQ(t.records, n);
+  EXPECT_EQ(t.dropped_time_order, full.dropped_time_order);
+  EXPECT_EQ(t.valid, full.kept);
+  EXPECT_GT(summed, t.dropped_time_order);  // the per-read counts overlap; the totals do not
+  EXPECT_NE(t.summary().find(std::to_string(full.dropped_time_order) + " out of time order"), std::string::npos)
+      << t.summary();
+  (void)out_of_order;
+}
+
+// Images listed in meta.json that cannot be read: missing, a folder, garbage, cut short.
+TEST(SequenceIssue18, UnreadableFrameAndGroundTruthImagesAreClearErrors) {
+  fs::path d = make_text_sequence("bad_images", 2, "10 1 1 1\n");
+  const fs::path img = d / "rs" / "000001.png";
+  const std::string png_bytes = [&] {
+    std::ifstream f(img, std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(f)), {});
+  }();
+  text(img, png_bytes.substr(0, png_bytes.size() - 20));  // cut short
+  std::string e = error_of([&] { load_sequence(d.string()); });
+  EXPECT_NE(e.find("000001.png"), std::string::npos) << e;
+  EXPECT_NE(e.find("truncated PNG"), std::string::npos) << e;
+  text(img, "not an image at all");
+  e = error_of([&] { load_sequence(d.string()); });
+  EXPECT_NE(e.find("000001.png: not a readable image"), std::string::npos) << e;
+  fs::remove(img);
+  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("does not exist"), std::string::npos);
+  fs::create_directories(img);
+  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("is a folder"), std::string::npos);
+  d = make_text_sequence("bad_gt", 1, "10 1 1 1\n");
+  text(d / "meta.json", R"({"width": 16, "height": 12, "line_delay_us": 10, "exposure_us": 5, "events": "events.txt",
+                            "frames": [{"file": "rs/000000.png", "t0_us": 0}],
+                            "ground_truth": [{"file": "gs/missing.png", "t_us": 3}]})");
+  e = error_of([&] { load_sequence(d.string()); });
+  EXPECT_NE(e.find("ground-truth image"), std::string::npos) << e;
+  EXPECT_NE(e.find("gs/missing.png"), std::string::npos) << e;
+}
+
+// A 200-frame text sequence read frame by frame through the Sequence equals one-off reads.
+TEST(SequenceIssue18, TwoHundredFrameWindowsEqualOneOffReads) {
+  const EventStream ev = evtest::random_stream(60000, 16, 12, 43, 0, 6);
+  std::string lines = "# width 16 height 12\n";
+  for (size_t i = 0; i < ev.size(); ++i)
+    lines += std::to_string(ev.t[i]) + " " + std::to_string(ev.x[i]) + " " + std::to_string(ev.y[i]) + " " +
+             (ev.p[i] > 0 ? "1\n" : "0\n");
+  const fs::path d = make_text_sequence("frames200", 200, lines);
+  const Sequence s = load_sequence(d.string());
+  for (int k = 0; k < 200; ++k) {
+    EventReadOptions o = s.event_options;
+    o.t_begin_us = 1000 * k - 250;
+    o.t_end_us = 1000 * k + 1750;
+    const EventStream want = read_events(s.event_files[0], o);
+    const EventStream got = s.read_events(*o.t_begin_us, *o.t_end_us);
+    ASSERT_EQ(want.t, got.t) << "frame " << k;
+    ASSERT_EQ(want.x, got.x) << "frame " << k;
+  }
+  EXPECT_EQ(s.event_totals().records, ev.size());
+  EXPECT_EQ(s.event_totals().reads, 200u);
+}
+
+// Fastec's per-frame .npz files: each window reads only the files whose rows overlap it (each file
+// opened once), and returns the merged events of a full read of every file.
+TEST(SequenceIssue18, PerFrameFilesAreSkippedOutsideTheWindow) {
+  const fs::path d = fresh_dir("fastec_files");
+  const int frames = 20;
+  EventStream all;
+  for (int k = 0; k < frames; ++k) {
+    png(d / "RS" / (std::to_string(k) + ".png"), 16, 12);
+    const EventStream ev = evtest::random_stream(300, 16, 12, uint32_t(60 + k), 100000 * k, 550);
+    std::vector<std::pair<std::string, std::vector<uint8_t>>> members;
+    auto column = [&](const char* name, const std::string& descr, auto get) {
+      std::vector<uint8_t> b;
+      for (size_t i = 0; i < ev.size(); ++i) {
+        const int64_t v = get(i);
+        for (int byte = 0; byte < (descr == "<i8" ? 8 : 2); ++byte) b.push_back(uint8_t(uint64_t(v) >> (8 * byte)));
+      }
+      members.emplace_back(std::string(name) + ".npy", evtest::encode_npy("{'descr': '" + descr + "', 'fortran_order': False, "
+                                                                           "'shape': (" + std::to_string(ev.size()) + ",), }", b));
+    };
+    column("x", "<i2", [&](size_t i) { return int64_t(ev.x[i]); });
+    column("y", "<i2", [&](size_t i) { return int64_t(ev.y[i]); });
+    column("p", "<i2", [&](size_t i) { return int64_t(ev.p[i] > 0 ? 1 : 0); });
+    column("t", "<i8", [&](size_t i) { return ev.t[i]; });
+    fs::create_directories(d / "events");
+    evtest::write_npz((d / "events" / (std::to_string(k) + ".npz")).string(), members, k % 2 == 0);
+    for (size_t i = 0; i < ev.size(); ++i) all.push(ev.t[i], ev.x[i], ev.y[i], ev.p[i]);
+  }
+  EXPECT_EQ(detect_sequence_layout(d.string()), SequenceLayout::fastec);
+  for (const BadEventPolicy policy : {BadEventPolicy::error, BadEventPolicy::sort}) {
+    SequenceOptions o;
+    o.events.on_bad = policy;
+    const Sequence s = load_sequence(d.string(), o);
+    for (int k = 0; k + 1 < frames; ++k) {
+      const int64_t a = 100000 * k + 50000, b = a + 100000;
+      EventReadReport rep;
+      const EventStream got = s.read_events(a, b, &rep);
+      std::vector<int64_t> want;
+      for (int64_t t : all.t)
+        if (t >= a && t < b) want.push_back(t);
+      std::sort(want.begin(), want.end());
+      ASSERT_EQ(got.t, want) << "window " << k;
+      if (policy == BadEventPolicy::error || k > 0) {  // sort learns each file's span on its first read
+        EXPECT_NE(rep.notes.back().find("2 of 20 per-frame event files"), std::string::npos) << rep.notes.back();
+      }
+    }
+    EXPECT_EQ(s.event_totals().reads, uint64_t(frames - 1));
+  }
 }

@@ -16,6 +16,7 @@
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/host/unroll/session.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
+#include "vkunroll/kernels/physics_unroll.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -52,7 +53,8 @@ double max_abs(const cv::Mat& a, const cv::Mat& b) {
 }
 
 // The path unroll took before the session: event tensors on the host, Model::run / run_tiled on host arrays.
-cv::Mat host_path(Model& model, const FrameInput& in, const Rational& t, bool m, const TileOptions* tiles) {
+cv::Mat host_path(Model& model, const FrameInput& in, const Rational& t, bool m, const TileOptions* tiles,
+                  const PhysicsUnrollParams& prm = {}) {
   const int H = in.rs1.rows, W = in.rs1.cols;
   std::vector<EventTensorPair> pairs{{in.timing1, t, std::nullopt}};
   if (m) pairs.push_back({in.timing2, t, std::nullopt});
@@ -71,6 +73,15 @@ cv::Mat host_path(Model& model, const FrameInput& in, const Rational& t, bool m,
   mi.ev1 = HostTensor(es, std::move(et.ev1));
   mi.ev2 = HostTensor(es, std::move(et.ev2));
   mi.ev3 = HostTensor(es, std::move(et.ev3));
+  if (model.config().physics_input) {  // the variant's input: the physics unroller's reference
+    mi.phys = HostTensor(Shape{B, 3, H, W});
+    for (int64_t i = 0; i < B; ++i) {
+      const RowTiming& tm = i ? in.timing2 : in.timing1;
+      const auto lists = gather_pixel_events(*in.events, t.to_double(), tm.start_times_us(), tm.end_times_us(), 0, 0, W, H);
+      const auto gs = physics_unroll_ref(image_planes(i ? in.rs2 : in.rs1, true), 3, lists, prm);
+      std::copy(gs.begin(), gs.end(), mi.phys.data.begin() + i * 3 * H * W);
+    }
+  }
   RunOptions ro;
   ro.mode = m ? Mode::m : Mode::s;
   ro.outputs = {m ? "out" : "fused"};
@@ -110,6 +121,7 @@ TEST(Session, DeviceResidentFrameEqualsTheHostPath) {
   sparse.tile = 32, sparse.halo = 32, sparse.sparse = SparsePolicy::exact;
   for (const TileOptions* tiles : {&dense, &sparse}) {
     session.set_tiling(*tiles);
+    (void)session.unroll(in, targets);  // warm-up: the convs upload their weight packings on first use
     const DeviceTraffic before = session.traffic();
     const std::vector<cv::Mat> got = session.unroll(in, targets);
     const DeviceTraffic d = session.traffic() - before;
@@ -122,10 +134,11 @@ TEST(Session, DeviceResidentFrameEqualsTheHostPath) {
     // S and M: one submission each; down: the three GS images at fp32 and nothing else.
     EXPECT_EQ(d.submits, 2u);
     EXPECT_EQ(d.download_bytes, uint64_t(3) * 3 * 48 * 64 * 4);
-    // Up: the RS frames and the events' records, far below the event tensors the host path uploaded
-    // (ev1, ev2, ev3 of four frame-target pairs).
-    const uint64_t host_tensors = uint64_t(4) * 3 * 2 * session.model_config().N * 48 * 64 * 4;
-    EXPECT_LT(d.upload_bytes, host_tensors / 4) << d.upload_bytes << " bytes up";
+    // Up: per group the RS frame(s) and the window's events with their per-row records (at most
+    // 8 bytes an event; records and ranges (N + 8) words per job and row), never the tensors.
+    const uint64_t N = session.model_config().N, images = uint64_t(5) * 3 * 48 * 64 * 4;
+    const uint64_t per_build = 8 * ev.size() + uint64_t(3 * 4) * 48 * (N + 8) * 4;
+    EXPECT_LE(d.upload_bytes, images + 2 * per_build) << d.upload_bytes << " bytes up";
   }
   fs::remove_all(dir);
 }
@@ -159,6 +172,37 @@ TEST(Session, ShippedModelTrafficPerGsFrameAt346x260) {
     EXPECT_LT(t.at("upload_bytes").get<double>(), tensors) << t.dump();
     EXPECT_LE(t.at("submits").get<double>(), 1.0) << t.dump();  // both targets in one submission
     EXPECT_EQ(s.at("memory_forced_submits").get<int>(), 0) << t.dump();
+  }
+  fs::remove_all(dir);
+}
+
+// The physics-informed variant: its physics input is computed on the device per (frame, target)
+// and equals the CPU reference's, so the whole frame equals the host path's.
+TEST(Session, PhysicsVariantFrameEqualsTheHostPath) {
+  const fs::path dir = temp_dir("variant");
+  const Sequence seq = load_sequence(make_sequence(dir, 64, 48, 3).string(), {});
+  const EventStream ev = seq.read_events(-100000, 400000);
+  const FrameInput in = frame_input(seq, 1, ev);
+  const std::vector<FrameTarget> targets{{in.timing1.target_time(Rational(1, 3)), FrameTarget::Method::s},
+                                         {in.timing1.target_time(Rational(3, 2)), FrameTarget::Method::m}};
+  SessionOptions so;
+  so.model_path = fixture("selfunroll_tiny_physics.safetensors");
+  so.device = "llvmpipe";
+  so.announce = false;
+  UnrollSession session(so);
+  ASSERT_TRUE(session.model_config().physics_input);
+  PhysicsUnrollParams prm;
+  prm.contrast = 0.25f;
+  prm.gamma = static_cast<float>(session.model_config().gamma.value_or(1.0));
+  session.set_physics(prm);
+  TileOptions dense;
+  session.set_tiling(dense);
+  const std::vector<cv::Mat> got = session.unroll(in, targets);
+  VulkanBackend reference_backend(vktest::context());
+  Model reference(reference_backend, session.weights());
+  for (size_t j = 0; j < targets.size(); ++j) {
+    const cv::Mat want = host_path(reference, in, targets[j].t_us, targets[j].method == FrameTarget::Method::m, nullptr, prm);
+    EXPECT_LE(max_abs(got[j], want), 1e-4) << "target " << j;
   }
   fs::remove_all(dir);
 }

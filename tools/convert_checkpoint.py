@@ -2,7 +2,7 @@
 """Converts a SelfUnroll PyTorch checkpoint to vkunroll's weights file (safetensors).
 
 usage: /usr/bin/python3 tools/convert_checkpoint.py IN.pth OUT.safetensors [--fp16] [--channel-order rgb|bgr]
-                                                    [--description TEXT]
+                                                    [--description TEXT] [--gamma G]
 
 Reads a bare state_dict or a dict holding one under 'state_dict' or 'model' (the authors'
 checkpoints), removes a DataParallel 'module.' prefix, keeps the key names, infers the
@@ -10,6 +10,10 @@ configuration (D, C, G, G0, N, UNet bases/depths) from the shapes, compares the 
 shapes with what that configuration needs, prints missing and unexpected keys, and writes
 F32 (or F16 with --fp16) tensors with the configuration in the safetensors __metadata__.
 A checkpoint without attfusion_net converts to a SelfUnroll-S-only file (metadata moa=false).
+The physics-informed variant (SFENet1 with 4*(6+6N) inputs: rs, ev1-3 and the physics estimate;
+docs/model.md) is recognised from the shapes and written with metadata physics_input=true.
+--gamma G records the intensity encoding the model was trained in (metadata 'gamma'; the
+variant defaults to 2.2, the published checkpoints state none).
 Exit status: 0 written, 1 error (a missing key outside attfusion_net, a wrong shape, bad file).
 """
 import argparse
@@ -47,12 +51,16 @@ def strip_prefix(sd):
     return out
 
 
-def convert(src, dst, fp16=False, channel_order="rgb", description=""):
+def convert(src, dst, fp16=False, channel_order="rgb", description="", gamma=None, physics_contrast="estimate"):
     """Returns (config, missing, unexpected). Raises ValueError on errors."""
     obj = torch.load(src, map_location="cpu", weights_only=False)
     sd = strip_prefix(extract_state_dict(obj, src))
     cfg = infer_config({k: tuple(v.shape) for k, v in sd.items()})
     cfg.channel_order = channel_order
+    cfg.gamma = gamma if gamma is not None else (2.2 if cfg.physics_input else None)
+    if gamma is not None and not gamma > 0:
+        raise ValueError(f"--gamma {gamma}: expected a positive number")
+    cfg.physics_contrast = physics_contrast
     cfg.description = description or f"converted from {os.path.basename(src)}"
     expected = {k: tuple(v.shape) for k, v in SelfUnroll(cfg).state_dict().items()}
     missing = sorted(k for k in expected if k not in sd)
@@ -62,7 +70,9 @@ def convert(src, dst, fp16=False, channel_order="rgb", description=""):
     print(f"configuration: D={cfg.D} C={cfg.C} G={cfg.G} G0={cfg.G0} N={cfg.N} upnet_width={cfg.upnet_width} "
           f"flownet={cfg.flownet.base}/{cfg.flownet.depth} fusion_net={cfg.fusion_net.base}/{cfg.fusion_net.depth} "
           + (f"attfusion_net={cfg.attfusion_net.base}/{cfg.attfusion_net.depth}" if cfg.moa else "attfusion_net=absent")
-          + f" channel_order={cfg.channel_order}")
+          + f" channel_order={cfg.channel_order}"
+          + (f" physics-informed (contrast {cfg.physics_contrast})" if cfg.physics_input else "")
+          + (f" gamma={cfg.gamma:g}" if cfg.gamma is not None else ""))
     if not cfg.moa:
         print("note: no attfusion_net (MOA) weights: the file runs SelfUnroll-S only")
     print(f"missing keys ({len(missing)}): " + (", ".join(missing) if missing else "none"))
@@ -92,9 +102,10 @@ def main(argv=None):
     ap.add_argument("--channel-order", choices=("rgb", "bgr"), default="rgb",
                     help="image channel order the checkpoint expects (DRE-trained models: bgr)")
     ap.add_argument("--description", default="")
+    ap.add_argument("--gamma", type=float, help="intensity encoding the model was trained in (metadata 'gamma')")
     a = ap.parse_args(argv)
     try:
-        convert(a.input, a.output, a.fp16, a.channel_order, a.description)
+        convert(a.input, a.output, a.fp16, a.channel_order, a.description, a.gamma)
     except (ValueError, KeyError, OSError, RuntimeError, pickle.UnpicklingError, EOFError) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
         print(f"convert_checkpoint: error: {a.input}: {msg}", file=sys.stderr)

@@ -10,7 +10,16 @@ inputs with fp16-exact values, and every intermediate of the PyTorch mirror in f
   selfunroll_golden_s_64x48.safetensors  batch item 0 of the above, run as SelfUnroll-S (no m, out)
   selfunroll_golden_m_37x29.safetensors  odd size, SelfUnroll-M
 
-Usage: /usr/bin/python3 tools/make_golden.py [OUT_DIR]   (default tests/data)
+and, with --physics only, the physics-informed variant (docs/model.md) of the same tiny network
+(SFENet1 with 4*(6+6N) inputs), for the C++ side's parity tests once it knows the variant:
+
+  selfunroll_tiny_physics.safetensors             weights + metadata (physics_input=true, gamma=2.2)
+  selfunroll_golden_physics_m_64x48.safetensors   rs, ev1, ev2, ev3, phys (B=2; phys up to 1.5, so the
+                                                   graph's clamp to [0, 1] is exercised) + every output
+  selfunroll_golden_physics_s_64x48.safetensors   item 0 as SelfUnroll-S
+  selfunroll_golden_physics_m_37x29.safetensors   odd size
+
+Usage: /usr/bin/python3 tools/make_golden.py [OUT_DIR] [--physics]   (default tests/data)
 """
 import os
 import sys
@@ -30,8 +39,12 @@ def tiny_config() -> SelfUnrollConfig:
                             description="vkunroll golden fixture: tiny random SelfUnroll")
 
 
-def tiny_model() -> SelfUnroll:
-    net = SelfUnroll(tiny_config()).eval()
+def tiny_model(physics: bool = False) -> SelfUnroll:
+    cfg = tiny_config()
+    if physics:
+        cfg.physics_input, cfg.gamma = True, 2.2
+        cfg.description = "vkunroll golden fixture: tiny random SelfUnroll, physics-informed variant"
+    net = SelfUnroll(cfg).eval()
     random_init_(net, seed=SEED)
     with torch.no_grad():
         # flows of a few pixels (not saturated at +-100) so the warp interpolates inside the image
@@ -52,7 +65,16 @@ def make_inputs(b: int, h: int, w: int, n: int, seed: int):
         counts = torch.randint(0, 4, (b, 2 * n, h, w), generator=g).float()
         return counts * (torch.rand(b, 2 * n, h, w, generator=g) < 0.25).float()
 
-    return {"rs": rs, "ev1": events(), "ev2": events(), "ev3": events()}
+    d = {"rs": rs, "ev1": events(), "ev2": events(), "ev3": events()}
+    return d
+
+
+def with_phys(inputs, seed: int):
+    """A physics estimate near rs (the log ratio of a few events), partly above 1 (clamped)."""
+    g = torch.Generator().manual_seed(seed)
+    rs = inputs["rs"]
+    phys = rs * torch.exp(0.4 * torch.randn(rs.shape[0], 1, *rs.shape[2:], generator=g))
+    return dict(inputs, phys=phys.clamp(max=1.5).half().float())
 
 
 def fixture(net, inputs, mode):
@@ -62,9 +84,33 @@ def fixture(net, inputs, mode):
     return d
 
 
+def physics_fixtures(out_dir):
+    torch.manual_seed(SEED)
+    net = tiny_model(physics=True)
+    safetensors_io.save(os.path.join(out_dir, "selfunroll_tiny_physics.safetensors"),
+                        {k: v.half() for k, v in net.state_dict().items()}, net.cfg.to_metadata())
+    model = {"model": "selfunroll_tiny_physics.safetensors"}
+    m_in = with_phys(make_inputs(2, 48, 64, net.cfg.N, SEED + 1), SEED + 3)
+    safetensors_io.save(os.path.join(out_dir, "selfunroll_golden_physics_m_64x48.safetensors"), fixture(net, m_in, "m"),
+                        {"mode": "m", **model})
+    s_in = {k: v[0:1] for k, v in m_in.items()}
+    safetensors_io.save(os.path.join(out_dir, "selfunroll_golden_physics_s_64x48.safetensors"), fixture(net, s_in, "s"),
+                        {"mode": "s", **model})
+    o_in = with_phys(make_inputs(2, 29, 37, net.cfg.N, SEED + 2), SEED + 4)
+    safetensors_io.save(os.path.join(out_dir, "selfunroll_golden_physics_m_37x29.safetensors"), fixture(net, o_in, "m"),
+                        {"mode": "m", **model})
+
+
 def main():
-    out_dir = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "..", "tests", "data")
+    args = [a for a in sys.argv[1:] if a != "--physics"]
+    out_dir = args[0] if args else os.path.join(os.path.dirname(__file__), "..", "tests", "data")
     os.makedirs(out_dir, exist_ok=True)
+    if "--physics" in sys.argv[1:]:
+        physics_fixtures(out_dir)
+        for name in sorted(os.listdir(out_dir)):
+            if name.startswith("selfunroll_") and "physics" in name:
+                print(f"{name}: {os.path.getsize(os.path.join(out_dir, name))} bytes")
+        return
     torch.manual_seed(SEED)
     net = tiny_model()
     cfg = net.cfg

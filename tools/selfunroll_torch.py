@@ -9,6 +9,11 @@ the model bench and the training code.
     net = SelfUnroll(SelfUnrollConfig())            # the published configuration
     sys_, E, flow, warped, fused, m, out = net(rs, ev1, ev2, ev3)   # B = 2 for -M
     net(rs, ev1, ev2, ev3, moa=False)               # SelfUnroll-S: m and out are None
+
+The physics-informed variant (cfg.physics_input, docs/model.md "Physics-informed variant") takes a
+fifth input `phys` [B,3,H,W], the physics unroller's estimate of the same target (tools/physics_numpy.py):
+E-IC_T reads cat(rs, ev1, ev2, ev3, clamp(phys, 0, 1)) and computes sys = clamp(phys, 0, 1) + E.
+    net(rs, ev1, ev2, ev3, phys=phys)
 """
 from __future__ import annotations
 
@@ -44,10 +49,22 @@ class SelfUnrollConfig:
     moa: bool = True          # attfusion_net present (SelfUnroll-M possible)
     channel_order: str = "rgb"
     description: str = ""
+    # Physics-informed variant: E-IC_T also reads the physics unroller's estimate and corrects it.
+    physics_input: bool = False
+    # The intensity encoding the model was trained in (PNG value = linear^(1/gamma)); None: not stated.
+    gamma: Optional[float] = None
+    # Variant only: the physics estimate's contrast threshold: "estimate" (host/unroll.cpp
+    # estimate_contrast on the sequence, as --mode physics) or a number.
+    physics_contrast: str = "estimate"
 
     @property
     def ev_channels(self) -> int:
         return 2 * self.N
+
+    @property
+    def eict_inputs(self) -> int:
+        """Channels of E-IC_T's input before space_to_depth: rs, ev1, ev2, ev3 (+ phys)."""
+        return 3 + 3 * self.ev_channels + (3 if self.physics_input else 0)
 
     # ---- safetensors metadata (all values are strings) --------------------------------------
     def to_metadata(self) -> Dict[str, str]:
@@ -63,6 +80,11 @@ class SelfUnrollConfig:
             u = getattr(self, name)
             md[f"{name}.base"] = str(u.base)
             md[f"{name}.depth"] = str(u.depth)
+        if self.gamma is not None:
+            md["gamma"] = repr(float(self.gamma))
+        if self.physics_input:  # absent for the published family: its metadata stays as it was
+            md["physics_input"] = "true"
+            md["physics_contrast"] = str(self.physics_contrast)
         return md
 
     @staticmethod
@@ -78,6 +100,14 @@ class SelfUnrollConfig:
             c.moa = md["moa"] == "true"
         c.channel_order = md.get("channel_order", "rgb")
         c.description = md.get("description", "")
+        if md.get("physics_input", "false") not in ("true", "false"):
+            raise ValueError(f"metadata 'physics_input' = '{md['physics_input']}' (expected true or false)")
+        c.physics_input = md.get("physics_input") == "true"
+        c.physics_contrast = md.get("physics_contrast", "estimate")
+        if "gamma" in md:
+            c.gamma = float(md["gamma"])
+            if not c.gamma > 0:
+                raise ValueError(f"metadata 'gamma' = '{md['gamma']}' (expected a positive number)")
         for name in ("flownet", "fusion_net", "attfusion_net"):
             u = getattr(c, name)
             if f"{name}.base" in md:
@@ -97,9 +127,12 @@ def infer_config(shapes: Mapping[str, tuple]) -> SelfUnrollConfig:
     c = SelfUnrollConfig()
     w = need("SFENet1.weight")
     c.G0 = w[0]
-    if w[1] % 4 or (w[1] // 4 - 3) % 6:
-        raise ValueError(f"SFENet1.weight has {w[1]} input channels; expected 4*(3+6N)")
-    c.N = (w[1] // 4 - 3) // 6
+    # 4*(3+6N) input channels (published family) or 4*(6+6N) (physics-informed variant: + phys);
+    # the two never coincide (3+6N is odd, 6+6N even)
+    if w[1] % 4 or (w[1] // 4 - 3) % 6 and (w[1] // 4 - 6) % 6:
+        raise ValueError(f"SFENet1.weight has {w[1]} input channels; expected 4*(3+6N) or 4*(6+6N) (physics variant)")
+    c.physics_input = (w[1] // 4) % 2 == 0
+    c.N = (w[1] // 4 - (6 if c.physics_input else 3)) // 6
     c.D = len({m.group(1) for k in shapes for m in [re.match(r"RDBs\.(\d+)\.LFF\.weight$", k)] if m})
     c.C = len({m.group(1) for k in shapes for m in [re.match(r"RDBs\.0\.convs\.(\d+)\.conv\.0\.weight$", k)] if m})
     c.G = need("RDBs.0.convs.0.conv.0.weight")[0]
@@ -256,7 +289,7 @@ class SelfUnroll(nn.Module):
         cfg = cfg or SelfUnrollConfig()
         self.cfg = cfg
         nev = cfg.ev_channels
-        self.SFENet1 = nn.Conv2d(4 * (3 + 3 * nev), cfg.G0, 5, 1, 2)
+        self.SFENet1 = nn.Conv2d(4 * cfg.eict_inputs, cfg.G0, 5, 1, 2)
         self.SFENet2 = nn.Conv2d(cfg.G0, cfg.G0, 3, 1, 1)
         self.RDBs = nn.ModuleList([RDB(cfg.G0, cfg.G, cfg.C, cfg.rdb_slope) for _ in range(cfg.D)])
         self.GFF = nn.Sequential(nn.Conv2d(cfg.D * cfg.G0, cfg.G0, 1, 1, 0), nn.Conv2d(cfg.G0, cfg.G0, 3, 1, 1))
@@ -268,23 +301,29 @@ class SelfUnroll(nn.Module):
         if cfg.moa:
             self.attfusion_net = Unet(3 + 3 + 2 * nev + 2 + 2, 1, cfg.attfusion_net.base, cfg.attfusion_net.depth, s)
 
-    def forward(self, rs, ev1, ev2, ev3, moa: Optional[bool] = None, force_m: Optional[float] = None):
+    def forward(self, rs, ev1, ev2, ev3, moa: Optional[bool] = None, force_m: Optional[float] = None, phys=None):
         """Returns (sys, E, flow, warped, fused, m, out); m and out are None for SelfUnroll-S.
+        `phys` (physics-informed variant only, [B,3,H,W]): the physics unroller's estimate.
         `force_m` replaces the blend map by a constant (tests: m = 1 gives S of frame 1).
         An odd height or width (space_to_depth needs even sizes) is handled by padding every
         input by one row/column at the bottom/right (reflection; replication for size 1),
         running the network, and cropping every output back."""
         if moa is None:
             moa = self.cfg.moa and rs.shape[0] == 2
+        if (phys is not None) != self.cfg.physics_input:
+            raise ValueError("the physics-informed variant needs phys (the physics estimate)" if self.cfg.physics_input
+                             else "phys given, but this model has no physics input")
         h, w = rs.shape[-2:]
         if h % 2 or w % 2:
             pads = (0, w % 2, 0, h % 2)
             def even(t):
                 mode = "reflect" if (h > 1 or h % 2 == 0) and (w > 1 or w % 2 == 0) else "replicate"
-                return F.pad(t, pads, mode=mode)
-            res = self.forward(even(rs), even(ev1), even(ev2), even(ev3), moa=moa, force_m=force_m)
+                return None if t is None else F.pad(t, pads, mode=mode)
+            res = self.forward(even(rs), even(ev1), even(ev2), even(ev3), moa=moa, force_m=force_m, phys=even(phys))
             return tuple(None if t is None else t[:, :, :h, :w] for t in res)
-        x0 = torch.cat([rs, ev1, ev2, ev3], 1)
+        if phys is not None:
+            phys = phys.clamp(0.0, 1.0)  # the physics output is capped at 1e4, not at 1
+        x0 = torch.cat([rs, ev1, ev2, ev3] + ([phys] if phys is not None else []), 1)
         f1 = self.SFENet1(F.pixel_unshuffle(x0, 2))
         x = self.SFENet2(f1)
         outs = []
@@ -293,7 +332,7 @@ class SelfUnroll(nn.Module):
             outs.append(x)
         g = self.GFF(torch.cat(outs, 1)) + f1
         E = torch.tanh(self.UPNet(g))
-        sys_ = rs + E
+        sys_ = (phys if phys is not None else rs) + E
 
         flow = 100.0 * torch.tanh(self.flownet(torch.cat([ev1, ev2, rs], 1)))
         warped = backward_warp(rs, flow)
@@ -320,9 +359,9 @@ OUTPUT_NAMES = ("sys", "E", "flow", "warped", "fused", "m", "out")
 
 
 def run_named(net: SelfUnroll, inputs: Mapping[str, torch.Tensor], mode: str = "m") -> Dict[str, torch.Tensor]:
-    """Runs on a dict with rs, ev1, ev2, ev3 and returns the intermediates by their names."""
+    """Runs on a dict with rs, ev1, ev2, ev3 (+ phys for the variant) and returns the intermediates by name."""
     with torch.no_grad():
-        res = net(inputs["rs"], inputs["ev1"], inputs["ev2"], inputs["ev3"], moa=(mode == "m"))
+        res = net(inputs["rs"], inputs["ev1"], inputs["ev2"], inputs["ev3"], moa=(mode == "m"), phys=inputs.get("phys"))
     return {k: v for k, v in zip(OUTPUT_NAMES, res) if v is not None}
 
 
@@ -350,7 +389,10 @@ def load_model(path: str) -> SelfUnroll:
     """A SelfUnroll with the weights and configuration of a vkunroll weights file (safetensors)."""
     import safetensors_io
     tensors, meta = safetensors_io.load(path)
-    cfg = SelfUnrollConfig.from_metadata(meta) if "D" in meta else infer_config({k: tuple(v.shape) for k, v in tensors.items()})
+    shapes = infer_config({k: tuple(v.shape) for k, v in tensors.items()})
+    cfg = SelfUnrollConfig.from_metadata(meta) if "D" in meta else shapes
+    if "physics_input" not in meta:
+        cfg.physics_input = shapes.physics_input
     net = SelfUnroll(cfg)
     net.load_state_dict({k: v.float() for k, v in tensors.items()}, strict=True)
     return net.eval()

@@ -8,7 +8,12 @@ Details, formulas and the shipped model's command: docs/training.md.
   # stage 1 (SelfUnroll-S: Llc + Lcc + Ltc + 0.01 Ltv), then stage 2 (MOA alone, dual cycle)
   train.py --data data/train --val data/val --out runs/small --steps-s 3000 --steps-m 600 --max-minutes 50
   train.py --resume runs/small/checkpoint.pt          # continues where it stopped (same arguments)
-  train.py --export runs/small/checkpoint.pt models/small.safetensors
+  train.py --export-checkpoint runs/small/checkpoint.pt models/small.safetensors
+  # physics-informed variant (docs/model.md), prepared samples, chunks of 5 minutes on a GPU
+  train.py --data data/natural/train --physics-variant --make-cache cache/ --cache-samples 4096
+  train.py --cache cache/ --physics-variant --device cuda --chunk-minutes 5 --out runs/v   (then --resume ...)
+  # adaptation to one recording (self-supervised only)
+  train.py --adapt data/rec1 --from models/selfunroll_small.safetensors --minutes 10 --out runs/rec1
 
 No ground truth is read for training; --supervised (L1 to the GS frames) exists only for comparison.
 Validation (--val) uses the ground truth of held-out sequences to print PSNRs, nothing else.
@@ -17,26 +22,25 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import math
 import os
 import random
 import shlex
-import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import physics_numpy as pn  # noqa: E402
 import safetensors_io  # noqa: E402
 from selfunroll_torch import SelfUnroll, SelfUnrollConfig, Unet, UnetConfig  # noqa: E402
-from sequence_data import DataError, Sequence, eic_tensors, list_sequences  # noqa: E402
+from sequence_data import DataError, Sequence, list_sequences  # noqa: E402
+from train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop_img, describe_data, find_cli,  # noqa: E402,F401
+                        from_model_encoding, gt_targets, make_data, make_sample, write_cache)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSS_WEIGHTS = {"lc": 1.0, "cc": 1.0, "tc": 1.0, "tv": 0.01}
@@ -100,95 +104,60 @@ def init_fusion_passthrough(unet: Unet, channels: int = 3) -> None:
 def init_model(net: SelfUnroll, seed: int, fusion_passthrough: bool = True) -> None:
     """PyTorch's default init, except that the flow head and the residual head start near zero
     (flow = 100 tanh(raw) would otherwise start with random displacements of tens of pixels), and,
-    with `fusion_passthrough`, fusion_net starts as the identity on its `sys` input."""
+    with `fusion_passthrough`, fusion_net starts as the identity on its `sys` input. The physics
+    variant's residual head starts at exactly zero, so E = 0, sys = phys and (with the pass-through)
+    SelfUnroll-S outputs the physics estimate exactly at step 0."""
     torch.manual_seed(seed)
     for m in net.modules():
         if hasattr(m, "reset_parameters"):
             m.reset_parameters()
     with torch.no_grad():
-        for conv in (net.flownet.pred, net.UPNet[2]):
-            conv.weight.mul_(0.01)
+        heads = (net.flownet.pred, net.UPNet[2]) + ((net.attfusion_net.pred,) if net.cfg.physics_input and net.cfg.moa else ())
+        for conv in heads:
+            conv.weight.mul_(0.0 if net.cfg.physics_input and conv is net.UPNet[2] else 0.01)
             conv.bias.zero_()
         if fusion_passthrough:
             init_fusion_passthrough(net.fusion_net)
 
 
-# ---- sampling ---------------------------------------------------------------------------------------
-@dataclass
-class Sample:
-    """One training example: RS frames k and k+1 of a sequence, a crop, a GS target time t*, and
-    the event tensors of the six E-IC passes the losses need (each a tuple ev1, ev2, ev3):
-      g1: rs1 -> GS(t*)    g2: rs2 -> GS(t*)      (latent consistency; stage 2: the M result)
-      r12: rs1 -> rs2      r21: rs2 -> rs1        (temporal consistency)
-      c1: GS(t*) -> rs1    c2: GS(t*) -> rs2      (cycle consistency, second pass)"""
-    rs1: np.ndarray
-    rs2: np.ndarray
-    ev: Dict[str, Tuple[np.ndarray, np.ndarray, np.ndarray]]
-    gt: Optional[np.ndarray] = None  # only in --supervised mode
+def lift_to_physics(src: SelfUnroll, seed: int) -> SelfUnroll:
+    """The physics variant of a trained model: its weights, SFENet1 widened by zero weights for the
+    phys channels, the residual head zeroed (E = 0: sys = phys) and fusion_net re-initialised as the
+    pass-through, so the result starts exactly at the physics estimate and keeps the learned trunk."""
+    cfg = SelfUnrollConfig(**{**src.cfg.__dict__})
+    cfg.physics_input, cfg.gamma = True, src.cfg.gamma or 2.2
+    net = SelfUnroll(cfg)
+    init_model(net, seed)
+    sd = net.state_dict()
+    for k, v in src.state_dict().items():
+        # attfusion_net.pred restarts near 0 (m ~ 0.5): a trained MOA whose score sits beyond
+        # hardsigmoid's +-3 has zero gradient there, and stage 2 could not move it
+        if k.startswith("fusion_net.") or k.startswith("UPNet.2.") or k.startswith("attfusion_net.pred."):
+            continue
+        if k == "SFENet1.weight":
+            w = torch.zeros_like(sd[k])
+            w[:, :v.shape[1]] = v
+            v = w
+        sd[k] = v
+    net.load_state_dict(sd)
+    return net
 
 
-def crop_img(img: np.ndarray, crop) -> np.ndarray:
-    x0, y0, w, h = crop
-    return img[:, y0:y0 + h, x0:x0 + w]
-
-
-def make_sample(seq: Sequence, k: int, crop, t_star: float, texp: float, bins: int, gt_index: Optional[int] = None):
-    s1, e1 = seq.row_times(k)
-    s2, e2 = seq.row_times(k + 1)
-    H = seq.height
-    ts = np.full(H, t_star, dtype=np.float64)
-    lo = min(s1.min(), t_star) - 1.0
-    hi = max(e2.max(), t_star + texp) + 1.0
-    ev = seq.events_in(lo, hi, crop)
-    tens = {
-        "g1": eic_tensors(ev, s1, e1, ts, texp, bins, crop),
-        "g2": eic_tensors(ev, s2, e2, ts, texp, bins, crop),
-        "r12": eic_tensors(ev, s1, e1, s2, seq.exposure, bins, crop),
-        "r21": eic_tensors(ev, s2, e2, s1, seq.exposure, bins, crop),
-        "c1": eic_tensors(ev, ts, ts + texp, s1, seq.exposure, bins, crop),
-        "c2": eic_tensors(ev, ts, ts + texp, s2, seq.exposure, bins, crop),
-    }
-    gt = crop_img(seq.gt_image(gt_index), crop) if gt_index is not None else None
-    return Sample(crop_img(seq.frame(k), crop), crop_img(seq.frame(k + 1), crop), tens, gt)
-
-
-class Sampler:
-    def __init__(self, seqs: List[Sequence], crop_w: int, crop_h: int, bins: int, target_exposure: Optional[float],
-                 rng: random.Random, supervised: bool = False):
-        self.seqs = [s for s in seqs if s.num_frames >= 2]
-        if not self.seqs:
-            raise DataError("training needs sequences with at least 2 RS frames")
-        for s in self.seqs:
-            if s.width < crop_w or s.height < crop_h:
-                raise DataError(f"{s.folder}: {s.width}x{s.height} is smaller than the crop {crop_w}x{crop_h}")
-        self.crop_w, self.crop_h, self.bins = crop_w, crop_h, bins
-        self.target_exposure = target_exposure
-        self.rng = rng
-        self.supervised = supervised
-
-    def draw(self) -> Sample:
-        r = self.rng
-        seq = r.choice(self.seqs)
-        k = r.randrange(seq.num_frames - 1)
-        x0 = r.randrange(seq.width - self.crop_w + 1)
-        y0 = r.randrange(seq.height - self.crop_h + 1)
-        texp = self.target_exposure or seq.exposure
-        gt_index = None
-        lo, hi = seq.frame_span(k)[0], seq.frame_span(k + 1)[1]
-        if self.supervised:
-            cands = [i for i, (_, t) in enumerate(seq.gt) if lo <= t <= hi]
-            if not cands:
-                raise DataError(f"{seq.folder}: --supervised needs ground truth between frames {k} and {k + 1}")
-            gt_index = r.choice(cands)
-            t_star = seq.gt[gt_index][1]
-        else:
-            t_star = r.uniform(lo, hi)
-        return make_sample(seq, k, (x0, y0, self.crop_w, self.crop_h), t_star, texp, self.bins, gt_index)
-
-
-def stack(samples: List[Sample], key: str):
+# ---- sampling (tools/train_data.py) ------------------------------------------------------------------
+def stack(samples: List[Sample], key: str, device="cpu"):
     """Batched (ev1, ev2, ev3) tensors of pass `key` over the samples."""
-    return [torch.from_numpy(np.stack([s.ev[key][i] for s in samples])) for i in range(3)]
+    return [torch.from_numpy(np.stack([s.ev[key][i] for s in samples])).to(device) for i in range(3)]
+
+
+def stack_lr(samples: List[Sample], keys, device="cpu"):
+    """Batched physics log ratios of the passes `keys` (concatenated in that order), or None."""
+    if samples[0].lr is None:
+        return None
+    return torch.cat([torch.from_numpy(np.stack([s.lr[k] for s in samples])) for k in keys]).to(device)
+
+
+def images(samples: List[Sample], key: str, device="cpu"):
+    return torch.from_numpy(np.stack([getattr(s, key) for s in samples])).to(device)
 
 
 # ---- losses -----------------------------------------------------------------------------------------
@@ -200,8 +169,15 @@ def tv(flow):
     return (flow[:, :, 1:, :] - flow[:, :, :-1, :]).abs().mean() + (flow[:, :, :, 1:] - flow[:, :, :, :-1]).abs().mean()
 
 
-def run_s(net: SelfUnroll, img, ev):
-    sys_, E, flow, warped, fused, _, _ = net(img, ev[0], ev[1], ev[2], moa=False)
+def run_s(net: SelfUnroll, img, ev, lr=None):
+    """SelfUnroll-S on a batch; `lr` (physics variant): the passes' physics log ratios [B,1,H,W],
+    applied to `img` itself (also a network output: the cycle passes), so phys follows the input."""
+    phys = None
+    if net.cfg.physics_input:
+        if lr is None:
+            raise DataError("the physics-informed variant needs samples with physics log ratios")
+        phys = pn.apply_log_ratio_torch(img, lr, net.cfg.gamma or 1.0)
+    sys_, E, flow, warped, fused, _, _ = net(img, ev[0], ev[1], ev[2], moa=False, phys=phys)
     return {"sys": sys_, "E": E, "flow": flow, "warped": warped, "fused": fused, "ev1": ev[0]}
 
 
@@ -216,23 +192,22 @@ def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
       Lcc = sum_b |b(c1) - rs1| + |b(c2) - rs2|,  Ltv = mean TV of the flow of all 6B passes,
     b over the E-IC outputs sys (E-IC_T), warped (E-IC_S), fused (E-IC_S+T); |.| = mean abs."""
     B = len(samples)
-    rs1 = torch.from_numpy(np.stack([s.rs1 for s in samples]))
-    rs2 = torch.from_numpy(np.stack([s.rs2 for s in samples]))
-    ev = [torch.cat(t) for t in zip(stack(samples, "g1"), stack(samples, "g2"), stack(samples, "r12"),
-                                    stack(samples, "r21"))]
-    first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev)
+    dv = next(net.parameters()).device
+    rs1, rs2 = images(samples, "rs1", dv), images(samples, "rs2", dv)
+    ev = [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2", "r12", "r21")))]
+    first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev, stack_lr(samples, ("g1", "g2", "r12", "r21"), dv))
     g, r = split(first, 2 * B)
     g1, g2 = split(g, B)
     r12, r21 = split(r, B)
     L = {}
     if supervised:
-        gt = torch.from_numpy(np.stack([s.gt for s in samples]))
+        gt = images(samples, "gt", dv)
         L["sup"] = sum(l1(g1[b], gt) + l1(g2[b], gt) for b in BRANCHES)
         L["tv"] = tv(first["flow"])
         L["total"] = L["sup"] + LOSS_WEIGHTS["tv"] * L["tv"]
         return L
-    ev_c = [torch.cat(t) for t in zip(stack(samples, "c1"), stack(samples, "c2"))]
-    second = run_s(net, torch.cat([g1["fused"], g2["fused"]]), ev_c)
+    ev_c = [torch.cat(t) for t in zip(stack(samples, "c1", dv), stack(samples, "c2", dv))]
+    second = run_s(net, torch.cat([g1["fused"], g2["fused"]]), ev_c, stack_lr(samples, ("c1", "c2"), dv))
     c1, c2 = split(second, B)
     L["lc"] = sum(l1(g1[b], g2[b]) for b in BRANCHES)
     L["cc"] = sum(l1(c1[b], rs1) + l1(c2[b], rs2) for b in BRANCHES)
@@ -251,23 +226,22 @@ def stage_m_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
       G = M(rs1 -> t*, rs2 -> t*);  rs1~ = M(G -> rs1, rs2 -> rs1);  rs2~ = M(G -> rs2, rs1 -> rs2);
       Ldcc = |rs1~ - rs1| + |rs2~ - rs2|."""
     B = len(samples)
-    rs1 = torch.from_numpy(np.stack([s.rs1 for s in samples]))
-    rs2 = torch.from_numpy(np.stack([s.rs2 for s in samples]))
-    ev = [torch.cat(t) for t in zip(stack(samples, "g1"), stack(samples, "g2"), stack(samples, "r12"),
-                                    stack(samples, "r21"))]
-    first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev)
+    dv = next(net.parameters()).device
+    rs1, rs2 = images(samples, "rs1", dv), images(samples, "rs2", dv)
+    ev = [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2", "r12", "r21")))]
+    first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev, stack_lr(samples, ("g1", "g2", "r12", "r21"), dv))
     g, r = split(first, 2 * B)
     g1, g2 = split(g, B)
     r12, r21 = split(r, B)
     G = moa(net, g1, g2)
     L = {}
     if supervised:
-        gt = torch.from_numpy(np.stack([s.gt for s in samples]))
+        gt = images(samples, "gt", dv)
         L["sup"] = l1(G, gt)
         L["total"] = L["sup"]
         return L
-    ev_c = [torch.cat(t) for t in zip(stack(samples, "c1"), stack(samples, "c2"))]
-    second = run_s(net, torch.cat([G, G]), ev_c)
+    ev_c = [torch.cat(t) for t in zip(stack(samples, "c1", dv), stack(samples, "c2", dv))]
+    second = run_s(net, torch.cat([G, G]), ev_c, stack_lr(samples, ("c1", "c2"), dv))
     c1, c2 = split(second, B)
     rs1_t = moa(net, c1, r21)
     rs2_t = moa(net, c2, r12)
@@ -282,42 +256,33 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return 10 * math.log10(1.0 / max(mse, 1e-12))
 
 
-def gt_targets(seq: Sequence):
-    """(gt index, frame k, intra) for every GT instant with RS frames k and k+1 around it: k is the
-    last frame whose first row starts at or before t; intra = t inside frame k's exposure span."""
-    out = []
-    for i, (_, t) in enumerate(seq.gt):
-        k = int(np.searchsorted(seq.frame_t0, t, "right")) - 1
-        if k < 0 or k + 1 >= seq.num_frames:
-            continue
-        lo, hi = seq.frame_span(k)
-        out.append((i, k, lo <= t <= hi))
-    return out
-
-
-def unroll_pair(net: SelfUnroll, seq: Sequence, k: int, t_star: float, texp: float, bins: int, crop):
-    """S results from frames k and k+1 and the M result, all toward t*: dict of [1,3,h,w]."""
-    H = seq.height
-    ts = np.full(H, t_star)
-    s1, e1 = seq.row_times(k)
-    s2, e2 = seq.row_times(k + 1)
-    lo, hi = min(s1.min(), t_star) - 1, max(e2.max(), t_star + texp) + 1
-    ev = seq.events_in(lo, hi, crop)
-    t1 = [torch.from_numpy(a)[None] for a in eic_tensors(ev, s1, e1, ts, texp, bins, crop)]
-    t2 = [torch.from_numpy(a)[None] for a in eic_tensors(ev, s2, e2, ts, texp, bins, crop)]
-    rs1 = torch.from_numpy(crop_img(seq.frame(k), crop))[None]
-    rs2 = torch.from_numpy(crop_img(seq.frame(k + 1), crop))[None]
+def unroll_pair(net: SelfUnroll, seq: Sequence, k: int, t_star: float, texp: float, bins: int, crop,
+                info: Optional[SeqInfo] = None):
+    """S results from frames k and k+1 and the M result, all toward t*: dict of [1,3,h,w], in the
+    sequence's own encoding (the model runs in its gamma when its metadata states one)."""
+    dv = next(net.parameters()).device
+    info = info or SeqInfo(seq)
+    smp = make_sample(seq, k, crop, t_star, texp, bins, None, info, net.cfg.gamma, net.cfg.physics_input)
+    ev = [torch.from_numpy(np.stack([smp.ev["g1"][i], smp.ev["g2"][i]])).to(dv) for i in range(3)]
+    lr = stack_lr([smp], ("g1", "g2"), dv)
+    rs = torch.from_numpy(np.stack([smp.rs1, smp.rs2])).to(dv)
+    back = lambda x: from_model_encoding(x, info.gamma, net.cfg.gamma).cpu()  # noqa: E731
     with torch.no_grad():
-        o = run_s(net, torch.cat([rs1, rs2]), [torch.cat([a, b]) for a, b in zip(t1, t2)])
+        o = run_s(net, rs, ev, lr)
         a, b = split(o, 1)
-        res = {"rs1": rs1, "rs2": rs2, "s1": a["fused"], "s2": b["fused"]}
+        res = {"rs1": torch.from_numpy(crop_img(seq.frame(k), crop))[None],
+               "rs2": torch.from_numpy(crop_img(seq.frame(k + 1), crop))[None],
+               "s1": back(a["fused"]), "s2": back(b["fused"])}
+        if net.cfg.physics_input:
+            res["phys1"] = back(pn.apply_log_ratio_torch(rs[:1], lr[:1], net.cfg.gamma or 1.0))
         if net.cfg.moa:
-            res["m"] = moa(net, a, b)
+            res["m"] = back(moa(net, a, b))
     return res
 
 
 def validate(net: SelfUnroll, seqs: List[Sequence], bins: int, target_exposure: Optional[float],
-             max_targets: int = 12, crop_size: Optional[Tuple[int, int]] = None) -> Dict[str, float]:
+             max_targets: int = 12, crop_size: Optional[Tuple[int, int]] = None,
+             infos: Optional[Dict[str, SeqInfo]] = None) -> Dict[str, float]:
     """Mean PSNR of the RS frame k, S (frame k) and M on up to max_targets GT instants in total
     (spread over the sequences), on a centre crop of crop_size or the full frame."""
     net.eval()
@@ -333,9 +298,10 @@ def validate(net: SelfUnroll, seqs: List[Sequence], bins: int, target_exposure: 
             else:
                 crop = (0, 0, seq.width, seq.height)
             texp = target_exposure or seq.exposure
-            r = unroll_pair(net, seq, k, seq.gt[i][1], texp, bins, crop)
+            info = (infos or {}).get(seq.folder)
+            r = unroll_pair(net, seq, k, seq.gt[i][1], texp, bins, crop, info)
             gt = torch.from_numpy(crop_img(seq.gt_image(i), crop))[None]
-            for name, key in (("rs", "rs1"), ("S", "s1"), ("M", "m")):
+            for name, key in (("rs", "rs1"), ("phys", "phys1"), ("S", "s1"), ("M", "m")):
                 if key in r:
                     sums.setdefault(name, []).append(psnr(r[key], gt))
     net.train()
@@ -366,41 +332,6 @@ def config_from_dict(d: dict) -> SelfUnrollConfig:
     for k in ("flownet", "fusion_net", "attfusion_net"):
         d[k] = UnetConfig(**d[k])
     return SelfUnrollConfig(**d)
-
-
-# ---- data generation ----------------------------------------------------------------------------------
-MOTIONS = ("pan", "accelerate", "rotate", "zoom", "shake", "mixed")
-PRESET_CYCLE = ("realistic", "clean", "realistic", "noisy")
-
-
-def find_cli(explicit: Optional[str]) -> str:
-    for c in (explicit, os.environ.get("VKUNROLL_CLI"), os.path.join(ROOT, "build", "vkunroll")):
-        if c and os.path.isfile(c) and os.access(c, os.X_OK):
-            return c
-    raise DataError("vkunroll CLI not found: pass --cli PATH or set VKUNROLL_CLI (build it: cmake --build build)")
-
-
-def make_data(out: str, count: int, seed_base: int, size: str, frames: int, gt_per_frame: int,
-              cli: str, extra: List[str], speeds: List[float] = (1.0,)) -> None:
-    """`count` sequences seq_<seed> with seeds seed_base.., cycling motions, presets, speeds and readouts."""
-    os.makedirs(out, exist_ok=True)
-    for i in range(count):
-        seed = seed_base + i
-        d = os.path.join(out, f"seq_{seed:06d}")
-        if os.path.isfile(os.path.join(d, "meta.json")):
-            print(f"{d}: exists, kept")
-            continue
-        cmd = [cli, "simulate", "--out", d, "--seed", str(seed), "--preset", PRESET_CYCLE[i % len(PRESET_CYCLE)],
-               "--motion", MOTIONS[i % len(MOTIONS)], "--size", size, "--frames", str(frames),
-               "--gt-per-frame", str(gt_per_frame), "--speed", f"{speeds[i % len(speeds)]:g}", "--quiet"]
-        if (i // len(MOTIONS)) % 3 == 2:
-            cmd += ["--readout", "bottom-up"]
-        cmd += extra
-        t0 = time.time()
-        r = subprocess.run(cmd, capture_output=True, text=True)
-        if r.returncode != 0:
-            raise DataError(f"'{shlex.join(cmd)}' failed ({r.returncode}): {r.stderr.strip()}")
-        print(f"{d}: {' '.join(cmd[4:])} ({time.time() - t0:.1f} s)", flush=True)
 
 
 # ---- training -------------------------------------------------------------------------------------------
@@ -447,75 +378,94 @@ def cosine_lr(lr0: float, progress: float, warmup: float = 0.02) -> float:
     return lr0 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
 
 
-def describe_data(paths: List[str], seqs: List[Sequence]) -> str:
-    presets, motions, seeds = set(), set(), []
-    for s in seqs:
-        src = s.meta.get("source") or {}
-        if "preset" in src:
-            presets.add(str(src["preset"]))
-        st = src.get("settings") or {}
-        if "motion" in st:
-            motions.add(str(st["motion"]))
-        if "seed" in src:
-            seeds.append(int(src["seed"]))
-    sizes = sorted({f"{s.width}x{s.height}" for s in seqs})
-    d = f"{len(seqs)} sequences ({', '.join(sizes)}; {sum(s.num_frames for s in seqs)} RS frames) from {', '.join(paths)}"
-    if presets:
-        d += f"; presets {'/'.join(sorted(presets))}"
-    if motions:
-        d += f"; motions {'/'.join(sorted(motions))}"
-    if seeds:
-        d += f"; seeds {min(seeds)}..{max(seeds)}"
-    return d
+def build_model(a, state):
+    """The network to train: from a checkpoint (--resume), a weights file (--from; lifted to the
+    physics variant with --physics-variant), a checkpoint's weights (--init), or a fresh init."""
+    if state:
+        net = SelfUnroll(config_from_dict(state["config"]))
+        net.load_state_dict(state["model"])
+        return net
+    if a.from_model:
+        import selfunroll_torch
+        net = selfunroll_torch.load_model(a.from_model)
+        if a.physics_variant and not net.cfg.physics_input:
+            net = lift_to_physics(net, a.seed)
+        if a.gamma is not None:
+            net.cfg.gamma = a.gamma
+        if a.description:
+            net.cfg.description = a.description
+        return net.train()
+    cfg = make_config(a.config, a.bins)
+    cfg.physics_input = bool(a.physics_variant)
+    cfg.gamma = a.gamma if a.gamma is not None else 2.2
+    cfg.description = a.description or f"vkunroll {a.config}{' physics-informed' if cfg.physics_input else ''} " \
+                                        "SelfUnroll trained with tools/train.py"
+    net = SelfUnroll(cfg)
+    if a.init:
+        ck = torch.load(a.init, map_location="cpu", weights_only=False)
+        net.load_state_dict(ck["model"] if "model" in ck else ck)
+    else:
+        init_model(net, a.seed, fusion_passthrough=not a.no_fusion_passthrough)
+    return net
+
+
+def make_sampler(a, cfg, rng, out):
+    """Samples from a cache (--cache), else drawn from the sequences of --data (or --adapt)."""
+    if a.cache:
+        cs = CacheSampler(a.cache, rng, cfg.N, cfg.physics_input, a.supervised)
+        return cs, [], f"cache {a.cache}: {len(cs)} samples of {len(cs.seqs)} sequences", [a.cache]
+    paths = [a.adapt] if a.adapt else a.data
+    seqs = [Sequence(p) for p in list_sequences(paths)]
+    cw, ch = a.crop
+    if a.adapt:  # one recording: crops as large as asked, at most the sensor
+        cw, ch = min(cw, seqs[0].width), min(ch, seqs[0].height)
+    sampler = Sampler(seqs, cw, ch, cfg.N, a.target_exposure_us, rng, a.supervised, cfg.physics_input, cfg.gamma,
+                      a.data_gamma, os.path.join(out, "contrast_cache.json"))
+    return sampler, seqs, describe_data(paths, seqs), paths
 
 
 def train(a) -> None:
-    threads = ThreadChooser(a.threads)
+    dev = torch.device(a.device)
+    threads = ThreadChooser(a.threads if dev.type == "cpu" else "1")
     os.makedirs(a.out, exist_ok=True)
     ckpt_path = os.path.join(a.out, "checkpoint.pt")
     state = None
     if a.resume:
         state = torch.load(a.resume, map_location="cpu", weights_only=False)
         print(f"resuming {a.resume}: stage {state['stage']}, step {state['step']}", flush=True)
-        cfg = config_from_dict(state["config"])
-    else:
-        cfg = make_config(a.config, a.bins)
-        cfg.description = a.description or f"vkunroll {a.config} SelfUnroll trained with tools/train.py"
-    net = SelfUnroll(cfg)
-    if state:
-        net.load_state_dict(state["model"])
-    elif a.init:
-        ck = torch.load(a.init, map_location="cpu", weights_only=False)
-        net.load_state_dict(ck["model"] if "model" in ck else ck)
-    else:
-        init_model(net, a.seed, fusion_passthrough=not a.no_fusion_passthrough)
+    net = build_model(a, state).to(dev)
+    cfg = net.cfg
     n_params = sum(p.numel() for p in net.parameters())
-
-    paths = a.data
-    seqs = [Sequence(p) for p in list_sequences(paths)]
     val = [Sequence(p) for p in list_sequences(a.val)] if a.val else []
     rng = random.Random(a.seed)
     if state and "rng" in state:
         rng.setstate(state["rng"])
-    sampler = Sampler(seqs, a.crop[0], a.crop[1], cfg.N, a.target_exposure_us, rng, a.supervised)
-    data_desc = describe_data(paths, seqs)
-    print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}; data: {data_desc}; "
-          f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, threads {a.threads}", flush=True)
+    sampler, seqs, data_desc, paths = make_sampler(a, cfg, rng, a.out)
+    val_infos = {v.folder: SeqInfo(v, a.data_gamma, os.path.join(a.out, "contrast_cache.json")) for v in val}
+    print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}, "
+          f"{'physics-informed, ' if cfg.physics_input else ''}gamma {cfg.gamma}; data: {data_desc}; "
+          f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, device {dev}, threads {a.threads}", flush=True)
+    if a.make_cache:
+        write_cache(sampler, a.make_cache, a.cache_samples, log=lambda m: print(m, flush=True))
+        return
 
-    stages = [("s", a.steps_s), ("m", a.steps_m if cfg.moa else 0)]
+    steps_m = a.steps_m if cfg.moa and not a.adapt else 0
+    stages = [("s", a.steps_s), ("m", steps_m)]
     budget = a.max_minutes * 60 if a.max_minutes else None
     # share of the time budget per stage: proportional to steps, an M step costing ~1.3 S steps
-    w = {"s": a.steps_s, "m": 1.3 * a.steps_m if cfg.moa else 0}
+    w = {"s": a.steps_s, "m": 1.3 * steps_m}
     stage_budget = {k: (budget * w[k] / max(1e-9, sum(w.values())) if budget else None) for k in w}
     info = dict(state["info"]) if state else {}
     info.setdefault("command", shlex.join([os.path.relpath(sys.argv[0], ROOT) if sys.argv[0].startswith(ROOT)
                                            else sys.argv[0]] + sys.argv[1:]))
     info.update({"data": data_desc, "crop": f"{a.crop[0]}x{a.crop[1]}", "batch": str(a.batch), "seed": str(a.seed),
-                 "lr": str(a.lr), "supervised": "true" if a.supervised else "false",
+                 "lr": str(a.lr), "supervised": "true" if a.supervised else "false", "device": str(dev),
                  "losses": ("stage s: 1*Llc + 1*Lcc + 1*Ltc + 0.01*Ltv on sys/warped/fused; "
                             "stage m: Ldcc (attfusion_net alone)") if not a.supervised else
                  "SUPERVISED comparison run: L1 to ground truth + 0.01*Ltv; stage m: L1 of the M result",
                  "target_exposure_us": str(a.target_exposure_us or "rs exposure")})
+    if a.adapt:
+        info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes)})
     start_stage = state["stage"] if state else "s"
     step = state["step"] if state else 0
     elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
@@ -549,7 +499,7 @@ def train(a) -> None:
             if progress >= 1.0:
                 done_reason = "time" if step < steps else "steps"
                 break
-            lr = cosine_lr(a.lr, progress)
+            lr = a.lr if a.constant_lr else cosine_lr(a.lr, progress)
             for g in opt.param_groups:
                 g["lr"] = lr
             threads.before_step(step)
@@ -572,27 +522,30 @@ def train(a) -> None:
                 parts = " ".join(f"{k} {v:.4f}" for k, v in ema.items() if k != "total")
                 print(f"[{stage}] step {step}/{steps} lr {lr:.2e} loss {ema['total']:.4f} ({parts}) "
                       f"{rate:.2f} step/s data {t_data:.2f}s elapsed {(now - t0) / 60:.1f} min", flush=True)
-            if a.rescan_every and step % a.rescan_every == 0:
+            if a.rescan_every and step % a.rescan_every == 0 and not a.cache:
                 known = {q.folder for q in sampler.seqs}
                 new = [Sequence(p) for p in list_sequences(paths) if p not in known]
                 new = [q for q in new if q.num_frames >= 2]
                 if new:
-                    sampler.seqs += new
+                    sampler.add(new)
                     seqs += new
                     print(f"[{stage}] step {step}: {len(new)} new sequences, {len(sampler.seqs)} in all", flush=True)
             if a.val_every and step % a.val_every == 0 and val:
-                v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop)
+                v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop, val_infos)
                 print(f"[{stage}] step {step} validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()),
                       flush=True)
             if step % a.ckpt_every == 0:
                 save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
             session_steps += 1
-            if a.stop_after and session_steps >= a.stop_after:
+            chunk_over = a.chunk_minutes and time.time() - t_run0 >= 60 * a.chunk_minutes
+            if (a.stop_after and session_steps >= a.stop_after) or chunk_over:
                 save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
-                print(f"[{stage}] stopped after {session_steps} steps (--stop-after); resume with --resume {ckpt_path}",
+                why = "--chunk-minutes" if chunk_over else "--stop-after"
+                print(f"[{stage}] stopped after {session_steps} steps ({why}); resume with --resume {ckpt_path}",
                       flush=True)
                 return
-        info["data"] = describe_data(paths, seqs)
+        if not a.cache:
+            info["data"] = describe_data(paths, seqs)
         info[f"steps_{stage}"] = str(step)
         info[f"minutes_{stage}"] = f"{(time.time() - t0) / 60:.1f}"
         info[f"final_loss_{stage}"] = f"{ema.get('total', float('nan')):.4f}"
@@ -602,19 +555,19 @@ def train(a) -> None:
             p.requires_grad_(True)
         state = None
     if val:
-        v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop)
+        v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop, val_infos)
         info["val_psnr"] = " ".join(f"{k}={x:.2f}dB" for k, x in v.items())
         print("final validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()), flush=True)
     info["finished_utc"] = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     save_ckpt(ckpt_path, net, None, "done", 0, 0.0, rng, info, cfg)
-    out = a.export or os.path.join(a.out, "model.safetensors")
+    out = a.export or os.path.join(a.out, "adapted.safetensors" if a.adapt else "model.safetensors")
     size = export(net, out, info)
     print(f"wrote {out}: {size / 1e6:.2f} MB ({n_params} parameters), run time {(time.time() - t_run0) / 60:.1f} min",
           flush=True)
 
 
 def save_ckpt(path, net, opt, stage, step, elapsed, rng, info, cfg):
-    ck = {"model": net.state_dict(), "stage": stage, "step": step, "elapsed_stage": elapsed, "rng": rng.getstate(),
+    ck = {"model": {k: v.detach().cpu() for k, v in net.state_dict().items()}, "stage": stage, "step": step, "elapsed_stage": elapsed, "rng": rng.getstate(),
           "info": dict(info), "config": {**cfg.__dict__, **{k: getattr(cfg, k).__dict__ for k in
                                                             ("flownet", "fusion_net", "attfusion_net")}}}
     if opt is not None:
@@ -676,6 +629,25 @@ def main(argv=None) -> int:
     g.add_argument("--val-every", type=int, default=0)
     g.add_argument("--val-targets", type=int, default=8)
     g.add_argument("--val-crop", type=parse_size, default=None)
+    g.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1, ... [cpu]")
+    g.add_argument("--chunk-minutes", type=float, default=0,
+                   help="stop (with a checkpoint) after this many minutes of this session; --resume continues")
+    g.add_argument("--physics-variant", action="store_true",
+                   help="the physics-informed variant (E-IC_T corrects the physics estimate; docs/model.md)")
+    g.add_argument("--gamma", type=float, help="intensity encoding the model works in (metadata 'gamma') [2.2]")
+    g.add_argument("--data-gamma", type=float, default=1.0,
+                   help="encoding gamma of sequences whose meta.json states none (as unroll --mode physics) [1]")
+    g.add_argument("--from", dest="from_model", metavar="MODEL.safetensors",
+                   help="start from this weights file (with --physics-variant: lifted to the variant)")
+    g.add_argument("--constant-lr", action="store_true", help="no warm-up or cosine decay")
+    g = ap.add_argument_group("adaptation to one recording (self-supervised; ground truth is never read)")
+    g.add_argument("--adapt", metavar="SEQUENCE", help="fine-tune --from on this recording alone (stage S), "
+                   "for --minutes; writes OUT/adapted.safetensors (or --export)")
+    g.add_argument("--minutes", type=float, help="with --adapt: the time budget (= --max-minutes)")
+    g = ap.add_argument_group("sample cache (data prepared in advance, e.g. for a short GPU slot)")
+    g.add_argument("--make-cache", metavar="DIR", help="draw --cache-samples samples from --data into DIR and exit")
+    g.add_argument("--cache-samples", type=int, default=2048)
+    g.add_argument("--cache", metavar="DIR", help="train on the samples of a cache instead of --data")
     g = ap.add_argument_group("export only")
     g.add_argument("--export-checkpoint", nargs=2, metavar=("CKPT", "OUT"))
     a = ap.parse_args(argv)
@@ -687,10 +659,22 @@ def main(argv=None) -> int:
         if a.export_checkpoint:
             export_checkpoint(*a.export_checkpoint)
             return 0
-        if not a.data and not a.resume:
-            ap.error("--data is required (or --make-data / --export-checkpoint)")
-        if a.resume and not a.data:
-            ap.error("--resume needs the same --data as the run it continues")
+        if a.adapt:
+            if not a.from_model and not a.resume:
+                ap.error("--adapt needs --from MODEL.safetensors (the model to fine-tune)")
+            if a.minutes is None and a.max_minutes is None:
+                ap.error("--adapt needs --minutes M")
+            a.max_minutes = a.minutes if a.minutes is not None else a.max_minutes
+            if a.supervised:
+                ap.error("--adapt uses the self-supervised losses only")
+        elif not a.data and not a.resume and not a.cache:
+            ap.error("--data is required (or --cache / --adapt / --make-data / --export-checkpoint)")
+        elif a.resume and not a.data and not a.cache:
+            ap.error("--resume needs the same --data (or --cache) as the run it continues")
+        if a.make_cache and a.cache:
+            ap.error("--make-cache draws from --data, not from --cache")
+        if a.device.startswith("cuda") and not torch.cuda.is_available():
+            ap.error(f"--device {a.device}: this PyTorch has no CUDA device")
         train(a)
     except DataError as e:
         print(f"train.py: error: {e}", file=sys.stderr)

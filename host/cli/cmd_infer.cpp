@@ -72,9 +72,17 @@ int cmd_infer(const Argv& argv) {
   const SafetensorsFile in_file = read_safetensors(inputs_path);
   ModelInputs in{input_array(in_file, inputs_path, "rs"), input_array(in_file, inputs_path, "ev1"),
                  input_array(in_file, inputs_path, "ev2"), input_array(in_file, inputs_path, "ev3")};
+  // The physics-informed variant also reads the physics estimate; other models refuse it.
+  if (weights.config.physics_input) {
+    if (!in_file.has("phys"))
+      throw Error(inputs_path + ": tensor 'phys' [B, 3, H, W] is missing: " + model_path + " is the physics-informed variant");
+    in.phys = input_array(in_file, inputs_path, "phys");
+  } else if (in_file.has("phys")) {
+    throw Error(inputs_path + ": tensor 'phys' is given, but " + model_path + " is not the physics-informed variant");
+  }
   std::vector<std::string> ignored;
   for (const auto& n : in_file.names())
-    if (n != "rs" && n != "ev1" && n != "ev2" && n != "ev3") ignored.push_back(n);
+    if (n != "rs" && n != "ev1" && n != "ev2" && n != "ev3" && n != "phys") ignored.push_back(n);
   if (!ignored.empty()) {
     std::cerr << "note: " << inputs_path << ": ignoring " << ignored.size() << " other tensor(s):";
     for (const auto& n : ignored) std::cerr << " " << n;

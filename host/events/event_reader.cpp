@@ -61,198 +61,6 @@ int time_unit_exponent(const std::string& unit, const std::string& what) {
   throw Error(what + ": unknown time unit '" + unit + "' (expected s, ms, us or ns)");
 }
 
-// ---- the sink --------------------------------------------------------------------------------
-
-EventSink::EventSink(const std::string& file, const EventReadOptions& options, EventReadReport& report,
-                     std::function<void(const EventStream&)> on_chunk, size_t chunk_events)
-    : file_(file), options_(options), report_(report), on_chunk_(std::move(on_chunk)), chunk_events_(chunk_events) {
-  if (options_.width < 0 || options_.height < 0 || options_.width > 65536 || options_.height > 65536)
-    throw Error(file_ + ": sensor size override " + std::to_string(options_.width) + "x" +
-                std::to_string(options_.height) + " is invalid (expected 1..65536)");
-  if (options_.t_begin_us && options_.t_end_us && *options_.t_end_us < *options_.t_begin_us)
-    throw Error(file_ + ": time window [" + std::to_string(*options_.t_begin_us) + ", " +
-                std::to_string(*options_.t_end_us) + ") ends before it begins");
-  if (options_.width > 0 && options_.height > 0) {
-    width_ = options_.width;
-    height_ = options_.height;
-    override_size_ = true;
-  }
-  report_.path = file_;
-}
-
-void EventSink::set_file_geometry(int width, int height, const std::string& source) {
-  if (width <= 0 || height <= 0) return;
-  if (width > 65536 || height > 65536)
-    throw Error(file_ + ": sensor size " + std::to_string(width) + "x" + std::to_string(height) + " from " + source +
-                " is invalid (at most 65536x65536)");
-  if (override_size_) {
-    if (width != width_ || height != height_)
-      note("sensor size " + std::to_string(width) + "x" + std::to_string(height) + " from " + source +
-           " overridden by the option " + std::to_string(width_) + "x" + std::to_string(height_));
-    return;
-  }
-  width_ = width;
-  height_ = height;
-  note("sensor size " + std::to_string(width) + "x" + std::to_string(height) + " from " + source);
-}
-
-std::string EventSink::where() const {
-  std::string s = file_ + ": record " + std::to_string(index_);
-  if (line_ > 0) s += " (line " + std::to_string(line_) + ")";
-  else if (byte_offset_ >= 0) s += " (byte " + std::to_string(byte_offset_) + ")";
-  return s + ": ";
-}
-
-void EventSink::fail(const std::string& rule) const { throw Error(where() + rule); }
-
-void EventSink::fail_rule(const std::string& rule) const {
-  fail(rule + " (use --on-bad drop or sort, or EventReadOptions::on_bad, to drop such records and count them)");
-}
-
-void EventSink::unknown_record(const std::string& what) {
-  ++report_.records;
-  if (options_.on_bad == BadEventPolicy::error)
-    fail(what + " (use --on-bad drop to skip and count such records)");
-  ++report_.dropped_unknown_word;
-  ++index_;
-}
-
-bool EventSink::add_float_time(double t_us, int64_t x, int64_t y, int64_t p) {
-  if (!std::isfinite(t_us)) {
-    ++report_.records;
-    return reject(&EventReadReport::dropped_nan, [&] {
-      return "time is " + std::string(std::isnan(t_us) ? "NaN" : "infinite") + " (rule: every time must be a finite number)";
-    });
-  }
-  if (std::fabs(t_us) > 9.0e18) {
-    ++report_.records;
-    return reject(&EventReadReport::dropped_nan,
-                  [&] { return "time " + std::to_string(t_us) + " us does not fit in int64 microseconds"; });
-  }
-  return add(std::llround(t_us), x, y, p);
-}
-
-bool EventSink::add_float(double t_us, double x, double y, double p) {
-  auto integral = [](double v) { return std::isfinite(v) && v == std::floor(v) && std::fabs(v) < 1e15; };
-  if (!integral(x) || !integral(y)) {
-    ++report_.records;
-    return reject(&EventReadReport::dropped_out_of_sensor, [&] {
-      std::ostringstream os;
-      os << "coordinate x=" << x << " y=" << y << " is not an integer pixel (rule: x, y integral)";
-      return os.str();
-    });
-  }
-  if (!integral(p)) {
-    ++report_.records;
-    return reject(&EventReadReport::dropped_bad_polarity, [&] {
-      std::ostringstream os;
-      os << "polarity " << p << " is not 0/1 or -1/+1";
-      return os.str();
-    });
-  }
-  return add_float_time(t_us, int64_t(x), int64_t(y), int64_t(p));
-}
-
-bool EventSink::add(int64_t t, int64_t x, int64_t y, int64_t p) {
-  ++report_.records;
-  int8_t pol;
-  if (p == 1) pol = 1;
-  else if (p == 0 || p == -1) pol = -1;
-  else return reject(&EventReadReport::dropped_bad_polarity,
-                     [&] { return "polarity " + std::to_string(p) + " is not one of 0/1, -1/+1, false/true"; });
-  const int64_t w = width_ > 0 ? width_ : 65536, h = height_ > 0 ? height_ : 65536;
-  if (x < 0 || y < 0 || x >= w || y >= h) {
-    return reject(&EventReadReport::dropped_out_of_sensor, [&] {
-      std::string rule = "x=" + std::to_string(x) + " y=" + std::to_string(y) + " is outside the ";
-      rule += width_ > 0 ? std::to_string(width_) + "x" + std::to_string(height_) + " sensor (rule: 0 <= x < width, 0 <= y < height)"
-                         : std::string("16-bit coordinate range (rule: 0 <= x, y < 65536)");
-      return rule;
-    });
-  }
-  if (have_last_ && t < last_t_) {
-    if (options_.on_bad == BadEventPolicy::sort) {
-      unsorted_ = true;
-    } else {
-      return reject(&EventReadReport::dropped_time_order, [&] {
-        return "t=" + std::to_string(t) + " us is earlier than the previous record's t=" + std::to_string(last_t_) +
-               " us (rule: timestamps non-decreasing)";
-      });
-    }
-  } else {
-    last_t_ = t;
-    have_last_ = true;
-  }
-  ++index_;
-  if ((options_.t_begin_us && t < *options_.t_begin_us) || (options_.t_end_us && t >= *options_.t_end_us)) {
-    ++report_.outside_window;
-    if (options_.t_end_us && t >= *options_.t_end_us && options_.on_bad != BadEventPolicy::sort) {
-      done_ = true;
-      report_.stopped_early = true;
-    }
-    return !done_;
-  }
-  max_x_ = std::max<int>(max_x_, int(x));
-  max_y_ = std::max<int>(max_y_, int(y));
-  out_.push(t, uint16_t(x), uint16_t(y), pol);
-  ++report_.kept;
-  if (on_chunk_ && options_.on_bad != BadEventPolicy::sort && out_.size() >= chunk_events_) flush_chunk();
-  return true;
-}
-
-void EventSink::flush_chunk() {
-  if (out_.empty()) return;
-  out_.width = width_;
-  out_.height = height_;
-  on_chunk_(out_);
-  out_.t.clear();
-  out_.x.clear();
-  out_.y.clear();
-  out_.p.clear();
-}
-
-EventStream EventSink::finish() {
-  if (unsorted_) {
-    std::vector<uint32_t> order(out_.size());
-    std::iota(order.begin(), order.end(), 0u);
-    std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return out_.t[a] < out_.t[b]; });
-    EventStream s;
-    s.reserve(order.size());
-    for (uint32_t i : order) s.push(out_.t[i], out_.x[i], out_.y[i], out_.p[i]);
-    out_ = std::move(s);
-    report_.sorted = true;
-  }
-  if (!geometry_known()) {
-    width_ = std::max(max_x_ + 1, 1);
-    height_ = std::max(max_y_ + 1, 1);
-    report_.size_inferred = true;
-    note("sensor size " + std::to_string(width_) + "x" + std::to_string(height_) +
-         " inferred from the largest x and y (the file does not say; pass width/height to set it)");
-  }
-  report_.width = width_;
-  report_.height = height_;
-  out_.width = width_;
-  out_.height = height_;
-  if (on_chunk_) {
-    for (size_t i = 0; i < out_.size(); i += chunk_events_) {
-      if (i == 0 && out_.size() <= chunk_events_) {
-        flush_chunk();
-        break;
-      }
-      EventStream c;
-      c.width = width_;
-      c.height = height_;
-      const size_t e = std::min(out_.size(), i + chunk_events_);
-      c.t.assign(out_.t.begin() + i, out_.t.begin() + e);
-      c.x.assign(out_.x.begin() + i, out_.x.begin() + e);
-      c.y.assign(out_.y.begin() + i, out_.y.begin() + e);
-      c.p.assign(out_.p.begin() + i, out_.p.begin() + e);
-      on_chunk_(c);
-    }
-    return {};
-  }
-  return std::move(out_);
-}
-
 // ---- detection and dispatch ------------------------------------------------------------------
 
 namespace {
@@ -290,6 +98,23 @@ std::string detect_format(ByteSource& src, const std::string& path) {
               "' or the first bytes; pass --format (txt, h5, npy, npz, evt2, evt3, dat, aedat4)");
 }
 
+BinaryGuess guess_binary_format(ByteSource& src) {
+  const auto head = read_range(src, 0, 64);
+  auto starts = [&](const char* magic, size_t n) { return head.size() >= n && std::memcmp(head.data(), magic, n) == 0; };
+  if (starts("\x89HDF\r\n\x1a\n", 8)) return {"h5", ".h5", "an HDF5 file (HDF5 signature)"};
+  if (starts("\x93NUMPY", 6)) return {"npy", ".npy", "a NumPy .npy array (\\x93NUMPY magic)"};
+  if (starts("PK\x03\x04", 4) || starts("PK\x05\x06", 4)) return {"npz", ".npz", "a zip archive (.npz; 'PK' magic)"};
+  if (starts("#!AER-DAT4", 10)) return {"aedat4", ".aedat4", "an AEDAT 4 recording ('#!AER-DAT4' magic)"};
+  if (!head.empty() && head[0] == '%') {
+    const PropheseeHeader h = parse_prophesee_header(src);
+    if (h.evt == "3.0") return {"evt3", ".raw", "a Prophesee EVT 3.0 recording (its '%' header says EVT 3.0)"};
+    if (h.evt == "2.0") return {"evt2", ".raw", "a Prophesee EVT 2.0 recording (its '%' header says EVT 2.0)"};
+    if (!h.evt.empty()) return {"", "", "a Prophesee EVT " + h.evt + " recording, which is not supported (EVT 2.0 and 3.0 are)"};
+    return {"dat", ".dat", "a Prophesee recording ('%' header lines, no EVT encoding named: .dat, or .raw with --format evt2/evt3)"};
+  }
+  return {"", "", "its first bytes match no event format vkunroll reads"};
+}
+
 void read_source(const std::string& format, ByteSource& src, EventSink& sink) {
   if (format == "txt" || format == "csv") read_text(src, sink);
   else if (format == "evt2") read_evt2(src, sink);
@@ -299,6 +124,28 @@ void read_source(const std::string& format, ByteSource& src, EventSink& sink) {
   else if (format == "npy") read_npy(src, sink);
   else throw Error(src.name() + ": unknown event format '" + format +
                    "' (expected txt, h5, npy, npz, evt2, evt3, dat, aedat4)");
+}
+
+std::string canonical_format(const std::string& format) {
+  if (format == "hdf5") return "h5";
+  if (format == "csv") return "txt";
+  return format;
+}
+
+EventStream read_empty_file(EventSink& sink) {
+  EventReadReport& rep = sink.report();
+  rep.format = "empty";
+  rep.time_unit = "us";
+  rep.empty_file = true;
+  sink.note("the event file is empty (0 bytes): no events");
+  return sink.finish();
+}
+
+void check_event_file(const std::string& path) {
+  std::error_code ec;
+  const auto st = std::filesystem::status(path, ec);
+  if (!std::filesystem::exists(st)) throw Error(path + ": event file does not exist");
+  if (std::filesystem::is_directory(st)) throw Error(path + ": is a folder, expected an event file");
 }
 
 }  // namespace detail
@@ -315,14 +162,17 @@ EventStream run_reader(const std::string& path, const EventReadOptions& options,
   EventReadReport local;
   EventReadReport& rep = report ? *report : local;
   rep = EventReadReport{};
-  if (!std::filesystem::exists(path)) throw Error(path + ": event file does not exist");
-  if (std::filesystem::is_directory(path)) throw Error(path + ": is a folder, expected an event file");
+  detail::check_event_file(path);
   std::string format = options.format;
+  std::error_code ec;
+  if (std::filesystem::file_size(path, ec) == 0 && !ec) {
+    detail::EventSink sink(path, options, rep, std::move(on_chunk), chunk_events);
+    return detail::read_empty_file(sink);
+  }
   std::unique_ptr<detail::FileSource> src;
   if (format.empty() || (format != "h5" && format != "npz")) src = std::make_unique<detail::FileSource>(path);
   if (format.empty()) format = detail::detect_format(*src, path);
-  if (format == "hdf5") format = "h5";
-  if (format == "csv") format = "txt";
+  format = detail::canonical_format(format);
   rep.format = format;
   rep.time_unit = "us";
   detail::EventSink sink(path, options, rep, std::move(on_chunk), chunk_events);
@@ -347,26 +197,85 @@ uint64_t scan_events(const std::string& path, const EventReadOptions& options,
   return n;
 }
 
+ReadStats& ReadStats::operator+=(const ReadStats& o) {
+  records += o.records;
+  kept += o.kept;
+  outside_window += o.outside_window;
+  dropped_out_of_sensor += o.dropped_out_of_sensor;
+  dropped_time_order += o.dropped_time_order;
+  dropped_nan += o.dropped_nan;
+  dropped_unknown_word += o.dropped_unknown_word;
+  dropped_bad_polarity += o.dropped_bad_polarity;
+  reordered += o.reordered;
+  return *this;
+}
+
+EventTotals& EventTotals::operator+=(const EventTotals& o) {
+  reads += o.reads;
+  delivered += o.delivered;
+  records += o.records;
+  valid += o.valid;
+  dropped_out_of_sensor += o.dropped_out_of_sensor;
+  dropped_time_order += o.dropped_time_order;
+  dropped_nan += o.dropped_nan;
+  dropped_unknown_word += o.dropped_unknown_word;
+  dropped_bad_polarity += o.dropped_bad_polarity;
+  reordered += o.reordered;
+  empty_files += o.empty_files;
+  return *this;
+}
+
+namespace {
+
+void drop_reasons(std::ostream& os, uint64_t sensor, uint64_t order, uint64_t nan, uint64_t polarity, uint64_t unknown) {
+  const char* sep = "";
+  auto part = [&](uint64_t n, const char* what) {
+    if (n) os << sep << n << " " << what, sep = ", ";
+  };
+  part(sensor, "out of sensor");
+  part(order, "out of time order");
+  part(nan, "NaN/inf time");
+  part(polarity, "bad polarity");
+  part(unknown, "unknown word/line");
+}
+
+}  // namespace
+
+std::string EventTotals::summary() const {
+  std::ostringstream os;
+  if (records == 0) {
+    os << "no event records" << (empty_files ? " (the event file is empty: 0 bytes)" : "") << " in " << reads
+       << " windowed reads";
+    return os.str();
+  }
+  os << records << " records decoded, " << valid << " valid, " << dropped() << " dropped";
+  if (dropped()) {
+    os << " (";
+    drop_reasons(os, dropped_out_of_sensor, dropped_time_order, dropped_nan, dropped_bad_polarity, dropped_unknown_word);
+    os << ")";
+  }
+  if (reordered) os << ", " << reordered << " reordered by the sort";
+  os << "; " << reads << " windowed reads delivered " << delivered << " events";
+  return os.str();
+}
+
 std::string EventReadReport::summary() const {
   std::ostringstream os;
   os << (path.empty() ? std::string("events") : path) << " [" << format << "]: " << records << " records, " << kept
      << " kept";
+  if (empty_file) os << " (the file is empty: 0 bytes)";
   if (outside_window) os << ", " << outside_window << " outside the time window";
   if (stopped_early) os << " (window read: stopped early / seeked)";
   os << "; sensor " << width << "x" << height << (size_inferred ? " (inferred)" : "");
   if (!time_unit.empty() && time_unit != "us") os << "; times read in " << time_unit;
   const uint64_t d = dropped();
   if (d) {
-    os << "; dropped " << d << ":";
-    if (dropped_out_of_sensor) os << " " << dropped_out_of_sensor << " out of sensor";
-    if (dropped_time_order) os << " " << dropped_time_order << " out of time order";
-    if (dropped_nan) os << " " << dropped_nan << " NaN/inf time";
-    if (dropped_bad_polarity) os << " " << dropped_bad_polarity << " bad polarity";
-    if (dropped_unknown_word) os << " " << dropped_unknown_word << " unknown word/line";
+    os << "; dropped " << d << ": ";
+    drop_reasons(os, dropped_out_of_sensor, dropped_time_order, dropped_nan, dropped_bad_polarity, dropped_unknown_word);
   } else {
     os << "; nothing dropped";
   }
-  if (sorted) os << "; out-of-order records found and the stream was sorted by t";
+  if (sorted) os << "; out-of-order records found and the stream was sorted by t (" << reordered << " reordered)";
   if (!ignored.empty()) {
     os << "; ignored:";
     for (const auto& [k, v] : ignored) os << " " << v << " " << k;

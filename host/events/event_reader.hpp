@@ -45,26 +45,57 @@ struct EventReadOptions {
   std::string format;
 };
 
-struct EventReadReport {
-  std::string format;   // the format that was read, e.g. "evt3", "h5:dsec", "npz:record"
-  std::string path;
+// What one read decoded and what it did with each record. Every record decoded has exactly one
+// outcome: kept, outside_window or one of the dropped_* reasons; records = their sum.
+struct ReadStats {
   uint64_t records = 0; // event records decoded (inside or outside the window)
   uint64_t kept = 0;    // events in the returned stream
   uint64_t outside_window = 0;  // valid records outside [t_begin, t_end) (not an error)
   uint64_t dropped_out_of_sensor = 0, dropped_time_order = 0, dropped_nan = 0,
            dropped_unknown_word = 0, dropped_bad_polarity = 0;
+  // on_bad=sort: valid records earlier than a record before them in the file (kept, then moved by
+  // the sort). Always 0 under error/drop (there such a record is an error or dropped_time_order).
+  uint64_t reordered = 0;
+
+  uint64_t dropped() const {
+    return dropped_out_of_sensor + dropped_time_order + dropped_nan + dropped_unknown_word + dropped_bad_polarity;
+  }
+  ReadStats& operator+=(const ReadStats& o);
+};
+
+struct EventReadReport : ReadStats {
+  std::string format;   // the format that was read, e.g. "evt3", "h5:dsec", "npz:record"
+  std::string path;
   bool sorted = false;          // on_bad=sort found out-of-order records and sorted the stream
   bool size_inferred = false;   // width/height came from max(x)+1, max(y)+1
   bool stopped_early = false;   // the reader stopped at t_end or seeked to t_begin (window read)
+  bool empty_file = false;      // the file has 0 bytes: an empty stream, records = 0
   int width = 0, height = 0;
   std::string time_unit;        // unit the file's times were read in ("us" for binary formats)
   std::map<std::string, uint64_t> ignored;  // records of other kinds that were skipped, e.g. "EXT_TRIGGER"
   std::vector<std::string> notes;           // what the reader chose (layout, geometry source, ...)
 
+  std::string summary() const;  // one paragraph for humans: counts, drops, ignored, notes
+};
+
+// What all windowed reads of one file (EventFileReader) or of a sequence's files met so far, each
+// record counted once however many windows covered it (windows of neighbouring frames overlap).
+struct EventTotals {
+  uint64_t reads = 0;      // windowed reads
+  uint64_t delivered = 0;  // events returned, summed over the reads (an event in two windows counts twice)
+  uint64_t records = 0;    // distinct records decoded
+  uint64_t valid = 0;      // distinct records that broke no rule (kept by a window or outside all of them)
+  uint64_t dropped_out_of_sensor = 0, dropped_time_order = 0, dropped_nan = 0,
+           dropped_unknown_word = 0, dropped_bad_polarity = 0;
+  uint64_t reordered = 0;  // distinct valid records out of file order (on_bad=sort)
+  uint64_t empty_files = 0;  // event files of 0 bytes among those read
+
   uint64_t dropped() const {
     return dropped_out_of_sensor + dropped_time_order + dropped_nan + dropped_unknown_word + dropped_bad_polarity;
   }
-  std::string summary() const;  // one paragraph for humans: counts, drops, ignored, notes
+  EventTotals& operator+=(const EventTotals& o);
+  // "22219 records decoded, 11110 dropped (11110 out of time order), ..." or "no event records".
+  std::string summary() const;
 };
 
 // Reads the whole file (or the window) into memory. Throws vkunroll::Error on any problem.
@@ -87,6 +118,11 @@ struct ImageTimestamps {
   std::vector<double> image_ts, start_image_ts, end_image_ts;
 };
 ImageTimestamps read_image_timestamps(const std::string& h5_path);
+
+// The layout read_events finds in an HDF5 file: "events" (the project's events/{t,x,y,p}), "dsec",
+// "gevrs" (N x 4 'events' + 'img_to_idx'), "v2e" (N x 4 'events'), "dre" (top-level x, y, p, t), or
+// "" when it holds no event datasets. Throws Error when the file is not HDF5.
+std::string hdf5_event_layout(const std::string& h5_path);
 
 // An integer index dataset of an HDF5 event file, e.g. Gev-RS `img_to_idx` or DSEC `ms_to_idx`.
 std::vector<int64_t> read_event_index(const std::string& h5_path, const std::string& dataset);

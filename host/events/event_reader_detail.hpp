@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "vkunroll/host/events/event_file_reader.hpp"
+#include "vkunroll/host/events/event_index_detail.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #include "vkunroll/base/error.hpp"
 
@@ -64,6 +66,9 @@ class EventSink {
  public:
   EventSink(const std::string& file, const EventReadOptions& options, EventReadReport& report,
             std::function<void(const EventStream&)> on_chunk = nullptr, size_t chunk_events = 0);
+  ~EventSink();
+  EventSink(const EventSink&) = delete;
+  EventSink& operator=(const EventSink&) = delete;
 
   // Sensor size found in the file (0 = unknown); options' width/height win when both are set.
   void set_file_geometry(int width, int height, const std::string& source);
@@ -83,19 +88,23 @@ class EventSink {
   bool add_float_time(double t_us, int64_t x, int64_t y, int64_t p);
   // A record whose coordinates are floats (checked to be integral and finite).
   bool add_float(double t_us, double x, double y, double p);
+  // A record whose time cannot be used (beyond int64 us, ...): counted with NaN times.
+  template <class Message>
+  bool bad_time(Message&& what) {
+    return reject(Outcome::nan, what);
+  }
   // A word/line/record the reader does not understand: error, or counted as dropped_unknown_word.
   // `what` is a string or a callable returning one (built only when it becomes an error).
   void unknown_record(const std::string& what);
   template <class Message>
   void unknown_record_lazy(Message&& what) {
     if (options_.on_bad == BadEventPolicy::error) unknown_record(what());
-    ++report_.records;
-    ++report_.dropped_unknown_word;
+    tally(Outcome::unknown_word, false);
     ++index_;
   }
   // A record of another kind the reader skips on purpose (trigger, IMU, ...): counted only.
   void ignored(const std::string& kind, uint64_t n = 1) { report_.ignored[kind] += n; }
-  void note(const std::string& text) { report_.notes.push_back(text); }
+  void note(const std::string& text);  // a note once (repeated notes of resumed reads are merged)
 
   // The reader's count of records it is about to decode: reserves memory (whole-file reads only,
   // at most 16M events) so the arrays do not grow by copying.
@@ -107,6 +116,36 @@ class EventSink {
   EventReadReport& report() { return report_; }
   const std::string& file() const { return file_; }
 
+  // ---- reads through a StreamIndex (EventFileReader; see event_index_detail.hpp) ----
+  // Streamed readers start at `from` (nullptr: the data start), call boundary() at their start and
+  // at every checkpoint offset, stop when boundary() returns false, and call end_of_data() when
+  // they reach the end. Without an index they read from the start and never checkpoint.
+  void use_index(StreamIndex* index, const Checkpoint* from, uint64_t stop_offset);
+  bool indexing() const { return index_map_ != nullptr; }
+  StreamIndex* index() const { return index_map_; }
+  const Checkpoint* resume_point() const { return from_ ? &*from_ : nullptr; }
+  // Restores the record index and time-order state of a checkpoint the reader resumes at.
+  void resume(const Checkpoint& c);
+  // The reader is at a record boundary; `c` holds its offset, next record index and decoder state
+  // (the sink adds its own). Returns false when the reader must stop here.
+  bool boundary(Checkpoint c);
+  void end_of_data(Checkpoint c);
+  // First offset of the next checkpoint after `offset` (UINT64_MAX when not indexing).
+  uint64_t next_checkpoint(uint64_t offset, uint64_t base) const {
+    return indexing() ? next_checkpoint_offset(offset, base) : UINT64_MAX;
+  }
+  // Also count every record into `totals`, once per record index (`seen` remembers which).
+  void count_into(EventTotals* totals, RecordRanges* seen) { totals_ = totals, seen_ = seen; }
+  // Random-access readers: report the t of the first and last row and stop (EventFileReader uses it
+  // to skip files whose span misses a window).
+  void probe_time_span() { probe_ = true; }
+  bool probing() const { return probe_; }
+  void probed(double t_first_us, double t_last_us) { probe_first_ = t_first_us, probe_last_ = t_last_us; }
+  std::pair<double, double> probe_result() const { return {probe_first_, probe_last_}; }
+  // Smallest and largest time of the valid records since the last checkpoint (of the whole read
+  // for the random-access formats, which have none); min > max when there were none.
+  std::pair<int64_t, int64_t> valid_time_range() const { return {seg_min_, seg_max_}; }
+
   // Flush, sort (policy sort), infer the size when unknown. Returns the kept stream (empty when
   // chunks were delivered to on_chunk).
   EventStream finish();
@@ -116,15 +155,19 @@ class EventSink {
   [[noreturn]] void fail(const std::string& rule) const;
 
  private:
+  enum class Outcome { kept, outside_window, out_of_sensor, time_order, nan, unknown_word, bad_polarity };
   // Error (the rule's message is built only then) or count and drop.
   template <class Rule>
-  bool reject(uint64_t EventReadReport::*counter, Rule&& rule) {
+  bool reject(Outcome outcome, Rule&& rule) {
     if (options_.on_bad == BadEventPolicy::error) fail_rule(rule());
-    ++(report_.*counter);
+    tally(outcome, false);
     ++index_;
     return !done_;
   }
   [[noreturn]] void fail_rule(const std::string& rule) const;
+  void tally(Outcome outcome, bool reordered);
+  void count_distinct(Outcome outcome, bool reordered);
+  void merge_seen();
   void flush_chunk();
 
   std::string file_;
@@ -143,6 +186,19 @@ class EventSink {
   bool unsorted_ = false;
   bool done_ = false;
   int max_x_ = -1, max_y_ = -1;
+  // index building
+  StreamIndex* index_map_ = nullptr;
+  std::optional<Checkpoint> from_;  // a copy: the index's vector may grow during the read
+  uint64_t stop_ = UINT64_MAX;
+  std::optional<Checkpoint> open_;  // start of the segment being built
+  int64_t seg_min_ = INT64_MAX, seg_max_ = INT64_MIN;
+  // distinct counting
+  EventTotals* totals_ = nullptr;
+  RecordRanges* seen_ = nullptr;
+  size_t seen_cursor_ = 0;
+  std::vector<std::pair<uint64_t, uint64_t>> runs_;  // record ranges this read decoded
+  bool probe_ = false;
+  double probe_first_ = 0, probe_last_ = 0;
 };
 
 // Time unit name -> microseconds per unit as a power of ten exponent: s 6, ms 3, us 0, ns -3.
@@ -170,8 +226,28 @@ struct PropheseeHeader {
 };
 PropheseeHeader parse_prophesee_header(ByteSource& src);
 
+// What a binary file that was taken for text looks like, from its magic bytes or '%' header:
+// format "evt3", extension ".raw", description "a Prophesee EVT 3.0 recording (...)"; format empty
+// when nothing matches.
+struct BinaryGuess {
+  std::string format, extension, description;
+};
+BinaryGuess guess_binary_format(ByteSource& src);
+
 // Format of a source from its magic bytes/header and the file name's extension.
 std::string detect_format(ByteSource& src, const std::string& path);
+
+// "hdf5" -> "h5", "csv" -> "txt"; others unchanged.
+std::string canonical_format(const std::string& format);
+// Throws Error when `path` does not exist or is a folder.
+void check_event_file(const std::string& path);
+// A 0-byte event file: an empty stream, the report says so (empty_file, records 0).
+EventStream read_empty_file(EventSink& sink);
+
+// An EventFileReader over bytes in memory (a streamed format or npy; the index fuzzer uses it).
+// `data` must outlive the reader.
+EventFileReader memory_file_reader(const std::string& name, const uint8_t* data, size_t size, const std::string& format,
+                                   const EventReadOptions& options);
 
 // Reads `src` with the given (already detected) format into the sink; the fuzzers call this.
 void read_source(const std::string& format, ByteSource& src, EventSink& sink);

@@ -184,9 +184,15 @@ struct TableEntry {
   int32_t stream = 0;
 };
 
-}  // namespace
+struct AedatHeader {
+  int32_t compression = 0;
+  int64_t table_pos = -1;
+  std::map<int, StreamInfo> streams;
+  int event_stream = -1;
+  uint64_t data_begin = 0, data_end = 0;
+};
 
-void read_aedat4(ByteSource& src, EventSink& sink) {
+AedatHeader parse_aedat_header(ByteSource& src, EventSink& sink) {
   const std::string& file = src.name();
   const auto magic = read_range(src, 0, 18);
   if (magic.size() < 18 || std::memcmp(magic.data(), "#!AER-DAT4.0\r\n", 14) != 0)
@@ -198,88 +204,164 @@ void read_aedat4(ByteSource& src, EventSink& sink) {
   const auto hbuf = read_range(src, 18, hsize);
   FlatView hv(hbuf.data(), hbuf.size(), file + ": IOHeader");
   const uint64_t root = hv.root();
-  int32_t compression = 0;
-  int64_t table_pos = -1;
+  AedatHeader h;
   std::string xml;
-  if (uint64_t f = hv.field(root, 0)) compression = hv.scalar<int32_t>(f);
-  if (uint64_t f = hv.field(root, 1)) table_pos = hv.scalar<int64_t>(f);
+  if (uint64_t f = hv.field(root, 0)) h.compression = hv.scalar<int32_t>(f);
+  if (uint64_t f = hv.field(root, 1)) h.table_pos = hv.scalar<int64_t>(f);
   if (uint64_t f = hv.field(root, 2)) xml = hv.str(f);
-  if (compression < 0 || compression > 4)
-    throw Error(file + ": AEDAT 4 compression type " + std::to_string(compression) + " is unknown");
+  if (h.compression < 0 || h.compression > 4)
+    throw Error(file + ": AEDAT 4 compression type " + std::to_string(h.compression) + " is unknown");
   static const char* kCompression[] = {"none", "LZ4", "LZ4 high", "zstd", "zstd high"};
-  const std::map<int, StreamInfo> streams = parse_streams(xml);
-  int event_stream = -1;
-  for (const auto& [id, s] : streams)
+  h.streams = parse_streams(xml);
+  for (const auto& [id, s] : h.streams)
     if (s.type == "EVTS") {
-      if (event_stream < 0) event_stream = id;
-      else sink.note("more than one event stream; reading stream " + std::to_string(event_stream) + ", counting stream " +
-                     std::to_string(id) + " as ignored");
+      if (h.event_stream < 0) h.event_stream = id;
+      else sink.note("more than one event stream; reading stream " + std::to_string(h.event_stream) +
+                     ", counting stream " + std::to_string(id) + " as ignored");
     }
-  if (event_stream < 0)
+  if (h.event_stream < 0)
     throw Error(file + ": the AEDAT 4 info declares no polarity event stream (typeIdentifier EVTS)");
-  const StreamInfo& es = streams.at(event_stream);
+  const StreamInfo& es = h.streams.at(h.event_stream);
   sink.set_file_geometry(es.width, es.height, "the AEDAT 4 info (sizeX/sizeY of stream '" + es.name + "')");
-  sink.note("AEDAT 4: compression " + std::string(kCompression[compression]) + ", event stream " +
-            std::to_string(event_stream) + " ('" + es.name + "') of " + std::to_string(streams.size()) + " streams");
+  sink.note("AEDAT 4: compression " + std::string(kCompression[h.compression]) + ", event stream " +
+            std::to_string(h.event_stream) + " ('" + es.name + "') of " + std::to_string(h.streams.size()) + " streams");
+  h.data_begin = 18 + uint64_t(hsize);
+  h.data_end = (h.table_pos > int64_t(h.data_begin) && uint64_t(h.table_pos) <= src.size()) ? uint64_t(h.table_pos)
+                                                                                           : src.size();
+  return h;
+}
 
-  const uint64_t data_begin = 18 + uint64_t(hsize);
-  const uint64_t data_end = (table_pos > int64_t(data_begin) && uint64_t(table_pos) <= src.size()) ? uint64_t(table_pos) : src.size();
-
-  // Packet time ranges from the data table let a window skip packets without decompressing them.
+// Packet time ranges from the data table (one-off window reads skip packets without decompressing
+// them); empty when the table is absent or unusable (a note says so).
+std::map<int64_t, TableEntry> read_data_table(ByteSource& src, EventSink& sink, const AedatHeader& h) {
   std::map<int64_t, TableEntry> table;
-  const EventReadOptions& o = sink.options();
-  std::vector<uint8_t> in, out;
-  if ((o.t_begin_us || o.t_end_us) && o.on_bad != BadEventPolicy::sort && table_pos > 0 && uint64_t(table_pos) < src.size()) {
-    try {
-      in = read_range(src, uint64_t(table_pos), size_t(std::min<uint64_t>(src.size() - uint64_t(table_pos), kMaxPacket)));
-      decompress(compression, in, out, file + ": data table");
-      FlatView tv(out.data(), out.size(), file + ": data table");
-      const uint64_t troot = tv.root(4);  // size-prefixed
-      if (uint64_t f = tv.field(troot, 0)) {
-        const auto [first, len] = tv.vec(f, 4);
-        for (uint64_t i = 0; i < len; ++i) {
-          const uint64_t e = tv.deref(first + 4 * i);
-          TableEntry te;
-          if (uint64_t g = tv.field(e, 0)) te.offset = tv.scalar<int64_t>(g);
-          if (uint64_t g = tv.field(e, 1)) te.stream = tv.scalar<int32_t>(g);
-          if (uint64_t g = tv.field(e, 3)) te.t_begin = tv.scalar<int64_t>(g);
-          if (uint64_t g = tv.field(e, 4)) te.t_end = tv.scalar<int64_t>(g);
-          table[te.offset] = te;
-        }
+  if (h.table_pos <= 0 || uint64_t(h.table_pos) >= src.size()) return table;
+  const std::string& file = src.name();
+  try {
+    std::vector<uint8_t> out;
+    const auto in = read_range(src, uint64_t(h.table_pos),
+                               size_t(std::min<uint64_t>(src.size() - uint64_t(h.table_pos), kMaxPacket)));
+    decompress(h.compression, in, out, file + ": data table");
+    FlatView tv(out.data(), out.size(), file + ": data table");
+    const uint64_t troot = tv.root(4);  // size-prefixed
+    if (uint64_t f = tv.field(troot, 0)) {
+      const auto [first, len] = tv.vec(f, 4);
+      for (uint64_t i = 0; i < len; ++i) {
+        const uint64_t e = tv.deref(first + 4 * i);
+        TableEntry te;
+        if (uint64_t g = tv.field(e, 0)) te.offset = tv.scalar<int64_t>(g);
+        if (uint64_t g = tv.field(e, 1)) te.stream = tv.scalar<int32_t>(g);
+        if (uint64_t g = tv.field(e, 3)) te.t_begin = tv.scalar<int64_t>(g);
+        if (uint64_t g = tv.field(e, 4)) te.t_end = tv.scalar<int64_t>(g);
+        table[te.offset] = te;
       }
-      sink.note("data table: " + std::to_string(table.size()) + " packets indexed");
-    } catch (const Error& e) {
-      table.clear();
-      sink.note(std::string("data table unusable, reading every packet (") + e.what() + ")");
+    }
+    sink.note("data table: " + std::to_string(table.size()) + " packets indexed");
+  } catch (const Error& e) {
+    table.clear();
+    sink.note(std::string("data table unusable, reading every packet (") + e.what() + ")");
+  }
+  return table;
+}
+
+// One packet's payload (decompressed into `out`): its events into the sink, or its elements
+// counted as ignored. False when the sink says stop.
+bool read_packet(ByteSource& src, EventSink& sink, const AedatHeader& h, uint64_t off, int32_t stream, int32_t size,
+                 const StreamInfo& info, uint64_t& record, std::vector<uint8_t>& in, std::vector<uint8_t>& out) {
+  const std::string where = src.name() + ": packet at byte " + std::to_string(off);
+  if (stream != h.event_stream && info.type == "FRME") {
+    sink.ignored("FRME packets");
+    return true;
+  }
+  in.resize(size_t(size));
+  if (src.read_at(off + 8, in.data(), in.size()) != in.size()) throw Error(where + ": read error");
+  decompress(h.compression, in, out, where);
+  FlatView pv(out.data(), out.size(), where);
+  pv.check(0, 8);
+  const uint32_t prefixed = pv.scalar<uint32_t>(0);
+  if (uint64_t(prefixed) + 4 > out.size()) pv.fail("size prefix larger than the packet");
+  const uint64_t proot = pv.root(4);
+  const uint64_t elements = pv.field(proot, 0);
+  if (stream != h.event_stream) {
+    uint64_t n = 0;
+    if (elements) n = pv.scalar<uint32_t>(pv.deref(elements));
+    sink.ignored(info.type + " elements (stream '" + info.name + "')", n);
+    return true;
+  }
+  pv.check(8, 4);  // the file identifier after the size prefix and root offset
+  if (std::memcmp(out.data() + 8, "EVTS", 4) != 0) pv.fail("event packet without the EVTS identifier");
+  if (!elements) return true;
+  const auto [first, n] = pv.vec(elements, 16);
+  const uint8_t* e = out.data() + first;
+  for (uint64_t i = 0; i < n; ++i, e += 16) {
+    int64_t t;
+    int16_t x, y;
+    std::memcpy(&t, e, 8);
+    std::memcpy(&x, e + 8, 2);
+    std::memcpy(&y, e + 10, 2);
+    sink.set_record_index(record++);
+    sink.set_byte_offset(int64_t(off));
+    if (!sink.add(t, x, y, e[12])) {
+      record += n - 1 - i;  // the rest of the packet is not decoded; a resumed read starts at a packet
+      return false;
     }
   }
+  return true;
+}
 
-  uint64_t off = data_begin, record = 0;
-  while (off < data_end && !sink.done()) {
+}  // namespace
+
+void read_aedat4(ByteSource& src, EventSink& sink) {
+  const AedatHeader h = parse_aedat_header(src, sink);
+  const EventReadOptions& o = sink.options();
+  std::map<int64_t, TableEntry> table;
+  if ((o.t_begin_us || o.t_end_us) && o.on_bad != BadEventPolicy::sort && !sink.indexing())
+    table = read_data_table(src, sink, h);
+  uint64_t off = h.data_begin, record = 0;
+  if (const Checkpoint* c = sink.resume_point()) {
+    off = c->offset, record = c->record;
+    sink.resume(*c);
+  }
+  auto checkpoint = [&](uint64_t offset) {
+    Checkpoint c;
+    c.offset = offset, c.record = record;
+    return c;
+  };
+  uint64_t next = off;  // a checkpoint at the first packet, then every ~32 KiB of packets
+  std::vector<uint8_t> in, out;
+  while (off < h.data_end && !sink.done()) {
+    if (off >= next) {
+      if (!sink.boundary(checkpoint(off))) return;
+      next = sink.next_checkpoint(off, h.data_begin);
+    }
     uint8_t ph[8];
-    if (src.read_at(off, ph, 8) < 8 || off + 8 > data_end) {
+    if (src.read_at(off, ph, 8) < 8 || off + 8 > h.data_end) {
+      sink.set_record_index(record++);
       sink.set_byte_offset(int64_t(off));
       sink.unknown_record("the file ends inside a packet header (truncated AEDAT 4 file)");
+      off = h.data_end;
       break;
     }
     int32_t stream, size;
     std::memcpy(&stream, ph, 4);
     std::memcpy(&size, ph + 4, 4);
-    const std::string where = file + ": packet at byte " + std::to_string(off);
-    if (size <= 0 || off + 8 + uint64_t(size) > data_end) {
+    if (size <= 0 || off + 8 + uint64_t(size) > h.data_end) {
+      sink.set_record_index(record++);
       sink.set_byte_offset(int64_t(off));
-      if (size > 0 && off + 8 + uint64_t(size) > data_end)
+      if (size > 0 && off + 8 + uint64_t(size) > h.data_end)
         sink.unknown_record("packet of " + std::to_string(size) + " bytes runs past the end of the data (truncated AEDAT 4 file)");
       else
         sink.unknown_record("packet size " + std::to_string(size) + " is invalid (corrupt AEDAT 4 file)");
+      off = h.data_end;
       break;  // the packet chain cannot be followed past a bad size
     }
-    const uint64_t next = off + 8 + uint64_t(size);
-    const auto it = streams.find(stream);
-    if (it == streams.end()) {
+    const uint64_t packet_end = off + 8 + uint64_t(size);
+    const auto it = h.streams.find(stream);
+    if (it == h.streams.end()) {
+      sink.set_record_index(record++);
       sink.set_byte_offset(int64_t(off));
       sink.unknown_record("packet of stream " + std::to_string(stream) + " that the file's info does not declare");
-      off = next;
+      off = packet_end;
       continue;
     }
     if (!table.empty()) {
@@ -290,51 +372,16 @@ void read_aedat4(ByteSource& src, EventSink& sink) {
         const bool after = o.t_end_us && te->second.t_begin >= *o.t_end_us;
         if (before || after) {
           sink.report().stopped_early = true;
-          if (after && stream == event_stream) break;
-          off = next;
+          if (after && stream == h.event_stream) break;
+          off = packet_end;
           continue;
         }
       }
     }
-    if (stream != event_stream && it->second.type == "FRME") {
-      sink.ignored("FRME packets");
-      off = next;
-      continue;
-    }
-    in.resize(size_t(size));
-    if (src.read_at(off + 8, in.data(), in.size()) != in.size()) throw Error(where + ": read error");
-    decompress(compression, in, out, where);
-    FlatView pv(out.data(), out.size(), where);
-    pv.check(0, 8);
-    const uint32_t prefixed = pv.scalar<uint32_t>(0);
-    if (uint64_t(prefixed) + 4 > out.size()) pv.fail("size prefix larger than the packet");
-    const uint64_t proot = pv.root(4);
-    const uint64_t elements = pv.field(proot, 0);
-    if (stream != event_stream) {
-      uint64_t n = 0;
-      if (elements) n = pv.scalar<uint32_t>(pv.deref(elements));
-      sink.ignored(it->second.type + " elements (stream '" + it->second.name + "')", n);
-      off = next;
-      continue;
-    }
-    pv.check(8, 4);  // the file identifier after the size prefix and root offset
-    if (std::memcmp(out.data() + 8, "EVTS", 4) != 0) pv.fail("event packet without the EVTS identifier");
-    if (elements) {
-      const auto [first, n] = pv.vec(elements, 16);
-      const uint8_t* e = out.data() + first;
-      for (uint64_t i = 0; i < n; ++i, e += 16) {
-        int64_t t;
-        int16_t x, y;
-        std::memcpy(&t, e, 8);
-        std::memcpy(&x, e + 8, 2);
-        std::memcpy(&y, e + 10, 2);
-        sink.set_record_index(record++);
-        sink.set_byte_offset(int64_t(off));
-        if (!sink.add(t, x, y, e[12])) break;
-      }
-    }
-    off = next;
+    if (!read_packet(src, sink, h, off, stream, size, it->second, record, in, out)) return;
+    off = packet_end;
   }
+  if (!sink.done()) sink.end_of_data(checkpoint(off));
   sink.set_byte_offset(-1);
 }
 

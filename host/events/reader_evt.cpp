@@ -1,6 +1,7 @@
 // Prophesee files: '%' header lines, then EVT 2.0 (32-bit words), EVT 3.0 (16-bit stateful words,
 // 24-bit time that wraps) in .raw, or fixed 8-byte CD records in .dat. Streamed in 1 MiB blocks;
-// reading stops at the end of the time window. .dat windows start by binary search.
+// reading stops at the end of the time window. Indexed reads (EventFileReader) resume at decoder
+// checkpoints; a one-off .dat window starts by binary search.
 #include <algorithm>
 #include <cctype>
 #include <cstring>
@@ -44,27 +45,57 @@ bool size_from_sensor(const std::string& name, int& w, int& h) {
   return false;
 }
 
-// Reads blocks of `unit`-byte words from [begin, size); calls fn(ptr, count, byte_offset).
+// Where for_each_block ended: the offset after the last whole word handed over, whether the callback
+// stopped it, and the bytes of a partial word at the end of the data (a truncated file).
+struct BlockEnd {
+  uint64_t offset = 0;
+  bool stopped = false;
+  size_t trailing = 0;
+};
+
+// Reads `unit`-byte words from [begin, size) in 1 MiB blocks; fn(ptr, count, byte_offset) returns
+// false to stop.
 template <class Fn>
-void for_each_block(ByteSource& src, EventSink& sink, uint64_t begin, size_t unit, const char* what, Fn fn) {
-  uint64_t off = begin;
+BlockEnd for_each_block(ByteSource& src, EventSink& sink, uint64_t begin, size_t unit, Fn fn) {
+  BlockEnd end{begin, false, 0};
   const uint64_t size = src.size();
   std::vector<uint8_t> buf(size_t(std::min<uint64_t>(kBlock, size > begin ? size - begin : 0)));
-  while (off < size && !sink.done()) {
-    const size_t want = size_t(std::min<uint64_t>(kBlock, size - off));
-    const size_t got = src.read_at(off, buf.data(), want);
+  while (end.offset < size) {
+    if (sink.done()) {
+      end.stopped = true;
+      return end;
+    }
+    const size_t want = size_t(std::min<uint64_t>(kBlock, size - end.offset));
+    const size_t got = src.read_at(end.offset, buf.data(), want);
     if (got == 0) break;
     const size_t whole = got / unit * unit;
-    if (whole) fn(buf.data(), whole / unit, off);
-    if (whole < unit && got < unit) {
-      // fewer than one word left: truncated file
-      sink.set_byte_offset(int64_t(off));
-      sink.unknown_record(std::string("the file ends inside a ") + what + " (" + std::to_string(got) +
-                          " trailing bytes; truncated file)");
-      return;
+    if (whole && !fn(buf.data(), whole / unit, end.offset)) {
+      end.stopped = true;
+      return end;
     }
-    off += whole;
+    if (whole == 0) {
+      end.trailing = got;  // fewer than one word left
+      return end;
+    }
+    end.offset += whole;
   }
+  end.stopped = sink.done();
+  return end;
+}
+
+// The end of a streamed word format: a partial word is a truncated file (error or dropped), then
+// the index learns where the data ends.
+void finish_words(EventSink& sink, const BlockEnd& end, uint64_t& record, const char* what, Checkpoint last) {
+  if (end.stopped) return;
+  if (end.trailing) {
+    sink.set_record_index(record++);
+    sink.set_byte_offset(int64_t(end.offset));
+    sink.unknown_record(std::string("the file ends inside a ") + what + " (" + std::to_string(end.trailing) +
+                        " trailing bytes; truncated file)");
+    last.offset = end.offset + end.trailing;
+    last.record = record;
+  }
+  sink.end_of_data(last);
 }
 
 inline uint16_t le16(const uint8_t* p) { return uint16_t(p[0] | (p[1] << 8)); }
@@ -172,17 +203,67 @@ void apply_header(const PropheseeHeader& h, EventSink& sink, const char* fmt) {
             std::to_string(h.lines.size()) + " header lines");
 }
 
+// Decoder states, saved in and restored from index checkpoints.
+struct Evt2State {
+  uint64_t time_high = 0, loop = 0;
+  bool have_high = false;
+  void save(Checkpoint& c) const { c.state = {int64_t(time_high), int64_t(loop), have_high}; }
+  void load(const Checkpoint& c) {
+    time_high = uint64_t(c.state[0]), loop = uint64_t(c.state[1]), have_high = c.state[2] != 0;
+  }
+};
+
+struct Evt3State {
+  uint64_t time_high = 0, time_low = 0, loop = 0;
+  int64_t y = 0, base_x = 0, pol = 0;
+  bool have_high = false;
+  void save(Checkpoint& c) const {
+    c.state = {int64_t(time_high), int64_t(time_low), int64_t(loop), y, base_x, pol, have_high};
+  }
+  void load(const Checkpoint& c) {
+    time_high = uint64_t(c.state[0]), time_low = uint64_t(c.state[1]), loop = uint64_t(c.state[2]);
+    y = c.state[3], base_x = c.state[4], pol = c.state[5], have_high = c.state[6] != 0;
+  }
+};
+
+// Where a streamed word reader starts: a checkpoint (resumed read) or the data start.
+template <class State>
+uint64_t start_words(EventSink& sink, uint64_t data_offset, State& st, uint64_t& record) {
+  const Checkpoint* c = sink.resume_point();
+  if (!c) return data_offset;
+  st.load(*c);
+  record = c->record;
+  sink.resume(*c);
+  return c->offset;
+}
+
+template <class State>
+Checkpoint checkpoint_at(uint64_t offset, uint64_t record, const State& st) {
+  Checkpoint c;
+  c.offset = offset;
+  c.record = record;
+  st.save(c);
+  return c;
+}
+
 }  // namespace
 
 void read_evt2(ByteSource& src, EventSink& sink) {
   const PropheseeHeader h = parse_prophesee_header(src);
   apply_header(h, sink, "EVT 2.0");
   if (!h.evt.empty() && h.evt != "2.0") sink.note("header says EVT " + h.evt + " but EVT 2.0 was asked for");
-  uint64_t time_high = 0, loop = 0, record = 0;
-  bool have_high = false;
+  Evt2State st;
+  uint64_t record = 0;
+  const uint64_t start = start_words(sink, h.data_offset, st, record);
+  if (!sink.boundary(checkpoint_at(start, record, st))) return;
+  uint64_t next = sink.next_checkpoint(start, h.data_offset);
   sink.expect_records((src.size() - std::min(src.size(), h.data_offset)) / 4);
-  for_each_block(src, sink, h.data_offset, 4, "32-bit EVT 2.0 word", [&](const uint8_t* p, size_t n, uint64_t off) {
+  const BlockEnd end = for_each_block(src, sink, start, 4, [&](const uint8_t* p, size_t n, uint64_t off) {
     for (size_t i = 0; i < n; ++i) {
+      if (off + 4 * i >= next) {
+        if (!sink.boundary(checkpoint_at(off + 4 * i, record, st))) return false;
+        next = sink.next_checkpoint(off + 4 * i, h.data_offset);
+      }
       const uint32_t w = le32(p + 4 * i);
       const uint32_t type = w >> 28;
       switch (type) {
@@ -190,16 +271,16 @@ void read_evt2(ByteSource& src, EventSink& sink) {
         case 0x1: {
           sink.set_record_index(record++);
           sink.set_byte_offset(int64_t(off + 4 * i));
-          const int64_t t = int64_t(loop + (time_high << 6) + ((w >> 22) & 0x3F));
-          if (!sink.add(t, (w >> 11) & 0x7FF, w & 0x7FF, type)) return;
+          const int64_t t = int64_t(st.loop + (st.time_high << 6) + ((w >> 22) & 0x3F));
+          if (!sink.add(t, (w >> 11) & 0x7FF, w & 0x7FF, type)) return false;
           break;
         }
         case 0x8: {
           const uint64_t th = w & 0x0FFFFFFF;
           // 34-bit time: a time-high that falls by more than half its range is the wrap.
-          if (have_high && th < time_high && time_high - th > (uint64_t(1) << 27)) loop += uint64_t(1) << 34;
-          time_high = th;
-          have_high = true;
+          if (st.have_high && th < st.time_high && st.time_high - th > (uint64_t(1) << 27)) st.loop += uint64_t(1) << 34;
+          st.time_high = th;
+          st.have_high = true;
           break;
         }
         case 0xA: sink.ignored("EXT_TRIGGER"); break;
@@ -211,126 +292,178 @@ void read_evt2(ByteSource& src, EventSink& sink) {
           sink.unknown_record_lazy([&] { return "unknown EVT 2.0 word type " + hex(type, 1) + " (word " + hex(w, 8) + ")"; });
       }
     }
+    return true;
   });
+  finish_words(sink, end, record, "32-bit EVT 2.0 word", checkpoint_at(end.offset, record, st));
   sink.set_byte_offset(-1);
 }
+
+namespace {
+
+// One EVT 3.0 word; false when the sink says stop.
+inline bool evt3_word(uint16_t w, uint64_t off, Evt3State& st, uint64_t& record, EventSink& sink) {
+  const uint32_t type = w >> 12;
+  switch (type) {
+    case 0x0: st.y = w & 0x7FF; break;  // EVT_ADDR_Y (bit 11: system type)
+    case 0x2: {                          // EVT_ADDR_X: one CD event
+      sink.set_record_index(record++);
+      sink.set_byte_offset(int64_t(off));
+      return sink.add(int64_t(st.loop + (st.time_high << 12) + st.time_low), w & 0x7FF, st.y, (w >> 11) & 1);
+    }
+    case 0x3: st.base_x = w & 0x7FF, st.pol = (w >> 11) & 1; break;  // VECT_BASE_X
+    case 0x4:                                                         // VECT_12
+    case 0x5: {                                                       // VECT_8
+      const int bits = type == 0x4 ? 12 : 8;
+      const uint32_t mask = w & ((1u << bits) - 1);
+      const int64_t t = int64_t(st.loop + (st.time_high << 12) + st.time_low);
+      for (int b = 0; b < bits; ++b) {
+        if (!(mask >> b & 1)) continue;
+        sink.set_record_index(record++);
+        sink.set_byte_offset(int64_t(off));
+        if (!sink.add(t, st.base_x + b, st.y, st.pol)) {
+          st.base_x += bits;  // the word is consumed whole (a resumed read never restarts inside it)
+          return false;
+        }
+      }
+      st.base_x += bits;
+      break;
+    }
+    case 0x6: st.time_low = w & 0xFFF; break;  // EVT_TIME_LOW
+    case 0x8: {                                 // EVT_TIME_HIGH
+      const uint64_t th = w & 0xFFF;
+      // 24-bit time: a time-high that falls by more than half its range is the wrap.
+      if (st.have_high && th < st.time_high && st.time_high - th > 2048) st.loop += uint64_t(1) << 24;
+      st.time_high = th;
+      st.have_high = true;
+      break;
+    }
+    case 0xA: sink.ignored("EXT_TRIGGER"); break;
+    case 0x7: sink.ignored("CONTINUED_4"); break;
+    case 0xE: sink.ignored("OTHERS"); break;
+    case 0xF: sink.ignored("CONTINUED_12"); break;
+    default:
+      sink.set_record_index(record++);
+      sink.set_byte_offset(int64_t(off));
+      sink.unknown_record_lazy([&] { return "unknown EVT 3.0 word type " + hex(type, 1) + " (word " + hex(w, 4) + ")"; });
+  }
+  return true;
+}
+
+}  // namespace
 
 void read_evt3(ByteSource& src, EventSink& sink) {
   const PropheseeHeader h = parse_prophesee_header(src);
   apply_header(h, sink, "EVT 3.0");
   if (!h.evt.empty() && h.evt != "3.0") sink.note("header says EVT " + h.evt + " but EVT 3.0 was asked for");
-  uint64_t time_high = 0, time_low = 0, loop = 0, record = 0;
-  int64_t y = 0, base_x = 0, pol = 0;
-  bool have_high = false;
-  for_each_block(src, sink, h.data_offset, 2, "16-bit EVT 3.0 word", [&](const uint8_t* p, size_t n, uint64_t off) {
+  Evt3State st;
+  uint64_t record = 0;
+  const uint64_t start = start_words(sink, h.data_offset, st, record);
+  if (!sink.boundary(checkpoint_at(start, record, st))) return;
+  uint64_t next = sink.next_checkpoint(start, h.data_offset);
+  const BlockEnd end = for_each_block(src, sink, start, 2, [&](const uint8_t* p, size_t n, uint64_t off) {
     for (size_t i = 0; i < n; ++i) {
-      const uint16_t w = le16(p + 2 * i);
-      const uint32_t type = w >> 12;
-      switch (type) {
-        case 0x0: y = w & 0x7FF; break;                 // EVT_ADDR_Y (bit 11: system type)
-        case 0x2: {                                      // EVT_ADDR_X: one CD event
-          sink.set_record_index(record++);
-          sink.set_byte_offset(int64_t(off + 2 * i));
-          if (!sink.add(int64_t(loop + (time_high << 12) + time_low), w & 0x7FF, y, (w >> 11) & 1)) return;
-          break;
-        }
-        case 0x3: base_x = w & 0x7FF; pol = (w >> 11) & 1; break;  // VECT_BASE_X
-        case 0x4:                                                   // VECT_12
-        case 0x5: {                                                 // VECT_8
-          const int bits = type == 0x4 ? 12 : 8;
-          const uint32_t mask = w & ((1u << bits) - 1);
-          const int64_t t = int64_t(loop + (time_high << 12) + time_low);
-          for (int b = 0; b < bits; ++b) {
-            if (!(mask >> b & 1)) continue;
-            sink.set_record_index(record++);
-            sink.set_byte_offset(int64_t(off + 2 * i));
-            if (!sink.add(t, base_x + b, y, pol)) return;
-          }
-          base_x += bits;
-          break;
-        }
-        case 0x6: time_low = w & 0xFFF; break;  // EVT_TIME_LOW
-        case 0x8: {                              // EVT_TIME_HIGH
-          const uint64_t th = w & 0xFFF;
-          // 24-bit time: a time-high that falls by more than half its range is the wrap.
-          if (have_high && th < time_high && time_high - th > 2048) loop += uint64_t(1) << 24;
-          time_high = th;
-          have_high = true;
-          break;
-        }
-        case 0xA: sink.ignored("EXT_TRIGGER"); break;
-        case 0x7: sink.ignored("CONTINUED_4"); break;
-        case 0xE: sink.ignored("OTHERS"); break;
-        case 0xF: sink.ignored("CONTINUED_12"); break;
-        default:
-          sink.set_record_index(record++);
-          sink.set_byte_offset(int64_t(off + 2 * i));
-          sink.unknown_record_lazy([&] { return "unknown EVT 3.0 word type " + hex(type, 1) + " (word " + hex(w, 4) + ")"; });
+      if (off + 2 * i >= next) {
+        if (!sink.boundary(checkpoint_at(off + 2 * i, record, st))) return false;
+        next = sink.next_checkpoint(off + 2 * i, h.data_offset);
       }
+      if (!evt3_word(le16(p + 2 * i), off + 2 * i, st, record, sink)) return false;
     }
+    return true;
   });
+  finish_words(sink, end, record, "16-bit EVT 3.0 word", checkpoint_at(end.offset, record, st));
   sink.set_byte_offset(-1);
 }
 
-void read_dat(ByteSource& src, EventSink& sink) {
-  const PropheseeHeader h = parse_prophesee_header(src);
-  if (h.width > 0) sink.set_file_geometry(h.width, h.height, h.geometry_source);
+namespace {
+
+struct DatState {
+  uint64_t loop = 0;
+  uint32_t prev = 0;
+  bool have_prev = false;
+  void save(Checkpoint& c) const { c.state = {int64_t(loop), int64_t(prev), have_prev}; }
+  void load(const Checkpoint& c) { loop = uint64_t(c.state[0]), prev = uint32_t(c.state[1]), have_prev = c.state[2] != 0; }
+};
+
+// The byte where .dat records start (after the header and the type/size bytes); 0 when the file
+// ends before them (reported to the sink).
+uint64_t dat_data_start(ByteSource& src, EventSink& sink, const PropheseeHeader& h) {
   uint64_t data = h.data_offset;
-  if (!h.lines.empty()) {
-    // After the header: event type (0x00 TD / 0x0C CD) and event size (8) bytes.
-    const auto ts = read_range(src, data, 2);
-    if (ts.size() < 2) {
-      sink.set_byte_offset(int64_t(data));
-      sink.unknown_record("the file ends before the event type/size bytes (truncated .dat)");
-      return;
-    }
-    if (ts[1] != 8)
-      throw Error(src.name() + ": .dat event size is " + std::to_string(ts[1]) + " bytes at byte " +
-                  std::to_string(data + 1) + "; only 8-byte CD/TD records are supported");
-    if (ts[0] != 0x00 && ts[0] != 0x0C)
-      throw Error(src.name() + ": .dat event type " + hex(ts[0], 2) + " at byte " + std::to_string(data) +
-                  " is not a CD/TD event (0x00 or 0x0c)");
-    data += 2;
+  if (h.lines.empty()) return data;
+  // After the header: event type (0x00 TD / 0x0C CD) and event size (8) bytes.
+  const auto ts = read_range(src, data, 2);
+  if (ts.size() < 2) {
+    sink.set_byte_offset(int64_t(data));
+    sink.unknown_record("the file ends before the event type/size bytes (truncated .dat)");
+    return 0;
   }
-  sink.note("DAT records start at byte " + std::to_string(data));
-  const uint64_t n = (src.size() - std::min(src.size(), data)) / 8;
-  uint64_t first = 0;
+  if (ts[1] != 8)
+    throw Error(src.name() + ": .dat event size is " + std::to_string(ts[1]) + " bytes at byte " +
+                std::to_string(data + 1) + "; only 8-byte CD/TD records are supported");
+  if (ts[0] != 0x00 && ts[0] != 0x0C)
+    throw Error(src.name() + ": .dat event type " + hex(ts[0], 2) + " at byte " + std::to_string(data) +
+                " is not a CD/TD event (0x00 or 0x0c)");
+  return data + 2;
+}
+
+// Without an index: fixed-size records and 32-bit times without a wrap allow a binary search for
+// the window start. Returns the first record to read.
+uint64_t dat_window_start(ByteSource& src, EventSink& sink, uint64_t data, uint64_t n) {
   const EventReadOptions& o = sink.options();
   auto ts_at = [&](uint64_t i) {
     uint8_t b[4] = {0, 0, 0, 0};
     src.read_at(data + 8 * i, b, 4);
     return le32(b);
   };
-  if (o.t_begin_us && o.on_bad != BadEventPolicy::sort && n > 1 && ts_at(n - 1) >= ts_at(0) && *o.t_begin_us > 0) {
-    // Fixed-size records and 32-bit times without a wrap: binary search for the window start.
-    uint64_t lo = 0, hi = n;
-    while (lo < hi) {
-      const uint64_t mid = lo + (hi - lo) / 2;
-      if (int64_t(ts_at(mid)) < *o.t_begin_us) lo = mid + 1;
-      else hi = mid;
-    }
-    first = lo;
-    if (first > 0) {
-      sink.report().stopped_early = true;
-      sink.note("time window: binary search skipped to record " + std::to_string(first));
-    }
+  if (sink.indexing() || !o.t_begin_us || o.on_bad == BadEventPolicy::sort || n <= 1 || ts_at(n - 1) < ts_at(0) ||
+      *o.t_begin_us <= 0)
+    return 0;
+  uint64_t lo = 0, hi = n;
+  while (lo < hi) {
+    const uint64_t mid = lo + (hi - lo) / 2;
+    if (int64_t(ts_at(mid)) < *o.t_begin_us) lo = mid + 1;
+    else hi = mid;
   }
-  sink.expect_records(n - first);
-  uint64_t loop = 0, record = first;
-  uint32_t prev = 0;
-  bool have_prev = false;
-  for_each_block(src, sink, data + 8 * first, 8, "8-byte .dat record", [&](const uint8_t* p, size_t cnt, uint64_t off) {
+  if (lo > 0) {
+    sink.report().stopped_early = true;
+    sink.note("time window: binary search skipped to record " + std::to_string(lo));
+  }
+  return lo;
+}
+
+}  // namespace
+
+void read_dat(ByteSource& src, EventSink& sink) {
+  const PropheseeHeader h = parse_prophesee_header(src);
+  if (h.width > 0) sink.set_file_geometry(h.width, h.height, h.geometry_source);
+  const uint64_t data = dat_data_start(src, sink, h);
+  if (data == 0 && !h.lines.empty()) return;
+  sink.note("DAT records start at byte " + std::to_string(data));
+  const uint64_t n = (src.size() - std::min(src.size(), data)) / 8;
+  DatState st;
+  uint64_t record = dat_window_start(src, sink, data, n);
+  uint64_t start = data + 8 * record;
+  if (sink.resume_point()) start = start_words(sink, data, st, record);
+  if (!sink.boundary(checkpoint_at(start, record, st))) return;
+  uint64_t next = sink.next_checkpoint(start, data);
+  sink.expect_records(n - std::min(n, record));
+  const BlockEnd end = for_each_block(src, sink, start, 8, [&](const uint8_t* p, size_t cnt, uint64_t off) {
     for (size_t i = 0; i < cnt; ++i) {
+      if (off + 8 * i >= next) {
+        if (!sink.boundary(checkpoint_at(off + 8 * i, record, st))) return false;
+        next = sink.next_checkpoint(off + 8 * i, data);
+      }
       const uint32_t ts = le32(p + 8 * i), d = le32(p + 8 * i + 4);
       // 32-bit microseconds wrap after 71.6 minutes.
-      if (have_prev && ts < prev && prev - ts > (1u << 31)) loop += uint64_t(1) << 32;
-      prev = ts;
-      have_prev = true;
+      if (st.have_prev && ts < st.prev && st.prev - ts > (1u << 31)) st.loop += uint64_t(1) << 32;
+      st.prev = ts;
+      st.have_prev = true;
       sink.set_record_index(record++);
       sink.set_byte_offset(int64_t(off + 8 * i));
-      if (!sink.add(int64_t(loop + ts), d & 0x3FFF, (d >> 14) & 0x3FFF, (d >> 28) & 1)) return;
+      if (!sink.add(int64_t(st.loop + ts), d & 0x3FFF, (d >> 14) & 0x3FFF, (d >> 28) & 1)) return false;
     }
+    return true;
   });
+  finish_words(sink, end, record, "8-byte .dat record", checkpoint_at(end.offset, record, st));
   sink.set_byte_offset(-1);
 }
 

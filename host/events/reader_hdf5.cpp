@@ -221,23 +221,28 @@ bool size_attrs(hid_t obj, int& w, int& h) {
   return w > 0 && h > 0;
 }
 
-std::vector<int64_t> read_whole_int(hid_t file, const std::string& file_name, const std::string& path) {
-  Column c = open_column(file, file_name, path, -1, path);
+// Entries [r0, r0 + n) of an integer index dataset (float indices must be integral).
+std::vector<int64_t> read_index_entries(const std::string& file_name, Column& c, hsize_t r0, hsize_t n) {
   std::vector<int64_t> iv;
   std::vector<double> dv;
-  if (c.rows == 0) return {};
-  read_column(file_name, c, 0, c.rows, iv, dv);
+  if (n == 0) return {};
+  read_column(file_name, c, r0, n, iv, dv);
   if (c.cls == H5T_FLOAT) {
     iv.resize(dv.size());
     for (size_t i = 0; i < dv.size(); ++i) {
       // A float index must be an integer that int64 can hold (converting 1e169 would be undefined).
       if (!std::isfinite(dv[i]) || std::fabs(dv[i]) >= 9.2e18 || dv[i] != std::floor(dv[i]))
-        throw Error(file_name + ": '" + path + "'[" + std::to_string(i) + "] = " + std::to_string(dv[i]) +
+        throw Error(file_name + ": '" + c.name + "'[" + std::to_string(r0 + i) + "] = " + std::to_string(dv[i]) +
                     " is not an integer index");
       iv[i] = int64_t(dv[i]);
     }
   }
   return iv;
+}
+
+std::vector<int64_t> read_whole_int(hid_t file, const std::string& file_name, const std::string& path) {
+  Column c = open_column(file, file_name, path, -1, path);
+  return read_index_entries(file_name, c, 0, c.rows);
 }
 
 int64_t read_scalar_int(hid_t file, const std::string& file_name, const std::string& path) {
@@ -362,16 +367,23 @@ void read_hdf5(const std::string& path, const void* image, size_t image_size, Ev
     }
     return lo;
   };
+  if (sink.probing()) {
+    if (L.t.rows) sink.probed(t_at(0), t_at(L.t.rows - 1));
+    else sink.probed(INFINITY, -INFINITY);
+    return;
+  }
   if ((o.t_begin_us || o.t_end_us) && o.on_bad != BadEventPolicy::sort && L.t.rows > 0) {
     hsize_t lo = 0, hi = L.t.rows;
     if (L.kind == "dsec" && is_dataset(f.get(), "ms_to_idx") && o.t_begin_us) {
       // ms_to_idx[k] = first event with (t - t_offset) >= 1000 k: narrows the search to one millisecond.
-      const std::vector<int64_t> ms = read_whole_int(f.get(), path, "ms_to_idx");
+      // Only entries k and k+1 are read (an hour-long recording has 3.6 million).
+      Column ms = open_column(f.get(), path, "ms_to_idx", -1, "ms_to_idx");
       int64_t rel = 0;
-      if (!__builtin_sub_overflow(*o.t_begin_us, L.t_offset, &rel) && rel >= 0 && !ms.empty()) {
-        const size_t k = size_t(std::min<int64_t>(rel / 1000, int64_t(ms.size()) - 1));
-        if (ms[k] >= 0 && hsize_t(ms[k]) <= hi) lo = hsize_t(ms[k]);
-        if (k + 1 < ms.size() && ms[k + 1] >= int64_t(lo) && hsize_t(ms[k + 1]) <= hi) hi = hsize_t(ms[k + 1]);
+      if (!__builtin_sub_overflow(*o.t_begin_us, L.t_offset, &rel) && rel >= 0 && ms.rows > 0) {
+        const hsize_t k = hsize_t(std::min<int64_t>(rel / 1000, int64_t(ms.rows) - 1));
+        const std::vector<int64_t> v = read_index_entries(path, ms, k, std::min<hsize_t>(2, ms.rows - k));
+        if (v[0] >= 0 && hsize_t(v[0]) <= hi) lo = hsize_t(v[0]);
+        if (v.size() > 1 && v[1] >= int64_t(lo) && hsize_t(v[1]) <= hi) hi = hsize_t(v[1]);
         sink.note("window start found through ms_to_idx");
       }
     }
@@ -445,9 +457,22 @@ std::vector<int64_t> read_event_index(const std::string& h5_path, const std::str
   return read_whole_int(f.get(), h5_path, dataset);
 }
 
+std::string hdf5_event_layout(const std::string& h5_path) {
+  QuietHdf5 quiet;
+  Handle f = open_file(h5_path, nullptr, 0);
+  EventReadReport rep;
+  EventSink sink(h5_path, {}, rep);
+  try {
+    return detect_layout(f.get(), h5_path, sink).kind;
+  } catch (const Error&) {
+    return "";
+  }
+}
+
 }  // namespace vkunroll::detail
 
 namespace vkunroll {
+std::string hdf5_event_layout(const std::string& h5_path) { return detail::hdf5_event_layout(h5_path); }
 ImageTimestamps read_image_timestamps(const std::string& h5_path) { return detail::read_image_timestamps(h5_path); }
 std::vector<int64_t> read_event_index(const std::string& h5_path, const std::string& dataset) {
   return detail::read_event_index(h5_path, dataset);

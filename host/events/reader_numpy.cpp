@@ -1,9 +1,7 @@
-// NumPy .npy and .npz (through libzip): N x K arrays whose first four columns are t, x, y, p (any
-// numeric dtype, C or Fortran order), record arrays with fields x, y, p, t (any order), and .npz
-// files holding separate 1-D arrays x, y, p, t. Rows are decoded in chunks; windows on seekable
-// data (.npy, stored .npz members) start by binary search on t, compressed members stream.
-#include <zip.h>
-
+// NumPy .npy and .npz (members through zip_member.cpp): N x K arrays whose first four columns are
+// t, x, y, p (any numeric dtype, C or Fortran order), record arrays with fields x, y, p, t (any
+// order), and .npz files holding separate 1-D arrays x, y, p, t. Rows are decoded in chunks; a time
+// window starts by binary search on t (deflated members are random access through their index).
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -11,7 +9,7 @@
 #include <map>
 #include <memory>
 
-#include "vkunroll/host/events/event_reader_detail.hpp"
+#include "vkunroll/host/events/zip_member_detail.hpp"
 
 namespace vkunroll::detail {
 
@@ -295,6 +293,11 @@ void decode_columns(std::array<ColumnSpec, 4>& cols, uint64_t rows, EventSink& s
     return is_float(cols[0].type) ? (std::isnan(as_double(b, cols[0].type)) ? INFINITY : as_double(b, cols[0].type) * scale)
                                   : double(as_int(b, cols[0].type));
   };
+  if (sink.probing()) {
+    if (rows) sink.probed(value_t(0), value_t(rows - 1));
+    else sink.probed(INFINITY, -INFINITY);
+    return;
+  }
   uint64_t r0 = 0, r1 = rows;
   bool seekable = true;
   for (auto& c : cols) seekable &= c.src->seekable();
@@ -416,71 +419,6 @@ uint64_t array_columns(const NpyHeader& h, ByteSource& src, const std::string& w
   return n;
 }
 
-// ---- zip members -------------------------------------------------------------------------------
-
-struct ZipCloser {
-  void operator()(zip_t* z) const {
-    if (z) zip_discard(z);
-  }
-};
-
-class ZipMemberSource final : public ByteSource {
- public:
-  ZipMemberSource(zip_t* z, zip_uint64_t index, std::string name) : ByteSource(std::move(name)), z_(z), index_(index) {
-    zip_stat_t st;
-    zip_stat_init(&st);
-    if (zip_stat_index(z_, index_, 0, &st) != 0 || !(st.valid & ZIP_STAT_SIZE))
-      throw Error(this->name() + ": cannot stat the zip member");
-    size_ = st.size;
-    stored_ = (st.valid & ZIP_STAT_COMP_METHOD) && st.comp_method == ZIP_CM_STORE;
-    open();
-  }
-  ~ZipMemberSource() override {
-    if (f_) zip_fclose(f_);
-  }
-  uint64_t size() const override { return size_; }
-  bool seekable() const override { return stored_; }
-  size_t read_at(uint64_t offset, void* dst, size_t n) override {
-    if (offset >= size_) return 0;
-    n = size_t(std::min<uint64_t>(n, size_ - offset));
-    if (offset != pos_) {
-      if (stored_ && zip_fseek(f_, zip_int64_t(offset), SEEK_SET) == 0) {
-        pos_ = offset;
-      } else {
-        if (offset < pos_) open();
-        std::vector<uint8_t> skip(1 << 16);
-        while (pos_ < offset) {
-          const zip_int64_t r = zip_fread(f_, skip.data(), std::min<uint64_t>(skip.size(), offset - pos_));
-          if (r <= 0) throw Error(name() + ": cannot read the zip member (corrupt or truncated .npz)");
-          pos_ += uint64_t(r);
-        }
-      }
-    }
-    size_t done = 0;
-    while (done < n) {
-      const zip_int64_t r = zip_fread(f_, static_cast<uint8_t*>(dst) + done, n - done);
-      if (r < 0) throw Error(name() + ": cannot read the zip member (corrupt or truncated .npz, CRC or inflate error)");
-      if (r == 0) break;
-      done += size_t(r);
-    }
-    pos_ += done;
-    return done;
-  }
-
- private:
-  void open() {
-    if (f_) zip_fclose(f_);
-    f_ = zip_fopen_index(z_, index_, 0);
-    if (!f_) throw Error(name() + ": cannot open the zip member (" + zip_strerror(z_) + ")");
-    pos_ = 0;
-  }
-  zip_t* z_;
-  zip_uint64_t index_;
-  zip_file_t* f_ = nullptr;
-  uint64_t size_ = 0, pos_ = 0;
-  bool stored_ = false;
-};
-
 }  // namespace
 
 void read_npy(ByteSource& src, EventSink& sink) {
@@ -493,95 +431,58 @@ void read_npy(ByteSource& src, EventSink& sink) {
 }
 
 void read_npz(const std::string& path, const uint8_t* data, size_t size, EventSink& sink) {
-  int err = 0;
-  std::unique_ptr<zip_t, ZipCloser> z;
-  if (data) {
-    zip_error_t ze;
-    zip_error_init(&ze);
-    zip_source_t* zs = zip_source_buffer_create(data, size, 0, &ze);
-    if (!zs) throw Error(path + ": cannot read the .npz bytes");
-    z.reset(zip_open_from_source(zs, ZIP_RDONLY, &ze));
-    if (!z) {
-      zip_source_free(zs);
-      const std::string msg = zip_error_strerror(&ze);
-      zip_error_fini(&ze);
-      throw Error(path + ": not a readable .npz (zip) file: " + msg);
-    }
-    zip_error_fini(&ze);
-  } else {
-    z.reset(zip_open(path.c_str(), ZIP_RDONLY, &err));
-    if (!z) {
-      zip_error_t ze;
-      zip_error_init_with_code(&ze, err);
-      const std::string msg = zip_error_strerror(&ze);
-      zip_error_fini(&ze);
-      throw Error(path + ": not a readable .npz (zip) file: " + msg);
-    }
-  }
-  const zip_int64_t count = zip_get_num_entries(z.get(), 0);
-  std::map<std::string, zip_uint64_t> members;
-  std::string listing;
-  for (zip_int64_t i = 0; i < count; ++i) {
-    const char* n = zip_get_name(z.get(), zip_uint64_t(i), 0);
-    if (!n) continue;
-    std::string name = n;
-    if (name.size() > 4 && name.compare(name.size() - 4, 4, ".npy") == 0) name.resize(name.size() - 4);
-    members[name] = zip_uint64_t(i);
-    listing += (listing.empty() ? "" : ", ") + name;
-  }
-  if (members.empty()) throw Error(path + ": the .npz holds no arrays");
-  auto member_source = [&](const std::string& key) {
-    return std::make_unique<ZipMemberSource>(z.get(), members.at(key), path + ":" + key);
+  NpzArchive archive(path, data, size);
+  archive.read(sink);
+}
+
+void NpzArchive::read(EventSink& sink) {
+  if (members_.empty()) throw Error(path_ + ": the .npz holds no arrays");
+  std::string listing, key;
+  for (const auto& [name, idx] : members_) listing += (listing.empty() ? "" : ", ") + name;
+  auto has = [&](const std::string& k) {
+    return std::any_of(members_.begin(), members_.end(), [&](const auto& m) { return m.first == k; });
   };
-  std::string key;
   for (const char* k : {"event", "events", "evs"})
-    if (members.count(k)) { key = k; break; }
+    if (has(k)) {
+      key = k;
+      break;
+    }
   // Separate 1-D arrays x, y, p, t (per-frame Fastec files).
   std::string sep[4];
-  for (const auto& [name, idx] : members)
+  for (const auto& [name, idx] : members_)
     if (char r = field_role(name)) sep[role_index(r)] = name;
   const bool separate = key.empty() && !sep[0].empty() && !sep[1].empty() && !sep[2].empty() && !sep[3].empty();
   if (key.empty() && !separate) {
-    if (members.size() == 1) key = members.begin()->first;
+    if (members_.size() == 1) key = members_.front().first;
     else
-      throw Error(path + ": cannot tell which array holds the events (arrays: " + listing +
+      throw Error(path_ + ": cannot tell which array holds the events (arrays: " + listing +
                   "); expected 'event'/'events', one array, or separate x, y, p, t");
   }
   std::array<ColumnSpec, 4> cols;
   if (!separate) {
-    auto src = member_source(key);
-    std::unique_ptr<ByteSource> mem;
-    NpyHeader h = parse_npy_header(*src, src->name());
+    ZipMemberSource& src = member(key);
+    const NpyHeader h = parse_npy_header(src, src.name());
     std::string layout;
-    ByteSource* use = src.get();
-    if (h.fortran && !src->seekable()) {
-      // Fortran order needs the columns far apart: inflate the member once into memory.
-      std::vector<uint8_t> all(size_t(std::min<uint64_t>(src->size(), uint64_t(1) << 34)));
-      all.resize(src->read_at(0, all.data(), all.size()));
-      mem = std::make_unique<MemorySource>(src->name(), std::move(all));
-      use = mem.get();
-    }
-    const uint64_t rows = array_columns(h, *use, "array '" + key + "'", cols, layout);
+    const uint64_t rows = array_columns(h, src, "array '" + key + "'", cols, layout);
     sink.report().format = "npz:" + layout;
-    sink.note("events from array '" + key + "'" + (src->seekable() ? " (stored)" : " (compressed)"));
-    decode_columns(cols, rows, sink, path);
+    sink.note("events from array '" + key + "'" + (src.stored() ? " (stored)" : " (deflated)"));
+    decode_columns(cols, rows, sink, path_);
     return;
   }
-  std::unique_ptr<ZipMemberSource> srcs[4];
   uint64_t rows = 0;
   for (int i = 0; i < 4; ++i) {
-    srcs[i] = member_source(sep[i]);
-    const NpyHeader h = parse_npy_header(*srcs[i], srcs[i]->name());
+    ZipMemberSource& src = member(sep[i]);
+    const NpyHeader h = parse_npy_header(src, src.name());
     if (h.structured || h.shape.size() != 1)
-      throw Error(path + ": array '" + sep[i] + "' should be 1-D numbers (separate x, y, p, t arrays)");
+      throw Error(path_ + ": array '" + sep[i] + "' should be 1-D numbers (separate x, y, p, t arrays)");
     if (i == 0) rows = h.shape[0];
     else if (h.shape[0] != rows)
-      throw Error(path + ": arrays x, y, p, t have different lengths ('" + sep[0] + "' " + std::to_string(rows) + ", '" +
+      throw Error(path_ + ": arrays x, y, p, t have different lengths ('" + sep[0] + "' " + std::to_string(rows) + ", '" +
                   sep[i] + "' " + std::to_string(h.shape[0]) + ")");
-    cols[size_t(i)] = {srcs[i].get(), h.data_offset, h.itemsize, h.type, "array '" + sep[i] + "'"};
+    cols[size_t(i)] = {&src, h.data_offset, h.itemsize, h.type, "array '" + sep[i] + "'"};
   }
   sink.report().format = "npz:separate";
-  decode_columns(cols, rows, sink, path);
+  decode_columns(cols, rows, sink, path_);
 }
 
 }  // namespace vkunroll::detail

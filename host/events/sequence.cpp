@@ -71,7 +71,15 @@ std::optional<fs::path> subdir(const fs::path& root, std::initializer_list<const
 }
 
 Rational json_time(const nlohmann::json& j, const std::string& where) {
-  if (j.is_number()) return j.is_number_integer() ? Rational(j.get<int64_t>()) : Rational::from_double(j.get<double>());
+  if (j.is_number_unsigned() && j.get<uint64_t>() > uint64_t(INT64_MAX))
+    throw Error(where + " = " + j.dump() + " us is beyond int64 microseconds");
+  if (j.is_number()) {
+    try {
+      return j.is_number_integer() ? Rational(j.get<int64_t>()) : Rational::from_double(j.get<double>());
+    } catch (const Error&) {
+      throw Error(where + " = " + j.dump() + " us is out of range (not representable as an exact time)");
+    }
+  }
   if (j.is_string()) return Rational::parse(j.get<std::string>(), where);
   throw Error(where + " must be a number (or an exact string like \"73000/259\"), got " + std::string(j.type_name()) +
               " " + j.dump());
@@ -289,6 +297,66 @@ void load_fastec(Sequence& s, const fs::path& root, const SequenceOptions& o) {
                     "k GS periods; override with line delay / exposure / t0s");
 }
 
+// A frame or ground-truth image exists, has the sensor's size and (PNG) is not cut short: its last
+// chunk is IEND. Only the header is decoded here; the pixels are read when the frame is used.
+void check_image(const Sequence& s, const std::string& image, const char* what) {
+  std::error_code ec;
+  if (!fs::exists(image, ec)) throw Error(s.root + ": " + what + " image '" + image + "' does not exist");
+  if (fs::is_directory(image, ec)) throw Error(image + ": " + what + " image is a folder");
+  const auto [w, h] = image_size(image);
+  if (w != s.width || h != s.height)
+    throw Error(image + ": " + what + " image is " + std::to_string(w) + "x" + std::to_string(h) + ", the sensor is " +
+                std::to_string(s.width) + "x" + std::to_string(s.height));
+  std::ifstream in(image, std::ios::binary);
+  unsigned char sig[8] = {};
+  in.read(reinterpret_cast<char*>(sig), 8);
+  if (in.gcount() != 8 || sig[0] != 0x89 || sig[1] != 'P' || sig[2] != 'N' || sig[3] != 'G') return;
+  const uint64_t size = fs::file_size(image, ec);
+  const uint64_t tail = std::min<uint64_t>(size, 4096);
+  std::string end(tail, '\0');
+  in.seekg(std::streamoff(size - tail));
+  in.read(end.data(), std::streamsize(tail));
+  if (end.find("IEND") == std::string::npos)
+    throw Error(image + ": " + what + " image is a truncated PNG (no IEND chunk at its end; " + std::to_string(size) +
+                " bytes)");
+}
+
+// Where frame k's t0 came from, for messages.
+std::string t0_source(const Sequence& s, size_t k, const SequenceOptions& o) {
+  const std::string n = std::to_string(k);
+  if (o.t0s_us) return "t0s value " + std::to_string(k + 1) + " (the --t0s-us option, SequenceOptions::t0s_us)";
+  switch (s.layout) {
+    case SequenceLayout::generic: return (fs::path(s.root) / "meta.json").string() + ": frames[" + n + "].t0_us";
+    case SequenceLayout::dre: return s.event_files.at(0) + ": start_image_ts[" + n + "]";
+    default: return std::string(sequence_layout_name(s.layout)) + " frame " + n + "'s t0 (the layout's convention)";
+  }
+}
+
+// Frame times must stay where int64 windows and float64 arithmetic are exact (|t| <= 2^53 us,
+// about 285 years; Unix-time microseconds of today are about 1.7e15), and t0s must increase.
+void check_frame_times(const Sequence& s, const SequenceOptions& o) {
+  const Rational limit(int64_t(1) << 53);
+  for (size_t k = 0; k < s.frames.size(); ++k) {
+    const RowTiming& t = s.frames[k].timing;
+    const std::string field = t0_source(s, k, o);
+    Rational end;
+    try {
+      end = t.last_end();
+    } catch (const Error&) {
+      end = limit + Rational(1);  // beyond 120-bit arithmetic: certainly out of range
+    }
+    if (t.t0 < -limit || t.t0 > limit || end > limit || t.line_delay > limit || t.exposure > limit)
+      throw Error(field + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ") has t0 " + t.t0.str() +
+                  " us and ends at " + (end > limit ? std::string("more than 2^53") : end.str()) +
+                  " us: frame times must lie within +-2^53 us (+-9007199254740992 us, about 285 years) so that event "
+                  "windows and float64 times stay exact");
+    if (k > 0 && t.t0 <= s.frames[k - 1].timing.t0)
+      throw Error(field + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ") starts at t0 " + t.t0.str() +
+                  " us, not after frame " + std::to_string(k - 1) + "'s t0 " + s.frames[k - 1].timing.t0.str() +
+                  " us: frames must be in time order (t0s must increase)");
+  }
+}
+
 }  // namespace
 
 const char* sequence_layout_name(SequenceLayout l) {
@@ -326,22 +394,6 @@ std::pair<int, int> image_size(const std::string& path) {
   return {m.cols, m.rows};
 }
 
-SequenceLayout detect_sequence_layout(const std::string& path) {
-  const fs::path root(path);
-  std::error_code ec;
-  if (!fs::is_directory(root, ec)) throw Error(path + ": not a folder (a sequence is a folder)");
-  if (fs::exists(root / "meta.json")) return SequenceLayout::generic;
-  const bool h5 = !list_files(root, {".h5", ".hdf5"}).empty();
-  const size_t npz = list_files(root, {".npz"}).size() + list_files(root / "events", {".npz"}).size();
-  if (subdir(root, {"rs"}) && subdir(root, {"gs"}) && h5) return SequenceLayout::gev_rs;
-  if (subdir(root, {"images"}) && h5) return SequenceLayout::dre;
-  if (subdir(root, {"image"}) && npz == 1 && std::regex_match(root.filename().string(), std::regex(R"(^.+_\d+_\d+$)")))
-    return SequenceLayout::gev_rs_real;
-  if (subdir(root, {"RS", "rs"}) && npz >= 1) return SequenceLayout::fastec;
-  throw Error(path + ": cannot tell the layout: no meta.json (generic); not rs/+gs/+.h5 (Gev-RS), "
-              "images/+.h5 (DRE), <id>_<exp>_<readout>/image/+.npz (Gev-RS-Real) or RS/+per-frame .npz (Fastec)");
-}
-
 Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
   Sequence s;
   const fs::path root = fs::path(path).lexically_normal();
@@ -369,16 +421,11 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
     if (o.t0s_us) t.t0 = (*o.t0s_us)[k];
     t.validate(s.root + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ")");
   }
+  check_frame_times(s, o);
   if (o.line_delay_us || o.exposure_us || o.readout || o.t0s_us) s.notes.push_back("timing overridden by options");
   if (o.check_frame_sizes) {
-    for (const auto& f : s.frames) {
-      std::error_code ec;
-      if (!fs::exists(f.image, ec)) throw Error(s.root + ": frame image '" + f.image + "' does not exist");
-      const auto [w, h] = image_size(f.image);
-      if (w != s.width || h != s.height)
-        throw Error(f.image + ": frame is " + std::to_string(w) + "x" + std::to_string(h) + ", the sensor is " +
-                    std::to_string(s.width) + "x" + std::to_string(s.height));
-    }
+    for (const auto& f : s.frames) check_image(s, f.image, "frame");
+    for (const auto& g : s.ground_truth) check_image(s, g.image, "ground-truth");
   }
   if (o.events_file) {
     s.event_files = {*o.events_file};
@@ -399,45 +446,6 @@ const SequenceFrame& Sequence::frame(int index) const {
     throw Error(root + ": frame " + std::to_string(index) + " does not exist (the sequence has " +
                 std::to_string(frames.size()) + " frames, 0.." + std::to_string(frames.size() - 1) + ")");
   return frames[index];
-}
-
-EventStream Sequence::read_events(int64_t t_begin_us, int64_t t_end_us, EventReadReport* report) const {
-  EventReadOptions ro = event_options;
-  ro.t_begin_us = t_begin_us;
-  ro.t_end_us = t_end_us;
-  if (event_files.size() == 1) {
-    EventStream ev = vkunroll::read_events(event_files[0], ro, report);
-    ev.width = width;
-    ev.height = height;
-    return ev;
-  }
-  // Fastec: per-frame files, merged in time order.
-  EventStream all;
-  all.width = width;
-  all.height = height;
-  for (const auto& f : event_files) {
-    EventReadReport r;
-    const EventStream ev = vkunroll::read_events(f, ro, &r);
-    for (size_t i = 0; i < ev.size(); ++i) all.push(ev.t[i], ev.x[i], ev.y[i], ev.p[i]);
-    if (report) {
-      report->records += r.records;
-      report->kept += r.kept;
-      report->outside_window += r.outside_window;
-    }
-  }
-  if (!std::is_sorted(all.t.begin(), all.t.end())) {
-    std::vector<size_t> idx(all.size());
-    std::iota(idx.begin(), idx.end(), 0);
-    std::stable_sort(idx.begin(), idx.end(), [&](size_t a, size_t b) { return all.t[a] < all.t[b]; });
-    EventStream sorted;
-    sorted.width = width;
-    sorted.height = height;
-    sorted.reserve(all.size());
-    for (size_t i : idx) sorted.push(all.t[i], all.x[i], all.y[i], all.p[i]);
-    if (report) report->notes.push_back("per-frame event files overlap in time: merged and sorted");
-    return sorted;
-  }
-  return all;
 }
 
 }  // namespace vkunroll

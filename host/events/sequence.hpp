@@ -3,6 +3,7 @@
 // layouts (Gev-RS, Gev-RS-Real, DRE, Fastec-RS; selfunroll-network.md section 4), detected from
 // the folder or named explicitly. How each layout's timing is derived: docs/event_tensors.md.
 #pragma once
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -46,6 +47,8 @@ struct SequenceGroundTruth {
   Rational t_us;
 };
 
+class SequenceEventReaders;  // the sequence's open event files and their indexes (sequence_events.cpp)
+
 struct Sequence {
   std::string root;
   SequenceLayout layout = SequenceLayout::generic;
@@ -56,13 +59,27 @@ struct Sequence {
   EventReadOptions event_options;        // what read_events passes to the reader
   std::vector<std::string> notes;        // how the timing was derived, for the user
 
-  // Events with t in [t_begin_us, t_end_us), read through the file's index where it has one.
+  // Events with t in [t_begin_us, t_end_us): exactly what a full scan of the file(s) gives. The
+  // first read opens each event file once (EventFileReader) and indexes what it decodes; later
+  // reads seek. `report` covers this read only (records decoded, kept, dropped by reason, ...).
+  // Copies of a Sequence share the open files; concurrent reads are serialized.
   EventStream read_events(int64_t t_begin_us, int64_t t_end_us, EventReadReport* report = nullptr) const;
+  // What all reads so far decoded, each record counted once however many windows covered it: for
+  // the unroll summary ("11110 of 22219 records dropped (out of time order)", "no event records").
+  EventTotals event_totals() const;
   const SequenceFrame& frame(int index) const;  // throws Error naming the index and the count
+
+ private:
+  static std::shared_ptr<SequenceEventReaders> make_event_readers();
+  std::shared_ptr<SequenceEventReaders> event_readers_ = make_event_readers();  // never null
 };
 
 // Throws Error naming the file and field on a missing or malformed sequence.
 Sequence load_sequence(const std::string& path, const SequenceOptions& options = {});
+// The layout of a folder: generic when it has meta.json, else a reference dataset only when the
+// folder is unambiguously that dataset (its event file holds that dataset's layout; see
+// docs/events.md, "Sequence layouts"). Anything else is an Error naming the folder, what it holds
+// and how to choose a layout (--layout, SequenceOptions::layout).
 SequenceLayout detect_sequence_layout(const std::string& path);
 
 // Width and height of a PNG (IHDR) or any image OpenCV reads; throws Error naming the file.

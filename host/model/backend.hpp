@@ -62,6 +62,7 @@ class Backend {
   virtual void crop(const BufferSlice& in, const BufferSlice& out, int top, int left) = 0;
   virtual void copy(const BufferSlice& in, const BufferSlice& out) = 0;
   virtual void add(const BufferSlice& a, const BufferSlice& b, const BufferSlice& out) = 0;
+  virtual void clamp01(const BufferSlice& in, const BufferSlice& out) = 0;  // out = clamp(in, 0, 1)
   virtual void tanh_scale(const BufferSlice& in, const BufferSlice& out, float scale) = 0;  // out = scale * tanh(in)
   virtual void backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) = 0;
   // out[.., dst_y + i, dst_x + j] = in[.., src.y + i, src.x + j] (tiles cut and stitched in place).
@@ -124,6 +125,7 @@ class PlanningBackend final : public Backend {
   void crop(const BufferSlice&, const BufferSlice&, int, int) override {}
   void copy(const BufferSlice&, const BufferSlice&) override {}
   void add(const BufferSlice&, const BufferSlice&, const BufferSlice&) override {}
+  void clamp01(const BufferSlice&, const BufferSlice&) override {}
   void tanh_scale(const BufferSlice&, const BufferSlice&, float) override {}
   void backward_warp(const BufferSlice&, const BufferSlice&, const BufferSlice&) override {}
   void copy_rect(const BufferSlice&, const BufferSlice&, const Rect&, int64_t, int64_t) override {}

@@ -164,6 +164,7 @@ void CpuBackend::copy(const BufferSlice& in, const BufferSlice& out) { copy_ref(
 void CpuBackend::add(const BufferSlice& a, const BufferSlice& b, const BufferSlice& out) {
   add_ref(impl_->in(a), impl_->in(b), impl_->out(out));
 }
+void CpuBackend::clamp01(const BufferSlice& in, const BufferSlice& out) { clamp01_ref(impl_->in(in), impl_->out(out)); }
 void CpuBackend::tanh_scale(const BufferSlice& in, const BufferSlice& out, float scale) {
   scale_act_ref(impl_->in(in), impl_->out(out), Act{Activation::tanh, 0.f}, scale);
 }

@@ -182,6 +182,9 @@ void VulkanBackend::copy(const BufferSlice& in, const BufferSlice& out) {
 void VulkanBackend::add(const BufferSlice& a, const BufferSlice& b, const BufferSlice& out) {
   vkunroll::add(*cs_, slice(tensor(a.buf), a), slice(tensor(b.buf), b), slice(tensor(out.buf), out));
 }
+void VulkanBackend::clamp01(const BufferSlice& in, const BufferSlice& out) {
+  vkunroll::clamp01(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out));
+}
 void VulkanBackend::tanh_scale(const BufferSlice& in, const BufferSlice& out, float scale) {
   vkunroll::tanh_scale(*cs_, slice(tensor(in.buf), in), slice(tensor(out.buf), out), scale);
 }

@@ -39,6 +39,7 @@ class VulkanBackend final : public Backend {
   void crop(const BufferSlice& in, const BufferSlice& out, int top, int left) override;
   void copy(const BufferSlice& in, const BufferSlice& out) override;
   void add(const BufferSlice& a, const BufferSlice& b, const BufferSlice& out) override;
+  void clamp01(const BufferSlice& in, const BufferSlice& out) override;
   void tanh_scale(const BufferSlice& in, const BufferSlice& out, float scale) override;
   void backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) override;
   void copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) override;

@@ -55,7 +55,7 @@ struct Model::Chunk {
   int64_t n = 0, nt = 0;  // batch items; targets (M)
   int64_t he = 0, we = 0; // even working size
   int pad_top = -1, pad_left = -1;  // UNet input offsets (RunOptions::unet_pad_top / left)
-  BufferSlice rs, ev1, ev2, ev3;  // inputs: slices of the caller's buffers, or even-size copies
+  BufferSlice rs, ev1, ev2, ev3, phys;  // inputs: slices of the caller's buffers, or even-size copies
   int E = -1, sys = -1, flow = -1, warped = -1, fused = -1, m = -1, out = -1;
 };
 
@@ -101,7 +101,7 @@ void Model::add_unet(const Weights& w, const std::string& p, int cin, int cout, 
 Model::Model(Backend& backend, const Weights& w) : backend_(backend), cfg_(w.config) {
   cfg_.validate();
   const int ev = cfg_.ev_channels();
-  add_conv(w, "SFENet1", 4 * (3 + 3 * ev), cfg_.G0, 5, 1, 2, false, 0.f);
+  add_conv(w, "SFENet1", 4 * cfg_.synthesis_channels(), cfg_.G0, 5, 1, 2, false, 0.f);
   add_conv(w, "SFENet2", cfg_.G0, cfg_.G0, 3, 1, 1, false, 0.f);
   for (int d = 0; d < cfg_.D; ++d) {
     const std::string p = "RDBs." + std::to_string(d);
@@ -159,8 +159,7 @@ const Model::Conv& Model::conv(const std::string& name) const {
 
 int64_t Model::synthesis_item_bytes(int64_t he, int64_t we) const {
   const int64_t plane = (he / 2) * (we / 2);
-  const int64_t ev = cfg_.ev_channels();
-  return 4 * std::max({int64_t(cfg_.G0 + cfg_.C * cfg_.G) * plane, 4 * (3 + 3 * ev) * plane,  // RDB, s2d
+  return 4 * std::max({int64_t(cfg_.G0 + cfg_.C * cfg_.G) * plane, 4 * int64_t(cfg_.synthesis_channels()) * plane,  // RDB, s2d
                        int64_t(cfg_.upnet_width) * plane});
 }
 
@@ -185,7 +184,7 @@ int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budg
   // Per item the whole-chunk buffers (inputs and outputs) and the largest working set of a stage.
   const int64_t ev = cfg_.ev_channels();
   const int64_t plane = he * we * 4;
-  const int64_t persistent = plane * (3 + 3 * ev + 3 + 3 + 2 + 3 + 3 + (mode == Mode::m ? 2 : 0));
+  const int64_t persistent = plane * (cfg_.synthesis_channels() + 3 + 3 + 2 + 3 + 3 + (mode == Mode::m ? 2 : 0));
   const int64_t limit = static_cast<int64_t>(backend_.max_buffer_bytes());
   int64_t per_item = std::max<int64_t>(1, plane * ev);  // the largest whole-chunk buffer must fit one binding
   int64_t n = std::max<int64_t>(1, limit / per_item);
@@ -285,8 +284,15 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   const int64_t ev = cfg_.ev_channels(), h2 = ch.he / 2, w2 = ch.we / 2;
   // space_to_depth(cat(rs, ev1, ev2, ev3)): input channel c lands in output channels 4c..4c+3,
   // so each piece goes straight into its range and the 99-channel concatenation never exists.
-  const int xs = b.alloc({n, 4 * (3 + 3 * ev), h2, w2}, "space_to_depth");
+  const int xs = b.alloc({n, 4 * int64_t(cfg_.synthesis_channels()), h2, w2}, "space_to_depth");
   b.space_to_depth(sub(ch.rs, i0, n), chans(whole(b, xs), 0, 12));
+  // The variant: p = clamp(phys, 0, 1) is the last piece of E-IC_T's input and the base of sys.
+  int phys_clamped = -1;
+  if (cfg_.physics_input) {
+    phys_clamped = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
+    b.clamp01(sub(ch.phys, i0, n), whole(b, phys_clamped));
+    b.space_to_depth(whole(b, phys_clamped), chans(whole(b, xs), 12 + 12 * ev, 12));
+  }
   b.space_to_depth(sub(ch.ev1, i0, n), chans(whole(b, xs), 12, 4 * ev));
   b.space_to_depth(sub(ch.ev2, i0, n), chans(whole(b, xs), 12 + 4 * ev, 4 * ev));
   b.space_to_depth(sub(ch.ev3, i0, n), chans(whole(b, xs), 12 + 8 * ev, 4 * ev));
@@ -334,7 +340,8 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   b.release(shuf);
   b.tanh_scale(whole(b, e_raw), items(b, ch.E, i0, n), 1.f);
   b.release(e_raw);
-  b.add(sub(ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
+  b.add(phys_clamped >= 0 ? whole(b, phys_clamped) : sub(ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
+  if (phys_clamped >= 0) b.release(phys_clamped);
 }
 
 void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
@@ -397,6 +404,12 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
   check_finite(in.ev1, "ev1");
   check_finite(in.ev2, "ev2");
   check_finite(in.ev3, "ev3");
+  if (cfg_.physics_input) {
+    check_input(in.phys, "phys", B, 3, H, W);
+    check_finite(in.phys, "phys");
+  } else if (!in.phys.data.empty()) {
+    throw Error("model input 'phys' is given, but the model is not the physics-informed variant");
+  }
   // Chunks of batch items, each uploaded, run and downloaded on its own: every input buffer stays
   // within the backend's binding limit (run_on_backend takes the inputs as they are).
   const bool m_mode = opt.mode == Mode::m;
@@ -408,7 +421,9 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
     const int64_t n = std::min(per_chunk, B - c0);
     ModelBuffers buffers;
     for (const auto& [a, dst, name] : {std::tuple{&in.rs, &buffers.rs, "rs"}, std::tuple{&in.ev1, &buffers.ev1, "ev1"},
-                                       std::tuple{&in.ev2, &buffers.ev2, "ev2"}, std::tuple{&in.ev3, &buffers.ev3, "ev3"}}) {
+                                       std::tuple{&in.ev2, &buffers.ev2, "ev2"}, std::tuple{&in.ev3, &buffers.ev3, "ev3"},
+                                       std::tuple{&in.phys, &buffers.phys, "phys"}}) {
+      if (a == &in.phys && !cfg_.physics_input) continue;
       const int64_t item = a->shape.c * H * W;
       const int buf = b.alloc({n, a->shape.c, H, W}, name);
       *dst = whole(b, buf);
@@ -442,6 +457,14 @@ void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt) const {
     if (v->n != B || v->c != ev || s.h != H || s.w != W)
       throw Error(std::string("model input '") + name + "' is " + Shape{v->n, v->c, s.h, s.w}.str() + ", expected " +
                   Shape{B, ev, H, W}.str());
+  }
+  if (cfg_.physics_input) {
+    if (in.phys.buf < 0) throw Error("model input 'phys' (the physics estimate) is missing: the model is the physics-informed variant");
+    const Shape s = backend_.shape(in.phys.buf);
+    if (in.phys.n != B || in.phys.c != 3 || s.h != H || s.w != W)
+      throw Error("model input 'phys' is " + Shape{in.phys.n, in.phys.c, s.h, s.w}.str() + ", expected " + Shape{B, 3, H, W}.str());
+  } else if (in.phys.buf >= 0) {
+    throw Error("model input 'phys' is given, but the model is not the physics-informed variant");
   }
   if (opt.mode == Mode::m && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
   if (opt.mode == Mode::m && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
@@ -500,6 +523,7 @@ std::map<std::string, int> Model::run_on_backend(const ModelBuffers& in, const R
     ch.ev1 = input(in.ev1, "ev1");
     ch.ev2 = input(in.ev2, "ev2");
     ch.ev3 = input(in.ev3, "ev3");
+    if (cfg_.physics_input) ch.phys = input(in.phys, "phys");
     // One chunk at an even size computes straight into the outputs; otherwise into chunk buffers
     // that are cropped into them.
     const bool direct = ch.n == B && he == H && we == W;
@@ -521,6 +545,7 @@ std::map<std::string, int> Model::run_on_backend(const ModelBuffers& in, const R
     };
     for (int64_t i = 0; i < ch.n; i += sub_f) stage_flow(ch, i, std::min<int64_t>(sub_f, ch.n - i));
     consumed(ch.ev2, in.ev2);
+    if (cfg_.physics_input) consumed(ch.phys, in.phys);  // read by E-IC_T only
     for (int64_t i = 0; i < ch.n; i += sub_u) stage_fusion(ch, i, std::min<int64_t>(sub_u, ch.n - i));
     consumed(ch.ev3, in.ev3);
     if (m_mode) {

@@ -22,7 +22,8 @@ enum class Mode { s, m };
 // them): rs [B, 3, H, W], ev1, ev2, ev3 [B, 2N, H, W], read in place.
 struct ModelBuffers {
   BufferSlice rs, ev1, ev2, ev3;
-  // The four are whole buffers handed over: run_on_backend releases each once its last reader is
+  BufferSlice phys;  // the physics-informed variant's [B, 3, H, W] estimate (buf -1: none)
+  // The inputs are whole buffers handed over: run_on_backend releases each once its last reader is
   // recorded (ev2 after the flow, ev3 after the fusion), which lowers the peak memory.
   bool consume = false;
 };
@@ -31,6 +32,7 @@ struct ModelInputs {
   // rs [B,3,H,W]; ev1, ev2, ev3 [B,2N,H,W]. SelfUnroll-S: B targets run independently.
   // SelfUnroll-M: B = 2K, items 2k and 2k+1 are RS frames 1 and 2 toward target k.
   HostTensor rs, ev1, ev2, ev3;
+  HostTensor phys;  // the physics-informed variant only: the physics estimate [B, 3, H, W]
 };
 
 struct RunOptions {

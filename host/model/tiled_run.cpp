@@ -179,10 +179,11 @@ void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const
       const size_t nw = std::min(targets_per_batch, items.size() - w0);
       const int64_t nb = int64_t(nw) * per;
       ModelBuffers tin;
-      BufferSlice* cut[4] = {&tin.rs, &tin.ev1, &tin.ev2, &tin.ev3};
-      const int64_t channels[4] = {3, ev, ev, ev};
-      const char* names[4] = {"tile rs", "tile ev1", "tile ev2", "tile ev3"};
-      for (int a = 0; a < 4; ++a) {
+      BufferSlice* cut[5] = {&tin.rs, &tin.ev1, &tin.ev2, &tin.ev3, &tin.phys};
+      const int64_t channels[5] = {3, ev, ev, ev, 3};
+      const char* names[5] = {"tile rs", "tile ev1", "tile ev2", "tile ev3", "tile phys"};
+      const int inputs = model.config().physics_input ? 5 : 4;
+      for (int a = 0; a < inputs; ++a) {
         const int buf = b.alloc({nb, channels[a], rh, rw}, names[a]);
         *cut[a] = {buf, 0, nb, 0, channels[a]};
       }
@@ -193,7 +194,7 @@ void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const
         placed.push_back({it.target, &runs[it.run]});
       }
       const std::map<std::string, int> out = model.run_on_backend(tin, ro);
-      for (BufferSlice* c : cut) b.release(c->buf);
+      for (int a = 0; a < inputs; ++a) b.release(cut[a]->buf);
       io.stitch(out, placed);
       for (const auto& [n, buf] : out) b.release(buf);
     }
@@ -307,11 +308,12 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
   }
   for (const auto& n : p.ro.outputs) res.outputs[n] = b.alloc({per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W}, n);
   fill_inactive(b, in, res.plan, p.active, res.outputs, p.per);
-  const BufferSlice* full[4] = {&in.rs, &in.ev1, &in.ev2, &in.ev3};
+  const BufferSlice* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
+  const int inputs = model.config().physics_input ? 5 : 4;
   TileIO io;
   io.cut = [&](const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r) {
-    const BufferSlice* cut[4] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3};
-    for (int a = 0; a < 4; ++a) b.crop(item_of(*full[a], item), item_of(*cut[a], q), int(r.y), int(r.x));
+    const BufferSlice* cut[5] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3, &batch.phys};
+    for (int a = 0; a < inputs; ++a) b.crop(item_of(*full[a], item), item_of(*cut[a], q), int(r.y), int(r.x));
   };
   io.stitch = [&](const std::map<std::string, int>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
     for (size_t q = 0; q < placed.size(); ++q) {
@@ -365,11 +367,14 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
         }
       }
     }
-  const HostTensor* full[4] = {&in.rs, &in.ev1, &in.ev2, &in.ev3};
+  const HostTensor* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
+  const int inputs = model.config().physics_input ? 5 : 4;
+  if (inputs == 5 && !(in.phys.shape == Shape{in.rs.shape.n, 3, in.rs.shape.h, in.rs.shape.w}))
+    throw Error("run_tiled: input 'phys' has shape " + in.phys.shape.str() + ", expected that of 'rs' (the physics-informed variant)");
   TileIO io;
   io.cut = [&](const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r) {
-    const BufferSlice* cut[4] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3};
-    for (int a = 0; a < 4; ++a) {
+    const BufferSlice* cut[5] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3, &batch.phys};
+    for (int a = 0; a < inputs; ++a) {
       HostTensor crop(Shape{1, full[a]->shape.c, r.h, r.w});
       crop_ref(HostSlice(*full[a], 0, -1, item, 1), HostSliceOut(crop), r.y, r.x);
       b.upload(item_of(*cut[a], q), crop.data);

@@ -109,6 +109,12 @@ std::map<std::string, std::string> ModelConfig::to_metadata() const {
     os << v;
     return os.str();
   };
+  // Written only when set, so re-saving a published model gives the same metadata.
+  if (physics_input) {
+    md["physics_input"] = "true";
+    md["physics_contrast"] = physics_contrast;
+  }
+  if (gamma) md["gamma"] = f(static_cast<float>(*gamma));
   md["rdb_slope"] = f(rdb_slope);
   md["unet_slope"] = f(unet_slope);
   for (auto [name, u] : {std::pair{"flownet", flownet}, {"fusion_net", fusion_net}, {"attfusion_net", attfusion_net}}) {
@@ -128,6 +134,8 @@ std::string ModelConfig::summary() const {
   else
     os << " (no MOA: SelfUnroll-S only)";
   os << " slopes=" << rdb_slope << "/" << unet_slope << " " << channel_order;
+  if (physics_input) os << " physics-informed (contrast " << physics_contrast << ")";
+  if (gamma) os << " gamma=" << *gamma;
   return os.str();
 }
 
@@ -144,17 +152,26 @@ void ModelConfig::validate() const {
   }
   if (channel_order != "rgb" && channel_order != "bgr")
     throw Error("model configuration: channel_order '" + channel_order + "' (expected rgb or bgr)");
+  if (gamma && !(*gamma > 0 && std::isfinite(*gamma)))
+    throw Error("model configuration: gamma = " + std::to_string(*gamma) + " (expected a positive number)");
+  if (physics_input && physics_contrast != "estimate") {
+    char* end = nullptr;
+    const double c = std::strtod(physics_contrast.c_str(), &end);
+    if (end == physics_contrast.c_str() || *end || !(c > 0 && std::isfinite(c)))
+      throw Error("model configuration: physics_contrast '" + physics_contrast + "' (expected 'estimate' or a positive number)");
+  }
 }
 
 bool ModelConfig::same_shapes(const ModelConfig& o) const {
   return D == o.D && C == o.C && G == o.G && G0 == o.G0 && N == o.N && upnet_width == o.upnet_width &&
+         physics_input == o.physics_input &&
          flownet == o.flownet && fusion_net == o.fusion_net && moa == o.moa && (!moa || attfusion_net == o.attfusion_net);
 }
 
 std::vector<std::pair<std::string, TensorShape>> expected_tensors(const ModelConfig& c) {
   std::vector<std::pair<std::string, TensorShape>> out;
   const int64_t ev = c.ev_channels();
-  add_conv(out, "SFENet1", 4 * (3 + 3 * ev), c.G0, 5);
+  add_conv(out, "SFENet1", 4 * c.synthesis_channels(), c.G0, 5);
   add_conv(out, "SFENet2", c.G0, c.G0, 3);
   for (int d = 0; d < c.D; ++d) {
     const std::string p = "RDBs." + std::to_string(d);
@@ -200,10 +217,15 @@ ModelConfig infer_config(const std::map<std::string, TensorShape>& shapes) {
   ModelConfig c;
   const auto& sfe = need("SFENet1.weight", 4);
   c.G0 = static_cast<int>(sfe[0]);
-  if (sfe[1] % 4 || (sfe[1] / 4 - 3) % 6 || sfe[1] / 4 <= 3)
+  // 4 * (3 + 6N) input channels for the family (an odd multiple of 4), 4 * (6 + 6N) for the
+  // physics-informed variant (an even one).
+  const int64_t per = sfe[1] / 4;
+  c.physics_input = per % 2 == 0;
+  const int64_t fixed = c.physics_input ? 6 : 3;
+  if (sfe[1] % 4 || per <= fixed || (per - fixed) % 6)
     throw Error("cannot infer the model configuration: SFENet1.weight has " + std::to_string(sfe[1]) +
-                " input channels, expected 4 * (3 + 6N)");
-  c.N = static_cast<int>((sfe[1] / 4 - 3) / 6);
+                " input channels, expected 4 * (3 + 6N) (or 4 * (6 + 6N) for the physics-informed variant)");
+  c.N = static_cast<int>((per - fixed) / 6);
   c.D = count(std::regex(R"(RDBs\.(\d+)\.LFF\.weight)"));
   c.C = count(std::regex(R"(RDBs\.0\.convs\.(\d+)\.conv\.0\.weight)"));
   c.G = static_cast<int>(need("RDBs.0.convs.0.conv.0.weight", 4)[0]);
@@ -255,6 +277,16 @@ Weights weights_from_safetensors(const SafetensorsFile& file, const std::string&
       u->depth = to_int(md, std::string(name) + ".depth", u->depth, origin);
     }
     m.moa = md.count("moa") ? md.at("moa") == "true" : w.config.moa;
+    m.physics_input = w.config.physics_input;
+    if (md.count("physics_input")) {
+      const std::string& v = md.at("physics_input");
+      if (v != "true" && v != "false")
+        throw Error(origin + ": metadata 'physics_input' = '" + v + "' (expected true or false)");
+      if ((v == "true") != w.config.physics_input)
+        throw Error(origin + ": metadata says physics_input=" + v + " but SFENet1.weight has " +
+                    std::to_string(shapes.at("SFENet1.weight")[1]) + " input channels (" +
+                    (w.config.physics_input ? "the physics-informed variant's" : "the family's") + ")");
+    }
     if (md.count("moa") && md.at("moa") != "true" && md.at("moa") != "false")
       throw Error(origin + ": metadata 'moa' = '" + md.at("moa") + "' (expected true or false)");
     if (!m.same_shapes(w.config)) {
@@ -270,6 +302,14 @@ Weights weights_from_safetensors(const SafetensorsFile& file, const std::string&
   w.config.unet_slope = to_float(md, "unet_slope", w.config.unet_slope, origin);
   if (md.count("channel_order")) w.config.channel_order = md.at("channel_order");
   if (md.count("description")) w.config.description = md.at("description");
+  if (md.count("physics_contrast")) w.config.physics_contrast = md.at("physics_contrast");
+  if (md.count("gamma")) {
+    const std::string& g = md.at("gamma");
+    char* end = nullptr;
+    const double v = std::strtod(g.c_str(), &end);
+    if (end == g.c_str() || *end) throw Error(origin + ": metadata 'gamma' = '" + g + "' (expected a positive number)");
+    w.config.gamma = v;
+  }
   try {
     w.config.validate();
   } catch (const Error& e) {

@@ -3,6 +3,7 @@
 #pragma once
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -29,10 +30,19 @@ struct ModelConfig {
   float rdb_slope = 0.01f;  // LeakyReLU slope in the residual dense blocks
   float unet_slope = 0.1f;  // LeakyReLU slope in the UNets
   bool moa = true;          // attfusion_net present: SelfUnroll-M available
+  // The physics-informed variant (docs/model.md): E-IC_T also reads the physics unroller's estimate
+  // at t* (`phys`, last in its input) and predicts a correction to it: sys = clamp(phys, 0, 1) + E.
+  bool physics_input = false;
+  // The variant's contrast threshold for `phys`: "estimate" (as --mode physics) or a number.
+  std::string physics_contrast = "estimate";
+  // The intensity encoding the model was trained in (PNG value = linear^(1/gamma)); unset: unknown.
+  std::optional<double> gamma;
   std::string channel_order = "rgb";  // image channel order the weights expect ("rgb" | "bgr")
   std::string description;
 
   int ev_channels() const { return 2 * N; }
+  // E-IC_T's input channels before space_to_depth: rs, ev1, ev2, ev3 (and phys in the variant).
+  int synthesis_channels() const { return 3 + 3 * ev_channels() + (physics_input ? 3 : 0); }
   // The published models (fast.pth, gev.pth, gevreal.pth, dre.pth): 33,914,185 parameters.
   static ModelConfig published() { return {}; }
   // Strings for the safetensors metadata (keys in docs/model.md).

@@ -143,6 +143,54 @@ SimulatedSequence simulate(const SimulationConfig& config) {
   return simulate(config, scene);
 }
 
+namespace {
+// An RS frame from its accumulated row integrals: the average over the exposure, then the frame
+// sensor's noise, clipped to [0, 1]. Releases `acc`.
+cv::Mat finish_rs_frame(cv::Mat& acc, const SimulationConfig& config, int k) {
+  const int W = config.width, H = config.height;
+  cv::Mat img = acc.empty() ? cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0)) : acc;
+  img *= 1.0 / config.exposure_us;  // in place: no second copy of every frame
+  acc.release();
+  const FrameNoiseParams& n = config.frame_noise;
+  if (n.full_well_e > 0 || n.read_noise > 0) {
+    for (int y = 0; y < H; ++y) {
+      float* p = img.ptr<float>(y);
+      for (int i = 0; i < W * 3; ++i) {
+        const uint64_t idx = (static_cast<uint64_t>(y) * W * 3 + i) * 2;
+        const uint64_t stream = kStreamFrameNoise + static_cast<uint64_t>(k);
+        const double z = normal_from(hash3(config.seed, stream, idx), hash3(config.seed, stream, idx + 1));
+        const double v = std::max(0.0f, p[i]);
+        const double var = (n.full_well_e > 0 ? v / n.full_well_e : 0.0) + n.read_noise * n.read_noise;
+        p[i] = static_cast<float>(v + std::sqrt(var) * z);
+      }
+    }
+  }
+  cv::min(cv::max(img, 0.0), 1.0, img);
+  return img;
+}
+
+// Ground truth: the sharp image at gt_per_frame instants per frame period.
+void add_ground_truth(const SimulationConfig& config, Scene& scene, SimulatedSequence& seq) {
+  const int M = config.gt_per_frame, H = config.height;
+  for (int k = 0; k < config.frames; ++k) {
+    const double s0 = config.frame_t0_us(k), span = (H - 1) * config.line_delay_us + config.exposure_us;
+    for (int j = 0; j < M; ++j) {
+      GroundTruthFrame g;
+      g.frame = k;
+      g.index = j;
+      g.t_us = s0 + (j + 0.5) / M * config.frame_period_us();
+      g.tau = (g.t_us - s0) / span;
+      scene.render(g.t_us, g.image);
+      cv::min(cv::max(g.image, 0.0), 1.0, g.image);
+      char name[96];
+      std::snprintf(name, sizeof name, "gs/f%06d_i%02d_t%010lldus.png", k, j, static_cast<long long>(std::llround(g.t_us)));
+      g.file = name;
+      seq.gt.push_back(std::move(g));
+    }
+  }
+}
+}  // namespace
+
 SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
   config.validate();
   if (scene.width() != config.width || scene.height() != config.height)
@@ -257,47 +305,8 @@ SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
   seq.event_stats = ev.stats();
   seq.events = ev.take_events();
 
-  // Finish the RS frames: average over the exposure, then the frame sensor's noise.
-  for (int k = 0; k < K; ++k) {
-    cv::Mat img = acc[k].empty() ? cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0)) : acc[k];
-    img *= 1.0 / e;  // in place: no second copy of every frame
-    acc[k].release();
-    const FrameNoiseParams& n = config.frame_noise;
-    if (n.full_well_e > 0 || n.read_noise > 0) {
-      for (int y = 0; y < H; ++y) {
-        float* p = img.ptr<float>(y);
-        for (int i = 0; i < W * 3; ++i) {
-          const uint64_t idx = (static_cast<uint64_t>(y) * W * 3 + i) * 2;
-          const uint64_t stream = kStreamFrameNoise + static_cast<uint64_t>(k);
-          const double z = normal_from(hash3(config.seed, stream, idx), hash3(config.seed, stream, idx + 1));
-          const double v = std::max(0.0f, p[i]);
-          const double var = (n.full_well_e > 0 ? v / n.full_well_e : 0.0) + n.read_noise * n.read_noise;
-          p[i] = static_cast<float>(v + std::sqrt(var) * z);
-        }
-      }
-    }
-    cv::min(cv::max(img, 0.0), 1.0, img);
-    seq.rs.push_back(img);
-  }
-
-  // Ground truth: the sharp image at M instants per frame period.
-  const int M = config.gt_per_frame;
-  for (int k = 0; k < K; ++k) {
-    const double s0 = config.frame_t0_us(k), span = (H - 1) * config.line_delay_us + e;
-    for (int j = 0; j < M; ++j) {
-      GroundTruthFrame g;
-      g.frame = k;
-      g.index = j;
-      g.t_us = s0 + (j + 0.5) / M * config.frame_period_us();
-      g.tau = (g.t_us - s0) / span;
-      scene.render(g.t_us, g.image);
-      cv::min(cv::max(g.image, 0.0), 1.0, g.image);
-      char name[96];
-      std::snprintf(name, sizeof name, "gs/f%06d_i%02d_t%010lldus.png", k, j, static_cast<long long>(std::llround(g.t_us)));
-      g.file = name;
-      seq.gt.push_back(std::move(g));
-    }
-  }
+  for (int k = 0; k < K; ++k) seq.rs.push_back(finish_rs_frame(acc[k], config, k));
+  add_ground_truth(config, scene, seq);
   return seq;
 }
 

@@ -131,6 +131,31 @@ void UnrollSession::run_physics(const FrameInput& in, const std::vector<FrameTar
   stats_.runs_physics += which.size();
 }
 
+int UnrollSession::physics_input(const FrameInput& in, const std::vector<EventTensorPair>& pairs, int rs1, int rs2) {
+  Backend& b = *backend_;
+  const int H = in.rs1.rows, W = in.rs1.cols;
+  const int64_t B = static_cast<int64_t>(pairs.size());
+  const int phys = b.alloc({B, 3, H, W}, "phys");
+  for (int64_t i = 0; i < B; ++i) {
+    const bool second = rs2 >= 0 && i % 2 == 1;  // M: items 2k + 1 are the next frame
+    const RowTiming& t = second ? in.timing2 : in.timing1;
+    const PixelEventLists lists = gather_pixel_events(*in.events, pairs[size_t(i)].target_us.to_double(), t.start_times_us(),
+                                                      t.end_times_us(), 0, 0, W, H);
+    const BufferSlice dst{phys, i, 1, 0, 3};
+    if (!PhysicsUnroll::fits(lists)) {  // beyond the GPU kernel's per-pixel event limit
+      const std::vector<float> planes = image_planes(second ? in.rs2 : in.rs1, rgb_);
+      b.upload(dst, physics_unroll_ref(planes, 3, lists, physics_));
+      stats_.physics_on_cpu++;
+      continue;
+    }
+    const int out = b.alloc({1, 3, H, W}, "phys item");
+    b.physics_unroll(second ? rs2 : rs1, lists, physics_, out);
+    b.copy(whole(b, out), dst);
+    b.release(out);
+  }
+  return phys;
+}
+
 void UnrollSession::run_model(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which,
                               bool m, std::vector<cv::Mat>& results) {
   Backend& b = *backend_;
@@ -166,7 +191,9 @@ void UnrollSession::run_model(const FrameInput& in, const std::vector<FrameTarge
   t0 = Clock::now();
   const int ev = b.event_tensors(*in.events, pairs, spec);
   const int64_t C = 2 * spec.bins;
-  const ModelBuffers inputs{{rs, 0, B, 0, 3}, {ev, 0, B, 0, C}, {ev, B, B, 0, C}, {ev, 2 * B, B, 0, C}};
+  ModelBuffers inputs{{rs, 0, B, 0, 3}, {ev, 0, B, 0, C}, {ev, B, B, 0, C}, {ev, 2 * B, B, 0, C}};
+  const bool variant = model_->config().physics_input;
+  if (variant) inputs.phys = {physics_input(in, pairs, rs1, rs2), 0, B, 0, 3};
   ActivityTables activity;
   if (tiling_.sparse != SparsePolicy::off) activity = activity_tables(selected_event_counts(*in.events, pairs, spec), H, W);
   stats_.ms["event_tensors"] += ms_since(t0);
@@ -186,6 +213,7 @@ void UnrollSession::run_model(const FrameInput& in, const std::vector<FrameTarge
     results[which[q]] = planes_image(planes.data() + q * 3 * H * W, H, W, rgb_);
   b.release(out);
   b.release(ev);
+  if (variant) b.release(inputs.phys.buf);
   if (rs != rs1) b.release(rs);
   b.release(rs1);
   if (rs2 >= 0) b.release(rs2);
@@ -215,6 +243,16 @@ void UnrollSession::run_model_on_host(const FrameInput& in, const std::vector<Fr
     mi.ev1 = HostTensor(es, std::move(et.ev1));
     mi.ev2 = HostTensor(es, std::move(et.ev2));
     mi.ev3 = HostTensor(es, std::move(et.ev3));
+    if (model_->config().physics_input) {
+      mi.phys = HostTensor(Shape{per, 3, H, W});
+      for (int64_t i = 0; i < per; ++i) {
+        const RowTiming& t = i ? in.timing2 : in.timing1;
+        const PixelEventLists lists = gather_pixel_events(*in.events, targets[j].t_us.to_double(), t.start_times_us(),
+                                                          t.end_times_us(), 0, 0, W, H);
+        const std::vector<float> gs = physics_unroll_ref(i ? p2 : p1, 3, lists, physics_);
+        std::copy(gs.begin(), gs.end(), mi.phys.data.begin() + i * 3 * H * W);
+      }
+    }
     stats_.ms["event_tensors"] += ms_since(t0);
     t0 = Clock::now();
     RunOptions ro;

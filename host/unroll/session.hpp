@@ -75,6 +75,7 @@ class UnrollSession {
   const ModelConfig& model_config() const { return weights().config; }
   BackendKind backend_kind() const { return options_.backend; }
   Backend& backend() { return *backend_; }
+  const Backend& backend() const { return *backend_; }
   const Context* context() const { return ctx_.get(); }  // null on the CPU backend
   // Host <-> device traffic and submissions since the session started (zeros on the CPU backend).
   DeviceTraffic traffic() const;
@@ -86,6 +87,8 @@ class UnrollSession {
   void set_model_rgb(bool rgb) { rgb_ = rgb; }
   bool model_rgb() const { return rgb_; }
   void set_tiling(const TileOptions& t) { tiling_ = t; }
+  // Physics parameters: of --mode physics targets, and of the physics-informed variant's input
+  // (whose gamma is the model's encoding; unroll converts the frames to it).
   void set_physics(const PhysicsUnrollParams& p) { physics_ = p; }
 
   // The GS images (BGR float32 in [0, 1], the sensor's size) of `targets`, in their order.
@@ -101,6 +104,9 @@ class UnrollSession {
                          bool m, std::vector<cv::Mat>& results);
   void add_tile_stats(const TileStats& run, size_t targets, int H, int W);
   int upload_image(const cv::Mat& bgr, bool rgb);  // a [1, 3, H, W] buffer
+  // The physics-informed variant's input: [B, 3, H, W] physics estimates of the batch's (frame,
+  // target) pairs, computed on the device from the uploaded frames rs1 / rs2 (model order).
+  int physics_input(const FrameInput& in, const std::vector<EventTensorPair>& pairs, int rs1, int rs2);
 
   SessionOptions options_;
   std::unique_ptr<Context> ctx_;

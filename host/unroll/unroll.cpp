@@ -30,6 +30,69 @@ nlohmann::json traffic_json(const DeviceTraffic& t, size_t targets) {
           {"submits", double(t.submits) / n}};
 }
 
+// summary.json's job fields (everything but the per-frame records and metrics UnrollOutput adds).
+nlohmann::json job_summary(const UnrollOptions& o, const Sequence& seq, UnrollMode mode, const UnrollSession& session,
+                           const TileOptions& tile_options, const PhysicsUnrollParams& prm, const std::string& contrast_source,
+                           double seq_gamma,
+                           const std::map<std::string, double>& stage_ms, double total_ms, size_t frames, size_t total_targets,
+                           const DeviceTraffic& traffic, std::map<std::string, int> notes) {
+  const SessionStats& st = session.stats();
+  nlohmann::json extra;
+  extra["sequence"] = {{"path", o.sequence}, {"layout", sequence_layout_name(seq.layout)},
+                       {"width", seq.width}, {"height", seq.height}, {"frames_in_sequence", seq.frames.size()},
+                       {"notes", seq.notes}};
+  extra["mode"] = unroll_mode_name(mode);
+  extra["runs"] = {{"s", st.runs_s}, {"m", st.runs_m}, {"physics", st.runs_physics}, {"physics_on_cpu", st.physics_on_cpu},
+                   {"host_path", st.host_path_targets}};
+  if (session.has_model())
+    extra["model"] = {{"path", o.session.model_path}, {"config", session.model_config().summary()},
+                      {"channel_order", session.model_rgb() ? "rgb" : "bgr"}};
+  const bool variant = session.has_model() && session.model_config().physics_input;
+  if (mode == UnrollMode::physics || variant)
+    extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma},
+                        {"role", variant ? "the model's physics input" : "the unroller"}};
+  if (session.has_model())
+    extra["encoding"] = {{"sequence_gamma", seq_gamma},
+                         {"model_gamma", session.model_config().gamma ? nlohmann::json(*session.model_config().gamma) : nlohmann::json()}};
+  if (session.has_model()) {
+    nlohmann::json tj{{"tile", tile_options.tile}, {"tile_used", st.tile_used}, {"halo", tile_options.halo},
+                      {"sparse", sparse_policy_name(o.sparse)}, {"sparse_threshold", o.sparse_threshold},
+                      {"tiles_per_target", st.tiles_per_target}, {"tiles", st.tiles}, {"tiles_run", st.tiles_run},
+                      {"active_tile_fraction", st.tiles ? double(st.tiles_run) / double(st.tiles) : 0.0},
+                      {"work_ratio", st.target_active_fraction.empty() ? 0.0 : st.work_pixels / double(st.target_active_fraction.size())}};
+    if (!st.target_active_fraction.empty()) {
+      double lo = 1, hi = 0, sum = 0;
+      for (double a : st.target_active_fraction) lo = std::min(lo, a), hi = std::max(hi, a), sum += a;
+      tj["target_active_fraction"] = {{"min", lo}, {"mean", sum / st.target_active_fraction.size()}, {"max", hi}};
+    }
+    extra["tiling"] = tj;
+  }
+  extra["frames"] = frames;
+  extra["targets"] = total_targets;
+  extra["backend"] = backend_kind_name(session.backend_kind());
+  extra["precision"] = precision_name(o.session.precision);
+  if (session.context()) extra["device"] = session.context()->info().name;
+  nlohmann::json per_frame;
+  for (const auto& [name, ms] : stage_ms) per_frame[name] = total_targets ? ms / total_targets : 0.0;
+  extra["ms_per_gs_frame"] = per_frame;
+  extra["ms_per_gs_frame_total"] = total_targets ? total_ms / total_targets : 0.0;
+  extra["device_traffic_per_gs_frame"] = traffic_json(traffic, total_targets);
+  // Device time against wall time: on a GPU most of a frame should be device work.
+  extra["gpu_ms_per_gs_frame"] = total_targets ? traffic.gpu_ms / total_targets : 0.0;
+  extra["memory_forced_submits"] = session.memory_forced_submits();
+  extra["peak_device_bytes"] = session.peak_device_bytes();
+  extra["notes"] = nlohmann::json::array();
+  if (st.host_path_targets)
+    notes[std::to_string(st.host_path_targets) + " target(s) too large for device-resident event tensors (one binding " +
+          "holds at most " + std::to_string(session.backend().max_buffer_bytes() >> 20) +
+          " MiB): built, downloaded and tiled on the host"]++;
+  if (session.memory_forced_submits())
+    notes["the device's memory forced " + std::to_string(session.memory_forced_submits()) +
+          " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
+  for (const auto& [n, c] : notes) extra["notes"].push_back(n + (c > 1 ? " (x" + std::to_string(c) + ")" : ""));
+  return extra;
+}
+
 }  // namespace
 
 double estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma) {
@@ -63,22 +126,19 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   size_t total_targets = 0;
   for (const auto& [k, ts] : targets) total_targets += ts.size();
 
-  PhysicsUnrollParams prm;
-  std::string contrast_source = "given";
-  if (mode == UnrollMode::physics) {
-    prm.gamma = static_cast<float>(o.gamma ? *o.gamma : read_meta_gamma(seq));
-    if (o.contrast) {
-      prm.contrast = static_cast<float>(*o.contrast);
-    } else {
-      const auto t = Clock::now();
-      prm.contrast = static_cast<float>(estimate_contrast(seq, frames, prm.gamma));
-      stage_ms["contrast_estimate"] = ms_since(t);
-      contrast_source = "estimated (temporal consistency of consecutive frames)";
-    }
-    if (!o.quiet)
-      std::cerr << "unroll: physics unroller, contrast c = " << prm.contrast << " (" << contrast_source << "), gamma "
-                << prm.gamma << "\n";
-  }
+  const double seq_gamma = o.gamma ? *o.gamma : read_meta_gamma(seq);
+  const PhysicsPlan physics = plan_physics(mode, session, seq_gamma, o.contrast, [&](double gamma) {
+    const auto t = Clock::now();
+    const double c = estimate_contrast(seq, frames, gamma);
+    stage_ms["contrast_estimate"] = ms_since(t);
+    return c;
+  });
+  const double to_model = physics.to_model;
+  const PhysicsUnrollParams& prm = physics.params;
+  const std::string& contrast_source = physics.contrast_source;
+  if (physics.uses_physics && !o.quiet)
+    std::cerr << "unroll: " << (physics.variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
+              << prm.contrast << " (" << contrast_source << "), gamma " << prm.gamma << "\n";
   session.set_physics(prm);
   TileOptions tile_options;
   tile_options.sparse = o.sparse;
@@ -116,17 +176,20 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
     const SequenceFrame* f2 = any_m ? &seq.frames[k + 1] : nullptr;
     t_read = Clock::now();
     FrameInput in;
-    in.rs1 = read_frame_image(f1.image, seq.width, seq.height);
+    const cv::Mat rs_input = read_frame_image(f1.image, seq.width, seq.height);
+    in.rs1 = encode_for_model(rs_input, to_model);
     in.timing1 = f1.timing;
     if (f2) {
-      in.rs2 = read_frame_image(f2->image, seq.width, seq.height);
+      in.rs2 = encode_for_model(read_frame_image(f2->image, seq.width, seq.height), to_model);
       in.timing2 = f2->timing;
     }
     const auto [lo, hi] = frame_window(f1, f2, ts, methods);
     const EventStream ev = read_window(seq, lo, hi);
     in.events = &ev;
     stage_ms["read"] += ms_since(t_read);
-    const std::vector<cv::Mat> results = session.unroll(in, methods);
+    std::vector<cv::Mat> results = session.unroll(in, methods);
+    for (size_t j = 0; j < results.size(); ++j)
+      if (methods[j].method != FrameTarget::Method::physics) results[j] = encode_for_model(results[j], 1.0 / to_model);
     const auto t_write = Clock::now();
     for (size_t j = 0; j < ts.size(); ++j) {
       cv::Mat gt;
@@ -135,7 +198,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
         gt_file = seq.ground_truth[ts[j].gt].image;
         gt = read_frame_image(gt_file, seq.width, seq.height);
       }
-      output.add(k, ts[j].t_us.to_double(), ts[j].tau, results[j], in.rs1, gt, gt_file, ts[j].name);
+      output.add(k, ts[j].t_us.to_double(), ts[j].tau, results[j], rs_input, gt, gt_file, ts[j].name);
       progress.update(++done, "frame " + std::to_string(k));
     }
     stage_ms["write"] += ms_since(t_write);
@@ -145,55 +208,9 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   const SessionStats& st = session.stats();
   for (const auto& [name, ms] : st.ms) stage_ms[name] += ms;
 
-  const double total_ms = ms_since(t_start);
-  nlohmann::json extra;
-  extra["sequence"] = {{"path", o.sequence}, {"layout", sequence_layout_name(seq.layout)},
-                       {"width", seq.width}, {"height", seq.height}, {"frames_in_sequence", seq.frames.size()},
-                       {"notes", seq.notes}};
-  extra["mode"] = unroll_mode_name(mode);
-  extra["runs"] = {{"s", st.runs_s}, {"m", st.runs_m}, {"physics", st.runs_physics}, {"physics_on_cpu", st.physics_on_cpu},
-                   {"host_path", st.host_path_targets}};
-  if (session.has_model())
-    extra["model"] = {{"path", o.session.model_path}, {"config", session.model_config().summary()},
-                      {"channel_order", session.model_rgb() ? "rgb" : "bgr"}};
-  if (mode == UnrollMode::physics)
-    extra["physics"] = {{"contrast", prm.contrast}, {"contrast_source", contrast_source}, {"gamma", prm.gamma}};
-  if (session.has_model()) {
-    nlohmann::json tj{{"tile", tile_options.tile}, {"tile_used", st.tile_used}, {"halo", tile_options.halo},
-                      {"sparse", sparse_policy_name(o.sparse)}, {"sparse_threshold", o.sparse_threshold},
-                      {"tiles_per_target", st.tiles_per_target}, {"tiles", st.tiles}, {"tiles_run", st.tiles_run},
-                      {"active_tile_fraction", st.tiles ? double(st.tiles_run) / double(st.tiles) : 0.0},
-                      {"work_ratio", st.target_active_fraction.empty() ? 0.0 : st.work_pixels / double(st.target_active_fraction.size())}};
-    if (!st.target_active_fraction.empty()) {
-      double lo = 1, hi = 0, sum = 0;
-      for (double a : st.target_active_fraction) lo = std::min(lo, a), hi = std::max(hi, a), sum += a;
-      tj["target_active_fraction"] = {{"min", lo}, {"mean", sum / st.target_active_fraction.size()}, {"max", hi}};
-    }
-    extra["tiling"] = tj;
-  }
-  extra["frames"] = frames.size();
-  extra["targets"] = total_targets;
-  extra["backend"] = backend_kind_name(session.backend_kind());
-  extra["precision"] = precision_name(o.session.precision);
-  if (session.context()) extra["device"] = session.context()->info().name;
-  nlohmann::json per_frame;
-  for (const auto& [name, ms] : stage_ms) per_frame[name] = total_targets ? ms / total_targets : 0.0;
-  extra["ms_per_gs_frame"] = per_frame;
-  extra["ms_per_gs_frame_total"] = total_targets ? total_ms / total_targets : 0.0;
-  extra["device_traffic_per_gs_frame"] = traffic_json(traffic, total_targets);
-  // Device time against wall time: on a GPU most of a frame should be device work.
-  extra["gpu_ms_per_gs_frame"] = total_targets ? traffic.gpu_ms / total_targets : 0.0;
-  extra["memory_forced_submits"] = session.memory_forced_submits();
-  extra["peak_device_bytes"] = session.peak_device_bytes();
-  extra["notes"] = nlohmann::json::array();
-  if (st.host_path_targets)
-    notes[std::to_string(st.host_path_targets) + " target(s) too large for device-resident event tensors (one binding " +
-          "holds at most " + std::to_string(session.backend().max_buffer_bytes() >> 20) +
-          " MiB): built, downloaded and tiled on the host"]++;
-  if (session.memory_forced_submits())
-    notes["the device's memory forced " + std::to_string(session.memory_forced_submits()) +
-          " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
-  for (const auto& [n, c] : notes) extra["notes"].push_back(n + (c > 1 ? " (x" + std::to_string(c) + ")" : ""));
+  const nlohmann::json extra = job_summary(o, seq, mode, session, tile_options, prm, contrast_source, seq_gamma, stage_ms,
+                                           ms_since(t_start), frames.size(), total_targets, traffic, notes);
+  const double total_ms = extra["ms_per_gs_frame_total"].get<double>() * double(total_targets);
   nlohmann::json summary = output.finish(extra);
 
   if (!o.quiet) {

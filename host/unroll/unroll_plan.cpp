@@ -208,4 +208,34 @@ double estimate_contrast(const std::vector<RowTiming>& timings, const std::vecto
   return best_c;
 }
 
+PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,
+                         const std::function<double(double)>& estimate) {
+  PhysicsPlan p;
+  p.seq_gamma = seq_gamma;
+  const std::optional<double> model_gamma = session.has_model() ? session.model_config().gamma : std::nullopt;
+  p.to_model = model_gamma ? seq_gamma / *model_gamma : 1.0;
+  p.variant = session.has_model() && session.model_config().physics_input;
+  p.uses_physics = mode == UnrollMode::physics || p.variant;
+  if (!p.uses_physics) return p;
+  p.params.gamma = static_cast<float>(mode == UnrollMode::physics ? seq_gamma : model_gamma.value_or(1.0));
+  const std::string& from_model = p.variant ? session.model_config().physics_contrast : std::string("estimate");
+  if (contrast) {
+    p.params.contrast = static_cast<float>(*contrast);
+  } else if (from_model != "estimate") {
+    p.params.contrast = std::stof(from_model);  // validated when the weights were loaded
+    p.contrast_source = "the model's metadata";
+  } else {
+    p.params.contrast = static_cast<float>(estimate(seq_gamma));
+    p.contrast_source = "estimated (temporal consistency of consecutive frames)";
+  }
+  return p;
+}
+
+cv::Mat encode_for_model(const cv::Mat& image, double exponent) {
+  if (std::abs(exponent - 1.0) < 1e-12) return image;
+  cv::Mat v = cv::max(image, 0.0), out;
+  cv::pow(v, exponent, out);
+  return out;
+}
+
 }  // namespace vkunroll

@@ -4,6 +4,7 @@
 #pragma once
 #include <functional>
 #include <map>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -61,5 +62,24 @@ std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFr
 double estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
                          int height, const std::function<cv::Mat(int)>& image,
                          const std::function<EventStream(double, double)>& events);
+
+// The job's encodings and physics parameters (docs/model.md, "unroll"): frames go into a model with
+// a known gamma in its encoding (v^to_model) and its results come back (v^(1/to_model)); the physics
+// unroller decodes frames with the sequence's gamma, the physics-informed variant's physics input is
+// computed on the model-encoded frame.
+struct PhysicsPlan {
+  double seq_gamma = 1.0;
+  double to_model = 1.0;
+  bool variant = false;        // the model is the physics-informed variant
+  bool uses_physics = false;   // mode physics or the variant: `params` matter
+  PhysicsUnrollParams params;
+  std::string contrast_source = "given";
+};
+// `contrast`: the user's (unset: the model's metadata, else `estimate(seq_gamma)`, called only then).
+PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,
+                         const std::function<double(double)>& estimate);
+
+// v^exponent (negative values to 0 first): a frame in another gamma encoding; exponent 1: as it is.
+cv::Mat encode_for_model(const cv::Mat& image, double exponent);
 
 }  // namespace vkunroll

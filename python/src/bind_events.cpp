@@ -25,7 +25,9 @@ py::dict report_dict(const EventReadReport& r) {
   d["dropped_nan"] = r.dropped_nan;
   d["dropped_unknown_word"] = r.dropped_unknown_word;
   d["dropped_bad_polarity"] = r.dropped_bad_polarity;
+  d["reordered"] = r.reordered;
   d["sorted"] = r.sorted;
+  d["empty_file"] = r.empty_file;
   d["size_inferred"] = r.size_inferred;
   d["stopped_early"] = r.stopped_early;
   d["width"] = r.width;

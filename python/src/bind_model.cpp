@@ -48,6 +48,9 @@ py::dict config_dict(const Weights& w) {
   d["rdb_slope"] = c.rdb_slope;
   d["unet_slope"] = c.unet_slope;
   d["moa"] = c.moa;
+  d["physics_input"] = c.physics_input;
+  d["physics_contrast"] = c.physics_contrast;
+  d["gamma"] = c.gamma ? py::object(py::float_(*c.gamma)) : py::object(py::none());
   d["channel_order"] = c.channel_order;
   d["description"] = c.description;
   d["parameters"] = parameter_count(c);
@@ -96,7 +99,7 @@ void bind_model(py::module_& m) {
       .def(
           "run",
           [](PyModel& pm, const F32Array& rs, const F32Array& ev1, const F32Array& ev2, const F32Array& ev3,
-             const std::string& mode, const std::vector<std::string>& outputs, int max_items, float force_m) {
+             const py::object& phys, const std::string& mode, const std::vector<std::string>& outputs, int max_items, float force_m) {
             ModelInputs in;
             RunOptions opt;
             guarded({}, [&] {
@@ -105,7 +108,8 @@ void bind_model(py::module_& m) {
               opt.outputs = outputs;
               opt.max_items = max_items;
               opt.force_m = force_m;
-              in = {host_tensor(rs, "rs"), host_tensor(ev1, "ev1"), host_tensor(ev2, "ev2"), host_tensor(ev3, "ev3")};
+              in = {host_tensor(rs, "rs"), host_tensor(ev1, "ev1"), host_tensor(ev2, "ev2"), host_tensor(ev3, "ev3"), {}};
+              if (!phys.is_none()) in.phys = host_tensor(phys.cast<F32Array>(), "phys");
             });
             auto out = without_gil({}, [&] {
               std::lock_guard<std::mutex> lock(pm.mutex());
@@ -118,7 +122,7 @@ void bind_model(py::module_& m) {
             }
             return d;
           },
-          py::arg("rs"), py::arg("ev1"), py::arg("ev2"), py::arg("ev3"), py::arg("mode"), py::arg("outputs"),
+          py::arg("rs"), py::arg("ev1"), py::arg("ev2"), py::arg("ev3"), py::arg("phys"), py::arg("mode"), py::arg("outputs"),
           py::arg("max_items"), py::arg("force_m"));
 }
 

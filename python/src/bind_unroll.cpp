@@ -13,6 +13,8 @@ namespace {
 struct PySession {
   std::unique_ptr<UnrollSession> session;
   std::mutex mutex;  // one frame at a time (the session's buffers and device queue)
+  // Frames go into the model as v^to_model, its results come back as v^(1/to_model) (plan_physics).
+  double to_model = 1.0;
 };
 
 const char* method_name(FrameTarget::Method m) {
@@ -142,7 +144,13 @@ std::vector<cv::Mat> unroll_frame(PySession& ps, const F32Array& rs1, const RowT
   in.events = &events;
   return without_gil({}, [&] {
     std::lock_guard<std::mutex> lock(ps.mutex);
-    return ps.session->unroll(in, ts);
+    // As run_unroll: the model sees its own encoding; physics targets stay in the sequence's.
+    in.rs1 = encode_for_model(in.rs1, ps.to_model);
+    if (!in.rs2.empty()) in.rs2 = encode_for_model(in.rs2, ps.to_model);
+    std::vector<cv::Mat> out = ps.session->unroll(in, ts);
+    for (size_t j = 0; j < out.size(); ++j)
+      if (ts[j].method != FrameTarget::Method::physics) out[j] = encode_for_model(out[j], 1.0 / ps.to_model);
+    return out;
   });
 }
 
@@ -185,13 +193,28 @@ void bind_session(py::module_& m) {
              t.threshold = threshold;
              s.session->set_tiling(t);
            })
-      .def("set_physics",
-           [](PySession& s, float contrast, float gamma) {
-             PhysicsUnrollParams p;
-             p.contrast = contrast;
-             p.gamma = gamma;
-             s.session->set_physics(p);
-           })
+      .def(
+          "plan_physics",
+          [](PySession& ps, const std::string& mode, double seq_gamma, const py::object& contrast, const py::function& estimate) {
+            const PhysicsPlan p = guarded({}, [&] {
+              std::optional<double> c;
+              if (!contrast.is_none()) c = contrast.cast<double>();
+              return plan_physics(parse_unroll_mode(mode, "mode"), *ps.session, seq_gamma, c,
+                                  [&](double gamma) { return estimate(gamma).cast<double>(); });
+            });
+            ps.session->set_physics(p.params);
+            ps.to_model = p.to_model;
+            py::dict d;
+            d["uses_physics"] = p.uses_physics;
+            d["variant"] = p.variant;
+            d["contrast"] = p.params.contrast;
+            d["gamma"] = p.params.gamma;
+            d["contrast_source"] = p.contrast_source;
+            d["seq_gamma"] = p.seq_gamma;
+            d["to_model"] = p.to_model;
+            return d;
+          },
+          py::arg("mode"), py::arg("seq_gamma"), py::arg("contrast"), py::arg("estimate"))
       .def("stats", [](const PySession& s) { return stats_dict(*s.session); })
       .def(
           "unroll_frame",

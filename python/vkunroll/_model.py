@@ -49,7 +49,8 @@ class Model:
     def config(self):
         """The configuration as a dict: D, C, G, G0, N (= bins), upnet_width, flownet /
         fusion_net / attfusion_net ({"base", "depth"}), slopes, moa (SelfUnroll-M available),
-        channel_order ("rgb" | "bgr": the image order the weights expect), parameters, summary."""
+        physics_input (the physics-informed variant), physics_contrast ("estimate" or a number),
+        gamma (the encoding the model was trained in, None: unknown), channel_order ("rgb" | "bgr": the image order the weights expect), parameters, summary."""
         return dict(self._m.config)
 
     @property
@@ -57,7 +58,7 @@ class Model:
         """The backend's name ("vulkan" or "cpu")."""
         return self._m.backend
 
-    def run(self, rs, ev1, ev2, ev3, mode="s", precision="fp32", outputs=None, max_items=0, force_m=None):
+    def run(self, rs, ev1, ev2, ev3, mode="s", precision="fp32", outputs=None, max_items=0, force_m=None, phys=None):
         """Run the network on raw tensors, exactly as ``vkunroll infer``.
 
         ``rs`` [B, 3, H, W] float images in the model's channel order (:attr:`config`
@@ -67,7 +68,10 @@ class Model:
         toward target k. ``precision``: "fp32" (the kernels compute in fp32; "fp16" is refused).
         ``outputs``: names among sys, E, flow, warped, fused, m, out (default: all of the mode).
         ``max_items``: most batch items run together (0: as many as fit). ``force_m``: replaces
-        M's blend map by this constant (m = 1 gives S of frame 1).
+        M's blend map by this constant (m = 1 gives S of frame 1). ``phys`` [B, 3, H, W]: the
+        physics unroller's estimate at each target (:func:`physics_unroll`, in the model's
+        encoding), needed by the physics-informed variant (:attr:`config` ["physics_input"]) and
+        refused by the others.
 
         Returns a dict of float32 arrays: sys, E, flow, warped, fused [B, ...]; m, out [K, ...] in
         mode m. The GIL is released while the network runs.
@@ -77,7 +81,9 @@ class Model:
                              "fp16 kernels are not built yet)")
         n = self.config["N"]
         arrays = [_nchw(rs, "rs", 3), _nchw(ev1, "ev1", 2 * n), _nchw(ev2, "ev2", 2 * n), _nchw(ev3, "ev3", 2 * n)]
-        out = self._m.run(*arrays, mode, list(outputs or []), int(max_items), -1.0 if force_m is None else float(force_m))
+        if phys is not None:
+            phys = _nchw(phys, "phys", 3)
+        out = self._m.run(*arrays, phys, mode, list(outputs or []), int(max_items), -1.0 if force_m is None else float(force_m))
         return dict(out)
 
     def __repr__(self):

@@ -50,7 +50,9 @@ class UnrollSession:
         ``rs1``: the frame (H x W x 3 RGB or H x W, float in [0, 1] or uint8 / uint16);
         ``timing1`` its :class:`RowTiming`; ``events``: every target's window (see
         :func:`unroll`); ``targets``: (t_us, method) pairs, method "s", "m" or "physics";
-        ``rs2``, ``timing2``: the next frame (needed by "m" targets). The GIL is released.
+        ``rs2``, ``timing2``: the next frame (needed by "m" targets). Model targets see the frames as
+        v^e (e: the exponent into the model's gamma encoding that the last :func:`unroll` on this
+        session chose, 1 on a fresh session) and come back as v^(1/e). The GIL is released.
         """
         t, x, y, p = event_fields(events)
         a = _rgb(rs1, "rs1")
@@ -237,8 +239,9 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     frames [T, H, W, 3] float32 RGB in [0, 1]; metrics: "psnr", "ssim" per target against the
     ground truth at that instant (NaN where there is none), "rs_psnr", "rs_ssim" of the RS
     input, and "count", "mean_psnr", "mean_ssim", "rs_mean_psnr", "rs_mean_ssim"; targets: per
-    target frame, t_us, tau, method, gt; stats: mode, notes, contrast / gamma (physics), ms per
-    GS frame, and the session's counters.
+    target frame, t_us, tau, method, gt; stats: mode, notes, contrast / gamma / contrast_source (mode
+    physics, or the physics-informed variant's input), encoding (the frames' gamma and the exponent
+    into the model's encoding), ms per GS frame, and the session's counters.
 
     Raises ValueError (bad option or input, named as the CLI names it), FileNotFoundError,
     RuntimeError (device failures). The GIL is released while frames are unrolled.
@@ -255,13 +258,18 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     if channel_order != "model":
         sess._s.model_rgb = channel_order == "rgb"
     stats = {"mode": mode_used, "notes": list(notes)}
-    if mode_used == "physics":
-        g = float(gamma) if gamma is not None else src.gamma()
-        chosen = list(frames) if frames else list(range(len(src.timings)))
-        c = float(contrast) if contrast is not None else src.estimate_contrast(chosen, g)
-        sess._s.set_physics(c, g)
-        stats.update(contrast=c, contrast_source="given" if contrast is not None else "estimated", gamma=g)
-        _log.info("unroll: physics unroller, contrast c = %g (%s), gamma %g", c, stats["contrast_source"], g)
+    seq_gamma = float(gamma) if gamma is not None else src.gamma()
+    chosen = list(frames) if frames else list(range(len(src.timings)))
+    # As `vkunroll unroll`: the physics parameters (of mode physics or of the physics-informed
+    # variant's input) and the exponent into the model's gamma encoding (plan_physics in C++).
+    phys = sess._s.plan_physics(mode_used, seq_gamma, None if contrast is None else float(contrast),
+                                lambda g: src.estimate_contrast(chosen, g))
+    stats["encoding"] = {"sequence_gamma": seq_gamma, "to_model": phys["to_model"]}
+    if phys["uses_physics"]:
+        stats.update(contrast=phys["contrast"], contrast_source=phys["contrast_source"], gamma=phys["gamma"])
+        _log.info("unroll: %s, contrast c = %g (%s), gamma %g",
+                  "physics input of the model" if phys["variant"] else "physics unroller", phys["contrast"],
+                  phys["contrast_source"], phys["gamma"])
     sess._s.set_tiling(int(tile), int(halo), sparse, float(sparse_threshold))
     images, targets, metrics = _run_frames(sess, src, plan, progress)
     total = max(len(images), 1)

@@ -19,6 +19,7 @@ import vkunroll
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DATA = os.path.join(ROOT, "tests", "data")
 TINY = os.path.join(DATA, "selfunroll_tiny.safetensors")
+TINY_PHYSICS = os.path.join(DATA, "selfunroll_tiny_physics.safetensors")
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
 FIXTURES = [("selfunroll_golden_s_64x48.safetensors", "s"), ("selfunroll_golden_m_64x48.safetensors", "m"),
             ("selfunroll_golden_m_37x29.safetensors", "m")]
@@ -56,6 +57,22 @@ def test_golden_fixtures(models, fixture, mode, backend):
         assert arr.dtype == np.float32 and arr.shape == g[name].shape, name
         err = float(np.abs(arr - g[name]).max())
         assert err <= 1e-4, f"{name}: max |diff| {err} on {backend}, {fixture}"
+
+
+@pytest.mark.parametrize("fixture,mode", [("selfunroll_golden_physics_s_64x48.safetensors", "s"),
+                                          ("selfunroll_golden_physics_m_37x29.safetensors", "m")])
+@pytest.mark.parametrize("backend", ["vulkan", "cpu"])
+def test_physics_variant_golden_fixtures(fixture, mode, backend):
+    g = load_safetensors(os.path.join(DATA, fixture))
+    model = vkunroll.Model.load(TINY_PHYSICS, backend=backend)
+    assert model.config["physics_input"] and model.config["gamma"] == 2.2
+    assert model.config["physics_contrast"] == "estimate"
+    out = model.run(g["rs"], g["ev1"], g["ev2"], g["ev3"], mode=mode, phys=g["phys"])
+    for name, arr in out.items():
+        err = float(np.abs(arr - g[name]).max())
+        assert err <= 1e-4, f"{name}: max |diff| {err} on {backend}, {fixture}"
+    with pytest.raises(ValueError, match="'phys'"):
+        model.run(g["rs"], g["ev1"], g["ev2"], g["ev3"], mode=mode)
 
 
 def test_run_equals_cli_infer(models, tmp_path):
@@ -129,6 +146,8 @@ def test_errors_have_python_types_and_library_messages(models, tmp_path):
     e8 = np.zeros((1, 8, 16, 16), np.float32)
     with pytest.raises(ValueError, match="fp32 is the only precision"):
         models["cpu"].run(z, e8, e8, e8, precision="fp16")
+    with pytest.raises(ValueError, match="not the physics-informed variant"):
+        models["cpu"].run(z, e8, e8, e8, phys=z)
     with pytest.raises(ValueError, match="mode 'x'"):
         models["cpu"].run(z, e8, e8, e8, mode="x")
     with pytest.raises(ValueError, match="no device name contains it"):

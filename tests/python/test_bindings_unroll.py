@@ -14,6 +14,7 @@ from vkunroll import _vkunroll
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 TINY = os.path.join(ROOT, "tests", "data", "selfunroll_tiny.safetensors")
+TINY_PHYSICS = os.path.join(ROOT, "tests", "data", "selfunroll_tiny_physics.safetensors")
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
 
 
@@ -66,6 +67,22 @@ def test_model_equals_cli(seq, tmp_path):
     assert summary["runs"]["m"] == result.stats["session"]["runs_m"] == 4
     assert_same_as_cli(result, cli)
     assert calls == [(2, 6, 0), (4, 6, 1), (6, 6, 2)]
+
+
+def test_physics_variant_equals_cli(seq, tmp_path):
+    """The physics-informed variant (gamma 2.2 in its metadata; the frames said to be linear,
+    gamma 1): the frames go in as v^(1/2.2) and come back, the physics input's contrast is
+    estimated as the CLI does."""
+    cli = cli_unroll(seq, tmp_path / "cli", "--model", TINY_PHYSICS, "--mode", "s", "--times", "gt", "--frames", "0:1",
+                     "--gamma", "1")
+    summary = cli[3]
+    result = vkunroll.unroll(seq, times="gt", mode="s", model=TINY_PHYSICS, frames=[0, 1], gamma=1.0)
+    assert summary["physics"]["role"] == "the model's physics input"
+    assert result.stats["contrast"] == pytest.approx(summary["physics"]["contrast"], abs=1e-6)
+    assert result.stats["gamma"] == pytest.approx(summary["physics"]["gamma"])
+    assert summary["encoding"]["sequence_gamma"] == 1 and summary["encoding"]["model_gamma"] == 2.2
+    assert result.stats["encoding"]["to_model"] == pytest.approx(1 / 2.2)
+    assert_same_as_cli(result, cli)
 
 
 def test_arrays_equal_the_sequence(seq):

@@ -1,0 +1,251 @@
+"""The physics unroller in NumPy (tools/physics_numpy.py) against `vkunroll unroll --mode physics`,
+the physics-informed variant of the mirror (starts exactly at the physics estimate, export,
+metadata, converter), the sample cache, and a CI-sized adaptation to one recording whose
+self-supervised loss falls without ground truth being read."""
+import json
+import os
+import random
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+sys.path.insert(0, os.path.join(ROOT, "tools"))
+sys.path.insert(0, HERE)
+
+import convert_checkpoint  # noqa: E402
+import natural_eval  # noqa: E402
+import physics_numpy as pn  # noqa: E402
+import safetensors_io  # noqa: E402
+import train  # noqa: E402
+import train_data  # noqa: E402
+from selfunroll_torch import SelfUnroll, SelfUnrollConfig, infer_config, load_model  # noqa: E402
+from sequence_data import Sequence, read_image  # noqa: E402
+from test_train import edi_pixel, write_sequence  # noqa: E402
+
+CLI = os.environ.get("VKUNROLL_CLI")
+TRAIN = os.path.join(ROOT, "tools", "train.py")
+needs_cli = pytest.mark.skipif(not CLI or not os.path.exists(CLI or ""), reason="VKUNROLL_CLI not set (run through ctest)")
+
+
+@pytest.fixture(scope="module")
+def seq_dir(tmp_path_factory):
+    return write_sequence(str(tmp_path_factory.mktemp("pv") / "s0"))
+
+
+# ---- physics ---------------------------------------------------------------------------------------
+def test_log_ratio_matches_the_cpp_formula_for_rs_targets(seq_dir):
+    """Per-row targets (the RS -> RS passes of training) and a GS source window, pixel by pixel
+    against the C++ loop (edi_pixel), which the scalar-t* case reduces to."""
+    s = Sequence(seq_dir)
+    s1, e1 = s.row_times(0)
+    s2, _ = s.row_times(1)
+    t_star = s.gt[1][1]
+    ts = np.full(s.height, t_star)
+    crop = (4, 6, 40, 30)
+    ev = s.events_in(min(s1.min(), t_star) - 1, max(s2.max(), e1.max(), t_star + s.exposure) + 1, crop)
+    t, x, y, p = s.events
+    for src_s, src_e, tgt in ((s1, e1, s2), (ts, ts + s.exposure, s1), (s1, e1, t_star)):
+        lr = pn.physics_log_ratio(ev, src_s, src_e, tgt, 0.23, crop)
+        tgt_rows = np.full(s.height, t_star) if np.ndim(tgt) == 0 else tgt
+        checked = 0
+        for px, py in ((5, 7), (20, 10), (43, 35), (30, 20), (10, 30)):
+            T0 = tgt_rows[py]
+            S, E = np.float32(src_s[py] - T0), np.float32(src_e[py] - T0)
+            sel = (x == px) & (y == py) & (t >= min(src_s[py], T0)) & (t <= max(src_e[py], T0))
+            taus = list(np.float32(t[sel] - T0).astype(np.float64))
+            want = edi_pixel(taus, [1 if q else -1 for q in p[sel]], float(S), float(E), float(np.float32(0.23)))
+            np.testing.assert_allclose(lr[py - crop[1], px - crop[0]], want, rtol=1e-6, atol=1e-9)
+            checked += int(sel.sum() > 0)
+        assert checked >= 3
+
+
+@needs_cli
+def test_physics_numpy_equals_vkunroll_unroll_physics(tmp_path):
+    """Same contrast estimate and the same images as the CLI (CPU reference and Vulkan kernel):
+    within 2e-5, i.e. the 16-bit PNG quantization (7.6e-6) plus float32 rounding."""
+    seq = tmp_path / "sim"
+    r = subprocess.run([CLI, "simulate", "--out", seq, "--size", "96x72", "--frames", "3", "--gt-per-frame", "2",
+                        "--seed", "5", "--motion", "mixed", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    s = Sequence(str(seq))
+    frames = list(range(s.num_frames))
+    for extra, backend in (([], "cpu"), ([], "vulkan"), (["--contrast", "0.31", "--gamma", "1"], "vulkan")):
+        out = tmp_path / f"out_{backend}_{len(extra)}"
+        r = subprocess.run([CLI, "unroll", seq, "--out", out, "--mode", "physics", "--times", "gt", "--no-video",
+                            "--bit-depth", "16", "--backend", backend, "--quiet"] + extra, capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        summ = json.load(open(out / "summary.json"))
+        gamma = 1.0 if extra else pn.meta_gamma(s)
+        c = 0.31 if extra else pn.estimate_contrast(s, frames, gamma)
+        assert abs(summ["physics"]["contrast"] - c) < 1e-6 and abs(summ["physics"]["gamma"] - gamma) < 1e-6
+        rows = [l.split(",") for l in open(out / "metrics.csv").read().splitlines()[1:]]
+        assert len(rows) == len(s.gt)
+        for row in rows:
+            k, t = int(row[0]), float(row[1])
+            assert pn.frame_for_time(s, frames, t) == k
+            # tools/natural_eval.py's metrics are host/metrics.cpp's (RS input vs ground truth: both PNGs)
+            gt = read_image(row[4])
+            assert abs(natural_eval.psnr(s.frame(k), gt) - float(row[7])) < 1e-4
+            assert abs(natural_eval.ssim(s.frame(k), gt) - float(row[8])) < 1e-5
+            mine = np.clip(pn.unroll_physics(s, k, t, c, gamma), 0, 1)
+            cpp = read_image(str(out / row[3]))
+            err = float(np.abs(mine - cpp).max())
+            assert err <= 2e-5, (backend, extra, t, err)
+
+
+# ---- the variant -------------------------------------------------------------------------------------
+def tiny_variant(seed=1):
+    cfg = train.make_config("tiny")
+    cfg.physics_input, cfg.gamma = True, 2.2
+    net = SelfUnroll(cfg)
+    train.init_model(net, seed)
+    return net
+
+
+def random_inputs(cfg, b=2, h=40, w=56, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    rs = 0.05 + 0.9 * torch.rand(b, 3, h, w, generator=g)
+    ev = [torch.randint(0, 3, (b, 2 * cfg.N, h, w), generator=g).float() for _ in range(3)]
+    phys = (rs * torch.exp(0.3 * torch.randn(b, 1, h, w, generator=g))).clamp(max=1.4)
+    return rs, ev, phys
+
+
+def test_variant_starts_exactly_at_the_physics_estimate():
+    net = tiny_variant()
+    rs, ev, phys = random_inputs(net.cfg)
+    with torch.no_grad():
+        sys_, E, flow, warped, fused, m, out = net(rs, *ev, phys=phys)
+    want = phys.clamp(0, 1)
+    assert float(E.abs().max()) == 0.0
+    assert float((sys_ - want).abs().max()) == 0.0
+    assert float((fused - want).abs().max()) < 1e-6
+    assert out is not None and float((out - (m * want[:1] + (1 - m) * want[1:])).abs().max()) < 1e-6
+    with pytest.raises(ValueError, match="needs phys"):
+        net(rs, *ev)
+    plain = SelfUnroll(train.make_config("tiny"))
+    with pytest.raises(ValueError, match="no physics input"):
+        plain(rs, *ev, phys=phys)
+
+
+def test_lifting_a_trained_model_keeps_its_trunk_and_starts_at_physics():
+    src = SelfUnroll(train.make_config("tiny"))
+    train.init_model(src, 4)
+    with torch.no_grad():
+        for p in src.parameters():
+            p.add_(0.01 * torch.randn_like(p))  # "trained": not an init any more
+    net = train.lift_to_physics(src, 2)
+    assert net.cfg.physics_input and net.cfg.gamma == 2.2
+    w = net.SFENet1.weight
+    n_old = src.SFENet1.weight.shape[1]
+    assert torch.equal(w[:, :n_old], src.SFENet1.weight) and float(w[:, n_old:].abs().max()) == 0.0
+    assert torch.equal(net.flownet.head.weight, src.flownet.head.weight)
+    assert float(net.attfusion_net.pred.bias.abs().max()) == 0.0  # MOA restarts near m = 0.5
+    rs, ev, phys = random_inputs(net.cfg, seed=3)
+    with torch.no_grad():
+        fused = net(rs, *ev, phys=phys, moa=False)[4]
+    assert float((fused - phys.clamp(0, 1)).abs().max()) < 1e-6
+
+
+def test_variant_export_metadata_and_shapes(tmp_path):
+    net = tiny_variant()
+    path = str(tmp_path / "v.safetensors")
+    train.export(net, path, {"data": "test"})
+    tensors, md = safetensors_io.load(path)
+    assert md["physics_input"] == "true" and md["physics_contrast"] == "estimate" and float(md["gamma"]) == 2.2
+    assert tuple(tensors["SFENet1.weight"].shape)[1] == 4 * (3 + 6 * net.cfg.N + 3)
+    shapes = infer_config({k: tuple(v.shape) for k, v in tensors.items()})
+    assert shapes.physics_input and shapes.N == net.cfg.N
+    back = load_model(path)
+    rs, ev, phys = random_inputs(net.cfg, b=1)
+    with torch.no_grad():
+        a, b = net(rs, *ev, phys=phys, moa=False)[4], back(rs, *ev, phys=phys, moa=False)[4]
+    assert torch.equal(a, b)
+    # the published family: unchanged shapes and no variant keys in its metadata
+    pub = SelfUnrollConfig()
+    assert "physics_input" not in pub.to_metadata() and "gamma" not in pub.to_metadata()
+    assert SelfUnroll(pub).SFENet1.weight.shape[1] == 396
+    assert not infer_config({k: tuple(v.shape) for k, v in SelfUnroll(pub).state_dict().items()}).physics_input
+
+
+def test_converter_knows_the_variant(tmp_path, capsys):
+    net = tiny_variant()
+    torch.save({"state_dict": {"module." + k: v for k, v in net.state_dict().items()}}, tmp_path / "v.pth")
+    cfg, missing, unexpected = convert_checkpoint.convert(str(tmp_path / "v.pth"), str(tmp_path / "v.safetensors"))
+    assert cfg.physics_input and not missing and not unexpected
+    assert "physics-informed" in capsys.readouterr().out
+    _, md = safetensors_io.load(str(tmp_path / "v.safetensors"))
+    assert md["physics_input"] == "true" and float(md["gamma"]) == 2.2
+    rc = convert_checkpoint.main([str(tmp_path / "v.pth"), str(tmp_path / "g.safetensors"), "--gamma", "1"])
+    assert rc == 0 and float(safetensors_io.load(str(tmp_path / "g.safetensors"))[1]["gamma"]) == 1.0
+
+
+# ---- trainer: cache, device, adaptation -----------------------------------------------------------------
+def run_train(*args, timeout=600):
+    return subprocess.run([sys.executable, TRAIN, "--threads", "1", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_cache_of_prepared_samples_trains(tmp_path, seq_dir):
+    r = run_train("--data", seq_dir, "--out", tmp_path / "o", "--config", "tiny", "--physics-variant", "--crop", "32x32",
+                  "--make-cache", tmp_path / "cache", "--cache-samples", "5", "--seed", "3")
+    assert r.returncode == 0, r.stdout + r.stderr
+    meta = json.load(open(tmp_path / "cache" / "cache.json"))
+    assert meta["count"] == 5 and meta["physics"] and meta["bins"] == 2
+    cs = train_data.CacheSampler(str(tmp_path / "cache"), random.Random(0), 2, True)
+    smp = cs.draw()
+    assert smp.rs1.shape == (3, 32, 32) and smp.lr["c1"].shape == (1, 32, 32) and smp.ev["r12"][0].shape == (4, 32, 32)
+    r = run_train("--cache", tmp_path / "cache", "--out", tmp_path / "t", "--config", "tiny", "--physics-variant",
+                  "--crop", "32x32", "--batch", "2", "--steps-s", "2", "--steps-m", "1", "--print-every", "0")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "[s] step 2/2" in r.stdout and "[m] step 1/1" in r.stdout
+    _, md = safetensors_io.load(str(tmp_path / "t" / "model.safetensors"))
+    assert md["physics_input"] == "true" and md["training.device"] == "cpu" and "cache" in md["training.data"]
+    # a cache for another model is refused with what it holds
+    r = run_train("--cache", tmp_path / "cache", "--out", tmp_path / "u", "--config", "tiny", "--steps-s", "1")
+    assert r.returncode == 1 and "physics=True" in r.stderr
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is present")
+def test_cuda_device_refused_clearly_without_cuda(tmp_path, seq_dir):
+    r = run_train("--data", seq_dir, "--out", tmp_path / "o", "--device", "cuda", "--steps-s", "1")
+    assert r.returncode != 0 and "--device cuda: this PyTorch has no CUDA device" in r.stderr
+
+
+def mean_loss(net, samples):
+    with torch.no_grad():
+        return float(np.mean([float(train.stage_s_losses(net, [s])["total"]) for s in samples]))
+
+
+def test_tiny_adaptation_lowers_the_self_supervised_loss(tmp_path, seq_dir):
+    """--adapt on one recording without its ground truth (gs/ removed): the loss on fixed samples of
+    that recording falls, and the written model is a loadable weights file saying what it is."""
+    rec = tmp_path / "rec"
+    shutil.copytree(seq_dir, rec)
+    shutil.rmtree(rec / "gs")  # adaptation must never read ground truth
+    base = tiny_variant(seed=5)
+    base_path = tmp_path / "base.safetensors"
+    train.export(base, str(base_path), {"data": "test"})
+    s = Sequence(str(rec))
+    info = train_data.SeqInfo(s)
+    sampler = train_data.Sampler([s], 32, 32, base.cfg.N, None, random.Random(11), physics=True, model_gamma=2.2)
+    sampler.infos[s.folder] = info
+    fixed = [sampler.draw() for _ in range(4)]
+    before = mean_loss(load_model(str(base_path)), fixed)
+    r = run_train("--adapt", rec, "--from", base_path, "--minutes", "5", "--steps-s", "40", "--crop", "32x32",
+                  "--batch", "2", "--lr", "2e-3", "--out", tmp_path / "a", "--print-every", "0", "--seed", "2")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "[s] step 40/40" in r.stdout and " loss " in r.stdout and "[m]" not in r.stdout
+    adapted = tmp_path / "a" / "adapted.safetensors"
+    net = load_model(str(adapted))
+    after = mean_loss(net, fixed)
+    assert after < 0.9 * before, (before, after)
+    _, md = safetensors_io.load(str(adapted))
+    assert md["training.adapt"] == str(rec) and md["physics_input"] == "true"
+    r = run_train("--adapt", rec, "--out", tmp_path / "b", "--minutes", "1")
+    assert r.returncode != 0 and "--adapt needs --from" in r.stderr

@@ -1,0 +1,242 @@
+#!/usr/bin/python3
+"""Scores unrolling methods on held-out sequences with ground truth (tools/natural_data.py
+--heldout): intra-frame (t* inside its frame's exposure span) and inter-frame (between frames)
+PSNR and SSIM, per sequence, per motion kind and overall.
+
+  natural_eval.py --data data/natural/heldout --cli build/vkunroll \
+      --model S=models/selfunroll_small.safetensors --json docs/natural_eval_shipped.json
+  natural_eval.py ... --model V=runs/v/model.safetensors --cli-modes s   # also vkunroll unroll --mode s
+
+Methods:
+  RS input          frame k as it is (k = the frame `vkunroll unroll` picks: the one whose
+                    exposure span holds t*, else the nearest middle)
+  physics           `vkunroll unroll --mode physics --times gt` (contrast estimated, gamma from
+                    meta.json), read from its metrics.csv; without --cli: tools/physics_numpy.py
+                    (the same numbers to 1e-5)
+  NAME-S / NAME-M   each --model NAME=FILE through the PyTorch mirror (which `vkunroll infer`
+                    reproduces within 1e-4): S on frame k, M on frames k and k+1 (S on the last
+                    frame, as `unroll --mode m`). A model whose metadata states a gamma runs in
+                    that encoding (frames re-encoded from the sequence's, results back), which is
+                    what `unroll` is specified to do (docs/model.md); the variant gets the physics
+                    estimate at the contrast `--mode physics` estimates.
+  NAME-S(cli) ...   --cli-modes s,m: the same model through `vkunroll unroll --mode s|m` (only for
+                    models the C++ side loads)
+PSNR/SSIM as host/metrics.cpp: images clamped to [0,1], PSNR over all channels, SSIM Gaussian
+11x11 (sigma 1.5), valid region, mean over channels.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Dict, List, Optional
+
+import numpy as np
+import torch
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import physics_numpy as pn  # noqa: E402
+from selfunroll_torch import load_model  # noqa: E402
+from sequence_data import DataError, Sequence, list_sequences  # noqa: E402
+from train import unroll_pair  # noqa: E402
+from train_data import SeqInfo  # noqa: E402
+
+
+# ---- metrics as host/metrics.cpp --------------------------------------------------------------------
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    d = np.clip(a, 0, 1).astype(np.float64) - np.clip(b, 0, 1).astype(np.float64)
+    mse = float((d * d).mean())
+    return 100.0 if mse <= 0 else 10 * math.log10(1.0 / mse)
+
+
+def ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """[C, H, W] images; cv::getGaussianKernel(11, 1.5) with BORDER_REFLECT, valid region."""
+    a = np.clip(a, 0, 1).astype(np.float64)
+    b = np.clip(b, 0, 1).astype(np.float64)
+    win = min(11, a.shape[1], a.shape[2])
+    sigma = 1.5 * win / 11.0
+    g = np.exp(-((np.arange(win) - (win - 1) / 2) ** 2) / (2 * sigma * sigma))
+    g /= g.sum()
+    C1, C2 = 0.01 ** 2, 0.03 ** 2
+    h, w = a.shape[1:]
+    r = win // 2
+
+    def blur(m):
+        # separable correlation; the valid region never reads the (symmetric = BORDER_REFLECT) padding
+        m = np.pad(m, r, mode="symmetric")
+        m = sum(g[i] * m[i:i + h, :] for i in range(win))
+        m = sum(g[i] * m[:, i:i + w] for i in range(win))
+        return m[r:r + h - win + 1, r:r + w - win + 1]
+    tot = 0.0
+    for x, y in zip(a, b):
+        mx, my = blur(x), blur(y)
+        sxx, syy, sxy = blur(x * x) - mx * mx, blur(y * y) - my * my, blur(x * y) - mx * my
+        s = ((2 * mx * my + C1) * (2 * sxy + C2)) / ((mx * mx + my * my + C1) * (sxx + syy + C2))
+        tot += float(s.mean())
+    return tot / a.shape[0]
+
+
+# ---- the CLI -----------------------------------------------------------------------------------------
+def cli_metrics(cli: str, seq: Sequence, work: str, mode: str, model: Optional[str] = None) -> Dict[float, dict]:
+    """metrics.csv rows of `vkunroll unroll --mode MODE --times gt`, by GT time."""
+    out = os.path.join(work, f"{os.path.basename(seq.folder.rstrip('/'))}_{mode}")
+    cmd = [cli, "unroll", seq.folder, "--out", out, "--mode", mode, "--times", "gt", "--no-video", "--quiet"]
+    if model:
+        cmd += ["--model", model]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise DataError(f"{' '.join(cmd)} failed: {r.stderr.strip()[-400:]}")
+    res = {float(row["t_us"]): row for row in csv.DictReader(open(os.path.join(out, "metrics.csv")))}
+    summ = json.load(open(os.path.join(out, "summary.json")))
+    res["_summary"] = summ
+    return res
+
+
+def kind_of(seq: Sequence) -> str:
+    p = os.path.join(seq.folder, "natural.json")
+    return json.load(open(p)).get("kind", "unknown") if os.path.isfile(p) else "unknown"
+
+
+def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(), limit: int = 0,
+             threads: int = 2, log=print) -> dict:
+    torch.set_num_threads(threads)
+    nets = {name: load_model(path) for name, path in models.items()}
+    seqs = [Sequence(p, cache_images=True) for p in list_sequences(data)]
+    rows = []
+    t0 = time.time()
+    with tempfile.TemporaryDirectory() as work:
+        for seq in seqs:
+            ts = time.time()
+            gamma = pn.meta_gamma(seq)
+            phys_cli = cli_metrics(cli, seq, work, "physics") if cli else None
+            contrast = (float(phys_cli["_summary"]["physics"]["contrast"]) if phys_cli else
+                        pn.estimate_contrast(seq, None, gamma))
+            info = SeqInfo(seq)
+            info.gamma = gamma
+            info.contrast = lambda c=contrast: c  # the contrast --mode physics estimated for this sequence
+            cli_model = {}
+            for name, path in models.items():
+                for mode in cli_modes:
+                    cli_model[(name, mode)] = cli_metrics(cli, seq, work, mode, path)
+            gts = [(i, g) for i, g in enumerate(seq.meta.get("ground_truth") or [])]
+            if limit:
+                gts = gts[:limit]
+            frames = list(range(seq.num_frames))
+            for i, g in gts:
+                t = float(g["t_us"])
+                k = pn.frame_for_time(seq, frames, t)
+                tau = float(g.get("tau", (t - seq.frame_span(k)[0]) / (seq.frame_span(k)[1] - seq.frame_span(k)[0])))
+                gt = seq.gt_image(i)
+                row = {"sequence": os.path.basename(seq.folder.rstrip("/")), "kind": kind_of(seq), "t_us": t,
+                       "frame": k, "tau": tau, "intra": 0.0 <= tau <= 1.0, "psnr": {}, "ssim": {}}
+                rs = seq.frame(k)
+                row["psnr"]["RS input"], row["ssim"]["RS input"] = psnr(rs, gt), ssim(rs, gt)
+                if phys_cli:
+                    m = [v for tt, v in phys_cli.items() if tt != "_summary" and abs(tt - t) < 0.5][0]
+                    row["psnr"]["physics"], row["ssim"]["physics"] = float(m["psnr"]), float(m["ssim"])
+                else:
+                    ph = pn.unroll_physics(seq, k, t, contrast, gamma)
+                    row["psnr"]["physics"], row["ssim"]["physics"] = psnr(ph, gt), ssim(ph, gt)
+                full = (0, 0, seq.width, seq.height)
+                for name, net in nets.items():
+                    if k + 1 < seq.num_frames:
+                        r = unroll_pair(net, seq, k, t, seq.exposure, net.cfg.N, full, info)
+                        s_img = r["s1"][0].numpy()
+                        m_img = r["m"][0].numpy() if "m" in r else s_img
+                    else:  # the last frame: S only (as unroll --mode m); unroll_pair needs frame k+1
+                        r = unroll_pair(net, seq, k - 1, t, seq.exposure, net.cfg.N, full, info)
+                        s_img = m_img = r["s2"][0].numpy()
+                    for tag, img in ((f"{name}-S", s_img), (f"{name}-M", m_img)):
+                        row["psnr"][tag], row["ssim"][tag] = psnr(img, gt), ssim(img, gt)
+                    for mode in cli_modes:
+                        c = [v for tt, v in cli_model[(name, mode)].items() if tt != "_summary" and abs(tt - t) < 0.5][0]
+                        tag = f"{name}-{mode.upper()}(cli)"
+                        row["psnr"][tag], row["ssim"][tag] = float(c["psnr"]), float(c["ssim"])
+                rows.append(row)
+            log(f"{seq.folder}: {len(gts)} targets, contrast {contrast:.3f}, gamma {gamma:g} "
+                f"({time.time() - ts:.0f} s)")
+    return {"data": data, "models": models, "cli": cli, "cli_modes": list(cli_modes), "rows": rows,
+            "seconds": round(time.time() - t0, 1), "summary": summarize(rows)}
+
+
+def summarize(rows: List[dict]) -> dict:
+    """Mean PSNR/SSIM per (group, intra|inter, method); groups: each sequence, each kind, all."""
+    out: Dict[str, dict] = {}
+    for r in rows:
+        for grp in (f"seq:{r['sequence']}", f"kind:{r['kind']}", "all"):
+            d = out.setdefault(grp, {}).setdefault("intra" if r["intra"] else "inter", {})
+            for meth in r["psnr"]:
+                e = d.setdefault(meth, {"psnr": [], "ssim": []})
+                e["psnr"].append(r["psnr"][meth])
+                e["ssim"].append(r["ssim"][meth])
+    for grp in out.values():
+        for part in grp.values():
+            for meth, e in part.items():
+                part[meth] = {"psnr": float(np.mean(e["psnr"])), "ssim": float(np.mean(e["ssim"])), "n": len(e["psnr"])}
+    return out
+
+
+def markdown(res: dict, groups: Optional[List[str]] = None) -> str:
+    s = res["summary"]
+    methods = []
+    for grp in s.values():
+        for part in grp.values():
+            methods += [m for m in part if m not in methods]
+    groups = groups or sorted(s, key=lambda g: (g != "all", not g.startswith("kind:"), g))
+    lines = ["| group | part | " + " | ".join(methods) + " |", "| --- | --- |" + " --- |" * len(methods)]
+    for g in groups:
+        for part in ("intra", "inter"):
+            if part not in s[g]:
+                continue
+            cells = [f"{s[g][part][m]['psnr']:.2f}" if m in s[g][part] else "" for m in methods]
+            n = max(v["n"] for v in s[g][part].values())
+            lines.append(f"| {g} | {part} (n={n}) | " + " | ".join(cells) + " |")
+    lines.append("")
+    lines.append("SSIM, same groups:")
+    lines.append("")
+    lines.append("| group | part | " + " | ".join(methods) + " |")
+    lines.append("| --- | --- |" + " --- |" * len(methods))
+    for g in groups:
+        for part in ("intra", "inter"):
+            if part in s[g]:
+                cells = [f"{s[g][part][m]['ssim']:.3f}" if m in s[g][part] else "" for m in methods]
+                lines.append(f"| {g} | {part} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=__doc__.split("\n", 1)[1])
+    ap.add_argument("--data", nargs="+", required=True)
+    ap.add_argument("--model", action="append", default=[], metavar="NAME=FILE")
+    ap.add_argument("--cli", default=os.environ.get("VKUNROLL_CLI", ""))
+    ap.add_argument("--cli-modes", default="", help="comma list of unroll modes (s, m) to run each model through the CLI")
+    ap.add_argument("--limit", type=int, default=0, help="at most this many GT instants per sequence")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--json")
+    a = ap.parse_args(argv)
+    models = {}
+    for m in a.model:
+        if "=" not in m:
+            ap.error(f"--model {m}: expected NAME=FILE")
+        name, path = m.split("=", 1)
+        models[name] = path
+    try:
+        res = evaluate(a.data, models, a.cli, [x for x in a.cli_modes.split(",") if x], a.limit, a.threads)
+    except DataError as e:
+        print(f"natural_eval.py: error: {e}", file=sys.stderr)
+        return 1
+    print(markdown(res))
+    if a.json:
+        json.dump(res, open(a.json, "w"), indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,204 @@
+#!/usr/bin/python3
+"""The weight-free physics unroller (event double integral, EDI) of kernels/physics_unroll.cpp and
+host/unroll.cpp in NumPy/PyTorch, written to compute what `vkunroll unroll --mode physics` computes:
+
+  I(t*) = I_rs * T / integral over the row's exposure [S, E] of exp(c (F(s) - F(t*))) ds
+
+per pixel on linear intensity (PNG value ^ gamma), F the pixel's cumulative polarity, then
+re-encoded with 1/gamma and capped at max_value. `physics_log_ratio` gives the per-pixel
+log(T / integral) for any source rows and any (per-row) target time, so the trainer can apply it
+to any image (also a network output, differentiably: `apply_log_ratio_torch`).
+
+Rounding follows the C++ reference: times relative to t* are float32 (PixelEventLists), c and
+gamma are float32 (PhysicsUnrollParams), the contrast term c * (F - F0) is a float32 product,
+the rest is double; `estimate_contrast` and `frame_for_time` mirror host/unroll.cpp.
+tests/python/test_physics.py compares this with the CLI's output.
+"""
+from __future__ import annotations
+
+from typing import List, Optional, Sequence as Seq, Tuple
+
+import numpy as np
+
+MAX_VALUE = 1e4  # PhysicsUnrollParams::max_value
+
+
+def _f32(a) -> np.ndarray:
+    return np.asarray(a, dtype=np.float64).astype(np.float32).astype(np.float64)
+
+
+def physics_log_ratio(ev, src_start: np.ndarray, src_end: np.ndarray, target, contrast: float,
+                      crop: Tuple[int, int, int, int]) -> np.ndarray:
+    """log(T / integral) [h, w] (float64) for the crop (x0, y0, w, h). src_start/src_end: float64
+    exposure start/end per full-sensor row; target: t* (scalar) or one target time per row.
+    `ev` = (t, x, y, p) with at least the events of each row's [min(S, t*), max(E, t*)]."""
+    return log_ratio_from_segments(exposure_segments(ev, src_start, src_end, target, crop), contrast)
+
+
+def log_ratio_from_segments(segs, contrast: float) -> np.ndarray:
+    """log(T / sum_j len_j exp(c * level_j)) per pixel (log-sum-exp as the C++ reference)."""
+    seg_pix, log_len, lvl, T, h, w = segs
+    npx = h * w
+    term = log_len + (np.float32(contrast) * lvl.astype(np.float32)).astype(np.float64)
+    m = np.full(npx, -np.inf)
+    np.maximum.at(m, seg_pix, term)
+    acc = np.bincount(seg_pix, weights=np.exp(term - m[seg_pix]), minlength=npx)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lr = np.where(T > 0, np.log(T) - (m + np.log(acc)), 0.0)
+    return lr.reshape(h, w)
+
+
+def exposure_segments(ev, src_start: np.ndarray, src_end: np.ndarray, target, crop):
+    """The exposure of every pixel cut at its events: (pixel, log length, level F - F(t*)) of each
+    non-empty segment, the exposure length T per pixel, h, w. Independent of c."""
+    x0, y0, w, h = crop
+    t, x, y, p = ev
+    H = len(src_start)
+    tgt_rows = np.full(H, float(target)) if np.ndim(target) == 0 else np.asarray(target, dtype=np.float64)
+    rows = np.arange(y0, y0 + h)
+    S_row = _f32(src_start[rows] - tgt_rows[rows])  # float(s - t*) as gather_pixel_events
+    E_row = _f32(src_end[rows] - tgt_rows[rows])
+    inside = (x >= x0) & (x < x0 + w) & (y >= y0) & (y < y0 + h)
+    t, x, y, p = np.asarray(t, np.float64)[inside], x[inside], y[inside], p[inside]
+    ts = tgt_rows[y]
+    keep = (t >= np.minimum(src_start[y], ts)) & (t <= np.maximum(src_end[y], ts))  # double, absolute
+    t, x, y, p, ts = t[keep], x[keep], y[keep], p[keep], ts[keep]
+    ly, lx = y - y0, x - x0
+    tau = _f32(t - ts)
+    pol = np.where(p > 0, 1, -1).astype(np.int64)
+    pix = ly * w + lx
+    npx = h * w
+    S, E = S_row[ly], E_row[ly]
+    f0 = np.bincount(pix, weights=pol * (tau <= 0), minlength=npx).round().astype(np.int64)
+    fS = np.bincount(pix, weights=pol * (tau <= S), minlength=npx).round().astype(np.int64)
+    rowS = np.repeat(S_row, w)
+    rowE = np.repeat(E_row, w)
+    # events strictly inside (S, E) split the exposure into segments; an event at exactly E ends it
+    ins = (tau > S) & (tau < E)
+    ti, pi, poli = tau[ins], pix[ins], pol[ins]
+    order = np.lexsort((np.arange(len(ti)), pi))  # by pixel, keeping stream (time) order
+    ti, pi, poli = ti[order], pi[order], poli[order]
+    n = len(pi)
+    first = np.r_[True, pi[1:] != pi[:-1]] if n else np.zeros(0, bool)
+    last = np.r_[pi[1:] != pi[:-1], True] if n else np.zeros(0, bool)
+    cs = np.cumsum(poli)
+    start_idx = np.maximum.accumulate(np.where(first, np.arange(n), 0)) if n else np.zeros(0, np.int64)
+    cp = cs - (cs[start_idx] - poli[start_idx]) if n else cs  # cumulative polarity within the pixel
+    # segment after event i: [t_i, next event or E), level F = fS + cp_i
+    t_next = np.where(last, rowE[pi], np.r_[ti[1:], 0.0]) if n else ti
+    seg_len = np.concatenate([np.where(first, ti - rowS[pi], 0.0) if n else ti, t_next - ti])
+    seg_pix = np.concatenate([pi, pi])
+    lvl = np.concatenate([fS[pi] - f0[pi], fS[pi] + cp - f0[pi]]) if n else np.zeros(0, np.int64)
+    # pixels without events inside: one segment [S, E] at level fS - f0
+    t_first = np.full(npx, np.nan)
+    if n:
+        t_first[pi[first]] = ti[first]
+    empty = np.isnan(t_first)
+    seg_len = np.concatenate([seg_len, (rowE - rowS)[empty]])
+    seg_pix = np.concatenate([seg_pix, np.nonzero(empty)[0]])
+    lvl = np.concatenate([lvl, (fS - f0)[empty]])
+    pos = seg_len > 0
+    return seg_pix[pos], np.log(seg_len[pos]), lvl[pos], rowE - rowS, h, w
+
+
+def apply_log_ratio(img: np.ndarray, log_ratio: np.ndarray, gamma: float, max_value: float = MAX_VALUE) -> np.ndarray:
+    """The C++ output formula: lin = v^gamma, o = min(exp(min(log lin + lr, log max)), max), v' = o^(1/gamma)."""
+    g = float(np.float32(gamma))
+    mv = float(np.float32(max_value))
+    v = np.asarray(img, dtype=np.float64)
+    lr = np.broadcast_to(log_ratio, v.shape)
+    with np.errstate(divide="ignore"):
+        lin = np.where(v > 0, np.power(np.maximum(v, 0), g), 0.0)
+        o = np.where(lin > 0, np.minimum(np.exp(np.minimum(np.log(np.maximum(lin, 1e-300)) + lr, np.log(mv))), mv), 0.0)
+        out = np.where(o > 0, np.power(o, 1.0 / g), 0.0)
+    return out.astype(np.float32)
+
+
+def apply_log_ratio_torch(img, log_ratio, gamma: float, max_value: float = MAX_VALUE):
+    """apply_log_ratio in torch, differentiable in img: v * exp(lr / gamma), capped at
+    max_value^(1/gamma), 0 where v <= 0. img [B, C, H, W], log_ratio [B, 1, H, W]."""
+    import torch
+    g = float(np.float32(gamma))
+    cap = float(np.log(np.float32(max_value))) / g
+    pos = img > 0
+    safe = torch.where(pos, img, torch.ones_like(img))
+    out = torch.exp(torch.clamp(torch.log(safe) + log_ratio / g, max=cap))
+    return torch.where(pos, out, torch.zeros_like(out))
+
+
+# ---- host/unroll.cpp: frame choice and contrast estimate -------------------------------------------
+def frame_mid(seq, k: int) -> float:
+    s, e = seq.frame_span(k)
+    return 0.5 * (s + e)
+
+
+def frame_for_time(seq, frames: Seq[int], t: float) -> int:
+    """The frame whose exposure span holds t (nearest middle among those), else the nearest middle."""
+    best, best_d = frames[0], 1e300
+    for k in frames:
+        s, e = seq.frame_span(k)
+        d = abs(t - frame_mid(seq, k)) - (1e12 if s <= t <= e else 0.0)
+        if d < best_d:
+            best_d, best = d, k
+    return best
+
+
+def contrast_grid() -> List[float]:
+    out, c = [], 0.05
+    while c <= 0.6001:  # the C++ loop, accumulated the same way
+        out.append(c)
+        c += 0.025
+    return out
+
+
+def estimate_contrast(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0) -> float:
+    """host/unroll.cpp estimate_contrast: up to three pairs (k, k+1) unrolled to the instant halfway
+    between their mid-exposures; the grid value with the least mean |log(g1+0.01) - log(g2+0.01)|."""
+    frames = list(range(seq.num_frames)) if frames is None else list(frames)
+    pairs = [(k, k + 1) for k in frames if k + 1 < seq.num_frames][:3]
+    if not pairs:
+        return 0.2
+    full = (0, 0, seq.width, seq.height)
+    data = []
+    for a, b in pairs:
+        t = 0.5 * (frame_mid(seq, a) + frame_mid(seq, b))
+        lo = min(seq.frame_span(a)[0], t)
+        hi = max(seq.frame_span(b)[1], t)
+        ev = seq.events_in(np.floor(lo), np.ceil(hi), full)
+        (s1, e1), (s2, e2) = seq.row_times(a), seq.row_times(b)
+        data.append((seq.frame(a), seq.frame(b), exposure_segments(ev, s1, e1, t, full),
+                     exposure_segments(ev, s2, e2, t, full)))
+    best_c, best_err = 0.2, 1e300
+    for c in contrast_grid():
+        err, n = 0.0, 0
+        for rs1, rs2, seg1, seg2 in data:
+            g1 = apply_log_ratio(rs1, log_ratio_from_segments(seg1, c), gamma).astype(np.float64)
+            g2 = apply_log_ratio(rs2, log_ratio_from_segments(seg2, c), gamma).astype(np.float64)
+            err += float(np.abs(np.log(g1 + 0.01) - np.log(g2 + 0.01)).sum())
+            n += g1.size
+        err /= max(n, 1)
+        if err < best_err:
+            best_err, best_c = err, c
+    return float(np.float32(best_c))
+
+
+def meta_gamma(seq) -> float:
+    """host/unroll.cpp read_meta_gamma: source.settings.gamma, else source.gamma, else 1."""
+    src = seq.meta.get("source") or {}
+    if isinstance(src.get("settings"), dict) and "gamma" in src["settings"]:
+        return float(src["settings"]["gamma"])
+    if "gamma" in src:
+        return float(src["gamma"])
+    return 1.0
+
+
+def unroll_physics(seq, k: int, t_star: float, contrast: float, gamma: float,
+                   crop: Optional[Tuple[int, int, int, int]] = None) -> np.ndarray:
+    """`vkunroll unroll --mode physics` for frame k toward t*: [3, h, w] float32 (not clamped)."""
+    crop = crop or (0, 0, seq.width, seq.height)
+    s, e = seq.row_times(k)
+    lo, hi = min(s.min(), t_star), max(e.max(), t_star)
+    ev = seq.events_in(np.floor(lo), np.ceil(hi) + 1, crop)
+    lr = physics_log_ratio(ev, s, e, t_star, contrast, crop)
+    x0, y0, w, h = crop
+    return apply_log_ratio(seq.frame(k)[:, y0:y0 + h, x0:x0 + w], lr, gamma)
