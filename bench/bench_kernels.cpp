@@ -20,6 +20,7 @@
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
 #include "vkunroll/runtime/context.hpp"
+#include "vkunroll/base/half.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
 #include "vkunroll/runtime/profiler.hpp"
 
@@ -134,23 +135,141 @@ Timing time_gpu(Context& ctx, int reps, Profiler* total, F record) {
   return {best, reps};
 }
 
-double ceiling_gflops(Context& ctx, Profiler* profile) {
+// The FMA ceiling: fma_ceiling.comp (fp32 vec4 chains) or, with `half`, fma_ceiling_half.comp
+// (f16vec4 chains, needs shaderFloat16; 0 without it).
+double ceiling_gflops(Context& ctx, Profiler* profile, bool half = false) {
+  if (half && !ctx.info().shader_float16) return 0;
   const uint32_t iters = 2048, groups = 256;
   Tensor sink(ctx, {1, 1, 1, groups * 64 * 4});
   struct {
     float a, b;
   } push{0.999f, 0.001f};
-  const Pipeline& pl = kernel_pipeline(ctx, "fma_ceiling", {iters}, sizeof push);
+  const Pipeline& pl = kernel_pipeline(ctx, half ? "fma_ceiling_half" : "fma_ceiling", {iters}, sizeof push);
   const double flop = 2.0 * 4 * 8 * iters * groups * 64.0;
   auto record = [&](CommandStream& cs) { cs.dispatch(pl, {out(sink)}, push, Groups{groups}, {"fma_ceiling", flop, 0}); };
   Timing t = time_gpu(ctx, 5, profile, record);
   return flop / (t.ms * 1e6);
 }
 
+// ---- --fp16-error-model: CPU emulations behind the fp16 kernels' arithmetic (docs/kernels.md) -------
+// One conv output = sum of n products of fp16 inputs in [-1, 1] and fp16 weights +-1/sqrt(n):
+// accumulated in fp32 (then stored as fp16) or in fp16 (a fused multiply-add rounded to half
+// after every step); max and rms error against the exact sum over 20000 outputs.
+void accumulation_error_table() {
+  std::mt19937 rng(7);
+  std::printf("fp16 accumulation (emulated), error against the exact sum of n fp16 products:\n");
+  for (int n : {27, 153, 864, 1296, 2592, 960}) {
+    std::uniform_real_distribution<float> dx(-1, 1), dw(-1 / std::sqrt(float(n)), 1 / std::sqrt(float(n)));
+    double m32 = 0, m16 = 0;
+    for (int t = 0; t < 20000; ++t) {
+      double exact = 0;
+      float a32 = 0, a16 = 0;
+      for (int i = 0; i < n; ++i) {
+        const float x = round_to_half(dx(rng)), w = round_to_half(dw(rng));
+        exact += static_cast<double>(x) * w;
+        a32 = std::fma(x, w, a32);
+        a16 = round_to_half(std::fma(x, w, a16));
+      }
+      m32 = std::max(m32, std::fabs(round_to_half(a32) - exact));
+      m16 = std::max(m16, std::fabs(a16 - exact));
+    }
+    std::printf("  n %4d: max |error| fp32 accumulation %.2e, fp16 accumulation %.2e\n", n, m32, m16);
+  }
+}
+
+// Winograd F(4x4, 3x3) on a cin x 16 x 16 fp16 input, 16 output channels, weights +-1/sqrt(9 cin):
+// max error against the direct conv when V, U or both are rounded to fp16, beside a direct conv
+// with fp16 weights.
+void winograd_rounding_table() {
+  static const double BT[6][6] = {{4, 0, -5, 0, 1, 0},  {0, -4, -4, 1, 1, 0}, {0, 4, -4, -1, 1, 0},
+                                  {0, -2, -1, 2, 1, 0}, {0, 2, -1, -2, 1, 0}, {0, 4, 0, -5, 0, 1}};
+  static const double G[6][3] = {{1.0 / 4, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                 {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
+  static const double AT[4][6] = {{1, 1, 1, 1, 1, 0}, {0, 1, -1, 2, -2, 0}, {0, 1, 1, 4, 4, 0}, {0, 1, -1, 8, -8, 1}};
+  std::printf("Winograd F(4,3) with fp16 operands (emulated), max error against the exact conv:\n");
+  const int H = 16, W = 16, cout = 16;
+  for (int cin : {17, 96, 288}) {
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<float> d(-1, 1), dw(-1 / std::sqrt(9.f * cin), 1 / std::sqrt(9.f * cin));
+    std::vector<float> x(static_cast<size_t>(cin * H * W)), w(static_cast<size_t>(cout * cin * 9));
+    for (auto& v : x) v = round_to_half(d(rng));
+    for (auto& v : w) v = dw(rng);
+    double err[4] = {0, 0, 0, 0};  // direct with fp16 weights; V fp16; U fp16; both
+    for (int co = 0; co < cout; ++co)
+      for (int t = 0; t < (H / 4) * (W / 4); ++t) {
+        const int ty = t / (W / 4), tx = t % (W / 4);
+        double M[3][6][6] = {};
+        for (int ci = 0; ci < cin; ++ci) {
+          double dd[6][6], tv[6][6], V[6][6], gg[6][3], U[6][6];
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              const int yy = ty * 4 - 1 + i, xx = tx * 4 - 1 + j;
+              dd[i][j] = (yy >= 0 && yy < H && xx >= 0 && xx < W) ? x[static_cast<size_t>((ci * H + yy) * W + xx)] : 0;
+            }
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              tv[i][j] = 0;
+              for (int k = 0; k < 6; ++k) tv[i][j] += BT[i][k] * dd[k][j];
+            }
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              V[i][j] = 0;
+              for (int k = 0; k < 6; ++k) V[i][j] += tv[i][k] * BT[j][k];
+            }
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 3; ++j) {
+              gg[i][j] = 0;
+              for (int k = 0; k < 3; ++k) gg[i][j] += G[i][k] * w[static_cast<size_t>(((co * cin + ci) * 3 + k) * 3 + j)];
+            }
+          for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) {
+              U[i][j] = 0;
+              for (int k = 0; k < 3; ++k) U[i][j] += gg[i][k] * G[j][k];
+              const double v16 = round_to_half(static_cast<float>(V[i][j])), u16 = round_to_half(static_cast<float>(U[i][j]));
+              M[0][i][j] += U[i][j] * v16;
+              M[1][i][j] += u16 * V[i][j];
+              M[2][i][j] += u16 * v16;
+            }
+        }
+        for (int i = 0; i < 4; ++i)
+          for (int j = 0; j < 4; ++j) {
+            const int oy = ty * 4 + i, ox = tx * 4 + j;
+            double ref = 0, ref16 = 0;
+            for (int ci = 0; ci < cin; ++ci)
+              for (int k = 0; k < 9; ++k) {
+                const int yy = oy - 1 + k / 3, xx = ox - 1 + k % 3;
+                if (yy < 0 || yy >= H || xx < 0 || xx >= W) continue;
+                const double xv = x[static_cast<size_t>((ci * H + yy) * W + xx)];
+                const float wv = w[static_cast<size_t>((co * cin + ci) * 9 + k)];
+                ref += xv * wv;
+                ref16 += xv * round_to_half(wv);
+              }
+            err[0] = std::max(err[0], std::fabs(ref16 - ref));
+            for (int m = 0; m < 3; ++m) {
+              double y = 0;
+              for (int a = 0; a < 6; ++a)
+                for (int b = 0; b < 6; ++b) y += AT[i][a] * M[m][a][b] * AT[j][b];
+              err[m + 1] = std::max(err[m + 1], std::fabs(y - ref));
+            }
+          }
+      }
+    std::printf("  cin %3d: direct, fp16 weights %.2e; Winograd V fp16 %.2e, U fp16 %.2e, both %.2e\n", cin, err[0],
+                err[1], err[2], err[3]);
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   std::string json_path, only;
+  std::vector<ConvShape> custom;  // --shape: these instead of the model's shapes
+  ConvOptions conv_options;       // --blocked-cob ... (validated by the convs)
+  std::vector<Precision> precisions{Precision::fp32};  // --precision fp32,fp16
+  const std::vector<std::pair<std::string, int*>> option_flags{
+      {"--blocked-cob", &conv_options.blocked_cob}, {"--blocked-px", &conv_options.blocked_px},
+      {"--direct-cob", &conv_options.direct_cob},   {"--direct-px", &conv_options.direct_px},
+      {"--direct-py", &conv_options.direct_py},     {"--gemm-cob", &conv_options.gemm_cob},
+      {"--gemm-tv", &conv_options.gemm_tv}};
   bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false;
   std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
   auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
@@ -164,7 +283,9 @@ int main(int argc, char** argv) {
       }
       return argv[++i];
     };
-    if (a == "--json") json_path = value();
+    const auto flag = std::find_if(option_flags.begin(), option_flags.end(), [&](const auto& f) { return f.first == a; });
+    if (flag != option_flags.end()) *flag->second = std::atoi(value().c_str());
+    else if (a == "--json") json_path = value();
     else if (a == "--profile") profile = true;
     else if (a == "--quick") quick = true;
     else if (a == "--no-naive") naive = false;
@@ -175,17 +296,58 @@ int main(int argc, char** argv) {
       algo_filter = "," + value() + ",";
     }
     else if (a == "--only") only = value();
+    else if (a == "--fp16-error-model") {
+      accumulation_error_table();
+      winograd_rounding_table();
+      return 0;
+    }
+    else if (a == "--precision") {
+      precisions.clear();
+      std::string list = value() + ",";
+      for (size_t pos; (pos = list.find(',')) != std::string::npos; list.erase(0, pos + 1)) {
+        const std::string name = list.substr(0, pos);
+        if (name != "fp32" && name != "fp16") break;
+        precisions.push_back(parse_precision(name));
+      }
+      if (precisions.empty() || !list.empty()) {
+        std::cerr << "vkunroll-bench-kernels: --precision: expected fp32, fp16 or fp32,fp16\n";
+        return 2;
+      }
+    }
+    else if (a == "--shape") {
+      const std::string v = value();
+      ConvShape c;
+      c.name = "custom";
+      long long k, st, ci, co, h, w;
+      char tail = 0;
+      if (std::sscanf(v.c_str(), "%lld,%lld,%lld,%lld,%lld,%lld%c", &k, &st, &ci, &co, &h, &w, &tail) != 6 || k < 1 ||
+          st < 1 || ci < 1 || co < 1 || h < 1 || w < 1) {
+        std::cerr << "vkunroll-bench-kernels: --shape '" << v << "': expected K,STRIDE,CIN,COUT,H,W (positive integers)\n";
+        return 2;
+      }
+      c.k = static_cast<int>(k), c.s = static_cast<int>(st), c.cin = ci, c.cout = co, c.h = h, c.w = w;
+      custom.push_back(c);
+    }
     else if (a == "--reps") reps = std::max(1, std::atoi(value().c_str()));
     else if (a == "-h" || a == "--help") {
       std::cout << "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"
                    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
+                   "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
+                   "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
+                   "                              [--gemm-tv N] [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
                    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
                    "Times are the best of --reps (default 2) after a warm-up. The naive shader runs on the\n"
                    "full shape for the 3x3 RDB conv 144->48 and on a band of rows elsewhere (--naive-full:\n"
                    "everywhere; slow). --all-algos also times every other applicable algorithm, --algos A,B\n"
-                   "only the named ones (e.g. direct,gemm).\n";
+                   "only the named ones (e.g. direct,gemm). --shape (repeatable) times that conv2d shape\n"
+                   "(pad K/2) instead of the model's. The --blocked-cob ... flags set the convs' ConvOptions\n"
+                   "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice). --precision fp32,fp16 times\n"
+                   "each shape in both precisions (fp16 rows judged against the better of the fp32 and the fp16\n"
+                   "FMA ceiling, the latter from fma_ceiling_half.comp where the device has shaderFloat16).\n"
+                   "--fp16-error-model prints the CPU emulations behind the fp16 kernels' fp32 arithmetic\n"
+                   "(fp16 accumulation, Winograd with fp16 operands) and exits.\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
@@ -197,133 +359,147 @@ int main(int argc, char** argv) {
     Context ctx(opt);
     Profiler total;
     Profiler* prof = profile ? &total : nullptr;
-    const double ceiling = ceiling_gflops(ctx, prof);
+    const double ceiling32 = ceiling_gflops(ctx, prof);
+    const bool any16 = std::find(precisions.begin(), precisions.end(), Precision::fp16) != precisions.end();
+    const double ceiling16 = any16 ? ceiling_gflops(ctx, prof, true) : 0;
     std::printf("device: %s\nFMA ceiling: %.2f GFLOP/s (fma_ceiling, 8 vec4 chains per invocation)\n",
-                ctx.info().name.c_str(), ceiling);
-    std::printf("%-34s %-26s %-9s %9s %8s %6s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "algo",
-                "ms", "GFLOP/s", "%ceil", "naive ms", "naive GF", "speedup");
+                ctx.info().name.c_str(), ceiling32);
+    if (any16)
+      std::printf("fp16 FMA ceiling: %.2f GFLOP/s (fma_ceiling_half, 8 f16vec4 chains; 0: no shaderFloat16)\n", ceiling16);
+    std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "prec",
+                "algo", "ms", "GFLOP/s", "%ceil", "naive ms", "naive GF", "speedup");
     nlohmann::json rows = nlohmann::json::array();
     std::mt19937 rng(42);
-    double worst_fraction = 1e9;
-    std::string worst;
-    for (const ConvShape& c : model_shapes()) {
+    for (const ConvShape& c : custom.empty() ? model_shapes() : custom) {
       if (quick && !c.quick) continue;
       if (!only.empty() && c.name.find(only) == std::string::npos) continue;
-      const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
-      HostTensor x = random_host({1, c.cin, c.h, c.w}, rng, 1.f);
-      Tensor xd = to_device(ctx, x);
-      std::vector<std::string> algos;
-      std::optional<Conv2d> conv;
-      std::optional<ConvTranspose2d> deconv;
-      Shape os;
-      double flop = 0;
-      if (c.transposed) {
-        deconv.emplace(ctx, random_host({c.cin, c.cout, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
-                       ConvTranspose2dParams{c.k, c.s, 1, leaky_relu(0.1f)}, c.name);
-        os = deconv->output_shape(xd.shape());
-        flop = deconv->flop(xd.shape());
-        const ConvTransposeAlgo chosen = deconv->choose_algorithm(c.h, c.w);
-        algos.push_back(conv_transpose_algo_name(chosen));
-        if (all_algos)
-          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
-            if (a != chosen && deconv->supports(a) && wanted(conv_transpose_algo_name(a)))
-              algos.push_back(conv_transpose_algo_name(a));
-      } else {
-        conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
-                     Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name);
-        os = conv->output_shape(xd.shape());
-        flop = conv->flop(xd.shape());
-        const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
-        algos.push_back(conv_algo_name(chosen));
-        if (all_algos)
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
-            if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
-      }
-      Tensor yd(ctx, os);
-      auto record_algo = [&](CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) {
+      for (const Precision prec : precisions) {
+        ConvOptions options = conv_options;
+        options.precision = prec;
+        const DType dt = precision_dtype(prec);
+        // fp16 kernels compute in fp32 from fp16 storage: judged against the better of both ceilings.
+        const double ceiling = prec == Precision::fp16 ? std::max(ceiling32, ceiling16) : ceiling32;
+        const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
+        HostTensor x = random_host({1, c.cin, c.h, c.w}, rng, 1.f);
+        Tensor xd = to_device(ctx, x, dt);
+        std::vector<std::string> algos;
+        std::optional<Conv2d> conv;
+        std::optional<ConvTranspose2d> deconv;
+        Shape os;
+        double flop = 0;
         if (c.transposed) {
-          for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
-            if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
+          deconv.emplace(ctx, random_host({c.cin, c.cout, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
+                         ConvTranspose2dParams{c.k, c.s, 1, leaky_relu(0.1f)}, c.name, options);
+          os = deconv->output_shape(xd.shape());
+          flop = deconv->flop(xd.shape());
+          const ConvTransposeAlgo chosen = deconv->choose_algorithm(c.h, c.w);
+          algos.push_back(conv_transpose_algo_name(chosen));
+          if (all_algos)
+            for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+              if (a != chosen && deconv->supports(a) && wanted(conv_transpose_algo_name(a)))
+                algos.push_back(conv_transpose_algo_name(a));
         } else {
-          for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::subgroup, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
-            if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
+          conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
+                       Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name, nullptr, options);
+          os = conv->output_shape(xd.shape());
+          flop = conv->flop(xd.shape());
+          const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
+          algos.push_back(conv_algo_name(chosen));
+          if (all_algos)
+            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+              if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
         }
-      };
-      auto run = [&](const std::string& algo, int n) {
-        return time_gpu(ctx, n, prof, [&](CommandStream& cs) { record_algo(cs, algo, xd, yd); });
-      };
-      // The naive shader is 10-50x slower: it runs on the full shape for the target shape
-      // (the 3x3 RDB conv 144->48) and on a band of input rows (same width and channels, so the
-      // same per-pixel work) elsewhere; its GFLOP/s is that of what it ran.
-      std::optional<Timing> naive_t;
-      double naive_flop = 0;
-      int64_t naive_rows = c.h;
-      if (naive && algos.front() != "naive") {
-        const bool full = c.name == "RDBs.d.convs.1" || naive_full;
-        naive_rows = full ? c.h : std::min<int64_t>(c.h, c.transposed ? 8 : 16 * c.s);
-        Tensor xb = to_device(ctx, random_host({1, c.cin, naive_rows, c.w}, rng, 1.f));
-        const Shape ob = c.transposed ? deconv->output_shape(xb.shape()) : conv->output_shape(xb.shape());
-        Tensor yb(ctx, ob);
-        naive_flop = c.transposed ? deconv->flop(xb.shape()) : conv->flop(xb.shape());
-        naive_t = time_gpu(ctx, 1, prof, [&](CommandStream& cs) { record_algo(cs, "naive", xb, yb); });
-      }
-      for (size_t ai = 0; ai < algos.size(); ++ai) {
-        const Timing t = run(algos[ai], reps);
-        const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
-        if (ai == 0 && frac < worst_fraction) worst_fraction = frac, worst = c.name;
-        const double nms = naive_t ? naive_t->ms : 0;
-        const double ngf = naive_t ? naive_flop / (nms * 1e6) : 0;
-        std::printf("%-34s %-26s %-9s %9.2f %8.2f %5.1f%% %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(), c.shape_str().c_str(),
-                    algos[ai].c_str(), t.ms, gf, 100 * frac, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
-                    naive_t && naive_rows < c.h ? (" (naive: " + std::to_string(naive_rows) + " rows)").c_str() : "",
-                    ai == 0 ? "" : "  (forced)");
-        std::fflush(stdout);
-        nlohmann::json row{{"op", c.transposed ? "conv_transpose2d" : "conv2d"},
-                           {"name", c.name},
-                           {"shape", c.shape_str()},
-                           {"kernel", c.k},
-                           {"stride", c.s},
-                           {"cin", c.cin},
-                           {"cout", c.cout},
-                           {"h", c.h},
-                           {"w", c.w},
-                           {"uses", c.uses},
-                           {"algo", algos[ai]},
-                           {"chosen", ai == 0},
-                           {"ms", t.ms},
-                           {"gflop", flop * 1e-9},
-                           {"gflops", gf},
-                           {"ceiling_gflops", ceiling},
-                           {"fraction_of_ceiling", frac}};
-        if (naive_t) {
-          row["naive_ms"] = nms;
-          row["naive_rows"] = naive_rows;
-          row["naive_gflops"] = ngf;
-          row["speedup_vs_naive"] = gf / ngf;
+        Tensor yd(ctx, os, dt);
+        auto record_algo = [&](CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) {
+          if (c.transposed) {
+            for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+              if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
+          } else {
+            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+              if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
+          }
+        };
+        auto run = [&](const std::string& algo, int n) {
+          return time_gpu(ctx, n, prof, [&](CommandStream& cs) { record_algo(cs, algo, xd, yd); });
+        };
+        // The naive shader is 10-50x slower: it runs on the full shape for the target shape
+        // (the 3x3 RDB conv 144->48) and on a band of input rows (same width and channels, so the
+        // same per-pixel work) elsewhere; its GFLOP/s is that of what it ran.
+        std::optional<Timing> naive_t;
+        double naive_flop = 0;
+        int64_t naive_rows = c.h;
+        if (naive && algos.front() != "naive") {
+          const bool full = c.name == "RDBs.d.convs.1" || naive_full;
+          naive_rows = full ? c.h : std::min<int64_t>(c.h, c.transposed ? 8 : 16 * c.s);
+          Tensor xb = to_device(ctx, random_host({1, c.cin, naive_rows, c.w}, rng, 1.f), dt);
+          const Shape ob = c.transposed ? deconv->output_shape(xb.shape()) : conv->output_shape(xb.shape());
+          Tensor yb(ctx, ob, dt);
+          naive_flop = c.transposed ? deconv->flop(xb.shape()) : conv->flop(xb.shape());
+          naive_t = time_gpu(ctx, 1, prof, [&](CommandStream& cs) { record_algo(cs, "naive", xb, yb); });
         }
-        rows.push_back(row);
-      }
+        for (size_t ai = 0; ai < algos.size(); ++ai) {
+          const Timing t = run(algos[ai], reps);
+          const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
+          const double nms = naive_t ? naive_t->ms : 0;
+          const double ngf = naive_t ? naive_flop / (nms * 1e6) : 0;
+          std::printf("%-34s %-26s %-4s %-9s %9.2f %8.2f %5.1f%% %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(),
+                      c.shape_str().c_str(), precision_name(prec), algos[ai].c_str(), t.ms, gf, 100 * frac, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
+                      naive_t && naive_rows < c.h ? (" (naive: " + std::to_string(naive_rows) + " rows)").c_str() : "",
+                      ai == 0 ? "" : "  (forced)");
+          std::fflush(stdout);
+          nlohmann::json row{{"op", c.transposed ? "conv_transpose2d" : "conv2d"},
+                             {"name", c.name},
+                             {"shape", c.shape_str()},
+                             {"kernel", c.k},
+                             {"stride", c.s},
+                             {"cin", c.cin},
+                             {"cout", c.cout},
+                             {"h", c.h},
+                             {"w", c.w},
+                             {"uses", c.uses},
+                             {"algo", algos[ai]},
+                             {"precision", precision_name(prec)},
+                             {"chosen", ai == 0},
+                             {"ms", t.ms},
+                             {"gflop", flop * 1e-9},
+                             {"gflops", gf},
+                             {"ceiling_gflops", ceiling},
+                             {"fraction_of_ceiling", frac}};
+          if (naive_t) {
+            row["naive_ms"] = nms;
+            row["naive_rows"] = naive_rows;
+            row["naive_gflops"] = ngf;
+            row["speedup_vs_naive"] = gf / ngf;
+          }
+          rows.push_back(row);
+        }
+      }  // precisions
     }
     // The machine is shared: measure the ceiling again and judge every shape against the better
     // of the two (the conservative fraction).
     const double ceiling_end = ceiling_gflops(ctx, prof);
-    const double ceil_best = std::max(ceiling, ceiling_end);
+    const double ceil_best = std::max(ceiling32, ceiling_end);
     std::printf("FMA ceiling again at the end: %.2f GFLOP/s; fractions below use %.2f\n", ceiling_end, ceil_best);
-    worst_fraction = 1e9;
+    const double ceil16_best = any16 ? std::max({ceil_best, ceiling16, ceiling_gflops(ctx, prof, true)}) : 0;
+    if (any16) std::printf("fp16 rows use the better of both ceilings in both measurements: %.2f\n", ceil16_best);
+    std::map<std::string, std::pair<double, std::string>> worst_by_prec;  // lowest fraction per precision
     for (auto& row : rows) {
-      row["ceiling_gflops"] = ceil_best;
-      row["fraction_of_ceiling"] = row["gflops"].get<double>() / ceil_best;
-      if (row["chosen"].get<bool>() && row["fraction_of_ceiling"].get<double>() < worst_fraction) {
-        worst_fraction = row["fraction_of_ceiling"].get<double>();
-        worst = row["name"].get<std::string>() + " [" + row["shape"].get<std::string>() + "]";
-      }
+      const std::string pr = row["precision"].get<std::string>();
+      const double cb = pr == "fp16" ? ceil16_best : ceil_best;
+      row["ceiling_gflops"] = cb;
+      row["fraction_of_ceiling"] = row["gflops"].get<double>() / cb;
+      auto& w = worst_by_prec.try_emplace(pr, 1e9, "").first->second;
+      if (row["chosen"].get<bool>() && row["fraction_of_ceiling"].get<double>() < w.first)
+        w = {row["fraction_of_ceiling"].get<double>(), row["name"].get<std::string>() + " [" + row["shape"].get<std::string>() + "]"};
       if (row["chosen"].get<bool>() && row["name"] == "RDBs.d.convs.1" && row.contains("speedup_vs_naive"))
-        std::printf("target 3x3 RDB conv 144->48 @130x173: %s %.2f GFLOP/s = %.1f%% of the ceiling, %.1fx the naive shader\n",
-                    row["algo"].get<std::string>().c_str(), row["gflops"].get<double>(),
+        std::printf("target 3x3 RDB conv 144->48 @130x173 (%s): %s %.2f GFLOP/s = %.1f%% of the ceiling, %.1fx the naive shader\n",
+                    pr.c_str(), row["algo"].get<std::string>().c_str(), row["gflops"].get<double>(),
                     100 * row["fraction_of_ceiling"].get<double>(), row["speedup_vs_naive"].get<double>());
     }
-    if (worst_fraction < 1e9)
-      std::printf("lowest fraction of the ceiling (chosen algorithms): %.1f%% (%s)\n", 100 * worst_fraction, worst.c_str());
+    for (const auto& [pr, w] : worst_by_prec)
+      if (w.first < 1e9)
+        std::printf("lowest fraction of the ceiling (chosen algorithms, %s): %.1f%% (%s)\n", pr.c_str(), 100 * w.first,
+                    w.second.c_str());
     if (!json_path.empty()) {
       std::ofstream f(json_path);
       if (!f) throw Error("cannot write --json file '" + json_path + "'");

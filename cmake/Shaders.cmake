@@ -1,6 +1,8 @@
 # Compile every <shader_dir>/*.comp to SPIR-V for Vulkan 1.1, validate it with spirv-val, and embed
 # it as a uint32_t array, listed in the null-terminated table vkunroll::embedded::<table>
 # (runtime/shader_registry.hpp: find_shader looks modules up by name, the file stem).
+# Shaders that include precision.glsl are compiled twice: <stem> (fp32) and <stem>_fp16 (-DVKU_FP16),
+# both validated and embedded.
 function(vkunroll_embed_shaders out_var shader_dir table)
   file(GLOB _comps CONFIGURE_DEPENDS ${shader_dir}/*.comp)
   set(_gen_dir ${CMAKE_CURRENT_BINARY_DIR}/shaders_${table})
@@ -8,26 +10,39 @@ function(vkunroll_embed_shaders out_var shader_dir table)
   set(_sources "")
   set(_names "")
   foreach(_comp ${_comps})
-    get_filename_component(_name ${_comp} NAME_WE)
-    set(_spv ${_gen_dir}/${_name}.spv)
-    set(_cpp ${_gen_dir}/${_name}.spv.cpp)
-    add_custom_command(
-      OUTPUT ${_spv}
-      COMMAND ${GLSLANG_VALIDATOR} --quiet -V --target-env vulkan1.1 -I${shader_dir}
-              --depfile ${_spv}.d -o ${_spv} ${_comp}
-      COMMAND ${SPIRV_VAL} --target-env vulkan1.1 ${_spv}
-      DEPENDS ${_comp}
-      DEPFILE ${_spv}.d
-      COMMENT "glslang + spirv-val ${_name}.comp"
-      VERBATIM)
-    add_custom_command(
-      OUTPUT ${_cpp}
-      COMMAND ${CMAKE_COMMAND} -DSPV=${_spv} -DOUT=${_cpp} -DNAME=${_name}
-              -P ${PROJECT_SOURCE_DIR}/cmake/EmbedSpirv.cmake
-      DEPENDS ${_spv} ${PROJECT_SOURCE_DIR}/cmake/EmbedSpirv.cmake
-      VERBATIM)
-    list(APPEND _sources ${_cpp})
-    list(APPEND _names ${_name})
+    get_filename_component(_stem ${_comp} NAME_WE)
+    # A shader that includes precision.glsl gets an fp16 variant <stem>_fp16 (-DVKU_FP16).
+    file(READ ${_comp} _src)
+    set_property(DIRECTORY APPEND PROPERTY CMAKE_CONFIGURE_DEPENDS ${_comp})  # re-read when it changes
+    set(_variants ${_stem})
+    if(_src MATCHES "#include \"precision.glsl\"")
+      list(APPEND _variants ${_stem}_fp16)
+    endif()
+    foreach(_name ${_variants})
+      set(_defs "")
+      if(_name MATCHES "_fp16$")
+        set(_defs -DVKU_FP16)
+      endif()
+      set(_spv ${_gen_dir}/${_name}.spv)
+      set(_cpp ${_gen_dir}/${_name}.spv.cpp)
+      add_custom_command(
+        OUTPUT ${_spv}
+        COMMAND ${GLSLANG_VALIDATOR} --quiet -V --target-env vulkan1.1 -I${shader_dir} ${_defs}
+                --depfile ${_spv}.d -o ${_spv} ${_comp}
+        COMMAND ${SPIRV_VAL} --target-env vulkan1.1 ${_spv}
+        DEPENDS ${_comp}
+        DEPFILE ${_spv}.d
+        COMMENT "glslang + spirv-val ${_name}"
+        VERBATIM)
+      add_custom_command(
+        OUTPUT ${_cpp}
+        COMMAND ${CMAKE_COMMAND} -DSPV=${_spv} -DOUT=${_cpp} -DNAME=${_name}
+                -P ${PROJECT_SOURCE_DIR}/cmake/EmbedSpirv.cmake
+        DEPENDS ${_spv} ${PROJECT_SOURCE_DIR}/cmake/EmbedSpirv.cmake
+        VERBATIM)
+      list(APPEND _sources ${_cpp})
+      list(APPEND _names ${_name})
+    endforeach()
   endforeach()
   # The index of all modules: regenerated at configure time (new files re-glob via CONFIGURE_DEPENDS).
   set(_index ${_gen_dir}/${table}.cpp)

@@ -32,9 +32,14 @@ void backward_warp(CommandStream& cs, Slice image, Slice flow, Slice out) {
                    bo = bind_slice(out, Access::write);
   WarpPush p{bi.offset, bi.batch_stride, bf.offset, bf.batch_stride, bo.offset, bo.batch_stride,
              static_cast<uint32_t>(is.c), static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w)};
-  cs.dispatch(kernel_pipeline(image.t->context(), "backward_warp", {}, sizeof p), {bi.arg, bf.arg, bo.arg}, p,
+  Context& ctx = image.t->context();
+  const Precision prec = slice_precision(image);
+  check_precision(flow, prec, "backward_warp", "flow");
+  check_precision(out, prec, "backward_warp", "output");
+  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, "backward_warp", prec, "backward_warp"), {}, sizeof p), {bi.arg, bf.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((is.h * is.w + 63) / 64), 1, static_cast<uint32_t>(is.n)},
-              {"backward_warp", 0, 4.0 * static_cast<double>(is.n * is.plane() * (5 * is.c + 2))});
+              {"backward_warp", 0,
+               static_cast<double>(dtype_size(image.t->dtype())) * static_cast<double>(is.n * is.plane() * (5 * is.c + 2))});
 }
 
 void backward_warp_ref(HostSlice image, HostSlice flow, HostSliceOut out) {

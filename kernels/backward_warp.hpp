@@ -3,6 +3,8 @@
 // padding_mode='border') of the reference; W or H = 1 is fine (that axis always samples index 0).
 // flow: 2 channels in pixels, channel 0 = x (column) displacement, channel 1 = y (row).
 // A NaN flow component samples index 0 of its axis (never out of range).
+// Image, flow and output are all f32 or all f16 (fp16: sampled in fp32; a flow stored in fp16 has
+// a resolution of 2^-5 px at |flow| >= 32 and 2^-4 px at >= 64, docs/kernels.md "Precision").
 #pragma once
 #include "vkunroll/kernels/common.hpp"
 

@@ -7,12 +7,25 @@
 #include <vector>
 
 #include "vkunroll/base/host_tensor.hpp"
+#include "vkunroll/base/precision.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
 #include "vkunroll/runtime/tensor.hpp"
 
 namespace vkunroll {
 
 struct DeviceInfo;
+
+// How an op stores its data. fp32 is the reference. fp16 keeps activations, weights and scratch as
+// float16 in buffers (biases, accumulators and the GEMM's M stay fp32; per op: docs/kernels.md,
+// "Precision"); it needs the device feature storageBuffer16BitAccess. A slice's dtype (f32 / f16)
+// says its precision.
+// (Precision, precision_name and parse_precision live in base/precision.hpp.)
+DType precision_dtype(Precision p);  // f32 / f16
+// The embedded module of `shader` for `p` ("<shader>" or "<shader>_fp16"). Throws Error naming `op`,
+// the device and the missing feature when fp16 cannot run on `ctx`'s device.
+std::string shader_for(const Context& ctx, const std::string& shader, Precision p, const std::string& op);
+// Throws Error naming `op` unless the device can run fp16 kernels.
+void require_fp16(const Context& ctx, const std::string& op);
 
 enum class Activation : uint32_t { none = 0, leaky_relu = 1, tanh = 2, sigmoid = 3, hardsigmoid = 4 };
 
@@ -35,6 +48,14 @@ inline DispatchInfo dispatch_part(const DispatchInfo& whole, int64_t cin_part, i
           whole.bytes / static_cast<double>(blocks)};
 }
 
+// Workgroups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the
+// 65535-group limit of x), `z` deep.
+inline Groups flat_groups(int64_t n, uint32_t z) {
+  const int64_t g = (n + 63) / 64;
+  const int64_t gx = g < 65535 ? g : 65535;
+  return {static_cast<uint32_t>(gx), static_cast<uint32_t>((g + gx - 1) / gx), z};
+}
+
 // How a direct conv splits its input channels into weight slabs, each bound as one uniform buffer:
 // a slab fits maxUniformBufferRange and starts at a multiple of minUniformBufferOffsetAlignment
 // (64 bytes on NVIDIA, 1-256 elsewhere), so chunks start at multiples of `quantum` channels and
@@ -47,10 +68,15 @@ struct UniformSlabChunks {
 };
 UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit);
 
-// Device round trips of host tensors (f32 tensors only).
-Tensor to_device(Context& ctx, const HostTensor& host);
+// A packed weight array on the device in `p` (fp16: rounded to nearest even; an Error names `who` and
+// the first value beyond +-65504).
+Tensor upload_weights(Context& ctx, const std::vector<float>& values, Precision p, const std::string& who);
+
+// Device round trips of host tensors to f32 or f16 tensors. Uploading to f16 rounds to nearest even
+// and throws Error naming the first value beyond fp16's range (+-65504) instead of turning it into Inf.
+Tensor to_device(Context& ctx, const HostTensor& host, DType dtype = DType::f32);
 void upload(const HostTensor& host, Tensor& t);  // t must have the host tensor's shape
-HostTensor to_host(const Tensor& t);
+HostTensor to_host(const Tensor& t);             // f32 or f16 tensors
 
 // A channel range [c0, c0+c) and batch range [n0, n0+n) of a tensor; c or n = -1 means "to the end".
 // T is `const Tensor` (device: `Slice`) or `const HostTensor` / `HostTensor` (CPU references).
@@ -87,8 +113,12 @@ using Slice = SliceOf<const Tensor>;
 using HostSlice = SliceOf<const HostTensor>;
 using HostSliceOut = SliceOf<HostTensor>;
 
-// Checks that a slice lies inside its tensor and is f32; `what` names it in the error.
+// Checks that a slice lies inside its tensor and is f32 or f16; `what` names it in the error.
 void check_slice(const Slice& s, const std::string& op, const std::string& what);
+// The precision of an f32 / f16 slice.
+Precision slice_precision(const Slice& s);
+// Throws Error naming `op` and `what` unless the slice's dtype is that of `p`.
+void check_precision(const Slice& s, Precision p, const std::string& op, const std::string& what);
 void check_slice(const HostSlice& s, const std::string& op, const std::string& what);
 
 // How a slice is bound to a dispatch: a byte range starting at an aligned offset at or before the

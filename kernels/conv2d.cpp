@@ -2,30 +2,27 @@
 #include "vkunroll/kernels/conv2d.hpp"
 
 #include <algorithm>
-#include <cstdlib>
-#include <cstring>
+#include <cmath>
 
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
 
+// conv2d: the reference, construction, algorithm choice and the naive and blocked paths; the direct
+// path is in conv2d_direct.cpp, Winograd and the 1x1 GEMM in conv2d_winograd.cpp.
 namespace vkunroll {
 
 namespace {
-constexpr int64_t kBlockCo = 8;  // output channels per invocation in the blocked path (or 16)
 constexpr int64_t kDirectWideMinCin = 128;  // 1x1 convs from here use the wide direct blocks
 
-// Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
-Groups flat_groups(int64_t n, uint32_t z) {
-  const int64_t g = (n + 63) / 64;
-  const int64_t gx = std::min<int64_t>(g, 65535);
-  return {static_cast<uint32_t>(gx), static_cast<uint32_t>((g + gx - 1) / gx), z};
+// Buffer bytes [begin, end) from a slice's first element to its last (the batch items between included).
+std::pair<uint64_t, uint64_t> element_span(const Slice& s) {
+  const Shape& f = s.t->shape();
+  const uint64_t e = dtype_size(s.t->dtype()), plane = static_cast<uint64_t>(f.h * f.w);
+  const uint64_t first = static_cast<uint64_t>(s.n0 * f.c + s.c0) * plane;
+  const uint64_t last = static_cast<uint64_t>((s.n0 + s.batch() - 1) * f.c + s.c0 + s.channels()) * plane;
+  const uint64_t base = s.t->range().offset;
+  return {base + first * e, base + last * e};
 }
-
-struct ConvPush {
-  uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs;
-  uint32_t cin, h, w, cout, oh, ow, pad;
-  uint32_t co0 = 0;  // direct: first output channel of the dispatch (the other shaders ignore it)
-};
 
 std::string conv_label(const std::string& name, const Conv2dParams& p) {
   // Appends (not operator+ chains): GCC 12 reports a false -Wrestrict on those at -O3.
@@ -41,7 +38,6 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::automatic: return "automatic";
     case ConvAlgo::naive: return "naive";
     case ConvAlgo::blocked: return "blocked";
-    case ConvAlgo::subgroup: return "subgroup";
     case ConvAlgo::winograd: return "winograd";
     case ConvAlgo::gemm: return "gemm";
     case ConvAlgo::direct: return "direct";
@@ -92,12 +88,13 @@ void conv2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const 
         }
 }
 
-const Tensor& ConvWorkspace::get(Context& ctx, int slot, int64_t floats) {
+const Tensor& ConvWorkspace::get(Context& ctx, int slot, uint64_t bytes) {
   if (slot < 0) throw Error("ConvWorkspace: negative slot");
   if (slots_.size() <= static_cast<size_t>(slot)) slots_.resize(static_cast<size_t>(slot) + 1);
   auto& ptr = slots_[static_cast<size_t>(slot)];
   if (!ptr) ptr = std::make_unique<Tensor>();
   Tensor& t = *ptr;
+  const int64_t floats = static_cast<int64_t>((bytes + 3) / 4);
   if (t.empty() || t.shape().count() < floats) {
     if (!t.empty()) retired_.push_back(std::move(t));
     t = Tensor(ctx, Shape{1, 1, 1, std::max<int64_t>(floats, 1)});
@@ -106,8 +103,10 @@ const Tensor& ConvWorkspace::get(Context& ctx, int slot, int64_t floats) {
 }
 
 Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
-               std::string name, std::shared_ptr<ConvWorkspace> workspace)
-    : ctx_(ctx), name_(std::move(name)), params_(params), workspace_(std::move(workspace)) {
+               std::string name, std::shared_ptr<ConvWorkspace> workspace, const ConvOptions& options)
+    : ctx_(ctx), name_(std::move(name)), params_(params), precision_(options.precision), workspace_(std::move(workspace)) {
+  options.validate(name_);
+  if (precision_ == Precision::fp16) require_fp16(ctx, name_);
   const int k = params.kernel;
   if (k < 1 || params.stride < 1 || params.pad < 0)
     throw Error(name_ + ": invalid kernel " + std::to_string(k) + " stride " + std::to_string(params.stride) +
@@ -120,15 +119,24 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   if (!bias.data.empty() && static_cast<int64_t>(bias.data.size()) != cout_)
     throw Error(name_ + ": bias has " + std::to_string(bias.data.size()) + " values, " + std::to_string(cout_) +
                 " output channels expected");
-  std::vector<float> b = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
-
   // Only the packing `automatic` uses is uploaded now; the others (naive, blocked as the fallback,
-  // subgroup) on first use, from this host copy.
+  // direct) on first use, from this host copy.
   weight_host_ = weight;
-  bias_host_ = b;
-  bias_ = to_device(ctx, HostTensor(Shape{1, 1, 1, cout_}, b));
-  blocked_cob_ = (cout_ % 16 == 0) ? 16 : kBlockCo;
-  if (const char* c = std::getenv("VKUNROLL_BLOCKED_COB")) blocked_cob_ = std::atoi(c);
+  bias_host_ = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
+  bias_ = to_device(ctx, HostTensor(Shape{1, 1, 1, cout_}, bias_host_));
+  choose_blocking(options);
+  const bool wino_s2 = k == 3 && params.stride == 2 && params.pad == 1;
+  if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2) || wino_s2)
+    pack_winograd();
+  if (k == 1 && params.stride == 1 && params.pad == 0) pack_gemm();
+  if (weight_winograd_.empty() && weight_gemm_.empty()) pack_blocked();
+}
+
+void Conv2d::choose_blocking(const ConvOptions& options) {
+  const int k = params_.kernel;
+  // 16 channels per invocation halve the input loads per FMA where cout allows it without waste.
+  blocked_cob_ = options.blocked_cob ? options.blocked_cob : (cout_ % 16 == 0 ? 16 : 8);
+  blocked_px_ = static_cast<uint32_t>(options.blocked_px ? options.blocked_px : 8);
   direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : 16);
   // Wide 1x1 convs: more output channels per invocation, so each loaded input value feeds more
   // FMAs; 4 pixels x 48 or 8 x 32 measured best there (bench_kernels on lavapipe).
@@ -137,90 +145,31 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
     direct_px_ = 4;
   } else if (k == 1 && cin_ >= kDirectWideMinCin && cout_ % 32 == 0) {
     direct_cob_ = 32;
-  } else if (k == 1 && params.stride == 1 && direct_cob_ == 16) {
+  } else if (k == 1 && params_.stride == 1 && direct_cob_ == 16) {
     direct_px_ = 12;  // narrower 1x1 convs (32->32, 64->64): 12 px x 16 channels, 1.1-1.2x over 8 px
   }
-  if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
+  if (options.direct_cob) direct_cob_ = options.direct_cob;
   // Heads (1-4 output channels): 8 rows per invocation, 1.1-1.5x over 4 (lavapipe, pred convs).
   direct_py_ = (cout_ <= 4 && k > 1) ? 8 : 1;
-  if (const char* c = std::getenv("VKUNROLL_DIRECT_PX")) direct_px_ = static_cast<uint32_t>(std::atoi(c));
-  if (const char* c = std::getenv("VKUNROLL_DIRECT_PY")) direct_py_ = static_cast<uint32_t>(std::atoi(c));
-  if (const char* g = std::getenv("VKUNROLL_CONV_G")) subgroup_g_ = static_cast<uint32_t>(std::atoi(g));
-  else subgroup_g_ = (cout_ % 24 == 0 || cout_ == 3) ? 3 : 2;
-  const int64_t kk = static_cast<int64_t>(k) * k;
+  if (options.direct_px) direct_px_ = static_cast<uint32_t>(options.direct_px);
+  if (options.direct_py) direct_py_ = static_cast<uint32_t>(options.direct_py);
+  gemm_cob_ = options.gemm_cob ? options.gemm_cob : (cout_ % 16 == 0 ? 16 : 8);
+  gemm_tv_ = static_cast<uint32_t>(options.gemm_tv ? options.gemm_tv : 4);
+  gemm_cout_pad_ = (cout_ + gemm_cob_ - 1) / gemm_cob_ * gemm_cob_;
+}
 
-  const bool wino_s2 = k == 3 && params.stride == 2 && params.pad == 1;
-  if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2) || wino_s2) {
-    // Winograd F(4x4, 3x3): U = G g G^T in double, [36][KS*KS*cin][cout_pad]. A 5x5 kernel is split
-    // into four 3x3 blocks at offsets (0|3, 0|3) (zero beyond 5): four 3x3 convs on shifted inputs,
-    // summed by the GEMM as KS*KS*cin virtual input channels.
-    // Stride 2: four phase images (a, b); tap (i', j') of the 3x3 kernel on phase a reads kernel row
-    // 1 (a = 0, i' = 1) or rows 0 and 2 (a = 1, i' = 0 and 1); every other tap is zero.
-    winograd_ks_ = (k == 5 || wino_s2) ? 2 : 1;
-    winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
-    if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
-    winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
-    const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
-    static const double Gm[6][3] = {{1.0 / 4, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
-                                    {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
-    std::vector<float> u(static_cast<size_t>(36 * cv * winograd_cout_pad_), 0.f);
-    for (int64_t sblk = 0; sblk < winograd_ks_ * winograd_ks_; ++sblk) {
-      const int64_t oy = 3 * (sblk / winograd_ks_), ox = 3 * (sblk % winograd_ks_);
-      const int64_t pa = sblk / 2, pb = sblk % 2;
-      auto phase_tap = [](int64_t phase, int64_t t) -> int64_t {
-        if (phase == 0) return t == 1 ? 1 : -1;  // row 2u: kernel row 1 at u = oy
-        return t == 0 ? 0 : (t == 1 ? 2 : -1);   // row 2u+1: kernel row 0 at u = oy-1, row 2 at u = oy
-      };
-      for (int64_t co = 0; co < cout_; ++co)
-        for (int64_t ci = 0; ci < cin_; ++ci) {
-          auto g = [&](int64_t y, int64_t x) -> double {
-            if (wino_s2) {
-              const int64_t ky = phase_tap(pa, y), kx = phase_tap(pb, x);
-              return (ky >= 0 && kx >= 0) ? weight.at(co, ci, ky, kx) : 0.0;
-            }
-            return (oy + y < k && ox + x < k) ? weight.at(co, ci, oy + y, ox + x) : 0.0;
-          };
-          double gg[6][3];
-          for (int i = 0; i < 6; ++i)
-            for (int j = 0; j < 3; ++j) {
-              double acc = 0;
-              for (int t = 0; t < 3; ++t) acc += Gm[i][t] * g(t, j);
-              gg[i][j] = acc;
-            }
-          const int64_t vc = sblk * cin_ + ci;
-          for (int i = 0; i < 6; ++i)
-            for (int j = 0; j < 6; ++j) {
-              double acc = 0;
-              for (int t = 0; t < 3; ++t) acc += gg[i][t] * Gm[j][t];
-              u[static_cast<size_t>(((i * 6 + j) * cv + vc) * winograd_cout_pad_ + co)] = static_cast<float>(acc);
-            }
-        }
-    }
-    weight_winograd_ = to_device(ctx, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u));
-  }
-  if (k == 1 && params.stride == 1 && params.pad == 0) {
-    winograd_cob_ = (cout_ % 16 == 0) ? 16 : 8;
-    if (const char* c = std::getenv("VKUNROLL_WINO_COB")) winograd_cob_ = std::atoi(c);
-    winograd_cout_pad_ = (cout_ + winograd_cob_ - 1) / winograd_cob_ * winograd_cob_;
-    std::vector<float> u(static_cast<size_t>(cin_ * winograd_cout_pad_), 0.f);
-    for (int64_t co = 0; co < cout_; ++co)
-      for (int64_t ci = 0; ci < cin_; ++ci)
-        u[static_cast<size_t>(ci * winograd_cout_pad_ + co)] = weight.data[static_cast<size_t>(co * cin_ + ci)];
-    weight_gemm_ = to_device(ctx, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(u.size())}, u));
-  }
-  (void)kk;
-  if (weight_winograd_.empty() && weight_gemm_.empty()) pack_blocked();
+Tensor Conv2d::upload_weights(const std::vector<float>& w) const {
+  return vkunroll::upload_weights(ctx_, w, precision_, name_);
 }
 
 void Conv2d::pack_naive() const {
   if (!weight_.empty()) return;
-  weight_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, weight_host_.shape.count()}, weight_host_.data));
+  weight_ = upload_weights(weight_host_.data);
 }
 
 void Conv2d::pack_blocked() const {
   if (!weight_blocked_.empty()) return;
   // Blocked layout: [cout/COB][cin][k][k][COB], output channels zero-padded to a multiple of COB.
-  // 16 channels per invocation halve the input loads per FMA where cout allows it without waste.
   const HostTensor& weight = weight_host_;
   const std::vector<float>& b = bias_host_;
   const int64_t BC = blocked_cob_, kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
@@ -233,99 +182,11 @@ void Conv2d::pack_blocked() const {
         wb[static_cast<size_t>((((co / BC) * cin_ + ci) * kk + t) * BC + co % BC)] =
             weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
   }
-  weight_blocked_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb));
+  weight_blocked_ = upload_weights(wb);
   bias_blocked_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb));
 }
 
-void Conv2d::pack_subgroup() const {
-  if (!weight_subgroup_.empty()) return;
-  // Subgroup layout: [cout/(8G)][cin/4][k*k][G][8] of vec4 (4 input channels), zero-padded.
-  const HostTensor& weight = weight_host_;
-  const std::vector<float>& b = bias_host_;
-  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
-  const int64_t G = subgroup_g_, cog = (cout_ + 8 * G - 1) / (8 * G), c4 = (cin_ + 3) / 4;
-  std::vector<float> ws(static_cast<size_t>(cog * c4 * kk * G * 8 * 4), 0.f), bs(static_cast<size_t>(cog * G * 8), 0.f);
-  for (int64_t co = 0; co < cout_; ++co) {
-    bs[static_cast<size_t>(co)] = b[static_cast<size_t>(co)];
-    const int64_t cg = co / (8 * G), g = (co / 8) % G, lane = co % 8;
-    for (int64_t ci = 0; ci < cin_; ++ci)
-      for (int64_t t = 0; t < kk; ++t)
-        ws[static_cast<size_t>(((((cg * c4 + ci / 4) * kk + t) * G + g) * 8 + lane) * 4 + ci % 4)] =
-            weight.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
-  }
-  weight_subgroup_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(ws.size())}, ws));
-  bias_subgroup_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bs.size())}, bs));
-}
-
-UniformSlabChunks Conv2d::direct_chunks() const {
-  return uniform_slab_chunks(ctx_.info(), cin_, static_cast<int64_t>(params_.kernel) * params_.kernel * direct_cob_ * 4,
-                             direct_chunk_limit_);
-}
-
-void Conv2d::pack_direct() const {
-  if (!weight_direct_.empty()) return;
-  // [cout/COB][cin][k*k][COB], zero-padded channels, plus one chunk of zeros at the end so that
-  // every dispatch can bind a whole slab (the uniform block has a fixed size).
-  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, cob = direct_cob_;
-  const int64_t blocks = (cout_ + cob - 1) / cob;
-  // Each block's channels are padded to cin_pad so every chunk's slab starts aligned.
-  const UniformSlabChunks ch = direct_chunks();
-  const int64_t cin_pad = ch.cin_pad;
-  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + ch.max) * kk * cob), 0.f);
-  for (int64_t co = 0; co < cout_; ++co)
-    for (int64_t ci = 0; ci < cin_; ++ci)
-      for (int64_t t = 0; t < kk; ++t)
-        wd[static_cast<size_t>((((co / cob) * cin_pad + ci) * kk + t) * cob + co % cob)] =
-            weight_host_.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
-  weight_direct_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd));
-}
-
-namespace {
-struct WinogradSizes {
-  int64_t tiles_x_pad, tiles_y, ngroups, tiles_pad;  // groups of 4 horizontally adjacent tiles
-};
-WinogradSizes winograd_sizes(const Shape& in) {
-  WinogradSizes s{};
-  s.tiles_x_pad = ((in.w + 3) / 4 + 3) / 4 * 4;
-  s.tiles_y = (in.h + 3) / 4;
-  s.ngroups = in.n * s.tiles_y * s.tiles_x_pad / 4;
-  s.tiles_pad = (s.ngroups * 4 + 15) / 16 * 16;  // whole GEMM blocks of up to 16 tiles
-  return s;
-}
-}  // namespace
-
 void Conv2d::set_winograd_scratch_limit(uint64_t bytes) { winograd_scratch_limit_ = bytes; }
-
-static int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 15) / 16 * 16; }
-// vec4s of tiles (pixels) per GEMM invocation; VKUNROLL_GEMM_TV overrides (tuning).
-static uint32_t gemm_tv() {
-  const char* e = std::getenv("VKUNROLL_GEMM_TV");
-  return e ? static_cast<uint32_t>(std::atoi(e)) : 4u;
-}
-
-int64_t Conv2d::winograd_chunk(const Shape& in) const {
-  const uint64_t limit = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
-  if (!weight_gemm_.empty()) {  // 1x1 gemm path: one position, pixels padded to 8
-    const uint64_t per_channel = static_cast<uint64_t>(gemm_pix_pad(in)) * 4;
-    return std::min<int64_t>(cin_, static_cast<int64_t>(limit / per_channel));
-  }
-  const WinogradSizes ws = winograd_sizes(output_shape(in));
-  const uint64_t per_channel = 36ull * static_cast<uint64_t>(ws.tiles_pad) * 4;
-  const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
-  return std::min<int64_t>(cv, static_cast<int64_t>(limit / per_channel));
-}
-
-bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
-  if (!supports(algo)) return false;
-  if (algo == ConvAlgo::gemm)
-    return static_cast<uint64_t>(winograd_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
-           winograd_chunk(in) >= 1;
-  if (algo != ConvAlgo::winograd) return true;
-  // V is transformed in chunks of input channels; M (all output channels) must fit one binding.
-  const WinogradSizes ws = winograd_sizes(output_shape(in));
-  const uint64_t m_bytes = 36ull * static_cast<uint64_t>(winograd_cout_pad_ * ws.tiles_pad) * 4;
-  return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
-}
 
 bool Conv2d::supports(ConvAlgo algo) const {
   switch (algo) {
@@ -335,7 +196,6 @@ bool Conv2d::supports(ConvAlgo algo) const {
     case ConvAlgo::naive:
     case ConvAlgo::blocked: return true;
     case ConvAlgo::direct: return direct_cob_ % 4 == 0 && direct_chunks().chunk >= 1;
-    case ConvAlgo::subgroup: return ctx_.info().subgroup_size == 8 && params_.kernel <= 5 && params_.stride <= 2;
     default: return false;
   }
 }
@@ -384,9 +244,18 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   record(cs, in, out, residual, ConvAlgo::automatic);
 }
 
+bool Conv2d::residual_overlaps_output(const Slice& out, const std::optional<Slice>& residual) const {
+  if (!residual || residual->t->range().buffer != out.t->range().buffer) return false;
+  const auto [rb, re] = element_span(*residual);
+  const auto [ob, oe] = element_span(out);
+  return ob < re && rb < oe;
+}
+
 void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo) const {
   check_slice(in, name_, "input");
   check_slice(out, name_, "output");
+  check_precision(in, precision_, name_, "input");
+  check_precision(out, precision_, name_, "output");
   const Shape is = in.shape(), os = out.shape(), expect = output_shape(is);
   if (is.c != cin_)
     throw Error(name_ + ": input has " + std::to_string(is.c) + " channels, the weights expect " + std::to_string(cin_));
@@ -395,195 +264,74 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   if (os != expect) throw Error(name_ + ": output slice " + os.str() + ", expected " + expect.str());
   if (residual) {
     check_slice(*residual, name_, "residual");
+    check_precision(*residual, precision_, name_, "residual");
     if (residual->shape() != expect)
       throw Error(name_ + ": residual slice " + residual->shape().str() + ", expected " + expect.str());
   }
-  // direct in several chunks accumulates in the output, so it cannot add a residual that overlaps it.
-  const auto residual_overlaps_output = [&] {
-    if (!residual || residual->t->range().buffer != out.t->range().buffer) return false;
-    const BufferRange ro = bind_slice(*residual, Access::read).arg.range, oo = bind_slice(out, Access::write).arg.range;
-    return oo.offset < ro.offset + ro.size && ro.offset < oo.offset + oo.size;
-  };
   if (algo == ConvAlgo::automatic) {
     algo = choose_algorithm(is.h, is.w);
-    if (algo == ConvAlgo::direct && direct_chunks().chunk < cin_ && residual_overlaps_output())
+    // direct in several chunks accumulates in the output, so it cannot add a residual that overlaps it.
+    if (algo == ConvAlgo::direct && direct_chunks().chunk < cin_ && residual_overlaps_output(out, residual))
       algo = supports(ConvAlgo::gemm) ? ConvAlgo::gemm : ConvAlgo::winograd;
     if (!supports(algo, is)) algo = ConvAlgo::blocked;
   }
   if (!supports(algo, is))
     throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " does not apply to kernel " +
                 std::to_string(params_.kernel) + " stride " + std::to_string(params_.stride));
+  if (algo == ConvAlgo::direct && direct_chunks().chunk < cin_ && residual_overlaps_output(out, residual))
+    throw Error(name_ + ": the direct algorithm accumulates in the output, which overlaps the residual");
 
-  const BoundSlice bi = bind_slice(in, Access::read), bo = bind_slice(out, Access::write);
-  const BoundSlice br = residual ? bind_slice(*residual, Access::read) : BoundSlice{{bias_.range(), Access::read}, 0, 0};
-  ConvPush p{bi.offset, bi.batch_stride, br.offset, br.batch_stride, bo.offset, bo.batch_stride,
-             static_cast<uint32_t>(cin_), static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w),
-             static_cast<uint32_t>(cout_), static_cast<uint32_t>(os.h), static_cast<uint32_t>(os.w),
-             static_cast<uint32_t>(params_.pad)};
-  const std::vector<uint32_t> spec{static_cast<uint32_t>(params_.kernel), static_cast<uint32_t>(params_.stride),
-                                   static_cast<uint32_t>(params_.act.kind), spec_float(params_.act.slope),
-                                   residual ? 1u : 0u};
-  const double bytes = 4.0 * (static_cast<double>(is.count()) + static_cast<double>(os.count()) * (residual ? 2 : 1) +
-                              static_cast<double>(cin_ * cout_ * params_.kernel * params_.kernel));
-  const DispatchInfo info{conv_label(name_, params_), flop(is), bytes};
+  Recording r;
+  r.is = is;
+  r.os = os;
+  r.in = bind_slice(in, Access::read);
+  r.out = bind_slice(out, Access::write);
+  r.has_res = residual.has_value();
+  r.res = residual ? bind_slice(*residual, Access::read) : BoundSlice{{bias_.range(), Access::read}, 0, 0};
+  r.push = {r.in.offset, r.in.batch_stride, r.res.offset, r.res.batch_stride, r.out.offset, r.out.batch_stride,
+            static_cast<uint32_t>(cin_), static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w),
+            static_cast<uint32_t>(cout_), static_cast<uint32_t>(os.h), static_cast<uint32_t>(os.w),
+            static_cast<uint32_t>(params_.pad)};
+  r.spec = {static_cast<uint32_t>(params_.kernel), static_cast<uint32_t>(params_.stride),
+            static_cast<uint32_t>(params_.act.kind), spec_float(params_.act.slope), residual ? 1u : 0u};
+  const double e = static_cast<double>(elem_bytes());
+  const double bytes = e * (static_cast<double>(is.count()) + static_cast<double>(os.count()) * (residual ? 2 : 1) +
+                            static_cast<double>(cin_ * cout_ * params_.kernel * params_.kernel));
+  r.info = {conv_label(name_, params_), flop(is), bytes};
   switch (algo) {
-    case ConvAlgo::naive: {
-      pack_naive();
-      const Pipeline& pl = kernel_pipeline(ctx_, "conv2d_naive", spec, sizeof(ConvPush));
-      cs.dispatch(pl, {bi.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, p,
-                  Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
-                         static_cast<uint32_t>(os.n * cout_)},
-                  info);
-      return;
-    }
-    case ConvAlgo::blocked: {
-      const uint32_t px = std::getenv("VKUNROLL_PX") ? static_cast<uint32_t>(std::atoi(std::getenv("VKUNROLL_PX"))) : 8u;
-      pack_blocked();
-      std::vector<uint32_t> bspec = spec;
-      bspec.push_back(px);
-      bspec.push_back(static_cast<uint32_t>(blocked_cob_ / 4));
-      const Pipeline& pl = kernel_pipeline(ctx_, "conv2d_blocked", bspec, sizeof(ConvPush));
-      const auto cob = static_cast<uint32_t>((cout_ + kBlockCo - 1) / kBlockCo);
-      cs.dispatch(pl, {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, br.arg, bo.arg},
-                  p,
-                  flat_groups(os.h * ((os.w + px - 1) / px), static_cast<uint32_t>(os.n) * cob),
-                  info);
-      return;
-    }
-    case ConvAlgo::subgroup: {
-      pack_subgroup();
-      std::vector<uint32_t> sspec = spec;
-      sspec.push_back(subgroup_g_);
-      const Pipeline& pl = kernel_pipeline(ctx_, "conv2d_subgroup", sspec, sizeof(ConvPush));
-      const int64_t tasks = os.h * ((os.w + 7) / 8), per_wg = 64 / 8;
-      const auto cog = static_cast<uint32_t>((cout_ + 8 * subgroup_g_ - 1) / (8 * subgroup_g_));
-      cs.dispatch(pl, {bi.arg, {weight_subgroup_.range(), Access::read}, {bias_subgroup_.range(), Access::read}, br.arg, bo.arg},
-                  p, Groups{static_cast<uint32_t>((tasks + per_wg - 1) / per_wg), 1, static_cast<uint32_t>(os.n) * cog}, info);
-      return;
-    }
-    case ConvAlgo::direct: {
-      pack_direct();
-      const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
-      const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, cob = direct_cob_;
-      const UniformSlabChunks ch = direct_chunks();
-      const int64_t chunk = ch.chunk, blocks = (cout_ + cob - 1) / cob;
-      const size_t slab_bytes = static_cast<size_t>(chunk * kk * cob) * 4;
-      // A 1x1 stride-1 conv without padding is one row of H*W pixels per channel plane.
-      const bool flat = params_.kernel == 1 && params_.stride == 1 && params_.pad == 0;
-      ConvPush dp = p;
-      if (flat) {
-        dp.h = dp.oh = 1;
-        dp.w = dp.ow = u32(is.h * is.w);
-      }
-      const int64_t px = direct_px_, py = flat ? 1 : direct_py_;
-      const int64_t tasks = ((dp.oh + py - 1) / py) * ((dp.ow + px - 1) / px);
-      const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
-      const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
-      if (chunk < cin_ && residual_overlaps_output())
-        throw Error(name_ + ": the direct algorithm accumulates in the output, which overlaps the residual");
-      const bool texel_input = direct_texel_input_ && bi.arg.range.size / 4 <= ctx_.info().max_texel_buffer_elements;
-      for (int64_t b = 0; b < blocks; ++b)
-        for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
-          const bool first = c0 == 0, last = c0 + chunk >= cin_;
-          std::vector<uint32_t> dspec = spec;
-          dspec.insert(dspec.end(),
-                       {direct_px_, u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u, u32(chunk * kk * cob / 4), u32(py),
-                        u32(cob == 4 ? std::min<int64_t>(4, cout_ - b * cob) : 4)});
-          ConvPush cp = dp;
-          cp.in_off = u32(bi.offset + c0 * is.h * is.w);
-          cp.cin = u32(std::min(chunk, cin_ - c0));
-          cp.pad = params_.pad;
-          cp.co0 = u32(b * cob);
-          const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * ch.cin_pad + c0) * kk * cob) * 4, slab_bytes);
-          cs.dispatch(kernel_pipeline(ctx_, texel_input ? "conv2d_direct_texel" : "conv2d_direct", dspec, sizeof(ConvPush)),
-                      {bi.arg, {wr, Access::read}, {bias_.range(), Access::read}, br.arg,
-                       {bo.arg.range, first ? Access::write : Access::read_write}},
-                      cp, groups, dispatch_part(info, cp.cin, std::min(cob, cout_ - b * cob), cin_, cout_, blocks));
-        }
-      return;
-    }
-    case ConvAlgo::winograd: {
-      if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
-      const WinogradSizes wz = winograd_sizes(os);  // tiles of the output
-      const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
-      const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, chunk = winograd_chunk(is);
-      const bool s2 = params_.stride == 2;
-      const Tensor& vt = workspace_->get(ctx_, 0, 36 * chunk * wz.tiles_pad);
-      const Tensor& mt = workspace_->get(ctx_, 1, 36 * winograd_cout_pad_ * wz.tiles_pad);
-      const BufferRange mr = mt.range(0, static_cast<size_t>(36 * winograd_cout_pad_ * wz.tiles_pad) * 4);
-      // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
-      for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
-        const int64_t cn = std::min(chunk, cv - c0);
-        const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cn * wz.tiles_pad) * 4);
-        struct InPush {
-          uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
-          int32_t off_base;
-        } ip{bi.offset, bi.batch_stride, u32(cin_), u32(is.h), u32(is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
-             u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
-             params_.kernel == 5 ? -1 : 0};
-        cs.dispatch(kernel_pipeline(ctx_, "winograd_input", {}, sizeof ip), {bi.arg, {vr, Access::write}}, ip,
-                    Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1},
-                    {info.name + "_wino_in", 0, 4.0 * 36.0 * (cn * wz.tiles_pad) * (1 + 16.0 / 36)});
-        struct GemmPush {
-          uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
-        } gp{u32(cn), u32(wz.tiles_pad), u32(winograd_cout_pad_), u32(cv), u32(c0)};
-        const uint32_t tv = gemm_tv();
-        cs.dispatch(kernel_pipeline(ctx_, "winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
-                    {{vr, Access::read}, {weight_winograd_.range(), Access::read},
-                     {mr, c0 > 0 ? Access::read_write : Access::write}},
-                    gp, flat_groups(36 * (winograd_cout_pad_ / winograd_cob_) * (wz.tiles_pad / (4 * tv)), 1),
-                    {info.name + "_wino_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cv),
-                     4.0 * 36 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * wz.tiles_pad});
-      }
-      struct OutPush {
-        uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
-      } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(cout_), u32(os.h), u32(os.w), u32(wz.tiles_x_pad),
-           u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_cout_pad_)};
-      cs.dispatch(kernel_pipeline(ctx_, "winograd_output", {spec[2], spec[3], spec[4]}, sizeof op),
-                  {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
-                  Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},
-                  {info.name + "_wino_out", 0, 4.0 * (36.0 * cout_ * wz.tiles_pad + static_cast<double>(os.count()))});
-      return;
-    }
-    case ConvAlgo::gemm: {
-      if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
-      const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
-      const int64_t pix_pad = gemm_pix_pad(is), npix = is.n * is.h * is.w, chunk = winograd_chunk(is);
-      const Tensor& vt = workspace_->get(ctx_, 0, chunk * pix_pad);
-      const Tensor& mt = workspace_->get(ctx_, 1, winograd_cout_pad_ * pix_pad);
-      const BufferRange mr = mt.range(0, static_cast<size_t>(winograd_cout_pad_ * pix_pad) * 4);
-      for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
-        const int64_t cn = std::min(chunk, cin_ - c0);
-        const BufferRange vr = vt.range(0, static_cast<size_t>(cn * pix_pad) * 4);
-        struct PackPush {
-          uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin;
-        } pp{bi.offset, bi.batch_stride, u32(is.h * is.w), u32(npix), u32(pix_pad), u32(c0)};
-        cs.dispatch(kernel_pipeline(ctx_, "conv1x1_pack", {}, sizeof pp), {bi.arg, {vr, Access::write}}, pp,
-                    Groups{u32((pix_pad / 4 + 63) / 64), u32(cn), 1},
-                    {info.name + "_gemm_pack", 0, 8.0 * static_cast<double>(cn * pix_pad)});
-        struct GemmPush {
-          uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
-        } gp{u32(cn), u32(pix_pad), u32(winograd_cout_pad_), u32(cin_), u32(c0)};
-        const uint32_t tv = gemm_tv();
-        cs.dispatch(kernel_pipeline(ctx_, "winograd_gemm", {u32(winograd_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
-                    {{vr, Access::read}, {weight_gemm_.range(), Access::read},
-                     {mr, c0 > 0 ? Access::read_write : Access::write}},
-                    gp, flat_groups((winograd_cout_pad_ / winograd_cob_) * (pix_pad / (4 * tv)), 1),
-                    {info.name + "_gemm", info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
-                     4.0 * (cn + winograd_cout_pad_ * (c0 > 0 ? 2 : 1)) * pix_pad});
-      }
-      struct OutPush {
-        uint32_t res_off, res_bs, out_off, out_bs, plane, npix, pix_pad;
-      } op{br.offset, br.batch_stride, bo.offset, bo.batch_stride, u32(is.h * is.w), u32(npix), u32(pix_pad)};
-      cs.dispatch(kernel_pipeline(ctx_, "conv1x1_output", {spec[2], spec[3], spec[4]}, sizeof op),
-                  {{mr, Access::read}, {bias_.range(), Access::read}, br.arg, bo.arg}, op,
-                  Groups{u32((pix_pad / 4 + 63) / 64), u32(cout_), 1},
-                  {info.name + "_gemm_out", 0, 8.0 * static_cast<double>(os.count())});
-      return;
-    }
+    case ConvAlgo::naive: return record_naive(cs, r);
+    case ConvAlgo::blocked: return record_blocked(cs, r);
+    case ConvAlgo::direct: return record_direct(cs, r);
+    case ConvAlgo::winograd: return record_winograd(cs, r);
+    case ConvAlgo::gemm: return record_gemm(cs, r);
     default: break;
   }
   throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " is not implemented");
+}
+
+void Conv2d::record_naive(CommandStream& cs, const Recording& r) const {
+  pack_naive();
+  const Pipeline& pl = kernel_pipeline(ctx_, shader("conv2d_naive"), r.spec, sizeof(Push));
+  cs.dispatch(pl, {r.in.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, r.res.arg, r.out.arg},
+              r.push,
+              Groups{static_cast<uint32_t>((r.os.w + 7) / 8), static_cast<uint32_t>((r.os.h + 7) / 8),
+                     static_cast<uint32_t>(r.os.n * cout_)},
+              r.info);
+}
+
+void Conv2d::record_blocked(CommandStream& cs, const Recording& r) const {
+  const uint32_t px = blocked_px_;
+  pack_blocked();
+  std::vector<uint32_t> bspec = r.spec;
+  bspec.push_back(px);
+  bspec.push_back(static_cast<uint32_t>(blocked_cob_ / 4));
+  const Pipeline& pl = kernel_pipeline(ctx_, shader("conv2d_blocked"), bspec, sizeof(Push));
+  // One workgroup layer per batch item and block of blocked_cob_ channels: the shader's COB.
+  const auto cob = static_cast<uint32_t>((cout_ + blocked_cob_ - 1) / blocked_cob_);
+  cs.dispatch(pl,
+              {r.in.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, r.res.arg,
+               r.out.arg},
+              r.push, flat_groups(r.os.h * ((r.os.w + px - 1) / px), static_cast<uint32_t>(r.os.n) * cob), r.info);
 }
 
 }  // namespace vkunroll

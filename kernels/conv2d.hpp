@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "vkunroll/kernels/common.hpp"
+#include "vkunroll/kernels/conv_options.hpp"
 
 namespace vkunroll {
 
@@ -16,12 +17,12 @@ struct Conv2dParams {
   Act act;
 };
 
-// How the GPU computes it; every algorithm gives the same result within fp32 rounding.
+// How the GPU computes it; every algorithm gives the same result within rounding (fp32 or fp16).
 enum class ConvAlgo : uint32_t {
   automatic = 0,  // chosen per shape (see choose_algorithm)
   naive = 1,      // one invocation per output value: the baseline
   blocked = 2,    // register blocking: 8 pixels x 8 or 16 output channels per invocation, packed weights
-  subgroup = 3,   // 8-wide subgroups: lanes = 8 output channels, inputs shared by subgroup broadcast
+                  // (3 was `subgroup`, removed: no device choice used it)
   winograd = 4,   // Winograd F(4x4, 3x3): input transform, batched GEMM, output transform; 3x3 stride 1
                   // (pad 1), 5x5 stride 1 (pad 2) as four 3x3 blocks on shifted inputs, 3x3 stride 2
                   // (pad 1) as four 3x3 stride-1 convs on the 2x2 phase images
@@ -45,8 +46,8 @@ void conv2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const 
 // dispatch may still use it) until the workspace is destroyed, which must be after the last submit.
 class ConvWorkspace {
  public:
-  // A buffer of at least `floats` f32 values for `slot` (0, 1, ...); contents undefined.
-  const Tensor& get(Context& ctx, int slot, int64_t floats);
+  // A buffer of at least `bytes` bytes for `slot` (0, 1, ...); contents undefined.
+  const Tensor& get(Context& ctx, int slot, uint64_t bytes);
 
  private:
   std::vector<std::unique_ptr<Tensor>> slots_;  // stable addresses while more slots are added
@@ -57,10 +58,14 @@ class Conv2d {
  public:
   // Uploads (and repacks) the weights once. weight [cout, cin, k, k]; bias count cout or empty.
   // `workspace`: scratch shared with other convs; null creates a private one when first needed.
+  // `options`: precision (fp16: f16 weights, inputs, outputs and residuals; an Error on a device
+  // without 16-bit storage) and tuning knobs, validated here (an Error names a bad field).
   Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
-         std::string name = "conv2d", std::shared_ptr<ConvWorkspace> workspace = nullptr);
+         std::string name = "conv2d", std::shared_ptr<ConvWorkspace> workspace = nullptr,
+         const ConvOptions& options = {});
 
-  // Records out = act(conv(in) + bias) [+ residual]; out and residual have the output's extent.
+  // Records out = act(conv(in) + bias) [+ residual]; out and residual have the output's extent, and
+  // in, out and residual the conv's precision (f32 or f16 tensors).
   void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual = {}) const;
   // The same with a forced algorithm (tests and the bench); throws if it does not apply to the shape.
   void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo) const;
@@ -86,29 +91,55 @@ class Conv2d {
   int64_t cout() const { return cout_; }
   const Conv2dParams& params() const { return params_; }
   const std::string& name() const { return name_; }
+  Precision precision() const { return precision_; }
 
  private:
+  // What record() resolved for one algorithm's dispatches.
+  struct Push {
+    uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs;
+    uint32_t cin, h, w, cout, oh, ow, pad;
+    uint32_t co0 = 0;  // direct: first output channel of the dispatch (the other shaders ignore it)
+  };
+  struct Recording {
+    Shape is, os;
+    BoundSlice in, out, res;  // res: the bias when there is no residual (never read then)
+    bool has_res = false;
+    Push push;
+    std::vector<uint32_t> spec;  // K, STRIDE, ACT, SLOPE, HAS_RES
+    DispatchInfo info;
+  };
+  void record_naive(CommandStream& cs, const Recording& r) const;
+  void record_blocked(CommandStream& cs, const Recording& r) const;
+  void record_direct(CommandStream& cs, const Recording& r) const;    // conv2d_direct.cpp
+  void record_winograd(CommandStream& cs, const Recording& r) const;  // conv2d_winograd.cpp
+  void record_gemm(CommandStream& cs, const Recording& r) const;      // conv2d_winograd.cpp
+  bool residual_overlaps_output(const Slice& out, const std::optional<Slice>& residual) const;
+  void choose_blocking(const ConvOptions& options);
   // Packings other than the automatic path's are uploaded on first use (record is const).
   void pack_naive() const;
   void pack_blocked() const;
-  void pack_subgroup() const;
-  void pack_direct() const;
+  void pack_direct() const;  // conv2d_direct.cpp
+  void pack_winograd();      // conv2d_winograd.cpp
+  void pack_gemm();          // conv2d_winograd.cpp
   UniformSlabChunks direct_chunks() const;  // input-channel chunks of the uniform weight slabs
+  // A packed weight array on the device in the conv's precision (common.hpp's upload_weights).
+  Tensor upload_weights(const std::vector<float>& w) const;
+  size_t elem_bytes() const { return dtype_size(precision_dtype(precision_)); }
+  std::string shader(const char* base) const { return shader_for(ctx_, base, precision_, name_); }
 
   Context& ctx_;
   std::string name_;
   Conv2dParams params_;
+  Precision precision_ = Precision::fp32;
   int64_t cin_ = 0, cout_ = 0;
   HostTensor weight_host_;         // as given, for the lazily uploaded packings
   std::vector<float> bias_host_;   // [cout], zeros when none was given
   mutable Tensor weight_;          // [cout][cin][k][k] as given (naive)
-  Tensor bias_;                    // [cout]
+  Tensor bias_;                    // [cout], always f32
   mutable Tensor weight_blocked_;  // [ceil(cout/COB)][cin][k*k][COB], zero-padded output channels
-  mutable Tensor bias_blocked_;    // [ceil(cout/COB)*COB]
-  int64_t blocked_cob_ = 8;  // output channels per invocation of the blocked path (8 or 16)
-  mutable Tensor weight_subgroup_;  // [cout/(8G)][cin/4][k*k][G][8] vec4 over 4 input channels
-  mutable Tensor bias_subgroup_;    // [cout/(8G)*8G]
-  uint32_t subgroup_g_ = 2;  // channel groups of 8 per lane
+  mutable Tensor bias_blocked_;    // [ceil(cout/COB)*COB], f32
+  int64_t blocked_cob_ = 8;  // output channels per invocation of the blocked path (4, 8 or 16)
+  uint32_t blocked_px_ = 8;  // output pixels per invocation of the blocked path
   mutable Tensor weight_direct_;  // [ceil(cout/COB)][cin (+ one chunk of padding)][k*k][COB]
   int64_t direct_cob_ = 16;  // output channels per invocation of the direct path
   uint32_t direct_px_ = 8;   // output pixels per row and invocation of the direct path
@@ -117,7 +148,9 @@ class Conv2d {
   bool direct_texel_input_ = true;
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
   Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
-  int64_t winograd_cob_ = 8, winograd_cout_pad_ = 0, winograd_ks_ = 1;
+  int64_t gemm_cob_ = 8;     // output channels per GEMM invocation (winograd and gemm)
+  uint32_t gemm_tv_ = 4;     // vec4s of tiles per GEMM invocation
+  int64_t gemm_cout_pad_ = 0, winograd_ks_ = 1;
   uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
   mutable std::shared_ptr<ConvWorkspace> workspace_;
 };

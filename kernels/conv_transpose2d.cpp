@@ -2,7 +2,6 @@
 #include "vkunroll/kernels/conv_transpose2d.hpp"
 
 #include <algorithm>
-#include <cstdlib>
 
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
@@ -10,13 +9,6 @@
 namespace vkunroll {
 
 namespace {
-// Groups of 64 for `n` invocations numbered x + y * (64 gx) in the shader (y only past the limit).
-Groups flat_groups(int64_t n, uint32_t z) {
-  const int64_t g = (n + 63) / 64;
-  const int64_t gx = std::min<int64_t>(g, 65535);
-  return {static_cast<uint32_t>(gx), static_cast<uint32_t>((g + gx - 1) / gx), z};
-}
-
 struct ConvTPush {
   uint32_t in_off, in_bs, out_off, out_bs;
   uint32_t cin, h, w, cout, oh, ow, pad;
@@ -79,8 +71,10 @@ void conv_transpose2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weig
 }
 
 ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const HostTensor& bias,
-                                 const ConvTranspose2dParams& params, std::string name)
-    : ctx_(ctx), name_(std::move(name)), params_(params) {
+                                 const ConvTranspose2dParams& params, std::string name, const ConvOptions& options)
+    : ctx_(ctx), name_(std::move(name)), params_(params), precision_(options.precision) {
+  options.validate(name_);
+  if (precision_ == Precision::fp16) require_fp16(ctx, name_);
   const int k = params.kernel;
   if (k < 1 || params.stride < 1 || params.pad < 0 || params.pad >= k)
     throw Error(name_ + ": invalid kernel " + std::to_string(k) + " stride " + std::to_string(params.stride) +
@@ -94,14 +88,14 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
     throw Error(name_ + ": bias has " + std::to_string(bias.data.size()) + " values, " + std::to_string(cout_) +
                 " output channels expected");
   std::vector<float> b = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
-  weight_ = to_device(ctx, HostTensor(Shape{1, 1, 1, weight.shape.count()}, weight.data));
+  weight_ = upload_weights(ctx, weight.data, precision_, name_);
   bias_ = to_device(ctx, HostTensor(Shape{1, 1, 1, cout_}, b));
   if (k == 4 && params.stride == 2 && params.pad == 1) {
     weight_host_ = weight;
     // 32 channels per invocation where they divide cout: 3-6% faster than 16 on lavapipe (fewer
     // input loads per FMA), even on 512->256 where the chunks halve.
     direct_cob_ = cout_ <= 4 ? 4 : (cout_ <= 8 ? 8 : (cout_ % 32 == 0 ? 32 : 16));
-    if (const char* c = std::getenv("VKUNROLL_DIRECT_COB")) direct_cob_ = std::atoi(c);
+    if (options.direct_cob) direct_cob_ = options.direct_cob;
     // Blocked layout [cout/8][cin][4][4][8], output channels zero-padded to a multiple of 8.
     const int64_t cob = (cout_ + 7) / 8;
     std::vector<float> wb(static_cast<size_t>(cob * cin_ * 16 * 8), 0.f), bb(static_cast<size_t>(cob * 8), 0.f);
@@ -112,13 +106,14 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
           wb[static_cast<size_t>((((co / 8) * cin_ + ci) * 16 + t) * 8 + co % 8)] =
               weight.data[static_cast<size_t>((ci * cout_ + co) * 16 + t)];
     }
-    weight_blocked_ = to_device(ctx, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wb.size())}, wb));
+    weight_blocked_ = upload_weights(ctx, wb, precision_, name_);
     bias_blocked_ = to_device(ctx, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(bb.size())}, bb));
   }
 }
 
 UniformSlabChunks ConvTranspose2d::direct_chunks() const {
-  return uniform_slab_chunks(ctx_.info(), cin_, 16 * direct_cob_ * 4, direct_chunk_limit_);
+  const int64_t e = static_cast<int64_t>(dtype_size(precision_dtype(precision_)));
+  return uniform_slab_chunks(ctx_.info(), cin_, 16 * direct_cob_ * e, direct_chunk_limit_);
 }
 
 void ConvTranspose2d::pack_direct() const {
@@ -127,13 +122,14 @@ void ConvTranspose2d::pack_direct() const {
   const int64_t cob = direct_cob_, blocks = (cout_ + cob - 1) / cob;
   const UniformSlabChunks ch = direct_chunks();
   const int64_t cin_pad = ch.cin_pad;  // aligned chunk starts
-  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + ch.max) * 16 * cob), 0.f);
+  // + 8 values: an fp16 slab is bound in whole 16-byte entries (8 halves), possibly 8 bytes past its end.
+  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + ch.max) * 16 * cob + 8), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
     for (int64_t ci = 0; ci < cin_; ++ci)
       for (int64_t t = 0; t < 16; ++t)
         wd[static_cast<size_t>((((co / cob) * cin_pad + ci) * 16 + t) * cob + co % cob)] =
             weight_host_.data[static_cast<size_t>((ci * cout_ + co) * 16 + t)];
-  weight_direct_ = to_device(ctx_, HostTensor(Shape{1, 1, 1, static_cast<int64_t>(wd.size())}, wd));
+  weight_direct_ = upload_weights(ctx_, wd, precision_, name_);
 }
 
 bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
@@ -164,6 +160,8 @@ double ConvTranspose2d::flop(const Shape& in) const {
 void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTransposeAlgo algo) const {
   check_slice(in, name_, "input");
   check_slice(out, name_, "output");
+  check_precision(in, precision_, name_, "input");
+  check_precision(out, precision_, name_, "output");
   const Shape is = in.shape(), os = out.shape(), expect = output_shape(is);
   if (is.c != cin_)
     throw Error(name_ + ": input has " + std::to_string(is.c) + " channels, the weights expect " + std::to_string(cin_));
@@ -178,12 +176,14 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
               static_cast<uint32_t>(os.h), static_cast<uint32_t>(os.w), static_cast<uint32_t>(params_.pad)};
   const std::vector<uint32_t> spec{static_cast<uint32_t>(params_.kernel), static_cast<uint32_t>(params_.stride),
                                    static_cast<uint32_t>(params_.act.kind), spec_float(params_.act.slope)};
-  const double bytes = 4.0 * (static_cast<double>(is.count() + os.count()) +
-                              static_cast<double>(cin_ * cout_ * params_.kernel * params_.kernel));
+  const int64_t e = static_cast<int64_t>(dtype_size(precision_dtype(precision_)));
+  const auto shader = [&](const char* base) { return shader_for(ctx_, base, precision_, name_); };
+  const double bytes = static_cast<double>(e) * (static_cast<double>(is.count() + os.count()) +
+                                                 static_cast<double>(cin_ * cout_ * params_.kernel * params_.kernel));
   const DispatchInfo info{name_ + "_" + std::to_string(params_.kernel) + "x" + std::to_string(params_.kernel), flop(is),
                           bytes};
   if (algo == ConvTransposeAlgo::naive) {
-    cs.dispatch(kernel_pipeline(ctx_, "conv_transpose2d_naive", spec, sizeof(ConvTPush)),
+    cs.dispatch(kernel_pipeline(ctx_, shader("conv_transpose2d_naive"), spec, sizeof(ConvTPush)),
                 {bi.arg, {weight_.range(), Access::read}, {bias_.range(), Access::read}, bo.arg}, p,
                 Groups{static_cast<uint32_t>((os.w + 7) / 8), static_cast<uint32_t>((os.h + 7) / 8),
                        static_cast<uint32_t>(os.n * cout_)},
@@ -192,7 +192,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
   }
   if (algo == ConvTransposeAlgo::blocked) {
     const auto half_w = static_cast<uint32_t>((os.w + 1) / 2);
-    cs.dispatch(kernel_pipeline(ctx_, "conv_transpose2d_blocked", {spec[2], spec[3]}, sizeof(ConvTPush)),
+    cs.dispatch(kernel_pipeline(ctx_, shader("conv_transpose2d_blocked"), {spec[2], spec[3]}, sizeof(ConvTPush)),
                 {bi.arg, {weight_blocked_.range(), Access::read}, {bias_blocked_.range(), Access::read}, bo.arg}, p,
                 flat_groups(os.h * 2 * ((half_w + 7) / 8), static_cast<uint32_t>(os.n * ((cout_ + 7) / 8))),
                 info);
@@ -207,7 +207,12 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
     const int64_t half_w = (os.w + 1) / 2, tasks = os.h * 2 * ((half_w + px - 1) / px);
     const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
     const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
-    const bool texel_input = direct_texel_input_ && bi.arg.range.size / 4 <= ctx_.info().max_texel_buffer_elements;
+    const bool texel_input =
+        direct_texel_input_ && bi.arg.range.size / static_cast<uint64_t>(e) <= ctx_.info().max_texel_buffer_elements;
+    Arg input = bi.arg;
+    if (precision_ == Precision::fp16) input.texel_format = VK_FORMAT_R16_SFLOAT;
+    // The slab in whole 16-byte uniform entries (vec4s in fp32, 8 halves each in fp16).
+    const int64_t slab_entries = (chunk * 16 * cob * e + 15) / 16;
     for (int64_t b = 0; b < blocks; ++b)
       for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
         const bool first = c0 == 0, last = c0 + chunk >= cin_;
@@ -215,13 +220,13 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
         cp.in_off = u32(bi.offset + c0 * is.h * is.w);
         cp.cin = u32(std::min(chunk, cin_ - c0));
         cp.co0 = u32(b * cob);
-        const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * ch.cin_pad + c0) * 16 * cob) * 4,
-                                                    static_cast<size_t>(chunk * 16 * cob) * 4);
-        cs.dispatch(kernel_pipeline(ctx_, texel_input ? "conv_transpose2d_direct_texel" : "conv_transpose2d_direct",
+        const BufferRange wr = weight_direct_.range(static_cast<size_t>((b * ch.cin_pad + c0) * 16 * cob * e),
+                                                    static_cast<size_t>(slab_entries) * 16);
+        cs.dispatch(kernel_pipeline(ctx_, shader(texel_input ? "conv_transpose2d_direct_texel" : "conv_transpose2d_direct"),
                                   {spec[2], spec[3], u32(px), u32(cob / 4), first ? 1u : 0u, last ? 1u : 0u,
-                                   u32(chunk * 16 * cob / 4)},
+                                   u32(slab_entries)},
                                   sizeof(ConvTPush)),
-                    {bi.arg, {wr, Access::read}, {bias_.range(), Access::read},
+                    {input, {wr, Access::read}, {bias_.range(), Access::read},
                      {bo.arg.range, first ? Access::write : Access::read_write}},
                     cp, groups, dispatch_part(info, cp.cin, std::min(cob, cout_ - b * cob), cin_, cout_, blocks));
       }

@@ -4,6 +4,7 @@
 #include <string>
 
 #include "vkunroll/kernels/common.hpp"
+#include "vkunroll/kernels/conv_options.hpp"
 
 namespace vkunroll {
 
@@ -30,9 +31,13 @@ void conv_transpose2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weig
 
 class ConvTranspose2d {
  public:
+  // `options`: precision (fp16: f16 weights, input and output) and tuning knobs, validated here (of
+  // the knobs only direct_cob applies to transposed convs).
   ConvTranspose2d(Context& ctx, const HostTensor& weight, const HostTensor& bias,
-                  const ConvTranspose2dParams& params = {}, std::string name = "conv_transpose2d");
+                  const ConvTranspose2dParams& params = {}, std::string name = "conv_transpose2d",
+                  const ConvOptions& options = {});
 
+  // in and out have the conv's precision (f32 or f16 tensors).
   void record(CommandStream& cs, Slice in, Slice out, ConvTransposeAlgo algo = ConvTransposeAlgo::automatic) const;
 
   bool supports(ConvTransposeAlgo algo) const;
@@ -42,6 +47,7 @@ class ConvTranspose2d {
   int64_t cin() const { return cin_; }
   int64_t cout() const { return cout_; }
   const ConvTranspose2dParams& params() const { return params_; }
+  Precision precision() const { return precision_; }
   // Caps the input channels per dispatch of the direct path (chunks accumulate in the output). Tests.
   void set_direct_chunk_limit(int64_t channels) { direct_chunk_limit_ = channels; }
   // direct reads its input through a uniform texel buffer (faster on lavapipe) where the bound
@@ -52,11 +58,12 @@ class ConvTranspose2d {
   Context& ctx_;
   std::string name_;
   ConvTranspose2dParams params_;
+  Precision precision_ = Precision::fp32;
   int64_t cin_ = 0, cout_ = 0;
   Tensor weight_;          // [cin][cout][k][k] as given
-  Tensor bias_;            // [cout]
+  Tensor bias_;            // [cout], always f32
   Tensor weight_blocked_;  // [ceil(cout/8)][cin][k*k][8]
-  Tensor bias_blocked_;    // [ceil(cout/8)*8]
+  Tensor bias_blocked_;    // [ceil(cout/8)*8], f32
   void pack_direct() const;
   UniformSlabChunks direct_chunks() const;  // input-channel chunks of the uniform weight slabs
   HostTensor weight_host_;         // as given, for the lazily uploaded direct packing

@@ -23,6 +23,22 @@ void check_same(const std::string& op, const S& s, const Shape& expect, const ch
   if (s.shape() != expect) throw Error(op + ": " + what + " " + s.shape().str() + ", expected " + expect.str());
 }
 
+// copy between an f32 and an f16 slice.
+void convert(CommandStream& cs, Slice in, Slice out) {
+  const Shape s = in.shape();
+  const BoundSlice bi = bind_slice(in, Access::read), bo = bind_slice(out, Access::write);
+  struct {
+    uint32_t in_off, in_bs, out_off, out_bs, c, plane;
+  } p{bi.offset, bi.batch_stride, bo.offset, bo.batch_stride, static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.plane())};
+  Context& ctx = in.t->context();
+  require_fp16(ctx, "copy");
+  const bool to_f16 = out.t->dtype() == DType::f16;
+  const double n = static_cast<double>(s.count());
+  cs.dispatch(kernel_pipeline(ctx, to_f16 ? "convert_f32_to_f16" : "convert_f16_to_f32", {}, sizeof p), {bi.arg, bo.arg}, p,
+              Groups{static_cast<uint32_t>((s.plane() + 63) / 64), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},
+              {"convert", 0, 6.0 * n});
+}
+
 void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slice out, Act act, float scale) {
   const std::string name = kOpNames[op];
   check_slice(a, name, "input");
@@ -30,17 +46,25 @@ void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slic
   check_same(name, out, s, "output");
   if (b) check_same(name, *b, s, "second input");
   if (m) check_same(name, *m, Shape{s.n, 1, s.h, s.w}, "mask");
+  if (op == kCopy && out.t->dtype() != a.t->dtype()) return convert(cs, a, out);
+  // One precision for every operand (the fp16 variant stores all of them as float16).
+  const Precision prec = slice_precision(a);
+  check_precision(out, prec, name, "output");
+  if (b) check_precision(*b, prec, name, "second input");
+  if (m) check_precision(*m, prec, name, "mask");
+  const double eb = static_cast<double>(dtype_size(precision_dtype(prec)));
   const BoundSlice ba = bind_slice(a, Access::read), bo = bind_slice(out, Access::write);
   const BoundSlice bb = b ? bind_slice(*b, Access::read) : ba, bm = m ? bind_slice(*m, Access::read) : ba;
   EwPush p{ba.offset, ba.batch_stride, bb.offset, bb.batch_stride, bm.offset, bm.batch_stride, bo.offset,
            bo.batch_stride, static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.plane()), scale};
   Context& ctx = a.t->context();
   const double n = static_cast<double>(s.count());
-  cs.dispatch(kernel_pipeline(ctx, "elementwise", {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)}, sizeof p),
+  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, "elementwise", prec, name), {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)},
+                           sizeof p),
               {ba.arg, bb.arg, bm.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((s.plane() + 63) / 64), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},
               {name, (op == kCopy || op == kClamp01) ? 0 : (op == kBlend ? 3 : 1) * n,
-               4.0 * n * (2 + (b ? 1 : 0)) + (m ? 4.0 * static_cast<double>(s.n * s.plane()) : 0)});
+               eb * n * (2 + (b ? 1 : 0)) + (m ? eb * static_cast<double>(s.n * s.plane()) : 0)});
 }
 
 template <class F>

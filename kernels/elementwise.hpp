@@ -5,6 +5,8 @@
 
 namespace vkunroll {
 
+// Every op takes f32 or f16 slices, all of one dtype (fp16: stored as float16, computed in fp32,
+// stored saturated at +-65504); copy alone may convert between an f32 and an f16 slice.
 void copy(CommandStream& cs, Slice in, Slice out);                      // out = in (builds concatenations)
 void add(CommandStream& cs, Slice a, Slice b, Slice out);               // out = a + b
 void scale_act(CommandStream& cs, Slice in, Slice out, Act act, float scale);  // out = scale * act(in)

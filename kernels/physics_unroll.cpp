@@ -175,6 +175,10 @@ void PhysicsUnroll::record(CommandStream& cs, const Tensor& rs, Tensor& result, 
   if (s.n != 1 || s.h != height_ || s.w != width_ || !(result.shape() == s))
     throw Error("PhysicsUnroll: image " + s.str() + " / output " + result.shape().str() + " do not match the event lists (" +
                 std::to_string(height_) + "x" + std::to_string(width_) + ")");
+  // fp32 only: the exponentials and the log-sum-exp run in fp32 and an fp16 image would cap them.
+  if (rs.dtype() != DType::f32 || result.dtype() != DType::f32)
+    throw Error(std::string("PhysicsUnroll: image and output must be f32 tensors (got ") + dtype_name(rs.dtype()) +
+                " / " + dtype_name(result.dtype()) + "); convert fp16 images with copy()");
   if (!(params.contrast > 0) || !(params.gamma > 0))
     throw Error("PhysicsUnroll: contrast and gamma must be positive");
   if (!(params.max_value > 0) || !std::isfinite(params.max_value))

@@ -61,7 +61,7 @@ class PhysicsUnroll {
   // Throws Error naming the first pixel over the limit when !fits(ev). With `cs`, the lists' uploads
   // are recorded into it (ordered with its work, no wait); the op must then outlive that submission.
   PhysicsUnroll(Context& ctx, const PixelEventLists& ev, CommandStream* cs = nullptr);
-  // rs and out: [1, C, H, W] f32 tensors of the lists' size.
+  // rs and out: [1, C, H, W] f32 tensors of the lists' size (fp32 only: an f16 tensor is an Error).
   void record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const;
 
  private:

@@ -23,10 +23,12 @@ void dispatch(CommandStream& cs, const char* shader, Slice in, Slice out) {
             static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w), static_cast<uint32_t>(os.h),
             static_cast<uint32_t>(os.w)};
   Context& ctx = in.t->context();
-  cs.dispatch(kernel_pipeline(ctx, shader, {}, sizeof p), {bi.arg, bo.arg}, p,
+  const Precision prec = slice_precision(in);
+  check_precision(out, prec, shader, "output");
+  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), {}, sizeof p), {bi.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((os.h * os.w + 63) / 64), static_cast<uint32_t>(os.c),
                      static_cast<uint32_t>(os.n)},
-              {shader, 0, 8.0 * static_cast<double>(os.count())});
+              {shader, 0, 2.0 * static_cast<double>(dtype_size(in.t->dtype())) * static_cast<double>(os.count())});
 }
 }  // namespace
 

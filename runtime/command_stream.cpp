@@ -185,6 +185,7 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
 namespace {
 uint64_t texel_bytes(VkFormat f) {
   switch (f) {
+    case VK_FORMAT_R16_SFLOAT: return 2;  // fp16 inputs of the direct convs
     case VK_FORMAT_R32_SFLOAT:
     case VK_FORMAT_R32_UINT:
     case VK_FORMAT_R32_SINT: return 4;

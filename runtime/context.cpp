@@ -356,6 +356,7 @@ void Context::create_device() {
   info_ = infos[chosen];
   info_.min_uniform_buffer_offset_alignment =
       std::max<uint64_t>(info_.min_uniform_buffer_offset_alignment, options_.min_uniform_offset_alignment);
+  if (options_.without_fp16) info_.shader_float16 = info_.storage_buffer_16bit = false;
   queue_family_ = queue_family_for_compute(physical_);
   if (queue_family_ == UINT32_MAX) throw Error("device '" + info_.name + "' has no compute queue");
 

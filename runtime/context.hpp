@@ -32,6 +32,13 @@ struct ContextOptions {
   // Enforce at least this minUniformBufferOffsetAlignment (bytes; 0: the device's). Tests use it to
   // check on a lenient device (lavapipe: 16) what a strict one (NVIDIA: 64, others up to 256) needs.
   uint64_t min_uniform_offset_alignment = 0;
+  // Tests: bind_slice binds the whole tensor of every slice (the shader's element offsets then count
+  // from the tensor's start), so a shader that writes outside its slice hits the canary values
+  // around the slice inside the binding instead of past its end, where lavapipe drops the write.
+  bool whole_tensor_bindings = false;
+  // Create the device without its 16-bit storage and fp16 arithmetic features, as on a device that
+  // lacks them (tests of the fp16 refusal).
+  bool without_fp16 = false;
 };
 
 // Limits and features of a physical device, read once.
@@ -43,8 +50,8 @@ struct DeviceInfo {
   uint32_t vendor_id = 0, device_id = 0;
   std::string driver_name, driver_info;
   uint32_t subgroup_size = 0;
-  bool shader_float16 = false;          // fp16 arithmetic in shaders
-  bool storage_buffer_16bit = false;    // fp16 values in storage buffers
+  bool shader_float16 = false;          // fp16 arithmetic in shaders (enabled when present)
+  bool storage_buffer_16bit = false;    // fp16 values in storage buffers (enabled; the fp16 kernels need it)
   uint64_t max_storage_buffer_range = 0;
   uint32_t max_shared_memory = 0;
   uint32_t max_push_constants = 0;
@@ -97,6 +104,7 @@ class Context {
   static DeviceList enumerate(bool validation = false);
 
   const DeviceInfo& info() const { return info_; }
+  const ContextOptions& options() const { return options_; }
   VkInstance instance() const { return instance_; }
   VkPhysicalDevice physical_device() const { return physical_; }
   VkDevice device() const { return device_; }

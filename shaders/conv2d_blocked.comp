@@ -17,14 +17,15 @@ layout(constant_id = 5) const uint PX = 8;
 layout(constant_id = 6) const uint CQ = 2;  // vec4s of output channels per invocation (COB / 4)
 const uint COB = CQ * 4u;
 #include "act.glsl"
+#include "precision.glsl"
 
 const uint ROW = PX * STRIDE + K - STRIDE;  // input values one kernel row of PX outputs touches
 
-layout(std430, binding = 0) readonly buffer In { float x[]; };
-layout(std430, binding = 1) readonly buffer Wt { vec4 wt[]; };
+layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
+layout(std430, binding = 1) readonly buffer Wt { SVEC4 wt[]; };
 layout(std430, binding = 2) readonly buffer Bias { vec4 bias[]; };
-layout(std430, binding = 3) readonly buffer Res { float res[]; };
-layout(std430, binding = 4) writeonly buffer Out { float y[]; };
+layout(std430, binding = 3) readonly buffer Res { SFLOAT res[]; };
+layout(std430, binding = 4) writeonly buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P {
   uint in_off, in_bs, res_off, res_bs, out_off, out_bs;
   uint cin, h, w, cout, oh, ow, pad;
@@ -59,13 +60,13 @@ void main() {
       float row[ROW];
       uint rb = ib + uint(clamp(iy, 0, int(p.h) - 1)) * p.w;
       for (uint i = 0; i < ROW; ++i) {
-        float v = x[rb + uint(clamp(ix0 + int(i), 0, int(p.w) - 1))];
+        float v = float(x[rb + uint(clamp(ix0 + int(i), 0, int(p.w) - 1))]);
         row[i] = (rowok && colok[i]) ? v : 0.0;
       }
       for (uint kx = 0; kx < K; ++kx) {
         uint wi = wb + (ky * K + kx) * CQ;
         for (uint q = 0; q < CQ; ++q) {
-          vec4 wq = wt[wi + q];
+          vec4 wq = vec4(wt[wi + q]);
           for (uint j = 0; j < PX; ++j) acc[j][q] += row[j * STRIDE + kx] * wq;
         }
       }
@@ -85,8 +86,8 @@ void main() {
         if (ox >= p.ow) continue;
         uint o = co * oplane + oy * p.ow + ox;
         float v = act(acc[j][h][c]);
-        if (HAS_RES != 0u) v += res[rbase + o];
-        y[ob + o] = v;
+        if (HAS_RES != 0u) v += float(res[rbase + o]);
+        y[ob + o] = to_s(v);
       }
     }
 }

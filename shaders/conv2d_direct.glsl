@@ -19,10 +19,11 @@ layout(constant_id = 5) const uint PX = 8;
 layout(constant_id = 6) const uint CQ = 4;       // vec4s of output channels per invocation
 layout(constant_id = 7) const uint FIRST = 1;    // first input-channel chunk: start from the bias
 layout(constant_id = 8) const uint LAST = 1;     // last chunk: activation and residual
-layout(constant_id = 9) const uint SLAB = 4096;  // vec4s of the bound weight slab
+layout(constant_id = 9) const uint SLAB = 4096;  // 16-byte entries of the bound weight slab
 layout(constant_id = 10) const uint PY = 1;      // output rows per invocation
 layout(constant_id = 11) const uint NC = 4;      // output channels computed when CQ == 1 (1-4): the heads
 #include "act.glsl"
+#include "precision.glsl"
 
 const uint ROW = PX * STRIDE + K - STRIDE;  // input values one kernel row of PX outputs touches
 const uint ROWS = PY * STRIDE + K - STRIDE;  // input rows PY output rows touch
@@ -31,10 +32,9 @@ const uint ROWS = PY * STRIDE + K - STRIDE;  // input rows PY output rows touch
 const uint NCV = CQ == 1u ? NC : 4u;
 
 #include "direct_input.glsl"
-layout(std140, binding = 1) uniform Wt { vec4 wt[SLAB]; };
 layout(std430, binding = 2) readonly buffer Bias { float bias[]; };
-layout(std430, binding = 3) readonly buffer Res { float res[]; };
-layout(std430, binding = 4) buffer Out { float y[]; };
+layout(std430, binding = 3) readonly buffer Res { SFLOAT res[]; };
+layout(std430, binding = 4) buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P {
   uint in_off, in_bs, res_off, res_bs, out_off, out_bs;
   uint cin, h, w, cout, oh, ow, pad, co0;  // cin: input channels of this chunk; co0: first output channel
@@ -66,7 +66,7 @@ void main() {
           float b = bias[co];
           [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q][c] = b;
         } else {
-          [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q][c] = y[ob + co * oplane + oy * p.ow + min(ox0 + j, p.ow - 1u)];
+          [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q][c] = float(y[ob + co * oplane + oy * p.ow + min(ox0 + j, p.ow - 1u)]);
         }
       }
     }
@@ -97,7 +97,7 @@ void main() {
         [[unroll]] for (uint kx = 0; kx < K; ++kx) {
           uint wi = wb + (uint(ky) * K + kx) * CQ;
           [[unroll]] for (uint q = 0; q < CQ; ++q) {
-            vec4 wq = wt[wi + q];
+            vec4 wq = weight4(wi + q);
             if (NCV == 4u) {
               [[unroll]] for (uint j = 0; j < PX; ++j) acc[t][j][q] += row[j * STRIDE + kx] * wq;
             } else {
@@ -126,9 +126,9 @@ void main() {
           float v = acc[t][j][q][c];
           if (LAST != 0u) {
             v = act(v);
-            if (HAS_RES != 0u) v += res[rbase + o];
+            if (HAS_RES != 0u) v += float(res[rbase + o]);
           }
-          y[ob + o] = v;
+          y[ob + o] = to_s(v);
         }
       }
   }

@@ -3,4 +3,5 @@
 #extension GL_EXT_control_flow_attributes : require
 // conv2d, direct algorithm, input through a uniform texel buffer (see conv2d_direct.glsl).
 #define DIRECT_TEXEL_INPUT 1
+#include "precision.glsl"
 #include "conv2d_direct.glsl"

@@ -8,12 +8,13 @@ layout(constant_id = 2) const uint ACT = 0;
 layout(constant_id = 3) const float SLOPE = 0.0;
 layout(constant_id = 4) const uint HAS_RES = 0;
 #include "act.glsl"
+#include "precision.glsl"
 
-layout(std430, binding = 0) readonly buffer In { float x[]; };
-layout(std430, binding = 1) readonly buffer Wt { float wt[]; };   // [cout][cin][K][K]
+layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
+layout(std430, binding = 1) readonly buffer Wt { SFLOAT wt[]; };   // [cout][cin][K][K]
 layout(std430, binding = 2) readonly buffer Bias { float bias[]; };
-layout(std430, binding = 3) readonly buffer Res { float res[]; };
-layout(std430, binding = 4) writeonly buffer Out { float y[]; };
+layout(std430, binding = 3) readonly buffer Res { SFLOAT res[]; };
+layout(std430, binding = 4) writeonly buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P {
   uint in_off, in_bs, res_off, res_bs, out_off, out_bs;
   uint cin, h, w, cout, oh, ow, pad;
@@ -34,12 +35,12 @@ void main() {
       for (uint kx = 0; kx < K; ++kx) {
         int ix = ix0 + int(kx);
         if (ix < 0 || ix >= int(p.w)) continue;
-        acc += x[ib + uint(iy) * p.w + uint(ix)] * wt[wb + ky * K + kx];
+        acc += float(x[ib + uint(iy) * p.w + uint(ix)]) * float(wt[wb + ky * K + kx]);
       }
     }
   }
   float v = act(acc);
   uint o = (co * p.oh + oy) * p.ow + ox;
-  if (HAS_RES != 0u) v += res[p.res_off + n * p.res_bs + o];
-  y[p.out_off + n * p.out_bs + o] = v;
+  if (HAS_RES != 0u) v += float(res[p.res_off + n * p.res_bs + o]);
+  y[p.out_off + n * p.out_bs + o] = to_s(v);
 }

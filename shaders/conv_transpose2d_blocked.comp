@@ -10,12 +10,13 @@ layout(local_size_x = 64, local_size_y = 1, local_size_z = 1) in;
 layout(constant_id = 0) const uint ACT = 0;
 layout(constant_id = 1) const float SLOPE = 0.0;
 #include "act.glsl"
+#include "precision.glsl"
 const uint PX = 8;
 
-layout(std430, binding = 0) readonly buffer In { float x[]; };
-layout(std430, binding = 1) readonly buffer Wt { vec4 wt[]; };
+layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
+layout(std430, binding = 1) readonly buffer Wt { SVEC4 wt[]; };
 layout(std430, binding = 2) readonly buffer Bias { vec4 bias[]; };
-layout(std430, binding = 3) writeonly buffer Out { float y[]; };
+layout(std430, binding = 3) writeonly buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P {
   uint in_off, in_bs, out_off, out_bs;
   uint cin, h, w, cout, oh, ow, pad;
@@ -54,12 +55,12 @@ void main() {
       uint rb = ib + uint(clamp(iy, 0, int(p.h) - 1)) * p.w;
       float row[PX + 1u];
       for (uint i = 0; i <= PX; ++i) {
-        float v = x[rb + colc[i]];
+        float v = float(x[rb + colc[i]]);
         row[i] = (rowok && colok[i]) ? v : 0.0;
       }
       // kx = 1-px reads local index j+1, kx = 3-px reads index j.
       uint wa = wb + (ky * 4u + 1u - px) * 2u, wbb = wb + (ky * 4u + 3u - px) * 2u;
-      vec4 wa0 = wt[wa], wa1 = wt[wa + 1u], wb0 = wt[wbb], wb1 = wt[wbb + 1u];
+      vec4 wa0 = vec4(wt[wa]), wa1 = vec4(wt[wa + 1u]), wb0 = vec4(wt[wbb]), wb1 = vec4(wt[wbb + 1u]);
       for (uint j = 0; j < PX; ++j) {
         float va = row[j + 1u], vb = row[j];
         acc[j][0] += va * wa0 + vb * wb0;
@@ -76,7 +77,7 @@ void main() {
       for (uint j = 0; j < PX; ++j) {
         uint ox = 2u * (m0 + j) + px;
         if (ox >= p.ow) continue;
-        y[ob + co * oplane + oy * p.ow + ox] = act(acc[j][hh][c]);
+        y[ob + co * oplane + oy * p.ow + ox] = to_s(act(acc[j][hh][c]));
       }
     }
 }

@@ -14,13 +14,13 @@ layout(constant_id = 2) const uint PX = 8;
 layout(constant_id = 3) const uint CQ = 4;
 layout(constant_id = 4) const uint FIRST = 1;
 layout(constant_id = 5) const uint LAST = 1;
-layout(constant_id = 6) const uint SLAB = 4096;
+layout(constant_id = 6) const uint SLAB = 4096;  // 16-byte entries of the bound weight slab
 #include "act.glsl"
+#include "precision.glsl"
 
 #include "direct_input.glsl"
-layout(std140, binding = 1) uniform Wt { vec4 wt[SLAB]; };
 layout(std430, binding = 2) readonly buffer Bias { float bias[]; };
-layout(std430, binding = 3) buffer Out { float y[]; };
+layout(std430, binding = 3) buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P {
   uint in_off, in_bs, out_off, out_bs;
   uint cin, h, w, cout, oh, ow, pad, co0;
@@ -46,7 +46,7 @@ void main() {
         [[unroll]] for (uint j = 0; j < PX; ++j) acc[j][q][c] = b;
       } else {
         [[unroll]] for (uint j = 0; j < PX; ++j)
-          acc[j][q][c] = y[ob + co * oplane + oy * p.ow + min(2u * (m0 + j) + px, p.ow - 1u)];
+          acc[j][q][c] = float(y[ob + co * oplane + oy * p.ow + min(2u * (m0 + j) + px, p.ow - 1u)]);
       }
     }
   int xbase = int(m0) - 1 + int(px);  // input column of local index 0
@@ -74,7 +74,7 @@ void main() {
       // kx = 1-px reads local index j+1, kx = 3-px reads index j.
       uint wa = wb + (ky * 4u + 1u - px) * CQ, wc = wb + (ky * 4u + 3u - px) * CQ;
       [[unroll]] for (uint q = 0; q < CQ; ++q) {
-        vec4 w1 = wt[wa + q], w3 = wt[wc + q];
+        vec4 w1 = weight4(wa + q), w3 = weight4(wc + q);
         [[unroll]] for (uint j = 0; j < PX; ++j) acc[j][q] += row[j + 1u] * w1 + row[j] * w3;
       }
     }
@@ -88,7 +88,7 @@ void main() {
         uint ox = 2u * (m0 + j) + px;
         if (ox >= p.ow) continue;
         float v = acc[j][q][c];
-        y[ob + co * oplane + oy * p.ow + ox] = LAST != 0u ? act(v) : v;
+        y[ob + co * oplane + oy * p.ow + ox] = to_s(LAST != 0u ? act(v) : v);
       }
     }
 }

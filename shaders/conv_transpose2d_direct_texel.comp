@@ -3,4 +3,5 @@
 #extension GL_GOOGLE_include_directive : require
 // conv_transpose2d, direct algorithm, input through a uniform texel buffer (see conv_transpose2d_direct.glsl).
 #define DIRECT_TEXEL_INPUT 1
+#include "precision.glsl"
 #include "conv_transpose2d_direct.glsl"

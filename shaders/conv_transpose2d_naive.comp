@@ -8,11 +8,12 @@ layout(constant_id = 1) const uint STRIDE = 2;
 layout(constant_id = 2) const uint ACT = 0;
 layout(constant_id = 3) const float SLOPE = 0.0;
 #include "act.glsl"
+#include "precision.glsl"
 
-layout(std430, binding = 0) readonly buffer In { float x[]; };
-layout(std430, binding = 1) readonly buffer Wt { float wt[]; };  // [cin][cout][K][K]
+layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
+layout(std430, binding = 1) readonly buffer Wt { SFLOAT wt[]; };  // [cin][cout][K][K]
 layout(std430, binding = 2) readonly buffer Bias { float bias[]; };
-layout(std430, binding = 3) writeonly buffer Out { float y[]; };
+layout(std430, binding = 3) writeonly buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P {
   uint in_off, in_bs, out_off, out_bs;
   uint cin, h, w, cout, oh, ow, pad;
@@ -34,8 +35,8 @@ void main() {
       uint ix = uint(tx) / STRIDE;
       if (ix >= p.w) continue;
       for (uint ci = 0; ci < p.cin; ++ci)
-        acc += x[p.in_off + n * p.in_bs + (ci * p.h + iy) * p.w + ix] * wt[((ci * p.cout + co) * K + ky) * K + kx];
+        acc += float(x[p.in_off + n * p.in_bs + (ci * p.h + iy) * p.w + ix]) * float(wt[((ci * p.cout + co) * K + ky) * K + kx]);
     }
   }
-  y[p.out_off + n * p.out_bs + (co * p.oh + oy) * p.ow + ox] = act(acc);
+  y[p.out_off + n * p.out_bs + (co * p.oh + oy) * p.ow + ox] = to_s(act(acc));
 }

@@ -7,10 +7,12 @@ layout(constant_id = 0) const uint OP = 0;
 layout(constant_id = 1) const uint ACT = 0;
 layout(constant_id = 2) const float SLOPE = 0.0;
 #include "act.glsl"
-layout(std430, binding = 0) readonly buffer A { float a[]; };
-layout(std430, binding = 1) readonly buffer B { float b[]; };
-layout(std430, binding = 2) readonly buffer M { float m[]; };
-layout(std430, binding = 3) writeonly buffer Out { float y[]; };
+#include "precision.glsl"
+// All operands in the variant's storage type, arithmetic in fp32.
+layout(std430, binding = 0) readonly buffer A { SFLOAT a[]; };
+layout(std430, binding = 1) readonly buffer B { SFLOAT b[]; };
+layout(std430, binding = 2) readonly buffer M { SFLOAT m[]; };
+layout(std430, binding = 3) writeonly buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P {
   uint a_off, a_bs, b_off, b_bs, m_off, m_bs, out_off, out_bs, c, plane;
   float scale;
@@ -19,14 +21,14 @@ void main() {
   uint i = gl_GlobalInvocationID.x, c = gl_GlobalInvocationID.y, n = gl_GlobalInvocationID.z;
   if (i >= p.plane || c >= p.c) return;
   uint e = c * p.plane + i;
-  float va = a[p.a_off + n * p.a_bs + e];
+  float va = float(a[p.a_off + n * p.a_bs + e]);
   float v;
-  if (OP == 1u) v = va + b[p.b_off + n * p.b_bs + e];
+  if (OP == 1u) v = va + float(b[p.b_off + n * p.b_bs + e]);
   else if (OP == 2u) v = p.scale * act(va);
   else if (OP == 3u) {
-    float mm = m[p.m_off + n * p.m_bs + i];
-    v = mm * va + (1.0 - mm) * b[p.b_off + n * p.b_bs + e];
+    float mm = float(m[p.m_off + n * p.m_bs + i]);
+    v = mm * va + (1.0 - mm) * float(b[p.b_off + n * p.b_bs + e]);
   } else if (OP == 4u) v = clamp(va, 0.0, 1.0);
   else v = va;
-  y[p.out_off + n * p.out_bs + e] = v;
+  y[p.out_off + n * p.out_bs + e] = to_s(v);
 }

@@ -1,9 +1,11 @@
 #version 450
 // Reflection padding (PyTorch's ReflectionPad2d where pad < size); larger pads keep reflecting
 // (period 2(n-1)), and a size-1 axis repeats its one value.
+#extension GL_GOOGLE_include_directive : require
+#include "precision.glsl"
 layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer In { float x[]; };
-layout(std430, binding = 1) writeonly buffer Out { float y[]; };
+layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
+layout(std430, binding = 1) writeonly buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P { uint in_off, in_bs, out_off, out_bs, c, h, w, oh, ow, top, left; } p;
 // The folding is even (index -i maps like i), so the remainder is taken of |i|: Vulkan leaves
 // OpSMod/OpSRem of a negative operand undefined (NVIDIA returned wrong indices; lavapipe did not).

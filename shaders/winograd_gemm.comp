@@ -3,13 +3,17 @@
 // channels: a register-blocked GEMM, 8 tiles x COB output channels per invocation, vec4 loads of
 // both operands (U [36][cin_total][cout_pad], V [36][chunk][tiles_pad], M [36][cout_pad][tiles_pad]).
 // ACCUM adds to M (the chunks after the first).
+// fp16 variant (the 1x1 GEMM's: Winograd keeps U and V fp32 and runs the fp32 one): U and V as
+// float16, M (the accumulators) fp32.
+#extension GL_GOOGLE_include_directive : require
+#include "precision.glsl"
 layout(local_size_x = 64) in;
 layout(constant_id = 0) const uint COB = 8;
 layout(constant_id = 1) const uint ACCUM = 0;
 layout(constant_id = 2) const uint NPOS = 36;  // tile positions (36; 1 for a 1x1 conv as a plain GEMM)
 layout(constant_id = 3) const uint TV = 2;     // vec4s of tiles per invocation (tiles_pad is a multiple of 16)
-layout(std430, binding = 0) readonly buffer V { vec4 v[]; };
-layout(std430, binding = 1) readonly buffer U { vec4 u[]; };
+layout(std430, binding = 0) readonly buffer V { SVEC4 v[]; };
+layout(std430, binding = 1) readonly buffer U { SVEC4 u[]; };
 layout(std430, binding = 2) buffer M { vec4 m[]; };
 layout(push_constant) uniform P { uint chunk, tiles_pad, cout_pad, cin_total, c_begin; } p;
 
@@ -30,9 +34,9 @@ void main() {
   uint vb = pos * p.chunk * vs + tg * TV, ub = (pos * p.cin_total + p.c_begin) * us + cog * (COB / 4u);
   for (uint ci = 0; ci < p.chunk; ++ci, vb += vs, ub += us) {
     vec4 vv[TV];
-    for (uint t = 0; t < TV; ++t) vv[t] = v[vb + t];
+    for (uint t = 0; t < TV; ++t) vv[t] = vec4(v[vb + t]);
     for (uint q = 0; q < COB / 4u; ++q) {
-      vec4 w = u[ub + q];
+      vec4 w = vec4(u[ub + q]);
       for (uint c = 0; c < 4u; ++c)
         for (uint t = 0; t < TV; ++t) acc[q * 4u + c][t] += w[c] * vv[t];
     }

@@ -9,8 +9,12 @@
 // input row s_in * (4 ty - 1 + i) + off_mul * (s / ks) + off_base (columns likewise with s % ks).
 // Channels [c_begin, c_begin + gridY) of the virtual ones are transformed (a chunk).
 // Layout [36][chunk][tiles_pad], tile index ((n * tiles_y + ty) * tiles_x_pad + tx).
+// fp16 variant: the input as float16; V stays fp32 (F(4,3)'s transforms amplify V's rounding: fp16 V
+// measured 6-8e-3 max abs error against 2.5e-4 for fp16 weights alone, docs/kernels.md "Precision").
+#extension GL_GOOGLE_include_directive : require
+#include "precision.glsl"
 layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer In { float x[]; };
+layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
 layout(std430, binding = 1) writeonly buffer V { vec4 v[]; };
 layout(push_constant) uniform P {
   uint in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
@@ -34,7 +38,7 @@ void main() {
     uint rb = base + uint(clamp(yy, 0, int(p.h) - 1)) * p.w;
     for (int j = 0; j < 18; ++j) {
       int xx = x0 + si * j;
-      float val = x[rb + uint(clamp(xx, 0, int(p.w) - 1))];
+      float val = float(x[rb + uint(clamp(xx, 0, int(p.w) - 1))]);
       d[i][j] = (rowok && xx >= 0 && xx < int(p.w)) ? val : 0.0;
     }
   }

@@ -8,10 +8,12 @@ layout(constant_id = 0) const uint ACT = 0;
 layout(constant_id = 1) const float SLOPE = 0.0;
 layout(constant_id = 2) const uint HAS_RES = 0;
 #include "act.glsl"
+#include "precision.glsl"
+// fp16 variant: M stays fp32, residual and output float16.
 layout(std430, binding = 0) readonly buffer M { vec4 m[]; };
 layout(std430, binding = 1) readonly buffer Bias { float bias[]; };
-layout(std430, binding = 2) readonly buffer Res { float res[]; };
-layout(std430, binding = 3) writeonly buffer Out { float y[]; };
+layout(std430, binding = 2) readonly buffer Res { SFLOAT res[]; };
+layout(std430, binding = 3) writeonly buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P {
   uint res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
 } p;
@@ -49,8 +51,8 @@ void main() {
         if (ox >= p.ow) continue;
         uint o = oy * p.ow + ox;
         float val = act(o4[j][t] + bv);
-        if (HAS_RES != 0u) val += res[rb + o];
-        y[ob + o] = val;
+        if (HAS_RES != 0u) val += float(res[rb + o]);
+        y[ob + o] = to_s(val);
       }
   }
 }

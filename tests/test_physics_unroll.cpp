@@ -133,3 +133,21 @@ TEST(PhysicsUnroll, GatherKeepsOnlyEachRowsWindowAndCrop) {
   EXPECT_FLOAT_EQ(ev.tau[0], 50.f);
   EXPECT_THROW(gather_pixel_events(es, 0, s, plus(s, 100), 0, 8, 5, 4), Error);
 }
+
+// The unroller stays fp32 (its exponentials): an f16 image or output is a named error.
+TEST(PhysicsUnroll, Fp16TensorsAreRefused) {
+  Context& ctx = vktest::context();
+  EventStream es;
+  es.width = 4, es.height = 2;
+  auto s = starts(2, 0, 10);
+  auto ev = gather_pixel_events(es, 50, s, plus(s, 100), 0, 0, 4, 2);
+  PhysicsUnroll op(ctx, ev);
+  Tensor rs16(ctx, {1, 1, 2, 4}, DType::f16), out32(ctx, {1, 1, 2, 4});
+  CommandStream cs(ctx);
+  try {
+    op.record(cs, rs16, out32, {});
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("f32"), std::string::npos) << e.what();
+  }
+}

@@ -21,6 +21,11 @@ std::unique_ptr<Context>& strict_slot() {
   return ctx;
 }
 
+std::unique_ptr<Context>& whole_slot() {
+  static std::unique_ptr<Context> ctx;
+  return ctx;
+}
+
 class ValidationListener : public ::testing::EmptyTestEventListener {
   void OnTestStart(const ::testing::TestInfo&) override {
     if (context_created()) context().clear_validation_messages();
@@ -56,6 +61,19 @@ Context& strict_uniform_context() {
   return *strict;
 }
 
+Context& whole_binding_context() {
+  std::unique_ptr<Context>& whole = whole_slot();
+  if (!whole) {
+    ContextOptions o;
+    o.validation = true;
+    o.validation_fatal = true;
+    o.announce = false;
+    o.whole_tensor_bindings = true;
+    whole = std::make_unique<Context>(o);
+  }
+  return *whole;
+}
+
 bool context_created() { return slot() != nullptr; }
 
 const ShaderModuleBlob& test_shader(std::string_view name) {
@@ -74,6 +92,7 @@ int main(int argc, char** argv) {
   ::testing::UnitTest::GetInstance()->listeners().Append(new vkunroll::vktest::ValidationListener);
   const int rc = RUN_ALL_TESTS();
   vkunroll::vktest::strict_slot().reset();
+  vkunroll::vktest::whole_slot().reset();
   vkunroll::vktest::slot().reset();
   return rc;
 }

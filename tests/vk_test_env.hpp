@@ -15,6 +15,10 @@ Context& context();
 // A second lavapipe context that enforces a 256-byte minUniformBufferOffsetAlignment (lavapipe's is
 // 16), to check what a strict GPU needs; a validation message aborts. Created on first use.
 Context& strict_uniform_context();
+// A third lavapipe context with ContextOptions::whole_tensor_bindings: every slice binds its whole
+// tensor, so the canary tests see writes outside a slice (lavapipe drops writes past a binding). A
+// validation message aborts. Created on first use.
+Context& whole_binding_context();
 // True when a context was created in this process (the listener only checks then).
 bool context_created();
 // The tests' own shaders (tests/shaders/*.comp), for runtime tests that know no kernel.

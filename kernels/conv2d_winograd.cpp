@@ -1,0 +1,196 @@
+// conv2d, Winograd F(4x4, 3x3) (winograd_input, winograd_gemm, winograd_output) and the 1x1 GEMM
+// (conv1x1_pack, winograd_gemm with one position, conv1x1_output), with their scratch sizes.
+// fp16: Winograd reads and writes float16 activations but keeps U, V and M fp32 (its transforms
+// amplify their rounding: docs/kernels.md, "Precision"); the 1x1 GEMM's packed input and weights are
+// float16, M fp32.
+#include <algorithm>
+
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/kernels/conv2d.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
+
+namespace vkunroll {
+
+namespace {
+struct WinogradSizes {
+  int64_t tiles_x_pad, tiles_y, ngroups, tiles_pad;  // groups of 4 horizontally adjacent tiles
+};
+WinogradSizes winograd_sizes(const Shape& in) {
+  WinogradSizes s{};
+  s.tiles_x_pad = ((in.w + 3) / 4 + 3) / 4 * 4;
+  s.tiles_y = (in.h + 3) / 4;
+  s.ngroups = in.n * s.tiles_y * s.tiles_x_pad / 4;
+  s.tiles_pad = (s.ngroups * 4 + 15) / 16 * 16;  // whole GEMM blocks of up to 16 tiles
+  return s;
+}
+
+int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 15) / 16 * 16; }
+}  // namespace
+
+void Conv2d::pack_winograd() {
+  const int k = params_.kernel;
+  const bool wino_s2 = k == 3 && params_.stride == 2 && params_.pad == 1;
+  // Winograd F(4x4, 3x3): U = G g G^T in double, [36][KS*KS*cin][cout_pad]. A 5x5 kernel is split
+  // into four 3x3 blocks at offsets (0|3, 0|3) (zero beyond 5): four 3x3 convs on shifted inputs,
+  // summed by the GEMM as KS*KS*cin virtual input channels.
+  // Stride 2: four phase images (a, b); tap (i', j') of the 3x3 kernel on phase a reads kernel row
+  // 1 (a = 0, i' = 1) or rows 0 and 2 (a = 1, i' = 0 and 1); every other tap is zero.
+  winograd_ks_ = (k == 5 || wino_s2) ? 2 : 1;
+  const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
+  static const double Gm[6][3] = {{1.0 / 4, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                  {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6}, {0, 0, 1}};
+  std::vector<float> u(static_cast<size_t>(36 * cv * gemm_cout_pad_), 0.f);
+  for (int64_t sblk = 0; sblk < winograd_ks_ * winograd_ks_; ++sblk) {
+    const int64_t oy = 3 * (sblk / winograd_ks_), ox = 3 * (sblk % winograd_ks_);
+    const int64_t pa = sblk / 2, pb = sblk % 2;
+    auto phase_tap = [](int64_t phase, int64_t t) -> int64_t {
+      if (phase == 0) return t == 1 ? 1 : -1;  // row 2u: kernel row 1 at u = oy
+      return t == 0 ? 0 : (t == 1 ? 2 : -1);   // row 2u+1: kernel row 0 at u = oy-1, row 2 at u = oy
+    };
+    for (int64_t co = 0; co < cout_; ++co)
+      for (int64_t ci = 0; ci < cin_; ++ci) {
+        auto g = [&](int64_t y, int64_t x) -> double {
+          if (wino_s2) {
+            const int64_t ky = phase_tap(pa, y), kx = phase_tap(pb, x);
+            return (ky >= 0 && kx >= 0) ? weight_host_.at(co, ci, ky, kx) : 0.0;
+          }
+          return (oy + y < k && ox + x < k) ? weight_host_.at(co, ci, oy + y, ox + x) : 0.0;
+        };
+        double gg[6][3];
+        for (int i = 0; i < 6; ++i)
+          for (int j = 0; j < 3; ++j) {
+            double acc = 0;
+            for (int t = 0; t < 3; ++t) acc += Gm[i][t] * g(t, j);
+            gg[i][j] = acc;
+          }
+        const int64_t vc = sblk * cin_ + ci;
+        for (int i = 0; i < 6; ++i)
+          for (int j = 0; j < 6; ++j) {
+            double acc = 0;
+            for (int t = 0; t < 3; ++t) acc += gg[i][t] * Gm[j][t];
+            u[static_cast<size_t>(((i * 6 + j) * cv + vc) * gemm_cout_pad_ + co)] = static_cast<float>(acc);
+          }
+      }
+  }
+  weight_winograd_ = vkunroll::upload_weights(ctx_, u, Precision::fp32, name_);  // fp32 in both precisions
+}
+
+void Conv2d::pack_gemm() {
+  std::vector<float> u(static_cast<size_t>(cin_ * gemm_cout_pad_), 0.f);
+  for (int64_t co = 0; co < cout_; ++co)
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      u[static_cast<size_t>(ci * gemm_cout_pad_ + co)] = weight_host_.data[static_cast<size_t>(co * cin_ + ci)];
+  weight_gemm_ = upload_weights(u);
+}
+
+int64_t Conv2d::winograd_chunk(const Shape& in) const {
+  const uint64_t limit = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
+  if (!weight_gemm_.empty()) {  // 1x1 gemm path: one position, pixels padded to 16
+    const uint64_t per_channel = static_cast<uint64_t>(gemm_pix_pad(in)) * elem_bytes();
+    return std::min<int64_t>(cin_, static_cast<int64_t>(limit / per_channel));
+  }
+  const WinogradSizes ws = winograd_sizes(output_shape(in));
+  const uint64_t per_channel = 36ull * static_cast<uint64_t>(ws.tiles_pad) * 4;  // V is fp32
+  const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
+  return std::min<int64_t>(cv, static_cast<int64_t>(limit / per_channel));
+}
+
+bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
+  if (!supports(algo)) return false;
+  // M (fp32 in both precisions, all output channels) must fit one binding; V runs in chunks.
+  if (algo == ConvAlgo::gemm)
+    return static_cast<uint64_t>(gemm_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
+           winograd_chunk(in) >= 1;
+  if (algo != ConvAlgo::winograd) return true;
+  const WinogradSizes ws = winograd_sizes(output_shape(in));
+  const uint64_t m_bytes = 36ull * static_cast<uint64_t>(gemm_cout_pad_ * ws.tiles_pad) * 4;
+  return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
+}
+
+void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
+  if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
+  const WinogradSizes wz = winograd_sizes(r.os);  // tiles of the output
+  const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
+  const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, chunk = winograd_chunk(r.is);
+  // V, U and M fp32 in both precisions; only the input and output slices are float16 in fp16.
+  const uint64_t e = 4, m_bytes = static_cast<uint64_t>(36 * gemm_cout_pad_ * wz.tiles_pad) * 4;
+  const bool s2 = params_.stride == 2;
+  const Tensor& vt = workspace_->get(ctx_, 0, static_cast<uint64_t>(36 * chunk * wz.tiles_pad) * e);
+  const Tensor& mt = workspace_->get(ctx_, 1, m_bytes);
+  const BufferRange mr = mt.range(0, m_bytes);
+  const std::string& name = r.info.name;
+  // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
+  for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
+    const int64_t cn = std::min(chunk, cv - c0);
+    const double v_bytes = static_cast<double>(e) * 36.0 * static_cast<double>(cn * wz.tiles_pad);
+    const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cn * wz.tiles_pad) * e);
+    struct InPush {
+      uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
+      int32_t off_base;
+    } ip{r.in.offset, r.in.batch_stride, u32(cin_), u32(r.is.h), u32(r.is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
+         u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
+         params_.kernel == 5 ? -1 : 0};
+    cs.dispatch(kernel_pipeline(ctx_, shader("winograd_input"), {}, sizeof ip), {r.in.arg, {vr, Access::write}}, ip,
+                Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1}, {name + "_wino_in", 0, v_bytes * (1 + 16.0 / 36)});
+    struct GemmPush {
+      uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
+    } gp{u32(cn), u32(wz.tiles_pad), u32(gemm_cout_pad_), u32(cv), u32(c0)};
+    const uint32_t tv = gemm_tv_;
+    cs.dispatch(kernel_pipeline(ctx_, "winograd_gemm", {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
+                {{vr, Access::read}, {weight_winograd_.range(), Access::read},
+                 {mr, c0 > 0 ? Access::read_write : Access::write}},
+                gp, flat_groups(36 * (gemm_cout_pad_ / gemm_cob_) * (wz.tiles_pad / (4 * tv)), 1),
+                {name + "_wino_gemm", r.info.flop * static_cast<double>(cn) / static_cast<double>(cv),
+                 v_bytes + 4.0 * 36 * static_cast<double>(gemm_cout_pad_ * (c0 > 0 ? 2 : 1) * wz.tiles_pad)});
+  }
+  struct OutPush {
+    uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
+  } op{r.res.offset, r.res.batch_stride, r.out.offset, r.out.batch_stride, u32(cout_), u32(r.os.h), u32(r.os.w),
+       u32(wz.tiles_x_pad), u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(gemm_cout_pad_)};
+  cs.dispatch(kernel_pipeline(ctx_, shader("winograd_output"), {r.spec[2], r.spec[3], r.spec[4]}, sizeof op),
+              {{mr, Access::read}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
+              Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},
+              {name + "_wino_out", 0,
+               static_cast<double>(m_bytes) + static_cast<double>(elem_bytes()) * static_cast<double>(r.os.count())});
+}
+
+void Conv2d::record_gemm(CommandStream& cs, const Recording& r) const {
+  if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
+  const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
+  const int64_t pix_pad = gemm_pix_pad(r.is), npix = r.is.n * r.is.h * r.is.w, chunk = winograd_chunk(r.is);
+  const uint64_t e = elem_bytes(), m_bytes = static_cast<uint64_t>(gemm_cout_pad_ * pix_pad) * 4;
+  const Tensor& vt = workspace_->get(ctx_, 0, static_cast<uint64_t>(chunk * pix_pad) * e);
+  const Tensor& mt = workspace_->get(ctx_, 1, m_bytes);
+  const BufferRange mr = mt.range(0, m_bytes);
+  const std::string& name = r.info.name;
+  for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
+    const int64_t cn = std::min(chunk, cin_ - c0);
+    const double v_bytes = static_cast<double>(e) * static_cast<double>(cn * pix_pad);
+    const BufferRange vr = vt.range(0, static_cast<size_t>(cn * pix_pad) * e);
+    struct PackPush {
+      uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin;
+    } pp{r.in.offset, r.in.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad), u32(c0)};
+    cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_pack"), {}, sizeof pp), {r.in.arg, {vr, Access::write}}, pp,
+                Groups{u32((pix_pad / 4 + 63) / 64), u32(cn), 1}, {name + "_gemm_pack", 0, 2.0 * v_bytes});
+    struct GemmPush {
+      uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
+    } gp{u32(cn), u32(pix_pad), u32(gemm_cout_pad_), u32(cin_), u32(c0)};
+    const uint32_t tv = gemm_tv_;
+    cs.dispatch(kernel_pipeline(ctx_, shader("winograd_gemm"), {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
+                {{vr, Access::read}, {weight_gemm_.range(), Access::read},
+                 {mr, c0 > 0 ? Access::read_write : Access::write}},
+                gp, flat_groups((gemm_cout_pad_ / gemm_cob_) * (pix_pad / (4 * tv)), 1),
+                {name + "_gemm", r.info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
+                 v_bytes + 4.0 * static_cast<double>(gemm_cout_pad_ * (c0 > 0 ? 2 : 1) * pix_pad)});
+  }
+  struct OutPush {
+    uint32_t res_off, res_bs, out_off, out_bs, plane, npix, pix_pad;
+  } op{r.res.offset, r.res.batch_stride, r.out.offset, r.out.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad)};
+  cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_output"), {r.spec[2], r.spec[3], r.spec[4]}, sizeof op),
+              {{mr, Access::read}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
+              Groups{u32((pix_pad / 4 + 63) / 64), u32(cout_), 1},
+              {name + "_gemm_out", 0, (4.0 + static_cast<double>(e)) * static_cast<double>(r.os.count())});
+}
+
+}  // namespace vkunroll
