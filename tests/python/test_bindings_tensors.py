@@ -114,3 +114,29 @@ def test_physics_unroll_gpu_equals_cpu(recording):
     assert np.abs(cpu - rs).max() > 0.01  # the events changed the image
     gray = vkunroll.physics_unroll(rs[:, :, 1], ev, timings[0], t_star, backend="cpu")
     assert gray.shape == (H, W)
+
+
+def test_threads_share_a_context(recording):
+    """Four Python threads building event tensors on one context at once (the GIL released, the
+    context's queue serialized) get what one thread gets."""
+    import threading
+    _, ev, _, timings = recording
+    t_star = [timings[0].target_time(tau) for tau in (0.2, 0.8)]
+    want = vkunroll.event_tensors_batch(ev, timings[0], t_star, 4, sensor_size=(W, H))
+    got, errors = [None] * 4, []
+
+    def work(i):
+        try:
+            got[i] = vkunroll.event_tensors_batch(ev, timings[0], t_star, 4, sensor_size=(W, H))
+        except Exception as e:  # noqa: BLE001  (reported below)
+            errors.append(e)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert not errors, errors
+    for g in got:
+        for a, b in zip(g, want):
+            np.testing.assert_array_equal(a, b)
