@@ -4,6 +4,13 @@
 // max abs difference of every output.
 //
 // usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]
+//                             [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]
+//
+// --precision fp16 runs the Vulkan side in fp16 (the mirror stays fp32, so the diffs are fp16's error).
+// --per-layer (with --precision fp16) runs fp32 and fp16 on the same input and prints, for every conv
+// in call order, the largest |value| in fp32 and fp16's max abs and relative error against it.
+// --model uses those weights instead of random ones; --inputs reads rs, ev1, ev2, ev3 [, phys]
+// (vkunroll infer's layout; tools/make_model_inputs.py makes it from a sequence) instead of random ones.
 //
 // --runs N times N full-size runs and reports the best (the first run also grows the workspaces and
 // allocates device memory, which on a discrete GPU costs more than the run) and the first.
@@ -24,6 +31,7 @@
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/profiler.hpp"
+#include <deque>
 #include <iostream>
 
 using namespace vkunroll;
@@ -41,12 +49,65 @@ double seconds_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
 
+HostTensor input_tensor(const SafetensorsFile& f, const std::string& path, const std::string& name) {
+  if (!f.has(name)) throw Error(path + ": tensor '" + name + "' is missing (expected rs, ev1, ev2, ev3 [B, C, H, W])");
+  const SafetensorsTensor& t = f.get(name);
+  if (t.shape.size() != 4) throw Error(path + ": tensor '" + name + "' is not 4-D [B, C, H, W]");
+  return HostTensor(Shape{t.shape[0], t.shape[1], t.shape[2], t.shape[3]}, t.to_f32());
+}
+
+// fp32 and fp16 on the same input, every conv's output compared (the fp16 precision report).
+int per_layer_report(Context& ctx, const Weights& w, const ModelInputs& in, Mode md) {
+  VulkanBackend::LayerProbe p32, p16;
+  RunOptions opt;
+  opt.mode = md;
+  std::map<std::string, HostTensor> o32, o16;
+  {
+    VulkanBackend vk(ctx);
+    vk.set_layer_probe(&p32);
+    Model m(vk, w);
+    o32 = m.run(in, opt);
+  }
+  {
+    VulkanBackend vk(ctx, nullptr, kPoolFlushBytes, Precision::fp16);
+    vk.set_layer_probe(&p16);
+    Model m(vk, w);
+    o16 = m.run(in, opt);
+  }
+  if (p32.size() != p16.size()) throw Error("per-layer report: fp32 and fp16 ran different conv sequences");
+  auto compare = [](const std::string& name, const std::vector<float>& a, const std::vector<float>& b) {
+    double mx = 0, mx16 = 0, err = 0;
+    bool finite = true;
+    for (size_t i = 0; i < a.size(); ++i) {
+      mx = std::max(mx, double(std::fabs(a[i])));
+      mx16 = std::max(mx16, double(std::fabs(b[i])));
+      finite = finite && std::isfinite(b[i]);
+      err = std::max(err, double(std::fabs(a[i] - b[i])));
+    }
+    std::printf("  %-44s %10.4g %10.4g %10.3g %9.2e%s\n", name.c_str(), mx, mx16, err, err / std::max(mx, 1e-30),
+                finite ? "" : "  NOT FINITE");
+  };
+  std::printf("per-layer fp16 error against fp32 (every conv in call order; rel = max abs error / max |fp32|)\n");
+  std::printf("  %-44s %10s %10s %10s %9s\n", "layer", "max|fp32|", "max|fp16|", "max abs", "rel");
+  for (size_t i = 0; i < p32.size(); ++i) {
+    if (p32[i].first != p16[i].first) throw Error("per-layer report: conv " + std::to_string(i) + " differs in name");
+    compare(p32[i].first, p32[i].second, p16[i].second);
+  }
+  std::printf("outputs:\n");
+  for (const auto& [name, a] : o32) compare(name, a.data, o16.at(name).data);
+  return 0;
+}
+
 }  // namespace
+
+int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
+              const std::string& model_path, const std::string& inputs_path, Precision precision);
 
 int main(int argc, char** argv) {
   int W = 346, H = 260, torch_threads = 0, runs = 1;
-  bool torch = true, profile = false;
-  std::string mode = "m";
+  bool torch = true, profile = false, per_layer = false;
+  std::string mode = "m", model_path, inputs_path;
+  Precision precision = Precision::fp32;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--size" && i + 1 < argc) {
@@ -64,25 +125,64 @@ int main(int argc, char** argv) {
       runs = std::max(1, std::atoi(argv[++i]));
     } else if (a == "--torch-threads" && i + 1 < argc) {
       torch_threads = std::atoi(argv[++i]);
+    } else if (a == "--precision" && i + 1 < argc) {
+      try {
+        precision = parse_precision(argv[++i], "--precision");
+      } catch (const Error& e) {
+        std::fprintf(stderr, "%s\n", e.what());
+        return 2;
+      }
+    } else if (a == "--per-layer") {
+      per_layer = true;
+    } else if (a == "--model" && i + 1 < argc) {
+      model_path = argv[++i];
+    } else if (a == "--inputs" && i + 1 < argc) {
+      inputs_path = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]\n");
+      std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]\n"
+                           "                            [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]\n");
       return 2;
     }
   }
+  if (per_layer && precision != Precision::fp16) {
+    std::fprintf(stderr, "--per-layer compares fp16 with fp32: give --precision fp16\n");
+    return 2;
+  }
+  try {
+    return run_bench(W, H, torch_threads, runs, torch, profile, per_layer, mode, model_path, inputs_path, precision);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "vkunroll-bench-model: %s\n", e.what());
+    return 1;
+  }
+}
+
+int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
+              const std::string& model_path, const std::string& inputs_path, Precision precision) {
   const Mode md = mode == "s" ? Mode::s : Mode::m;
   const int64_t B = md == Mode::m ? 2 : 1;
-  const ModelConfig cfg = ModelConfig::published();
-  const Weights w = random_weights(cfg, 2024);
+  const Weights w = model_path.empty() ? random_weights(ModelConfig::published(), 2024) : load_weights(model_path);
+  const ModelConfig& cfg = w.config;
   std::mt19937 rng(7);
   ModelInputs in;
-  in.rs = random_array(rng, B, 3, H, W, false);
-  in.ev1 = random_array(rng, B, cfg.ev_channels(), H, W, true);
-  in.ev2 = random_array(rng, B, cfg.ev_channels(), H, W, true);
-  in.ev3 = random_array(rng, B, cfg.ev_channels(), H, W, true);
+  if (!inputs_path.empty()) {
+    const SafetensorsFile f = read_safetensors(inputs_path);
+    in = {input_tensor(f, inputs_path, "rs"), input_tensor(f, inputs_path, "ev1"), input_tensor(f, inputs_path, "ev2"),
+          input_tensor(f, inputs_path, "ev3")};
+    if (f.has("phys")) in.phys = input_tensor(f, inputs_path, "phys");
+    H = static_cast<int>(in.rs.shape.h);
+    W = static_cast<int>(in.rs.shape.w);
+  } else {
+    in.rs = random_array(rng, B, 3, H, W, false);
+    in.ev1 = random_array(rng, B, cfg.ev_channels(), H, W, true);
+    in.ev2 = random_array(rng, B, cfg.ev_channels(), H, W, true);
+    in.ev3 = random_array(rng, B, cfg.ev_channels(), H, W, true);
+    if (cfg.physics_input) in.phys = random_array(rng, B, 3, H, W, false);
+  }
 
   Context ctx;
+  if (per_layer) return per_layer_report(ctx, w, in, md);
   Profiler profiler;
-  VulkanBackend vk(ctx, profile ? &profiler : nullptr);
+  VulkanBackend vk(ctx, profile ? &profiler : nullptr, kPoolFlushBytes, precision);
   auto t = std::chrono::steady_clock::now();
   Model model(vk, w);
   const double prep = seconds_since(t);
@@ -98,6 +198,7 @@ int main(int argc, char** argv) {
       return r;
     };
     small = {crop(in.rs), crop(in.ev1), crop(in.ev2), crop(in.ev3)};
+    if (in.phys.shape.n) small.phys = crop(in.phys);
     RunOptions o;
     o.mode = md;
     model.run(small, o);
@@ -118,8 +219,9 @@ int main(int argc, char** argv) {
     vk_s = std::min(vk_s, s);
   }
   const double frames = 1.0;  // one GS frame (one target) per run
-  std::printf("vkunroll-bench-model: SelfUnroll-%s, published configuration (%lld parameters), %dx%d, device %s\n",
-              md == Mode::m ? "M" : "S", static_cast<long long>(parameter_count(cfg)), W, H, ctx.info().name.c_str());
+  std::printf("vkunroll-bench-model: SelfUnroll-%s, %s (%lld parameters), %dx%d, %s, device %s\n", md == Mode::m ? "M" : "S",
+              model_path.empty() ? "published configuration" : model_path.c_str(), static_cast<long long>(parameter_count(cfg)), W, H,
+              precision_name(precision), ctx.info().name.c_str());
   std::printf("  vulkan : %.1f ms per GS frame (weights prepared in %.2f s; peak intermediates %.1f MiB, "
               "device buffers peak %.1f MiB, allocator peak %.1f MiB incl. %.1f MiB of weights as given)\n",
               1000 * vk_s / frames, prep, vk.peak_bytes() / 1048576.0, vk.device_peak_bytes() / 1048576.0,
@@ -132,7 +234,9 @@ int main(int argc, char** argv) {
   std::filesystem::create_directories(dir);
   save_weights((dir / "w.safetensors").string(), w);
   std::vector<SafetensorsTensorRef> views;
-  for (auto [name, a] : {std::pair<const char*, const HostTensor*>{"rs", &in.rs}, {"ev1", &in.ev1}, {"ev2", &in.ev2}, {"ev3", &in.ev3}})
+  std::vector<std::pair<const char*, const HostTensor*>> named{{"rs", &in.rs}, {"ev1", &in.ev1}, {"ev2", &in.ev2}, {"ev3", &in.ev3}};
+  if (in.phys.shape.n) named.push_back({"phys", &in.phys});
+  for (auto [name, a] : named)
     views.push_back({name, StDType::F32, {a->shape.n, a->shape.c, a->shape.h, a->shape.w}, a->data.data(), a->data.size() * 4});
   write_safetensors((dir / "in.safetensors").string(), views);
   const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_mirror.py " +

@@ -46,12 +46,15 @@ void copy_rect(CommandStream& cs, Slice in, Slice out, const Rect& src, int64_t 
   check_copy("copy_rect", in, out, src, dst_y, dst_x);
   if (src.area() == 0) return;
   const Shape is = in.shape(), os = out.shape();
+  const Precision prec = slice_precision(in);
+  check_precision(out, prec, "copy_rect", "output");
+  Context& ctx = in.t->context();
   const BoundSlice bi = bind_slice(in, Access::read), bo = bind_slice(out, Access::write);
   const CopyPush p{bi.offset, bi.batch_stride, bo.offset, bo.batch_stride, u32(os.c), u32(is.h), u32(is.w), u32(os.h),
                    u32(os.w), u32(src.y), u32(src.x), u32(dst_y), u32(dst_x), u32(src.h), u32(src.w)};
-  cs.dispatch(kernel_pipeline(in.t->context(), "copy_rect", {}, sizeof p), {bi.arg, bo.arg}, p,
+  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, "copy_rect", prec, "copy_rect"), {}, sizeof p), {bi.arg, bo.arg}, p,
               Groups{u32((src.area() + 63) / 64), u32(os.c), u32(os.n)},
-              {"copy_rect", 0, 8.0 * static_cast<double>(src.area() * os.c * os.n)});
+              {"copy_rect", 0, 2.0 * static_cast<double>(dtype_size(in.t->dtype())) * static_cast<double>(src.area() * os.c * os.n)});
 }
 
 void copy_rect_ref(HostSlice in, HostSliceOut out, const Rect& src, int64_t dst_y, int64_t dst_x) {
@@ -66,11 +69,13 @@ void fill_rect(CommandStream& cs, Slice out, const Rect& r, float value) {
   check_fill("fill_rect", out, r);
   if (r.area() == 0) return;
   const Shape os = out.shape();
+  const Precision prec = slice_precision(out);
+  Context& ctx = out.t->context();
   const BoundSlice bo = bind_slice(out, Access::write);
   const FillPush p{bo.offset, bo.batch_stride, u32(os.c), u32(os.h), u32(os.w), u32(r.y), u32(r.x), u32(r.h), u32(r.w), value};
-  cs.dispatch(kernel_pipeline(out.t->context(), "fill_rect", {}, sizeof p), {bo.arg}, p,
+  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, "fill_rect", prec, "fill_rect"), {}, sizeof p), {bo.arg}, p,
               Groups{u32((r.area() + 63) / 64), u32(os.c), u32(os.n)},
-              {"fill_rect", 0, 4.0 * static_cast<double>(r.area() * os.c * os.n)});
+              {"fill_rect", 0, static_cast<double>(dtype_size(out.t->dtype())) * static_cast<double>(r.area() * os.c * os.n)});
 }
 
 void fill_rect_ref(HostSliceOut out, const Rect& r, float value) {

@@ -206,3 +206,44 @@ TEST(Session, PhysicsVariantFrameEqualsTheHostPath) {
   }
   fs::remove_all(dir);
 }
+
+// --precision fp16 end to end: the variant model (network, physics input, tiles) and a physics-only
+// target in an fp16 session stay within the model's measured fp16 error of the fp32 session's frames.
+TEST(Session, Fp16FramesAreCloseToFp32) {
+  const fs::path dir = temp_dir("fp16");
+  const Sequence seq = load_sequence(make_sequence(dir, 64, 48, 3).string(), {});
+  const EventStream ev = seq.read_events(-100000, 400000);
+  const FrameInput in = frame_input(seq, 1, ev);
+  const std::vector<FrameTarget> targets{{in.timing1.target_time(Rational(1, 3)), FrameTarget::Method::s},
+                                         {in.timing1.target_time(Rational(3, 2)), FrameTarget::Method::m},
+                                         {in.timing1.target_time(Rational(1, 2)), FrameTarget::Method::physics}};
+  std::vector<cv::Mat> frames[2];
+  for (const Precision p : {Precision::fp32, Precision::fp16}) {
+    SessionOptions so;
+    so.model_path = fixture("selfunroll_tiny_physics.safetensors");
+    so.device = "llvmpipe";
+    so.announce = false;
+    so.precision = p;
+    UnrollSession session(so);
+    PhysicsUnrollParams prm;
+    prm.contrast = 0.25f;
+    session.set_physics(prm);
+    TileOptions sparse;
+    sparse.tile = 32, sparse.halo = 32, sparse.sparse = SparsePolicy::exact;
+    session.set_tiling(sparse);
+    frames[p == Precision::fp16] = session.unroll(in, targets);
+  }
+  for (size_t j = 0; j < targets.size(); ++j) {
+    const double err = max_abs(frames[0][j], frames[1][j]);
+    EXPECT_LE(err, 0.01) << "target " << j;  // 1%: the fp16 model tests' bound (tests/test_model_fp16.cpp)
+    EXPECT_GT(err, 0.0) << "target " << j << ": fp16 equal to fp32 bit for bit means fp16 did not run";
+  }
+  fs::remove_all(dir);
+}
+
+TEST(Session, Fp16OnTheCpuBackendIsRefused) {
+  SessionOptions so;
+  so.backend = BackendKind::cpu;
+  so.precision = Precision::fp16;
+  EXPECT_THROW(UnrollSession session(so), Error);
+}

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "vkunroll/base/events.hpp"
+#include "vkunroll/base/precision.hpp"
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
@@ -37,6 +38,9 @@ class Backend {
  public:
   virtual ~Backend() = default;
   virtual std::string name() const = 0;
+  // The storage precision of the backend's buffers and prepared weights (fp32 unless constructed
+  // otherwise); host data is f32 either way.
+  virtual Precision precision() const { return Precision::fp32; }
 
   // Buffers. release() makes the memory reusable by later alloc() calls (the backend keeps
   // ordering: a buffer is not overwritten before recorded reads of it have run).

@@ -24,9 +24,16 @@ struct VulkanBackend::Buf {
   const Tensor& tensor() const { return external ? *external : t; }
 };
 
-VulkanBackend::VulkanBackend(Context& ctx, Profiler* profiler, uint64_t pool_flush_bytes)
-    : ctx_(ctx), workspace_(std::make_shared<ConvWorkspace>()), cs_(std::make_unique<CommandStream>(ctx, profiler)),
-      pool_flush_bytes_(pool_flush_bytes) {}
+VulkanBackend::VulkanBackend(Context& ctx, Profiler* profiler, uint64_t pool_flush_bytes, Precision precision)
+    : ctx_(ctx), precision_(precision), dtype_(precision_dtype(precision)), workspace_(std::make_shared<ConvWorkspace>()),
+      cs_(std::make_unique<CommandStream>(ctx, profiler)), pool_flush_bytes_(pool_flush_bytes) {
+  if (precision == Precision::fp16) require_fp16(ctx, "vulkan backend (--precision fp16)");
+}
+
+Tensor& VulkanBackend::scratch_f32(const Shape& shape) {
+  scratch_.emplace_back(ctx_, shape, DType::f32);
+  return scratch_.back();
+}
 
 VulkanBackend::~VulkanBackend() = default;
 
@@ -42,7 +49,7 @@ const Tensor& VulkanBackend::tensor(int id) const {
 }
 
 int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
-  const uint64_t bytes = static_cast<uint64_t>(shape.count()) * 4;
+  const uint64_t bytes = static_cast<uint64_t>(shape.count()) * dtype_size(dtype_);
   account_alloc(bytes);
   // A pooled buffer of the same size takes the new shape: only recorded dispatches (ordered by the
   // stream's barriers) write a backend buffer, never the host directly.
@@ -58,7 +65,7 @@ int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
     throw Error("vulkan backend: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
                 " MiB, above the device's storage-buffer limit of " + std::to_string(max_buffer_bytes() >> 20) + " MiB");
   auto b = std::make_unique<Buf>();
-  b->t = Tensor(ctx_, shape, DType::f32);
+  b->t = Tensor(ctx_, shape, dtype_);
   b->live = true;
   device_bytes_ += bytes;
   device_peak_ = std::max(device_peak_, device_bytes_);
@@ -93,6 +100,7 @@ Shape VulkanBackend::shape(int id) const { return tensor(id).shape(); }
 void VulkanBackend::flush() {
   if (cs_->recorded()) cs_->submit_and_wait();
   physics_.clear();
+  scratch_.clear();
   events_recorded_ = false;
   // Nothing recorded references the pooled buffers any more: give their memory back.
   for (auto& b : bufs_)
@@ -116,6 +124,12 @@ void VulkanBackend::upload(const BufferSlice& v, std::span<const float> data) {
   if (static_cast<int64_t>(data.size()) != v.n * item)
     throw Error("vulkan backend: upload of " + std::to_string(data.size()) + " values into " +
                 Shape{v.n, v.c, t.shape().h, t.shape().w}.str());
+  if (t.dtype() != DType::f32) {  // fp16: the f32 values go up as they are and convert on the device
+    Tensor& staged = scratch_f32({v.n, v.c, t.shape().h, t.shape().w});
+    cs_->upload(staged, 0, data.data(), data.size() * 4);
+    vkunroll::copy(*cs_, Slice(staged), slice(t, v));
+    return;
+  }
   for (int64_t i = 0; i < v.n; ++i)
     cs_->upload(t, static_cast<size_t>(((v.n0 + i) * t.shape().c + v.c0) * plane) * 4, data.data() + i * item,
                 static_cast<size_t>(item) * 4);
@@ -128,6 +142,12 @@ void VulkanBackend::download(const BufferSlice& v, std::span<float> dst) {
   if (static_cast<int64_t>(dst.size()) != v.n * item)
     throw Error("vulkan backend: download of " + Shape{v.n, v.c, t.shape().h, t.shape().w}.str() + " into " +
                 std::to_string(dst.size()) + " values");
+  if (t.dtype() != DType::f32) {  // fp16: converted to f32 on the device, then read back
+    Tensor& staged = scratch_f32({v.n, v.c, t.shape().h, t.shape().w});
+    vkunroll::copy(*cs_, slice(t, v), Slice(staged));
+    cs_->download(staged, 0, dst.data(), dst.size() * 4);
+    return;
+  }
   for (int64_t i = 0; i < v.n; ++i)
     cs_->download(t, static_cast<size_t>(((v.n0 + i) * t.shape().c + v.c0) * plane) * 4, dst.data() + i * item,
                   static_cast<size_t>(item) * 4);
@@ -137,14 +157,18 @@ int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const 
   const HostTensor wt(Shape{w.shape.at(0), w.shape.at(1), w.shape.at(2), w.shape.at(3)}, w.data);
   const HostTensor bt(Shape{1, 1, 1, static_cast<int64_t>(b.data.size())}, b.data);
   const Act act = d.leaky ? leaky_relu(d.slope) : Act{};
+  ConvOptions options;
+  options.precision = precision_;
   if (d.transposed) {
-    deconvs_.push_back(std::make_unique<ConvTranspose2d>(ctx_, wt, bt, ConvTranspose2dParams{d.k, d.stride, d.pad, act}, d.name));
+    deconvs_.push_back(
+        std::make_unique<ConvTranspose2d>(ctx_, wt, bt, ConvTranspose2dParams{d.k, d.stride, d.pad, act}, d.name, options));
     conv_index_.push_back(~static_cast<int>(deconvs_.size() - 1));
   } else {
-    convs_.push_back(std::make_unique<Conv2d>(ctx_, wt, bt, Conv2dParams{d.k, d.stride, d.pad, act}, d.name, workspace_));
+    convs_.push_back(
+        std::make_unique<Conv2d>(ctx_, wt, bt, Conv2dParams{d.k, d.stride, d.pad, act}, d.name, workspace_, options));
     conv_index_.push_back(static_cast<int>(convs_.size() - 1));
   }
-  weight_bytes_ += (w.data.size() + b.data.size()) * 4;
+  weight_bytes_ += w.data.size() * dtype_size(dtype_) + b.data.size() * 4;  // biases stay f32
   descs_.push_back(d);
   return static_cast<int>(conv_index_.size() - 1);
 }
@@ -159,6 +183,11 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
     std::optional<Slice> r;
     if (residual) r = slice(tensor(residual->buf), *residual);
     convs_[static_cast<size_t>(idx)]->record(*cs_, si, so, r);
+  }
+  if (probe_) {
+    const Shape os = tensor(out.buf).shape();
+    probe_->emplace_back(descs_[id].name, std::vector<float>(static_cast<size_t>(out.n * out.c * os.h * os.w)));
+    download(out, std::span<float>(probe_->back().second));
   }
 }
 
@@ -207,6 +236,12 @@ int VulkanBackend::event_tensors(const EventStream& events, const std::vector<Ev
   if (events_buf_ >= 0 && bufs_[events_buf_]) bufs_[events_buf_].reset();  // stale: no longer readable
   const Tensor& t = events_->record_resident(*cs_, events, pairs, spec);
   events_recorded_ = true;
+  if (dtype_ != DType::f32) {
+    // fp16: the counts are exact in the f32 build and stored saturated at 65504 (the conversion's clamp).
+    const int id = alloc(t.shape(), "event tensors (fp16)");
+    vkunroll::copy(*cs_, Slice(t), slice(tensor(id), {id, 0, t.shape().n, 0, t.shape().c}));
+    return id;
+  }
   auto b = std::make_unique<Buf>();
   b->external = &t;
   b->live = true;
@@ -223,7 +258,16 @@ int VulkanBackend::event_tensors(const EventStream& events, const std::vector<Ev
 void VulkanBackend::physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) {
   // The caller checked the image (check_physics_image); the lists' uploads are recorded in order.
   physics_.push_back(std::make_unique<PhysicsUnroll>(ctx_, lists, cs_.get()));
-  physics_.back()->record(*cs_, tensor(rs), const_cast<Tensor&>(tensor(out)), params);
+  if (dtype_ == DType::f32) {
+    physics_.back()->record(*cs_, tensor(rs), const_cast<Tensor&>(tensor(out)), params);
+    return;
+  }
+  // fp16 buffers: the unroller's exponentials run in f32 between two conversions.
+  Tensor& rs32 = scratch_f32(tensor(rs).shape());
+  Tensor& out32 = scratch_f32(tensor(out).shape());
+  vkunroll::copy(*cs_, Slice(tensor(rs)), Slice(rs32));
+  physics_.back()->record(*cs_, rs32, out32, params);
+  vkunroll::copy(*cs_, Slice(out32), Slice(tensor(out)));
 }
 
 void VulkanBackend::hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,

@@ -3,8 +3,11 @@
 // recording (the stream's hazard barriers order the reuse) and destroyed at the next flush (also
 // forced once pool_flush_bytes are pooled), so device memory follows the graph's liveness.
 #pragma once
+#include <deque>
 #include <map>
 #include <memory>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "vkunroll/host/model/backend.hpp"
@@ -22,9 +25,15 @@ class Profiler;
 class VulkanBackend final : public Backend {
  public:
   // pool_flush_bytes: pooled bytes past which released buffers are freed (kPoolFlushBytes).
-  explicit VulkanBackend(Context& ctx, Profiler* profiler = nullptr, uint64_t pool_flush_bytes = kPoolFlushBytes);
+  // precision: fp16 keeps weights and every buffer in float16 (the kernels' per-op arithmetic:
+  // docs/kernels.md "Precision"); uploads and downloads stay f32 on the host and convert on the
+  // device, event tensors are built exactly in f32 and stored saturated at 65504, and the physics
+  // unroller computes in f32 (its exponentials). An Error on a device without 16-bit storage.
+  explicit VulkanBackend(Context& ctx, Profiler* profiler = nullptr, uint64_t pool_flush_bytes = kPoolFlushBytes,
+                         Precision precision = Precision::fp32);
   ~VulkanBackend() override;
   std::string name() const override { return "vulkan"; }
+  Precision precision() const override { return precision_; }
   int alloc(const Shape& shape, const std::string& what) override;
   void release(int buf) override;
   Shape shape(int buf) const override;
@@ -54,6 +63,11 @@ class VulkanBackend final : public Backend {
   // Caps max_buffer_bytes() below the device's limit (0: no cap), e.g. to test tiling.
   void set_max_buffer_bytes(uint64_t b) { max_buffer_cap_ = b; }
 
+  // The per-layer precision report (vkunroll-bench-model --per-layer): while set, every conv's output
+  // is also downloaded into `probe` as (conv name, values) in call order, valid after flush().
+  using LayerProbe = std::deque<std::pair<std::string, std::vector<float>>>;
+  void set_layer_probe(LayerProbe* probe) { probe_ = probe; }
+
   Context& context() { return ctx_; }
   // Bytes of device memory held by buffers (live + pooled for reuse), and its peak.
   uint64_t device_bytes() const { return device_bytes_; }
@@ -67,7 +81,13 @@ class VulkanBackend final : public Backend {
  private:
   struct Buf;
   const Tensor& tensor(int buf) const;
+  // An f32 tensor living until the next flush: the host side of an fp16 buffer's transfers.
+  Tensor& scratch_f32(const Shape& shape);
   Context& ctx_;
+  Precision precision_ = Precision::fp32;
+  DType dtype_ = DType::f32;              // of every buffer the backend allocates
+  LayerProbe* probe_ = nullptr;
+  std::deque<Tensor> scratch_;  // f32 conversions recorded since the last flush (stable references)
   std::shared_ptr<ConvWorkspace> workspace_;  // Winograd scratch shared by every conv
   std::unique_ptr<CommandStream> cs_;
   std::vector<std::unique_ptr<Buf>> bufs_;

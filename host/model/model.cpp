@@ -447,6 +447,9 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
 }
 
 void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt) const {
+  if (opt.precision && *opt.precision != backend_.precision())
+    throw Error(std::string("model run: precision ") + precision_name(*opt.precision) + " asked of the " + backend_.name() +
+                " backend, which runs in " + precision_name(backend_.precision()) + " (choose it when creating the backend)");
   const Shape rs = backend_.shape(in.rs.buf);
   const int64_t B = in.rs.n, H = rs.h, W = rs.w, ev = cfg_.ev_channels();
   if (in.rs.c != 3) throw Error("model input 'rs' has " + std::to_string(in.rs.c) + " channels, expected 3");

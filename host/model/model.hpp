@@ -7,6 +7,7 @@
 //   auto out = model.run({rs, ev1, ev2, ev3}, {.mode = Mode::m});   // out["out"], out["fused"], ...
 #pragma once
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -51,6 +52,9 @@ struct RunOptions {
   // (which then extends to the next multiple of 32) instead of centering it; host/model/tiling.cpp gives
   // each tile the untiled run's offsets, so a tile sees the untiled run's stride grid.
   int unet_pad_top = -1, unet_pad_left = -1;
+  // The precision the caller expects; the backend's own (weights are prepared in it when the Model
+  // is built) decides, and a run whose expectation differs is refused rather than silently changed.
+  std::optional<Precision> precision;
 };
 
 class Model {

@@ -22,9 +22,8 @@ BufferSlice whole(Backend& b, int buf) {
 }  // namespace
 
 UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
-  if (o.precision != Precision::fp32)
-    throw Error(std::string("--precision '") + precision_name(o.precision) +
-                "': fp32 is the only precision of the unroll job so far (the kernels compute in fp32)");
+  if (o.precision == Precision::fp16 && o.backend == BackendKind::cpu)
+    throw Error("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
   if (!o.model_path.empty()) {
     weights_ = std::make_unique<Weights>(load_weights(o.model_path));
     rgb_ = weights_->config.channel_order != "bgr";
@@ -34,7 +33,7 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
     co.device = o.device;
     co.announce = o.announce;
     ctx_ = std::make_unique<Context>(co);
-    backend_ = std::make_unique<VulkanBackend>(*ctx_);
+    backend_ = std::make_unique<VulkanBackend>(*ctx_, nullptr, kPoolFlushBytes, o.precision);
   } else {
     backend_ = std::make_unique<CpuBackend>(o.cpu_threads);
   }

@@ -51,6 +51,8 @@ void validate_unroll_options(const UnrollOptions& o) {
   const bool needs_model = o.mode == UnrollMode::s || o.mode == UnrollMode::m || o.mode == UnrollMode::choose;
   if (needs_model && o.session.model_path.empty())
     throw Error(std::string("--mode ") + unroll_mode_name(o.mode) + " needs --model FILE.safetensors");
+  if (o.session.precision == Precision::fp16 && o.session.backend == BackendKind::cpu)
+    throw Error("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
   if (o.tile < 0 || o.tile % kTileAlign)
     throw Error("--tile " + std::to_string(o.tile) + ": expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
   if (o.halo < -1 || (o.halo >= 0 && o.halo % kTileAlign))
