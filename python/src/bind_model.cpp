@@ -71,19 +71,24 @@ HostTensor host_tensor(const F32Array& a, const char* name) {
 
 void bind_model(py::module_& m) {
   py::class_<PyModel, std::shared_ptr<PyModel>>(m, "_Model")
-      .def(py::init([](const std::string& path, const ContextPtr& ctx, const std::string& backend, unsigned threads) {
+      .def(py::init([](const std::string& path, const ContextPtr& ctx, const std::string& backend, unsigned threads,
+                       const std::string& precision_str) {
              auto pm = std::make_shared<PyModel>();
              pm->path = path;
-             guarded({{path}}, [&] {
+             const Precision precision = guarded({{path}}, [&] {
                if (backend != "vulkan" && backend != "cpu") throw Error("backend '" + backend + "': expected vulkan or cpu");
                if (backend == "vulkan" && !ctx) throw Error("Model.load: the vulkan backend needs a context");
+               const Precision p = parse_precision(precision_str, "precision");
+               if (p == Precision::fp16 && backend == "cpu")
+                 throw Error("precision fp16 needs backend 'vulkan' (the CPU backend computes the fp32 reference)");
+               return p;
              });
              without_gil({{path}}, [&] {
                pm->weights = std::make_unique<Weights>(load_weights(path));
                if (backend == "vulkan") {
                  pm->ctx = ctx;
                  std::lock_guard<std::mutex> lock(ctx->mutex);
-                 pm->backend = std::make_unique<VulkanBackend>(*ctx->ctx);
+                 pm->backend = std::make_unique<VulkanBackend>(*ctx->ctx, nullptr, kPoolFlushBytes, precision);
                  pm->model = std::make_unique<Model>(*pm->backend, *pm->weights);
                } else {
                  pm->backend = std::make_unique<CpuBackend>(threads);
@@ -92,14 +97,15 @@ void bind_model(py::module_& m) {
              });
              return pm;
            }),
-           py::arg("path"), py::arg("context"), py::arg("backend"), py::arg("threads"))
+           py::arg("path"), py::arg("context"), py::arg("backend"), py::arg("threads"), py::arg("precision"))
       .def_readonly("path", &PyModel::path)
       .def_property_readonly("config", [](const PyModel& pm) { return config_dict(*pm.weights); })
       .def_property_readonly("backend", [](const PyModel& pm) { return pm.backend->name(); })
+      .def_property_readonly("precision", [](const PyModel& pm) { return std::string(precision_name(pm.backend->precision())); })
       .def(
           "run",
           [](PyModel& pm, const F32Array& rs, const F32Array& ev1, const F32Array& ev2, const F32Array& ev3,
-             const py::object& phys, const std::string& mode, const std::vector<std::string>& outputs, int max_items, float force_m) {
+             const py::object& phys, const std::string& mode, const std::string& precision, const std::vector<std::string>& outputs, int max_items, float force_m) {
             ModelInputs in;
             RunOptions opt;
             guarded({}, [&] {
@@ -108,6 +114,7 @@ void bind_model(py::module_& m) {
               opt.outputs = outputs;
               opt.max_items = max_items;
               opt.force_m = force_m;
+              if (!precision.empty()) opt.precision = parse_precision(precision, "precision");
               in = {host_tensor(rs, "rs"), host_tensor(ev1, "ev1"), host_tensor(ev2, "ev2"), host_tensor(ev3, "ev3"), {}};
               if (!phys.is_none()) in.phys = host_tensor(phys.cast<F32Array>(), "phys");
             });
@@ -122,7 +129,7 @@ void bind_model(py::module_& m) {
             }
             return d;
           },
-          py::arg("rs"), py::arg("ev1"), py::arg("ev2"), py::arg("ev3"), py::arg("phys"), py::arg("mode"), py::arg("outputs"),
+          py::arg("rs"), py::arg("ev1"), py::arg("ev2"), py::arg("ev3"), py::arg("phys"), py::arg("mode"), py::arg("precision"), py::arg("outputs"),
           py::arg("max_items"), py::arg("force_m"));
 }
 

@@ -29,16 +29,18 @@ class Model:
         self._m = native
 
     @classmethod
-    def load(cls, path, context=None, backend="vulkan", threads=0):
+    def load(cls, path, context=None, backend="vulkan", threads=0, precision="fp32"):
         """Load a safetensors weights file (configuration from its metadata or its shapes).
 
         ``backend``: "vulkan" (the GPU kernels on ``context``, default :func:`default_context`)
         or "cpu" (the CPU reference backend, fp32, ``threads`` convolution threads, 0: the
-        machine's, at most 8). Raises FileNotFoundError for a missing file, ValueError when a
-        tensor is missing or has the wrong shape (named).
+        machine's, at most 8). ``precision``: "fp32" (the reference) or "fp16" (vulkan only:
+        weights and every buffer in float16, needs 16-bit storage; docs/kernels.md "Precision").
+        Raises FileNotFoundError for a missing file, ValueError when a tensor is missing or has the
+        wrong shape (named) or the precision is not available.
         """
         ctx = resolve_context(context, backend)
-        return cls(_vk._Model(os.fspath(path), ctx, backend, int(threads)))
+        return cls(_vk._Model(os.fspath(path), ctx, backend, int(threads), str(precision)))
 
     @property
     def path(self):
@@ -58,14 +60,20 @@ class Model:
         """The backend's name ("vulkan" or "cpu")."""
         return self._m.backend
 
-    def run(self, rs, ev1, ev2, ev3, mode="s", precision="fp32", outputs=None, max_items=0, force_m=None, phys=None):
+    @property
+    def precision(self):
+        """The precision the model was loaded in ("fp32" or "fp16")."""
+        return self._m.precision
+
+    def run(self, rs, ev1, ev2, ev3, mode="s", precision=None, outputs=None, max_items=0, force_m=None, phys=None):
         """Run the network on raw tensors, exactly as ``vkunroll infer``.
 
         ``rs`` [B, 3, H, W] float images in the model's channel order (:attr:`config`
         ["channel_order"]); ``ev1``, ``ev2``, ``ev3`` [B, 2N, H, W] event tensors (e.g. from
         :func:`event_tensors_batch`). A 3-dimensional input is one item. ``mode`` "s": B targets
         run independently; "m" (SelfUnroll-M): B = 2K, items 2k and 2k+1 are RS frames 1 and 2
-        toward target k. ``precision``: "fp32" (the kernels compute in fp32; "fp16" is refused).
+        toward target k. ``precision``: None (the model's, see :meth:`load`) or the one the caller
+        expects, "fp32" or "fp16": a run in another precision than the model's is refused.
         ``outputs``: names among sys, E, flow, warped, fused, m, out (default: all of the mode).
         ``max_items``: most batch items run together (0: as many as fit). ``force_m``: replaces
         M's blend map by this constant (m = 1 gives S of frame 1). ``phys`` [B, 3, H, W]: the
@@ -76,14 +84,12 @@ class Model:
         Returns a dict of float32 arrays: sys, E, flow, warped, fused [B, ...]; m, out [K, ...] in
         mode m. The GIL is released while the network runs.
         """
-        if precision != "fp32":
-            raise ValueError(f"precision {precision!r}: fp32 is the only precision (the kernels compute in fp32; "
-                             "fp16 kernels are not built yet)")
         n = self.config["N"]
         arrays = [_nchw(rs, "rs", 3), _nchw(ev1, "ev1", 2 * n), _nchw(ev2, "ev2", 2 * n), _nchw(ev3, "ev3", 2 * n)]
         if phys is not None:
             phys = _nchw(phys, "phys", 3)
-        out = self._m.run(*arrays, phys, mode, list(outputs or []), int(max_items), -1.0 if force_m is None else float(force_m))
+        out = self._m.run(*arrays, phys, mode, "" if precision is None else str(precision), list(outputs or []),
+                          int(max_items), -1.0 if force_m is None else float(force_m))
         return dict(out)
 
     def __repr__(self):

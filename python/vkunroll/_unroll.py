@@ -26,7 +26,8 @@ class UnrollSession:
     ``UnrollSession(model=None, backend="vulkan", device=None, precision="fp32", threads=0)``:
     ``model`` a weights file or a :class:`Model` (its file is loaded again: the session owns its
     device); None: physics only. ``backend`` "vulkan" or "cpu"; ``device`` an index or name
-    substring (None: VKUNROLL_DEVICE, then the best device); ``threads``: CPU backend threads.
+    substring (None: VKUNROLL_DEVICE, then the best device); ``precision`` "fp32" or "fp16"
+    (vulkan only: the network's weights and buffers in float16); ``threads``: CPU backend threads.
     """
 
     def __init__(self, model=None, backend="vulkan", device=None, precision="fp32", threads=0):

@@ -75,6 +75,21 @@ def test_physics_variant_golden_fixtures(fixture, mode, backend):
         model.run(g["rs"], g["ev1"], g["ev2"], g["ev3"], mode=mode)
 
 
+def test_fp16_golden_fixture_within_the_cpp_bound():
+    """fp16 on lavapipe against the fp32 mirror: within 1% of the output's scale, the bound of
+    tests/test_model_fp16.cpp, and not bit-equal to fp32 (fp16 ran)."""
+    g = load_safetensors(os.path.join(DATA, "selfunroll_golden_m_37x29.safetensors"))
+    model = vkunroll.Model.load(TINY, precision="fp16")
+    assert model.precision == "fp16"
+    out = model.run(g["rs"], g["ev1"], g["ev2"], g["ev3"], mode="m", precision="fp16")
+    for name, arr in out.items():
+        err = float(np.abs(arr - g[name]).max())
+        scale = max(1.0, float(np.abs(g[name]).max()))
+        assert 0 < err <= 0.01 * scale, f"{name}: max |diff| {err} (scale {scale})"
+    with pytest.raises(ValueError, match="precision fp32 asked of the vulkan backend, which runs in fp16"):
+        model.run(g["rs"], g["ev1"], g["ev2"], g["ev3"], mode="m", precision="fp32")
+
+
 def test_run_equals_cli_infer(models, tmp_path):
     fixture = os.path.join(DATA, "selfunroll_golden_m_64x48.safetensors")
     out = tmp_path / "out.safetensors"
@@ -144,8 +159,12 @@ def test_errors_have_python_types_and_library_messages(models, tmp_path):
     with pytest.raises(ValueError, match="ev1 has 3 channels, the model expects 8"):
         models["cpu"].run(z, z, z, z)
     e8 = np.zeros((1, 8, 16, 16), np.float32)
-    with pytest.raises(ValueError, match="fp32 is the only precision"):
+    with pytest.raises(ValueError, match="precision fp16 asked of the cpu backend, which runs in fp32"):
         models["cpu"].run(z, e8, e8, e8, precision="fp16")
+    with pytest.raises(ValueError, match="precision fp16 needs backend 'vulkan'"):
+        vkunroll.Model.load(TINY, backend="cpu", precision="fp16")
+    with pytest.raises(ValueError, match="precision 'fp8': expected fp32 or fp16"):
+        vkunroll.Model.load(TINY, precision="fp8")
     with pytest.raises(ValueError, match="not the physics-informed variant"):
         models["cpu"].run(z, e8, e8, e8, phys=z)
     with pytest.raises(ValueError, match="mode 'x'"):

@@ -120,6 +120,8 @@ def test_targets_sessions_and_errors(seq, tiny):
         vkunroll.unroll(seq, times_us=[1e9], session=session, mode="s")
     with pytest.raises(ValueError, match="frame 7 does not exist"):
         vkunroll.unroll(seq, frames=[7], session=session, mode="s")
+    with pytest.raises(ValueError, match="fp16 needs --backend vulkan"):
+        vkunroll.UnrollSession(model=TINY, backend="cpu", precision="fp16")
     with pytest.raises(ValueError, match="--tile 5"):
         vkunroll.unroll(seq, tile=5, session=session, mode="s")
 
