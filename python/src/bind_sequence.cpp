@@ -84,6 +84,25 @@ void bind_sequence(py::module_& m) {
                                return out;
                              })
       .def("meta_gamma", [](const Sequence& s) { return read_meta_gamma(s); })
+      .def("event_totals",
+           [](const Sequence& s) {
+             const EventTotals t = s.event_totals();
+             py::dict d;
+             d["reads"] = t.reads;
+             d["delivered"] = t.delivered;
+             d["records"] = t.records;
+             d["valid"] = t.valid;
+             d["dropped"] = t.dropped();
+             d["dropped_out_of_sensor"] = t.dropped_out_of_sensor;
+             d["dropped_time_order"] = t.dropped_time_order;
+             d["dropped_nan"] = t.dropped_nan;
+             d["dropped_unknown_word"] = t.dropped_unknown_word;
+             d["dropped_bad_polarity"] = t.dropped_bad_polarity;
+             d["reordered"] = t.reordered;
+             d["empty_files"] = t.empty_files;
+             d["summary"] = t.summary();
+             return d;
+           })
       .def(
           "read_events",
           [](const Sequence& s, int64_t t_begin, int64_t t_end) {

@@ -147,6 +147,12 @@ class Sequence:
         tm = self.timing(k)
         return self.events(math.floor(tm.first_start_us), math.ceil(tm.last_end_us) + 1, dtype)
 
+    def event_totals(self):
+        """What every event read of this sequence so far decoded, each record counted once however
+        many windows covered it: reads, delivered (summed over reads), records, valid, dropped
+        (and by reason), reordered, empty_files, and a one-line summary."""
+        return dict(self._seq.event_totals())
+
     def meta_gamma(self):
         """The frames' encoding gamma a generic sequence records (source.settings.gamma, as the
         simulator writes it, or source.gamma); 1.0 otherwise."""

@@ -40,9 +40,13 @@ def test_sequence_create_round_trips(recording, tmp_path):
     assert (seq.layout, seq.sensor_size, len(seq)) == ("generic", (W, H), 2)
     assert seq.timings == timings
     np.testing.assert_allclose(seq.frame(1), frames[1].astype(np.float32) / 255, rtol=0, atol=1e-7)
+    before = seq.event_totals()
     np.testing.assert_array_equal(seq.events(), ev)
     lo, hi = int(ev["t"][100]), int(ev["t"][5000])
     np.testing.assert_array_equal(seq.events(lo, hi), ev[(ev["t"] >= lo) & (ev["t"] < hi)])
+    totals = seq.event_totals()  # two overlapping reads more, every record counted once
+    assert (totals["reads"] - before["reads"], totals["records"], totals["dropped"]) == (2, len(ev), 0), totals
+    assert totals["delivered"] - before["delivered"] == len(ev) + int(((ev["t"] >= lo) & (ev["t"] < hi)).sum())
     # Inexact times and float frames: the times come back exact, the frames within 16-bit rounding.
     tm = [vkunroll.RowTiming(H, fractions.Fraction(1, 3) + k * 100000, "100/3", "5000/7") for k in range(2)]
     gray = np.random.default_rng(1).random((2, H, W)).astype(np.float32)
