@@ -224,7 +224,8 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
         (the weight-free event double integral).
       model: a weights file or :class:`Model` (e.g. models/selfunroll_small.safetensors).
       frames: frame indices to unroll (default all).
-      backend, device, precision: where the session runs (see :class:`UnrollSession`).
+      backend, device, precision: where the session runs ("vulkan" or "cpu"; precision "fp32" or
+        "fp16", vulkan only; see :class:`UnrollSession`).
       channel_order: "model" (the weights' metadata), "rgb" or "bgr": the model's input order.
       contrast, gamma: physics contrast threshold (default: estimated from consecutive frames'
         agreement) and the frames' decode gamma (default: the sequence's meta.json, else 1).
