@@ -5,7 +5,10 @@
 //
 // usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]
 //                             [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]
+//                             [--torch-device cpu|cuda]
 //
+// The race: with --torch-device cuda the peer is the PyTorch mirror on the same GPU (CUDA, best of
+// --runs after a full-size warm-up, in the same precision), and the ratio is vulkan / torch.
 // --precision fp16 runs the Vulkan side in fp16 (the mirror stays fp32, so the diffs are fp16's error).
 // --per-layer (with --precision fp16) runs fp32 and fp16 on the same input and prints, for every conv
 // in call order, the largest |value| in fp32 and fp16's max abs and relative error against it.
@@ -101,12 +104,12 @@ int per_layer_report(Context& ctx, const Weights& w, const ModelInputs& in, Mode
 }  // namespace
 
 int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
-              const std::string& model_path, const std::string& inputs_path, Precision precision);
+              const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device);
 
 int main(int argc, char** argv) {
   int W = 346, H = 260, torch_threads = 0, runs = 1;
   bool torch = true, profile = false, per_layer = false;
-  std::string mode = "m", model_path, inputs_path;
+  std::string mode = "m", model_path, inputs_path, torch_device = "cpu";
   Precision precision = Precision::fp32;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -138,9 +141,16 @@ int main(int argc, char** argv) {
       model_path = argv[++i];
     } else if (a == "--inputs" && i + 1 < argc) {
       inputs_path = argv[++i];
+    } else if (a == "--torch-device" && i + 1 < argc) {
+      torch_device = argv[++i];
+      if (torch_device != "cpu" && torch_device != "cuda") {
+        std::fprintf(stderr, "--torch-device '%s': expected cpu or cuda\n", torch_device.c_str());
+        return 2;
+      }
     } else {
       std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]\n"
-                           "                            [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]\n");
+                           "                            [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]\n"
+                           "                            [--torch-device cpu|cuda]\n");
       return 2;
     }
   }
@@ -149,7 +159,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
-    return run_bench(W, H, torch_threads, runs, torch, profile, per_layer, mode, model_path, inputs_path, precision);
+    return run_bench(W, H, torch_threads, runs, torch, profile, per_layer, mode, model_path, inputs_path, precision, torch_device);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "vkunroll-bench-model: %s\n", e.what());
     return 1;
@@ -157,7 +167,7 @@ int main(int argc, char** argv) {
 }
 
 int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
-              const std::string& model_path, const std::string& inputs_path, Precision precision) {
+              const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device) {
   const Mode md = mode == "s" ? Mode::s : Mode::m;
   const int64_t B = md == Mode::m ? 2 : 1;
   const Weights w = model_path.empty() ? random_weights(ModelConfig::published(), 2024) : load_weights(model_path);
@@ -190,7 +200,8 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   {
     ModelInputs small;
     auto crop = [](const HostTensor& a) {
-      HostTensor r{{a.shape.n, a.shape.c, 32, 32}, {}};
+      HostTensor r;
+      r.shape = {a.shape.n, a.shape.c, 32, 32};
       for (int64_t n = 0; n < a.shape.n; ++n)
         for (int64_t c = 0; c < a.shape.c; ++c)
           for (int64_t y = 0; y < 32; ++y)
@@ -198,7 +209,7 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
       return r;
     };
     small = {crop(in.rs), crop(in.ev1), crop(in.ev2), crop(in.ev3)};
-    if (in.phys.shape.n) small.phys = crop(in.phys);
+    if (!in.phys.data.empty()) small.phys = crop(in.phys);
     RunOptions o;
     o.mode = md;
     model.run(small, o);
@@ -208,14 +219,16 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   ctx.allocator().reset_peak();
   RunOptions opt;
   opt.mode = md;
-  double vk_s = 1e30, first_s = 0;
+  double vk_s = 1e30, first_s = 0, gpu_ms = 0;
   std::map<std::string, HostTensor> out;
   for (int r = 0; r < runs; ++r) {
     if (r > 0) profiler.clear();  // the table shows the last run
+    const DeviceTraffic before = ctx.traffic();
     t = std::chrono::steady_clock::now();
     out = model.run(in, opt);
     const double s = seconds_since(t);
     if (r == 0) first_s = s;
+    if (s < vk_s) gpu_ms = (ctx.traffic() - before).gpu_ms;
     vk_s = std::min(vk_s, s);
   }
   const double frames = 1.0;  // one GS frame (one target) per run
@@ -227,6 +240,8 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
               1000 * vk_s / frames, prep, vk.peak_bytes() / 1048576.0, vk.device_peak_bytes() / 1048576.0,
               ctx.allocator().stats().peak_used_bytes / 1048576.0, vk.weight_bytes() / 1048576.0);
   if (runs > 1) std::printf("  vulkan : best of %d runs; the first took %.1f ms\n", runs, 1000 * first_s);
+  std::printf("  vulkan : device time %.1f ms of the %.1f ms frame (%.0f%%; the rest is host work and waits)\n", gpu_ms,
+              1000 * vk_s, 100 * gpu_ms / (1000 * vk_s));
   if (profile) profiler.print(std::cout);
   if (!torch) return 0;
 
@@ -235,14 +250,17 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   save_weights((dir / "w.safetensors").string(), w);
   std::vector<SafetensorsTensorRef> views;
   std::vector<std::pair<const char*, const HostTensor*>> named{{"rs", &in.rs}, {"ev1", &in.ev1}, {"ev2", &in.ev2}, {"ev3", &in.ev3}};
-  if (in.phys.shape.n) named.push_back({"phys", &in.phys});
+  if (!in.phys.data.empty()) named.push_back({"phys", &in.phys});
   for (auto [name, a] : named)
     views.push_back({name, StDType::F32, {a->shape.n, a->shape.c, a->shape.h, a->shape.w}, a->data.data(), a->data.size() * 4});
   write_safetensors((dir / "in.safetensors").string(), views);
+  // CPU PyTorch has no fp16 convs: there the peer stays fp32 and the diffs are fp16's error.
+  const std::string torch_precision = torch_device == "cuda" ? precision_name(precision) : "fp32";
   const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_mirror.py " +
                           (dir / "w.safetensors").string() + " " + (dir / "in.safetensors").string() + " " +
                           (dir / "out.safetensors").string() + " --mode " + mode +
-                          (torch_threads ? " --threads " + std::to_string(torch_threads) : "");
+                          (torch_threads ? " --threads " + std::to_string(torch_threads) : "") + " --device " + torch_device +
+                          " --precision " + torch_precision + " --runs " + std::to_string(runs);
   if (std::system(cmd.c_str()) != 0) {
     std::fprintf(stderr, "the PyTorch mirror failed: %s\n", cmd.c_str());
     std::filesystem::remove_all(dir);
@@ -250,8 +268,8 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   }
   const SafetensorsFile ref = read_safetensors((dir / "out.safetensors").string());
   const double torch_s = std::stod(ref.metadata.at("seconds"));
-  std::printf("  torch  : %.1f ms per GS frame (PyTorch mirror on the CPU, %s threads)\n", 1000 * torch_s / frames,
-              ref.metadata.at("threads").c_str());
+  std::printf("  torch  : %.1f ms per GS frame (PyTorch mirror, %s, %s, %s)\n", 1000 * torch_s / frames, torch_device.c_str(),
+              torch_precision.c_str(), ref.metadata.count("device") ? ref.metadata.at("device").c_str() : "?");
   std::printf("  ratio  : vulkan / torch = %.2f\n", vk_s / torch_s);
   for (const auto& [name, arr] : out) {
     const std::vector<float> r = ref.get(name).to_f32();

@@ -136,7 +136,10 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
   std::vector<VkDescriptorBufferInfo> bufs(args.size());
   std::vector<VkBufferView> views(args.size(), VK_NULL_HANDLE);
   std::vector<VkWriteDescriptorSet> w(args.size());
-  VkDescriptorSet set = allocate_set(pipeline.set_layout(), static_cast<uint32_t>(args.size()));
+  // Push descriptors live in the command buffer; otherwise a set from the stream's pools per dispatch.
+  const bool push_descriptors = ctx_.uses_push_descriptors();
+  if (args.size() > kDescriptorsPerSet) throw Error("dispatch '" + info.name + "' binds more than 16 buffers");
+  VkDescriptorSet set = push_descriptors ? VK_NULL_HANDLE : allocate_set(pipeline.set_layout(), static_cast<uint32_t>(args.size()));
   for (size_t i = 0; i < args.size(); ++i) {
     const BufferRange& r = args[i].range;
     const std::string what = "dispatch '" + info.name + "': argument " + std::to_string(i);
@@ -168,13 +171,18 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
     if (args[i].access != Access::write) reads.push_back(s);
     if (args[i].access != Access::read) writes.push_back(s);
   }
-  vkUpdateDescriptorSets(ctx_.device(), static_cast<uint32_t>(w.size()), w.data(), 0, nullptr);
+  if (!push_descriptors) vkUpdateDescriptorSets(ctx_.device(), static_cast<uint32_t>(w.size()), w.data(), 0, nullptr);
   hazard_barrier(reads, writes);
 
   const uint32_t q = static_cast<uint32_t>(names_.size()) * 2;
   if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
   vkCmdBindPipeline(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.handle());
-  vkCmdBindDescriptorSets(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.layout(), 0, 1, &set, 0, nullptr);
+  if (push_descriptors) {
+    if (!w.empty())
+      vkCmdPushDescriptorSetKHR(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.layout(), 0, static_cast<uint32_t>(w.size()), w.data());
+  } else {
+    vkCmdBindDescriptorSets(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.layout(), 0, 1, &set, 0, nullptr);
+  }
   if (push_bytes) vkCmdPushConstants(cb_, pipeline.layout(), VK_SHADER_STAGE_COMPUTE_BIT, 0, push_bytes, push);
   vkCmdDispatch(cb_, groups.x, groups.y, groups.z);
   if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);

@@ -141,6 +141,7 @@ DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
   if (v12 || device_extension_available(pd, VK_KHR_SHADER_FLOAT16_INT8_EXTENSION_NAME)) storage16.pNext = &f16;
   vkGetPhysicalDeviceFeatures2(pd, &feats2);
   info.storage_buffer_16bit = storage16.storageBuffer16BitAccess;
+  info.push_descriptor = device_extension_available(pd, VK_KHR_PUSH_DESCRIPTOR_EXTENSION_NAME);
   info.shader_float16 = storage16.pNext && f16.shaderFloat16;
 
   const uint32_t qf = queue_family_for_compute(pd);
@@ -384,6 +385,9 @@ void Context::create_device() {
   feats.features.shaderInt64 = supported.shaderInt64;
   feats.features.shaderInt16 = supported.shaderInt16;
   if (device_extension_available(physical_, "VK_KHR_portability_subset")) exts.push_back("VK_KHR_portability_subset");
+  // The loader's trampoline for vkCmdPushDescriptorSetKHR (volkLoadInstance) must exist too.
+  push_descriptors_ = options_.push_descriptors && info_.push_descriptor && vkCmdPushDescriptorSetKHR != nullptr;
+  if (push_descriptors_) exts.push_back(VK_KHR_PUSH_DESCRIPTOR_EXTENSION_NAME);
 
   VkDeviceCreateInfo dci{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO};
   dci.pNext = &feats;

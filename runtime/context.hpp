@@ -39,6 +39,10 @@ struct ContextOptions {
   // Create the device without its 16-bit storage and fp16 arithmetic features, as on a device that
   // lacks them (tests of the fp16 refusal).
   bool without_fp16 = false;
+  // Bind each dispatch's buffers with VK_KHR_push_descriptor where the device has it (recorded into
+  // the command buffer: no descriptor set allocated or updated per dispatch); false: descriptor sets
+  // from pools, the portable path (tests run both).
+  bool push_descriptors = true;
 };
 
 // Limits and features of a physical device, read once.
@@ -51,6 +55,7 @@ struct DeviceInfo {
   std::string driver_name, driver_info;
   uint32_t subgroup_size = 0;
   bool shader_float16 = false;          // fp16 arithmetic in shaders (enabled when present)
+  bool push_descriptor = false;         // VK_KHR_push_descriptor (enabled unless ContextOptions says no)
   bool storage_buffer_16bit = false;    // fp16 values in storage buffers (enabled; the fp16 kernels need it)
   uint64_t max_storage_buffer_range = 0;
   uint32_t max_shared_memory = 0;
@@ -104,6 +109,8 @@ class Context {
   static DeviceList enumerate(bool validation = false);
 
   const DeviceInfo& info() const { return info_; }
+  // Whether dispatches push their descriptors (the device has VK_KHR_push_descriptor, the options allow it).
+  bool uses_push_descriptors() const { return push_descriptors_; }
   const ContextOptions& options() const { return options_; }
   VkInstance instance() const { return instance_; }
   VkPhysicalDevice physical_device() const { return physical_; }
@@ -144,6 +151,7 @@ class Context {
   VkDevice device_ = VK_NULL_HANDLE;
   VkQueue queue_ = VK_NULL_HANDLE;
   uint32_t queue_family_ = 0;
+  bool push_descriptors_ = false;
   VkPipelineCache pipeline_cache_ = VK_NULL_HANDLE;
   std::string pipeline_cache_path_;
   size_t pipeline_cache_loaded_bytes_ = 0;

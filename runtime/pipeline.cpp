@@ -52,6 +52,7 @@ Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vect
   for (uint32_t i = 0; i < binding_count_; ++i)
     lb[i] = {i, descriptor_type(kinds_[i]), 1, VK_SHADER_STAGE_COMPUTE_BIT, nullptr};
   VkDescriptorSetLayoutCreateInfo dci{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_LAYOUT_CREATE_INFO};
+  if (ctx.uses_push_descriptors()) dci.flags = VK_DESCRIPTOR_SET_LAYOUT_CREATE_PUSH_DESCRIPTOR_BIT_KHR;
   dci.bindingCount = binding_count_;
   dci.pBindings = lb.data();
   VK_CHECK(vkCreateDescriptorSetLayout(ctx.device(), &dci, nullptr, &set_layout_));

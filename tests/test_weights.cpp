@@ -213,3 +213,14 @@ TEST(Weights, Bf16TensorsLoadAsFloat) {
     for (size_t i = 0; i < t.data.size(); ++i)
       ASSERT_NEAR(w.get(name).data[i], t.data[i], std::abs(t.data[i]) / 128.f + 1e-30f) << name;
 }
+
+// The Python mirror's event gate is not in the C++ graph: a model that sets it is refused by name.
+TEST(Weights, PhysicsGateIsRefused) {
+  const Weights r = random_weights(tiny(), 5);
+  auto md = tiny().to_metadata();
+  md["physics_gate"] = "2";
+  const std::string e = error_of(serialize(r, md));
+  EXPECT_NE(e.find("physics_gate"), std::string::npos) << e;
+  md["physics_gate"] = "-1";  // what the mirror writes for "no gate" is accepted
+  EXPECT_EQ(error_of(serialize(r, md)), "");
+}

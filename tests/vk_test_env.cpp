@@ -56,6 +56,7 @@ Context& strict_uniform_context() {
     o.validation_fatal = true;
     o.announce = false;
     o.min_uniform_offset_alignment = 256;
+    o.push_descriptors = false;  // the portable path (descriptor sets from pools) gets the strict cases
     strict = std::make_unique<Context>(o);
   }
   return *strict;

@@ -145,8 +145,9 @@ def make_heldout(out: str, cli: str, only: Optional[List[str]] = None) -> None:
         print(f"{d}: {kind} ({sec:.1f} s)", flush=True)
 
 
-def train_args(rng: random.Random) -> (List[str], str, dict):
-    """Random simulator settings for one training sequence (what the issue asks to cover)."""
+def train_args(rng: random.Random, force_kind: Optional[str] = None, gt_per_frame: int = 2) -> (List[str], str, dict):
+    """Random simulator settings for one training sequence (what the issue asks to cover).
+    `force_kind` (one of KINDS) replaces the drawn motion kind; every other draw is unchanged."""
     vga = rng.random() < 0.25
     if vga:  # Prophesee-size sensor, simulated at 640x480 (training takes crops)
         size, rows = "640x480", 480
@@ -158,6 +159,8 @@ def train_args(rng: random.Random) -> (List[str], str, dict):
     exposure = rng.choice([1000, 1500, 2000, 2500, 3000, 4000, 5000])
     exposure = min(exposure, 1e6 / fps - rows * line_delay - 100)
     r = rng.random()
+    if force_kind:
+        r = {"static_movers": 0.1, "camera_occluders": 0.4, "camera": 0.8}[force_kind]
     if r < 0.2:
         kind, motion, sprites = "static_movers", "static", rng.randint(1, 3)
     elif r < 0.55:
@@ -170,7 +173,7 @@ def train_args(rng: random.Random) -> (List[str], str, dict):
     sigma = round(rng.uniform(0.01, 0.06), 3)
     gamma = rng.choice(["2.2", "1"])
     speed = round(rng.choice([0.5, 1, 1, 1.5, 2, 2.5]), 2)
-    args = ["--size", size, "--frames", "4", "--gt-per-frame", "2", "--fps", f"{fps:g}",
+    args = ["--size", size, "--frames", "4", "--gt-per-frame", str(gt_per_frame), "--fps", f"{fps:g}",
             "--line-delay-us", f"{line_delay:.1f}", "--exposure-us", f"{exposure:.0f}", "--preset", preset,
             "--c-on", str(c_on), "--c-off", str(c_off), "--sigma", str(sigma), "--motion", motion,
             "--sprites", str(sprites), "--speed", str(speed), "--gamma", gamma, "--step-fraction", "1",
@@ -178,14 +181,16 @@ def train_args(rng: random.Random) -> (List[str], str, dict):
     return args, kind, {"preset": preset, "gamma": gamma}
 
 
-def make_train(out: str, cli: str, count: int, seed_base: int) -> None:
+def make_train(out: str, cli: str, count: int, seed_base: int, kinds: Optional[List[str]] = None,
+               gt_per_frame: int = 2) -> None:
+    """`count` sequences nat_<seed>; `kinds`: motion kinds cycled over the seeds (else drawn)."""
     os.makedirs(out, exist_ok=True)
     pool = photos("train")
     for i in range(count):
         seed = seed_base + i
         rng = random.Random(1000003 * seed + 7)
         photo = pool[rng.randrange(len(pool))]
-        args, kind, _ = train_args(rng)
+        args, kind, _ = train_args(rng, kinds[i % len(kinds)] if kinds else None, gt_per_frame)
         d = os.path.join(out, f"nat_{seed:05d}")
         sec = simulate(cli, d, photo, args + ["--seed", str(seed)], kind)
         print(f"{d}: {os.path.basename(photo['file'])} {kind} {' '.join(args[:2])} ({sec:.1f} s)", flush=True)
@@ -208,6 +213,9 @@ def main(argv=None) -> int:
     ap.add_argument("--train", metavar="DIR")
     ap.add_argument("--count", type=int, default=32)
     ap.add_argument("--seed-base", type=int, default=1)
+    ap.add_argument("--kinds", help="with --train: comma list of motion kinds cycled over the seeds "
+                    f"({', '.join(KINDS)}) instead of drawn")
+    ap.add_argument("--gt-per-frame", type=int, default=2, help="with --train: ground-truth instants per frame [2]")
     ap.add_argument("--cli")
     a = ap.parse_args(argv)
     try:
@@ -225,7 +233,11 @@ def main(argv=None) -> int:
         if a.heldout:
             make_heldout(a.heldout, find_cli(a.cli), a.only)
         if a.train:
-            make_train(a.train, find_cli(a.cli), a.count, a.seed_base)
+            kinds = a.kinds.split(",") if a.kinds else None
+            for k in kinds or []:
+                if k not in KINDS:
+                    ap.error(f"--kinds: '{k}' is not one of {', '.join(KINDS)}")
+            make_train(a.train, find_cli(a.cli), a.count, a.seed_base, kinds, a.gt_per_frame)
         if not (a.heldout or a.train):
             ap.error("nothing to do: --check, --list-heldout, --heldout DIR or --train DIR")
     except DataError as e:

@@ -56,6 +56,9 @@ class SelfUnrollConfig:
     # Variant only: the physics estimate's contrast threshold: "estimate" (host/unroll.cpp
     # estimate_contrast on the sequence, as --mode physics) or a number.
     physics_contrast: str = "estimate"
+    # Variant only: event gate radius r (-1: none). fused = physics wherever no event of ev1/ev2
+    # lies within the (2r+1)^2 square around the pixel (there physics = rs is exact up to noise).
+    physics_gate: int = -1
 
     @property
     def ev_channels(self) -> int:
@@ -85,6 +88,8 @@ class SelfUnrollConfig:
         if self.physics_input:  # absent for the published family: its metadata stays as it was
             md["physics_input"] = "true"
             md["physics_contrast"] = str(self.physics_contrast)
+            if self.physics_gate >= 0:
+                md["physics_gate"] = str(int(self.physics_gate))
         return md
 
     @staticmethod
@@ -104,6 +109,14 @@ class SelfUnrollConfig:
             raise ValueError(f"metadata 'physics_input' = '{md['physics_input']}' (expected true or false)")
         c.physics_input = md.get("physics_input") == "true"
         c.physics_contrast = md.get("physics_contrast", "estimate")
+        if "physics_gate" in md:
+            try:
+                c.physics_gate = int(md["physics_gate"])
+            except ValueError:
+                c.physics_gate = -2
+            if c.physics_gate < 0 or not c.physics_input:
+                raise ValueError(f"metadata 'physics_gate' = '{md['physics_gate']}' (expected an integer >= 0, "
+                                 "and only with physics_input=true)")
         if "gamma" in md:
             c.gamma = float(md["gamma"])
             if not c.gamma > 0:
@@ -283,6 +296,16 @@ def reference_bwarp(img: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
     return F.grid_sample(img, g, mode="bilinear", padding_mode="border", align_corners=True)
 
 
+def event_gate(ev1: torch.Tensor, ev2: torch.Tensor, radius: int) -> torch.Tensor:
+    """[B,1,H,W] 1 where an event of ev1 or ev2 (any channel) lies within the (2r+1)^2 square
+    around the pixel, else 0: clamp(conv(cat(ev1, ev2), ones[1, 4N, 2r+1, 2r+1], zero padding r), 0, 1)
+    (counts are integers >= 0). ev1 and ev2 together hold every event physics uses."""
+    x = torch.cat([ev1, ev2], 1)
+    k = 2 * radius + 1
+    w = torch.ones(1, x.shape[1], k, k, dtype=x.dtype, device=x.device)
+    return F.conv2d(x, w, padding=radius).clamp(0.0, 1.0)
+
+
 class SelfUnroll(nn.Module):
     def __init__(self, cfg: Optional[SelfUnrollConfig] = None):
         super().__init__()
@@ -337,6 +360,9 @@ class SelfUnroll(nn.Module):
         flow = 100.0 * torch.tanh(self.flownet(torch.cat([ev1, ev2, rs], 1)))
         warped = backward_warp(rs, flow)
         fused = self.fusion_net(torch.cat([sys_, warped, flow, ev3, rs], 1))
+        if phys is not None and self.cfg.physics_gate >= 0:
+            g = event_gate(ev1, ev2, self.cfg.physics_gate)
+            fused = g * fused + (1 - g) * phys  # = the C++ blend(m, a, b) op
         if not moa:
             return sys_, E, flow, warped, fused, None, None
         if rs.shape[0] != 2:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import math
 import os
 import random
@@ -141,6 +142,16 @@ def lift_to_physics(src: SelfUnroll, seed: int) -> SelfUnroll:
         sd[k] = v
     net.load_state_dict(sd)
     return net
+
+
+def reset_moa(net: SelfUnroll, seed: int) -> None:
+    """attfusion_net.pred restarts at 0.01 x its default init with zero bias (m = hardsigmoid ~ 0.5):
+    a MOA whose score saturated beyond +-3 has no gradient left for stage 2."""
+    torch.manual_seed(seed + 17)
+    with torch.no_grad():
+        net.attfusion_net.pred.reset_parameters()
+        net.attfusion_net.pred.weight.mul_(0.01)
+        net.attfusion_net.pred.bias.zero_()
 
 
 # ---- sampling (tools/train_data.py) ------------------------------------------------------------------
@@ -280,6 +291,14 @@ def unroll_pair(net: SelfUnroll, seq: Sequence, k: int, t_star: float, texp: flo
     return res
 
 
+def seq_kind(seq: Sequence) -> str:
+    """The motion kind natural_data.py recorded (natural.json), else ''."""
+    p = os.path.join(seq.folder, "natural.json")
+    if not os.path.isfile(p):
+        return ""
+    return str(json.load(open(p)).get("kind", ""))
+
+
 def validate(net: SelfUnroll, seqs: List[Sequence], bins: int, target_exposure: Optional[float],
              max_targets: int = 12, crop_size: Optional[Tuple[int, int]] = None,
              infos: Optional[Dict[str, SeqInfo]] = None) -> Dict[str, float]:
@@ -301,9 +320,12 @@ def validate(net: SelfUnroll, seqs: List[Sequence], bins: int, target_exposure: 
             info = (infos or {}).get(seq.folder)
             r = unroll_pair(net, seq, k, seq.gt[i][1], texp, bins, crop, info)
             gt = torch.from_numpy(crop_img(seq.gt_image(i), crop))[None]
+            kind = seq_kind(seq)
             for name, key in (("rs", "rs1"), ("phys", "phys1"), ("S", "s1"), ("M", "m")):
                 if key in r:
                     sums.setdefault(name, []).append(psnr(r[key], gt))
+                    if kind and name != "rs":  # per motion kind of tools/natural_data.py
+                        sums.setdefault(f"{name}/{kind}", []).append(sums[name][-1])
     net.train()
     return {k: float(np.mean(v)) for k, v in sums.items()}
 
@@ -394,9 +416,15 @@ def build_model(a, state):
             net.cfg.gamma = a.gamma
         if a.description:
             net.cfg.description = a.description
+        if a.physics_gate is not None:
+            net.cfg.physics_gate = a.physics_gate
+        if a.reset_moa and net.cfg.moa:
+            reset_moa(net, a.seed)
         return net.train()
     cfg = make_config(a.config, a.bins)
     cfg.physics_input = bool(a.physics_variant)
+    if a.physics_gate is not None:
+        cfg.physics_gate = a.physics_gate
     cfg.gamma = a.gamma if a.gamma is not None else 2.2
     cfg.description = a.description or f"vkunroll {a.config}{' physics-informed' if cfg.physics_input else ''} " \
                                         "SelfUnroll trained with tools/train.py"
@@ -420,7 +448,7 @@ def make_sampler(a, cfg, rng, out):
     if a.adapt:  # one recording: crops as large as asked, at most the sensor
         cw, ch = min(cw, seqs[0].width), min(ch, seqs[0].height)
     sampler = Sampler(seqs, cw, ch, cfg.N, a.target_exposure_us, rng, a.supervised, cfg.physics_input, cfg.gamma,
-                      a.data_gamma, os.path.join(out, "contrast_cache.json"))
+                      a.data_gamma, os.path.join(out, "contrast_cache.json"), a.event_crops)
     return sampler, seqs, describe_data(paths, seqs), paths
 
 
@@ -640,6 +668,12 @@ def main(argv=None) -> int:
     g.add_argument("--from", dest="from_model", metavar="MODEL.safetensors",
                    help="start from this weights file (with --physics-variant: lifted to the variant)")
     g.add_argument("--constant-lr", action="store_true", help="no warm-up or cosine decay")
+    g.add_argument("--physics-gate", type=int, metavar="R",
+                   help="variant: fused = physics wherever no event lies within the (2R+1)^2 square (metadata physics_gate)")
+    g.add_argument("--reset-moa", action="store_true",
+                   help="with --from: restart attfusion_net.pred near m = 0.5 (a saturated MOA cannot learn)")
+    g.add_argument("--event-crops", type=float, default=0.0, metavar="P",
+                   help="with probability P a crop is centred on a random event of its frame pair (else uniform) [0]")
     g = ap.add_argument_group("adaptation to one recording (self-supervised; ground truth is never read)")
     g.add_argument("--adapt", metavar="SEQUENCE", help="fine-tune --from on this recording alone (stage S), "
                    "for --minutes; writes OUT/adapted.safetensors (or --export)")
@@ -671,6 +705,10 @@ def main(argv=None) -> int:
             ap.error("--data is required (or --cache / --adapt / --make-data / --export-checkpoint)")
         elif a.resume and not a.data and not a.cache:
             ap.error("--resume needs the same --data (or --cache) as the run it continues")
+        if a.physics_gate is not None and (a.physics_gate < 0 or not (a.physics_variant or a.from_model)):
+            ap.error("--physics-gate R needs R >= 0 and the physics variant (--physics-variant or a variant --from)")
+        if not 0.0 <= a.event_crops <= 1.0:
+            ap.error(f"--event-crops {a.event_crops}: expected a probability in [0, 1]")
         if a.make_cache and a.cache:
             ap.error("--make-cache draws from --data, not from --cache")
         if a.device.startswith("cuda") and not torch.cuda.is_available():

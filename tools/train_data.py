@@ -121,7 +121,8 @@ def make_sample(seq: Sequence, k: int, crop, t_star: float, texp: float, bins: i
 class Sampler:
     def __init__(self, seqs: List[Sequence], crop_w: int, crop_h: int, bins: int, target_exposure: Optional[float],
                  rng: random.Random, supervised: bool = False, physics: bool = False,
-                 model_gamma: Optional[float] = None, default_gamma: float = 1.0, contrast_cache: Optional[str] = None):
+                 model_gamma: Optional[float] = None, default_gamma: float = 1.0, contrast_cache: Optional[str] = None,
+                 event_crops: float = 0.0):
         self.seqs = [s for s in seqs if s.num_frames >= 2]
         if not self.seqs:
             raise DataError("training needs sequences with at least 2 RS frames")
@@ -134,6 +135,7 @@ class Sampler:
         self.supervised = supervised
         self.physics, self.model_gamma = physics, model_gamma
         self.default_gamma, self.contrast_cache = default_gamma, contrast_cache
+        self.event_crops = event_crops
         self.infos: Dict[str, SeqInfo] = {}
 
     def info(self, seq: Sequence) -> SeqInfo:
@@ -153,6 +155,14 @@ class Sampler:
         texp = self.target_exposure or seq.exposure
         gt_index = None
         lo, hi = seq.frame_span(k)[0], seq.frame_span(k + 1)[1]
+        if self.event_crops and r.random() < self.event_crops:
+            # centred on a random event of the pair: crops land where something changes (a static
+            # scene's movers) in proportion to the event activity, not to the area
+            t, x, y, _ = seq.events_in(lo, hi, (0, 0, seq.width, seq.height))
+            if len(t):
+                j = r.randrange(len(t))
+                x0 = min(max(int(x[j]) - self.crop_w // 2, 0), seq.width - self.crop_w)
+                y0 = min(max(int(y[j]) - self.crop_h // 2, 0), seq.height - self.crop_h)
         if self.supervised:
             cands = [i for i, (_, t) in enumerate(seq.gt) if lo <= t <= hi]
             if not cands:

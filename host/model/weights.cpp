@@ -303,6 +303,11 @@ Weights weights_from_safetensors(const SafetensorsFile& file, const std::string&
   if (md.count("channel_order")) w.config.channel_order = md.at("channel_order");
   if (md.count("description")) w.config.description = md.at("description");
   if (md.count("physics_contrast")) w.config.physics_contrast = md.at("physics_contrast");
+  // The event gate is a training experiment of the Python mirror (tools/selfunroll_torch.py); a
+  // model that needs it would run here without it, so it is refused rather than run differently.
+  if (md.count("physics_gate") && md.at("physics_gate") != "-1")
+    throw Error(origin + ": metadata 'physics_gate' = '" + md.at("physics_gate") +
+                "': the event gate of the Python mirror is not in this build's graph (expected no gate, -1)");
   if (md.count("gamma")) {
     const std::string& g = md.at("gamma");
     char* end = nullptr;

@@ -173,6 +173,51 @@ def test_variant_export_metadata_and_shapes(tmp_path):
     assert not infer_config({k: tuple(v.shape) for k, v in SelfUnroll(pub).state_dict().items()}).physics_input
 
 
+def test_event_gate_keeps_physics_where_no_event_is_near():
+    """physics_gate = r: fused = clamp(phys) exactly at pixels with no ev1/ev2 event within the
+    (2r+1)^2 square, the network's fused result elsewhere; metadata round trip and its errors."""
+    net = tiny_variant()
+    with torch.no_grad():
+        for prm in net.parameters():
+            prm.add_(0.05 * torch.randn_like(prm))  # trained: fused is not physics any more
+    rs, ev, phys = random_inputs(net.cfg, seed=4)
+    for e in ev[:2]:
+        e.zero_()
+    ev[0][0, 1, 10, 20] = 2.0  # one pixel with events in item 0; ev3 keeps its events (not gated on)
+    want = phys.clamp(0, 1)
+    with torch.no_grad():
+        free = net(rs, *ev, phys=phys, moa=False)[4]
+        net.cfg.physics_gate = 1
+        gated = net(rs, *ev, phys=phys, moa=False)[4]
+    near = torch.zeros_like(gated[:, :1], dtype=torch.bool)
+    near[0, 0, 9:12, 19:22] = True
+    assert float((free - want).abs().max()) > 1e-3
+    assert torch.equal(gated[~near.expand_as(gated)], want[~near.expand_as(want)])
+    assert torch.equal(gated[near.expand_as(gated)], free[near.expand_as(free)])
+    md = net.cfg.to_metadata()
+    assert md["physics_gate"] == "1" and SelfUnrollConfig.from_metadata(md).physics_gate == 1
+    assert "physics_gate" not in tiny_variant().cfg.to_metadata()
+    for bad in ("-1", "two"):
+        with pytest.raises(ValueError, match="physics_gate"):
+            SelfUnrollConfig.from_metadata({**md, "physics_gate": bad})
+    with pytest.raises(ValueError, match="physics_gate"):
+        SelfUnrollConfig.from_metadata({**SelfUnrollConfig().to_metadata(), "physics_gate": "1"})
+
+
+def test_event_crops_land_on_events(seq_dir):
+    """--event-crops 1: every crop holds events even where they sit in one small patch of the
+    sensor (a static scene's mover); uniform crops mostly miss it."""
+    s = Sequence(seq_dir)
+    t, x, y, p = s.events
+    keep = (x >= 50) & (x < 54) & (y >= 36) & (y < 40)
+    s._events = (t[keep], x[keep], y[keep], p[keep])
+    counts = {}
+    for prob in (0.0, 1.0):
+        sampler = train_data.Sampler([s], 16, 16, 2, None, random.Random(3), event_crops=prob)
+        counts[prob] = sum(sum(float(e.sum()) for e in sampler.draw().ev["g1"][:2]) > 0 for _ in range(12))
+    assert counts[1.0] == 12 and counts[0.0] < 8, counts
+
+
 def test_converter_knows_the_variant(tmp_path, capsys):
     net = tiny_variant()
     torch.save({"state_dict": {"module." + k: v for k, v in net.state_dict().items()}}, tmp_path / "v.pth")

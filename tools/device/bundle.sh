@@ -8,19 +8,27 @@ set -euo pipefail
 B=${1:-build}
 R=$(cd "$(dirname "$0")/../.." && pwd)
 cd "$R"
-cmake --build "$B" --target vkunroll_tests vkunroll-bench-kernels vkunroll-bench-event-tensor vkunroll-bench-model
+cmake --build "$B" --target vkunroll_tests vkunroll-bench-kernels vkunroll-bench-event-tensor vkunroll-bench-model vkunroll-bench-dispatch
 mkdir -p .devrun/bin .devrun/layers .gl
 LIBS=$(ninja -C "$B" -t commands bench/vkunroll-bench-kernels | tail -1 | grep -oE ' (lib[^ ]+\.a|/usr/lib[^ ]+\.(so[.0-9]*|a)|-l[a-z]+)' | tr '\n' ' ')
 (cd "$B"
- for b in kernels event-tensor model; do
+ for b in kernels event-tensor model dispatch; do
    c++ -O3 -Wl,--as-needed bench/CMakeFiles/vkunroll-bench-$b.dir/bench_*.cpp.o -o "$R/.devrun/bin/vkunroll-bench-$b" $LIBS
  done
  T=tests/CMakeFiles/vkunroll_tests.dir
  objs=""
- for t in backward_warp conv2d conv_transpose2d elementwise event_tensor model physics_unroll reflection_pad runtime \
-          space_to_depth weights safetensors; do objs="$objs $T/test_$t.cpp.o"; done
- c++ -O3 -Wl,--as-needed $objs $T/vk_test_env.cpp.o -o "$R/.devrun/bin/vkunroll_gpu_tests" $LIBS \
+ for t in backward_warp conv2d conv_transpose2d copy_rect elementwise event_tensor model model_fp16 physics_unroll precision \
+          reflection_pad runtime space_to_depth weights safetensors; do objs="$objs $T/test_$t.cpp.o"; done
+ c++ -O3 -Wl,--as-needed $objs $T/vk_test_env.cpp.o $T/shaders_kTestShaders/*.o -o "$R/.devrun/bin/vkunroll_gpu_tests" $LIBS \
      /usr/lib/x86_64-linux-gnu/libgtest.a -lpthread)
+# Shared libraries the binaries still need beyond glibc and libstdc++ (the model layer's CPU backend
+# runs on OpenCV's parallel_for_): copied beside them, found through LD_LIBRARY_PATH in run.sh.
+mkdir -p .devrun/lib
+for f in .devrun/bin/*; do
+  ldd "$f" | awk '/=> \// {print $3}' | { grep -vE '/(libc|libm|libdl|libpthread|librt|libgcc_s|libstdc\+\+|ld-linux[^/]*|libvulkan)\.so' || true; } |
+    while read -r l; do cp -Ln "$l" .devrun/lib/ 2>/dev/null || true; done
+done
+cp models/selfunroll_small.safetensors .devrun/ 2>/dev/null || true
 cp /usr/lib/x86_64-linux-gnu/libVkLayer_khronos_validation.so .devrun/layers/
 sed 's|"library_path": *"[^"]*"|"library_path": "./libVkLayer_khronos_validation.so"|' \
     /usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json > .devrun/layers/VkLayer_khronos_validation.json
@@ -30,5 +38,4 @@ o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp
 mkdir -p /tmp/amd64/partial
 apt-get $o update >/dev/null
 (cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
-for f in .devrun/bin/*; do readelf -d "$f" | grep -q 'NEEDED.*opencv' && { echo "$f needs OpenCV"; exit 1; }; done
 echo "bundle ready: .devrun/ and .gl/ (both git-ignored); run there from the repo root: bash .devrun/run.sh"
