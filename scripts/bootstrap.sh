@@ -16,6 +16,7 @@ packages=(
   liblz4-dev libzstd-dev libflatbuffers-dev flatbuffers-compiler libzip-dev zlib1g-dev nlohmann-json3-dev libcli11-dev
   libgtest-dev libgmock-dev
   python3-torch python3-numpy python3-h5py python3-matplotlib python3-pytest snakemake
+  python3-dev pybind11-dev python3-pybind11
 )
 missing=()
 for p in "${packages[@]}"; do

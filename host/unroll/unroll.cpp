@@ -22,188 +22,13 @@
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/unroll/session.hpp"
 #include "vkunroll/host/unroll/unroll_output.hpp"
+#include "vkunroll/host/unroll/unroll_plan.hpp"
 
 namespace vkunroll {
 
 namespace fs = std::filesystem;
 
 namespace {
-
-struct UnrollTarget {
-  Rational t_us;
-  double tau = 0;
-  std::string name;  // output file name override (ground-truth instants)
-  int gt = -1;       // index into seq.ground_truth, -1: none
-};
-
-cv::Mat read_image(const std::string& path, int width, int height) {
-  cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (m.empty()) {
-    std::error_code ec;
-    if (!fs::exists(path, ec)) throw InputMissingError(path + ": no such image");
-    throw DataError(path + ": cannot read the image (not a PNG, JPEG, TIFF or other format OpenCV reads)");
-  }
-  if (m.cols != width || m.rows != height)
-    throw DataError(path + ": image is " + std::to_string(m.cols) + "x" + std::to_string(m.rows) + ", the sensor is " +
-                std::to_string(width) + "x" + std::to_string(height));
-  if (m.channels() == 4) cv::cvtColor(m, m, cv::COLOR_BGRA2BGR);
-  if (m.channels() == 1) cv::cvtColor(m, m, cv::COLOR_GRAY2BGR);
-  if (!cv::checkRange(m, true, nullptr)) throw DataError(path + ": image holds NaN or Inf values");
-  return to_unit_float(m);  // [0,1] float, BGR
-}
-
-// Microseconds for messages: integers as such (1700000000000000, not 1.7e+15), else shortest.
-std::string us_text(double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, std::abs(v) < 1e18 && v == std::floor(v) ? "%.0f" : "%.17g", v);
-  return buf;
-}
-
-double frame_mid(const SequenceFrame& f) {
-  return 0.5 * (f.timing.first_start().to_double() + f.timing.last_end().to_double());
-}
-
-// The chosen frame whose span holds t (else the one with the nearest middle).
-int frame_for_time(const Sequence& seq, const std::vector<int>& frames, double t) {
-  int best = frames.front();
-  double best_d = 1e300;
-  for (int k : frames) {
-    const auto& f = seq.frames[k];
-    const double s = f.timing.first_start().to_double(), e = f.timing.last_end().to_double();
-    const double d = (t >= s && t <= e) ? std::abs(t - frame_mid(f)) - 1e12 : std::abs(t - frame_mid(f));
-    if (d < best_d) best_d = d, best = k;
-  }
-  return best;
-}
-
-double read_meta_gamma(const Sequence& seq) {
-  const fs::path meta = fs::path(seq.root) / "meta.json";
-  if (seq.layout != SequenceLayout::generic || !fs::exists(meta)) return 1.0;
-  try {
-    std::ifstream in(meta);
-    const auto j = nlohmann::json::parse(in);
-    // The simulator records its output encoding under source.settings.gamma.
-    if (j.contains("source") && j["source"].contains("settings") && j["source"]["settings"].contains("gamma"))
-      return j["source"]["settings"]["gamma"].get<double>();
-    if (j.contains("source") && j["source"].contains("gamma")) return j["source"]["gamma"].get<double>();
-  } catch (const std::exception&) {
-  }
-  return 1.0;
-}
-
-// The events of [lo, hi] microseconds, read once per frame; `report` gets the reader's counts.
-EventStream read_window(const Sequence& seq, double lo, double hi, EventReadReport* report = nullptr) {
-  return seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1, report);
-}
-
-std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requested) {
-  std::vector<int> frames = requested;
-  if (frames.empty())
-    for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) frames.push_back(k);
-  try {
-    for (int k : frames) seq.frame(k);  // throws naming the index and the count
-  } catch (const Error& e) {
-    if (e.kind() != ErrorKind::unspecified) throw;
-    throw UsageError(std::string("--frames: ") + e.what());
-  }
-  return frames;
-}
-
-// The targets of every chosen frame, refused where no events can exist (beyond a frame period
-// outside the recording).
-std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const std::vector<int>& frames,
-                                                      const TargetTimes& times, const std::string& where) {
-  std::map<int, std::vector<UnrollTarget>> targets;
-  auto gt_at = [&](const Rational& t) {
-    for (size_t g = 0; g < seq.ground_truth.size(); ++g)
-      if (std::abs((seq.ground_truth[g].t_us - t).to_double()) < 0.5) return static_cast<int>(g);
-    return -1;
-  };
-  switch (times.kind) {
-    case TargetTimes::Kind::ground_truth:
-      if (seq.ground_truth.empty()) throw UsageError("--times gt: " + where + " has no ground-truth frames");
-      for (size_t g = 0; g < seq.ground_truth.size(); ++g) {
-        const auto& gt = seq.ground_truth[g];
-        const int k = frame_for_time(seq, frames, gt.t_us.to_double());
-        targets[k].push_back({gt.t_us, seq.frames[k].timing.tau_of(gt.t_us).to_double(),
-                              fs::path(gt.image).filename().string(), static_cast<int>(g)});
-      }
-      break;
-    case TargetTimes::Kind::absolute_us:
-      for (const Rational& t : times.values) {
-        const int k = frame_for_time(seq, frames, t.to_double());
-        targets[k].push_back({t, seq.frames[k].timing.tau_of(t).to_double(), "", gt_at(t)});
-      }
-      break;
-    case TargetTimes::Kind::normalized:
-      for (int k : frames)
-        for (const Rational& tau : times.values) {
-          const Rational t = seq.frames[k].timing.target_time(tau);
-          targets[k].push_back({t, tau.to_double(), "", gt_at(t)});
-        }
-      break;
-  }
-  // Over all frames: a sequence whose frames are out of time order still names its true span.
-  double rec_lo = seq.frames.front().timing.first_start().to_double(), rec_hi = seq.frames.front().timing.last_end().to_double();
-  for (const auto& f : seq.frames)
-    rec_lo = std::min(rec_lo, f.timing.first_start().to_double()), rec_hi = std::max(rec_hi, f.timing.last_end().to_double());
-  const double margin = seq.frames.size() > 1 ? frame_mid(seq.frames[1]) - frame_mid(seq.frames[0])
-                                              : seq.frames[0].timing.last_end().to_double() - rec_lo;
-  for (const auto& [k, ts] : targets)
-    for (const auto& t : ts)
-      if (t.t_us.to_double() < rec_lo - margin || t.t_us.to_double() > rec_hi + margin)
-        throw UsageError(std::string(times.kind == TargetTimes::Kind::absolute_us ? "--times-us" : "--times") +
-                         ": target t* = " + us_text(t.t_us.to_double()) + " us is outside the recording [" + us_text(rec_lo) +
-                         ", " + us_text(rec_hi) + "] us by more than a frame period");
-  return targets;
-}
-
-// How one target is unrolled under `mode`; `notes` collects what the user should know.
-FrameTarget::Method target_method(UnrollMode mode, bool moa, bool has_next, bool inside, int frame,
-                                  std::map<std::string, int>& notes) {
-  using M = FrameTarget::Method;
-  switch (mode) {
-    case UnrollMode::physics: return M::physics;
-    case UnrollMode::s: return M::s;
-    case UnrollMode::automatic: return moa && has_next ? M::m : M::s;
-    case UnrollMode::m:
-      if (!has_next) notes["frame " + std::to_string(frame) + " is the last: SelfUnroll-S used (M needs the next frame)"]++;
-      return has_next ? M::m : M::s;
-    case UnrollMode::choose:
-      if (inside) return M::s;
-      if (moa && has_next) return M::m;
-      notes[std::string("target outside its frame's exposure span: SelfUnroll-S used (") +
-            (moa ? "M needs the next frame" : "the model has no MOA weights") + ")"]++;
-      return M::s;
-  }
-  return M::s;
-}
-
-// The events window every target of the frame needs (physics: [min(t*, S_y), max(t*, E_y)];
-// the model: its pairs' windows up to t* + exposure for ev3).
-std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFrame* f2, const std::vector<UnrollTarget>& ts,
-                                       const std::vector<FrameTarget>& methods) {
-  double lo = f1.timing.first_start().to_double(), hi = f1.timing.last_end().to_double();
-  for (size_t j = 0; j < ts.size(); ++j) {
-    const double t = ts[j].t_us.to_double();
-    lo = std::min(lo, t);
-    hi = std::max(hi, t + (methods[j].method == FrameTarget::Method::physics ? 0.0 : f1.timing.exposure.to_double()));
-    if (methods[j].method == FrameTarget::Method::m && f2) {
-      lo = std::min(lo, f2->timing.first_start().to_double());
-      hi = std::max({hi, f2->timing.last_end().to_double(), t + f2->timing.exposure.to_double()});
-    }
-  }
-  for (int y = 0; y < f1.timing.rows; ++y) lo = std::min(lo, f1.timing.start(y).to_double()), hi = std::max(hi, f1.timing.end(y).to_double());
-  return {lo, hi};
-}
-
-// v^exponent (negative values to 0 first): a frame in another gamma encoding; exponent 1: as it is.
-cv::Mat encode_for_model(const cv::Mat& image, double exponent) {
-  if (std::abs(exponent - 1.0) < 1e-12) return image;
-  cv::Mat v = cv::max(image, 0.0), out;
-  cv::pow(v, exponent, out);
-  return out;
-}
 
 nlohmann::json traffic_json(const DeviceTraffic& t, size_t targets) {
   const double n = static_cast<double>(std::max<size_t>(targets, 1));
@@ -249,7 +74,7 @@ void unroll_frame(const Sequence& seq, int k, const std::vector<UnrollTarget>& t
   }
   auto t_read = Clock::now();
   FrameInput in;
-  const cv::Mat rs_input = read_image(f1.image, seq.width, seq.height);
+  const cv::Mat rs_input = read_frame_image(f1.image, seq.width, seq.height);
   in.rs1 = encode_for_model(rs_input, L.to_model);
   in.timing1 = f1.timing;
   std::vector<cv::Mat> results;
@@ -257,7 +82,7 @@ void unroll_frame(const Sequence& seq, int k, const std::vector<UnrollTarget>& t
     const bool any_m = std::any_of(methods.begin(), methods.end(), [](const FrameTarget& t) { return t.method == FrameTarget::Method::m; });
     const SequenceFrame* f2 = any_m ? &seq.frames[k + 1] : nullptr;
     if (f2) {
-      in.rs2 = encode_for_model(read_image(f2->image, seq.width, seq.height), L.to_model);
+      in.rs2 = encode_for_model(read_frame_image(f2->image, seq.width, seq.height), L.to_model);
       in.timing2 = f2->timing;
     }
     const auto [lo, hi] = frame_window(f1, f2, todo, methods);
@@ -281,7 +106,7 @@ void unroll_frame(const Sequence& seq, int k, const std::vector<UnrollTarget>& t
     std::string gt_file;
     if (ts[j].gt >= 0) {
       gt_file = seq.ground_truth[ts[j].gt].image;
-      gt = read_image(gt_file, seq.width, seq.height);
+      gt = read_frame_image(gt_file, seq.width, seq.height);
     }
     if (reused[j]) {
       L.output.add_reused(reused_record[j], *reused[j], rs_input, gt);
@@ -367,46 +192,12 @@ nlohmann::json events_report(const FrameLoop& L, const Sequence& seq, std::vecto
 }  // namespace
 
 double estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma) {
-  std::vector<std::pair<int, int>> pairs;
-  for (int k : frames)
-    if (k + 1 < static_cast<int>(seq.frames.size()) && pairs.size() < 3) pairs.push_back({k, k + 1});
-  if (pairs.empty()) return 0.2;
-  struct Pair {
-    std::vector<float> rs1, rs2;
-    PixelEventLists l1, l2;
-  };
-  std::vector<Pair> data;
-  for (auto [a, b] : pairs) {
-    const auto& fa = seq.frames[a];
-    const auto& fb = seq.frames[b];
-    const double t = 0.5 * (frame_mid(fa) + frame_mid(fb));
-    Pair p;
-    p.rs1 = image_planes(read_image(fa.image, seq.width, seq.height), false);
-    p.rs2 = image_planes(read_image(fb.image, seq.width, seq.height), false);
-    const EventStream ev = read_window(seq, std::min(fa.timing.first_start().to_double(), t),
-                                       std::max(fb.timing.last_end().to_double(), t));
-    p.l1 = gather_pixel_events(ev, t, fa.timing.start_times_us(), fa.timing.end_times_us(), 0, 0, seq.width, seq.height);
-    p.l2 = gather_pixel_events(ev, t, fb.timing.start_times_us(), fb.timing.end_times_us(), 0, 0, seq.width, seq.height);
-    data.push_back(std::move(p));
-  }
-  double best_c = 0.2, best_err = 1e300;
-  for (double c = 0.05; c <= 0.6001; c += 0.025) {
-    PhysicsUnrollParams prm;
-    prm.contrast = static_cast<float>(c);
-    prm.gamma = static_cast<float>(gamma);
-    double err = 0;
-    size_t n = 0;
-    for (const auto& p : data) {
-      const auto g1 = physics_unroll_ref(p.rs1, 3, p.l1, prm), g2 = physics_unroll_ref(p.rs2, 3, p.l2, prm);
-      for (size_t i = 0; i < g1.size(); ++i) {
-        err += std::abs(std::log(g1[i] + 0.01) - std::log(g2[i] + 0.01));
-        n++;
-      }
-    }
-    err /= std::max<size_t>(n, 1);
-    if (err < best_err) best_err = err, best_c = c;
-  }
-  return best_c;
+  std::vector<RowTiming> timings;
+  for (const SequenceFrame& f : seq.frames) timings.push_back(f.timing);
+  return estimate_contrast(
+      timings, frames, gamma, seq.width, seq.height,
+      [&](int k) { return read_frame_image(seq.frames[k].image, seq.width, seq.height); },
+      [&](double lo, double hi) { return read_window(seq, lo, hi); });
 }
 
 namespace {
@@ -511,6 +302,7 @@ std::map<int, std::vector<UnrollTarget>> planned_targets(const Sequence& seq, co
 nlohmann::json run_unroll(const UnrollOptions& o) {
   const auto t_start = Clock::now();
   validate_unroll_options(o);  // a refused option does not wait for the sequence to load
+  check_unroll_inputs(o);
   const UnrollMode mode = o.mode == UnrollMode::automatic && o.session.model_path.empty() ? UnrollMode::physics : o.mode;
   SessionOptions so = o.session;
   so.announce = so.announce && !o.quiet;
@@ -531,32 +323,19 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   // The sequence's encoding, and the model's: frames go into a model with a known gamma in its
   // encoding (v^(g_f/g_m)) and its results come back (docs/model.md, "unroll").
   const double seq_gamma = o.gamma ? *o.gamma : read_meta_gamma(seq);
-  const std::optional<double> model_gamma = session.has_model() ? session.model_config().gamma : std::nullopt;
-  const double to_model = model_gamma ? seq_gamma / *model_gamma : 1.0;
-  const bool variant = session.has_model() && session.model_config().physics_input;
-  PhysicsUnrollParams prm;
-  std::string contrast_source = "given";
   double contrast_ms = -1;
-  if (mode == UnrollMode::physics || variant) {
-    // --mode physics decodes the frames with the sequence's gamma; the variant's physics input is
-    // computed on the model-encoded frame (docs/model.md).
-    prm.gamma = static_cast<float>(mode == UnrollMode::physics ? seq_gamma : model_gamma.value_or(1.0));
-    const std::string& from_model = variant ? session.model_config().physics_contrast : std::string("estimate");
-    if (o.contrast) {
-      prm.contrast = static_cast<float>(*o.contrast);
-    } else if (from_model != "estimate") {
-      prm.contrast = std::stof(from_model);  // validated when the weights were loaded
-      contrast_source = "the model's metadata";
-    } else {
-      const auto t = Clock::now();
-      prm.contrast = static_cast<float>(estimate_contrast(seq, frames, seq_gamma));
-      contrast_ms = ms_since(t);
-      contrast_source = "estimated (temporal consistency of consecutive frames)";
-    }
-    if (!o.quiet)
-      std::cerr << "unroll: " << (variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
-                << prm.contrast << " (" << contrast_source << "), gamma " << prm.gamma << "\n";
-  }
+  const PhysicsPlan physics = plan_physics(mode, session, seq_gamma, o.contrast, [&](double gamma) {
+    const auto t = Clock::now();
+    const double c = estimate_contrast(seq, frames, gamma);
+    contrast_ms = ms_since(t);
+    return c;
+  });
+  const double to_model = physics.to_model;
+  const PhysicsUnrollParams& prm = physics.params;
+  const std::string& contrast_source = physics.contrast_source;
+  if (physics.uses_physics && !o.quiet)
+    std::cerr << "unroll: " << (physics.variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
+              << prm.contrast << " (" << contrast_source << "), gamma " << prm.gamma << "\n";
   session.set_physics(prm);
   TileOptions tile_options;
   tile_options.sparse = o.sparse;

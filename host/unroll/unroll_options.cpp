@@ -127,6 +127,9 @@ void validate_unroll_options(const UnrollOptions& o) {
   for (int k : o.frames)
     if (k < 0) throw UsageError("--frames: frame index " + std::to_string(k) + " is negative");
   validate_sequence_options(o.sequence_options);
+}
+
+void check_unroll_inputs(const UnrollOptions& o) {
   check_exists(o.sequence, "SEQUENCE", true);
   if (!o.session.model_path.empty() && o.mode != UnrollMode::physics) check_exists(o.session.model_path, "--model", false);
 }

@@ -91,6 +91,9 @@ struct UnrollOptions {
 // InputMissingError naming the path when the sequence, the model or the event file does not
 // exist (before any work).
 void validate_unroll_options(const UnrollOptions& o);
+// The SEQUENCE folder and the --model file exist (InputMissingError naming them); run_unroll calls
+// it after validate_unroll_options, the Python bindings (arrays in memory) do not.
+void check_unroll_inputs(const UnrollOptions& o);
 
 // The timing overrides of a sequence (shared by unroll and voxelize): finite, within kMaxTimeUs,
 // line delay >= 0, exposure and frame period > 0. UsageError names the option (`--line-delay-us`, ...).

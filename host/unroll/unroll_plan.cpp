@@ -1,0 +1,259 @@
+#include "vkunroll/host/unroll/unroll_plan.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "vkunroll/base/error.hpp"
+#include "vkunroll/host/unroll/image_planes.hpp"
+#include "vkunroll/host/unroll/metrics.hpp"
+#include "vkunroll/kernels/physics_unroll.hpp"
+
+namespace vkunroll {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+double timing_mid(const RowTiming& t) { return 0.5 * (t.first_start().to_double() + t.last_end().to_double()); }
+
+// Microseconds for messages: integers as such (1700000000000000, not 1.7e+15), else shortest.
+std::string us_text(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, std::abs(v) < 1e18 && v == std::floor(v) ? "%.0f" : "%.17g", v);
+  return buf;
+}
+
+}  // namespace
+
+cv::Mat read_frame_image(const std::string& path, int width, int height) {
+  cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
+  if (m.empty()) {
+    std::error_code ec;
+    if (!fs::exists(path, ec)) throw InputMissingError(path + ": no such image");
+    throw DataError(path + ": cannot read the image (not a PNG, JPEG, TIFF or other format OpenCV reads)");
+  }
+  if (m.cols != width || m.rows != height)
+    throw DataError(path + ": image is " + std::to_string(m.cols) + "x" + std::to_string(m.rows) + ", the sensor is " +
+                std::to_string(width) + "x" + std::to_string(height));
+  if (m.channels() == 4) cv::cvtColor(m, m, cv::COLOR_BGRA2BGR);
+  if (m.channels() == 1) cv::cvtColor(m, m, cv::COLOR_GRAY2BGR);
+  if (!cv::checkRange(m, true, nullptr)) throw DataError(path + ": image holds NaN or Inf values");
+  return to_unit_float(m);  // [0,1] float, BGR
+}
+
+double frame_mid(const SequenceFrame& f) {
+  return 0.5 * (f.timing.first_start().to_double() + f.timing.last_end().to_double());
+}
+
+namespace {
+
+// The chosen frame whose span holds t (else the one with the nearest middle).
+int frame_for_time(const Sequence& seq, const std::vector<int>& frames, double t) {
+  int best = frames.front();
+  double best_d = 1e300;
+  for (int k : frames) {
+    const auto& f = seq.frames[k];
+    const double s = f.timing.first_start().to_double(), e = f.timing.last_end().to_double();
+    const double d = (t >= s && t <= e) ? std::abs(t - frame_mid(f)) - 1e12 : std::abs(t - frame_mid(f));
+    if (d < best_d) best_d = d, best = k;
+  }
+  return best;
+}
+
+}  // namespace
+
+double read_meta_gamma(const Sequence& seq) {
+  const fs::path meta = fs::path(seq.root) / "meta.json";
+  if (seq.layout != SequenceLayout::generic || !fs::exists(meta)) return 1.0;
+  try {
+    std::ifstream in(meta);
+    const auto j = nlohmann::json::parse(in);
+    // The simulator records its output encoding under source.settings.gamma.
+    if (j.contains("source") && j["source"].contains("settings") && j["source"]["settings"].contains("gamma"))
+      return j["source"]["settings"]["gamma"].get<double>();
+    if (j.contains("source") && j["source"].contains("gamma")) return j["source"]["gamma"].get<double>();
+  } catch (const std::exception&) {
+  }
+  return 1.0;
+}
+
+EventStream read_window(const Sequence& seq, double lo, double hi, EventReadReport* report) {
+  return seq.read_events(static_cast<int64_t>(std::floor(lo)), static_cast<int64_t>(std::ceil(hi)) + 1, report);
+}
+
+std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requested) {
+  std::vector<int> frames = requested;
+  if (frames.empty())
+    for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) frames.push_back(k);
+  try {
+    for (int k : frames) seq.frame(k);  // throws naming the index and the count
+  } catch (const Error& e) {
+    if (e.kind() != ErrorKind::unspecified) throw;
+    throw UsageError(std::string("--frames: ") + e.what());
+  }
+  return frames;
+}
+
+std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const std::vector<int>& frames,
+                                                      const TargetTimes& times, const std::string& where) {
+  std::map<int, std::vector<UnrollTarget>> targets;
+  auto gt_at = [&](const Rational& t) {
+    for (size_t g = 0; g < seq.ground_truth.size(); ++g)
+      if (std::abs((seq.ground_truth[g].t_us - t).to_double()) < 0.5) return static_cast<int>(g);
+    return -1;
+  };
+  switch (times.kind) {
+    case TargetTimes::Kind::ground_truth:
+      if (seq.ground_truth.empty()) throw UsageError("--times gt: " + where + " has no ground-truth frames");
+      for (size_t g = 0; g < seq.ground_truth.size(); ++g) {
+        const auto& gt = seq.ground_truth[g];
+        const int k = frame_for_time(seq, frames, gt.t_us.to_double());
+        targets[k].push_back({gt.t_us, seq.frames[k].timing.tau_of(gt.t_us).to_double(),
+                              fs::path(gt.image).filename().string(), static_cast<int>(g)});
+      }
+      break;
+    case TargetTimes::Kind::absolute_us:
+      for (const Rational& t : times.values) {
+        const int k = frame_for_time(seq, frames, t.to_double());
+        targets[k].push_back({t, seq.frames[k].timing.tau_of(t).to_double(), "", gt_at(t)});
+      }
+      break;
+    case TargetTimes::Kind::normalized:
+      for (int k : frames)
+        for (const Rational& tau : times.values) {
+          const Rational t = seq.frames[k].timing.target_time(tau);
+          targets[k].push_back({t, tau.to_double(), "", gt_at(t)});
+        }
+      break;
+  }
+  // Over all frames: a sequence whose frames are out of time order still names its true span.
+  double rec_lo = seq.frames.front().timing.first_start().to_double(), rec_hi = seq.frames.front().timing.last_end().to_double();
+  for (const auto& f : seq.frames)
+    rec_lo = std::min(rec_lo, f.timing.first_start().to_double()), rec_hi = std::max(rec_hi, f.timing.last_end().to_double());
+  const double margin = seq.frames.size() > 1 ? frame_mid(seq.frames[1]) - frame_mid(seq.frames[0])
+                                              : seq.frames[0].timing.last_end().to_double() - rec_lo;
+  for (const auto& [k, ts] : targets)
+    for (const auto& t : ts)
+      if (t.t_us.to_double() < rec_lo - margin || t.t_us.to_double() > rec_hi + margin)
+        throw UsageError(std::string(times.kind == TargetTimes::Kind::absolute_us ? "--times-us" : "--times") +
+                         ": target t* = " + us_text(t.t_us.to_double()) + " us is outside the recording [" + us_text(rec_lo) +
+                         ", " + us_text(rec_hi) + "] us by more than a frame period");
+  return targets;
+}
+
+FrameTarget::Method target_method(UnrollMode mode, bool moa, bool has_next, bool inside, int frame,
+                                  std::map<std::string, int>& notes) {
+  using M = FrameTarget::Method;
+  switch (mode) {
+    case UnrollMode::physics: return M::physics;
+    case UnrollMode::s: return M::s;
+    case UnrollMode::automatic: return moa && has_next ? M::m : M::s;
+    case UnrollMode::m:
+      if (!has_next) notes["frame " + std::to_string(frame) + " is the last: SelfUnroll-S used (M needs the next frame)"]++;
+      return has_next ? M::m : M::s;
+    case UnrollMode::choose:
+      if (inside) return M::s;
+      if (moa && has_next) return M::m;
+      notes[std::string("target outside its frame's exposure span: SelfUnroll-S used (") +
+            (moa ? "M needs the next frame" : "the model has no MOA weights") + ")"]++;
+      return M::s;
+  }
+  return M::s;
+}
+
+std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFrame* f2, const std::vector<UnrollTarget>& ts,
+                                       const std::vector<FrameTarget>& methods) {
+  double lo = f1.timing.first_start().to_double(), hi = f1.timing.last_end().to_double();
+  for (size_t j = 0; j < ts.size(); ++j) {
+    const double t = ts[j].t_us.to_double();
+    lo = std::min(lo, t);
+    hi = std::max(hi, t + (methods[j].method == FrameTarget::Method::physics ? 0.0 : f1.timing.exposure.to_double()));
+    if (methods[j].method == FrameTarget::Method::m && f2) {
+      lo = std::min(lo, f2->timing.first_start().to_double());
+      hi = std::max({hi, f2->timing.last_end().to_double(), t + f2->timing.exposure.to_double()});
+    }
+  }
+  for (int y = 0; y < f1.timing.rows; ++y) lo = std::min(lo, f1.timing.start(y).to_double()), hi = std::max(hi, f1.timing.end(y).to_double());
+  return {lo, hi};
+}
+
+double estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
+                         int height, const std::function<cv::Mat(int)>& image,
+                         const std::function<EventStream(double, double)>& events) {
+  std::vector<std::pair<int, int>> pairs;
+  for (int k : frames)
+    if (k + 1 < static_cast<int>(timings.size()) && pairs.size() < 3) pairs.push_back({k, k + 1});
+  if (pairs.empty()) return 0.2;
+  struct Pair {
+    std::vector<float> rs1, rs2;
+    PixelEventLists l1, l2;
+  };
+  std::vector<Pair> data;
+  for (auto [a, b] : pairs) {
+    const RowTiming& fa = timings[a];
+    const RowTiming& fb = timings[b];
+    const double t = 0.5 * (timing_mid(fa) + timing_mid(fb));
+    Pair p;
+    p.rs1 = image_planes(image(a), false);
+    p.rs2 = image_planes(image(b), false);
+    const EventStream ev = events(std::min(fa.first_start().to_double(), t), std::max(fb.last_end().to_double(), t));
+    p.l1 = gather_pixel_events(ev, t, fa.start_times_us(), fa.end_times_us(), 0, 0, width, height);
+    p.l2 = gather_pixel_events(ev, t, fb.start_times_us(), fb.end_times_us(), 0, 0, width, height);
+    data.push_back(std::move(p));
+  }
+  double best_c = 0.2, best_err = 1e300;
+  for (double c = 0.05; c <= 0.6001; c += 0.025) {
+    PhysicsUnrollParams prm;
+    prm.contrast = static_cast<float>(c);
+    prm.gamma = static_cast<float>(gamma);
+    double err = 0;
+    size_t n = 0;
+    for (const auto& p : data) {
+      const auto g1 = physics_unroll_ref(p.rs1, 3, p.l1, prm), g2 = physics_unroll_ref(p.rs2, 3, p.l2, prm);
+      for (size_t i = 0; i < g1.size(); ++i) {
+        err += std::abs(std::log(g1[i] + 0.01) - std::log(g2[i] + 0.01));
+        n++;
+      }
+    }
+    err /= std::max<size_t>(n, 1);
+    if (err < best_err) best_err = err, best_c = c;
+  }
+  return best_c;
+}
+
+PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,
+                         const std::function<double(double)>& estimate) {
+  PhysicsPlan p;
+  p.seq_gamma = seq_gamma;
+  const std::optional<double> model_gamma = session.has_model() ? session.model_config().gamma : std::nullopt;
+  p.to_model = model_gamma ? seq_gamma / *model_gamma : 1.0;
+  p.variant = session.has_model() && session.model_config().physics_input;
+  p.uses_physics = mode == UnrollMode::physics || p.variant;
+  if (!p.uses_physics) return p;
+  p.params.gamma = static_cast<float>(mode == UnrollMode::physics ? seq_gamma : model_gamma.value_or(1.0));
+  const std::string& from_model = p.variant ? session.model_config().physics_contrast : std::string("estimate");
+  if (contrast) {
+    p.params.contrast = static_cast<float>(*contrast);
+  } else if (from_model != "estimate") {
+    p.params.contrast = std::stof(from_model);  // validated when the weights were loaded
+    p.contrast_source = "the model's metadata";
+  } else {
+    p.params.contrast = static_cast<float>(estimate(seq_gamma));
+    p.contrast_source = "estimated (temporal consistency of consecutive frames)";
+  }
+  return p;
+}
+
+cv::Mat encode_for_model(const cv::Mat& image, double exponent) {
+  if (std::abs(exponent - 1.0) < 1e-12) return image;
+  cv::Mat v = cv::max(image, 0.0), out;
+  cv::pow(v, exponent, out);
+  return out;
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,86 @@
+// The unroll job's planning, shared by run_unroll (the CLI) and the Python bindings' unroll():
+// which targets go to which frame, how each target is unrolled, which events a frame needs, the
+// frames' images, and the physics contrast estimate. The per-frame work itself is UnrollSession's.
+#pragma once
+#include <functional>
+#include <map>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "vkunroll/base/events.hpp"
+#include "vkunroll/host/events/sequence.hpp"
+#include "vkunroll/host/unroll/session.hpp"
+#include "vkunroll/host/unroll/unroll_options.hpp"
+
+namespace vkunroll {
+
+struct UnrollTarget {
+  Rational t_us;
+  double tau = 0;
+  std::string name;  // output file name override (ground-truth instants)
+  int gt = -1;       // index into seq.ground_truth, -1: none
+};
+
+// An 8/16-bit or float image file as BGR float32 in [0, 1] of the sensor's size; throws Error
+// naming the file (unreadable, wrong size, NaN or Inf).
+cv::Mat read_frame_image(const std::string& path, int width, int height);
+
+// The middle of the frame's exposure span, microseconds.
+double frame_mid(const SequenceFrame& f);
+
+// The frames' encoding gamma a generic sequence's meta.json records (source.settings.gamma, as the
+// simulator writes it, or source.gamma); 1 otherwise.
+double read_meta_gamma(const Sequence& seq);
+
+// The events of [lo, hi] microseconds (both ends included), read through the file's index;
+// `report` gets the reader's counts.
+EventStream read_window(const Sequence& seq, double lo, double hi, EventReadReport* report = nullptr);
+
+// `requested` checked against the sequence (empty: every frame).
+std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requested);
+
+// The targets of every chosen frame (a target goes to the chosen frame whose span holds it, else
+// the one with the nearest middle), refused where no events can exist (beyond a frame period
+// outside the recording). `where` prefixes the errors.
+std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const std::vector<int>& frames,
+                                                      const TargetTimes& times, const std::string& where);
+
+// How one target is unrolled under `mode`; `notes` collects what the user should know.
+FrameTarget::Method target_method(UnrollMode mode, bool moa, bool has_next, bool inside, int frame,
+                                  std::map<std::string, int>& notes);
+
+// The events window [lo, hi] (microseconds) every target of the frame needs (physics:
+// [min(t*, S_y), max(t*, E_y)]; the model: its pairs' windows up to t* + exposure for ev3).
+std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFrame* f2, const std::vector<UnrollTarget>& ts,
+                                       const std::vector<FrameTarget>& methods);
+
+// estimate_contrast (unroll.hpp) on frames from anywhere: `image(k)` frame k as BGR float32 in
+// [0, 1], `events(lo, hi)` the events of [lo, hi] microseconds.
+double estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
+                         int height, const std::function<cv::Mat(int)>& image,
+                         const std::function<EventStream(double, double)>& events);
+
+// The job's encodings and physics parameters (docs/model.md, "unroll"): frames go into a model with
+// a known gamma in its encoding (v^to_model) and its results come back (v^(1/to_model)); the physics
+// unroller decodes frames with the sequence's gamma, the physics-informed variant's physics input is
+// computed on the model-encoded frame.
+struct PhysicsPlan {
+  double seq_gamma = 1.0;
+  double to_model = 1.0;
+  bool variant = false;        // the model is the physics-informed variant
+  bool uses_physics = false;   // mode physics or the variant: `params` matter
+  PhysicsUnrollParams params;
+  std::string contrast_source = "given";
+};
+// `contrast`: the user's (unset: the model's metadata, else `estimate(seq_gamma)`, called only then).
+PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,
+                         const std::function<double(double)>& estimate);
+
+// v^exponent (negative values to 0 first): a frame in another gamma encoding; exponent 1: as it is.
+cv::Mat encode_for_model(const cv::Mat& image, double exponent);
+
+}  // namespace vkunroll

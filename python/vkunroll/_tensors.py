@@ -1,0 +1,110 @@
+"""Row-aware event tensors and the weight-free physics unroller."""
+import numpy as np
+
+from . import _vkunroll as _vk
+from ._events import event_fields
+from ._runtime import resolve_context
+
+__all__ = ["event_tensors", "event_tensors_batch", "physics_unroll", "image_float"]
+
+
+def _sensor(x, y, timing, sensor_size):
+    height = timing.height
+    if sensor_size is None:
+        width = int(x.max()) + 1 if x.size else 1
+    else:
+        width, h = int(sensor_size[0]), int(sensor_size[1])
+        if h != height:
+            raise ValueError(f"sensor_size height {h} differs from the timing's {height} rows")
+        if x.size and int(x.max()) >= width:
+            i = int(np.argmax(x >= width))
+            raise ValueError(f"events: x[{i}] = {x[i]} is outside the sensor width {width}")
+    if y.size and int(y.max()) >= height:
+        i = int(np.argmax(y >= height))
+        raise ValueError(f"events: y[{i}] = {y[i]} is outside the {height} sensor rows")
+    return width, height
+
+
+def event_tensors_batch(events, timing, t_us, bins=16, target_exposure_us=None, *, crop=None, sensor_size=None,
+                        backend="vulkan", context=None):
+    """ev1, ev2, ev3 of many (frame, target) pairs: three float32 arrays [P, 2N, h, w].
+
+    ``timing``: one :class:`RowTiming` for every target, or a list with one per target (pairs
+    of different frames). ``t_us``: the targets t* (exact: ints, strings "73000/259",
+    Fractions, or floats). Otherwise as :func:`event_tensors`; pair i is (timing[i], t_us[i]).
+    """
+    targets = list(t_us) if np.ndim(t_us) or isinstance(t_us, (list, tuple)) else [t_us]
+    timings = list(timing) if isinstance(timing, (list, tuple)) else [timing] * len(targets)
+    if not timings:
+        raise ValueError("event_tensors: no targets")
+    for i, tm in enumerate(timings):
+        if not isinstance(tm, _vk.RowTiming):
+            raise TypeError(f"timing[{i}] is a {type(tm).__name__}, expected vkunroll.RowTiming")
+    t, x, y, p = event_fields(events)
+    width, height = _sensor(x, y, timings[0], sensor_size)
+    ctx = resolve_context(context, backend)
+    ev1, ev2, ev3, _considered = _vk._event_tensors(ctx, t, x, y, p, width, height, timings, targets,
+                                                    target_exposure_us, int(bins), list(crop) if crop else [])
+    return ev1, ev2, ev3
+
+
+def event_tensors(events, timing, t_us, bins=16, target_exposure_us=None, *, crop=None, sensor_size=None,
+                  backend="vulkan", context=None):
+    """The row-aware event tensors ev1, ev2, ev3 of one RS frame and target instant t*.
+
+    Each is a float32 array [2N, h, w] (N = ``bins``; channel 2k + 1 counts positive and 2k
+    negative signed events of bin k). For sensor row y: ev1 bins the events between t* and the
+    row's exposure start, ev2 between t* and its exposure end, ev3 between t* and
+    t* + ``target_exposure_us`` (default: the frame's exposure); an event's sign flips when it lies
+    before t* (SelfUnroll, section 4 of the network reference). Exact: times are rationals.
+
+    Parameters:
+      events: any event array with t, x, y, p (tonic, expelliarmus, Metavision, vkunroll).
+      timing: the frame's :class:`RowTiming` (its height is the sensor's).
+      t_us: the target t* in microseconds (exact: int, str "73000/259", Fraction; or float).
+      crop: (x0, y0, width, height) of the sensor; rows keep their full-sensor times.
+      sensor_size: (width, height); default width max(x) + 1 — pass it for a camera's full width.
+      backend: "vulkan" (the GPU builder, on ``context`` or the default one) or "cpu" (the exact
+        CPU reference). Both give the same counts.
+
+    Returns (ev1, ev2, ev3). Equal to ``vkunroll voxelize`` and tools/event_tensors_numpy.py.
+    """
+    ev1, ev2, ev3 = event_tensors_batch(events, timing, [t_us], bins, target_exposure_us, crop=crop,
+                                        sensor_size=sensor_size, backend=backend, context=context)
+    return ev1[0], ev2[0], ev3[0]
+
+
+def image_float(image, what="image"):
+    """An image as float32 in [0, 1]: uint8 / uint16 scaled by their full scale, floats as given."""
+    a = np.asarray(image)
+    if a.dtype == np.uint8:
+        return a.astype(np.float32) / 255.0
+    if a.dtype == np.uint16:
+        return a.astype(np.float32) / 65535.0
+    if a.dtype.kind not in "fiub":
+        raise ValueError(f"{what}: pixels of dtype {a.dtype}")
+    return a.astype(np.float32, copy=False)
+
+
+def physics_unroll(rs, events, timing, t_us, contrast=0.2, gamma=1.0, *, backend="vulkan", context=None):
+    """The weight-free physics unroller: the RS image at instant t* from the events (EDI).
+
+    Per pixel, I(t*) = I_rs * T / integral over the row's exposure [S_y, E_y] of
+    exp(c * E(t* -> s)) ds, E the pixel's signed event count from t* to s and c the contrast
+    threshold; evaluated in the log domain (no overflow with thousands of events; black pixels
+    stay 0). The image is decoded with x ** gamma before and encoded after.
+
+    ``rs``: H x W or H x W x C image (float in [0, 1], or uint8 / uint16). ``events``: any event
+    array; ``timing``: the frame's :class:`RowTiming`; ``t_us``: t* (exact). ``backend``
+    "vulkan" (GPU; a pixel with more events than the kernel's loop limit runs on the CPU
+    reference, logged) or "cpu". Returns float32 of ``rs``'s shape (not clipped to [0, 1]).
+    """
+    img = image_float(rs, "physics_unroll: rs")
+    if img.ndim not in (2, 3):
+        raise ValueError(f"physics_unroll: rs must be H x W or H x W x C, got shape {img.shape}")
+    planes = img[None] if img.ndim == 2 else np.moveaxis(img, 2, 0)
+    t, x, y, p = event_fields(events)
+    _sensor(x, y, timing, (planes.shape[2], planes.shape[1]))
+    out = _vk._physics_unroll(resolve_context(context, backend), np.ascontiguousarray(planes), t, x, y, p, timing,
+                              t_us, float(contrast), float(gamma))
+    return out[0] if img.ndim == 2 else np.ascontiguousarray(np.moveaxis(out, 0, 2))

@@ -1,0 +1,320 @@
+"""The unroll job: GS frames at chosen instants, frame by frame through one UnrollSession."""
+import logging
+import math
+import os
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from . import _vkunroll as _vk
+from ._events import event_fields
+from ._model import Model
+from ._sequence import Sequence
+from ._tensors import image_float
+
+__all__ = ["UnrollSession", "UnrollResult", "unroll"]
+
+_log = logging.getLogger("vkunroll")
+
+
+class UnrollSession:
+    """Everything an unroll job holds, built once: device, backend, model, event-tensor builder
+    and physics unroller (the library's UnrollSession). Reuse one across :func:`unroll` calls
+    (``session=``) to pay the model's set-up once, or call :meth:`unroll_frame` directly.
+
+    ``UnrollSession(model=None, backend="vulkan", device=None, precision="fp32", threads=0)``:
+    ``model`` a weights file or a :class:`Model` (its file is loaded again: the session owns its
+    device); None: physics only. ``backend`` "vulkan" or "cpu"; ``device`` an index or name
+    substring (None: VKUNROLL_DEVICE, then the best device); ``precision`` "fp32" or "fp16"
+    (vulkan only: the network's weights and buffers in float16); ``threads``: CPU backend threads.
+    """
+
+    def __init__(self, model=None, backend="vulkan", device=None, precision="fp32", threads=0):
+        if isinstance(model, Model):
+            model = model.path
+        self.model_path = "" if model is None else os.fspath(model)
+        self._s = _vk._Session(self.model_path, backend, "" if device is None else str(device), precision, int(threads))
+
+    has_model = property(lambda self: self._s.has_model, doc="True when a model was loaded.")
+    moa = property(lambda self: self._s.moa, doc="True when the model has MOA weights (SelfUnroll-M).")
+    backend = property(lambda self: self._s.backend, doc='"vulkan" or "cpu".')
+    device = property(lambda self: self._s.device, doc="The device's name ('cpu' on the CPU backend).")
+
+    def stats(self):
+        """What the session did so far: runs per method, tiles, ms per stage, device traffic."""
+        return dict(self._s.stats())
+
+    def unroll_frame(self, rs1, timing1, events, targets, rs2=None, timing2=None):
+        """GS images of one RS frame: a list of H x W x 3 float32 RGB images, one per target.
+
+        ``rs1``: the frame (H x W x 3 RGB or H x W, float in [0, 1] or uint8 / uint16);
+        ``timing1`` its :class:`RowTiming`; ``events``: every target's window (see
+        :func:`unroll`); ``targets``: (t_us, method) pairs, method "s", "m" or "physics";
+        ``rs2``, ``timing2``: the next frame (needed by "m" targets). Model targets see the frames as
+        v^e (e: the exponent into the model's gamma encoding that the last :func:`unroll` on this
+        session chose, 1 on a fresh session) and come back as v^(1/e). The GIL is released.
+        """
+        t, x, y, p = event_fields(events)
+        a = _rgb(rs1, "rs1")
+        b = None if rs2 is None else _rgb(rs2, "rs2")
+        return list(self._s.unroll_frame(a, timing1, b, timing2, t, x, y, p, [(ts, str(m)) for ts, m in targets]))
+
+
+class UnrollResult(NamedTuple):
+    """What :func:`unroll` returns; unpacks as ``frames, metrics, targets, stats``."""
+    frames: np.ndarray   #: [T, H, W, 3] float32 RGB in [0, 1], one per target
+    metrics: dict        #: PSNR/SSIM per target vs ground truth (NaN without), their means, the RS input's
+    targets: list        #: per target: frame, t_us (Fraction), tau, method ("s", "m", "physics"), gt index
+    stats: dict          #: mode, notes, ms per GS frame, the session's counters
+
+
+def _rgb(image, what):
+    a = image_float(image, what)
+    if a.ndim == 2:
+        a = np.repeat(a[:, :, None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ValueError(f"{what}: expected an H x W x 3 (RGB) or H x W image, got shape {a.shape}")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+class _SequenceSource:
+    def __init__(self, seq):
+        self.seq = seq
+        self.timings = seq.timings
+        self.gt_times = [t for t, _ in seq.ground_truth]
+
+    def image(self, k):
+        return self.seq.frame(k)
+
+    def gt_image(self, j):
+        return self.seq.ground_truth_image(j)
+
+    def events(self, lo, hi):
+        (t, x, y, p, _, _), _info = self.seq._seq.read_events(lo, hi)
+        return t, x, y, p
+
+    def gamma(self):
+        return self.seq.meta_gamma()
+
+    def estimate_contrast(self, frames, gamma):
+        return _vk._estimate_contrast_sequence(self.seq._seq, frames, gamma)
+
+
+class _ArraySource:
+    def __init__(self, frames, timing, events, ground_truth=None):
+        self.frames = [_rgb(f, f"frame {k}") for k, f in enumerate(frames)]
+        self.timings = [timing] if isinstance(timing, _vk.RowTiming) else list(timing)
+        if len(self.timings) != len(self.frames):
+            raise ValueError(f"unroll: {len(self.frames)} frames but {len(self.timings)} timings (one per frame)")
+        self.t, self.x, self.y, self.p = event_fields(events)
+        if self.t.size > 1 and (np.diff(self.t) < 0).any():
+            raise ValueError("unroll: events must be sorted by t (np.sort(events, order='t'))")
+        gt = list(ground_truth or [])
+        self.gt_times = [t for t, _ in gt]
+        self.gt_images = [_rgb(im, f"ground truth {j}") for j, (_, im) in enumerate(gt)]
+
+    def image(self, k):
+        return self.frames[k]
+
+    def gt_image(self, j):
+        return self.gt_images[j]
+
+    def events(self, lo, hi):
+        i0, i1 = np.searchsorted(self.t, lo, "left"), np.searchsorted(self.t, hi, "left")
+        return self.t[i0:i1], self.x[i0:i1], self.y[i0:i1], self.p[i0:i1]
+
+    def gamma(self):
+        return 1.0
+
+    def estimate_contrast(self, frames, gamma):
+        return _vk._estimate_contrast_arrays(self.timings, frames, gamma, self.frames, self.t, self.x, self.y, self.p)
+
+
+def _source(source):
+    if isinstance(source, Sequence):
+        return _SequenceSource(source)
+    if isinstance(source, (str, os.PathLike)):
+        return _SequenceSource(Sequence.open(source))
+    if isinstance(source, dict):
+        missing = [k for k in ("frames", "timing", "events") if k not in source]
+        if missing:
+            raise ValueError(f"unroll: the source dict lacks {', '.join(missing)} (expected frames, timing, events"
+                             "[, ground_truth])")
+        return _ArraySource(source["frames"], source["timing"], source["events"], source.get("ground_truth"))
+    if isinstance(source, (tuple, list)) and len(source) in (3, 4):
+        return _ArraySource(*source)
+    raise TypeError("unroll: source must be a Sequence, a sequence folder, a dict {frames, timing, events"
+                    f"[, ground_truth]}} or a tuple (frames, timing, events[, ground_truth]), got {type(source).__name__}")
+
+
+class _Progress:
+    """progress=None: nothing; True: tqdm when installed, else log lines; a callable:
+    progress(done, total, info) after every frame."""
+
+    def __init__(self, progress, total):
+        self.total, self.done, self.bar, self.callback = total, 0, None, None
+        self.logged = -1
+        if callable(progress):
+            self.callback = progress
+        elif progress:
+            try:
+                from tqdm import tqdm
+                self.bar = tqdm(total=total, desc="unroll", unit="GS frame")
+            except ImportError:
+                self.callback = self._log
+
+    def _log(self, done, total, info):
+        percent = 100 * done // max(total, 1)
+        if percent // 10 != self.logged:
+            self.logged = percent // 10
+            _log.info("unroll: %d/%d GS frames (frame %d)", done, total, info["frame"])
+
+    def update(self, n, info):
+        self.done += n
+        if self.bar is not None:
+            self.bar.update(n)
+        if self.callback is not None:
+            self.callback(self.done, self.total, info)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _times(times, times_us):
+    if times_us is not None:
+        values = list(times_us) if isinstance(times_us, (list, tuple, np.ndarray)) else [times_us]
+        return "us", values
+    if isinstance(times, str) and times == "gt":
+        return "gt", []
+    return "tau", list(times) if isinstance(times, (list, tuple, np.ndarray)) else [times]
+
+
+def _metric_means(psnr, ssim, rs_psnr, rs_ssim):
+    have = ~np.isnan(psnr)
+    if not have.any():
+        return {"count": 0}
+    capped = lambda a: np.where(np.isinf(a), 100.0, a)[have]  # noqa: E731  (as summary.json: inf -> 100)
+    return {"count": int(have.sum()), "mean_psnr": float(capped(psnr).mean()), "mean_ssim": float(ssim[have].mean()),
+            "rs_mean_psnr": float(capped(rs_psnr).mean()), "rs_mean_ssim": float(rs_ssim[have].mean())}
+
+
+def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=None, backend="vulkan", device=None,
+           precision="fp32", channel_order="model", contrast=None, gamma=None, tile=0, halo=-1, sparse="exact",
+           sparse_threshold=0.05, session=None, progress=None):
+    """Unroll RS frames into sharp global-shutter (GS) frames at chosen instants.
+
+    The same job as ``vkunroll unroll``, frame by frame through one :class:`UnrollSession`:
+    per frame one read of its image and of the events its targets need, event tensors and the
+    network on the device, the GS images back once.
+
+    Parameters:
+      source: a :class:`Sequence`, a sequence folder, or arrays: a dict ``{"frames": [...],
+        "timing": [RowTiming, ...], "events": array, "ground_truth": [(t_us, image), ...]}``
+        (ground truth optional) or the tuple (frames, timing, events[, ground_truth]). Frames are
+        H x W x 3 RGB (or gray H x W), float in [0, 1] or uint8 / uint16; events sorted by t.
+      times: normalized instants per frame (0 = the first row's exposure start, 1 = the last
+        row's exposure end; < 0 or > 1 lies between frames), a number or a list; or "gt": the
+        sequence's ground-truth instants (each goes to the frame whose span holds it).
+      times_us: absolute instants in microseconds instead (each goes to the frame whose span
+        holds it). Times are exact (ints, "73000/259", Fractions) or floats.
+      mode: "auto" (SelfUnroll-M where the next frame exists, else S; physics without a model),
+        "s", "m", "choose" (S inside the frame's exposure span, M between frames) or "physics"
+        (the weight-free event double integral).
+      model: a weights file or :class:`Model` (e.g. models/selfunroll_small.safetensors).
+      frames: frame indices to unroll (default all).
+      backend, device, precision: where the session runs ("vulkan" or "cpu"; precision "fp32" or
+        "fp16", vulkan only; see :class:`UnrollSession`).
+      channel_order: "model" (the weights' metadata), "rgb" or "bgr": the model's input order.
+      contrast, gamma: physics contrast threshold (default: estimated from consecutive frames'
+        agreement) and the frames' decode gamma (default: the sequence's meta.json, else 1).
+      tile, halo, sparse, sparse_threshold: tiled / event-driven sparse execution (docs/tiling.md):
+        sparse "exact" (default) skips 32-pixel tiles without events, "fast" also those below
+        sparse_threshold events per pixel, "off" runs whole frames (tile 0: untiled if it fits).
+      session: an :class:`UnrollSession` to reuse (then model, backend, device, precision are its own).
+      progress: None (silent), True (a tqdm bar when tqdm is installed, else log lines on the
+        ``vkunroll`` logger), or a callable progress(done, total, info) called after each frame
+        (info: {"frame": k}); an exception it raises stops the job.
+
+    Returns an :class:`UnrollResult` (``frames, metrics, targets, stats = unroll(...)``):
+    frames [T, H, W, 3] float32 RGB in [0, 1]; metrics: "psnr", "ssim" per target against the
+    ground truth at that instant (NaN where there is none), "rs_psnr", "rs_ssim" of the RS
+    input, and "count", "mean_psnr", "mean_ssim", "rs_mean_psnr", "rs_mean_ssim"; targets: per
+    target frame, t_us, tau, method, gt; stats: mode, notes, contrast / gamma / contrast_source (mode
+    physics, or the physics-informed variant's input), encoding (the frames' gamma and the exponent
+    into the model's encoding), ms per GS frame, and the session's counters.
+
+    Raises ValueError (bad option or input, named as the CLI names it), FileNotFoundError,
+    RuntimeError (device failures). The GIL is released while frames are unrolled.
+    """
+    start = time.perf_counter()
+    src = _source(source)
+    sess = session if session is not None else UnrollSession(model, backend, device, precision)
+    kind, values = _times(times, times_us)
+    plan, mode_used, notes = _vk._plan(src.timings, src.gt_times, list(frames or []), kind, values, mode,
+                                       sess.has_model, sess.moa, int(tile), int(halo), sparse, float(sparse_threshold),
+                                       contrast, gamma)
+    if channel_order not in ("model", "rgb", "bgr"):
+        raise ValueError(f"channel_order {channel_order!r}: expected model, rgb or bgr")
+    if channel_order != "model":
+        sess._s.model_rgb = channel_order == "rgb"
+    stats = {"mode": mode_used, "notes": list(notes)}
+    seq_gamma = float(gamma) if gamma is not None else src.gamma()
+    chosen = list(frames) if frames else list(range(len(src.timings)))
+    # As `vkunroll unroll`: the physics parameters (of mode physics or of the physics-informed
+    # variant's input) and the exponent into the model's gamma encoding (plan_physics in C++).
+    phys = sess._s.plan_physics(mode_used, seq_gamma, None if contrast is None else float(contrast),
+                                lambda g: src.estimate_contrast(chosen, g))
+    stats["encoding"] = {"sequence_gamma": seq_gamma, "to_model": phys["to_model"]}
+    if phys["uses_physics"]:
+        stats.update(contrast=phys["contrast"], contrast_source=phys["contrast_source"], gamma=phys["gamma"])
+        _log.info("unroll: %s, contrast c = %g (%s), gamma %g",
+                  "physics input of the model" if phys["variant"] else "physics unroller", phys["contrast"],
+                  phys["contrast_source"], phys["gamma"])
+    sess._s.set_tiling(int(tile), int(halo), sparse, float(sparse_threshold))
+    images, targets, metrics = _run_frames(sess, src, plan, progress)
+    total = max(len(images), 1)
+    stats["ms_per_gs_frame_total"] = (time.perf_counter() - start) * 1e3 / total
+    stats["session"] = sess.stats()
+    for n in stats["notes"]:
+        _log.info("unroll: %s", n)
+    h, w = (images[0].shape[:2]) if images else (0, 0)
+    frames_out = np.stack(images) if images else np.zeros((0, h, w, 3), np.float32)
+    return UnrollResult(frames_out, metrics, targets, stats)
+
+
+def _run_frames(sess, src, plan, progress):
+    total = sum(len(f["targets"]) for f in plan)
+    bar = _Progress(progress, total)
+    images, targets = [], []
+    psnr, ssim, rs_psnr, rs_ssim = ([] for _ in range(4))
+    try:
+        for fp in plan:
+            k, nxt = fp["frame"], fp["next"]
+            rs1 = src.image(k)
+            rs2 = src.image(nxt) if nxt >= 0 else None
+            lo, hi = fp["window_us"]
+            t, x, y, p = src.events(int(math.floor(lo)), int(math.ceil(hi)) + 1)
+            pairs = [(tg["t_us"], tg["method"]) for tg in fp["targets"]]
+            out = sess._s.unroll_frame(rs1, src.timings[k], rs2, src.timings[nxt] if nxt >= 0 else None,
+                                       t, x, y, p, pairs)
+            for tg, img in zip(fp["targets"], out):
+                img = np.clip(img, 0.0, 1.0)
+                images.append(img)
+                targets.append({"frame": k, "t_us": tg["t_us"], "tau": tg["tau"], "method": tg["method"], "gt": tg["gt"]})
+                if tg["gt"] >= 0:
+                    gt = src.gt_image(tg["gt"])
+                    psnr.append(_vk.psnr(img, gt))
+                    ssim.append(_vk.ssim(img, gt))
+                    rs_psnr.append(_vk.psnr(rs1, gt))
+                    rs_ssim.append(_vk.ssim(rs1, gt))
+                else:
+                    for m in (psnr, ssim, rs_psnr, rs_ssim):
+                        m.append(math.nan)
+            bar.update(len(pairs), {"frame": k})
+    finally:
+        bar.close()
+    metrics = {"psnr": np.array(psnr), "ssim": np.array(ssim), "rs_psnr": np.array(rs_psnr), "rs_ssim": np.array(rs_ssim)}
+    metrics.update(_metric_means(*(metrics[k] for k in ("psnr", "ssim", "rs_psnr", "rs_ssim"))))
+    return images, targets, metrics

@@ -1,0 +1,133 @@
+"""vkunroll.unroll (Python, through UnrollSession frame by frame) equals `vkunroll unroll` on the
+same sequence: the GS frames (to the CLI's 8-bit PNG rounding), PSNR/SSIM and the estimated
+physics contrast; arrays in give what the sequence folder gives; targets, sessions and progress."""
+import csv
+import json
+import os
+import subprocess
+
+import numpy as np
+import pytest
+
+import vkunroll
+from vkunroll import _vkunroll
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+TINY = os.path.join(ROOT, "tests", "data", "selfunroll_tiny.safetensors")
+TINY_PHYSICS = os.path.join(ROOT, "tests", "data", "selfunroll_tiny_physics.safetensors")
+CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory):
+    return vkunroll.simulate(tmp_path_factory.mktemp("sim") / "seq", width=96, height=64, frames=3, gt_per_frame=2,
+                             seed=3, motion="pan")
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    """One session with the tiny model for the module's tests (its set-up paid once)."""
+    return vkunroll.UnrollSession(model=TINY)
+
+
+def cli_unroll(seq, out, *args):
+    """The CLI's GS frames (summary.json's gs_frames, read back from its PNGs), metrics.csv, summary."""
+    subprocess.run([CLI, "unroll", seq.root, "--out", str(out), "--quiet", *args], check=True, capture_output=True)
+    summary = json.load(open(out / "summary.json"))
+    gs = summary["gs_frames"]
+    frames = [_vkunroll._read_image(str(out / g["file"]), seq.width, seq.height) for g in gs]
+    return gs, frames, list(csv.DictReader(open(out / "metrics.csv"))), summary
+
+
+def assert_same_as_cli(result, cli):
+    gs, frames, rows, summary = cli
+    rows = [r for r in rows if r["psnr"] != ""]  # metrics.csv has a row per GS frame, ground truth or not
+    assert [(t["frame"], float(t["t_us"])) for t in result.targets] == [(g["frame"], g["t_us"]) for g in gs]
+    # The CLI's PNGs are the same images rounded to 8 bits.
+    assert np.abs(result.frames - np.stack(frames)).max() <= 0.5 / 255 + 1e-6
+    with_gt = ~np.isnan(result.metrics["psnr"])
+    assert with_gt.sum() == len(rows)
+    np.testing.assert_allclose(result.metrics["psnr"][with_gt], [float(r["psnr"]) for r in rows], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(result.metrics["ssim"][with_gt], [float(r["ssim"]) for r in rows], rtol=0, atol=1e-6)
+    if rows:
+        assert result.metrics["mean_psnr"] == pytest.approx(summary["metrics"]["mean_psnr"], abs=1e-9)
+        assert result.metrics["rs_mean_psnr"] == pytest.approx(summary["metrics"]["rs_mean_psnr"], abs=1e-9)
+
+
+def test_physics_equals_cli(seq, tmp_path):
+    cli = cli_unroll(seq, tmp_path / "cli", "--times", "gt")
+    summary = cli[3]
+    result = vkunroll.unroll(seq, times="gt")  # no model: auto is physics, contrast estimated
+    assert result.stats["mode"] == summary["mode"] == "physics"
+    assert result.stats["contrast"] == pytest.approx(summary["physics"]["contrast"], abs=1e-6)
+    assert result.stats["gamma"] == pytest.approx(2.2)
+    assert_same_as_cli(result, cli)
+    assert len(cli[2]) == 6 and result.metrics["mean_psnr"] > result.metrics["rs_mean_psnr"]
+
+
+def test_model_equals_cli(seq, tiny, tmp_path):
+    cli = cli_unroll(seq, tmp_path / "cli", "--model", TINY, "--times", "0.25,1.5")
+    summary = cli[3]
+    calls = []
+    runs_m = tiny.stats()["runs_m"]
+    result = vkunroll.unroll(seq, times=[0.25, 1.5], session=tiny, progress=lambda d, t, i: calls.append((d, t, i["frame"])))
+    assert [t["method"] for t in result.targets] == ["m", "m", "m", "m", "s", "s"]  # auto: M where a next frame exists
+    assert summary["runs"]["m"] == result.stats["session"]["runs_m"] - runs_m == 4
+    assert_same_as_cli(result, cli)
+    assert calls == [(2, 6, 0), (4, 6, 1), (6, 6, 2)]
+
+
+def test_physics_variant_equals_cli(seq, tmp_path):
+    """The physics-informed variant (gamma 2.2 in its metadata; the frames said to be linear,
+    gamma 1): the frames go in as v^(1/2.2) and come back, the physics input's contrast is
+    estimated as the CLI does."""
+    cli = cli_unroll(seq, tmp_path / "cli", "--model", TINY_PHYSICS, "--mode", "s", "--times", "gt", "--frames", "0:1",
+                     "--gamma", "1")
+    summary = cli[3]
+    result = vkunroll.unroll(seq, times="gt", mode="s", model=TINY_PHYSICS, frames=[0, 1], gamma=1.0)
+    assert summary["physics"]["role"] == "the model's physics input"
+    assert result.stats["contrast"] == pytest.approx(summary["physics"]["contrast"], abs=1e-6)
+    assert result.stats["gamma"] == pytest.approx(summary["physics"]["gamma"])
+    assert summary["encoding"]["sequence_gamma"] == 1 and summary["encoding"]["model_gamma"] == 2.2
+    assert result.stats["encoding"]["to_model"] == pytest.approx(1 / 2.2)
+    assert_same_as_cli(result, cli)
+
+
+def test_arrays_equal_the_sequence(seq):
+    arrays = {"frames": [seq.frame(k) for k in range(len(seq))], "timing": seq.timings, "events": seq.events(),
+              "ground_truth": [(t, seq.ground_truth_image(j)) for j, (t, _) in enumerate(seq.ground_truth)]}
+    from_folder = vkunroll.unroll(seq, times="gt", mode="physics", gamma=2.2)
+    from_arrays = vkunroll.unroll(arrays, times="gt", mode="physics", gamma=2.2)
+    assert from_arrays.stats["contrast"] == from_folder.stats["contrast"]
+    np.testing.assert_array_equal(from_arrays.frames, from_folder.frames)
+    np.testing.assert_array_equal(from_arrays.metrics["psnr"], from_folder.metrics["psnr"])
+
+
+def test_targets_sessions_and_errors(seq, tiny):
+    session = tiny
+    runs_s = session.stats()["runs_s"]
+    a = vkunroll.unroll(seq, times=[0, 0.5, 1], mode="s", session=session, frames=[1])
+    assert [t["tau"] for t in a.targets] == [0, 0.5, 1]
+    assert a.frames.shape == (3, seq.height, seq.width, 3) and a.frames.dtype == np.float32
+    assert np.isnan(a.metrics["psnr"]).all() and a.metrics["count"] == 0  # no ground truth at these instants
+    t_us = seq.timing(1).target_time(0.5)
+    b = vkunroll.unroll(seq, times_us=[t_us], mode="s", session=session)
+    assert b.targets[0]["frame"] == 1
+    np.testing.assert_array_equal(b.frames[0], a.frames[1])
+    assert session.stats()["runs_s"] - runs_s == 4
+    one = session.unroll_frame(seq.frame(1), seq.timing(1), seq.frame_events(1), [(t_us, "s")])
+    np.testing.assert_array_equal(np.clip(one[0], 0, 1), a.frames[1])  # the frame's span holds the target's events
+    with pytest.raises(ValueError, match="outside the recording"):
+        vkunroll.unroll(seq, times_us=[1e9], session=session, mode="s")
+    with pytest.raises(ValueError, match="frame 7 does not exist"):
+        vkunroll.unroll(seq, frames=[7], session=session, mode="s")
+    with pytest.raises(ValueError, match="fp16 needs --backend vulkan"):
+        vkunroll.UnrollSession(model=TINY, backend="cpu", precision="fp16")
+    with pytest.raises(ValueError, match="--tile 5"):
+        vkunroll.unroll(seq, tile=5, session=session, mode="s")
+
+    def stop(done, total, info):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        vkunroll.unroll(seq, times=[0.5], mode="physics", contrast=0.2, progress=stop)
