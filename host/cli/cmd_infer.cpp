@@ -48,9 +48,9 @@ struct InferArgs {
 };
 
 int run_infer(const InferArgs& a) {
-  if (a.precision != "fp32")
-    throw UsageError("--precision '" + a.precision + "': fp32 is the only precision (there are no fp16 kernels; the " +
-                     "kernels compute in fp32)");
+  const Precision precision = parse_precision(a.precision, "--precision");
+  if (precision == Precision::fp16 && a.backend != "vulkan")
+    throw UsageError("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
   check_output_file(a.out, "--out");
   std::error_code ec;
   for (const auto& [opt, path] : {std::pair<const char*, std::string>{"--model", a.model}, {"--inputs", a.inputs}})
@@ -91,7 +91,7 @@ int run_infer(const InferArgs& a) {
     ContextOptions co;
     co.device = a.device.device;
     ctx = std::make_unique<Context>(co);
-    backend = std::make_unique<VulkanBackend>(*ctx);
+    backend = std::make_unique<VulkanBackend>(*ctx, nullptr, kPoolFlushBytes, precision);
   } else {
     backend = std::make_unique<CpuBackend>(a.device.threads);
   }
@@ -106,6 +106,7 @@ int run_infer(const InferArgs& a) {
     views.push_back({name, StDType::F32, {arr.shape.n, arr.shape.c, arr.shape.h, arr.shape.w}, arr.data.data(),
                      arr.data.size() * sizeof(float)});
   const std::map<std::string, std::string> md{{"mode", mode},
+                                              {"precision", precision_name(precision)},
                                               {"backend", backend->name()},
                                               {"device", ctx ? ctx->info().name : "cpu"},
                                               {"model", a.model},
@@ -141,7 +142,7 @@ Command add_infer(CLI::App& parent) {
       ->check(CLI::IsMember({"s", "m"}))->type_name("M");
   c->add_option("--backend", a->backend, "vulkan | cpu (the CPU reference, slow)")
       ->check(CLI::IsMember({"vulkan", "cpu"}))->capture_default_str()->type_name("B");
-  c->add_option("--precision", a->precision, "fp32 (fp16 is refused: the kernels compute in fp32)")
+  c->add_option("--precision", a->precision, "fp32 | fp16 (fp16: weights and activations stored in fp16 on the Vulkan backend; outputs are F32)")
       ->check(CLI::IsMember({"fp32", "fp16"}))->capture_default_str()->type_name("P");
   c->add_option("--outputs", a->outputs, "the tensors to write, e.g. sys,E,flow,warped,fused,m,out (default: all)")->type_name("LIST");
   c->add_option("--max-items", a->max_items, "batch items run together (0: all)")->check(int_range(0, 1 << 20))->type_name("K");

@@ -131,6 +131,27 @@ def test_vkunroll_infer_reproduces_the_mirror(tmp_path, net, mode, size, backend
 
 
 @pytest.mark.skipif(not CLI or not os.path.exists(CLI or ""), reason="VKUNROLL_CLI not set (run through ctest)")
+def test_vkunroll_infer_fp16_is_within_the_fp16_bound(tmp_path, net):
+    """--precision fp16 on the Vulkan backend: within tests/test_model_fp16.cpp's bound (1% of
+    max(1, |value|)) of the fp32 mirror, and not bit-equal to it (fp16 really ran)."""
+    ck = tmp_path / "tiny.pth"
+    torch.save({"state_dict": net.state_dict()}, ck)
+    assert run_converter(ck, tmp_path / "tiny.safetensors").returncode == 0
+    inputs = make_inputs(2, 40, 48, net.cfg.N, seed=7)
+    safetensors_io.save(str(tmp_path / "in.safetensors"), inputs)
+    r = subprocess.run([CLI, "infer", "--model", tmp_path / "tiny.safetensors", "--inputs", tmp_path / "in.safetensors",
+                        "--out", tmp_path / "out.safetensors", "--mode", "m", "--precision", "fp16"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    got, meta = safetensors_io.load(str(tmp_path / "out.safetensors"))
+    assert meta["precision"] == "fp16"
+    want = run_named(net, inputs, "m")
+    for k, v in want.items():
+        err = (got[k].float() - v).abs().max().item()
+        assert 0 < err <= 0.01 * max(1.0, v.abs().max().item()), f"{k}: max abs error {err}"
+
+
+@pytest.mark.skipif(not CLI or not os.path.exists(CLI or ""), reason="VKUNROLL_CLI not set (run through ctest)")
 def test_vkunroll_infer_bad_inputs_fail_clearly(tmp_path):
     model = os.path.join(ROOT, "tests", "data", "selfunroll_tiny.safetensors")
     inputs = make_inputs(1, 32, 32, 4, seed=5)
