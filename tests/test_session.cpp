@@ -172,6 +172,13 @@ TEST(Session, ShippedModelTrafficPerGsFrameAt346x260) {
     EXPECT_LT(t.at("upload_bytes").get<double>(), tensors) << t.dump();
     EXPECT_LE(t.at("submits").get<double>(), 1.0) << t.dump();  // both targets in one submission
     EXPECT_EQ(s.at("memory_forced_submits").get<int>(), 0) << t.dump();
+    // Host time against device time per GS frame: they add up to the frame time.
+    const double gpu = s.at("gpu_ms_per_gs_frame").get<double>(), host = s.at("host_ms_per_gs_frame").get<double>();
+    EXPECT_GT(gpu, 0.0);
+    EXPECT_NEAR(gpu + host, s.at("ms_per_gs_frame_total").get<double>(), 1e-6 * (gpu + host) + 1e-9);
+    const double share = s.at("gpu_share_of_frame_time").get<double>();
+    EXPECT_GT(share, 0.0);
+    EXPECT_LE(share, 1.0);
   }
   fs::remove_all(dir);
 }
