@@ -14,6 +14,14 @@ namespace vkunroll {
 
 namespace {
 
+// One group's network run: M ends in "out", S in "fused" (the only output the session reads).
+RunOptions group_run_options(bool m) {
+  RunOptions ro;
+  ro.mode = m ? Mode::m : Mode::s;
+  ro.outputs = {m ? "out" : "fused"};
+  return ro;
+}
+
 BufferSlice whole(Backend& b, int buf) {
   const Shape s = b.shape(buf);
   return {buf, 0, s.n, 0, s.c};
@@ -197,10 +205,8 @@ void UnrollSession::run_model(const FrameInput& in, const std::vector<FrameTarge
   if (tiling_.sparse != SparsePolicy::off) activity = activity_tables(selected_event_counts(*in.events, pairs, spec), H, W);
   stats_.ms["event_tensors"] += ms_since(t0);
   t0 = Clock::now();
-  RunOptions ro;
-  ro.mode = m ? Mode::m : Mode::s;
-  const std::string name = m ? "out" : "fused";
-  ro.outputs = {name};
+  const RunOptions ro = group_run_options(m);
+  const std::string& name = ro.outputs[0];
   const TiledBuffers run = run_tiled_on_backend(*model_, inputs, ro, tiling_, &activity);
   stats_.ms["model"] += ms_since(t0);
   t0 = Clock::now();
@@ -254,10 +260,8 @@ void UnrollSession::run_model_on_host(const FrameInput& in, const std::vector<Fr
     }
     stats_.ms["event_tensors"] += ms_since(t0);
     t0 = Clock::now();
-    RunOptions ro;
-    ro.mode = m ? Mode::m : Mode::s;
-    const std::string name = m ? "out" : "fused";
-    ro.outputs = {name};
+    const RunOptions ro = group_run_options(m);
+    const std::string& name = ro.outputs[0];
     const TiledResult run = run_tiled(*model_, mi, ro, tiling_);
     stats_.ms["model"] += ms_since(t0);
     results[j] = planes_image(run.outputs.at(name).data.data(), H, W, rgb_);
