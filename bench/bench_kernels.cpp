@@ -112,27 +112,11 @@ struct Timing {
   int reps = 0;
 };
 
-// GPU time of `record` as the profiler reports it: the best of `reps` submits after one warm-up
-// (the machine is shared; the minimum is the least disturbed run). `total` (for --profile) gets
-// every timed dispatch.
+// GPU time of `record` (runtime's best_gpu_ms: the best of `reps` submits after one warm-up). `total`
+// (for --profile) gets every timed dispatch.
 template <class F>
 Timing time_gpu(Context& ctx, int reps, Profiler* total, F record) {
-  {
-    CommandStream warm(ctx);
-    record(warm);
-    warm.submit_and_wait();
-  }
-  double best = 1e300;
-  for (int r = 0; r < reps; ++r) {
-    Profiler prof;
-    CommandStream cs(ctx, &prof);
-    record(cs);
-    cs.submit_and_wait();
-    best = std::min(best, prof.total_ms());
-    if (total)
-      for (const auto& [op, st] : prof.ops()) total->record(op, st.total_ms, st.flop, st.bytes);
-  }
-  return {best, reps};
+  return {best_gpu_ms(ctx, reps, record, total), reps};
 }
 
 // The FMA ceiling: fma_ceiling.comp (fp32 vec4 chains) or, with `half`, fma_ceiling_half.comp

@@ -230,6 +230,18 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   return ConvAlgo::blocked;
 }
 
+std::vector<ConvAlgo> Conv2d::candidates(const Shape& in, bool residual_in_output) const {
+  std::vector<ConvAlgo> out;
+  // Every named algorithm after naive, so that one added to the enum is timed where supports() allows it.
+  for (uint32_t v = static_cast<uint32_t>(ConvAlgo::naive) + 1; v < 32; ++v) {
+    const ConvAlgo a = static_cast<ConvAlgo>(v);
+    if (std::string(conv_algo_name(a)) == "unknown" || !supports(a) || !supports(a, in)) continue;
+    if (a == ConvAlgo::direct && residual_in_output && direct_chunks().chunk < cin_) continue;
+    out.push_back(a);
+  }
+  return out;
+}
+
 Shape Conv2d::output_shape(const Shape& in) const {
   return {in.n, cout_, conv_output_size(in.h, params_.kernel, params_.stride, params_.pad),
           conv_output_size(in.w, params_.kernel, params_.stride, params_.pad)};

@@ -72,6 +72,11 @@ class Conv2d {
 
   // The algorithm `automatic` picks for an input of this height and width.
   ConvAlgo choose_algorithm(int64_t h, int64_t w) const;
+  // Every algorithm record() accepts for this input, naive left out (the baseline, 10-50x slower):
+  // the candidates a measured choice times. `residual_in_output`: the residual overlaps the output
+  // (see residual_overlaps_output), which the chunked direct path cannot add.
+  std::vector<ConvAlgo> candidates(const Shape& in, bool residual_in_output = false) const;
+  bool residual_overlaps_output(const Slice& out, const std::optional<Slice>& residual) const;
   bool supports(ConvAlgo algo) const;
   // Whether `algo` can run an input of this shape (Winograd's scratch must fit one binding).
   bool supports(ConvAlgo algo, const Shape& in) const;
@@ -113,7 +118,6 @@ class Conv2d {
   void record_direct(CommandStream& cs, const Recording& r) const;    // conv2d_direct.cpp
   void record_winograd(CommandStream& cs, const Recording& r) const;  // conv2d_winograd.cpp
   void record_gemm(CommandStream& cs, const Recording& r) const;      // conv2d_winograd.cpp
-  bool residual_overlaps_output(const Slice& out, const std::optional<Slice>& residual) const;
   void choose_blocking(const ConvOptions& options);
   // Packings other than the automatic path's are uploaded on first use (record is const).
   void pack_naive() const;

@@ -138,6 +138,15 @@ bool ConvTranspose2d::supports(ConvTransposeAlgo algo) const {
   return algo == ConvTransposeAlgo::automatic || algo == ConvTransposeAlgo::naive;
 }
 
+std::vector<ConvTransposeAlgo> ConvTranspose2d::candidates() const {
+  std::vector<ConvTransposeAlgo> out;
+  for (uint32_t v = static_cast<uint32_t>(ConvTransposeAlgo::naive) + 1; v < 32; ++v) {
+    const auto a = static_cast<ConvTransposeAlgo>(v);
+    if (std::string(conv_transpose_algo_name(a)) != "unknown" && supports(a)) out.push_back(a);
+  }
+  return out;
+}
+
 ConvTransposeAlgo ConvTranspose2d::choose_algorithm(int64_t, int64_t) const {
   // direct (weights from a uniform buffer, 16 or 32 channels per invocation) measured 5-10% faster than
   // blocked on every transposed conv of the model on lavapipe.

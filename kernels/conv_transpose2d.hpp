@@ -2,6 +2,7 @@
 // activation; the UNets use kernel 4, stride 2, padding 1 (output exactly 2H x 2W).
 #pragma once
 #include <string>
+#include <vector>
 
 #include "vkunroll/kernels/common.hpp"
 #include "vkunroll/kernels/conv_options.hpp"
@@ -41,6 +42,8 @@ class ConvTranspose2d {
   void record(CommandStream& cs, Slice in, Slice out, ConvTransposeAlgo algo = ConvTransposeAlgo::automatic) const;
 
   bool supports(ConvTransposeAlgo algo) const;
+  // Every algorithm record() accepts, naive left out: the candidates a measured choice times.
+  std::vector<ConvTransposeAlgo> candidates() const;
   ConvTransposeAlgo choose_algorithm(int64_t h, int64_t w) const;
   Shape output_shape(const Shape& in) const;
   double flop(const Shape& in) const;  // 2 x multiply-adds: in.count/cin x cin x cout x k x k

@@ -234,6 +234,8 @@ std::filesystem::path cache_dir() {
 
 }  // namespace
 
+std::string Context::cache_directory() { return cache_dir().string(); }
+
 std::string DeviceInfo::type_name() const {
   switch (type) {
     case VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU: return "discrete";

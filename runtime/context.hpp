@@ -130,6 +130,9 @@ class Context {
   // Where the pipeline cache is persisted (empty: not persisted). Saved through a temporary file
   // unique to this process, then renamed: concurrent runs never write one file.
   const std::string& pipeline_cache_path() const { return pipeline_cache_path_; }
+  // The user's cache directory for vkunroll (VKUNROLL_CACHE_DIR, else $XDG_CACHE_HOME/vkunroll, else
+  // ~/.cache/vkunroll; empty without any): the pipeline cache and the measured conv algorithm choices.
+  static std::string cache_directory();
   Allocator& allocator() { return *allocator_; }
   bool validation_enabled() const { return validation_; }
   DeviceTraffic& traffic() { return traffic_; }

@@ -1,6 +1,10 @@
 #include "vkunroll/runtime/profiler.hpp"
 
+#include "vkunroll/runtime/command_stream.hpp"
+#include "vkunroll/runtime/context.hpp"
+
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <vector>
 
@@ -39,6 +43,28 @@ void Profiler::print(std::ostream& os) const {
   }
   std::snprintf(line, sizeof line, "%-28s %7s %11.3f\n", "total", "", total);
   os << line;
+}
+
+double best_gpu_ms(Context& ctx, int reps, const std::function<void(CommandStream&)>& record, Profiler* total) {
+  {
+    CommandStream warm(ctx);
+    record(warm);
+    warm.submit_and_wait();
+  }
+  const bool stamps = ctx.info().timestamps;
+  double best = 1e300;
+  for (int r = 0; r < std::max(1, reps); ++r) {
+    Profiler prof;
+    CommandStream cs(ctx, stamps ? &prof : nullptr);
+    record(cs);
+    const auto t0 = std::chrono::steady_clock::now();
+    cs.submit_and_wait();
+    const double wall = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    best = std::min(best, stamps ? prof.total_ms() : wall);
+    if (total)
+      for (const auto& [op, st] : prof.ops()) total->record(op, st.total_ms, st.flop, st.bytes);
+  }
+  return best;
 }
 
 }  // namespace vkunroll

@@ -1,11 +1,15 @@
 // Profiler: GPU time of every dispatch (timestamp queries), aggregated per op name.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <ostream>
 #include <string>
 
 namespace vkunroll {
+
+class CommandStream;
+class Context;
 
 struct OpStats {
   uint64_t calls = 0;
@@ -29,5 +33,11 @@ class Profiler {
  private:
   std::map<std::string, OpStats> ops_;
 };
+
+// GPU time of what `record` records: the least of `reps` timed submits after one untimed warm-up
+// (the first run compiles pipelines; on a shared machine the least is the least disturbed run). Where
+// the queue writes no timestamps, the wall time of each submit. `total` (optional) gets every timed
+// dispatch. The benches and the conv algorithm tuner share it.
+double best_gpu_ms(Context& ctx, int reps, const std::function<void(CommandStream&)>& record, Profiler* total = nullptr);
 
 }  // namespace vkunroll

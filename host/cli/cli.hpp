@@ -27,6 +27,7 @@ Command add_voxelize(CLI::App& parent);
 Command add_demo(CLI::App& parent);
 Command add_unroll(CLI::App& parent);
 Command add_infer(CLI::App& parent);
+Command add_tune(CLI::App& parent);
 
 // The help layout: "usage: vkunroll unroll SEQUENCE --out DIR [options]" (required options named).
 class Formatter : public CLI::Formatter {
@@ -54,6 +55,9 @@ void add_device_options(CLI::App* app, DeviceArgs& a);
 // Bounds the process's threads before any Vulkan instance exists: LP_NUM_THREADS (lavapipe's
 // rasterizer workers) and OpenCV's pool (the CPU backend's convolutions, image encoding).
 void apply_threads(unsigned threads);
+
+// "WIDTHxHEIGHT", each 2 to 32767; UsageError naming `what` (the option) otherwise.
+void parse_size(const std::string& s, const std::string& what, int& w, int& h);
 
 // Validators with messages that name the range.
 CLI::Validator finite_at_least(double lo, bool open = false);  // x >= lo (x > lo when open), finite

@@ -21,16 +21,6 @@ struct SimulateArgs {
       c_on, c_off, sigma, refractory_us, leak_hz, shot_hz, cutoff_hz, eps, full_well, read_noise;
 };
 
-void parse_size(const std::string& s, int& w, int& h) {
-  int a = 0, b = 0;
-  char x = 0, extra = 0;
-  if (std::sscanf(s.c_str(), "%d%c%d%c", &a, &x, &b, &extra) != 3 || (x != 'x' && x != 'X') || a < 2 || b < 2 ||
-      a > 32767 || b > 32767)
-    throw UsageError("--size '" + s + "': expected WIDTHxHEIGHT, each 2 to 32767, e.g. 346x260");
-  w = a;
-  h = b;
-}
-
 template <class T>
 void set(T& field, const std::optional<T>& v) {
   if (v) field = *v;
@@ -46,7 +36,7 @@ sim::SimulationConfig to_config(const SimulateArgs& a) {
   }
   c.seed = static_cast<uint64_t>(a.seed);
   c.events.seed = c.seed;
-  if (!a.size.empty()) parse_size(a.size, c.width, c.height);
+  if (!a.size.empty()) parse_size(a.size, "--size", c.width, c.height);
   set(c.frames, a.frames);
   set(c.gt_per_frame, a.gt_per_frame);
   set(c.fps, a.fps);

@@ -12,7 +12,7 @@ namespace {
 
 struct UnrollArgs {
   std::string sequence, out, model, mode = "auto", times = "0.5", times_us, frames, channel_order, backend = "vulkan",
-                           precision = "fp32", sparse = "exact", frame_format, bit_depth;
+                           precision = "fp32", sparse = "exact", frame_format, bit_depth, conv_choice = "auto";
   std::optional<double> contrast, gamma, fps;
   double sparse_threshold = 0.05;
   int64_t tile = 0, halo = -1;
@@ -38,6 +38,7 @@ UnrollOptions to_options(const UnrollArgs& a) {
   o.session.cpu_threads = a.device.threads;
   o.session.backend = parse_backend_kind(a.backend, "--backend");
   o.session.precision = parse_precision(a.precision, "--precision");
+  o.session.conv_choice = parse_conv_choice(a.conv_choice, "--conv-choice");
   o.contrast = a.contrast;
   o.gamma = a.gamma;
   o.tile = a.tile;
@@ -85,6 +86,10 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
       ->check(CLI::IsMember({"vulkan", "cpu"}))->capture_default_str()->group(g)->type_name("B");
   c->add_option("--precision", a.precision, "fp32 | fp16 (Vulkan backend: weights and buffers in f16, event tensors and physics in f32; docs/model.md)")
       ->check(CLI::IsMember({"fp32", "fp16"}))->capture_default_str()->group(g)->type_name("P");
+  c->add_option("--conv-choice", a.conv_choice,
+                "conv algorithm per shape: auto (the device's measured table from `vkunroll tune`; a missing shape is "
+                "timed on first use on a GPU) | heuristic | cached | measured (time missing shapes on any device) | retune")
+      ->check(CLI::IsMember({"auto", "heuristic", "cached", "measured", "retune"}))->capture_default_str()->group(g)->type_name("C");
 }
 
 void add_output_options(CLI::App* c, UnrollArgs& a) {

@@ -151,6 +151,16 @@ CLI::Validator int_range(long long lo, long long hi) {
       "[" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
 }
 
+void parse_size(const std::string& s, const std::string& what, int& w, int& h) {
+  int a = 0, b = 0;
+  char x = 0, extra = 0;
+  if (std::sscanf(s.c_str(), "%d%c%d%c", &a, &x, &b, &extra) != 3 || (x != 'x' && x != 'X') || a < 2 || b < 2 ||
+      a > 32767 || b > 32767)
+    throw UsageError(what + " '" + s + "': expected WIDTHxHEIGHT, each 2 to 32767, e.g. 346x260");
+  w = a;
+  h = b;
+}
+
 void check_output_file(const std::string& path, const std::string& option) {
   std::error_code ec;
   const auto st = std::filesystem::status(path, ec);

@@ -173,16 +173,57 @@ int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const 
   return static_cast<int>(conv_index_.size() - 1);
 }
 
+void VulkanBackend::set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, int reps) {
+  if (choice == ConvChoice::automatic)
+    choice = ctx_.info().type == VK_PHYSICAL_DEVICE_TYPE_CPU ? ConvChoice::cached : ConvChoice::measured;
+  if (choice != ConvChoice::heuristic && !table) table = std::make_shared<ConvChoiceTable>();
+  choice_table_ = std::move(table);
+  choice_ = choice;
+  choice_reps_ = std::max(1, reps);
+}
+
+std::optional<std::string> VulkanBackend::table_algorithm(const std::string& key,
+                                                          const std::function<ConvChoiceEntry()>& time) {
+  if (choice_ == ConvChoice::heuristic || !choice_table_) return std::nullopt;
+  const ConvChoiceEntry* e = choice_table_->find(key);
+  const bool again = choice_ == ConvChoice::retune && !retuned_.count(key);
+  if (again || (!e && choice_ == ConvChoice::measured)) {
+    // Timed on separate streams: this backend's recording is not submitted yet, so nothing waits on it.
+    choice_table_->set(key, time());
+    retuned_.insert(key);
+    ++convs_timed_;
+    e = choice_table_->find(key);
+  }
+  if (!e) return std::nullopt;
+  return e->algo;
+}
+
 void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) {
   const int idx = conv_index_.at(static_cast<size_t>(id));
   const Slice si = slice(tensor(in.buf), in), so = slice(tensor(out.buf), out);
+  const Shape is = si.shape();
   if (idx < 0) {
     if (residual) throw Error("vulkan backend: " + descs_[id].name + ": a transposed conv takes no residual");
-    deconvs_[static_cast<size_t>(~idx)]->record(*cs_, si, so);
+    const ConvTranspose2d& c = *deconvs_[static_cast<size_t>(~idx)];
+    ConvTransposeAlgo algo = ConvTransposeAlgo::automatic;
+    if (auto name = table_algorithm(conv_choice_key(c, is), [&] { return time_conv_algorithms(ctx_, c, is, choice_reps_); }))
+      for (ConvTransposeAlgo a : c.candidates())
+        if (*name == conv_transpose_algo_name(a)) algo = a;
+    if (algo != ConvTransposeAlgo::automatic) ++convs_from_table_;
+    c.record(*cs_, si, so, algo);
   } else {
+    const Conv2d& c = *convs_[static_cast<size_t>(idx)];
     std::optional<Slice> r;
     if (residual) r = slice(tensor(residual->buf), *residual);
-    convs_[static_cast<size_t>(idx)]->record(*cs_, si, so, r);
+    ConvAlgo algo = ConvAlgo::automatic;
+    const auto key = conv_choice_key(c, is, r.has_value());
+    if (auto name = table_algorithm(key, [&] { return time_conv_algorithms(ctx_, c, is, r.has_value(), choice_reps_); }))
+      // An entry naming an algorithm this call cannot take (another build's, a residual in the
+      // output for chunked direct) falls back to the heuristic.
+      for (ConvAlgo a : c.candidates(is, c.residual_overlaps_output(so, r)))
+        if (*name == conv_algo_name(a)) algo = a;
+    if (algo != ConvAlgo::automatic) ++convs_from_table_;
+    c.record(*cs_, si, so, r, algo);
   }
   if (probe_) {
     const Shape os = tensor(out.buf).shape();

@@ -5,12 +5,16 @@
 #pragma once
 #include <deque>
 #include <map>
+#include <set>
+#include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
 
 #include "vkunroll/host/model/backend.hpp"
+#include "vkunroll/host/model/conv_choice.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
 
 namespace vkunroll {
@@ -68,6 +72,14 @@ class VulkanBackend final : public Backend {
   using LayerProbe = std::deque<std::pair<std::string, std::vector<float>>>;
   void set_layer_probe(LayerProbe* probe) { probe_ = probe; }
 
+  // The conv algorithm per shape: `table` (shared; timed shapes are added to it) under `choice`
+  // (conv_choice.hpp). Without a call the kernels' heuristic decides. `reps`: timed runs per candidate.
+  void set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, int reps = 3);
+  const std::shared_ptr<ConvChoiceTable>& conv_choice_table() const { return choice_table_; }
+  // Conv shapes this backend timed, and recorded convs that took the table's algorithm.
+  uint64_t convs_timed() const { return convs_timed_; }
+  uint64_t convs_from_table() const { return convs_from_table_; }
+
   Context& context() { return ctx_; }
   // Bytes of device memory held by buffers (live + pooled for reuse), and its peak.
   uint64_t device_bytes() const { return device_bytes_; }
@@ -105,6 +117,13 @@ class VulkanBackend final : public Backend {
   uint64_t max_buffer_cap_ = 0;
   uint64_t pool_flushes_ = 0;
   uint64_t pool_flush_bytes_ = kPoolFlushBytes;
+  std::shared_ptr<ConvChoiceTable> choice_table_;
+  ConvChoice choice_ = ConvChoice::heuristic;
+  int choice_reps_ = 3;
+  std::set<std::string> retuned_;  // keys timed again under ConvChoice::retune
+  uint64_t convs_timed_ = 0, convs_from_table_ = 0;
+  // The table's algorithm for this conv call (timing it first where the choice says so); nullopt: the heuristic.
+  std::optional<std::string> table_algorithm(const std::string& key, const std::function<ConvChoiceEntry()>& time);
 };
 
 }  // namespace vkunroll

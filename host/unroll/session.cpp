@@ -1,6 +1,7 @@
 #include "vkunroll/host/unroll/session.hpp"
 
 #include <algorithm>
+#include <iostream>
 
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/base/stopwatch.hpp"
@@ -41,14 +42,48 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
     co.device = o.device;
     co.announce = o.announce;
     ctx_ = std::make_unique<Context>(co);
-    backend_ = std::make_unique<VulkanBackend>(*ctx_, nullptr, kPoolFlushBytes, o.precision);
+    auto vb = std::make_unique<VulkanBackend>(*ctx_, nullptr, kPoolFlushBytes, o.precision);
+    auto table = std::make_shared<ConvChoiceTable>();
+    if (o.conv_choice != ConvChoice::heuristic) {
+      conv_choice_path_ = conv_choice_path(*ctx_);
+      std::vector<std::string> warnings;
+      if (!conv_choice_path_.empty()) *table = ConvChoiceTable::load(conv_choice_path_, &warnings);
+      for (const auto& w : warnings) std::cerr << "vkunroll: warning: " << w << "\n";
+    }
+    vb->set_conv_choice(table, o.conv_choice);
+    backend_ = std::move(vb);
   } else {
     backend_ = std::make_unique<CpuBackend>(o.cpu_threads);
   }
   if (weights_) model_ = std::make_unique<Model>(*backend_, *weights_);
 }
 
-UnrollSession::~UnrollSession() = default;
+UnrollSession::~UnrollSession() {
+  try {
+    save_conv_choices();
+  } catch (...) {
+  }
+}
+
+void UnrollSession::save_conv_choices() {
+  const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get());
+  if (!vb || !vb->conv_choice_table() || !vb->conv_choice_table()->changed() || conv_choice_path_.empty()) return;
+  try {
+    vb->conv_choice_table()->save(conv_choice_path_, conv_choice_header(*ctx_));
+  } catch (const std::exception& e) {
+    std::cerr << "vkunroll: warning: the measured conv algorithms were not saved: " << e.what() << "\n";
+  }
+}
+
+nlohmann::json UnrollSession::conv_choice_report() const {
+  const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get());
+  if (!vb) return nullptr;
+  return {{"choice", conv_choice_name(options_.conv_choice)},
+          {"table", conv_choice_path_},
+          {"table_entries", vb->conv_choice_table() ? vb->conv_choice_table()->entries().size() : 0},
+          {"convs_from_table", vb->convs_from_table()},
+          {"shapes_timed", vb->convs_timed()}};
+}
 
 const Weights& UnrollSession::weights() const {
   if (!weights_) throw Error("unroll session: no model was given (physics only)");

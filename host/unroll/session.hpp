@@ -82,6 +82,11 @@ class UnrollSession {
   // Submissions the backend made because released buffers held too much memory.
   uint64_t memory_forced_submits() const;
   uint64_t peak_device_bytes() const;
+  // The conv algorithm choice (Vulkan): what was asked, the table's file (empty: none), entries
+  // used by recorded convs, shapes timed in this session. The table is saved when the session ends.
+  nlohmann::json conv_choice_report() const;
+  // Writes the table's new timings to its file now (the destructor does it too); warnings on stderr.
+  void save_conv_choices();
 
   // The model's input channel order (default: the weights' metadata), tiling, physics parameters.
   void set_model_rgb(bool rgb) { rgb_ = rgb; }
@@ -110,6 +115,7 @@ class UnrollSession {
 
   SessionOptions options_;
   std::unique_ptr<Context> ctx_;
+  std::string conv_choice_path_;  // the table's file (empty: none)
   std::unique_ptr<Backend> backend_;
   std::unique_ptr<Weights> weights_;
   std::unique_ptr<Model> model_;

@@ -381,6 +381,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   // The rest of the frame is host work and waits; the target on a GPU is a device share >= 0.8.
   extra["host_ms_per_gs_frame"] = total_targets ? std::max(0.0, total_ms - traffic.gpu_ms) / total_targets : 0.0;
   extra["gpu_share_of_frame_time"] = total_ms > 0 ? traffic.gpu_ms / total_ms : 0.0;
+  extra["conv_algorithms"] = session.conv_choice_report();
   extra["memory_forced_submits"] = session.memory_forced_submits();
   extra["peak_device_bytes"] = session.peak_device_bytes();
   const SessionStats& st = session.stats();

@@ -153,6 +153,7 @@ nlohmann::json unroll_options_json(const UnrollOptions& o) {
       {"backend", backend_kind_name(o.session.backend)},
       {"device", o.session.device},
       {"precision", precision_name(o.session.precision)},
+      {"conv_choice", conv_choice_name(o.session.conv_choice)},
       {"cpu_threads", o.session.cpu_threads},
       {"channel_order", o.channel_order == ChannelOrder::model ? "model" : o.channel_order == ChannelOrder::rgb ? "rgb" : "bgr"},
       {"contrast", o.contrast ? nlohmann::json(*o.contrast) : nlohmann::json()},

@@ -12,6 +12,7 @@
 #include "vkunroll/base/precision.hpp"
 #include "vkunroll/base/row_timing.hpp"
 #include "vkunroll/host/events/sequence.hpp"
+#include "vkunroll/host/model/conv_choice.hpp"
 #include "vkunroll/host/model/tiling.hpp"
 #include "vkunroll/host/unroll/unroll_output.hpp"
 
@@ -55,6 +56,9 @@ struct SessionOptions {
   std::string model_path;         // safetensors; empty: physics only
   bool announce = true;           // say the chosen device on stderr
   unsigned cpu_threads = 0;       // CPU backend threads (0: the machine's, at most 8)
+  // Vulkan: the conv algorithm per shape (host/model/conv_choice.hpp): the device's measured table
+  // in the cache directory; auto times a missing shape on first use on a GPU only.
+  ConvChoice conv_choice = ConvChoice::automatic;
 };
 
 // The largest time a target or a timing override may name: +-2^53 us (285 years), where a double
