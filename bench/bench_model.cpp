@@ -5,8 +5,11 @@
 //
 // usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]
 //                             [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]
-//                             [--torch-device cpu|cuda]
+//                             [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune]
 //
+// --conv-choice (default heuristic): the conv algorithm per shape (host/model/conv_choice.hpp), from
+// the device's table in the cache directory; measured / retune first time the missing / every shape
+// in an untimed full-size run (reported) and save the table.
 // The race: with --torch-device cuda the peer is the PyTorch mirror on the same GPU (CUDA, best of
 // --runs after a full-size warm-up, in the same precision), and the ratio is vulkan / torch.
 // --precision fp16 runs the Vulkan side in fp16 (the mirror stays fp32, so the diffs are fp16's error).
@@ -28,6 +31,7 @@
 
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/conv_choice.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/host/model/weights.hpp"
@@ -104,12 +108,14 @@ int per_layer_report(Context& ctx, const Weights& w, const ModelInputs& in, Mode
 }  // namespace
 
 int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
-              const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device);
+              const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device,
+              ConvChoice conv_choice);
 
 int main(int argc, char** argv) {
   int W = 346, H = 260, torch_threads = 0, runs = 1;
   bool torch = true, profile = false, per_layer = false;
   std::string mode = "m", model_path, inputs_path, torch_device = "cpu";
+  ConvChoice conv_choice = ConvChoice::heuristic;
   Precision precision = Precision::fp32;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -135,6 +141,13 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "%s\n", e.what());
         return 2;
       }
+    } else if (a == "--conv-choice" && i + 1 < argc) {
+      try {
+        conv_choice = parse_conv_choice(argv[++i], "--conv-choice");
+      } catch (const Error& e) {
+        std::fprintf(stderr, "%s\n", e.what());
+        return 2;
+      }
     } else if (a == "--per-layer") {
       per_layer = true;
     } else if (a == "--model" && i + 1 < argc) {
@@ -150,7 +163,7 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]\n"
                            "                            [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]\n"
-                           "                            [--torch-device cpu|cuda]\n");
+                           "                            [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune]\n");
       return 2;
     }
   }
@@ -159,7 +172,8 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
-    return run_bench(W, H, torch_threads, runs, torch, profile, per_layer, mode, model_path, inputs_path, precision, torch_device);
+    return run_bench(W, H, torch_threads, runs, torch, profile, per_layer, mode, model_path, inputs_path, precision, torch_device,
+                     conv_choice);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "vkunroll-bench-model: %s\n", e.what());
     return 1;
@@ -167,7 +181,8 @@ int main(int argc, char** argv) {
 }
 
 int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
-              const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device) {
+              const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device,
+              ConvChoice conv_choice) {
   const Mode md = mode == "s" ? Mode::s : Mode::m;
   const int64_t B = md == Mode::m ? 2 : 1;
   const Weights w = model_path.empty() ? random_weights(ModelConfig::published(), 2024) : load_weights(model_path);
@@ -214,6 +229,23 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
     o.mode = md;
     model.run(small, o);
   }
+  if (conv_choice != ConvChoice::heuristic) {
+    const std::string path = conv_choice_path(ctx);
+    std::vector<std::string> warnings;
+    auto table = std::make_shared<ConvChoiceTable>(path.empty() ? ConvChoiceTable{} : ConvChoiceTable::load(path, &warnings));
+    for (const auto& wn : warnings) std::fprintf(stderr, "warning: %s\n", wn.c_str());
+    vk.set_conv_choice(table, conv_choice);
+    if (conv_choice == ConvChoice::measured || conv_choice == ConvChoice::retune) {
+      RunOptions o;
+      o.mode = md;
+      t = std::chrono::steady_clock::now();
+      model.run(in, o);  // untimed: times the shapes the table lacks (retune: all)
+      std::printf("  conv choice %s: %llu shapes timed in %.1f s (table %s)\n", conv_choice_name(conv_choice),
+                  static_cast<unsigned long long>(vk.convs_timed()), seconds_since(t), path.empty() ? "not saved" : path.c_str());
+      if (!path.empty()) table->save(path, conv_choice_header(ctx));
+      vk.set_conv_choice(table, ConvChoice::cached);
+    }
+  }
   vk.reset_peak();
   profiler.clear();
   ctx.allocator().reset_peak();
@@ -240,6 +272,23 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
               1000 * vk_s / frames, prep, vk.peak_bytes() / 1048576.0, vk.device_peak_bytes() / 1048576.0,
               ctx.allocator().stats().peak_used_bytes / 1048576.0, vk.weight_bytes() / 1048576.0);
   if (runs > 1) std::printf("  vulkan : best of %d runs; the first took %.1f ms\n", runs, 1000 * first_s);
+  if (conv_choice != ConvChoice::heuristic) {
+    std::printf("  vulkan : conv algorithms: %llu recorded convs took the measured table's choice\n",
+                static_cast<unsigned long long>(vk.convs_from_table()));
+    // The kernels' heuristic on the same input in the same run: the measured choice's gain.
+    vk.set_conv_choice(nullptr, ConvChoice::heuristic);
+    double h_s = 1e30, h_gpu = 0;
+    for (int r = 0; r < runs; ++r) {
+      const DeviceTraffic before = ctx.traffic();
+      t = std::chrono::steady_clock::now();
+      model.run(in, opt);
+      const double s = seconds_since(t);
+      if (s < h_s) h_gpu = (ctx.traffic() - before).gpu_ms;
+      h_s = std::min(h_s, s);
+    }
+    std::printf("  vulkan : with the heuristic conv choice %.1f ms per GS frame (device %.1f ms); measured / heuristic = %.2f\n",
+                1000 * h_s, h_gpu, vk_s / h_s);
+  }
   std::printf("  vulkan : device time %.1f ms of the %.1f ms frame (%.0f%%; the rest is host work and waits)\n", gpu_ms,
               1000 * vk_s, 100 * gpu_ms / (1000 * vk_s));
   if (profile) profiler.print(std::cout);

@@ -32,7 +32,9 @@ fi
 # at the DAVIS346 size and at 640x480 (the paper's size); then fp16's per-layer error on the shipped
 # model. Each run prints ms per GS frame for both, the ratio, the device share and the output diffs.
 for p in fp32 fp16; do for m in s m; do for sz in 346x260 640x480; do
-  timeout 45 $B/vkunroll-bench-model --mode $m --size $sz --precision $p --torch-device cuda --runs 5 > $OUT/race_${m}_${p}_${sz}.txt 2>&1
-  echo "race $m $p $sz rc=$?"; grep -E "vulkan :|torch  :|ratio" $OUT/race_${m}_${p}_${sz}.txt
+  # --conv-choice measured: the conv algorithms timed per shape on this GPU first (the table persists
+  # in $VKUNROLL_CACHE_DIR across the runs); the bench also prints the heuristic's time beside it.
+  timeout 50 $B/vkunroll-bench-model --mode $m --size $sz --precision $p --torch-device cuda --runs 5 --conv-choice measured > $OUT/race_${m}_${p}_${sz}.txt 2>&1
+  echo "race $m $p $sz rc=$?"; grep -E "vulkan :|torch  :|ratio|conv choice" $OUT/race_${m}_${p}_${sz}.txt
 done; done; done
 timeout 60 $B/vkunroll-bench-model --mode m --size 346x260 --precision fp16 --per-layer --model $R/.devrun/selfunroll_small.safetensors > $OUT/fp16_per_layer_small.txt 2>&1; echo "per-layer rc=$?"
