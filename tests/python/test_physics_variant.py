@@ -294,3 +294,72 @@ def test_tiny_adaptation_lowers_the_self_supervised_loss(tmp_path, seq_dir):
     assert md["training.adapt"] == str(rec) and md["physics_input"] == "true"
     r = run_train("--adapt", rec, "--out", tmp_path / "b", "--minutes", "1")
     assert r.returncode != 0 and "--adapt needs --from" in r.stderr
+
+
+# ---- the variant in the C++ CLI ------------------------------------------------------------------------
+def perturbed_variant(seed=5):
+    net = tiny_variant(seed)
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(0.02 * torch.randn(p.shape, generator=g))  # a trained model, not the init
+    return net.eval()
+
+
+@needs_cli
+@pytest.mark.parametrize("mode", ["s", "m"])
+def test_variant_in_vkunroll_infer_matches_pytorch(tmp_path, mode):
+    """The exported variant loaded by `vkunroll infer` (Vulkan) gives the mirror's every output within 1e-4."""
+    net = perturbed_variant()
+    path = str(tmp_path / "v.safetensors")
+    train.export(net, path, {"data": "test"})
+    rs, ev, phys = random_inputs(net.cfg, b=2 if mode == "m" else 1, h=37, w=52, seed=4)
+    safetensors_io.save(str(tmp_path / "in.safetensors"), {"rs": rs, "ev1": ev[0], "ev2": ev[1], "ev3": ev[2], "phys": phys})
+    r = subprocess.run([CLI, "infer", "--model", path, "--inputs", tmp_path / "in.safetensors", "--out",
+                        tmp_path / "out.safetensors", "--mode", mode], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    got, _ = safetensors_io.load(str(tmp_path / "out.safetensors"))
+    with torch.no_grad():
+        sys_, E, flow, warped, fused, m, out = net(rs, *ev, phys=phys, moa=(mode == "m"))
+    want = {"sys": sys_, "E": E, "flow": flow, "warped": warped, "fused": fused}
+    if mode == "m":
+        want.update(m=m, out=out)
+    for k, v in want.items():
+        err = float((got[k].float() - v).abs().max())
+        assert err <= 1e-4, f"{k}: max abs error {err}"
+    assert float(E.abs().max()) > 1e-3  # the correction is not zero: the test sees the network
+
+
+@needs_cli
+@pytest.mark.parametrize("gamma", [None, "1"])
+def test_variant_at_init_unrolls_as_the_physics_unroller(tmp_path, gamma):
+    """`unroll --mode s` with the variant at its init (fused = physics) gives `--mode physics`'s images,
+    on the simulator's gamma-2.2 frames (no conversion) and read as linear (--gamma 1: frames go into the
+    gamma-2.2 model as v^(1/2.2) and come back ^2.2)."""
+    seq = tmp_path / "sim"
+    r = subprocess.run([CLI, "simulate", "--out", seq, "--size", "96x72", "--frames", "2", "--gt-per-frame", "2",
+                        "--seed", "8", "--motion", "pan", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    net = tiny_variant(3)
+    model = str(tmp_path / "v.safetensors")
+    train.export(net, model, {"data": "test"})
+    extra = ["--gamma", gamma] if gamma else []
+    outs = {}
+    for mode in ("physics", "s"):
+        out = tmp_path / f"out_{mode}"
+        cmd = [CLI, "unroll", seq, "--out", out, "--mode", mode, "--times", "gt", "--no-video", "--bit-depth", "16",
+               "--quiet"] + extra + (["--model", model] if mode == "s" else [])
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        outs[mode] = out
+    summ = json.load(open(outs["s"] / "summary.json"))
+    assert summ["encoding"]["model_gamma"] == 2.2
+    assert summ["encoding"]["sequence_gamma"] == (1.0 if gamma else 2.2)
+    rows = {m: [l.split(",") for l in open(outs[m] / "metrics.csv").read().splitlines()[1:]] for m in outs}
+    assert len(rows["s"]) == len(rows["physics"]) == 4
+    worst = 0.0
+    for a, b in zip(rows["physics"], rows["s"]):
+        assert a[0] == b[0] and a[1] == b[1]  # the same frame and instant
+        pa, pb = read_image(str(outs["physics"] / a[3])), read_image(str(outs["s"] / b[3]))
+        worst = max(worst, float(np.abs(pa - pb).max()))
+    assert worst <= 5e-5, worst  # two 16-bit quantizations (7.6e-6 each) and float32 pow rounding
