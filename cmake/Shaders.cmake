@@ -2,7 +2,7 @@
 # it as a uint32_t array, listed in the null-terminated table vkunroll::embedded::<table>
 # (runtime/shader_registry.hpp: find_shader looks modules up by name, the file stem).
 # Shaders that include precision.glsl are compiled twice: <stem> (fp32) and <stem>_fp16 (-DVKU_FP16),
-# both validated and embedded. Shaders on cooperative matrices (they test VKU_COOPMAT_EMULATE) are
+# both validated and embedded. Shaders on cooperative matrices (they include coopmat.glsl) are
 # compiled twice too: <stem> (GL_NV_cooperative_matrix) and <stem>_emulated (-DVKU_COOPMAT_EMULATE,
 # the same tiling in plain GLSL, which lavapipe runs).
 function(vkunroll_embed_shaders out_var shader_dir table)
@@ -20,7 +20,7 @@ function(vkunroll_embed_shaders out_var shader_dir table)
     if(_src MATCHES "#include \"precision.glsl\"")
       list(APPEND _variants ${_stem}_fp16)
     endif()
-    if(_src MATCHES "#ifdef VKU_COOPMAT_EMULATE")
+    if(_src MATCHES "#include \"coopmat.glsl\"")
       list(APPEND _variants ${_stem}_emulated)
     endif()
     foreach(_name ${_variants})

@@ -30,9 +30,10 @@ enum class ConvAlgo : uint32_t {
                   // one position: 8 pixels x 8/16 channels per invocation, vec4 loads), epilogue
   direct = 6,     // register blocking (8 pixels x 16 output channels per invocation) with the weights in
                   // a uniform buffer, one dispatch per channel block and input-channel chunk; all shapes
-  coopmat = 7,    // 1x1 stride 1, fp16 only: the gemm path's pack and epilogue around a GEMM on cooperative
-                  // matrices (tensor cores, VK_NV_cooperative_matrix: fp16 operands, fp32 accumulators);
-                  // conv2d_coopmat.cpp. Tests run its emulated form where the device has none.
+  coopmat = 7,    // fp16 only, GEMMs on cooperative matrices (tensor cores, VK_NV_cooperative_matrix: fp16
+                  // operands, fp32 accumulators): 1x1 stride 1 between the gemm path's pack and epilogue,
+                  // 3x3 stride 1 (pad 1) as an implicit GEMM (im2col in shared memory) and the same
+                  // epilogue; conv2d_coopmat.cpp. Tests run its emulated form where the device has none.
 };
 const char* conv_algo_name(ConvAlgo a);
 
@@ -167,7 +168,7 @@ class Conv2d {
   uint32_t gemm_tv_ = 4;     // vec4s of tiles per GEMM invocation
   int64_t gemm_cout_pad_ = 0, winograd_ks_ = 1;
   uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
-  mutable Tensor weight_coopmat_;  // 1x1, fp16: [cout_pad][cin_pad] (zero-padded to 16), the coopmat path
+  mutable Tensor weight_coopmat_;  // fp16 [cout_pad][kpad], kk = ci*k*k + tap (zero-padded to 16): coopmat
   bool coopmat_emulated_ = false;
   uint32_t coopmat_emulated_n_ = 8, coopmat_emulated_k_ = 16;
   mutable std::shared_ptr<ConvWorkspace> workspace_;

@@ -1,8 +1,10 @@
-// conv2d, the `coopmat` path: a 1x1 stride-1 conv in fp16 as conv1x1_pack, a GEMM on cooperative
-// matrices (shaders/conv1x1_coopmat.comp: fp16 operands, fp32 accumulators) and conv1x1_output.
-// Every GEMM dimension is padded to whole fragments: output channels to FM x 16 (W's zero rows),
-// input channels to 16 (W's zero columns, V's zero rows: conv1x1_pack's c_valid), pixels to the
-// workgroup's NW x 32 (V's zero columns). The real shader needs VK_NV_cooperative_matrix with a
+// conv2d, the `coopmat` path (fp16): a GEMM on cooperative matrices (fp16 operands, fp32
+// accumulators) into M, then conv1x1_output (bias, activation, residual). 1x1 stride 1: conv1x1_pack
+// copies the input into V [cin][pixels], shaders/conv1x1_coopmat.comp multiplies (in input-channel
+// chunks that fit the scratch). 3x3 stride 1 pad 1: shaders/conv3x3_coopmat.comp, an implicit GEMM
+// (the input gathered into shared memory per step, no scratch). Every GEMM dimension is padded to
+// whole fragments: output channels to 16 (W's zero rows), the reduction (cin, or cin x 9) to 16 (W's
+// zero columns; V's zero rows: conv1x1_pack's c_valid), pixels to the workgroup's NW x 32 (zeros). The real shader needs VK_NV_cooperative_matrix with a
 // 16 x {8,16} x {8,16} fp16 -> fp32 subgroup shape and subgroups of 32 (NVIDIA); its emulated form,
 // the same tiling in plain GLSL, runs anywhere (tests: set_coopmat_emulation).
 #include <algorithm>
@@ -50,7 +52,9 @@ void Conv2d::set_coopmat_emulation(bool on, uint32_t n, uint32_t k) {
 }
 
 bool Conv2d::coopmat_applies() const {
-  if (params_.kernel != 1 || params_.stride != 1 || params_.pad != 0 || precision_ != Precision::fp16) return false;
+  const Conv2dParams& q = params_;
+  const bool shape = (q.kernel == 1 && q.stride == 1 && q.pad == 0) || (q.kernel == 3 && q.stride == 1 && q.pad == 1);
+  if (!shape || precision_ != Precision::fp16) return false;
   if (coopmat_emulated_) return true;
   return ctx_.info().coopmat_fp16_shape().has_value() && ctx_.info().subgroup_size == kWarp;
 }
@@ -66,18 +70,20 @@ int64_t Conv2d::coopmat_chunk(const Shape& in) const {
 bool Conv2d::coopmat_fits(const Shape& in) const {
   const int64_t cout_pad = round_up(cout_, kPad), pix_pad = coopmat_pix_pad(in);
   const uint64_t m_bytes = static_cast<uint64_t>(cout_pad * pix_pad) * 4;  // M: fp32, every output channel
-  return m_bytes <= ctx_.info().max_storage_buffer_range && coopmat_chunk(in) >= kPad &&
+  const bool chunks = params_.kernel == 3 || coopmat_chunk(in) >= kPad;   // 3x3: no V scratch (im2col in shared)
+  return m_bytes <= ctx_.info().max_storage_buffer_range && chunks &&
          static_cast<uint64_t>(pix_pad / (kWarps * kWarpPixels)) <= ctx_.info().max_workgroup_count[0];
 }
 
 void Conv2d::pack_coopmat() const {
   if (!weight_coopmat_.empty()) return;
-  // A = W row-major [cout_pad][cin_pad], zeros in the padding.
-  const int64_t cout_pad = round_up(cout_, kPad), cin_pad = round_up(cin_, kPad);
-  std::vector<float> a(static_cast<size_t>(cout_pad * cin_pad), 0.f);
+  // A = W row-major [cout_pad][kpad], kk = ci*k*k + ky*k + kx (the given layout's), zeros in the padding.
+  const int64_t kdim = cin_ * params_.kernel * params_.kernel;
+  const int64_t cout_pad = round_up(cout_, kPad), kpad = round_up(kdim, kPad);
+  std::vector<float> a(static_cast<size_t>(cout_pad * kpad), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
-    for (int64_t ci = 0; ci < cin_; ++ci)
-      a[static_cast<size_t>(co * cin_pad + ci)] = weight_host_.data[static_cast<size_t>(co * cin_ + ci)];
+    for (int64_t kk = 0; kk < kdim; ++kk)
+      a[static_cast<size_t>(co * kpad + kk)] = weight_host_.data[static_cast<size_t>(co * kdim + kk)];
   weight_coopmat_ = upload_weights(a);  // fp16 (coopmat is fp16 only)
 }
 
@@ -94,18 +100,33 @@ void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {
   }
   t.fm = coopmat_fm(cout_);
   t.fn = kWarpPixels / t.n;
-  const int64_t cout_pad = round_up(cout_, kPad), cin_pad = round_up(cin_, kPad);
-  const int64_t pix_pad = coopmat_pix_pad(r.is), npix = r.is.n * r.is.h * r.is.w, chunk = coopmat_chunk(r.is);
+  const bool k3 = params_.kernel == 3;
+  const int64_t cout_pad = round_up(cout_, kPad), kpad = round_up(cin_ * params_.kernel * params_.kernel, kPad);
+  const int64_t pix_pad = coopmat_pix_pad(r.is), npix = r.is.n * r.is.h * r.is.w;
   const uint64_t m_bytes = static_cast<uint64_t>(cout_pad * pix_pad) * 4;
-  const Tensor& vt = workspace_->get(ctx_, 0, static_cast<uint64_t>(chunk * pix_pad) * 2);
   const Tensor& mt = workspace_->get(ctx_, 1, m_bytes);
   const BufferRange mr = mt.range(0, m_bytes);
   const std::string& name = r.info.name;
-  const std::string gemm_shader = t.emulated ? "conv1x1_coopmat_emulated" : "conv1x1_coopmat";
-  for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
+  const std::string suffix = t.emulated ? "_emulated" : "";
+  const Groups gemm_groups{u32(pix_pad / (kWarps * kWarpPixels)), u32(cout_pad / (t.fm * t.m)), 1};
+  auto spec = [&](bool accum) {
+    return std::vector<uint32_t>{t.m, t.n, t.k, t.fm, t.fn, kWarps, kWarp, accum ? 1u : 0u, kWarps * kWarp};
+  };
+  if (k3) {  // implicit GEMM: the input is gathered into shared memory, no scratch
+    struct GemmPush {
+      uint32_t in_off, in_bs, cin, h, w, npix, kpad, pix_pad;
+    } gp{r.in.offset, r.in.batch_stride, u32(cin_), u32(r.is.h), u32(r.is.w), u32(npix), u32(kpad), u32(pix_pad)};
+    cs.dispatch(kernel_pipeline(ctx_, "conv3x3_coopmat" + suffix, spec(false), sizeof gp),
+                {r.in.arg, {weight_coopmat_.range(), Access::read}, {mr, Access::write}}, gp, gemm_groups,
+                {name + "_coopmat", r.info.flop, 2.0 * static_cast<double>(r.is.count() + cout_pad * kpad) +
+                                                     4.0 * static_cast<double>(cout_pad * pix_pad)});
+  }
+  const int64_t chunk = k3 ? 0 : coopmat_chunk(r.is);
+  const Tensor* vt = k3 ? nullptr : &workspace_->get(ctx_, 0, static_cast<uint64_t>(chunk * pix_pad) * 2);
+  for (int64_t c0 = 0; !k3 && c0 < cin_; c0 += chunk) {
     const int64_t cn = std::min(chunk, cin_ - c0), cn_pad = round_up(cn, kPad);
     const double v_bytes = 2.0 * static_cast<double>(cn_pad * pix_pad);
-    const BufferRange vr = vt.range(0, static_cast<size_t>(cn_pad * pix_pad) * 2);
+    const BufferRange vr = vt->range(0, static_cast<size_t>(cn_pad * pix_pad) * 2);
     struct PackPush {
       uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin, c_valid;
     } pp{r.in.offset, r.in.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad), u32(c0), u32(cn)};
@@ -113,12 +134,11 @@ void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {
                 Groups{u32((pix_pad / 4 + 63) / 64), u32(cn_pad), 1}, {name + "_coopmat_pack", 0, 2.0 * v_bytes});
     struct GemmPush {
       uint32_t chunk_pad, c_begin, cin_pad, pix_pad;
-    } gp{u32(cn_pad), u32(c0), u32(cin_pad), u32(pix_pad)};
-    const std::vector<uint32_t> spec{t.m, t.n, t.k, t.fm, t.fn, kWarps, kWarp, c0 > 0 ? 1u : 0u, kWarps * kWarp};
-    cs.dispatch(kernel_pipeline(ctx_, gemm_shader, spec, sizeof gp),
+    } gp{u32(cn_pad), u32(c0), u32(kpad), u32(pix_pad)};
+    cs.dispatch(kernel_pipeline(ctx_, "conv1x1_coopmat" + suffix, spec(c0 > 0), sizeof gp),
                 {{vr, Access::read}, {weight_coopmat_.range(), Access::read},
                  {mr, c0 > 0 ? Access::read_write : Access::write}},
-                gp, Groups{u32(pix_pad / (kWarps * kWarpPixels)), u32(cout_pad / (t.fm * t.m)), 1},
+                gp, gemm_groups,
                 {name + "_coopmat", r.info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
                  v_bytes + 4.0 * static_cast<double>(cout_pad * (c0 > 0 ? 2 : 1) * pix_pad)});
   }

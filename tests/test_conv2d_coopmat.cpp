@@ -1,4 +1,4 @@
-// conv2d `coopmat` (1x1 GEMM on cooperative matrices, fp16) against the CPU reference: the emulated
+// conv2d `coopmat` (1x1 GEMM and 3x3 implicit GEMM on cooperative matrices, fp16) against the CPU reference: the emulated
 // shader (the same tiling in plain GLSL) on every device, the real VK_NV_cooperative_matrix one where
 // the device has it (else skipped, naming the extension).
 #include <gtest/gtest.h>
@@ -19,6 +19,7 @@ namespace {
 constexpr double kTolFp16 = 1e-2;
 
 struct Case {
+  int k;  // 1 (stride 1) or 3 (stride 1, pad 1)
   int64_t cin, cout, h, w;
   Act act;
   bool residual;
@@ -26,24 +27,35 @@ struct Case {
   int64_t batch = 1, in_n0 = 0, in_batch_total = 1;
 };
 
-// test_conv2d.cpp's 1x1 cases, odd channel counts (padding to 16 in both), several workgroups along
-// the pixels and along the channels (FM 1, 3 and 4), slices at channel offsets, residuals, batch 2.
+// test_conv2d.cpp's 1x1 and 3x3 stride-1 cases, odd channel counts (padding to 16 in both), several
+// workgroups along the pixels and along the channels (FM 1, 3 and 4), slices at channel offsets,
+// residuals, batch 2.
 std::vector<Case> cases() {
   const Act lrelu01 = leaky_relu(0.1f);
   return {
-      // cin cout  h   w  act                                res   in slice  out slice  batch
-      {6, 3, 1, 1, Act{Activation::sigmoid}, false, 2, 1, 0, 0},
-      {13, 9, 7, 10, lrelu01, true},
-      {130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1},
-      {129, 64, 3, 11, Act{Activation::tanh}, false, 0, 0, 0, 0, 2, 0, 2},
-      {13, 32, 7, 10, lrelu01, true, 0, 0, 0, 0, 2},
-      {130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1, 2},
-      {3, 17, 9, 13, lrelu01, false, 1, 1, 2, 2},
-      {17, 3, 11, 12, Act{Activation::hardsigmoid}, true, 0, 0, 1, 1, 2},
-      {3, 96, 6, 9, Act{}, true},
-      {48, 48, 20, 13, lrelu01, true, 48, 48, 96, 48, 2, 1, 3},  // RDB-like: a slice of a wider tensor
-      {64, 80, 16, 24, Act{}, false},                             // 80: FM 1, 5 channel workgroups
-      {160, 64, 9, 31, lrelu01, false, 0, 0, 0, 0, 2},
+      // k cin cout  h   w  act                                res   in slice  out slice  batch
+      {1, 6, 3, 1, 1, Act{Activation::sigmoid}, false, 2, 1, 0, 0},
+      {1, 13, 9, 7, 10, lrelu01, true},
+      {1, 130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1},
+      {1, 129, 64, 3, 11, Act{Activation::tanh}, false, 0, 0, 0, 0, 2, 0, 2},
+      {1, 13, 32, 7, 10, lrelu01, true, 0, 0, 0, 0, 2},
+      {1, 130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1, 2},
+      {1, 3, 17, 9, 13, lrelu01, false, 1, 1, 2, 2},
+      {1, 17, 3, 11, 12, Act{Activation::hardsigmoid}, true, 0, 0, 1, 1, 2},
+      {1, 3, 96, 6, 9, Act{}, true},
+      {1, 48, 48, 20, 13, lrelu01, true, 48, 48, 96, 48, 2, 1, 3},  // RDB-like: a slice of a wider tensor
+      {1, 64, 80, 16, 24, Act{}, false},                             // 80: FM 1, 5 channel workgroups
+      {1, 160, 64, 9, 31, lrelu01, false, 0, 0, 0, 0, 2},
+      // 3x3 implicit GEMM: odd sizes and channel counts, borders (1-pixel images and rows), slices, batch
+      {3, 5, 7, 9, 11, leaky_relu(0.01f), true, 4, 2, 5, 3, 2, 0, 2},
+      {3, 17, 19, 16, 12, lrelu01, false},
+      {3, 8, 16, 13, 35, Act{}, true, 0, 0, 8, 8},
+      {3, 7, 5, 21, 1, lrelu01, false},
+      {3, 6, 3, 1, 1, Act{Activation::sigmoid}, false},
+      {3, 9, 1, 19, 13, Act{Activation::hardsigmoid}, false, 2, 1, 3, 2},
+      {3, 48, 48, 20, 13, lrelu01, true, 48, 48, 96, 48, 2, 1, 3},  // the RDB convs' shape, a dense-block slice
+      {3, 144, 48, 9, 10, lrelu01, false},
+      {3, 96, 64, 7, 33, Act{Activation::tanh}, false, 0, 0, 0, 0, 2},
   };
 }
 
@@ -58,8 +70,8 @@ int64_t ceil_div(int64_t a, int64_t b) { return (a + b - 1) / b; }
 // Every case against the reference; the output slice sits among canaries (kernel_test_util.hpp).
 void run_cases(Context& ctx, const std::vector<Case>& list, const Run& run) {
   std::mt19937 rng(4321);
-  int ran = 0;
-  double worst = 0;
+  int ran[2] = {0, 0};
+  double worst[2] = {0, 0};  // 1x1, 3x3
   ConvOptions options;
   options.precision = Precision::fp16;
   // A shared scratch full of fp16 NaNs before every case: the padded rows of V must be written as
@@ -71,10 +83,11 @@ void run_cases(Context& ctx, const std::vector<Case>& list, const Run& run) {
     cs.submit_and_wait();
   };
   for (const Case& c : list) {
+    if (run.chunk_rows > 0 && c.k != 1) continue;  // the 3x3 path has no scratch to cap
     poison();
-    const Conv2dParams p{1, 1, 0, c.act};
-    const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin));
-    HostTensor w = random_tensor({c.cout, c.cin, 1, 1}, rng, -wscale, wscale);
+    const Conv2dParams p{c.k, 1, c.k / 2, c.act};
+    const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
+    HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
     HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
     Conv2d conv(ctx, w, b, p, "conv1x1", workspace, options);
     if (run.emulated) conv.set_coopmat_emulation(true, run.n, run.k);
@@ -94,23 +107,24 @@ void run_cases(Context& ctx, const std::vector<Case>& list, const Run& run) {
     CommandStream cs(ctx);
     conv.record(cs, in, ys.of(yd), c.residual ? std::optional<Slice>(Slice(rd, 0, -1, c.in_n0, c.batch)) : std::nullopt,
                 ConvAlgo::coopmat);
-    // pack + GEMM per input-channel chunk, one epilogue
+    // 1x1: pack + GEMM per input-channel chunk, one epilogue; 3x3: the GEMM (no scratch), the epilogue
     const int64_t chunks = run.chunk_rows > 0 ? ceil_div(c.cin, run.chunk_rows) : 1;
-    EXPECT_EQ(cs.recorded(), static_cast<size_t>(2 * chunks + 1));
+    EXPECT_EQ(cs.recorded(), static_cast<size_t>(c.k == 3 ? 2 : 2 * chunks + 1));
     cs.submit_and_wait();
     const HostTensor y = to_host(yd);
-    const std::string what = std::to_string(c.cin) + "->" + std::to_string(c.cout) + " " + std::to_string(c.h) + "x" +
+    const std::string what = std::to_string(c.k) + "x" + std::to_string(c.k) + " " + std::to_string(c.cin) + "->" + std::to_string(c.cout) + " " + std::to_string(c.h) + "x" +
                              std::to_string(c.w) + " batch " + std::to_string(c.batch) + " act " +
                              activation_name(c.act.kind) + (c.residual ? " residual" : "");
     const double err = max_abs_diff(y, y_ref, ys);
-    worst = std::max(worst, err);
+    worst[c.k == 3] = std::max(worst[c.k == 3], err);
     EXPECT_LE(err, kTolFp16) << what;
     EXPECT_EQ(canary_damage(y, ys), "") << what;
-    ++ran;
+    ++ran[c.k == 3];
   }
-  std::printf("[ measured ] conv2d coopmat fp16 %s 16x%ux%u%s: max abs error %.3g over %d cases\n",
+  std::printf("[ measured ] conv2d coopmat fp16 %s 16x%ux%u%s: max abs error %.3g over %d 1x1 cases, %.3g over %d 3x3\n",
               run.emulated ? "emulated" : "NV", run.n, run.k,
-              run.chunk_rows ? (", chunks of " + std::to_string(run.chunk_rows) + " channels").c_str() : "", worst, ran);
+              run.chunk_rows ? (", chunks of " + std::to_string(run.chunk_rows) + " channels").c_str() : "", worst[0],
+              ran[0], worst[1], ran[1]);
 }
 
 // The device's NV shape, or a skip naming what is missing.
@@ -128,7 +142,8 @@ TEST(Conv2dCoopmat, EmulatedMatchesReference) {
   for (auto [n, k] : {std::pair{8u, 16u}, {16u, 16u}, {8u, 8u}}) run_cases(ctx, cases(), {true, n, k});
 }
 
-// Input channels in chunks of 16 and 32: the GEMM accumulates into M (ACCUM), V is repacked per chunk.
+// 1x1: input channels in chunks of 16 and 32: the GEMM accumulates into M (ACCUM), V is repacked per
+// chunk (the 3x3 cases ignore the scratch cap: they have no scratch).
 TEST(Conv2dCoopmat, EmulatedInChunksMatchesReference) {
   Context& ctx = vktest::context();
   run_cases(ctx, cases(), {true, 8, 16, 16});
@@ -137,21 +152,25 @@ TEST(Conv2dCoopmat, EmulatedInChunksMatchesReference) {
 
 // Every slice binds its whole tensor: a write outside the output slice lands on a canary.
 TEST(Conv2dCoopmat, EmulatedWritesNothingOutsideItsSlice) {
+  run_cases(vktest::whole_binding_context(), cases(), {true, 8, 16});
   run_cases(vktest::whole_binding_context(), cases(), {true, 8, 16, 16});
 }
 
-TEST(Conv2dCoopmat, AppliesToFp16OneByOneOnly) {
+TEST(Conv2dCoopmat, AppliesToFp16OneByOneAndThreeByThreeStrideOne) {
   Context& ctx = vktest::context();
   std::mt19937 rng(7);
   ConvOptions fp16;
   fp16.precision = Precision::fp16;
   const HostTensor b = random_tensor({1, 1, 1, 8}, rng);
-  Conv2d c3(ctx, random_tensor({8, 4, 3, 3}, rng), b, {3, 1, 1, {}}, "c3", nullptr, fp16);
+  Conv2d c3(ctx, random_tensor({8, 4, 3, 3}, rng), b, {3, 2, 1, {}}, "c3s2", nullptr, fp16);
+  Conv2d c5(ctx, random_tensor({8, 4, 5, 5}, rng), b, {5, 1, 2, {}}, "c5", nullptr, fp16);
+  Conv2d c3s1(ctx, random_tensor({8, 4, 3, 3}, rng), b, {3, 1, 1, {}}, "c3", nullptr, fp16);
   Conv2d c1_32(ctx, random_tensor({8, 4, 1, 1}, rng), b, {1, 1, 0, {}});
   Conv2d c1(ctx, random_tensor({8, 4, 1, 1}, rng), b, {1, 1, 0, {}}, "c1", nullptr, fp16);
-  c3.set_coopmat_emulation(true);
-  c1_32.set_coopmat_emulation(true);
+  for (Conv2d* c : {&c3, &c5, &c1_32, &c3s1}) c->set_coopmat_emulation(true);
   EXPECT_FALSE(c3.supports(ConvAlgo::coopmat));
+  EXPECT_FALSE(c5.supports(ConvAlgo::coopmat));
+  EXPECT_TRUE(c3s1.supports(ConvAlgo::coopmat));
   EXPECT_FALSE(c1_32.supports(ConvAlgo::coopmat));
   EXPECT_EQ(c1.supports(ConvAlgo::coopmat), nv_missing(ctx).empty());
   c1.set_coopmat_emulation(true);
@@ -179,5 +198,6 @@ TEST(Conv2dCoopmat, NvMatchesReference) {
   run_cases(ctx, cases(), {false, s.n, s.k});
   run_cases(ctx, cases(), {false, s.n, s.k, 16});
   run_cases(ctx, cases(), {false, s.n, s.k, 32});
+  run_cases(vktest::whole_binding_context(), cases(), {false, s.n, s.k});
   run_cases(vktest::whole_binding_context(), cases(), {false, s.n, s.k, 16});
 }
