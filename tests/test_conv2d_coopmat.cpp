@@ -193,7 +193,10 @@ TEST(Conv2dCoopmat, DeviceReport) {
 
 TEST(Conv2dCoopmat, NvMatchesReference) {
   Context& ctx = vktest::context();
-  if (const std::string why = nv_missing(ctx); !why.empty()) GTEST_SKIP() << why;
+  if (const std::string why = nv_missing(ctx); !why.empty()) {
+    std::printf("[ device   ] NV cooperative-matrix path not run: %s\n", why.c_str());  // the device check's log
+    GTEST_SKIP() << why;
+  }
   const CoopMatShape s = *ctx.info().coopmat_fp16_shape();
   run_cases(ctx, cases(), {false, s.n, s.k});
   run_cases(ctx, cases(), {false, s.n, s.k, 16});
