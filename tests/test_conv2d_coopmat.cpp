@@ -180,6 +180,26 @@ TEST(Conv2dCoopmat, AppliesToFp16OneByOneAndThreeByThreeStrideOne) {
   EXPECT_STREQ(conv_algo_name(ConvAlgo::coopmat), "coopmat");
 }
 
+// ContextOptions::without_coopmat: the device is created without the extension, and the conv says so.
+TEST(Conv2dCoopmat, WithoutCoopmatTheRealFormIsUnsupported) {
+  ContextOptions co;
+  co.validation = true;
+  co.validation_fatal = true;
+  co.announce = false;
+  co.without_coopmat = true;
+  Context ctx(co);
+  EXPECT_FALSE(ctx.info().coopmat_nv);
+  EXPECT_FALSE(ctx.info().coopmat_fp16_shape().has_value());
+  std::mt19937 rng(8);
+  ConvOptions fp16;
+  fp16.precision = Precision::fp16;
+  Conv2d c1(ctx, random_tensor({8, 4, 1, 1}, rng), random_tensor({1, 1, 1, 8}, rng), {1, 1, 0, {}}, "c1", nullptr, fp16);
+  EXPECT_FALSE(c1.supports(ConvAlgo::coopmat));
+  Tensor x(ctx, {1, 4, 2, 2}, DType::f16), y(ctx, {1, 8, 2, 2}, DType::f16);
+  CommandStream cs(ctx);
+  EXPECT_THROW(c1.record(cs, Slice(x), Slice(y), std::nullopt, ConvAlgo::coopmat), Error);
+}
+
 // What the device offers, in the log of the first GPU run.
 TEST(Conv2dCoopmat, DeviceReport) {
   const DeviceInfo& d = vktest::context().info();
