@@ -4,9 +4,10 @@
 // chunks that fit the scratch). 3x3 stride 1 pad 1: shaders/conv3x3_coopmat.comp, an implicit GEMM
 // (the input gathered into shared memory per step, no scratch). Every GEMM dimension is padded to
 // whole fragments: output channels to 16 (W's zero rows), the reduction (cin, or cin x 9) to 16 (W's
-// zero columns; V's zero rows: conv1x1_pack's c_valid), pixels to the workgroup's NW x 32 (zeros). The real shader needs VK_NV_cooperative_matrix with a
-// 16 x {8,16} x {8,16} fp16 -> fp32 subgroup shape and subgroups of 32 (NVIDIA); its emulated form,
-// the same tiling in plain GLSL, runs anywhere (tests: set_coopmat_emulation).
+// zero columns; V's zero rows: conv1x1_pack's c_valid), pixels to the workgroup's NW x 32 (zeros).
+// The real shaders need VK_NV_cooperative_matrix with a 16 x {8,16} x {8,16} fp16 -> fp32 subgroup
+// shape and subgroups of 32 (NVIDIA); their emulated form, the same tiling in plain GLSL, runs
+// anywhere (tests: set_coopmat_emulation).
 #include <algorithm>
 
 #include "vkunroll/kernels/shaders.hpp"

@@ -92,7 +92,9 @@ void run_cases(Context& ctx, const std::vector<Case>& list, const Run& run) {
     Conv2d conv(ctx, w, b, p, "conv1x1", workspace, options);
     if (run.emulated) conv.set_coopmat_emulation(true, run.n, run.k);
     const int64_t npix = c.batch * c.h * c.w;
-    if (run.chunk_rows > 0) conv.set_winograd_scratch_limit(static_cast<uint64_t>(run.chunk_rows * ceil_div(npix, 128) * 128 * 2));
+    // V holds chunk_rows channels of the pixels padded to 128 (the workgroup's), fp16
+    if (run.chunk_rows > 0)
+      conv.set_winograd_scratch_limit(static_cast<uint64_t>(run.chunk_rows * ceil_div(npix, 128) * 128 * 2));
     ASSERT_TRUE(conv.supports(ConvAlgo::coopmat));
     const int64_t nb = std::max(c.batch, c.in_batch_total);
     HostTensor x = random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng);
@@ -112,9 +114,9 @@ void run_cases(Context& ctx, const std::vector<Case>& list, const Run& run) {
     EXPECT_EQ(cs.recorded(), static_cast<size_t>(c.k == 3 ? 2 : 2 * chunks + 1));
     cs.submit_and_wait();
     const HostTensor y = to_host(yd);
-    const std::string what = std::to_string(c.k) + "x" + std::to_string(c.k) + " " + std::to_string(c.cin) + "->" + std::to_string(c.cout) + " " + std::to_string(c.h) + "x" +
-                             std::to_string(c.w) + " batch " + std::to_string(c.batch) + " act " +
-                             activation_name(c.act.kind) + (c.residual ? " residual" : "");
+    const std::string what = std::to_string(c.k) + "x" + std::to_string(c.k) + " " + std::to_string(c.cin) + "->" +
+                             std::to_string(c.cout) + " " + std::to_string(c.h) + "x" + std::to_string(c.w) +
+                             " batch " + std::to_string(c.batch) + " act " + activation_name(c.act.kind) + (c.residual ? " residual" : "");
     const double err = max_abs_diff(y, y_ref, ys);
     worst[c.k == 3] = std::max(worst[c.k == 3], err);
     EXPECT_LE(err, kTolFp16) << what;
