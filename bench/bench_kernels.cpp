@@ -390,7 +390,8 @@ int main(int argc, char** argv) {
           const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
           algos.push_back(conv_algo_name(chosen));
           if (all_algos)
-            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
+                            ConvAlgo::coopmat})
               if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
         }
         Tensor yd(ctx, os, dt);
@@ -399,7 +400,8 @@ int main(int argc, char** argv) {
             for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
               if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
           } else {
-            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct})
+            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
+                            ConvAlgo::coopmat})
               if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
           }
         };

@@ -2,7 +2,9 @@
 # it as a uint32_t array, listed in the null-terminated table vkunroll::embedded::<table>
 # (runtime/shader_registry.hpp: find_shader looks modules up by name, the file stem).
 # Shaders that include precision.glsl are compiled twice: <stem> (fp32) and <stem>_fp16 (-DVKU_FP16),
-# both validated and embedded.
+# both validated and embedded. Shaders on cooperative matrices (they include coopmat.glsl) are
+# compiled twice too: <stem> (GL_NV_cooperative_matrix) and <stem>_emulated (-DVKU_COOPMAT_EMULATE,
+# the same tiling in plain GLSL, which lavapipe runs).
 function(vkunroll_embed_shaders out_var shader_dir table)
   file(GLOB _comps CONFIGURE_DEPENDS ${shader_dir}/*.comp)
   set(_gen_dir ${CMAKE_CURRENT_BINARY_DIR}/shaders_${table})
@@ -18,10 +20,15 @@ function(vkunroll_embed_shaders out_var shader_dir table)
     if(_src MATCHES "#include \"precision.glsl\"")
       list(APPEND _variants ${_stem}_fp16)
     endif()
+    if(_src MATCHES "#include \"coopmat.glsl\"")
+      list(APPEND _variants ${_stem}_emulated)
+    endif()
     foreach(_name ${_variants})
       set(_defs "")
       if(_name MATCHES "_fp16$")
         set(_defs -DVKU_FP16)
+      elseif(_name MATCHES "_emulated$")
+        set(_defs -DVKU_COOPMAT_EMULATE)
       endif()
       set(_spv ${_gen_dir}/${_name}.spv)
       set(_cpp ${_gen_dir}/${_name}.spv.cpp)

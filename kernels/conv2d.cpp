@@ -41,6 +41,7 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::winograd: return "winograd";
     case ConvAlgo::gemm: return "gemm";
     case ConvAlgo::direct: return "direct";
+    case ConvAlgo::coopmat: return "coopmat";
   }
   return "unknown";
 }
@@ -196,6 +197,7 @@ bool Conv2d::supports(ConvAlgo algo) const {
     case ConvAlgo::naive:
     case ConvAlgo::blocked: return true;
     case ConvAlgo::direct: return direct_cob_ % 4 == 0 && direct_chunks().chunk >= 1;
+    case ConvAlgo::coopmat: return coopmat_applies();
     default: return false;
   }
 }
@@ -316,6 +318,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     case ConvAlgo::direct: return record_direct(cs, r);
     case ConvAlgo::winograd: return record_winograd(cs, r);
     case ConvAlgo::gemm: return record_gemm(cs, r);
+    case ConvAlgo::coopmat: return record_coopmat(cs, r);
     default: break;
   }
   throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " is not implemented");

@@ -30,6 +30,10 @@ enum class ConvAlgo : uint32_t {
                   // one position: 8 pixels x 8/16 channels per invocation, vec4 loads), epilogue
   direct = 6,     // register blocking (8 pixels x 16 output channels per invocation) with the weights in
                   // a uniform buffer, one dispatch per channel block and input-channel chunk; all shapes
+  coopmat = 7,    // fp16 only, GEMMs on cooperative matrices (tensor cores, VK_NV_cooperative_matrix: fp16
+                  // operands, fp32 accumulators): 1x1 stride 1 between the gemm path's pack and epilogue,
+                  // 3x3 stride 1 (pad 1) as an implicit GEMM (im2col in shared memory) and the same
+                  // epilogue; conv2d_coopmat.cpp. Tests run its emulated form where the device has none.
 };
 const char* conv_algo_name(ConvAlgo a);
 
@@ -90,6 +94,9 @@ class Conv2d {
   // direct reads its input through a uniform texel buffer (faster on lavapipe) where the bound
   // input fits maxTexelBufferElements; false forces the storage-buffer variant (tests).
   void set_direct_texel_input(bool on) { direct_texel_input_ = on; }
+  // Tests: `coopmat` runs the emulated form of its shader (plain GLSL with the same tiling, fragments
+  // 16 x n x k; n, k 8 or 16) where the device has no cooperative matrix (supports() then says yes).
+  void set_coopmat_emulation(bool on, uint32_t n = 8, uint32_t k = 16);
   Shape output_shape(const Shape& in) const;  // {n, cout, oh, ow}
   double flop(const Shape& in) const;         // 2 x multiply-adds of the direct algorithm
   int64_t cin() const { return cin_; }
@@ -118,6 +125,10 @@ class Conv2d {
   void record_direct(CommandStream& cs, const Recording& r) const;    // conv2d_direct.cpp
   void record_winograd(CommandStream& cs, const Recording& r) const;  // conv2d_winograd.cpp
   void record_gemm(CommandStream& cs, const Recording& r) const;      // conv2d_winograd.cpp
+  void record_coopmat(CommandStream& cs, const Recording& r) const;   // conv2d_coopmat.cpp
+  bool coopmat_applies() const;                  // conv2d_coopmat.cpp: supports(coopmat)
+  bool coopmat_fits(const Shape& in) const;      // conv2d_coopmat.cpp: supports(coopmat, in)
+  int64_t coopmat_chunk(const Shape& in) const;  // input channels per GEMM dispatch (a multiple of 16)
   void choose_blocking(const ConvOptions& options);
   // Packings other than the automatic path's are uploaded on first use (record is const).
   void pack_naive() const;
@@ -125,6 +136,7 @@ class Conv2d {
   void pack_direct() const;  // conv2d_direct.cpp
   void pack_winograd();      // conv2d_winograd.cpp
   void pack_gemm();          // conv2d_winograd.cpp
+  void pack_coopmat() const;  // conv2d_coopmat.cpp
   UniformSlabChunks direct_chunks() const;  // input-channel chunks of the uniform weight slabs
   // A packed weight array on the device in the conv's precision (common.hpp's upload_weights).
   Tensor upload_weights(const std::vector<float>& w) const;
@@ -156,6 +168,9 @@ class Conv2d {
   uint32_t gemm_tv_ = 4;     // vec4s of tiles per GEMM invocation
   int64_t gemm_cout_pad_ = 0, winograd_ks_ = 1;
   uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
+  mutable Tensor weight_coopmat_;  // fp16 [cout_pad][kpad], kk = ci*k*k + tap (zero-padded to 16): coopmat
+  bool coopmat_emulated_ = false;
+  uint32_t coopmat_emulated_n_ = 8, coopmat_emulated_k_ = 16;
   mutable std::shared_ptr<ConvWorkspace> workspace_;
 };
 

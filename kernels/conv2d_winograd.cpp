@@ -98,6 +98,7 @@ int64_t Conv2d::winograd_chunk(const Shape& in) const {
 
 bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
   if (!supports(algo)) return false;
+  if (algo == ConvAlgo::coopmat) return coopmat_fits(in);
   // M (fp32 in both precisions, all output channels) must fit one binding; V runs in chunks.
   if (algo == ConvAlgo::gemm)
     return static_cast<uint64_t>(gemm_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
@@ -169,8 +170,8 @@ void Conv2d::record_gemm(CommandStream& cs, const Recording& r) const {
     const double v_bytes = static_cast<double>(e) * static_cast<double>(cn * pix_pad);
     const BufferRange vr = vt.range(0, static_cast<size_t>(cn * pix_pad) * e);
     struct PackPush {
-      uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin;
-    } pp{r.in.offset, r.in.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad), u32(c0)};
+      uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin, c_valid;
+    } pp{r.in.offset, r.in.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad), u32(c0), u32(cn)};
     cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_pack"), {}, sizeof pp), {r.in.arg, {vr, Access::write}}, pp,
                 Groups{u32((pix_pad / 4 + 63) / 64), u32(cn), 1}, {name + "_gemm_pack", 0, 2.0 * v_bytes});
     struct GemmPush {

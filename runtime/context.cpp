@@ -101,6 +101,49 @@ uint32_t queue_family_for_compute(VkPhysicalDevice pd) {
   return UINT32_MAX;
 }
 
+// VK_NV_cooperative_matrix: its feature, the Vulkan memory model glslang's cooperative-matrix SPIR-V
+// declares, and the list of shapes. Usable only with fp16 arithmetic and 16-bit storage too.
+void read_coopmat_info(VkPhysicalDevice pd, bool v12, DeviceInfo& info) {
+  info.coopmat_khr_listed = device_extension_available(pd, "VK_KHR_cooperative_matrix");
+  if (!device_extension_available(pd, VK_NV_COOPERATIVE_MATRIX_EXTENSION_NAME)) return;
+  VkPhysicalDeviceCooperativeMatrixFeaturesNV cm{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_COOPERATIVE_MATRIX_FEATURES_NV};
+  VkPhysicalDeviceVulkanMemoryModelFeatures mm{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_MEMORY_MODEL_FEATURES};
+  VkPhysicalDeviceFeatures2 feats2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
+  feats2.pNext = &cm;
+  const bool has_mm = v12 || device_extension_available(pd, VK_KHR_VULKAN_MEMORY_MODEL_EXTENSION_NAME);
+  if (has_mm) cm.pNext = &mm;
+  vkGetPhysicalDeviceFeatures2(pd, &feats2);
+  VkPhysicalDeviceCooperativeMatrixPropertiesNV stages{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_COOPERATIVE_MATRIX_PROPERTIES_NV};
+  VkPhysicalDeviceProperties2 props2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2};
+  props2.pNext = &stages;
+  vkGetPhysicalDeviceProperties2(pd, &props2);
+  if (vkGetPhysicalDeviceCooperativeMatrixPropertiesNV) {
+    uint32_t n = 0;
+    vkGetPhysicalDeviceCooperativeMatrixPropertiesNV(pd, &n, nullptr);
+    std::vector<VkCooperativeMatrixPropertiesNV> props(n, {VK_STRUCTURE_TYPE_COOPERATIVE_MATRIX_PROPERTIES_NV});
+    if (n) vkGetPhysicalDeviceCooperativeMatrixPropertiesNV(pd, &n, props.data());
+    for (uint32_t i = 0; i < n; ++i) {
+      const auto& p = props[i];
+      info.coopmat_shapes.push_back({p.MSize, p.NSize, p.KSize, p.AType, p.BType, p.CType, p.DType, p.scope});
+    }
+  }
+  info.coopmat_nv = cm.cooperativeMatrix && has_mm && mm.vulkanMemoryModel && info.shader_float16 &&
+                    info.storage_buffer_16bit && (stages.cooperativeMatrixSupportedStages & VK_SHADER_STAGE_COMPUTE_BIT);
+}
+
+const char* component_name(VkComponentTypeNV t) {
+  switch (t) {
+    case VK_COMPONENT_TYPE_FLOAT16_NV: return "fp16";
+    case VK_COMPONENT_TYPE_FLOAT32_NV: return "fp32";
+    case VK_COMPONENT_TYPE_FLOAT64_NV: return "fp64";
+    case VK_COMPONENT_TYPE_SINT8_NV: return "s8";
+    case VK_COMPONENT_TYPE_UINT8_NV: return "u8";
+    case VK_COMPONENT_TYPE_SINT32_NV: return "s32";
+    case VK_COMPONENT_TYPE_UINT32_NV: return "u32";
+    default: return "other";
+  }
+}
+
 DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
   DeviceInfo info;
   info.index = index;
@@ -150,6 +193,7 @@ DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
   info.storage_buffer_16bit = storage16.storageBuffer16BitAccess;
   info.push_descriptor = device_extension_available(pd, VK_KHR_PUSH_DESCRIPTOR_EXTENSION_NAME);
   info.shader_float16 = storage16.pNext && f16.shaderFloat16;
+  read_coopmat_info(pd, v12, info);
 
   const uint32_t qf = queue_family_for_compute(pd);
   if (qf != UINT32_MAX) {
@@ -244,6 +288,27 @@ std::string DeviceInfo::type_name() const {
     case VK_PHYSICAL_DEVICE_TYPE_CPU: return "cpu";
     default: return "other";
   }
+}
+
+std::string CoopMatShape::str() const {
+  std::ostringstream os;
+  os << m << "x" << n << "x" << k << " " << component_name(a) << "*" << component_name(b) << "+" << component_name(c)
+     << "->" << component_name(d) << " "
+     << (scope == VK_SCOPE_SUBGROUP_NV ? "subgroup" : scope == VK_SCOPE_WORKGROUP_NV ? "workgroup" : "other");
+  return os.str();
+}
+
+std::optional<CoopMatShape> DeviceInfo::coopmat_fp16_shape() const {
+  if (!coopmat_nv) return std::nullopt;
+  std::optional<CoopMatShape> best;
+  for (const CoopMatShape& s : coopmat_shapes) {
+    const bool types = s.a == VK_COMPONENT_TYPE_FLOAT16_NV && s.b == VK_COMPONENT_TYPE_FLOAT16_NV &&
+                       s.c == VK_COMPONENT_TYPE_FLOAT32_NV && s.d == VK_COMPONENT_TYPE_FLOAT32_NV;
+    const bool size = s.m == 16 && (s.n == 8 || s.n == 16) && (s.k == 8 || s.k == 16);
+    if (!types || !size || s.scope != VK_SCOPE_SUBGROUP_NV) continue;
+    if (!best || s.n * s.k > best->n * best->k) best = s;
+  }
+  return best;
 }
 
 std::string DeviceInfo::api_version_string() const {
@@ -403,6 +468,7 @@ void Context::create_device() {
   info_.min_uniform_buffer_offset_alignment =
       std::max<uint64_t>(info_.min_uniform_buffer_offset_alignment, options_.min_uniform_offset_alignment);
   if (options_.without_fp16) info_.shader_float16 = info_.storage_buffer_16bit = false;
+  if (options_.without_fp16 || options_.without_coopmat) info_.coopmat_nv = false;
   queue_family_ = queue_family_for_compute(physical_);
   if (queue_family_ == UINT32_MAX) throw DeviceUnavailableError("device '" + info_.name + "' has no compute queue");
 
@@ -424,6 +490,18 @@ void Context::create_device() {
   if (info_.shader_float16) {
     storage16.pNext = &f16;
     if (!v12) exts.push_back(VK_KHR_SHADER_FLOAT16_INT8_EXTENSION_NAME);
+  }
+  // Cooperative matrices (conv `coopmat`): the extension, its feature and the Vulkan memory model.
+  VkPhysicalDeviceCooperativeMatrixFeaturesNV coopmat{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_COOPERATIVE_MATRIX_FEATURES_NV};
+  VkPhysicalDeviceVulkanMemoryModelFeatures memory_model{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_VULKAN_MEMORY_MODEL_FEATURES};
+  if (info_.coopmat_nv) {
+    coopmat.cooperativeMatrix = VK_TRUE;
+    memory_model.vulkanMemoryModel = VK_TRUE;
+    coopmat.pNext = &memory_model;
+    memory_model.pNext = feats.pNext;
+    feats.pNext = &coopmat;
+    exts.push_back(VK_NV_COOPERATIVE_MATRIX_EXTENSION_NAME);
+    if (!v12) exts.push_back(VK_KHR_VULKAN_MEMORY_MODEL_EXTENSION_NAME);
   }
   VkPhysicalDeviceFeatures supported{};
   vkGetPhysicalDeviceFeatures(physical_, &supported);

@@ -40,10 +40,22 @@ struct ContextOptions {
   // Create the device without its 16-bit storage and fp16 arithmetic features, as on a device that
   // lacks them (tests of the fp16 refusal).
   bool without_fp16 = false;
+  // Create the device without VK_NV_cooperative_matrix even where it has it (the conv `coopmat`
+  // path then reports itself unsupported), as on a device that lacks it.
+  bool without_coopmat = false;
   // Bind each dispatch's buffers with VK_KHR_push_descriptor where the device has it (recorded into
   // the command buffer: no descriptor set allocated or updated per dispatch); false: descriptor sets
   // from pools, the portable path (tests run both).
   bool push_descriptors = true;
+};
+
+// One entry of vkGetPhysicalDeviceCooperativeMatrixPropertiesNV: D (MxN) = A (MxK) B (KxN) + C.
+struct CoopMatShape {
+  uint32_t m = 0, n = 0, k = 0;
+  VkComponentTypeNV a = VK_COMPONENT_TYPE_FLOAT16_NV, b = VK_COMPONENT_TYPE_FLOAT16_NV;
+  VkComponentTypeNV c = VK_COMPONENT_TYPE_FLOAT32_NV, d = VK_COMPONENT_TYPE_FLOAT32_NV;
+  VkScopeNV scope = VK_SCOPE_SUBGROUP_NV;
+  std::string str() const;  // "16x8x16 fp16*fp16+fp32->fp32 subgroup"
 };
 
 // Limits and features of a physical device, read once.
@@ -58,6 +70,15 @@ struct DeviceInfo {
   bool shader_float16 = false;          // fp16 arithmetic in shaders (enabled when present)
   bool push_descriptor = false;         // VK_KHR_push_descriptor (enabled unless ContextOptions says no)
   bool storage_buffer_16bit = false;    // fp16 values in storage buffers (enabled; the fp16 kernels need it)
+  // VK_NV_cooperative_matrix with its cooperativeMatrix feature, the shader Vulkan memory model that
+  // glslang's cooperative-matrix SPIR-V declares, fp16 arithmetic and 16-bit storage (enabled when all
+  // are present, unless ContextOptions::without_coopmat or without_fp16).
+  bool coopmat_nv = false;
+  bool coopmat_khr_listed = false;           // VK_KHR_cooperative_matrix is listed (information only: unused)
+  std::vector<CoopMatShape> coopmat_shapes;  // every shape the device offers (NV query)
+  // The shape the conv `coopmat` path uses: fp16 A and B, fp32 C and D, subgroup scope, M 16, N and
+  // K 8 or 16 (the largest offered); nullopt without one.
+  std::optional<CoopMatShape> coopmat_fp16_shape() const;
   uint64_t max_storage_buffer_range = 0;
   uint32_t max_shared_memory = 0;
   uint32_t max_push_constants = 0;

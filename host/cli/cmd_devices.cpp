@@ -30,6 +30,10 @@ int run_devices(const DevicesArgs& a) {
       j["max_shared_memory"] = d.max_shared_memory;
       j["device_local_bytes"] = d.device_local_bytes;
       j["timestamps"] = d.timestamps;
+      j["cooperative_matrix_nv"] = d.coopmat_nv;
+      j["cooperative_matrix_khr_listed"] = d.coopmat_khr_listed;
+      j["cooperative_matrix_shapes"] = nlohmann::json::array();
+      for (const CoopMatShape& s : d.coopmat_shapes) j["cooperative_matrix_shapes"].push_back(s.str());
       out["devices"].push_back(j);
     }
     std::cout << out.dump(2) << "\n";
@@ -46,6 +50,11 @@ int run_devices(const DevicesArgs& a) {
               << "      max storage buffer range " << (d.max_storage_buffer_range >> 20) << " MiB, shared memory "
               << (d.max_shared_memory >> 10) << " KiB, push constants " << d.max_push_constants << " B, timestamps "
               << (d.timestamps ? "yes" : "no") << "\n";
+    const auto cm = d.coopmat_fp16_shape();
+    std::cout << "      cooperative matrix (VK_NV_cooperative_matrix) " << (d.coopmat_nv ? "yes" : "no")
+              << (cm ? ", conv coopmat uses " + cm->str() : "") << (d.coopmat_khr_listed ? "; VK_KHR_cooperative_matrix listed" : "")
+              << "\n";
+    for (const CoopMatShape& s : d.coopmat_shapes) std::cout << "        " << s.str() << "\n";
   }
   std::cout << "vkunroll would use [" << chosen << "] " << list.devices[chosen].name << "\n";
   return 0;

@@ -17,8 +17,8 @@ LIBS=$(ninja -C "$B" -t commands bench/vkunroll-bench-kernels | tail -1 | grep -
  done
  T=tests/CMakeFiles/vkunroll_tests.dir
  objs=""
- for t in backward_warp conv2d conv_transpose2d copy_rect elementwise event_tensor model model_fp16 physics_unroll precision \
-          reflection_pad runtime space_to_depth weights safetensors conv_choice; do objs="$objs $T/test_$t.cpp.o"; done
+ for t in backward_warp conv2d conv2d_coopmat conv_transpose2d copy_rect elementwise event_tensor model model_fp16 physics_unroll \
+          precision reflection_pad runtime space_to_depth weights safetensors conv_choice; do objs="$objs $T/test_$t.cpp.o"; done
  c++ -O3 -Wl,--as-needed $objs $T/vk_test_env.cpp.o $T/shaders_kTestShaders/*.o -o "$R/.devrun/bin/vkunroll_gpu_tests" $LIBS \
      /usr/lib/x86_64-linux-gnu/libgtest.a -lpthread)
 # Shared libraries the binaries still need beyond glibc and libstdc++ (the model layer's CPU backend

@@ -20,7 +20,14 @@ export VK_LAYER_PATH=$R/.devrun/layers VKUNROLL_CACHE_DIR=/tmp/vkcache VKUNROLL_
 B=$R/.devrun/bin
 VK_LOADER_DEBUG=error $B/vkunroll_gpu_tests --gtest_filter=Runtime.RoundTripEveryDtype > /tmp/probe.log 2>&1 || { head -40 /tmp/probe.log; exit 3; }; grep -i device /tmp/probe.log | head -3
 if [ "$PHASE" = tests ]; then
-VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 timeout ${TEST_S:-150} $B/vkunroll_gpu_tests --gtest_brief=1 ${GTEST_ARGS} > $OUT/gpu_tests.log 2>&1; echo "tests rc=$?"
+# The cooperative-matrix conv first, on its own (issue 15): the real VK_NV_cooperative_matrix path has
+# only run emulated on lavapipe; its log says what the device offers and each case's error.
+VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 timeout 45 $B/vkunroll_gpu_tests --gtest_filter='Conv2dCoopmat.*' > $OUT/gpu_tests_coopmat.log 2>&1; CM_RC=$?; echo "coopmat tests rc=$CM_RC"
+grep -E '^\[ (device|measured) |^\[  (PASSED|FAILED|SKIPPED)|Failure|Skipped|error' $OUT/gpu_tests_coopmat.log | head -40
+# where they passed: coopmat timed beside the fp16 paths it would replace, on the model's shapes (the
+# full test run below leaves Conv2dCoopmat out: it ran here)
+[ $CM_RC = 0 ] && { timeout 45 $B/vkunroll-bench-kernels --precision fp16 --no-naive --algos coopmat,gemm,winograd,blocked --reps 2 > $OUT/bench_kernels_coopmat.txt 2>&1; echo "coopmat bench rc=$?"; grep -E "coopmat|RDB|GFF" $OUT/bench_kernels_coopmat.txt | head -30; }
+VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 timeout ${TEST_S:-150} $B/vkunroll_gpu_tests --gtest_brief=1 ${GTEST_ARGS:---gtest_filter=-Conv2dCoopmat.*} > $OUT/gpu_tests.log 2>&1; echo "tests rc=$?"
 grep -E '^\[  (PASSED|FAILED)|^\[  FAILED|tests ran|device' $OUT/gpu_tests.log | head -60
 timeout 150 $B/vkunroll-bench-kernels --reps 3 --json $OUT/bench_kernels_h100.json > $OUT/bench_kernels_h100.txt 2>&1; echo "kernels rc=$?"; tail -8 $OUT/bench_kernels_h100.txt
 timeout 30 $B/vkunroll-bench-dispatch > $OUT/bench_dispatch.txt 2>&1; echo "dispatch rc=$?"; tail -3 $OUT/bench_dispatch.txt

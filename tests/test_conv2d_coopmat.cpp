@@ -1,0 +1,228 @@
+// conv2d `coopmat` (1x1 GEMM and 3x3 implicit GEMM on cooperative matrices, fp16) against the CPU reference: the emulated
+// shader (the same tiling in plain GLSL) on every device, the real VK_NV_cooperative_matrix one where
+// the device has it (else skipped, naming the extension).
+#include <gtest/gtest.h>
+
+#include <cstdio>
+
+#include "kernel_test_util.hpp"
+#include "vkunroll/kernels/conv2d.hpp"
+#include "vkunroll/runtime/context.hpp"
+#include "vk_test_env.hpp"
+
+using namespace vkunroll;
+using namespace vkunroll::ktest;
+
+namespace {
+// fp16 storage (inputs, weights, residual and output rounded to half; fp32 accumulation) against the
+// fp32 reference: the tolerance of the other fp16 conv tests (test_conv2d.cpp).
+constexpr double kTolFp16 = 1e-2;
+
+struct Case {
+  int k;  // 1 (stride 1) or 3 (stride 1, pad 1)
+  int64_t cin, cout, h, w;
+  Act act;
+  bool residual;
+  int64_t in_extra_c = 0, in_c0 = 0, out_extra_c = 0, out_c0 = 0;  // slices inside larger tensors
+  int64_t batch = 1, in_n0 = 0, in_batch_total = 1;
+};
+
+// test_conv2d.cpp's 1x1 and 3x3 stride-1 cases, odd channel counts (padding to 16 in both), several
+// workgroups along the pixels and along the channels (FM 1, 3 and 4), slices at channel offsets,
+// residuals, batch 2.
+std::vector<Case> cases() {
+  const Act lrelu01 = leaky_relu(0.1f);
+  return {
+      // k cin cout  h   w  act                                res   in slice  out slice  batch
+      {1, 6, 3, 1, 1, Act{Activation::sigmoid}, false, 2, 1, 0, 0},
+      {1, 13, 9, 7, 10, lrelu01, true},
+      {1, 130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1},
+      {1, 129, 64, 3, 11, Act{Activation::tanh}, false, 0, 0, 0, 0, 2, 0, 2},
+      {1, 13, 32, 7, 10, lrelu01, true, 0, 0, 0, 0, 2},
+      {1, 130, 96, 5, 7, lrelu01, true, 3, 1, 2, 1, 2},
+      {1, 3, 17, 9, 13, lrelu01, false, 1, 1, 2, 2},
+      {1, 17, 3, 11, 12, Act{Activation::hardsigmoid}, true, 0, 0, 1, 1, 2},
+      {1, 3, 96, 6, 9, Act{}, true},
+      {1, 48, 48, 20, 13, lrelu01, true, 48, 48, 96, 48, 2, 1, 3},  // RDB-like: a slice of a wider tensor
+      {1, 64, 80, 16, 24, Act{}, false},                             // 80: FM 1, 5 channel workgroups
+      {1, 160, 64, 9, 31, lrelu01, false, 0, 0, 0, 0, 2},
+      // 3x3 implicit GEMM: odd sizes and channel counts, borders (1-pixel images and rows), slices, batch
+      {3, 5, 7, 9, 11, leaky_relu(0.01f), true, 4, 2, 5, 3, 2, 0, 2},
+      {3, 17, 19, 16, 12, lrelu01, false},
+      {3, 8, 16, 13, 35, Act{}, true, 0, 0, 8, 8},
+      {3, 7, 5, 21, 1, lrelu01, false},
+      {3, 6, 3, 1, 1, Act{Activation::sigmoid}, false},
+      {3, 9, 1, 19, 13, Act{Activation::hardsigmoid}, false, 2, 1, 3, 2},
+      {3, 48, 48, 20, 13, lrelu01, true, 48, 48, 96, 48, 2, 1, 3},  // the RDB convs' shape, a dense-block slice
+      {3, 144, 48, 9, 10, lrelu01, false},
+      {3, 96, 64, 7, 33, Act{Activation::tanh}, false, 0, 0, 0, 0, 2},
+  };
+}
+
+struct Run {
+  bool emulated = true;
+  uint32_t n = 8, k = 16;  // emulated fragment 16 x n x k
+  int64_t chunk_rows = 0;  // >0: cap V so that each GEMM dispatch takes this many input channels
+};
+
+int64_t ceil_div(int64_t a, int64_t b) { return (a + b - 1) / b; }
+
+// Every case against the reference; the output slice sits among canaries (kernel_test_util.hpp).
+void run_cases(Context& ctx, const std::vector<Case>& list, const Run& run) {
+  std::mt19937 rng(4321);
+  int ran[2] = {0, 0};
+  double worst[2] = {0, 0};  // 1x1, 3x3
+  ConvOptions options;
+  options.precision = Precision::fp16;
+  // A shared scratch full of fp16 NaNs before every case: the padded rows of V must be written as
+  // zeros and M overwritten by the first chunk, or NaNs reach the output.
+  auto workspace = std::make_shared<ConvWorkspace>();
+  const auto poison = [&] {
+    CommandStream cs(ctx);
+    for (int slot : {0, 1}) cs.fill(workspace->get(ctx, slot, 4u << 20), 0x7e007e00u);
+    cs.submit_and_wait();
+  };
+  for (const Case& c : list) {
+    if (run.chunk_rows > 0 && c.k != 1) continue;  // the 3x3 path has no scratch to cap
+    poison();
+    const Conv2dParams p{c.k, 1, c.k / 2, c.act};
+    const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
+    HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
+    HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
+    Conv2d conv(ctx, w, b, p, "conv1x1", workspace, options);
+    if (run.emulated) conv.set_coopmat_emulation(true, run.n, run.k);
+    const int64_t npix = c.batch * c.h * c.w;
+    // V holds chunk_rows channels of the pixels padded to 128 (the workgroup's), fp16
+    if (run.chunk_rows > 0)
+      conv.set_winograd_scratch_limit(static_cast<uint64_t>(run.chunk_rows * ceil_div(npix, 128) * 128 * 2));
+    ASSERT_TRUE(conv.supports(ConvAlgo::coopmat));
+    const int64_t nb = std::max(c.batch, c.in_batch_total);
+    HostTensor x = random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng);
+    const CanarySlice ys = canary_slice({c.batch, c.cout, c.h, c.w}, rng, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1);
+    HostTensor r = random_tensor({nb, c.cout, c.h, c.w}, rng);
+    HostTensor y_ref = ys.host;
+    conv2d_ref(HostSlice(x, c.in_c0, c.cin, c.in_n0, c.batch), ys.of(y_ref), w, b, p,
+               c.residual ? std::optional<HostSlice>(HostSlice(r, 0, -1, c.in_n0, c.batch)) : std::nullopt);
+    Tensor xd = to_device(ctx, x, DType::f16), yd = to_device(ctx, ys.host, DType::f16), rd = to_device(ctx, r, DType::f16);
+    const Slice in(xd, c.in_c0, c.cin, c.in_n0, c.batch);
+    ASSERT_TRUE(conv.supports(ConvAlgo::coopmat, in.shape()));
+    CommandStream cs(ctx);
+    conv.record(cs, in, ys.of(yd), c.residual ? std::optional<Slice>(Slice(rd, 0, -1, c.in_n0, c.batch)) : std::nullopt,
+                ConvAlgo::coopmat);
+    // 1x1: pack + GEMM per input-channel chunk, one epilogue; 3x3: the GEMM (no scratch), the epilogue
+    const int64_t chunks = run.chunk_rows > 0 ? ceil_div(c.cin, run.chunk_rows) : 1;
+    EXPECT_EQ(cs.recorded(), static_cast<size_t>(c.k == 3 ? 2 : 2 * chunks + 1));
+    cs.submit_and_wait();
+    const HostTensor y = to_host(yd);
+    const std::string what = std::to_string(c.k) + "x" + std::to_string(c.k) + " " + std::to_string(c.cin) + "->" +
+                             std::to_string(c.cout) + " " + std::to_string(c.h) + "x" + std::to_string(c.w) +
+                             " batch " + std::to_string(c.batch) + " act " + activation_name(c.act.kind) + (c.residual ? " residual" : "");
+    const double err = max_abs_diff(y, y_ref, ys);
+    worst[c.k == 3] = std::max(worst[c.k == 3], err);
+    EXPECT_LE(err, kTolFp16) << what;
+    EXPECT_EQ(canary_damage(y, ys), "") << what;
+    ++ran[c.k == 3];
+  }
+  std::printf("[ measured ] conv2d coopmat fp16 %s 16x%ux%u%s: max abs error %.3g over %d 1x1 cases, %.3g over %d 3x3\n",
+              run.emulated ? "emulated" : "NV", run.n, run.k,
+              run.chunk_rows ? (", chunks of " + std::to_string(run.chunk_rows) + " channels").c_str() : "", worst[0],
+              ran[0], worst[1], ran[1]);
+}
+
+// The device's NV shape, or a skip naming what is missing.
+std::string nv_missing(const Context& ctx) {
+  const DeviceInfo& d = ctx.info();
+  if (!d.coopmat_nv) return "device '" + d.name + "' has no VK_NV_cooperative_matrix (with fp16 and the Vulkan memory model)";
+  if (!d.coopmat_fp16_shape()) return "VK_NV_cooperative_matrix offers no 16x{8,16}x{8,16} fp16*fp16+fp32 subgroup shape";
+  if (d.subgroup_size != 32) return "subgroup size " + std::to_string(d.subgroup_size) + ", the coopmat path needs 32";
+  return "";
+}
+}  // namespace
+
+TEST(Conv2dCoopmat, EmulatedMatchesReference) {
+  Context& ctx = vktest::context();
+  for (auto [n, k] : {std::pair{8u, 16u}, {16u, 16u}, {8u, 8u}}) run_cases(ctx, cases(), {true, n, k});
+}
+
+// 1x1: input channels in chunks of 16 and 32: the GEMM accumulates into M (ACCUM), V is repacked per
+// chunk (the 3x3 cases ignore the scratch cap: they have no scratch).
+TEST(Conv2dCoopmat, EmulatedInChunksMatchesReference) {
+  Context& ctx = vktest::context();
+  run_cases(ctx, cases(), {true, 8, 16, 16});
+  run_cases(ctx, cases(), {true, 16, 8, 32});
+}
+
+// Every slice binds its whole tensor: a write outside the output slice lands on a canary.
+TEST(Conv2dCoopmat, EmulatedWritesNothingOutsideItsSlice) {
+  run_cases(vktest::whole_binding_context(), cases(), {true, 8, 16});
+  run_cases(vktest::whole_binding_context(), cases(), {true, 8, 16, 16});
+}
+
+TEST(Conv2dCoopmat, AppliesToFp16OneByOneAndThreeByThreeStrideOne) {
+  Context& ctx = vktest::context();
+  std::mt19937 rng(7);
+  ConvOptions fp16;
+  fp16.precision = Precision::fp16;
+  const HostTensor b = random_tensor({1, 1, 1, 8}, rng);
+  Conv2d c3(ctx, random_tensor({8, 4, 3, 3}, rng), b, {3, 2, 1, {}}, "c3s2", nullptr, fp16);
+  Conv2d c5(ctx, random_tensor({8, 4, 5, 5}, rng), b, {5, 1, 2, {}}, "c5", nullptr, fp16);
+  Conv2d c3s1(ctx, random_tensor({8, 4, 3, 3}, rng), b, {3, 1, 1, {}}, "c3", nullptr, fp16);
+  Conv2d c1_32(ctx, random_tensor({8, 4, 1, 1}, rng), b, {1, 1, 0, {}});
+  Conv2d c1(ctx, random_tensor({8, 4, 1, 1}, rng), b, {1, 1, 0, {}}, "c1", nullptr, fp16);
+  for (Conv2d* c : {&c3, &c5, &c1_32, &c3s1}) c->set_coopmat_emulation(true);
+  EXPECT_FALSE(c3.supports(ConvAlgo::coopmat));
+  EXPECT_FALSE(c5.supports(ConvAlgo::coopmat));
+  EXPECT_TRUE(c3s1.supports(ConvAlgo::coopmat));
+  EXPECT_FALSE(c1_32.supports(ConvAlgo::coopmat));
+  EXPECT_EQ(c1.supports(ConvAlgo::coopmat), nv_missing(ctx).empty());
+  c1.set_coopmat_emulation(true);
+  EXPECT_TRUE(c1.supports(ConvAlgo::coopmat));
+  EXPECT_NE(c1.choose_algorithm(64, 64), ConvAlgo::coopmat);  // timed by the tuner, never picked by default
+  EXPECT_THROW(c1.set_coopmat_emulation(true, 12, 16), Error);
+  EXPECT_STREQ(conv_algo_name(ConvAlgo::coopmat), "coopmat");
+}
+
+// ContextOptions::without_coopmat: the device is created without the extension, and the conv says so.
+TEST(Conv2dCoopmat, WithoutCoopmatTheRealFormIsUnsupported) {
+  ContextOptions co;
+  co.validation = true;
+  co.validation_fatal = true;
+  co.announce = false;
+  co.without_coopmat = true;
+  Context ctx(co);
+  EXPECT_FALSE(ctx.info().coopmat_nv);
+  EXPECT_FALSE(ctx.info().coopmat_fp16_shape().has_value());
+  std::mt19937 rng(8);
+  ConvOptions fp16;
+  fp16.precision = Precision::fp16;
+  Conv2d c1(ctx, random_tensor({8, 4, 1, 1}, rng), random_tensor({1, 1, 1, 8}, rng), {1, 1, 0, {}}, "c1", nullptr, fp16);
+  EXPECT_FALSE(c1.supports(ConvAlgo::coopmat));
+  Tensor x(ctx, {1, 4, 2, 2}, DType::f16), y(ctx, {1, 8, 2, 2}, DType::f16);
+  CommandStream cs(ctx);
+  EXPECT_THROW(c1.record(cs, Slice(x), Slice(y), std::nullopt, ConvAlgo::coopmat), Error);
+}
+
+// What the device offers, in the log of the first GPU run.
+TEST(Conv2dCoopmat, DeviceReport) {
+  const DeviceInfo& d = vktest::context().info();
+  const auto s = d.coopmat_fp16_shape();
+  std::printf("[ device   ] %s: VK_NV_cooperative_matrix %s, VK_KHR_cooperative_matrix %s, subgroup %u, %zu shapes%s\n",
+              d.name.c_str(), d.coopmat_nv ? "enabled" : "absent", d.coopmat_khr_listed ? "listed" : "absent",
+              d.subgroup_size, d.coopmat_shapes.size(), s ? (", coopmat uses " + s->str()).c_str() : "");
+  for (const CoopMatShape& c : d.coopmat_shapes) std::printf("[ device   ]   %s\n", c.str().c_str());
+  EXPECT_EQ(s.has_value() && !d.coopmat_nv, false);
+}
+
+TEST(Conv2dCoopmat, NvMatchesReference) {
+  Context& ctx = vktest::context();
+  if (const std::string why = nv_missing(ctx); !why.empty()) {
+    std::printf("[ device   ] NV cooperative-matrix path not run: %s\n", why.c_str());  // the device check's log
+    GTEST_SKIP() << why;
+  }
+  const CoopMatShape s = *ctx.info().coopmat_fp16_shape();
+  run_cases(ctx, cases(), {false, s.n, s.k});
+  run_cases(ctx, cases(), {false, s.n, s.k, 16});
+  run_cases(ctx, cases(), {false, s.n, s.k, 32});
+  run_cases(vktest::whole_binding_context(), cases(), {false, s.n, s.k});
+  run_cases(vktest::whole_binding_context(), cases(), {false, s.n, s.k, 16});
+}
