@@ -139,6 +139,7 @@ TEST(ConvChoice, TimingNamesTheFastestCandidate) {
   size_t listed = 0;
   std::istringstream ts(e.timings);
   for (std::string item; ts >> item; ++listed) {
+    ASSERT_EQ(item.find("rejected"), std::string::npos) << item;  // every lavapipe path agrees
     const auto eq = item.find('=');
     ASSERT_NE(eq, std::string::npos) << item;
     least = std::min(least, std::stod(item.substr(eq + 1)));
@@ -155,6 +156,16 @@ TEST(ConvChoice, TimingNamesTheFastestCandidate) {
   const ConvTranspose2d deconv(ctx, random_host({8, 4, 4, 4}, 9, 0.3f), random_host({1, 1, 1, 4}, 10, 0.1f));
   const ConvChoiceEntry d = time_conv_algorithms(ctx, deconv, {1, 8, 6, 6}, 1);
   EXPECT_TRUE(d.algo == "blocked" || d.algo == "direct") << d.algo;
+}
+
+TEST(ConvChoice, ADisagreeingResultIsRejected) {
+  const std::vector<float> ref{0.5f, -2.f, 1.f, 0.f};
+  EXPECT_EQ(conv_choice_disagreement(ref, {0.5005f, -2.f, 1.f, 0.f}, Precision::fp32), "");  // 5e-4 of range 2
+  EXPECT_NE(conv_choice_disagreement(ref, {0.51f, -2.f, 1.f, 0.f}, Precision::fp32).find("rejected"), std::string::npos);
+  EXPECT_EQ(conv_choice_disagreement(ref, {0.53f, -2.f, 1.f, 0.f}, Precision::fp16), "");
+  EXPECT_NE(conv_choice_disagreement(ref, {0.6f, -2.f, 1.f, 0.f}, Precision::fp16), "");
+  EXPECT_NE(conv_choice_disagreement(ref, {NAN, -2.f, 1.f, 0.f}, Precision::fp16), "");
+  EXPECT_NE(conv_choice_disagreement(ref, {0.5f}, Precision::fp32), "");
 }
 
 // Retune times every shape once; cached then takes the table's algorithm for every conv call, and

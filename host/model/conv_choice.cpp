@@ -1,5 +1,6 @@
 #include "vkunroll/host/model/conv_choice.hpp"
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -48,6 +49,24 @@ ConvChoiceEntry fastest(const std::vector<std::pair<std::string, double>>& t, co
 }
 
 }  // namespace
+
+std::string conv_choice_disagreement(const std::vector<float>& reference, const std::vector<float>& result,
+                                     Precision precision) {
+  if (reference.size() != result.size()) return "rejected(" + std::to_string(result.size()) + " values, expected " +
+                                                std::to_string(reference.size()) + ")";
+  double err = 0, mx = 1;
+  for (size_t i = 0; i < result.size(); ++i) {
+    const double d = std::fabs(double(result[i]) - double(reference[i]));
+    err = std::isnan(d) ? INFINITY : std::max(err, d);
+    mx = std::max(mx, std::fabs(double(reference[i])));
+  }
+  // fp32: 1e-3 of the range (the parity tests measure <= 1e-4); fp16: 2e-2 (measured <= 3e-3).
+  const double tol = (precision == Precision::fp16 ? 2e-2 : 1e-3) * mx;
+  if (err <= tol) return {};
+  char buf[96];
+  std::snprintf(buf, sizeof buf, "rejected(max diff %.3g > %.3g)", err, tol);
+  return buf;
+}
 
 ConvChoice parse_conv_choice(const std::string& s, const std::string& what) {
   for (ConvChoice c : {ConvChoice::automatic, ConvChoice::heuristic, ConvChoice::cached, ConvChoice::measured,
@@ -167,43 +186,86 @@ std::string conv_choice_key(const ConvTranspose2d& c, const Shape& in) {
          precision_name(c.precision()) + " " + shape_text(in);
 }
 
+namespace {
+
+// Uniform values in [-1, 1]: a timing input whose result can also be checked.
+Tensor random_device_tensor(Context& ctx, const Shape& s, DType dt, uint32_t seed) {
+  HostTensor h(s);
+  uint32_t x = seed * 2654435761u + 12345u;
+  for (auto& v : h.data) {
+    x = x * 1664525u + 1013904223u;
+    v = static_cast<float>(x >> 8) / static_cast<float>(1u << 23) - 1.f;
+  }
+  return to_device(ctx, h, dt);
+}
+
+// The candidates' results must agree with the first candidate's (blocked: the plainest) before one
+// is timed (see conv_choice_disagreement).
+struct AgreementCheck {
+  Precision precision;
+  std::vector<float> reference;
+  std::string check(const Tensor& out) {
+    HostTensor h = to_host(out);
+    if (reference.empty()) {
+      reference = std::move(h.data);
+      return {};
+    }
+    return conv_choice_disagreement(reference, h.data, precision);
+  }
+};
+
+}  // namespace
+
 ConvChoiceEntry time_conv_algorithms(Context& ctx, const Conv2d& conv, const Shape& in, bool residual, int reps) {
   const DType dt = precision_dtype(conv.precision());
-  Tensor x(ctx, in, dt), y(ctx, conv.output_shape(in), dt);
+  Tensor x = random_device_tensor(ctx, in, dt, 1), y(ctx, conv.output_shape(in), dt);
   std::optional<Tensor> r;
-  if (residual) r.emplace(ctx, conv.output_shape(in), dt);
-  {
-    CommandStream cs(ctx);
-    cs.fill(x, 0);
-    if (r) cs.fill(*r, 0);
-    cs.submit_and_wait();
-  }
+  if (residual) r.emplace(random_device_tensor(ctx, conv.output_shape(in), dt, 2));
+  AgreementCheck agree{conv.precision(), {}};
   std::vector<std::pair<std::string, double>> t;
+  std::string rejected;
   for (ConvAlgo a : conv.candidates(in)) {
-    const double ms = best_gpu_ms(ctx, reps, [&](CommandStream& cs) {
+    auto record = [&](CommandStream& cs) {
       conv.record(cs, Slice(x), Slice(y), r ? std::optional<Slice>(Slice(*r)) : std::nullopt, a);
-    });
-    t.emplace_back(conv_algo_name(a), ms);
+    };
+    {
+      CommandStream cs(ctx);
+      record(cs);
+      cs.submit_and_wait();
+    }
+    if (const std::string why = agree.check(y); !why.empty()) {
+      rejected += std::string(rejected.empty() ? "" : " ") + conv_algo_name(a) + "=" + why;
+      continue;
+    }
+    t.emplace_back(conv_algo_name(a), best_gpu_ms(ctx, reps, record));
   }
   ConvChoiceEntry e = fastest(t, conv.name());
+  if (!rejected.empty()) e.timings += " " + rejected;
   e.heuristic = conv_algo_name(conv.choose_algorithm(in.h, in.w));
   return e;
 }
 
 ConvChoiceEntry time_conv_algorithms(Context& ctx, const ConvTranspose2d& conv, const Shape& in, int reps) {
   const DType dt = precision_dtype(conv.precision());
-  Tensor x(ctx, in, dt), y(ctx, conv.output_shape(in), dt);
-  {
-    CommandStream cs(ctx);
-    cs.fill(x, 0);
-    cs.submit_and_wait();
-  }
+  Tensor x = random_device_tensor(ctx, in, dt, 3), y(ctx, conv.output_shape(in), dt);
+  AgreementCheck agree{conv.precision(), {}};
   std::vector<std::pair<std::string, double>> t;
+  std::string rejected;
   for (ConvTransposeAlgo a : conv.candidates()) {
-    const double ms = best_gpu_ms(ctx, reps, [&](CommandStream& cs) { conv.record(cs, Slice(x), Slice(y), a); });
-    t.emplace_back(conv_transpose_algo_name(a), ms);
+    auto record = [&](CommandStream& cs) { conv.record(cs, Slice(x), Slice(y), a); };
+    {
+      CommandStream cs(ctx);
+      record(cs);
+      cs.submit_and_wait();
+    }
+    if (const std::string why = agree.check(y); !why.empty()) {
+      rejected += std::string(rejected.empty() ? "" : " ") + conv_transpose_algo_name(a) + "=" + why;
+      continue;
+    }
+    t.emplace_back(conv_transpose_algo_name(a), best_gpu_ms(ctx, reps, record));
   }
   ConvChoiceEntry e = fastest(t, "conv_transpose2d");
+  if (!rejected.empty()) e.timings += " " + rejected;
   e.heuristic = conv_transpose_algo_name(conv.choose_algorithm(in.h, in.w));
   return e;
 }

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "vkunroll/base/precision.hpp"
 #include "vkunroll/base/shape.hpp"
 
 namespace vkunroll {
@@ -63,8 +64,16 @@ std::string conv_choice_header(const Context& ctx);
 std::string conv_choice_key(const Conv2d& conv, const Shape& in, bool residual);
 std::string conv_choice_key(const ConvTranspose2d& conv, const Shape& in);
 
-// Times every candidate on zero-filled device tensors of the conv's precision (the best of `reps`
-// submits after a warm-up, device timestamps) and names the fastest.
+// Empty when `result` agrees with `reference` within the precision's tolerance (fp32: 1e-3, fp16:
+// 2e-2 of max(1, max |reference|)), else "rejected(max diff ...)". NaN never agrees.
+std::string conv_choice_disagreement(const std::vector<float>& reference, const std::vector<float>& result,
+                                     Precision precision);
+
+// Times every candidate on device tensors of the conv's precision holding uniform values in [-1, 1]
+// (the best of `reps` submits after a warm-up, device timestamps) and names the fastest. A candidate
+// whose result disagrees with the first candidate's is not timed but listed as rejected: on a device
+// where a path computes something else (a driver bug, the never-run cooperative-matrix path) the
+// fastest wrong answer is never chosen.
 ConvChoiceEntry time_conv_algorithms(Context& ctx, const Conv2d& conv, const Shape& in, bool residual, int reps);
 ConvChoiceEntry time_conv_algorithms(Context& ctx, const ConvTranspose2d& conv, const Shape& in, int reps);
 
