@@ -2,8 +2,9 @@
 # Device check (run on the GPU machine from the repo root, after tools/device/bundle.sh here): the
 # Vulkan-facing GPU tests with the validation layer, then the kernel, event-tensor and model benches.
 # Results go to $OUT (or ./device-out). See docs/gpu_nvidia.md.
-#   bash .devrun/run.sh [tests|race]   tests: GPU tests + kernel/event/model benches (< 9 min);
-#                                      race: vkunroll against PyTorch CUDA, fp32 and fp16 (< 7 min)
+#   bash .devrun/run.sh [tests|race|all]   tests: GPU tests + kernel/event/model benches (<= 9 min);
+#                                          race: vkunroll against PyTorch CUDA, fp32 and fp16 (<= 9 min);
+#                                          all: the essentials of both in one command (<= 7.5 min)
 PHASE=${1:-tests}
 OUT=${OUT:-$PWD/device-out}; mkdir -p "$OUT"
 R=$PWD
@@ -19,29 +20,65 @@ export LD_LIBRARY_PATH=$R/.devrun/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
 export VK_LAYER_PATH=$R/.devrun/layers VKUNROLL_CACHE_DIR=/tmp/vkcache VKUNROLL_DEVICE=${VKUNROLL_DEVICE:-NVIDIA}
 B=$R/.devrun/bin
 VK_LOADER_DEBUG=error $B/vkunroll_gpu_tests --gtest_filter=Runtime.RoundTripEveryDtype > /tmp/probe.log 2>&1 || { head -40 /tmp/probe.log; exit 3; }; grep -i device /tmp/probe.log | head -3
-if [ "$PHASE" = tests ]; then
-# The cooperative-matrix conv first, on its own (issue 15): the real VK_NV_cooperative_matrix path has
-# only run emulated on lavapipe; its log says what the device offers and each case's error.
-VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 timeout 45 $B/vkunroll_gpu_tests --gtest_filter='Conv2dCoopmat.*' > $OUT/gpu_tests_coopmat.log 2>&1; CM_RC=$?; echo "coopmat tests rc=$CM_RC"
-grep -E '^\[ (device|measured) |^\[  (PASSED|FAILED|SKIPPED)|Failure|Skipped|error' $OUT/gpu_tests_coopmat.log | head -40
-# where they passed: coopmat timed beside the fp16 paths it would replace, on the model's shapes (the
-# full test run below leaves Conv2dCoopmat out: it ran here)
-[ $CM_RC = 0 ] && { timeout 45 $B/vkunroll-bench-kernels --precision fp16 --no-naive --algos coopmat,gemm,winograd,blocked --reps 2 > $OUT/bench_kernels_coopmat.txt 2>&1; echo "coopmat bench rc=$?"; grep -E "coopmat|RDB|GFF" $OUT/bench_kernels_coopmat.txt | head -30; }
-VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 timeout ${TEST_S:-150} $B/vkunroll_gpu_tests --gtest_brief=1 ${GTEST_ARGS:---gtest_filter=-Conv2dCoopmat.*} > $OUT/gpu_tests.log 2>&1; echo "tests rc=$?"
-grep -E '^\[  (PASSED|FAILED)|^\[  FAILED|tests ran|device' $OUT/gpu_tests.log | head -60
-timeout 150 $B/vkunroll-bench-kernels --reps 3 --json $OUT/bench_kernels_h100.json > $OUT/bench_kernels_h100.txt 2>&1; echo "kernels rc=$?"; tail -8 $OUT/bench_kernels_h100.txt
-timeout 30 $B/vkunroll-bench-dispatch > $OUT/bench_dispatch.txt 2>&1; echo "dispatch rc=$?"; tail -3 $OUT/bench_dispatch.txt
-timeout 100 $B/vkunroll-bench-event-tensor > $OUT/bench_event_tensor_h100.txt 2>&1; echo "events rc=$?"; cat $OUT/bench_event_tensor_h100.txt
-timeout 120 $B/vkunroll-bench-model --torch-threads 16 --runs 3 --profile > $OUT/bench_model_h100.txt 2>&1; echo "model rc=$?"; head -30 $OUT/bench_model_h100.txt
-exit 0
-fi
-# The race (issue 15): the same network in PyTorch CUDA on the same card, fp32 and fp16, S and M,
-# at the DAVIS346 size and at 640x480 (the paper's size); then fp16's per-layer error on the shipped
-# model. Each run prints ms per GS frame for both, the ratio, the device share and the output diffs.
-for p in fp32 fp16; do for m in s m; do for sz in 346x260 640x480; do
+# Every step runs under the phase's time budget (BUDGET_S seconds from here, default 450 for `all`,
+# 540 otherwise): a step gets at most its own cap and what is left, and is skipped (said so) when
+# fewer than 15 s remain, so one prepared command always ends inside a device call.
+T0=$SECONDS
+BUDGET=${BUDGET_S:-$([ "$PHASE" = all ] && echo 450 || echo 540)}
+step() {  # step NAME CAP_S LOG CMD...
+  local name=$1 cap=$2 log=$3; shift 3
+  local left=$(( BUDGET - (SECONDS - T0) ))
+  if [ $left -lt 15 ]; then echo "$name: skipped (out of the ${BUDGET} s budget)"; return 99; fi
+  [ $cap -gt $left ] && cap=$left
+  timeout $cap "$@" > "$log" 2>&1; local rc=$?
+  echo "$name rc=$rc ($(( SECONDS - T0 )) s)"; return $rc
+}
+coopmat_tests() {
+  # The cooperative-matrix conv first, on its own (issue 15): the real VK_NV_cooperative_matrix path has
+  # only run emulated on lavapipe; its log says what the device offers and each case's error.
+  VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 step "coopmat tests" 45 $OUT/gpu_tests_coopmat.log $B/vkunroll_gpu_tests --gtest_filter='Conv2dCoopmat.*'; CM_RC=$?
+  grep -E '^\[ (device|measured) |^\[  (PASSED|FAILED|SKIPPED)|Failure|Skipped|error' $OUT/gpu_tests_coopmat.log | head -40
+}
+coopmat_bench() {  # where they passed: coopmat timed beside the fp16 paths it would replace
+  [ "$CM_RC" = 0 ] || return 0
+  step "coopmat bench" 45 $OUT/bench_kernels_coopmat.txt $B/vkunroll-bench-kernels --precision fp16 --no-naive --algos coopmat,gemm,winograd,blocked --reps 2
+  grep -E "coopmat|RDB|GFF" $OUT/bench_kernels_coopmat.txt | head -30
+}
+gpu_tests() {  # the full test binary leaves Conv2dCoopmat out: it ran first
+  VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 step "tests" ${1:-150} $OUT/gpu_tests.log $B/vkunroll_gpu_tests --gtest_brief=1 ${GTEST_ARGS:---gtest_filter=-Conv2dCoopmat.*}
+  grep -E '^\[  (PASSED|FAILED)|^\[  FAILED|tests ran|device' $OUT/gpu_tests.log | head -60
+}
+race() {  # race MODE PRECISION SIZE: the same network in PyTorch CUDA on the same card
   # --conv-choice measured: the conv algorithms timed per shape on this GPU first (the table persists
   # in $VKUNROLL_CACHE_DIR across the runs); the bench also prints the heuristic's time beside it.
-  timeout 50 $B/vkunroll-bench-model --mode $m --size $sz --precision $p --torch-device cuda --runs 5 --conv-choice measured > $OUT/race_${m}_${p}_${sz}.txt 2>&1
-  echo "race $m $p $sz rc=$?"; grep -E "vulkan :|torch  :|ratio|conv choice" $OUT/race_${m}_${p}_${sz}.txt
-done; done; done
-timeout 60 $B/vkunroll-bench-model --mode m --size 346x260 --precision fp16 --per-layer --model $R/.devrun/selfunroll_small.safetensors > $OUT/fp16_per_layer_small.txt 2>&1; echo "per-layer rc=$?"
+  step "race $1 $2 $3" 50 $OUT/race_${1}_${2}_${3}.txt $B/vkunroll-bench-model --mode $1 --size $3 --precision $2 --torch-device cuda --runs 5 --conv-choice measured
+  grep -E "vulkan :|torch  :|ratio|conv choice" $OUT/race_${1}_${2}_${3}.txt
+}
+per_layer() {
+  step "per-layer" 60 $OUT/fp16_per_layer_small.txt $B/vkunroll-bench-model --mode m --size 346x260 --precision fp16 --per-layer --model $R/.devrun/selfunroll_small.safetensors
+}
+kernels() {
+  step "kernels" ${1:-150} $OUT/bench_kernels_h100.txt $B/vkunroll-bench-kernels --reps 3 --json $OUT/bench_kernels_h100.json; tail -8 $OUT/bench_kernels_h100.txt
+}
+case "$PHASE" in
+tests)
+  coopmat_tests; coopmat_bench; gpu_tests 150; kernels 150
+  step dispatch 30 $OUT/bench_dispatch.txt $B/vkunroll-bench-dispatch; tail -3 $OUT/bench_dispatch.txt
+  step events 100 $OUT/bench_event_tensor_h100.txt $B/vkunroll-bench-event-tensor; cat $OUT/bench_event_tensor_h100.txt
+  step model 120 $OUT/bench_model_h100.txt $B/vkunroll-bench-model --torch-threads 16 --runs 3 --profile; head -30 $OUT/bench_model_h100.txt ;;
+race)
+  # S and M, fp32 and fp16, at the DAVIS346 size and at 640x480 (the paper's size); then fp16's
+  # per-layer error on the shipped model. Each run prints ms per GS frame for both, the ratio, the
+  # device share, the measured conv choice against the heuristic and the output diffs.
+  for p in fp32 fp16; do for m in s m; do for sz in 346x260 640x480; do race $m $p $sz; done; done; done
+  per_layer ;;
+all)
+  # ONE command for a single short slot, most important first: the never-run paths' tests, the
+  # paper's goal (S fp32 at 640x480 against PyTorch), fp16 against PyTorch's fp16, the rest of the
+  # tests, M, the per-layer report, the kernel bench with what time is left.
+  coopmat_tests; race s fp32 640x480; race s fp16 640x480; gpu_tests 100
+  race s fp32 346x260; race s fp16 346x260; race m fp32 346x260; race m fp16 346x260
+  per_layer; coopmat_bench; kernels 90 ;;
+*) echo "usage: run.sh tests|race|all"; exit 2 ;;
+esac
+exit 0
