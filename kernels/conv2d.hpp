@@ -126,6 +126,13 @@ class Conv2d {
   void record_winograd(CommandStream& cs, const Recording& r) const;  // conv2d_winograd.cpp
   void record_gemm(CommandStream& cs, const Recording& r) const;      // conv2d_winograd.cpp
   void record_coopmat(CommandStream& cs, const Recording& r) const;   // conv2d_coopmat.cpp
+  // The 1x1 paths' shared passes (gemm, coopmat; conv2d_winograd.cpp): input channels [c0, c0 + cn)
+  // packed into `v` as `rows` (>= cn; the extra rows zero) x pix_pad values, and M [cout_pad][pix_pad]
+  // + bias, activation and residual into the output slice. `tag` names the dispatches.
+  void record_1x1_pack(CommandStream& cs, const Recording& r, const BufferRange& v, int64_t c0, int64_t cn,
+                       int64_t rows, int64_t pix_pad, const std::string& tag) const;
+  void record_1x1_output(CommandStream& cs, const Recording& r, const BufferRange& m, int64_t pix_pad,
+                         const std::string& tag) const;
   bool coopmat_applies() const;                  // conv2d_coopmat.cpp: supports(coopmat)
   bool coopmat_fits(const Shape& in) const;      // conv2d_coopmat.cpp: supports(coopmat, in)
   int64_t coopmat_chunk(const Shape& in) const;  // input channels per GEMM dispatch (a multiple of 16)

@@ -128,11 +128,7 @@ void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {
     const int64_t cn = std::min(chunk, cin_ - c0), cn_pad = round_up(cn, kPad);
     const double v_bytes = 2.0 * static_cast<double>(cn_pad * pix_pad);
     const BufferRange vr = vt->range(0, static_cast<size_t>(cn_pad * pix_pad) * 2);
-    struct PackPush {
-      uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin, c_valid;
-    } pp{r.in.offset, r.in.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad), u32(c0), u32(cn)};
-    cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_pack"), {}, sizeof pp), {r.in.arg, {vr, Access::write}}, pp,
-                Groups{u32((pix_pad / 4 + 63) / 64), u32(cn_pad), 1}, {name + "_coopmat_pack", 0, 2.0 * v_bytes});
+    record_1x1_pack(cs, r, vr, c0, cn, cn_pad, pix_pad, "_coopmat");
     struct GemmPush {
       uint32_t chunk_pad, c_begin, cin_pad, pix_pad;
     } gp{u32(cn_pad), u32(c0), u32(kpad), u32(pix_pad)};
@@ -143,13 +139,7 @@ void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {
                 {name + "_coopmat", r.info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
                  v_bytes + 4.0 * static_cast<double>(cout_pad * (c0 > 0 ? 2 : 1) * pix_pad)});
   }
-  struct OutPush {
-    uint32_t res_off, res_bs, out_off, out_bs, plane, npix, pix_pad;
-  } op{r.res.offset, r.res.batch_stride, r.out.offset, r.out.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad)};
-  cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_output"), {r.spec[2], r.spec[3], r.spec[4]}, sizeof op),
-              {{mr, Access::read}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
-              Groups{u32((pix_pad / 4 + 63) / 64), u32(cout_), 1},
-              {name + "_coopmat_out", 0, 6.0 * static_cast<double>(r.os.count())});
+  record_1x1_output(cs, r, mr, pix_pad, "_coopmat");
 }
 
 }  // namespace vkunroll

@@ -159,7 +159,7 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
 void Conv2d::record_gemm(CommandStream& cs, const Recording& r) const {
   if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
   const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
-  const int64_t pix_pad = gemm_pix_pad(r.is), npix = r.is.n * r.is.h * r.is.w, chunk = winograd_chunk(r.is);
+  const int64_t pix_pad = gemm_pix_pad(r.is), chunk = winograd_chunk(r.is);
   const uint64_t e = elem_bytes(), m_bytes = static_cast<uint64_t>(gemm_cout_pad_ * pix_pad) * 4;
   const Tensor& vt = workspace_->get(ctx_, 0, static_cast<uint64_t>(chunk * pix_pad) * e);
   const Tensor& mt = workspace_->get(ctx_, 1, m_bytes);
@@ -169,11 +169,7 @@ void Conv2d::record_gemm(CommandStream& cs, const Recording& r) const {
     const int64_t cn = std::min(chunk, cin_ - c0);
     const double v_bytes = static_cast<double>(e) * static_cast<double>(cn * pix_pad);
     const BufferRange vr = vt.range(0, static_cast<size_t>(cn * pix_pad) * e);
-    struct PackPush {
-      uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin, c_valid;
-    } pp{r.in.offset, r.in.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad), u32(c0), u32(cn)};
-    cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_pack"), {}, sizeof pp), {r.in.arg, {vr, Access::write}}, pp,
-                Groups{u32((pix_pad / 4 + 63) / 64), u32(cn), 1}, {name + "_gemm_pack", 0, 2.0 * v_bytes});
+    record_1x1_pack(cs, r, vr, c0, cn, cn, pix_pad, "_gemm");
     struct GemmPush {
       uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
     } gp{u32(cn), u32(pix_pad), u32(gemm_cout_pad_), u32(cin_), u32(c0)};
@@ -185,13 +181,32 @@ void Conv2d::record_gemm(CommandStream& cs, const Recording& r) const {
                 {name + "_gemm", r.info.flop * static_cast<double>(cn) / static_cast<double>(cin_),
                  v_bytes + 4.0 * static_cast<double>(gemm_cout_pad_ * (c0 > 0 ? 2 : 1) * pix_pad)});
   }
+  record_1x1_output(cs, r, mr, pix_pad, "_gemm");
+}
+
+void Conv2d::record_1x1_pack(CommandStream& cs, const Recording& r, const BufferRange& v, int64_t c0, int64_t cn,
+                             int64_t rows, int64_t pix_pad, const std::string& tag) const {
+  const auto u32 = [](int64_t x) { return static_cast<uint32_t>(x); };
+  const int64_t npix = r.is.n * r.is.h * r.is.w;
+  const double v_bytes = static_cast<double>(elem_bytes()) * static_cast<double>(rows * pix_pad);
+  struct PackPush {
+    uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin, c_valid;
+  } pp{r.in.offset, r.in.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad), u32(c0), u32(cn)};
+  cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_pack"), {}, sizeof pp), {r.in.arg, {v, Access::write}}, pp,
+              Groups{u32((pix_pad / 4 + 63) / 64), u32(rows), 1}, {r.info.name + tag + "_pack", 0, 2.0 * v_bytes});
+}
+
+void Conv2d::record_1x1_output(CommandStream& cs, const Recording& r, const BufferRange& m, int64_t pix_pad,
+                               const std::string& tag) const {
+  const auto u32 = [](int64_t x) { return static_cast<uint32_t>(x); };
+  const int64_t npix = r.is.n * r.is.h * r.is.w;
   struct OutPush {
     uint32_t res_off, res_bs, out_off, out_bs, plane, npix, pix_pad;
   } op{r.res.offset, r.res.batch_stride, r.out.offset, r.out.batch_stride, u32(r.is.h * r.is.w), u32(npix), u32(pix_pad)};
   cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_output"), {r.spec[2], r.spec[3], r.spec[4]}, sizeof op),
-              {{mr, Access::read}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
+              {{m, Access::read}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
               Groups{u32((pix_pad / 4 + 63) / 64), u32(cout_), 1},
-              {name + "_gemm_out", 0, (4.0 + static_cast<double>(e)) * static_cast<double>(r.os.count())});
+              {r.info.name + tag + "_out", 0, (4.0 + static_cast<double>(elem_bytes())) * static_cast<double>(r.os.count())});
 }
 
 }  // namespace vkunroll
