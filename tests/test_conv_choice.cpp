@@ -11,6 +11,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "kernel_test_util.hpp"
 #include "model_test_util.hpp"
 #include "vk_test_env.hpp"
 #include "vkunroll/host/model/backend_cpu.hpp"
@@ -35,10 +36,7 @@ fs::path fresh_dir(const std::string& name) {
 
 HostTensor random_host(Shape s, uint32_t seed, float scale) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> u(-scale, scale);
-  HostTensor t(s);
-  for (auto& v : t.data) v = u(rng);
-  return t;
+  return ktest::random_tensor(s, rng, -scale, scale);
 }
 
 std::string slurp(const fs::path& p) {

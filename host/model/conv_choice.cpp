@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <unistd.h>
 
@@ -199,20 +200,35 @@ Tensor random_device_tensor(Context& ctx, const Shape& s, DType dt, uint32_t see
   return to_device(ctx, h, dt);
 }
 
-// The candidates' results must agree with the first candidate's (blocked: the plainest) before one
-// is timed (see conv_choice_disagreement).
-struct AgreementCheck {
-  Precision precision;
+using Recorder = std::function<void(CommandStream&)>;
+
+// Runs each named candidate once and checks its result in `out` against the first candidate's
+// (blocked: the plainest; conv_choice_disagreement); times those that agree and names the fastest,
+// listing the rejected ones after the timings.
+ConvChoiceEntry time_candidates(Context& ctx, const std::vector<std::pair<std::string, Recorder>>& candidates,
+                                const Tensor& out, Precision precision, int reps, const std::string& who) {
   std::vector<float> reference;
-  std::string check(const Tensor& out) {
+  std::vector<std::pair<std::string, double>> t;
+  std::string rejected;
+  for (const auto& [name, record] : candidates) {
+    {
+      CommandStream cs(ctx);
+      record(cs);
+      cs.submit_and_wait();
+    }
     HostTensor h = to_host(out);
     if (reference.empty()) {
       reference = std::move(h.data);
-      return {};
+    } else if (const std::string why = conv_choice_disagreement(reference, h.data, precision); !why.empty()) {
+      rejected += (rejected.empty() ? "" : " ") + name + "=" + why;
+      continue;
     }
-    return conv_choice_disagreement(reference, h.data, precision);
+    t.emplace_back(name, best_gpu_ms(ctx, reps, record));
   }
-};
+  ConvChoiceEntry e = fastest(t, who);
+  if (!rejected.empty()) e.timings += " " + rejected;
+  return e;
+}
 
 }  // namespace
 
@@ -221,26 +237,12 @@ ConvChoiceEntry time_conv_algorithms(Context& ctx, const Conv2d& conv, const Sha
   Tensor x = random_device_tensor(ctx, in, dt, 1), y(ctx, conv.output_shape(in), dt);
   std::optional<Tensor> r;
   if (residual) r.emplace(random_device_tensor(ctx, conv.output_shape(in), dt, 2));
-  AgreementCheck agree{conv.precision(), {}};
-  std::vector<std::pair<std::string, double>> t;
-  std::string rejected;
-  for (ConvAlgo a : conv.candidates(in)) {
-    auto record = [&](CommandStream& cs) {
+  std::vector<std::pair<std::string, Recorder>> candidates;
+  for (ConvAlgo a : conv.candidates(in))
+    candidates.emplace_back(conv_algo_name(a), [&, a](CommandStream& cs) {
       conv.record(cs, Slice(x), Slice(y), r ? std::optional<Slice>(Slice(*r)) : std::nullopt, a);
-    };
-    {
-      CommandStream cs(ctx);
-      record(cs);
-      cs.submit_and_wait();
-    }
-    if (const std::string why = agree.check(y); !why.empty()) {
-      rejected += std::string(rejected.empty() ? "" : " ") + conv_algo_name(a) + "=" + why;
-      continue;
-    }
-    t.emplace_back(conv_algo_name(a), best_gpu_ms(ctx, reps, record));
-  }
-  ConvChoiceEntry e = fastest(t, conv.name());
-  if (!rejected.empty()) e.timings += " " + rejected;
+    });
+  ConvChoiceEntry e = time_candidates(ctx, candidates, y, conv.precision(), reps, conv.name());
   e.heuristic = conv_algo_name(conv.choose_algorithm(in.h, in.w));
   return e;
 }
@@ -248,24 +250,11 @@ ConvChoiceEntry time_conv_algorithms(Context& ctx, const Conv2d& conv, const Sha
 ConvChoiceEntry time_conv_algorithms(Context& ctx, const ConvTranspose2d& conv, const Shape& in, int reps) {
   const DType dt = precision_dtype(conv.precision());
   Tensor x = random_device_tensor(ctx, in, dt, 3), y(ctx, conv.output_shape(in), dt);
-  AgreementCheck agree{conv.precision(), {}};
-  std::vector<std::pair<std::string, double>> t;
-  std::string rejected;
-  for (ConvTransposeAlgo a : conv.candidates()) {
-    auto record = [&](CommandStream& cs) { conv.record(cs, Slice(x), Slice(y), a); };
-    {
-      CommandStream cs(ctx);
-      record(cs);
-      cs.submit_and_wait();
-    }
-    if (const std::string why = agree.check(y); !why.empty()) {
-      rejected += std::string(rejected.empty() ? "" : " ") + conv_transpose_algo_name(a) + "=" + why;
-      continue;
-    }
-    t.emplace_back(conv_transpose_algo_name(a), best_gpu_ms(ctx, reps, record));
-  }
-  ConvChoiceEntry e = fastest(t, "conv_transpose2d");
-  if (!rejected.empty()) e.timings += " " + rejected;
+  std::vector<std::pair<std::string, Recorder>> candidates;
+  for (ConvTransposeAlgo a : conv.candidates())
+    candidates.emplace_back(conv_transpose_algo_name(a),
+                            [&, a](CommandStream& cs) { conv.record(cs, Slice(x), Slice(y), a); });
+  ConvChoiceEntry e = time_candidates(ctx, candidates, y, conv.precision(), reps, "conv_transpose2d");
   e.heuristic = conv_transpose_algo_name(conv.choose_algorithm(in.h, in.w));
   return e;
 }
