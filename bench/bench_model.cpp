@@ -260,25 +260,26 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   const ConvChoice chosen = conv_choice == ConvChoice::automatic ? ConvChoice::automatic : ConvChoice::cached;
   double h_s = 1e30, h_gpu = 0;
   uint64_t from_table = 0;
+  // One run: its wall seconds; `best` and `best_gpu` keep the fastest run's seconds and device ms;
+  // `result` (when given) receives the outputs (the measured choice's are the ones compared).
+  auto timed_run = [&](double& best, double& best_gpu, std::map<std::string, HostTensor>* result) {
+    const DeviceTraffic before = ctx.traffic();
+    t = std::chrono::steady_clock::now();
+    auto o = model.run(in, opt);
+    const double s = seconds_since(t);
+    if (s < best) best = s, best_gpu = (ctx.traffic() - before).gpu_ms;
+    if (result) *result = std::move(o);
+    return s;
+  };
   for (int r = 0; r < runs; ++r) {
     if (r > 0) profiler.clear();  // the table shows the last run
-    const DeviceTraffic before = ctx.traffic();
     const uint64_t ft = vk.convs_from_table();
-    t = std::chrono::steady_clock::now();
-    out = model.run(in, opt);
-    const double s = seconds_since(t);
+    const double s = timed_run(vk_s, gpu_ms, &out);
     from_table = vk.convs_from_table() - ft;
     if (r == 0) first_s = s;
-    if (s < vk_s) gpu_ms = (ctx.traffic() - before).gpu_ms;
-    vk_s = std::min(vk_s, s);
     if (!compare) continue;
     vk.set_conv_choice(nullptr, ConvChoice::heuristic);
-    const DeviceTraffic hb = ctx.traffic();
-    t = std::chrono::steady_clock::now();
-    model.run(in, opt);
-    const double hs = seconds_since(t);
-    if (hs < h_s) h_gpu = (ctx.traffic() - hb).gpu_ms;
-    h_s = std::min(h_s, hs);
+    timed_run(h_s, h_gpu, nullptr);
     vk.set_conv_choice(table, chosen);
   }
   const double frames = 1.0;  // one GS frame (one target) per run

@@ -184,7 +184,6 @@ void VulkanBackend::set_conv_choice(std::shared_ptr<ConvChoiceTable> table, Conv
 
 std::optional<std::string> VulkanBackend::table_algorithm(const std::string& key,
                                                           const std::function<ConvChoiceEntry()>& time) {
-  if (choice_ == ConvChoice::heuristic || !choice_table_) return std::nullopt;
   const ConvChoiceEntry* e = choice_table_->find(key);
   const bool again = choice_ == ConvChoice::retune && !retuned_.count(key);
   if (again || (!e && choice_ == ConvChoice::measured)) {
@@ -202,11 +201,13 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
   const int idx = conv_index_.at(static_cast<size_t>(id));
   const Slice si = slice(tensor(in.buf), in), so = slice(tensor(out.buf), out);
   const Shape is = si.shape();
+  const bool tabled = choice_ != ConvChoice::heuristic && choice_table_;  // the key is built only then
   if (idx < 0) {
     if (residual) throw Error("vulkan backend: " + descs_[id].name + ": a transposed conv takes no residual");
     const ConvTranspose2d& c = *deconvs_[static_cast<size_t>(~idx)];
     ConvTransposeAlgo algo = ConvTransposeAlgo::automatic;
-    if (auto name = table_algorithm(conv_choice_key(c, is), [&] { return time_conv_algorithms(ctx_, c, is, choice_reps_); }))
+    if (auto name = tabled ? table_algorithm(conv_choice_key(c, is), [&] { return time_conv_algorithms(ctx_, c, is, choice_reps_); })
+                           : std::nullopt)
       for (ConvTransposeAlgo a : c.candidates())
         if (*name == conv_transpose_algo_name(a)) algo = a;
     if (algo != ConvTransposeAlgo::automatic) ++convs_from_table_;
@@ -216,8 +217,8 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
     std::optional<Slice> r;
     if (residual) r = slice(tensor(residual->buf), *residual);
     ConvAlgo algo = ConvAlgo::automatic;
-    const auto key = conv_choice_key(c, is, r.has_value());
-    if (auto name = table_algorithm(key, [&] { return time_conv_algorithms(ctx_, c, is, r.has_value(), choice_reps_); }))
+    const auto time = [&] { return time_conv_algorithms(ctx_, c, is, r.has_value(), choice_reps_); };
+    if (auto name = tabled ? table_algorithm(conv_choice_key(c, is, r.has_value()), time) : std::nullopt)
       // An entry naming an algorithm this call cannot take (another build's, a residual in the
       // output for chunked direct) falls back to the heuristic.
       for (ConvAlgo a : c.candidates(is, c.residual_overlaps_output(so, r)))

@@ -122,7 +122,8 @@ class VulkanBackend final : public Backend {
   int choice_reps_ = 3;
   std::set<std::string> retuned_;  // keys timed again under ConvChoice::retune
   uint64_t convs_timed_ = 0, convs_from_table_ = 0;
-  // The table's algorithm for this conv call (timing it first where the choice says so); nullopt: the heuristic.
+  // The table's algorithm for this conv call (timing it first where the choice says so); nullopt: the
+  // heuristic. Only called with a table and a choice other than heuristic.
   std::optional<std::string> table_algorithm(const std::string& key, const std::function<ConvChoiceEntry()>& time);
 };
 
