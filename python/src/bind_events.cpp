@@ -19,13 +19,7 @@ py::dict report_dict(const EventReadReport& r) {
   d["records"] = r.records;
   d["kept"] = r.kept;
   d["outside_window"] = r.outside_window;
-  d["dropped"] = r.dropped();
-  d["dropped_out_of_sensor"] = r.dropped_out_of_sensor;
-  d["dropped_time_order"] = r.dropped_time_order;
-  d["dropped_nan"] = r.dropped_nan;
-  d["dropped_unknown_word"] = r.dropped_unknown_word;
-  d["dropped_bad_polarity"] = r.dropped_bad_polarity;
-  d["reordered"] = r.reordered;
+  add_drop_counts(d, r);
   d["sorted"] = r.sorted;
   d["empty_file"] = r.empty_file;
   d["size_inferred"] = r.size_inferred;

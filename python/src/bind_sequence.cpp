@@ -92,13 +92,7 @@ void bind_sequence(py::module_& m) {
              d["delivered"] = t.delivered;
              d["records"] = t.records;
              d["valid"] = t.valid;
-             d["dropped"] = t.dropped();
-             d["dropped_out_of_sensor"] = t.dropped_out_of_sensor;
-             d["dropped_time_order"] = t.dropped_time_order;
-             d["dropped_nan"] = t.dropped_nan;
-             d["dropped_unknown_word"] = t.dropped_unknown_word;
-             d["dropped_bad_polarity"] = t.dropped_bad_polarity;
-             d["reordered"] = t.reordered;
+             add_drop_counts(d, t);
              d["empty_files"] = t.empty_files;
              d["summary"] = t.summary();
              return d;

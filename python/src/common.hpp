@@ -129,6 +129,19 @@ struct SharedContext {
 };
 using ContextPtr = std::shared_ptr<SharedContext>;
 
+// The drop and reorder counts that a read report (EventReadReport) and a sequence's totals
+// (EventTotals) share, under the same keys.
+template <class Counts>
+void add_drop_counts(py::dict& d, const Counts& c) {
+  d["dropped"] = c.dropped();
+  d["dropped_out_of_sensor"] = c.dropped_out_of_sensor;
+  d["dropped_time_order"] = c.dropped_time_order;
+  d["dropped_nan"] = c.dropped_nan;
+  d["dropped_unknown_word"] = c.dropped_unknown_word;
+  d["dropped_bad_polarity"] = c.dropped_bad_polarity;
+  d["reordered"] = c.reordered;
+}
+
 void bind_runtime(py::module_& m);
 void bind_events(py::module_& m);
 void bind_sequence(py::module_& m);
