@@ -3,6 +3,7 @@
 // S of frame 1, odd sizes, batches of targets equal the targets one by one, memory plan.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <memory>
@@ -82,6 +83,93 @@ TEST(ModelCpu, PhysicsInputIsRequiredByTheVariantAndRefusedOtherwise) {
     ADD_FAILURE() << "the family model accepted 'phys'";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("not the physics-informed variant"), std::string::npos) << e.what();
+  }
+}
+
+// The variant's event gate (metadata physics_gate = r): fused = clamp(phys, 0, 1) exactly where no
+// ev1/ev2 event lies within the (2r+1)^2 square, the network elsewhere; M blends gated results.
+namespace {
+struct GatedCase {
+  Weights w;
+  ModelInputs in;
+  std::vector<bool> near;  // [item][y][x]: an ev1/ev2 event within the square
+};
+
+GatedCase gated_case(int r) {
+  GatedCase g{load_weights(fixture(kPhysicsModel)), {}, {}};
+  g.w.config.physics_gate = r;
+  g.in = inputs_from(read_safetensors(fixture("selfunroll_golden_physics_m_37x29.safetensors")));
+  const Shape es = g.in.ev1.shape;
+  const int64_t plane = es.h * es.w;
+  for (HostTensor* ev : {&g.in.ev1, &g.in.ev2})  // events at a few pixels only (every 97th pixel)
+    for (int64_t n = 0; n < es.n; ++n)
+      for (int64_t c = 0; c < es.c; ++c)
+        for (int64_t p = 0; p < plane; ++p)
+          if (p % 97 != 0) ev->data[size_t((n * es.c + c) * plane + p)] = 0.f;
+  g.near.assign(size_t(es.n * plane), false);
+  for (int64_t n = 0; n < es.n; ++n)
+    for (int64_t y = 0; y < es.h; ++y)
+      for (int64_t x = 0; x < es.w; ++x)
+        for (int64_t dy = -r; dy <= r; ++dy)
+          for (int64_t dx = -r; dx <= r; ++dx) {
+            const int64_t yy = y + dy, xx = x + dx;
+            if (yy < 0 || xx < 0 || yy >= es.h || xx >= es.w) continue;
+            float sum = 0.f;
+            for (int64_t c = 0; c < es.c; ++c)
+              sum += g.in.ev1.data[size_t((n * es.c + c) * plane + yy * es.w + xx)] +
+                     g.in.ev2.data[size_t((n * es.c + c) * plane + yy * es.w + xx)];
+            if (sum > 0) g.near[size_t(n * plane + y * es.w + x)] = true;
+          }
+  return g;
+}
+}  // namespace
+
+TEST(ModelCpu, PhysicsGateKeepsPhysicsAwayFromEvents) {
+  for (int r : {0, 2}) {
+    GatedCase g = gated_case(r);
+    CpuBackend cpu;
+    RunOptions s;
+    s.outputs = {"fused"};
+    const HostTensor fused = Model(cpu, g.w).run(g.in, s).at("fused");
+    Weights ungated = g.w;
+    ungated.config.physics_gate = -1;
+    const HostTensor free = Model(cpu, ungated).run(g.in, s).at("fused");
+    const Shape sh = fused.shape;
+    const int64_t plane = sh.h * sh.w;
+    int64_t near = 0, far = 0;
+    for (int64_t n = 0; n < sh.n; ++n)
+      for (int64_t c = 0; c < 3; ++c)
+        for (int64_t p = 0; p < plane; ++p) {
+          const size_t i = size_t((n * 3 + c) * plane + p);
+          if (g.near[size_t(n * plane + p)]) {
+            ASSERT_EQ(fused.data[i], free.data[i]) << "r " << r << " item " << n << " pixel " << p;
+            ++near;
+          } else {
+            ASSERT_EQ(fused.data[i], std::clamp(g.in.phys.data[i], 0.f, 1.f)) << "r " << r << " item " << n << " pixel " << p;
+            ++far;
+          }
+        }
+    EXPECT_GT(near, 0) << r;
+    EXPECT_GT(far, near) << r;
+  }
+}
+
+TEST(ModelVulkan, PhysicsGateMatchesCpuInFp32AndFp16) {
+  const GatedCase g = gated_case(1);
+  RunOptions opt;
+  opt.mode = Mode::m;
+  CpuBackend cpu;
+  const auto ref = Model(cpu, g.w).run(g.in, opt);
+  for (Precision p : {Precision::fp32, Precision::fp16}) {
+    VulkanBackend vk(vktest::context(), nullptr, kPoolFlushBytes, p);
+    opt.precision = p;
+    const auto got = Model(vk, g.w).run(g.in, opt);
+    for (const auto& [name, arr] : ref) {
+      double scale = 1.0;
+      for (float v : arr.data) scale = std::max(scale, double(std::abs(v)));
+      // fp16: 1% of the range, as tests/test_model_fp16.cpp
+      EXPECT_LE(max_abs_diff(got.at(name), arr), (p == Precision::fp32 ? 1e-4 : 1e-2) * scale) << name << " " << precision_name(p);
+    }
   }
 }
 

@@ -214,13 +214,31 @@ TEST(Weights, Bf16TensorsLoadAsFloat) {
       ASSERT_NEAR(w.get(name).data[i], t.data[i], std::abs(t.data[i]) / 128.f + 1e-30f) << name;
 }
 
-// The Python mirror's event gate is not in the C++ graph: a model that sets it is refused by name.
-TEST(Weights, PhysicsGateIsRefused) {
-  const Weights r = random_weights(tiny(), 5);
-  auto md = tiny().to_metadata();
+// The variant's event gate (metadata physics_gate = r): read, written back, and checked by name.
+TEST(Weights, PhysicsGateIsReadAndChecked) {
+  ModelConfig v = tiny();
+  v.physics_input = true;
+  const Weights r = random_weights(v, 5);
+  auto md = v.to_metadata();
+  EXPECT_EQ(md.count("physics_gate"), 0u);  // no gate: not written
   md["physics_gate"] = "2";
-  const std::string e = error_of(serialize(r, md));
-  EXPECT_NE(e.find("physics_gate"), std::string::npos) << e;
+  const Weights w = weights_from_safetensors(parse_safetensors(serialize(r, md), "g"), "g");
+  EXPECT_EQ(w.config.physics_gate, 2);
+  EXPECT_EQ(w.config.to_metadata().at("physics_gate"), "2");
+  EXPECT_NE(w.config.summary().find("event gate r=2"), std::string::npos) << w.config.summary();
+  for (const char* bad : {"x", "2.5", "-2", "16"}) {
+    md["physics_gate"] = bad;
+    const std::string e = error_of(serialize(r, md));
+    EXPECT_NE(e.find("'physics_gate' = '" + std::string(bad) + "'"), std::string::npos) << e;
+  }
   md["physics_gate"] = "-1";  // what the mirror writes for "no gate" is accepted
   EXPECT_EQ(error_of(serialize(r, md)), "");
+  // a gate needs the variant's physics input
+  const Weights plain = random_weights(tiny(), 5);
+  auto pmd = tiny().to_metadata();
+  pmd["physics_gate"] = "1";
+  EXPECT_NE(error_of(serialize(plain, pmd)).find("needs the physics-informed variant"), std::string::npos);
+  ModelConfig c = tiny();
+  c.physics_gate = 1;
+  EXPECT_THROW(c.validate(), Error);
 }

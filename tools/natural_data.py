@@ -31,6 +31,7 @@ SKIMAGE_DIR = "/usr/lib/python3/dist-packages/skimage/data"
 
 # Motion kinds scored separately by tools/natural_eval.py.
 KINDS = ("camera", "static_movers", "camera_occluders")
+PRESETS = ("clean", "realistic", "noisy")  # vkunroll simulate --preset
 
 
 class DataError(ValueError):
@@ -145,9 +146,11 @@ def make_heldout(out: str, cli: str, only: Optional[List[str]] = None) -> None:
         print(f"{d}: {kind} ({sec:.1f} s)", flush=True)
 
 
-def train_args(rng: random.Random, force_kind: Optional[str] = None, gt_per_frame: int = 2) -> (List[str], str, dict):
+def train_args(rng: random.Random, force_kind: Optional[str] = None, gt_per_frame: int = 2,
+               force_preset: Optional[str] = None) -> (List[str], str, dict):
     """Random simulator settings for one training sequence (what the issue asks to cover).
-    `force_kind` (one of KINDS) replaces the drawn motion kind; every other draw is unchanged."""
+    `force_kind` (one of KINDS) and `force_preset` replace the drawn motion kind and event preset;
+    every other draw is unchanged."""
     vga = rng.random() < 0.25
     if vga:  # Prophesee-size sensor, simulated at 640x480 (training takes crops)
         size, rows = "640x480", 480
@@ -168,6 +171,7 @@ def train_args(rng: random.Random, force_kind: Optional[str] = None, gt_per_fram
     else:
         kind, motion, sprites = "camera", rng.choice(["pan", "accelerate", "rotate", "zoom", "shake", "mixed"]), 0
     preset = rng.choice(["clean", "realistic", "realistic", "noisy"])
+    preset = force_preset or preset
     c_on = round(rng.uniform(0.1, 0.5), 3)
     c_off = round(min(0.5, c_on * rng.uniform(0.9, 1.3)), 3)
     sigma = round(rng.uniform(0.01, 0.06), 3)
@@ -182,15 +186,17 @@ def train_args(rng: random.Random, force_kind: Optional[str] = None, gt_per_fram
 
 
 def make_train(out: str, cli: str, count: int, seed_base: int, kinds: Optional[List[str]] = None,
-               gt_per_frame: int = 2) -> None:
-    """`count` sequences nat_<seed>; `kinds`: motion kinds cycled over the seeds (else drawn)."""
+               gt_per_frame: int = 2, presets: Optional[List[str]] = None) -> None:
+    """`count` sequences nat_<seed>; `kinds`, `presets`: motion kinds and event presets cycled over
+    the seeds (else drawn)."""
     os.makedirs(out, exist_ok=True)
     pool = photos("train")
     for i in range(count):
         seed = seed_base + i
         rng = random.Random(1000003 * seed + 7)
         photo = pool[rng.randrange(len(pool))]
-        args, kind, _ = train_args(rng, kinds[i % len(kinds)] if kinds else None, gt_per_frame)
+        args, kind, _ = train_args(rng, kinds[i % len(kinds)] if kinds else None, gt_per_frame,
+                                   presets[i % len(presets)] if presets else None)
         d = os.path.join(out, f"nat_{seed:05d}")
         sec = simulate(cli, d, photo, args + ["--seed", str(seed)], kind)
         print(f"{d}: {os.path.basename(photo['file'])} {kind} {' '.join(args[:2])} ({sec:.1f} s)", flush=True)
@@ -215,6 +221,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed-base", type=int, default=1)
     ap.add_argument("--kinds", help="with --train: comma list of motion kinds cycled over the seeds "
                     f"({', '.join(KINDS)}) instead of drawn")
+    ap.add_argument("--presets", help="with --train: comma list of event presets (clean, realistic, noisy) cycled "
+                    "over the seeds instead of drawn")
     ap.add_argument("--gt-per-frame", type=int, default=2, help="with --train: ground-truth instants per frame [2]")
     ap.add_argument("--cli")
     a = ap.parse_args(argv)
@@ -237,7 +245,11 @@ def main(argv=None) -> int:
             for k in kinds or []:
                 if k not in KINDS:
                     ap.error(f"--kinds: '{k}' is not one of {', '.join(KINDS)}")
-            make_train(a.train, find_cli(a.cli), a.count, a.seed_base, kinds, a.gt_per_frame)
+            presets = a.presets.split(",") if a.presets else None
+            for p in presets or []:
+                if p not in PRESETS:
+                    ap.error(f"--presets: '{p}' is not one of {', '.join(PRESETS)}")
+            make_train(a.train, find_cli(a.cli), a.count, a.seed_base, kinds, a.gt_per_frame, presets)
         if not (a.heldout or a.train):
             ap.error("nothing to do: --check, --list-heldout, --heldout DIR or --train DIR")
     except DataError as e:

@@ -373,11 +373,16 @@ class SelfUnroll(nn.Module):
                                 force_m)
         return sys_, E, flow, warped, fused, m, out
 
-    def moa_blend(self, E1, E2, ev1_1, ev1_2, flow1, flow2, fused1, fused2, force_m: Optional[float] = None):
+    def moa_blend(self, E1, E2, ev1_1, ev1_2, flow1, flow2, fused1, fused2, force_m: Optional[float] = None,
+                  grad_leak: float = 0.0):
         """The MOA stage on S results of frames 1 and 2 (any batch: item i of each is one pair);
-        returns (m, out). forward() uses it for B = 2; training calls it on batches of pairs."""
+        returns (m, out). forward() uses it for B = 2; training calls it on batches of pairs.
+        `grad_leak` (training only) adds grad_leak * score / 6 to m's gradient and nothing to its
+        value: hardsigmoid has zero gradient beyond +-3, where a blend that saturated early stays."""
         score = self.attfusion_net(torch.cat([E1, E2, ev1_1, ev1_2, flow1, flow2], 1))
         m = F.hardsigmoid(score) if force_m is None else torch.full_like(score, float(force_m))
+        if grad_leak and force_m is None:
+            m = m + grad_leak * (score - score.detach()) / 6.0  # + 0 exactly in the forward pass
         return m, m * fused1 + (1 - m) * fused2
 
 

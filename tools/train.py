@@ -131,9 +131,9 @@ def lift_to_physics(src: SelfUnroll, seed: int) -> SelfUnroll:
     init_model(net, seed)
     sd = net.state_dict()
     for k, v in src.state_dict().items():
-        # attfusion_net.pred restarts near 0 (m ~ 0.5): a trained MOA whose score sits beyond
-        # hardsigmoid's +-3 has zero gradient there, and stage 2 could not move it
-        if k.startswith("fusion_net.") or k.startswith("UPNet.2.") or k.startswith("attfusion_net.pred."):
+        # attfusion_net restarts (m ~ 0.5): a trained MOA whose score sits beyond hardsigmoid's +-3
+        # has zero gradient there, and stage 2 could not move it (see reset_moa)
+        if k.startswith("fusion_net.") or k.startswith("UPNet.2.") or k.startswith("attfusion_net."):
             continue
         if k == "SFENet1.weight":
             w = torch.zeros_like(sd[k])
@@ -145,11 +145,14 @@ def lift_to_physics(src: SelfUnroll, seed: int) -> SelfUnroll:
 
 
 def reset_moa(net: SelfUnroll, seed: int) -> None:
-    """attfusion_net.pred restarts at 0.01 x its default init with zero bias (m = hardsigmoid ~ 0.5):
-    a MOA whose score saturated beyond +-3 has no gradient left for stage 2."""
+    """attfusion_net restarts from PyTorch's default init, its head at 0.01 x that with zero bias
+    (m = hardsigmoid ~ 0.5): a MOA whose score saturated beyond +-3 has no gradient left for
+    stage 2, and resetting the head alone is not enough where the UNet's features reach 1e5-1e8."""
     torch.manual_seed(seed + 17)
     with torch.no_grad():
-        net.attfusion_net.pred.reset_parameters()
+        for m in net.attfusion_net.modules():
+            if m is not net.attfusion_net and hasattr(m, "reset_parameters"):
+                m.reset_parameters()
         net.attfusion_net.pred.weight.mul_(0.01)
         net.attfusion_net.pred.bias.zero_()
 
@@ -205,18 +208,21 @@ def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
     B = len(samples)
     dv = next(net.parameters()).device
     rs1, rs2 = images(samples, "rs1", dv), images(samples, "rs2", dv)
+    L = {}
+    if supervised:  # only the two passes toward t* (g1, g2) meet the ground truth
+        g = run_s(net, torch.cat([rs1, rs2]), [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2")))],
+                  stack_lr(samples, ("g1", "g2"), dv))
+        g1, g2 = split(g, B)
+        gt = images(samples, "gt", dv)
+        L["sup"] = sum(l1(g1[b], gt) + l1(g2[b], gt) for b in BRANCHES)
+        L["tv"] = tv(g["flow"])
+        L["total"] = L["sup"] + LOSS_WEIGHTS["tv"] * L["tv"]
+        return L
     ev = [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2", "r12", "r21")))]
     first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev, stack_lr(samples, ("g1", "g2", "r12", "r21"), dv))
     g, r = split(first, 2 * B)
     g1, g2 = split(g, B)
     r12, r21 = split(r, B)
-    L = {}
-    if supervised:
-        gt = images(samples, "gt", dv)
-        L["sup"] = sum(l1(g1[b], gt) + l1(g2[b], gt) for b in BRANCHES)
-        L["tv"] = tv(first["flow"])
-        L["total"] = L["sup"] + LOSS_WEIGHTS["tv"] * L["tv"]
-        return L
     ev_c = [torch.cat(t) for t in zip(stack(samples, "c1", dv), stack(samples, "c2", dv))]
     second = run_s(net, torch.cat([g1["fused"], g2["fused"]]), ev_c, stack_lr(samples, ("c1", "c2"), dv))
     c1, c2 = split(second, B)
@@ -228,8 +234,15 @@ def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
     return L
 
 
+# Stage 2's gradient leak through hardsigmoid's flat parts: without it the blend saturated at one
+# frame (m = 0 or 1 everywhere) within the first few hundred steps of every run and never moved again.
+MOA_GRAD_LEAK = 0.05
+
+
 def moa(net: SelfUnroll, a: dict, b: dict):
-    return net.moa_blend(a["E"], b["E"], a["ev1"], b["ev1"], a["flow"], b["flow"], a["fused"], b["fused"])[1]
+    leak = MOA_GRAD_LEAK if torch.is_grad_enabled() and net.training else 0.0
+    return net.moa_blend(a["E"], b["E"], a["ev1"], b["ev1"], a["flow"], b["flow"], a["fused"], b["fused"],
+                         grad_leak=leak)[1]
 
 
 def stage_m_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = False):
@@ -239,18 +252,20 @@ def stage_m_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
     B = len(samples)
     dv = next(net.parameters()).device
     rs1, rs2 = images(samples, "rs1", dv), images(samples, "rs2", dv)
+    L = {}
+    if supervised:  # the M result of g1 and g2 against the ground truth
+        g = run_s(net, torch.cat([rs1, rs2]), [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2")))],
+                  stack_lr(samples, ("g1", "g2"), dv))
+        g1, g2 = split(g, B)
+        L["sup"] = l1(moa(net, g1, g2), images(samples, "gt", dv))
+        L["total"] = L["sup"]
+        return L
     ev = [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2", "r12", "r21")))]
     first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev, stack_lr(samples, ("g1", "g2", "r12", "r21"), dv))
     g, r = split(first, 2 * B)
     g1, g2 = split(g, B)
     r12, r21 = split(r, B)
     G = moa(net, g1, g2)
-    L = {}
-    if supervised:
-        gt = images(samples, "gt", dv)
-        L["sup"] = l1(G, gt)
-        L["total"] = L["sup"]
-        return L
     ev_c = [torch.cat(t) for t in zip(stack(samples, "c1", dv), stack(samples, "c2", dv))]
     second = run_s(net, torch.cat([G, G]), ev_c, stack_lr(samples, ("c1", "c2"), dv))
     c1, c2 = split(second, B)

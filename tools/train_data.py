@@ -25,6 +25,7 @@ from sequence_data import DataError, Sequence, eic_tensors
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PASSES = ("g1", "g2", "r12", "r21", "c1", "c2")
+SUPERVISED_PASSES = ("g1", "g2")  # the supervised loss compares the g1/g2 results with the ground truth
 
 
 @dataclass
@@ -94,7 +95,9 @@ class SeqInfo:
 
 
 def make_sample(seq: Sequence, k: int, crop, t_star: float, texp: float, bins: int, gt_index: Optional[int] = None,
-                info: Optional[SeqInfo] = None, model_gamma: Optional[float] = None, physics: bool = False) -> Sample:
+                info: Optional[SeqInfo] = None, model_gamma: Optional[float] = None, physics: bool = False,
+                passes=PASSES) -> Sample:
+    """`passes`: the E-IC passes to bin (the supervised loss needs only g1 and g2)."""
     s1, e1 = seq.row_times(k)
     s2, e2 = seq.row_times(k + 1)
     H = seq.height
@@ -106,6 +109,7 @@ def make_sample(seq: Sequence, k: int, crop, t_star: float, texp: float, bins: i
         "g1": (s1, e1, ts, texp), "g2": (s2, e2, ts, texp),
         "r12": (s1, e1, s2, seq.exposure), "r21": (s2, e2, s1, seq.exposure),
         "c1": (ts, ts + texp, s1, seq.exposure), "c2": (ts, ts + texp, s2, seq.exposure)}
+    windows = {p: w for p, w in windows.items() if p in passes}
     tens = {p: eic_tensors(ev, a, b, tg, te, bins, crop) for p, (a, b, tg, te) in windows.items()}
     lr = None
     if physics:
@@ -172,7 +176,8 @@ class Sampler:
         else:
             t_star = r.uniform(lo, hi)
         return make_sample(seq, k, (x0, y0, self.crop_w, self.crop_h), t_star, texp, self.bins, gt_index,
-                           self.info(seq), self.model_gamma, self.physics)
+                           self.info(seq), self.model_gamma, self.physics,
+                           SUPERVISED_PASSES if self.supervised else PASSES)
 
 
 # ---- cache of pre-drawn samples -------------------------------------------------------------------------
@@ -195,7 +200,7 @@ def write_cache(sampler: Sampler, out: str, count: int, shard: int = 256, log=pr
              "rs2": torch.from_numpy(np.stack([s.rs2 for s in samples])).half()}
         if samples[0].gt is not None:
             d["gt"] = torch.from_numpy(np.stack([s.gt for s in samples])).half()
-        for p in PASSES:
+        for p in samples[0].ev:  # the passes the samples hold (supervised: g1 and g2)
             for j in range(3):
                 a = np.stack([s.ev[p][j] for s in samples])
                 clipped += int((a > 255).sum())
@@ -225,6 +230,9 @@ class CacheSampler:
                             f"the model needs N={bins} physics={physics}")
         if supervised and not self.meta.get("supervised"):
             raise DataError(f"{folder}: cache holds no ground truth (written without --supervised)")
+        if not supervised and self.meta.get("supervised"):
+            raise DataError(f"{folder}: cache was written for --supervised (passes g1, g2 only); "
+                            "the self-supervised losses need all six passes")
         self.shards = [torch.load(f, weights_only=True) for f in sorted(glob.glob(os.path.join(folder, "shard_*.pt")))]
         self.index = [(i, j) for i, s in enumerate(self.shards) for j in range(s["rs1"].shape[0])]
         if not self.index:
@@ -241,8 +249,9 @@ class CacheSampler:
         flip = self.rng.random() < 0.5  # a mirrored scene is as real as the scene; rows keep their times
         f = (lambda a: np.ascontiguousarray(a[..., ::-1])) if flip else (lambda a: a)  # noqa: E731
         img = lambda k: f(s[k][j].float().numpy())  # noqa: E731
-        ev = {p: tuple(f(s[f"ev_{p}_{q}"][j].numpy().astype(np.float32)) for q in range(3)) for p in PASSES}
-        lr = {p: f(s[f"lr_{p}"][j].numpy()) for p in PASSES} if f"lr_g1" in s else None
+        passes = [p for p in PASSES if f"ev_{p}_0" in s]
+        ev = {p: tuple(f(s[f"ev_{p}_{q}"][j].numpy().astype(np.float32)) for q in range(3)) for p in passes}
+        lr = {p: f(s[f"lr_{p}"][j].numpy()) for p in passes} if "lr_g1" in s else None
         return Sample(img("rs1"), img("rs2"), ev, img("gt") if "gt" in s else None, lr)
 
 

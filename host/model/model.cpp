@@ -130,6 +130,19 @@ Model::Model(Backend& backend, const Weights& w) : backend_(backend), cfg_(w.con
   add_unet(w, "flownet", 2 * ev + 3, 2, cfg_.flownet);
   add_unet(w, "fusion_net", 3 + 3 + 2 + ev + 3, 3, cfg_.fusion_net);
   if (cfg_.moa) add_unet(w, "attfusion_net", 3 + 3 + 2 * ev + 2 + 2, 1, cfg_.attfusion_net);
+  if (cfg_.physics_gate >= 0) add_physics_gate();
+}
+
+// The event gate's two box sums, one per event tensor, as convs with fixed weights: score =
+// 6 * (events of ev1 and ev2 in the (2r+1)^2 square) - 3, so hardsigmoid(score) = clamp(count, 0, 1)
+// and the gate is the MOA's blend op.
+void Model::add_physics_gate() {
+  const int r = cfg_.physics_gate, k = 2 * r + 1, ev = cfg_.ev_channels();
+  WeightTensor weight{{1, ev, k, k}, std::vector<float>(size_t(ev) * k * k, 6.f)};
+  for (const auto& [name, bias] : {std::pair{"physics_gate.ev1", -3.f}, {"physics_gate.ev2", 0.f}}) {
+    ConvDesc d{name, ev, 1, k, 1, r, false, false, 0.f};
+    convs_[name] = Conv{backend_.prepare_conv(d, weight, WeightTensor{{1}, {bias}}), d};
+  }
 }
 
 std::vector<std::string> Model::resolve_outputs(const std::vector<std::string>& requested, Mode mode) {
@@ -356,10 +369,26 @@ void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
 
 void Model::stage_fusion(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
+  const bool gated = cfg_.physics_gate >= 0;
+  const int raw = gated ? b.alloc({n, 3, ch.he, ch.we}, "fusion_net output") : -1;
   unet("fusion_net", cfg_.fusion_net,
        {items(b, ch.sys, i0, n), items(b, ch.warped, i0, n), items(b, ch.flow, i0, n), sub(ch.ev3, i0, n),
         sub(ch.rs, i0, n)},
-       items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
+       gated ? whole(b, raw) : items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
+  if (!gated) return;
+  // fused = g * fusion_net + (1 - g) * clamp(phys, 0, 1), g = 1 where an ev1/ev2 event is near.
+  const Shape plane{n, 1, ch.he, ch.we};
+  const int part = b.alloc(plane, "physics gate ev1");
+  b.conv(conv("physics_gate.ev1").id, sub(ch.ev1, i0, n), whole(b, part), nullptr);
+  const int score = b.alloc(plane, "physics gate");
+  const BufferSlice ev1_part = whole(b, part);
+  b.conv(conv("physics_gate.ev2").id, sub(ch.ev2, i0, n), whole(b, score), &ev1_part);
+  b.release(part);
+  const int phys = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
+  b.clamp01(sub(ch.phys, i0, n), whole(b, phys));
+  const int g = b.alloc(plane, "physics gate m");
+  b.hardsigmoid_blend(whole(b, score), whole(b, raw), whole(b, phys), whole(b, g), items(b, ch.fused, i0, n), -1.f);
+  for (int buf : {score, phys, g, raw}) b.release(buf);
 }
 
 void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
@@ -547,10 +576,16 @@ std::map<std::string, int> Model::run_on_backend(const ModelBuffers& in, const R
       if (in.consume && last) b.release(given.buf);
     };
     for (int64_t i = 0; i < ch.n; i += sub_f) stage_flow(ch, i, std::min<int64_t>(sub_f, ch.n - i));
-    consumed(ch.ev2, in.ev2);
-    if (cfg_.physics_input) consumed(ch.phys, in.phys);  // read by E-IC_T only
+    // ev2 and phys are read by E-IC_T and flownet, and by the variant's event gate after fusion_net.
+    const bool gated = cfg_.physics_gate >= 0;
+    auto consumed_ev2_phys = [&] {
+      consumed(ch.ev2, in.ev2);
+      if (cfg_.physics_input) consumed(ch.phys, in.phys);
+    };
+    if (!gated) consumed_ev2_phys();
     for (int64_t i = 0; i < ch.n; i += sub_u) stage_fusion(ch, i, std::min<int64_t>(sub_u, ch.n - i));
     consumed(ch.ev3, in.ev3);
+    if (gated) consumed_ev2_phys();
     if (m_mode) {
       ch.m = chunk_buffer("m", {ch.nt, 1, he, we});
       ch.out = chunk_buffer("out", {ch.nt, 3, he, we});

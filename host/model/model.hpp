@@ -98,6 +98,7 @@ class Model {
   void stage_synthesis(Chunk& ch, int64_t i0, int64_t n);
   void stage_flow(Chunk& ch, int64_t i0, int64_t n);
   void stage_fusion(Chunk& ch, int64_t i0, int64_t n);
+  void add_physics_gate();
   void stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m);
   // The UNet on `pieces` (views with n items, concatenated along channels), output to `out`.
   // top, left >= 0: the input's offset in the padded input (RunOptions::unet_pad_top / left).

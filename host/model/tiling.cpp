@@ -81,7 +81,8 @@ ReceptiveRadius receptive_radius(const ModelConfig& cfg) {
   r.flownet = unet_receptive_radius(cfg.flownet);
   r.fusion_net = unet_receptive_radius(cfg.fusion_net);
   r.attfusion_net = cfg.moa ? unet_receptive_radius(cfg.attfusion_net) : 0;
-  r.fused = r.fusion_net + std::max(r.synthesis, r.flownet);
+  // The variant's event gate reads ev1/ev2 within its radius: far inside the fusion path's.
+  r.fused = std::max<int64_t>(r.fusion_net + std::max(r.synthesis, r.flownet), cfg.physics_gate);
   r.out = cfg.moa ? std::max(r.fused, r.attfusion_net + std::max(r.synthesis, r.flownet)) : r.fused;
   return r;
 }
@@ -90,7 +91,7 @@ int64_t exact_halo(const ModelConfig& cfg, Mode mode, double max_flow) {
   const ReceptiveRadius r = receptive_radius(cfg);
   // warped(q) reads flow(q) (flownet radius) and rs at q + flow(q) (bilinear: one more pixel).
   const int64_t warp = static_cast<int64_t>(std::ceil(std::max(0.0, max_flow))) + 1;
-  int64_t h = r.fusion_net + std::max({r.synthesis, r.flownet, warp});
+  int64_t h = std::max<int64_t>(r.fusion_net + std::max({r.synthesis, r.flownet, warp}), cfg.physics_gate);
   if (mode == Mode::m && cfg.moa) h = std::max(h, r.attfusion_net + std::max(r.synthesis, r.flownet));
   return round_up(h, kTileAlign);
 }

@@ -113,6 +113,7 @@ std::map<std::string, std::string> ModelConfig::to_metadata() const {
   if (physics_input) {
     md["physics_input"] = "true";
     md["physics_contrast"] = physics_contrast;
+    if (physics_gate >= 0) md["physics_gate"] = std::to_string(physics_gate);
   }
   if (gamma) md["gamma"] = f(static_cast<float>(*gamma));
   md["rdb_slope"] = f(rdb_slope);
@@ -135,6 +136,7 @@ std::string ModelConfig::summary() const {
     os << " (no MOA: SelfUnroll-S only)";
   os << " slopes=" << rdb_slope << "/" << unet_slope << " " << channel_order;
   if (physics_input) os << " physics-informed (contrast " << physics_contrast << ")";
+  if (physics_gate >= 0) os << " event gate r=" << physics_gate;
   if (gamma) os << " gamma=" << *gamma;
   return os.str();
 }
@@ -154,6 +156,12 @@ void ModelConfig::validate() const {
     throw Error("model configuration: channel_order '" + channel_order + "' (expected rgb or bgr)");
   if (gamma && !(*gamma > 0 && std::isfinite(*gamma)))
     throw Error("model configuration: gamma = " + std::to_string(*gamma) + " (expected a positive number)");
+  if (physics_gate < -1 || physics_gate > kMaxPhysicsGate)
+    throw Error("model configuration: physics_gate = " + std::to_string(physics_gate) + " (expected -1 for none, or 0.." +
+                std::to_string(kMaxPhysicsGate) + ")");
+  if (physics_gate >= 0 && !physics_input)
+    throw Error("model configuration: physics_gate = " + std::to_string(physics_gate) +
+                " needs the physics-informed variant (physics_input)");
   if (physics_input && physics_contrast != "estimate") {
     char* end = nullptr;
     const double c = std::strtod(physics_contrast.c_str(), &end);
@@ -303,11 +311,17 @@ Weights weights_from_safetensors(const SafetensorsFile& file, const std::string&
   if (md.count("channel_order")) w.config.channel_order = md.at("channel_order");
   if (md.count("description")) w.config.description = md.at("description");
   if (md.count("physics_contrast")) w.config.physics_contrast = md.at("physics_contrast");
-  // The event gate is a training experiment of the Python mirror (tools/selfunroll_torch.py); a
-  // model that needs it would run here without it, so it is refused rather than run differently.
-  if (md.count("physics_gate") && md.at("physics_gate") != "-1")
-    throw Error(origin + ": metadata 'physics_gate' = '" + md.at("physics_gate") +
-                "': the event gate of the Python mirror is not in this build's graph (expected no gate, -1)");
+  if (md.count("physics_gate")) {
+    const std::string& g = md.at("physics_gate");
+    char* end = nullptr;
+    const long v = std::strtol(g.c_str(), &end, 10);
+    if (end == g.c_str() || *end || v < -1 || v > kMaxPhysicsGate)
+      throw Error(origin + ": metadata 'physics_gate' = '" + g + "' (expected an integer radius 0.." +
+                  std::to_string(kMaxPhysicsGate) + ", or -1 for no gate)");
+    if (v >= 0 && !w.config.physics_input)
+      throw Error(origin + ": metadata 'physics_gate' = '" + g + "' needs the physics-informed variant (physics_input=true)");
+    w.config.physics_gate = static_cast<int>(v);
+  }
   if (md.count("gamma")) {
     const std::string& g = md.at("gamma");
     char* end = nullptr;

@@ -19,6 +19,9 @@ struct UnetConfig {
 };
 
 // Everything that fixes the tensor shapes and the arithmetic of one SelfUnroll model.
+// The largest event gate radius a configuration may state (a (2r+1)^2 box, one conv).
+constexpr int kMaxPhysicsGate = 15;
+
 struct ModelConfig {
   int D = 10;            // residual dense blocks
   int C = 5;             // convs per block
@@ -35,6 +38,10 @@ struct ModelConfig {
   bool physics_input = false;
   // The variant's contrast threshold for `phys`: "estimate" (as --mode physics) or a number.
   std::string physics_contrast = "estimate";
+  // The variant's event gate radius r (-1: none): fused = clamp(phys, 0, 1) wherever no event of
+  // ev1/ev2 lies within the (2r+1)^2 square around the pixel (there physics is exact but for
+  // frame noise, and a small network's correction only adds error).
+  int physics_gate = -1;
   // The intensity encoding the model was trained in (PNG value = linear^(1/gamma)); unset: unknown.
   std::optional<double> gamma;
   std::string channel_order = "rgb";  // image channel order the weights expect ("rgb" | "bgr")

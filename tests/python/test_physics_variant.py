@@ -24,6 +24,7 @@ import physics_numpy as pn  # noqa: E402
 import safetensors_io  # noqa: E402
 import train  # noqa: E402
 import train_data  # noqa: E402
+import selfunroll_torch  # noqa: E402
 from selfunroll_torch import SelfUnroll, SelfUnrollConfig, infer_config, load_model  # noqa: E402
 from sequence_data import Sequence, read_image  # noqa: E402
 from test_train import edi_pixel, write_sequence  # noqa: E402
@@ -256,6 +257,20 @@ def test_cache_of_prepared_samples_trains(tmp_path, seq_dir):
     assert r.returncode == 1 and "physics=True" in r.stderr
 
 
+def test_supervised_cache_holds_two_passes_and_is_refused_for_self_supervision(tmp_path, seq_dir):
+    r = run_train("--data", seq_dir, "--out", tmp_path / "o", "--config", "tiny", "--physics-variant", "--crop", "32x32",
+                  "--supervised", "--make-cache", tmp_path / "cache", "--cache-samples", "3", "--seed", "3")
+    assert r.returncode == 0, r.stdout + r.stderr
+    smp = train_data.CacheSampler(str(tmp_path / "cache"), random.Random(0), 2, True, supervised=True).draw()
+    assert set(smp.ev) == {"g1", "g2"} and set(smp.lr) == {"g1", "g2"} and smp.gt.shape == (3, 32, 32)
+    r = run_train("--cache", tmp_path / "cache", "--out", tmp_path / "t", "--config", "tiny", "--physics-variant",
+                  "--crop", "32x32", "--batch", "2", "--steps-s", "1", "--steps-m", "1", "--supervised", "--print-every", "0")
+    assert r.returncode == 0 and "[s] step 1/1" in r.stdout and "[m] step 1/1" in r.stdout, r.stdout + r.stderr
+    r = run_train("--cache", tmp_path / "cache", "--out", tmp_path / "u", "--config", "tiny", "--physics-variant",
+                  "--steps-s", "1")
+    assert r.returncode == 1 and "self-supervised losses need all six passes" in r.stderr
+
+
 @pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is present")
 def test_cuda_device_refused_clearly_without_cuda(tmp_path, seq_dir):
     r = run_train("--data", seq_dir, "--out", tmp_path / "o", "--device", "cuda", "--steps-s", "1")
@@ -307,13 +322,18 @@ def perturbed_variant(seed=5):
 
 
 @needs_cli
-@pytest.mark.parametrize("mode", ["s", "m"])
-def test_variant_in_vkunroll_infer_matches_pytorch(tmp_path, mode):
-    """The exported variant loaded by `vkunroll infer` (Vulkan) gives the mirror's every output within 1e-4."""
+@pytest.mark.parametrize("mode,gate", [("s", -1), ("m", -1), ("s", 1), ("m", 2)])
+def test_variant_in_vkunroll_infer_matches_pytorch(tmp_path, mode, gate):
+    """The exported variant loaded by `vkunroll infer` (Vulkan) gives the mirror's every output within 1e-4,
+    with and without the event gate (metadata physics_gate)."""
     net = perturbed_variant()
+    net.cfg.physics_gate = gate
     path = str(tmp_path / "v.safetensors")
     train.export(net, path, {"data": "test"})
     rs, ev, phys = random_inputs(net.cfg, b=2 if mode == "m" else 1, h=37, w=52, seed=4)
+    if gate >= 0:  # sparse ev1/ev2 events, so the gate has pixels on both sides
+        keep = (torch.rand(rs.shape[0], 1, 37, 52, generator=torch.Generator().manual_seed(9)) < 0.03).float()
+        ev = [ev[0] * keep, ev[1] * keep, ev[2]]
     safetensors_io.save(str(tmp_path / "in.safetensors"), {"rs": rs, "ev1": ev[0], "ev2": ev[1], "ev3": ev[2], "phys": phys})
     r = subprocess.run([CLI, "infer", "--model", path, "--inputs", tmp_path / "in.safetensors", "--out",
                         tmp_path / "out.safetensors", "--mode", mode], capture_output=True, text=True)
@@ -328,6 +348,11 @@ def test_variant_in_vkunroll_infer_matches_pytorch(tmp_path, mode):
         err = float((got[k].float() - v).abs().max())
         assert err <= 1e-4, f"{k}: max abs error {err}"
     assert float(E.abs().max()) > 1e-3  # the correction is not zero: the test sees the network
+    if gate >= 0:  # the gate takes physics at some pixels and the network at others
+        g = selfunroll_torch.event_gate(ev[0], ev[1], gate).expand_as(fused) > 0
+        physc = phys.clamp(0, 1)
+        assert bool(torch.equal(fused[~g], physc[~g])) and int((~g).sum()) > 0
+        assert float((fused[g] - physc[g]).abs().max()) > 1e-3
 
 
 @needs_cli

@@ -393,12 +393,13 @@ def test_python_physics_fallback_matches_the_cpp_reference_formula(seq_dir):
 
 
 def test_supervised_comparison_mode_reads_ground_truth(seq_dir):
-    """--supervised (comparison only) draws t* at ground-truth instants and uses L1 to them."""
+    """--supervised draws t* at ground-truth instants and uses L1 to them."""
     net = SelfUnroll(tiny_cfg())
     train.init_model(net, 1)
     sampler = train.Sampler([Sequence(seq_dir)], 32, 32, net.cfg.N, None, random.Random(2), supervised=True)
     batch = [sampler.draw() for _ in range(2)]
     assert all(b.gt is not None and b.gt.shape == (3, 32, 32) for b in batch)
+    assert all(set(b.ev) == {"g1", "g2"} for b in batch)  # only the passes toward t* are binned
     L = train.stage_s_losses(net, batch, supervised=True)
     assert set(L) == {"sup", "tv", "total"} and float(L["sup"]) > 0
     L = train.stage_m_losses(net, batch, supervised=True)
