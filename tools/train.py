@@ -15,7 +15,9 @@ Details, formulas and the shipped model's command: docs/training.md.
   # adaptation to one recording (self-supervised only)
   train.py --adapt data/rec1 --from models/selfunroll_small.safetensors --minutes 10 --out runs/rec1
 
-No ground truth is read for training; --supervised (L1 to the GS frames) exists only for comparison.
+The self-supervised losses read no ground truth. --supervised (L1 to the simulated GS frames at t*)
+trains on simulated sequences only; it is how the shipped photo model was fine-tuned (docs/training.md).
+--adapt (a user's recording) is always self-supervised.
 Validation (--val) uses the ground truth of held-out sequences to print PSNRs, nothing else.
 """
 from __future__ import annotations
@@ -505,7 +507,8 @@ def train(a) -> None:
                  "lr": str(a.lr), "supervised": "true" if a.supervised else "false", "device": str(dev),
                  "losses": ("stage s: 1*Llc + 1*Lcc + 1*Ltc + 0.01*Ltv on sys/warped/fused; "
                             "stage m: Ldcc (attfusion_net alone)") if not a.supervised else
-                 "SUPERVISED comparison run: L1 to ground truth + 0.01*Ltv; stage m: L1 of the M result",
+                 "supervised (simulated ground truth): stage s: L1 of sys/warped/fused of g1 and g2 to the GS frame "
+                 "at t* + 0.01*Ltv; stage m: L1 of the M result",
                  "target_exposure_us": str(a.target_exposure_us or "rs exposure")})
     if a.adapt:
         info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes)})
@@ -663,7 +666,8 @@ def main(argv=None) -> int:
                    help="initialise fusion_net randomly instead of as the identity on its sys input")
     g.add_argument("--threads", default="2", help="torch threads, or 'auto': re-measure 1 vs 2 every 200 steps "
                    "(2 OpenMP threads on an oversubscribed machine can be many times slower than 1) [2]")
-    g.add_argument("--supervised", action="store_true", help="COMPARISON ONLY: L1 to ground truth")
+    g.add_argument("--supervised", action="store_true", help="L1 to the ground truth of simulated sequences "
+                   "(t* at their GT instants) instead of the self-supervised losses")
     g.add_argument("--print-every", type=float, default=10.0, help="seconds between progress lines")
     g.add_argument("--ckpt-every", type=int, default=100)
     g.add_argument("--rescan-every", type=int, default=0,
