@@ -10,7 +10,7 @@
 //                         [--thresholds 0.002,0.01,0.05] [--variant FILE|none] [--no-fp16]
 //
 // fp16 rows (`--precision fp16`: S, M dense and S sparse exact) are compared against the fp32 dense
-// row of the same mode; the physics-informed variant's rows (default
+// row of the same mode; the physics-informed variant's rows (S and M dense, S sparse, S fp16; default
 // models/physics/selfunroll_small_physics.safetensors) sit beside physics and the shipped model.
 //
 // Writes DIR/report.md, DIR/report.json and DIR/report.png (PSNR against ms per GS frame).
@@ -302,6 +302,8 @@ int main(int argc, char** argv) try {
   if (variant != "none") {
     if (!fs::exists(variant)) throw Error("vkunroll-bench-report: --variant " + variant + ": no such file (none: no variant rows)");
     specs.push_back({"variant S dense", "s", "off", 0.0, false, "", 0, 64, "fp32", true});
+    // M is the variant's mode on the natural held-out suite (unroll --mode auto): timed beside S.
+    specs.push_back({"variant M dense", "m", "off", 0.0, false, "", 0, 64, "fp32", true});
     if (sparse_rows)
       specs.push_back({"variant S sparse exact", "s", "exact", 0.0, false, "variant S dense", sparse_tile, sparse_halo, "fp32", true});
     if (fp16_rows) specs.push_back({"variant S dense fp16", "s", "off", 0.0, false, "variant S dense", 0, 64, "fp16", true});
