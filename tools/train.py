@@ -43,7 +43,7 @@ import safetensors_io  # noqa: E402
 from selfunroll_torch import SelfUnroll, SelfUnrollConfig, Unet, UnetConfig  # noqa: E402
 from sequence_data import DataError, Sequence, list_sequences  # noqa: E402
 from train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop_img, describe_data, find_cli,  # noqa: E402,F401
-                        from_model_encoding, gt_targets, make_data, make_sample, write_cache)
+                        SUPERVISED_PASSES, from_model_encoding, gt_targets, make_data, make_sample, write_cache)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSS_WEIGHTS = {"lc": 1.0, "cc": 1.0, "tc": 1.0, "tv": 0.01}
@@ -197,6 +197,13 @@ def run_s(net: SelfUnroll, img, ev, lr=None):
     return {"sys": sys_, "E": E, "flow": flow, "warped": warped, "fused": fused, "ev1": ev[0]}
 
 
+def run_passes(net: SelfUnroll, img, samples: List[Sample], passes, device):
+    """run_s on the event tensors of `passes` batched pass after pass (B items each); `img` is the
+    input batch in the same order."""
+    ev = [torch.cat(t) for t in zip(*(stack(samples, p, device) for p in passes))]
+    return run_s(net, img, ev, stack_lr(samples, passes, device))
+
+
 def split(o: dict, n: int):
     return {k: v[:n] for k, v in o.items()}, {k: v[n:] for k, v in o.items()}
 
@@ -212,21 +219,18 @@ def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
     rs1, rs2 = images(samples, "rs1", dv), images(samples, "rs2", dv)
     L = {}
     if supervised:  # only the two passes toward t* (g1, g2) meet the ground truth
-        g = run_s(net, torch.cat([rs1, rs2]), [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2")))],
-                  stack_lr(samples, ("g1", "g2"), dv))
+        g = run_passes(net, torch.cat([rs1, rs2]), samples, SUPERVISED_PASSES, dv)
         g1, g2 = split(g, B)
         gt = images(samples, "gt", dv)
         L["sup"] = sum(l1(g1[b], gt) + l1(g2[b], gt) for b in BRANCHES)
         L["tv"] = tv(g["flow"])
         L["total"] = L["sup"] + LOSS_WEIGHTS["tv"] * L["tv"]
         return L
-    ev = [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2", "r12", "r21")))]
-    first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev, stack_lr(samples, ("g1", "g2", "r12", "r21"), dv))
+    first = run_passes(net, torch.cat([rs1, rs2, rs1, rs2]), samples, ("g1", "g2", "r12", "r21"), dv)
     g, r = split(first, 2 * B)
     g1, g2 = split(g, B)
     r12, r21 = split(r, B)
-    ev_c = [torch.cat(t) for t in zip(stack(samples, "c1", dv), stack(samples, "c2", dv))]
-    second = run_s(net, torch.cat([g1["fused"], g2["fused"]]), ev_c, stack_lr(samples, ("c1", "c2"), dv))
+    second = run_passes(net, torch.cat([g1["fused"], g2["fused"]]), samples, ("c1", "c2"), dv)
     c1, c2 = split(second, B)
     L["lc"] = sum(l1(g1[b], g2[b]) for b in BRANCHES)
     L["cc"] = sum(l1(c1[b], rs1) + l1(c2[b], rs2) for b in BRANCHES)
@@ -256,20 +260,17 @@ def stage_m_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
     rs1, rs2 = images(samples, "rs1", dv), images(samples, "rs2", dv)
     L = {}
     if supervised:  # the M result of g1 and g2 against the ground truth
-        g = run_s(net, torch.cat([rs1, rs2]), [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2")))],
-                  stack_lr(samples, ("g1", "g2"), dv))
+        g = run_passes(net, torch.cat([rs1, rs2]), samples, SUPERVISED_PASSES, dv)
         g1, g2 = split(g, B)
         L["sup"] = l1(moa(net, g1, g2), images(samples, "gt", dv))
         L["total"] = L["sup"]
         return L
-    ev = [torch.cat(t) for t in zip(*(stack(samples, k, dv) for k in ("g1", "g2", "r12", "r21")))]
-    first = run_s(net, torch.cat([rs1, rs2, rs1, rs2]), ev, stack_lr(samples, ("g1", "g2", "r12", "r21"), dv))
+    first = run_passes(net, torch.cat([rs1, rs2, rs1, rs2]), samples, ("g1", "g2", "r12", "r21"), dv)
     g, r = split(first, 2 * B)
     g1, g2 = split(g, B)
     r12, r21 = split(r, B)
     G = moa(net, g1, g2)
-    ev_c = [torch.cat(t) for t in zip(stack(samples, "c1", dv), stack(samples, "c2", dv))]
-    second = run_s(net, torch.cat([G, G]), ev_c, stack_lr(samples, ("c1", "c2"), dv))
+    second = run_passes(net, torch.cat([G, G]), samples, ("c1", "c2"), dv)
     c1, c2 = split(second, B)
     rs1_t = moa(net, c1, r21)
     rs2_t = moa(net, c2, r12)
