@@ -241,14 +241,15 @@ def main(argv=None) -> int:
         if a.heldout:
             make_heldout(a.heldout, find_cli(a.cli), a.only)
         if a.train:
-            kinds = a.kinds.split(",") if a.kinds else None
-            for k in kinds or []:
-                if k not in KINDS:
-                    ap.error(f"--kinds: '{k}' is not one of {', '.join(KINDS)}")
-            presets = a.presets.split(",") if a.presets else None
-            for p in presets or []:
-                if p not in PRESETS:
-                    ap.error(f"--presets: '{p}' is not one of {', '.join(PRESETS)}")
+            def cycled(flag: str, value: Optional[str], allowed) -> Optional[List[str]]:
+                """The comma list of `flag`, each item checked against `allowed`; None when not given."""
+                items = value.split(",") if value else None
+                for x in items or []:
+                    if x not in allowed:
+                        ap.error(f"{flag}: '{x}' is not one of {', '.join(allowed)}")
+                return items
+            kinds = cycled("--kinds", a.kinds, KINDS)
+            presets = cycled("--presets", a.presets, PRESETS)
             make_train(a.train, find_cli(a.cli), a.count, a.seed_base, kinds, a.gt_per_frame, presets)
         if not (a.heldout or a.train):
             ap.error("nothing to do: --check, --list-heldout, --heldout DIR or --train DIR")
