@@ -318,8 +318,6 @@ Weights weights_from_safetensors(const SafetensorsFile& file, const std::string&
     if (end == g.c_str() || *end || v < -1 || v > kMaxPhysicsGate)
       throw Error(origin + ": metadata 'physics_gate' = '" + g + "' (expected an integer radius 0.." +
                   std::to_string(kMaxPhysicsGate) + ", or -1 for no gate)");
-    if (v >= 0 && !w.config.physics_input)
-      throw Error(origin + ": metadata 'physics_gate' = '" + g + "' needs the physics-informed variant (physics_input=true)");
     w.config.physics_gate = static_cast<int>(v);
   }
   if (md.count("gamma")) {
