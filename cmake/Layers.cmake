@@ -65,5 +65,6 @@ function(vkunroll_install_layers)
   write_basic_package_version_file(${PROJECT_BINARY_DIR}/vkunrollConfigVersion.cmake
     COMPATIBILITY SameMajorVersion)
   install(FILES ${PROJECT_BINARY_DIR}/vkunrollConfig.cmake ${PROJECT_BINARY_DIR}/vkunrollConfigVersion.cmake
+                ${PROJECT_SOURCE_DIR}/cmake/OpenCVModules.cmake
     DESTINATION ${CMAKE_INSTALL_LIBDIR}/cmake/vkunroll)
 endfunction()

@@ -1,26 +1,46 @@
 #!/usr/bin/env bash
 # The README's two commands:
 #   bash scripts/bootstrap.sh          install what is missing (apt), build Release, run the demo
-#   bash scripts/bootstrap.sh test     same set-up, then run the whole test suite
-# Everything comes from Debian 12's packages; nothing is downloaded at build or run time.
+#   bash scripts/bootstrap.sh test     the same, plus what the suite needs, then run the whole suite
+# Other modes: build (the demo's set-up without running it), workflow (adds Snakemake for
+# workflow/Snakefile). Everything comes from Debian 12's packages; nothing is downloaded at build
+# or run time.
 set -euo pipefail
 mode="${1:-demo}"
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 build="${VKUNROLL_BUILD_DIR:-$root/build}"
 
-packages=(
+# The library, the CLI, the Python module and the demo. OpenCV comes as its four modules: the
+# whole libopencv-dev would add about 400 MB (VTK, dnn, viz) that vkunroll never links.
+core_packages=(
   cmake ninja-build g++ pkg-config git
-  libvulkan-dev libvulkan-volk-dev mesa-vulkan-drivers vulkan-validationlayers vulkan-tools
-  glslang-tools spirv-tools
-  libglm-dev libopencv-dev libhdf5-dev hdf5-filter-plugin-blosc-serial hdf5-tools
-  liblz4-dev libzstd-dev libflatbuffers-dev flatbuffers-compiler libzip-dev zlib1g-dev nlohmann-json3-dev libcli11-dev
-  libgtest-dev libgmock-dev
-  python3-torch python3-numpy python3-h5py python3-matplotlib python3-pytest snakemake
-  python3-dev pybind11-dev python3-pybind11
+  libvulkan-dev libvulkan-volk-dev mesa-vulkan-drivers glslang-tools spirv-tools
+  libglm-dev libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev libopencv-videoio-dev
+  libhdf5-dev hdf5-filter-plugin-blosc-serial liblz4-dev libzstd-dev libflatbuffers-dev libzip-dev zlib1g-dev
+  nlohmann-json3-dev libcli11-dev
+  python3-dev pybind11-dev python3-numpy
 )
+# The suite: validation layer, GoogleTest, and Debian's PyTorch for the mirror and trainer tests.
+test_packages=(vulkan-validationlayers libgtest-dev libgmock-dev python3-pytest python3-torch python3-h5py python3-pil)
+# workflow/Snakefile (about 650 MB with its dependencies: cloud storage clients and more).
+workflow_packages=(snakemake)
+
+case "$mode" in
+  demo | build) packages=("${core_packages[@]}") ;;
+  test) packages=("${core_packages[@]}" "${test_packages[@]}" "${workflow_packages[@]}") ;;
+  workflow) packages=("${core_packages[@]}" "${workflow_packages[@]}") ;;
+  *)
+    echo "usage: bash scripts/bootstrap.sh [demo|test|build|workflow]" >&2
+    exit 2
+    ;;
+esac
+
+installed() {  # no `| grep -q` under pipefail: grep's early exit can fail the pipeline (SIGPIPE)
+  [[ "$(dpkg-query -W -f='${Status}' "$1" 2>/dev/null || true)" == "install ok installed" ]]
+}
 missing=()
 for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  installed "$p" || missing+=("$p")
 done
 if ((${#missing[@]})); then
   echo "vkunroll: installing ${#missing[@]} missing Debian packages: ${missing[*]}"
@@ -32,29 +52,36 @@ fi
 
 # Lavapipe is the fallback device everywhere; the loader still sees every other installed driver.
 lvp=/usr/share/vulkan/icd.d/lvp_icd.x86_64.json
-if [ -z "${VK_DRIVER_FILES:-}${VK_ICD_FILENAMES:-}" ] && ! ls /usr/share/vulkan/icd.d/ /etc/vulkan/icd.d/ 2>/dev/null | grep -qv lvp; then
+other_driver=0
+for f in /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json; do
+  [[ -e "$f" && "$f" != *lvp* ]] && other_driver=1
+done
+if [ -z "${VK_DRIVER_FILES:-}${VK_ICD_FILENAMES:-}" ] && ((other_driver == 0)); then
   export VK_DRIVER_FILES="$lvp" VK_ICD_FILENAMES="$lvp"
 fi
 
 jobs="$(nproc)"
-cmake -S "$root" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release
-cmake --build "$build" -j "$jobs"
+# The demo needs neither the tests nor the benches; a build folder configured with them keeps them.
+config=()
+case "$mode" in
+  test) config=(-DVKUNROLL_BUILD_TESTS=ON -DVKUNROLL_BUILD_BENCH=ON) ;;
+  *) [ -f "$build/CMakeCache.txt" ] || config=(-DVKUNROLL_BUILD_TESTS=OFF -DVKUNROLL_BUILD_BENCH=OFF) ;;
+esac
+cmake -S "$root" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release "${config[@]}"
 
 case "$mode" in
   test)
+    cmake --build "$build" -j "$jobs"
     cd "$build"
     ctest --output-on-failure -j "$jobs" --timeout 900
     ;;
-  demo)
-    if "$build/vkunroll" --help | grep -q '^  demo'; then
-      "$build/vkunroll" demo
-    else
-      "$build/vkunroll" devices
-    fi
-    ;;
-  build) ;;
-  *)
-    echo "usage: bash scripts/bootstrap.sh [demo|test|build]" >&2
-    exit 2
+  demo | build | workflow)
+    targets=(vkunroll_cli)
+    grep -qs '^VKUNROLL_BUILD_PYTHON:BOOL=ON' "$build/CMakeCache.txt" && targets+=(vkunroll_python)
+    cmake --build "$build" -j "$jobs" --target "${targets[@]}"
+    case "$mode" in
+      demo) exec "$build/vkunroll" demo ;;
+      workflow) echo "vkunroll: built; run a dataset with: snakemake -s workflow/Snakefile --cores $jobs --config sequences=DIR out=DIR vkunroll=$build/vkunroll" ;;
+    esac
     ;;
 esac
