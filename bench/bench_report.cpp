@@ -10,8 +10,8 @@
 //                         [--thresholds 0.002,0.01,0.05] [--variant FILE|none] [--no-fp16]
 //
 // fp16 rows (`--precision fp16`: S, M dense and S sparse exact) are compared against the fp32 dense
-// row of the same mode; the physics-informed variant's rows (S and M dense, S sparse, S fp16; default
-// models/physics/selfunroll_small_physics.safetensors) sit beside physics and the shipped model.
+// row of the same mode. The model rows run the shipped default model (--model: another); --variant
+// FILE adds a second model's rows (S and M dense, S sparse, S fp16) beside them.
 //
 // Writes DIR/report.md, DIR/report.json and DIR/report.png (PSNR against ms per GS frame).
 #include <algorithm>
@@ -31,6 +31,7 @@
 
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/base/error.hpp"
@@ -220,13 +221,13 @@ void plot(const std::vector<RowResult>& rows, const std::string& path) {
 }  // namespace
 
 int main(int argc, char** argv) try {
-  std::string out = "report", model = std::string(VKUNROLL_SOURCE_DIR) + "/models/selfunroll_small.safetensors";
+  std::string out = "report", model = vkunroll::find_default_model().path;  // the shipped default
   std::string sizes_arg = "346x260,640x480", scenes_arg = "static,camera,noisy", published_size = "346x260";
   std::string thresholds_arg = "0.002,0.01,0.05";
   int frames = 3, gt_per_frame = 2;
   int64_t sparse_tile = 64, sparse_halo = 32;
   bool sparse_rows = true, fp16_rows = true;
-  std::string variant = std::string(VKUNROLL_SOURCE_DIR) + "/models/physics/selfunroll_small_physics.safetensors";
+  std::string variant = "none";
   for (int i = 1; i < argc; ++i) {
     const std::string k = argv[i];
     auto next = [&]() -> std::string {
@@ -279,6 +280,7 @@ int main(int argc, char** argv) try {
     } else
       throw Error("vkunroll-bench-report: unknown argument '" + k + "' (see --help)");
   }
+  if (model.empty()) throw Error("vkunroll-bench-report: no default model found; --model FILE");
   fs::create_directories(out);
   const fs::path data = fs::path(out) / "data", runs = fs::path(out) / "runs";
 

@@ -15,6 +15,7 @@
 #include "vkunroll/host/unroll/image_planes.hpp"
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/host/unroll/session.hpp"
+#include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
 #include "vk_test_env.hpp"
@@ -146,7 +147,7 @@ TEST(Session, DeviceResidentFrameEqualsTheHostPath) {
 // The bound, end to end with the shipped model at the DAVIS346 size: the bytes downloaded
 // per GS frame are at most twice the output image at fp32, and the event tensors never cross.
 TEST(Session, ShippedModelTrafficPerGsFrameAt346x260) {
-  const fs::path model = fs::path(VKUNROLL_SOURCE_DIR) / "models" / "selfunroll_small.safetensors";
+  const fs::path model = fs::path(VKUNROLL_SOURCE_DIR) / "models" / kDefaultModelFile;
   if (!fs::exists(model)) GTEST_SKIP() << model << " is not in the checkout";
   const fs::path dir = temp_dir("traffic");
   const fs::path seq = make_sequence(dir, 346, 260, 2);

@@ -7,6 +7,8 @@
 #include <fstream>
 #include <opencv2/imgcodecs.hpp>
 
+#include "event_test_encoders.hpp"
+#include "vkunroll/host/events/sequence.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 #include "vk_test_env.hpp"
@@ -157,5 +159,42 @@ TEST(Unroll, BadFoldersGiveClearErrors) {
   o.sequence_options.events_file = (outside / "events.txt").string();
   o.contrast = 0.2;
   expect_error(o, "events.txt");
+  fs::remove_all(dir);
+}
+
+// A user's own recording (the README's "your recording"): RS frames plus the event camera's own
+// file, EVT 3.0 (Metavision, OpenEB) or AEDAT 4 (DV), named by meta.json's "events". The same
+// events in either file give the same GS frames as the simulator's HDF5.
+TEST(Unroll, UserRecordingWithEvt3OrAedat4EventsEqualsTheHdf5One) {
+  const fs::path dir = temp_dir("user-recording");
+  const fs::path seq = make_sequence(dir, "realistic");
+  const EventStream ev = load_sequence(seq.string()).read_events(0, int64_t(1) << 40);
+  ASSERT_GT(ev.size(), 1000u);
+  const std::map<std::string, std::vector<uint8_t>> files = {
+      {"events.raw", encode_evt3(ev, "% evt 3.0\n% geometry 64x48\n", true)},
+      {"events.aedat4", encode_aedat4(ev, 1, 4000)}};
+  std::ifstream meta_in(seq / "meta.json");
+  const nlohmann::json meta = nlohmann::json::parse(meta_in);
+  auto run = [&](const std::string& name) {
+    UnrollOptions o = base(seq, dir / ("out-" + name));
+    o.mode = UnrollMode::physics;
+    o.contrast = 0.2;
+    o.times = parse_target_times("gt");
+    o.output.write_video = false;
+    return run_unroll(o);
+  };
+  const auto h5 = run("h5");
+  for (const auto& [name, bytes] : files) {
+    std::ofstream(seq / name, std::ios::binary).write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+    nlohmann::json m = meta;
+    m["events"] = name;
+    std::ofstream(seq / "meta.json") << m.dump(1);
+    const auto s = run(name);
+    EXPECT_EQ(s["events"]["in_frame_windows"], h5["events"]["in_frame_windows"]) << name << ": " << s["events"].dump();
+    EXPECT_EQ(s["events"]["file_totals"]["dropped"], 0) << name;
+    ASSERT_EQ(s["gs_frames"].size(), h5["gs_frames"].size()) << name;
+    for (size_t i = 0; i < h5["gs_frames"].size(); ++i)
+      EXPECT_EQ(s["gs_frames"][i]["psnr"], h5["gs_frames"][i]["psnr"]) << name << " GS frame " << i;
+  }
   fs::remove_all(dir);
 }

@@ -6,6 +6,8 @@ timings, event models and encodings real rigs see (docs/training_data.md).
   natural_data.py --heldout data/natural/heldout            # the fixed held-out suite (evaluation only)
   natural_data.py --train data/natural/train --count 48 --seed-base 1  # random training sequences
   natural_data.py --list-heldout                            # what the held-out suite holds
+  natural_data.py --heldout-draw data/natural/draw --count 12 --seed-base 3001 --kinds ...  # random
+                  held-out sequences: training's draws, held-out photographs (evaluation only)
 
 Photographs come from tools/data/photos.json: split 'train' feeds --train only, split 'heldout'
 and scikit-image's sample images (reserved for evaluation) feed --heldout only. Each sequence
@@ -186,11 +188,12 @@ def train_args(rng: random.Random, force_kind: Optional[str] = None, gt_per_fram
 
 
 def make_train(out: str, cli: str, count: int, seed_base: int, kinds: Optional[List[str]] = None,
-               gt_per_frame: int = 2, presets: Optional[List[str]] = None) -> None:
+               gt_per_frame: int = 2, presets: Optional[List[str]] = None, split: str = "train") -> None:
     """`count` sequences nat_<seed>; `kinds`, `presets`: motion kinds and event presets cycled over
-    the seeds (else drawn)."""
+    the seeds (else drawn); `split` 'heldout' draws the photographs from the held-out ones and
+    scikit-image's (evaluation only)."""
     os.makedirs(out, exist_ok=True)
-    pool = photos("train")
+    pool = photos(split)
     for i in range(count):
         seed = seed_base + i
         rng = random.Random(1000003 * seed + 7)
@@ -217,6 +220,8 @@ def main(argv=None) -> int:
     ap.add_argument("--heldout", metavar="DIR")
     ap.add_argument("--only", nargs="*", help="with --heldout: only these sequence names")
     ap.add_argument("--train", metavar="DIR")
+    ap.add_argument("--heldout-draw", metavar="DIR", help="random sequences as --train draws them, from held-out "
+                    "photographs only (evaluation only)")
     ap.add_argument("--count", type=int, default=32)
     ap.add_argument("--seed-base", type=int, default=1)
     ap.add_argument("--kinds", help="with --train: comma list of motion kinds cycled over the seeds "
@@ -240,7 +245,7 @@ def main(argv=None) -> int:
             return 0
         if a.heldout:
             make_heldout(a.heldout, find_cli(a.cli), a.only)
-        if a.train:
+        if a.train or a.heldout_draw:
             def cycled(flag: str, value: Optional[str], allowed) -> Optional[List[str]]:
                 """The comma list of `flag`, each item checked against `allowed`; None when not given."""
                 items = value.split(",") if value else None
@@ -250,9 +255,11 @@ def main(argv=None) -> int:
                 return items
             kinds = cycled("--kinds", a.kinds, KINDS)
             presets = cycled("--presets", a.presets, PRESETS)
-            make_train(a.train, find_cli(a.cli), a.count, a.seed_base, kinds, a.gt_per_frame, presets)
-        if not (a.heldout or a.train):
-            ap.error("nothing to do: --check, --list-heldout, --heldout DIR or --train DIR")
+            for out, split in ((a.train, "train"), (a.heldout_draw, "heldout")):
+                if out:
+                    make_train(out, find_cli(a.cli), a.count, a.seed_base, kinds, a.gt_per_frame, presets, split)
+        if not (a.heldout or a.train or a.heldout_draw):
+            ap.error("nothing to do: --check, --list-heldout, --heldout DIR, --heldout-draw DIR or --train DIR")
     except DataError as e:
         print(f"natural_data.py: error: {e}", file=sys.stderr)
         return 1

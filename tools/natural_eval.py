@@ -4,7 +4,7 @@
 PSNR and SSIM, per sequence, per motion kind and overall.
 
   natural_eval.py --data data/natural/heldout --cli build/vkunroll \
-      --model S=models/selfunroll_small.safetensors --json docs/natural_eval_shipped.json
+      --model S=models/selfunroll_small_physics.safetensors --json docs/natural_eval_shipped.json
   natural_eval.py ... --model V=runs/v/model.safetensors --cli-modes s   # also vkunroll unroll --mode s
 
 Methods:

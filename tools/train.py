@@ -13,7 +13,7 @@ Details, formulas and the shipped model's command: docs/training.md.
   train.py --data data/natural/train --physics-variant --make-cache cache/ --cache-samples 4096
   train.py --cache cache/ --physics-variant --device cuda --chunk-minutes 5 --out runs/v   (then --resume ...)
   # adaptation to one recording (self-supervised only)
-  train.py --adapt data/rec1 --from models/selfunroll_small.safetensors --minutes 10 --out runs/rec1
+  train.py --adapt data/rec1 --from models/selfunroll_small_physics.safetensors --minutes 10 --out runs/rec1
 
 The self-supervised losses read no ground truth. --supervised (L1 to the simulated GS frames at t*)
 trains on simulated sequences only; it is how the shipped photo model was fine-tuned (docs/training.md).

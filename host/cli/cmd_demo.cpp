@@ -1,5 +1,5 @@
-// vkunroll demo: simulate a built-in scene and unroll it, with the shipped model when models/
-// has one and with the physics unroller always (the baseline every model must beat).
+// vkunroll demo: simulate a built-in scene and unroll it with the default model and with the
+// physics unroller (the baseline every model must beat), and print both against the truth.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -9,6 +9,7 @@
 
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 
 namespace vkunroll::cli {
@@ -16,22 +17,6 @@ namespace vkunroll::cli {
 namespace fs = std::filesystem;
 
 namespace {
-// The shipped model: VKUNROLL_MODEL, else the first models/*.safetensors next to the sources or
-// the install prefix.
-std::string find_shipped_model(const fs::path& exe) {
-  if (const char* m = std::getenv("VKUNROLL_MODEL"); m && *m) return m;
-  for (const fs::path& dir : {fs::path(VKUNROLL_SOURCE_DIR) / "models", exe.parent_path() / ".." / "share" / "vkunroll" / "models"}) {
-    std::error_code ec;
-    if (!fs::is_directory(dir, ec)) continue;
-    std::vector<fs::path> found;
-    for (const auto& e : fs::directory_iterator(dir, ec))
-      if (e.path().extension() == ".safetensors") found.push_back(e.path());
-    std::sort(found.begin(), found.end());
-    if (!found.empty()) return found.front().string();
-  }
-  return {};
-}
-
 void print_result(const char* what, const nlohmann::json& s) {
   std::cout << std::fixed << std::setprecision(2);
   std::string label = what;
@@ -45,7 +30,7 @@ void print_result(const char* what, const nlohmann::json& s) {
 
 
 struct DemoArgs {
-  std::string out = "vkunroll-demo", model, size = "160x120";
+  std::string out = "vkunroll-demo", model, size = "160x120", texture;
   int frames = 4;
   long long seed = 2024;
   bool physics_only = false;
@@ -63,6 +48,16 @@ int run_demo(const DemoArgs& a) {
   cfg.frames = a.frames;
   cfg.gt_per_frame = 3;
   cfg.line_delay_us = 25900.0 / cfg.height;  // the same 25.9 ms readout as the 260-row default
+  if (!a.texture.empty()) {
+    try {
+      cfg.texture = sim::parse_texture_kind(a.texture);
+    } catch (const Error&) {  // not a procedural name: an image file
+      std::error_code ec;
+      if (!fs::is_regular_file(a.texture, ec))
+        throw InputMissingError("--texture '" + a.texture + "': neither checkerboard, bars, noise, text, mixed nor an image file");
+      cfg.texture_file = a.texture;
+    }
+  }
   try {
     cfg.validate();
   } catch (const Error& e) {
@@ -93,11 +88,11 @@ int run_demo(const DemoArgs& a) {
   o.command_line = command_line();
   const nlohmann::json phys = run_unroll(o);
   nlohmann::json learned;
-  std::error_code ec;
-  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  const std::string model = a.physics_only ? std::string() : (a.model.empty() ? find_shipped_model(exe) : a.model);
+  const ModelChoice choice = choose_model(a.physics_only ? UnrollMode::physics : UnrollMode::automatic, a.model);
+  const std::string& model = choice.path;
   if (!model.empty()) {
     o.session.model_path = model;
+    o.model_source = choice.source;
     o.mode = UnrollMode::automatic;
     o.out_dir = (out / "model").string();
     learned = run_unroll(o);
@@ -107,8 +102,13 @@ int run_demo(const DemoArgs& a) {
             << "PSNR " << phys["metrics"]["rs_mean_psnr"].get<double>() << " dB  SSIM " << std::setprecision(4)
             << phys["metrics"]["rs_mean_ssim"].get<double>() << "\n";
   print_result("physics unroller", phys);
-  if (!learned.is_null()) print_result(("model " + fs::path(model).filename().string() + " (" + learned["mode"].get<std::string>() + ")").c_str(), learned);
-  else if (!a.physics_only) std::cout << "  (no shipped model found in models/: only the physics unroller ran)\n";
+  if (!learned.is_null()) {
+    print_result(("model (" + learned["mode"].get<std::string>() + ")").c_str(), learned);
+    const double gain = learned["metrics"]["mean_psnr"].get<double>() - phys["metrics"]["mean_psnr"].get<double>();
+    std::cout << "demo: the model is " << std::showpos << gain << std::noshowpos << " dB PSNR against physics\n"
+              << "demo: model " << model << " (" << choice.source << "), sha256 " << learned["model"]["sha256"].get<std::string>()
+              << "\n";
+  }
   std::cout << "demo: outputs in " << fs::absolute(out).string() << " (physics/"
             << (learned.is_null() ? "" : ", model/") << ": frames/, gs_video.mp4, contact_sheet.png, summary.json)\n";
   return 0;
@@ -118,14 +118,16 @@ int run_demo(const DemoArgs& a) {
 
 Command add_demo(CLI::App& parent) {
   auto a = std::make_shared<DemoArgs>();
-  CLI::App* c = parent.add_subcommand("demo", "simulate a built-in scene and unroll it (the shipped model and physics)");
+  CLI::App* c = parent.add_subcommand("demo", "simulate a built-in scene and unroll it (the default model and physics)");
   c->description(
       "Simulates a built-in scene (deterministic; realistic event noise) with ground truth, unrolls it with\n"
-      "the shipped model (models/*.safetensors, or --model, or VKUNROLL_MODEL) and with the weight-free\n"
+      "the default model (or --model, or VKUNROLL_MODEL) and with the weight-free\n"
       "physics unroller, and prints where the outputs are and their PSNR/SSIM against the truth, beside\n"
       "the RS input's. Earlier demo outputs in --out are replaced.");
   c->add_option("--out", a->out, "output folder")->capture_default_str()->type_name("DIR");
-  c->add_option("--model", a->model, "weights to run instead of the shipped model")->type_name("FILE");
+  c->add_option("--model", a->model, "weights to run instead of the default model")->type_name("FILE");
+  c->add_option("--texture", a->texture, "the scene's background: mixed (default), checkerboard, bars, noise, text or an image file (a photograph)")
+      ->type_name("NAME|FILE");
   c->add_option("--size", a->size, "sensor size")->capture_default_str()->type_name("WxH");
   c->add_option("--frames", a->frames, "RS frames")->check(int_range(2, 1000))->capture_default_str()->type_name("K");
   c->add_option("--seed", a->seed, "scene seed")->check(int_range(0, 1LL << 62))->capture_default_str()->type_name("S");

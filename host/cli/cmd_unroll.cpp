@@ -3,6 +3,7 @@
 #include <memory>
 
 #include "vkunroll/host/cli/cli.hpp"
+#include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 #include "vkunroll/host/unroll/value_list.hpp"
 
@@ -25,8 +26,10 @@ UnrollOptions to_options(const UnrollArgs& a) {
   UnrollOptions o;
   o.sequence = a.sequence;
   o.out_dir = a.out;
-  o.session.model_path = a.model;
   o.mode = parse_unroll_mode(a.mode, "--mode");
+  const ModelChoice model = choose_model(o.mode, a.model);  // no --model: the shipped default
+  o.session.model_path = model.path;
+  o.model_source = model.source;
   try {
     o.times = parse_target_times(a.times, a.times_us);
     if (!a.frames.empty()) o.frames = parse_frame_list(a.frames, "--frames");
@@ -58,11 +61,12 @@ UnrollOptions to_options(const UnrollArgs& a) {
 
 void add_model_options(CLI::App* c, UnrollArgs& a) {
   const std::string g = "Model";
-  c->add_option("--model", a.model, "SelfUnroll weights (safetensors; tools/convert_checkpoint.py converts checkpoints)")
+  c->add_option("--model", a.model, "SelfUnroll weights (safetensors; tools/convert_checkpoint.py converts checkpoints); default: the "
+                "shipped model (VKUNROLL_MODEL, else share/vkunroll/models/" + std::string(kDefaultModelFile) + ")")
       ->group(g)->type_name("FILE");
   c->add_option("--mode", a.mode,
-                "s | m | physics | auto: M when the next frame exists, else S; physics (the weight-free event double "
-                "integral) without a model | choose: per target, S inside the frame's exposure span, else M")
+                "s | m | physics (the weight-free event double integral) | auto: M when the next frame exists, else S; "
+                "physics when no model file is found | choose: per target, S inside the frame's exposure span, else M")
       ->check(CLI::IsMember({"auto", "s", "m", "physics", "choose"}))->capture_default_str()->group(g)->type_name("M");
   c->add_option("--channel-order", a.channel_order, "rgb | bgr: the model's input order (default: its metadata)")
       ->check(CLI::IsMember({"rgb", "bgr"}))->group(g)->type_name("O");

@@ -371,6 +371,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   const double total_ms = ms_since(t_start);
   nlohmann::json extra = summary_extra(o, mode, session, seq, frames, total_targets, prm, contrast_source, seq_gamma,
                                      tile_options, model_sha);
+  if (extra.contains("model") && !o.model_source.empty()) extra["model"]["source"] = o.model_source;
   nlohmann::json per_frame;
   for (const auto& [name, ms] : loop.stage_ms) per_frame[name] = total_targets ? ms / total_targets : 0.0;
   extra["ms_per_gs_frame"] = per_frame;

@@ -72,6 +72,7 @@ struct UnrollOptions {
   SequenceOptions sequence_options;
   std::string out_dir;
   SessionOptions session;
+  std::string model_source;       // how session.model_path was chosen (choose_model), for summary.json
   UnrollMode mode = UnrollMode::automatic;
   TargetTimes times;
   std::vector<int> frames;        // empty: all frames

@@ -2,6 +2,7 @@
 // (host/unroll/unroll_plan.hpp). The Python layer (vkunroll/_unroll.py) drives the frames.
 #include "common.hpp"
 #include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/session.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 #include "vkunroll/host/unroll/unroll_plan.hpp"
@@ -237,6 +238,20 @@ void bind_session(py::module_& m) {
 
 void bind_unroll(py::module_& m) {
   bind_session(m);
+
+  // The shipped default model, by the CLI's rule (host/unroll/default_model.hpp).
+  m.def("default_model", [] {
+    return guarded({}, [] {
+      const DefaultModelSearch d = find_default_model();
+      return d.path.empty() ? std::optional<std::string>() : std::optional<std::string>(d.path);
+    });
+  }, "The shipped default model's path (VKUNROLL_MODEL, the install prefix, the source tree), or None.");
+  m.def("_choose_model", [](const std::string& mode, const std::string& given) {
+    return without_gil({}, [&] {
+      const ModelChoice c = choose_model(parse_unroll_mode(mode, "mode"), given);
+      return std::make_pair(c.path, c.source);
+    });
+  }, py::arg("mode"), py::arg("given"));
 
   m.def(
       "_plan",

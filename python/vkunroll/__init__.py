@@ -6,10 +6,10 @@ Vulkan GPU, from Python. numpy in, numpy out.
     ev = vkunroll.read_events("recording.raw")               # t, x, y, p structured array
     timing = vkunroll.RowTiming(260, 0, 100, 3000)           # height, t0, line delay, exposure (us)
     ev1, ev2, ev3 = vkunroll.event_tensors(ev, timing, t_us=15000, bins=16)
-    model = vkunroll.Model.load("models/selfunroll_small.safetensors")
+    model = vkunroll.Model.load("checkpoint.safetensors")    # e.g. tools/convert_checkpoint.py's output
     out = model.run(rs, ev1, ev2, ev3, mode="s")             # dict of float32 arrays
-    frames, metrics, targets, stats = vkunroll.unroll(vkunroll.Sequence.open("seq"), times="gt",
-                                                      model="models/selfunroll_small.safetensors")
+    frames, metrics, targets, stats = vkunroll.unroll(vkunroll.Sequence.open("seq"), times="gt")
+    # ... with the shipped default model (vkunroll.default_model()); model="FILE" for another
 
 Errors are ValueError (bad input), FileNotFoundError (missing files) and RuntimeError (device
 failures), with the library's messages. Long GPU work releases the GIL. The library's messages
@@ -23,7 +23,7 @@ from ._runtime import Context, default_context, devices
 from ._sequence import Sequence, simulate
 from ._tensors import event_tensors, event_tensors_batch, physics_unroll
 from ._unroll import UnrollResult, UnrollSession, unroll
-from ._vkunroll import RowTiming, psnr, ssim
+from ._vkunroll import RowTiming, default_model, psnr, ssim
 
 __version__ = _vkunroll.__version__
 
@@ -33,5 +33,5 @@ __all__ = [
     "read_events", "write_events", "convert_events", "detect_event_format",
     "Sequence", "simulate", "RowTiming",
     "event_tensors", "event_tensors_batch", "physics_unroll",
-    "Model", "UnrollSession", "UnrollResult", "unroll", "psnr", "ssim",
+    "Model", "UnrollSession", "UnrollResult", "unroll", "default_model", "psnr", "ssim",
 ]

@@ -222,7 +222,8 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
       mode: "auto" (SelfUnroll-M where the next frame exists, else S; physics without a model),
         "s", "m", "choose" (S inside the frame's exposure span, M between frames) or "physics"
         (the weight-free event double integral).
-      model: a weights file or :class:`Model` (e.g. models/selfunroll_small.safetensors).
+      model: a weights file or :class:`Model`; None: the shipped default (:func:`default_model`),
+        or physics when none is installed.
       frames: frame indices to unroll (default all).
       backend, device, precision: where the session runs ("vulkan" or "cpu"; precision "fp32" or
         "fp16", vulkan only; see :class:`UnrollSession`).
@@ -250,6 +251,8 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     """
     start = time.perf_counter()
     src = _source(source)
+    if session is None and model is None:  # the shipped default, else physics (said), as the CLI
+        model = _vk._choose_model(mode, "")[0] or None
     sess = session if session is not None else UnrollSession(model, backend, device, precision)
     kind, values = _times(times, times_us)
     plan, mode_used, notes = _vk._plan(src.timings, src.gt_times, list(frames or []), kind, values, mode,

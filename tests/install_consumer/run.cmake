@@ -33,6 +33,28 @@ function(consumer name src expect)
   message(STATUS "${name}: ${out}")
 endfunction()
 
+# The installed CLI, run from outside the source tree with no --model, runs the installed default model.
+set(cli ${WORK}/prefix/bin/vkunroll)
+execute_process(COMMAND ${cli} simulate --out ${WORK}/seq --preset clean --size 48x32 --frames 2 --gt-per-frame 1 --seed 3 --quiet
+                WORKING_DIRECTORY ${WORK} RESULT_VARIABLE r ERROR_VARIABLE err)
+if(r)
+  message(FATAL_ERROR "the installed vkunroll simulate failed: ${r} ${err}")
+endif()
+execute_process(COMMAND ${cli} unroll ${WORK}/seq --out ${WORK}/unrolled --times 0.5 --frames 0 --quiet --no-video
+                WORKING_DIRECTORY ${WORK} RESULT_VARIABLE r ERROR_VARIABLE err)
+if(r)
+  message(FATAL_ERROR "the installed vkunroll unroll (no --model) failed: ${r} ${err}")
+endif()
+file(READ ${WORK}/unrolled/summary.json summary)
+string(JSON model_path GET "${summary}" model path)
+string(JSON model_source GET "${summary}" model source)
+file(REAL_PATH ${WORK}/prefix/share/vkunroll/models prefix_models)
+string(FIND "${model_path}" "${prefix_models}/" at)
+if(NOT at EQUAL 0 OR NOT model_source STREQUAL "default (installed)")
+  message(FATAL_ERROR "the installed CLI ran ${model_path} (${model_source}), not the default model under ${prefix_models}")
+endif()
+message(STATUS "installed CLI, no --model: ${model_path} (${model_source})")
+
 consumer(whole ${SRC} "33914185 parameters")
 consumer(runtime_only ${SRC}/runtime_only "device"
   -DCMAKE_DISABLE_FIND_PACKAGE_OpenCV=ON -DCMAKE_DISABLE_FIND_PACKAGE_HDF5=ON

@@ -1,6 +1,6 @@
 """docs/python.md's worked example runs as written (its one ```python block, executed from the
 repository root), and its results hold: the real recording's event count, event tensors with
-events in them, the by-hand model run equal to the unroll job's frame, and both the shipped model
+events in them, the by-hand model run equal to the unroll job's frame, and both the default model
 and the physics unroller beating the RS input at the ground-truth instants."""
 import os
 import re

@@ -28,7 +28,7 @@ for f in .devrun/bin/*; do
   ldd "$f" | awk '/=> \// {print $3}' | { grep -vE '/(libc|libm|libdl|libpthread|librt|libgcc_s|libstdc\+\+|ld-linux[^/]*|libvulkan)\.so' || true; } |
     while read -r l; do cp -Ln "$l" .devrun/lib/ 2>/dev/null || true; done
 done
-cp models/selfunroll_small.safetensors .devrun/ 2>/dev/null || true
+cp models/selfunroll_small_physics.safetensors .devrun/ 2>/dev/null || true
 cp /usr/lib/x86_64-linux-gnu/libVkLayer_khronos_validation.so .devrun/layers/
 sed 's|"library_path": *"[^"]*"|"library_path": "./libVkLayer_khronos_validation.so"|' \
     /usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json > .devrun/layers/VkLayer_khronos_validation.json

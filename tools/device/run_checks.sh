@@ -55,7 +55,7 @@ race() {  # race MODE PRECISION SIZE: the same network in PyTorch CUDA on the sa
   grep -E "vulkan :|torch  :|ratio|conv choice" $OUT/race_${1}_${2}_${3}.txt
 }
 per_layer() {
-  step "per-layer" 60 $OUT/fp16_per_layer_small.txt $B/vkunroll-bench-model --mode m --size 346x260 --precision fp16 --per-layer --model $R/.devrun/selfunroll_small.safetensors
+  step "per-layer" 60 $OUT/fp16_per_layer_small.txt $B/vkunroll-bench-model --mode m --size 346x260 --precision fp16 --per-layer --model $R/.devrun/selfunroll_small_physics.safetensors
 }
 kernels() {
   step "kernels" ${1:-150} $OUT/bench_kernels_h100.txt $B/vkunroll-bench-kernels --reps 3 --json $OUT/bench_kernels_h100.json; tail -8 $OUT/bench_kernels_h100.txt
