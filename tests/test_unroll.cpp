@@ -171,8 +171,8 @@ TEST(Unroll, UserRecordingWithEvt3OrAedat4EventsEqualsTheHdf5One) {
   const EventStream ev = load_sequence(seq.string()).read_events(0, int64_t(1) << 40);
   ASSERT_GT(ev.size(), 1000u);
   const std::map<std::string, std::vector<uint8_t>> files = {
-      {"events.raw", encode_evt3(ev, "% evt 3.0\n% geometry 64x48\n", true)},
-      {"events.aedat4", encode_aedat4(ev, 1, 4000)}};
+      {"events.raw", evtest::encode_evt3(ev, "% evt 3.0\n% geometry 64x48\n", true)},
+      {"events.aedat4", evtest::encode_aedat4(ev, 1, 4000)}};
   std::ifstream meta_in(seq / "meta.json");
   const nlohmann::json meta = nlohmann::json::parse(meta_in);
   auto run = [&](const std::string& name) {

@@ -48,16 +48,7 @@ int run_demo(const DemoArgs& a) {
   cfg.frames = a.frames;
   cfg.gt_per_frame = 3;
   cfg.line_delay_us = 25900.0 / cfg.height;  // the same 25.9 ms readout as the 260-row default
-  if (!a.texture.empty()) {
-    try {
-      cfg.texture = sim::parse_texture_kind(a.texture);
-    } catch (const Error&) {  // not a procedural name: an image file
-      std::error_code ec;
-      if (!fs::is_regular_file(a.texture, ec))
-        throw InputMissingError("--texture '" + a.texture + "': neither checkerboard, bars, noise, text, mixed nor an image file");
-      cfg.texture_file = a.texture;
-    }
-  }
+  if (!a.texture.empty()) set_texture(cfg, a.texture);
   try {
     cfg.validate();
   } catch (const Error& e) {

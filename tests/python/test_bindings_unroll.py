@@ -55,14 +55,33 @@ def assert_same_as_cli(result, cli):
 
 
 def test_physics_equals_cli(seq, tmp_path):
-    cli = cli_unroll(seq, tmp_path / "cli", "--times", "gt")
+    cli = cli_unroll(seq, tmp_path / "cli", "--times", "gt", "--mode", "physics")
     summary = cli[3]
-    result = vkunroll.unroll(seq, times="gt")  # no model: auto is physics, contrast estimated
+    result = vkunroll.unroll(seq, times="gt", mode="physics")  # contrast estimated
     assert result.stats["mode"] == summary["mode"] == "physics"
     assert result.stats["contrast"] == pytest.approx(summary["physics"]["contrast"], abs=1e-6)
     assert result.stats["gamma"] == pytest.approx(2.2)
     assert_same_as_cli(result, cli)
     assert len(cli[2]) == 6 and result.metrics["mean_psnr"] > result.metrics["rs_mean_psnr"]
+
+
+def test_default_model_equals_cli(seq, tmp_path, monkeypatch):
+    # No model named, in both: the shipped default, found by one rule (host/unroll/default_model.hpp).
+    monkeypatch.delenv("VKUNROLL_MODEL", raising=False)
+    cli = cli_unroll(seq, tmp_path / "cli", "--times", "0.25", "--frames", "0")
+    summary = cli[3]
+    assert os.path.basename(summary["model"]["path"]) == "selfunroll_small_physics.safetensors"
+    assert summary["model"]["source"] == "default (source tree)" and len(summary["model"]["sha256"]) == 64
+    assert os.path.samefile(vkunroll.default_model(), summary["model"]["path"])
+    result = vkunroll.unroll(seq, times=[0.25], frames=[0])
+    assert [t["method"] for t in result.targets] == ["m"]
+    assert_same_as_cli(result, cli)
+    # VKUNROLL_MODEL names another file for both; a missing one is an error naming it.
+    monkeypatch.setenv("VKUNROLL_MODEL", str(tmp_path / "gone.safetensors"))
+    with pytest.raises(ValueError, match="VKUNROLL_MODEL=.*gone.safetensors: no such model file"):
+        vkunroll.unroll(seq, times=[0.25], frames=[0])
+    r = subprocess.run([CLI, "unroll", seq.root, "--out", str(tmp_path / "x"), "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 2 and "gone.safetensors: no such model file" in r.stderr, r.stderr
 
 
 def test_model_equals_cli(seq, tiny, tmp_path):
