@@ -17,30 +17,14 @@
 #include <sstream>
 #include <thread>
 
+#include "cli_test_util.hpp"
+
 namespace fs = std::filesystem;
+using clitest::cli;
+using clitest::CliRun;
+using clitest::has;
 
 namespace {
-
-struct CliRun {
-  int rc = -1;
-  std::string out;  // stdout and stderr together
-};
-
-// Runs `vkunroll ARGS` through bash (for ulimit and redirections); rc 128+N when killed by signal N.
-CliRun cli(const std::string& args, const std::string& prefix = "") {
-  const std::string cmd = prefix + std::string(VKUNROLL_CLI_PATH) + " " + args + " 2>&1";
-  CliRun r;
-  FILE* p = ::popen(("bash -c '" + cmd + "'").c_str(), "r");
-  if (!p) return r;
-  char buf[4096];
-  size_t n;
-  while ((n = std::fread(buf, 1, sizeof buf, p)) > 0) r.out.append(buf, n);
-  const int st = ::pclose(p);
-  r.rc = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-  return r;
-}
-
-bool has(const CliRun& r, const std::string& needle) { return r.out.find(needle) != std::string::npos; }
 
 fs::path temp_dir(const std::string& name) {
   const fs::path d = fs::temp_directory_path() / ("vkunroll-cli-" + name + "-" + std::to_string(::getpid()));

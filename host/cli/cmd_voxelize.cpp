@@ -62,6 +62,7 @@ void output_io(F&& f) {
 int run_voxelize(const VoxelizeArgs& a) {
   SequenceOptions so = sequence_options(a.timing);
   check_output_file(a.out, "--out");
+  check_output_apart(a.out, "--out", {{"SEQUENCE", a.sequence}, {"--events file", so.events_file.value_or("")}});
   const bool tau = !a.times.empty();
   if (tau == !a.times_us.empty()) throw UsageError("give exactly one of --times and --times-us");
   std::vector<Rational> targets;
@@ -86,6 +87,7 @@ int run_voxelize(const VoxelizeArgs& a) {
   std::error_code ec;
   if (!std::filesystem::exists(a.sequence, ec)) throw InputMissingError("SEQUENCE " + a.sequence + ": no such folder");
   const Sequence seq = load_sequence(a.sequence, so);
+  for (const auto& f : seq.event_files) check_output_apart(a.out, "--out", {{"event file", f}});
   for (int f : frames) (void)seq.frame(f);
   SensorCrop crop;
   try {

@@ -10,6 +10,7 @@
 #include <cerrno>
 #include <cstring>
 #include <ctime>
+#include <fstream>
 #include <set>
 
 #include "vkunroll/base/error.hpp"
@@ -53,6 +54,26 @@ std::string host_name() {
   char buf[256] = {};
   if (::gethostname(buf, sizeof buf - 1) != 0) return "?";
   return buf;
+}
+
+// The list of what a committed output holds (relative paths, one a line), written at commit.
+constexpr const char* kManifestName = ".vkunroll-manifest";
+constexpr const char* kManifestHeader = "# vkunroll output manifest 1: the files this output holds";
+
+std::set<std::string> read_manifest(const fs::path& dir) {
+  std::set<std::string> files;
+  std::ifstream in(dir / kManifestName);
+  std::string line;
+  while (std::getline(in, line))
+    if (!line.empty() && line[0] != '#') files.insert(line);
+  return files;
+}
+
+// A folder is listed when a listed file lies inside it.
+bool listed_folder(const std::set<std::string>& listed, const std::string& dir) {
+  const std::string prefix = dir + "/";
+  auto it = listed.lower_bound(prefix);
+  return it != listed.end() && it->compare(0, prefix.size(), prefix) == 0;
 }
 
 bool is_empty_dir(const fs::path& p) {
@@ -176,13 +197,25 @@ void OutputFolder::check_final() {
     throw UsageError("--out " + final_.string() +
                      ": the folder exists and is not empty; pass --overwrite to replace it, or --resume to "
                      "continue it (its valid GS frames are kept)");
+  // Everything inside, at any depth, must be what vkunroll wrote there: listed in the folder's
+  // manifest, or (an output from before manifests) one of the output's names, frames/ holding only PNGs.
+  const std::set<std::string> listed = read_manifest(final_);
+  const bool has_manifest = fs::exists(final_ / kManifestName, ec);
   const auto& names = output_folder_names();
-  for (const auto& e : fs::directory_iterator(final_, ec)) {
-    const std::string n = e.path().filename().string();
-    if (std::find(names.begin(), names.end(), n) == names.end())
-      throw UsageError("--out " + final_.string() + ": holds '" + n +
-                       "', which is not part of a vkunroll output; refusing to replace the folder (choose another --out)");
+  for (auto it = fs::recursive_directory_iterator(final_, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
+    const fs::path rel = it->path().lexically_relative(final_);
+    const std::string r = rel.string();
+    const bool dir = it->is_directory(ec) && !it->is_symlink(ec);
+    bool ours;
+    if (has_manifest) ours = r == kManifestName || (dir ? listed_folder(listed, r) : listed.count(r) > 0);
+    else if (rel.has_parent_path()) ours = *rel.begin() == "frames" && !dir && rel.extension() == ".png" && rel.parent_path() == "frames";
+    else ours = std::find(names.begin(), names.end(), r) != names.end();
+    if (!ours)
+      throw UsageError("--out " + final_.string() + ": holds '" + r + "', which vkunroll did not write there" +
+                       (has_manifest ? " (not in its " + std::string(kManifestName) + ")" : "") +
+                       "; refusing to replace the folder (move it away or choose another --out)");
   }
+  if (ec) throw IoError(final_.string() + ": cannot list the earlier output (" + ec.message() + ")");
   replaces_ = true;
 }
 
@@ -262,6 +295,21 @@ void OutputFolder::prune(const std::vector<std::string>& keep) const {
     if (e.is_directory() && !wanted.count(e.path().filename().string()) && is_empty_dir(e.path())) fs::remove(e.path(), ec);
 }
 
+void OutputFolder::write_manifest() const {
+  // Everything staged is this run's (the staging folder starts empty, or with a killed run's own files).
+  std::string text = std::string(kManifestHeader) + "\n";
+  std::vector<std::string> files;
+  std::error_code ec;
+  for (auto it = fs::recursive_directory_iterator(staging_, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
+    const std::string rel = it->path().lexically_relative(staging_).string();
+    if (rel != kLockName && rel != kManifestName && !it->is_directory(ec)) files.push_back(rel);
+  }
+  if (ec) throw IoError(staging_.string() + ": cannot list the staged output (" + ec.message() + ")");
+  std::sort(files.begin(), files.end());
+  for (const auto& f : files) text += f + "\n";
+  write(kManifestName, text);
+}
+
 void OutputFolder::commit() {
   if (committed_) return;
   if (append_fd_ >= 0) {
@@ -269,6 +317,7 @@ void OutputFolder::commit() {
     ::close(append_fd_);
     append_fd_ = -1;
   }
+  write_manifest();
   fsync_path(staging_ / "frames", true);
   fsync_path(staging_, true);
   // The lock file stays out of the final folder; the lock itself is held until the rename is done.

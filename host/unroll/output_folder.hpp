@@ -28,7 +28,9 @@ class OutputFolder {
   // Creates the parent folders, takes the lock (OutputBusyError when another run holds it) and
   // prepares the staging folder: emptied, except under `resume` (a killed run's files are kept).
   // Refuses (UsageError) a final folder that exists, is not empty and `existing` is refuse, or
-  // that holds anything but vkunroll's output names (nothing else is ever deleted).
+  // that holds, at any depth, anything vkunroll did not write there: what its manifest
+  // (.vkunroll-manifest, written at commit) does not list, or for an output from before
+  // manifests, anything but the output's names and PNGs in frames/ (nothing else is ever deleted).
   OutputFolder(std::filesystem::path final_dir, ExistingOutput existing);
   // Without commit: the staging folder is removed (kept under `resume`, for the next --resume).
   ~OutputFolder();
@@ -55,7 +57,7 @@ class OutputFolder {
   // The final path of `rel`, for messages.
   std::string shown(const std::string& rel) const { return (final_ / rel).string(); }
 
-  // fsyncs, unlocks and renames the staging folder into place (atomically exchanging it with an
+  // Lists the staged files in the manifest, fsyncs, unlocks and renames the staging folder into place (atomically exchanging it with an
   // existing final folder where the filesystem can), then deletes the old one.
   void commit();
 
@@ -63,6 +65,7 @@ class OutputFolder {
   void lock();
   void check_final();
   void clear_staging() const;
+  void write_manifest() const;
 
   std::filesystem::path final_, staging_;
   ExistingOutput existing_;

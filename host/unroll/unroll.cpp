@@ -315,6 +315,9 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   const Sequence seq = load_sequence(o.sequence, o.sequence_options);
   const double load_ms = ms_since(t_read);
   if (seq.frames.empty()) throw DataError(o.sequence + ": the sequence has no frames");
+  std::vector<std::pair<std::string, std::string>> event_files;  // meta.json may name files outside the folder
+  for (const auto& f : seq.event_files) event_files.emplace_back("event file", f);
+  check_output_apart(o.out_dir, "--out", event_files);
   const std::vector<int> frames = chosen_frames(seq, o.frames);
   const std::map<int, std::vector<UnrollTarget>> targets = planned_targets(seq, frames, o);
   size_t total_targets = 0;

@@ -129,9 +129,37 @@ void validate_unroll_options(const UnrollOptions& o) {
   validate_sequence_options(o.sequence_options);
 }
 
+void check_output_apart(const std::string& out, const std::string& out_option,
+                        const std::vector<std::pair<std::string, std::string>>& inputs) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::path o = fs::weakly_canonical(fs::absolute(out), ec);
+  if (ec) return;  // an unresolvable output path fails later, with its own error
+  auto within = [](const fs::path& inner, const fs::path& outer) {  // inner == outer or below it
+    auto i = inner.begin();
+    for (auto p = outer.begin(); p != outer.end(); ++p, ++i)
+      if (i == inner.end() || *i != *p) return false;
+    return true;
+  };
+  for (const auto& [what, path] : inputs) {
+    if (path.empty()) continue;
+    const fs::path in = fs::weakly_canonical(fs::absolute(path), ec);
+    if (ec) continue;
+    if (within(in, o))
+      throw UsageError(out_option + " " + out + ": " + (in == o ? "is" : "holds") + " the input " + what + " " + path +
+                       "; the output would replace what the run reads: choose another " + out_option);
+    if (within(o, in))
+      throw UsageError(out_option + " " + out + ": lies inside the input " + what + " " + path +
+                       "; write the output outside the inputs: choose another " + out_option);
+  }
+}
+
 void check_unroll_inputs(const UnrollOptions& o) {
   check_exists(o.sequence, "SEQUENCE", true);
   if (!o.session.model_path.empty() && o.mode != UnrollMode::physics) check_exists(o.session.model_path, "--model", false);
+  check_output_apart(o.out_dir, "--out", {{"SEQUENCE", o.sequence},
+                                          {"--events file", o.sequence_options.events_file.value_or("")},
+                                          {"--model file", o.mode == UnrollMode::physics ? "" : o.session.model_path}});
 }
 
 nlohmann::json unroll_options_json(const UnrollOptions& o) {

@@ -100,6 +100,12 @@ void validate_unroll_options(const UnrollOptions& o);
 // it after validate_unroll_options, the Python bindings (arrays in memory) do not.
 void check_unroll_inputs(const UnrollOptions& o);
 
+// Refuses (UsageError) an output that is one of the inputs, holds one, or lies inside an input
+// folder: a run never writes over, or replaces, what it reads. `inputs`: (what, path) pairs, e.g.
+// ("SEQUENCE", dir); paths are compared after resolving links and '..'.
+void check_output_apart(const std::string& out, const std::string& out_option,
+                        const std::vector<std::pair<std::string, std::string>>& inputs);
+
 // The timing overrides of a sequence (shared by unroll and voxelize): finite, within kMaxTimeUs,
 // line delay >= 0, exposure and frame period > 0. UsageError names the option (`--line-delay-us`, ...).
 void validate_sequence_options(const SequenceOptions& o);

@@ -1,0 +1,137 @@
+// Never delete what it did not write (issue 28, item 1): an output folder lists what vkunroll wrote
+// in its manifest, --overwrite and --resume refuse a folder holding anything else at any depth, and
+// no command writes an output that is, holds or lies inside one of its inputs.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <string>
+
+#include "cli_test_util.hpp"
+
+namespace fs = std::filesystem;
+using clitest::cli;
+using clitest::CliRun;
+using clitest::has;
+
+namespace {
+
+fs::path temp_dir(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / ("vkunroll-apart-" + name + "-" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+fs::path make_sequence(const fs::path& where) {
+  const CliRun r = cli("simulate --out " + where.string() +
+                       " --preset clean --size 48x32 --frames 2 --gt-per-frame 1 --events-format txt --quiet");
+  EXPECT_EQ(r.rc, 0) << r.out;
+  return where;
+}
+
+CliRun unroll(const fs::path& seq, const fs::path& out, const std::string& extra = "") {
+  return cli("unroll " + seq.string() + " --out " + out.string() + " --mode physics --times 0.5 --quiet --no-video " + extra);
+}
+
+std::set<std::string> manifest(const fs::path& out) {
+  std::set<std::string> files;
+  std::ifstream in(out / ".vkunroll-manifest");
+  std::string line;
+  while (std::getline(in, line))
+    if (!line.empty() && line[0] != '#') files.insert(line);
+  return files;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+}  // namespace
+
+TEST(OutputApart, TheManifestListsWhatARunWroteAndAnOverwriteOfItWorks) {
+  const fs::path d = temp_dir("manifest");
+  const fs::path seq = make_sequence(d / "seq");
+  ASSERT_EQ(unroll(seq, d / "out").rc, 0);
+  const std::set<std::string> listed = manifest(d / "out");
+  size_t files = 0;
+  for (const auto& e : fs::recursive_directory_iterator(d / "out"))
+    if (e.is_regular_file() && e.path().filename() != ".vkunroll-manifest") {
+      ++files;
+      EXPECT_TRUE(listed.count(e.path().lexically_relative(d / "out").string())) << e.path();
+    }
+  EXPECT_EQ(files, listed.size());
+  EXPECT_TRUE(listed.count("summary.json"));
+  const CliRun r = unroll(seq, d / "out", "--overwrite");
+  EXPECT_EQ(r.rc, 0) << r.out;
+  // An output from before manifests (its names and frames/*.png only) is replaced as before.
+  fs::remove(d / "out" / ".vkunroll-manifest");
+  EXPECT_EQ(unroll(seq, d / "out", "--resume").rc, 0);
+  fs::remove_all(d);
+}
+
+TEST(OutputApart, OverwriteAndResumeRefuseAFolderHoldingAUsersFileAtAnyDepth) {
+  const fs::path d = temp_dir("user-file");
+  const fs::path seq = make_sequence(d / "seq");
+  ASSERT_EQ(unroll(seq, d / "out").rc, 0);
+  std::ofstream(d / "out" / "frames" / "notes.txt") << "mine";
+  for (const std::string how : {"--overwrite", "--resume"}) {
+    const CliRun r = unroll(seq, d / "out", how);
+    EXPECT_EQ(r.rc, 2) << how << ": " << r.out;
+    EXPECT_TRUE(has(r, "frames/notes.txt") && has(r, "vkunroll did not write there")) << r.out;
+    EXPECT_EQ(slurp(d / "out" / "frames" / "notes.txt"), "mine") << how;
+  }
+  // Without the manifest too (an output from before manifests), and for a folder that holds only
+  // a user's frames/notes.txt.
+  fs::remove(d / "out" / ".vkunroll-manifest");
+  EXPECT_EQ(unroll(seq, d / "out", "--overwrite").rc, 2);
+  fs::create_directories(d / "only" / "frames");
+  std::ofstream(d / "only" / "frames" / "notes.txt") << "mine";
+  const CliRun r = unroll(seq, d / "only", "--overwrite");
+  EXPECT_EQ(r.rc, 2) << r.out;
+  EXPECT_EQ(slurp(d / "only" / "frames" / "notes.txt"), "mine");
+  fs::remove_all(d);
+}
+
+TEST(OutputApart, NoOutputIsHoldsOrLiesInsideAnInput) {
+  const fs::path d = temp_dir("inputs");
+  make_sequence(d / "seq");
+  ASSERT_EQ(unroll(d / "seq", d / "out").rc, 0);
+  // The sequence inside the earlier output: --overwrite would have deleted it.
+  fs::rename(d / "seq", d / "out" / "frames" / "myseq");
+  const fs::path inside = d / "out" / "frames" / "myseq";
+  CliRun r = unroll(inside, d / "out", "--overwrite");
+  EXPECT_EQ(r.rc, 2) << r.out;
+  EXPECT_TRUE(has(r, "holds the input SEQUENCE")) << r.out;
+  EXPECT_TRUE(fs::exists(inside / "meta.json"));
+  // The output inside the sequence, or the sequence itself.
+  r = unroll(inside, inside / "gs");
+  EXPECT_EQ(r.rc, 2) << r.out;
+  EXPECT_TRUE(has(r, "lies inside the input SEQUENCE")) << r.out;
+  r = unroll(inside, inside, "--overwrite");
+  EXPECT_EQ(r.rc, 2) << r.out;
+  EXPECT_TRUE(fs::exists(inside / "meta.json"));
+  // voxelize over the sequence's own event file, or into the sequence folder.
+  const std::string events = slurp(inside / "events.txt");
+  for (const fs::path& out : {inside / "events.txt", inside / "ev.safetensors"}) {
+    r = cli("voxelize " + inside.string() + " --frames 0 --times 0.5 --out " + out.string());
+    EXPECT_EQ(r.rc, 2) << out << ": " << r.out;
+    EXPECT_TRUE(has(r, "input")) << r.out;
+  }
+  EXPECT_EQ(slurp(inside / "events.txt"), events);
+  // An events file named by --events inside the output.
+  fs::create_directories(d / "out2");
+  fs::copy_file(inside / "events.txt", d / "out2" / "ev.txt");
+  r = unroll(inside, d / "out2", "--overwrite --events " + (d / "out2" / "ev.txt").string());
+  EXPECT_EQ(r.rc, 2) << r.out;
+  EXPECT_TRUE(has(r, "holds the input --events file")) << r.out;
+  EXPECT_TRUE(fs::exists(d / "out2" / "ev.txt"));
+  fs::remove_all(d);
+}
