@@ -234,7 +234,7 @@ TEST(Sequence, GevRsRealAndFastecLayouts) {
 TEST(Sequence, VoxelizeCliMatchesTheLibrary) {
   auto ev = evtest::random_stream(6000, 16, 12, 9, 0, 3);
   const fs::path d = make_generic("voxelize", ev);
-  const std::string out = (d / "ev.safetensors").string();
+  const std::string out = d.string() + "-ev.safetensors";  // beside the sequence: never inside an input
   const std::string cmd = std::string(VKUNROLL_CLI_PATH) + " voxelize " + d.string() +
                           " --frames 0:1 --times 0:1:3 --bins 4 --crop 2,1,10,9 --out " + out + " > " +
                           (d / "log.txt").string() + " 2>&1";
@@ -262,6 +262,7 @@ TEST(Sequence, VoxelizeCliMatchesTheLibrary) {
   std::stringstream err;
   err << std::ifstream(d / "err.txt").rdbuf();
   EXPECT_NE(err.str().find("frame 7"), std::string::npos) << err.str();
+  fs::remove(out);
 }
 
 TEST(Sequence, ReadsWhatTheSimulatorWrites) {

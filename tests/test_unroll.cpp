@@ -198,3 +198,40 @@ TEST(Unroll, UserRecordingWithEvt3OrAedat4EventsEqualsTheHdf5One) {
   }
   fs::remove_all(dir);
 }
+
+// The physics contrast is never a silent guess: without a successor frame it is a fixed 0.2, said
+// as such; an estimate on the edge of its search grid (here: no events, every c agrees) is warned.
+TEST(Unroll, ContrastWithoutASuccessorOrOnTheGridEdgeIsSaid) {
+  const fs::path dir = temp_dir("c-said");
+  const fs::path seq = make_sequence(dir);
+  UnrollOptions o = base(seq, dir / "last");
+  o.mode = UnrollMode::physics;
+  o.frames = {2};
+  o.output.write_video = false;
+  const auto last = run_unroll(o);
+  EXPECT_EQ(last["physics"]["contrast"].get<double>(), 0.2f);
+  EXPECT_NE(last["physics"]["contrast_source"].get<std::string>().find("not estimated"), std::string::npos) << last["physics"];
+  bool said = false;
+  for (const auto& w : last["warnings"]) said = said || w.get<std::string>().find("fixed default") != std::string::npos;
+  EXPECT_TRUE(said) << last["warnings"];
+  // No events at all: the estimate falls on the grid's lower edge, with a warning.
+  std::ofstream(seq / "empty.txt") << "";
+  std::ifstream meta_in(seq / "meta.json");
+  nlohmann::json meta = nlohmann::json::parse(meta_in);
+  meta["events"] = "empty.txt";
+  std::ofstream(seq / "meta.json") << meta.dump(1);
+  o.out_dir = (dir / "edge").string();
+  o.frames = {0, 1};
+  const auto edge = run_unroll(o);
+  EXPECT_NEAR(edge["physics"]["contrast"].get<double>(), 0.05, 1e-6);
+  bool warned = false;
+  for (const auto& w : edge["warnings"]) warned = warned || w.get<std::string>().find("edge of its search grid") != std::string::npos;
+  EXPECT_TRUE(warned) << edge["warnings"];
+  // A given contrast is neither.
+  o.out_dir = (dir / "given").string();
+  o.contrast = 0.3;
+  const auto given = run_unroll(o);
+  EXPECT_EQ(given["physics"]["contrast_source"], "given");
+  for (const auto& w : given["warnings"]) EXPECT_EQ(w.get<std::string>().find("contrast"), std::string::npos) << w;  // only "no events" ones
+  fs::remove_all(dir);
+}

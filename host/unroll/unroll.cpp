@@ -191,7 +191,7 @@ nlohmann::json events_report(const FrameLoop& L, const Sequence& seq, std::vecto
 
 }  // namespace
 
-double estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma) {
+ContrastEstimate estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma) {
   std::vector<RowTiming> timings;
   for (const SequenceFrame& f : seq.frames) timings.push_back(f.timing);
   return estimate_contrast(
@@ -329,7 +329,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   double contrast_ms = -1;
   const PhysicsPlan physics = plan_physics(mode, session, seq_gamma, o.contrast, [&](double gamma) {
     const auto t = Clock::now();
-    const double c = estimate_contrast(seq, frames, gamma);
+    ContrastEstimate c = estimate_contrast(seq, frames, gamma);
     contrast_ms = ms_since(t);
     return c;
   });
@@ -403,6 +403,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   if (output.replaces_existing())
     extra["notes"].push_back("replaced the earlier output in " + output.dir().string() + " (" +
                              existing_output_name(o.output.existing) + ")");
+  if (!physics.contrast_warning.empty()) warnings.push_back(physics.contrast_warning);
   extra["warnings"] = warnings;
   extra["provenance"]["finished_utc"] = utc_now();
   for (const auto& w : warnings) std::cerr << "unroll: warning: " << w << "\n";  // even under --quiet

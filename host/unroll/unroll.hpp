@@ -18,7 +18,9 @@ nlohmann::json run_unroll(const UnrollOptions& options);
 // three pairs of consecutive frames, both frames are unrolled to the instant halfway between
 // their mid-exposures, and c is the value on a grid (0.05 .. 0.6, step 0.025) that makes the two
 // estimates agree best (least mean |log difference|) — the temporal consistency SelfUnroll
-// trains on. Returns 0.2 when the sequence has a single frame.
-double estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma);
+// trains on. Without a pair of consecutive frames it is no estimate: 0.2, said so in `source` and
+// `warning`. A value on the grid's edge (0.05 or 0.6) comes with a warning: the true threshold may
+// lie outside, or noise dominates the consistency.
+ContrastEstimate estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma);
 
 }  // namespace vkunroll

@@ -1,6 +1,7 @@
 #include "vkunroll/host/unroll/unroll_plan.hpp"
 
 #include <algorithm>
+#include <cstdio>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -182,13 +183,16 @@ std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFr
   return {lo, hi};
 }
 
-double estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
+ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
                          int height, const std::function<cv::Mat(int)>& image,
                          const std::function<EventStream(double, double)>& events) {
   std::vector<std::pair<int, int>> pairs;
   for (int k : frames)
     if (k + 1 < static_cast<int>(timings.size()) && pairs.size() < 3) pairs.push_back({k, k + 1});
-  if (pairs.empty()) return 0.2;
+  if (pairs.empty())
+    return {0.2, "a fixed 0.2, not estimated: no pair of consecutive frames",
+            "contrast c = 0.2 is a fixed default: the frames unrolled have no successor to estimate it from "
+            "(give --contrast C, or include the next frame)"};
   struct Pair {
     std::vector<float> rs1, rs2;
     PixelEventLists l1, l2;
@@ -223,11 +227,19 @@ double estimate_contrast(const std::vector<RowTiming>& timings, const std::vecto
     err /= std::max<size_t>(n, 1);
     if (err < best_err) best_err = err, best_c = c;
   }
-  return best_c;
+  ContrastEstimate r{best_c, "estimated (temporal consistency of consecutive frames)", ""};
+  if (best_c < 0.05 + 1e-9 || best_c > 0.6 - 0.025 + 1e-9) {
+    char text[240];
+    std::snprintf(text, sizeof text,
+                  "the contrast estimate c = %.3f lies on the edge of its search grid (0.05 to 0.6): the true "
+                  "threshold may lie outside, or event noise dominates; give --contrast C if it is known", best_c);
+    r.warning = text;
+  }
+  return r;
 }
 
 PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,
-                         const std::function<double(double)>& estimate) {
+                         const std::function<ContrastEstimate(double)>& estimate) {
   PhysicsPlan p;
   p.seq_gamma = seq_gamma;
   const std::optional<double> model_gamma = session.has_model() ? session.model_config().gamma : std::nullopt;
@@ -243,8 +255,10 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
     p.params.contrast = std::stof(from_model);  // validated when the weights were loaded
     p.contrast_source = "the model's metadata";
   } else {
-    p.params.contrast = static_cast<float>(estimate(seq_gamma));
-    p.contrast_source = "estimated (temporal consistency of consecutive frames)";
+    const ContrastEstimate e = estimate(seq_gamma);
+    p.params.contrast = static_cast<float>(e.contrast);
+    p.contrast_source = e.source;
+    p.contrast_warning = e.warning;
   }
   return p;
 }

@@ -60,7 +60,7 @@ std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFr
 
 // estimate_contrast (unroll.hpp) on frames from anywhere: `image(k)` frame k as BGR float32 in
 // [0, 1], `events(lo, hi)` the events of [lo, hi] microseconds.
-double estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
+ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
                          int height, const std::function<cv::Mat(int)>& image,
                          const std::function<EventStream(double, double)>& events);
 
@@ -75,10 +75,11 @@ struct PhysicsPlan {
   bool uses_physics = false;   // mode physics or the variant: `params` matter
   PhysicsUnrollParams params;
   std::string contrast_source = "given";
+  std::string contrast_warning;  // the estimate's (ContrastEstimate::warning); empty: none
 };
 // `contrast`: the user's (unset: the model's metadata, else `estimate(seq_gamma)`, called only then).
 PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,
-                         const std::function<double(double)>& estimate);
+                         const std::function<ContrastEstimate(double)>& estimate);
 
 // v^exponent (negative values to 0 first): a frame in another gamma encoding; exponent 1: as it is.
 cv::Mat encode_for_model(const cv::Mat& image, double exponent);

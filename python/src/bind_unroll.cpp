@@ -201,7 +201,10 @@ void bind_session(py::module_& m) {
               std::optional<double> c;
               if (!contrast.is_none()) c = contrast.cast<double>();
               return plan_physics(parse_unroll_mode(mode, "mode"), *ps.session, seq_gamma, c,
-                                  [&](double gamma) { return estimate(gamma).cast<double>(); });
+                                  [&](double gamma) {
+                                    const auto t = estimate(gamma).cast<std::tuple<double, std::string, std::string>>();
+                                    return ContrastEstimate{std::get<0>(t), std::get<1>(t), std::get<2>(t)};
+                                  });
             });
             ps.session->set_physics(p.params);
             ps.to_model = p.to_model;
@@ -211,6 +214,7 @@ void bind_session(py::module_& m) {
             d["contrast"] = p.params.contrast;
             d["gamma"] = p.params.gamma;
             d["contrast_source"] = p.contrast_source;
+            d["contrast_warning"] = p.contrast_warning;
             d["seq_gamma"] = p.seq_gamma;
             d["to_model"] = p.to_model;
             return d;
@@ -289,7 +293,8 @@ void bind_unroll(py::module_& m) {
       std::vector<int> fs = frames;
       if (fs.empty())
         for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) fs.push_back(k);
-      return estimate_contrast(seq, fs, gamma);
+      const ContrastEstimate e = estimate_contrast(seq, fs, gamma);
+      return std::make_tuple(e.contrast, e.source, e.warning);
     });
   });
 
@@ -320,7 +325,9 @@ void bind_unroll(py::module_& m) {
             std::vector<int> fs = frames;
             if (fs.empty())
               for (int k = 0; k < static_cast<int>(timings.size()); ++k) fs.push_back(k);
-            return estimate_contrast(timings, fs, gamma, bgr[0].cols, bgr[0].rows, [&](int k) { return bgr.at(k); }, window);
+            const ContrastEstimate e =
+                estimate_contrast(timings, fs, gamma, bgr[0].cols, bgr[0].rows, [&](int k) { return bgr.at(k); }, window);
+            return std::make_tuple(e.contrast, e.source, e.warning);
           });
         });
 }

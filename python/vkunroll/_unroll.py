@@ -272,6 +272,9 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     stats["encoding"] = {"sequence_gamma": seq_gamma, "to_model": phys["to_model"]}
     if phys["uses_physics"]:
         stats.update(contrast=phys["contrast"], contrast_source=phys["contrast_source"], gamma=phys["gamma"])
+        if phys["contrast_warning"]:
+            stats["notes"].append(phys["contrast_warning"])
+            _log.warning("unroll: warning: %s", phys["contrast_warning"])
         _log.info("unroll: %s, contrast c = %g (%s), gamma %g",
                   "physics input of the model" if phys["variant"] else "physics unroller", phys["contrast"],
                   phys["contrast_source"], phys["gamma"])

@@ -150,3 +150,15 @@ def test_targets_sessions_and_errors(seq, tiny):
 
     with pytest.raises(KeyboardInterrupt):
         vkunroll.unroll(seq, times=[0.5], mode="physics", contrast=0.2, progress=stop)
+
+
+def test_contrast_without_a_successor_is_said_as_in_the_cli(seq, tmp_path):
+    # The last frame alone: no pair to estimate from, so c is a fixed 0.2, said in stats and notes.
+    last = 2  # the fixture has 3 frames
+    result = vkunroll.unroll(seq, times=[0.5], mode="physics", frames=[last])
+    assert result.stats["contrast"] == pytest.approx(0.2)
+    assert "not estimated" in result.stats["contrast_source"]
+    assert any("fixed default" in n for n in result.stats["notes"]), result.stats["notes"]
+    summary = cli_unroll(seq, tmp_path / "cli", "--times", "0.5", "--mode", "physics", "--frames", str(last))[3]
+    assert summary["physics"]["contrast_source"] == result.stats["contrast_source"]
+    assert any("fixed default" in w for w in summary["warnings"])
