@@ -3,6 +3,7 @@
 // no command writes an output that is, holds or lies inside one of its inputs.
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <filesystem>
@@ -133,5 +134,29 @@ TEST(OutputApart, NoOutputIsHoldsOrLiesInsideAnInput) {
   EXPECT_EQ(r.rc, 2) << r.out;
   EXPECT_TRUE(has(r, "holds the input --events file")) << r.out;
   EXPECT_TRUE(fs::exists(d / "out2" / "ev.txt"));
+  fs::remove_all(d);
+}
+
+// Inputs that could block (issue 28, item 5): a FIFO given as the events, the model or a frame
+// image, or named by meta.json, is refused at once, naming it (it used to block for ever).
+TEST(InputKinds, AFifoIsRefusedWhereverAFileIsRead) {
+  const fs::path d = temp_dir("fifo");
+  const fs::path seq = make_sequence(d / "seq");
+  const fs::path fifo = d / "fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
+  const std::string t = "timeout 60 ";
+  for (const std::string& args : {"unroll " + seq.string() + " --out " + (d / "o1").string() + " --mode physics --events " + fifo.string(),
+                                  "unroll " + seq.string() + " --out " + (d / "o2").string() + " --model " + fifo.string(),
+                                  "events " + fifo.string()}) {
+    const CliRun r = cli(args, t);
+    EXPECT_EQ(r.rc, 65) << args << ": " << r.out;
+    EXPECT_TRUE(has(r, "is a FIFO")) << r.out;
+  }
+  fs::rename(seq / "events.txt", seq / "events-real.txt");
+  ASSERT_EQ(::mkfifo((seq / "events.txt").c_str(), 0644), 0);
+  CliRun r = cli("unroll " + seq.string() + " --out " + (d / "o3").string() + " --mode physics --quiet", t);
+  EXPECT_NE(r.rc, 0);
+  EXPECT_NE(r.rc, 124) << "timed out: " << r.out;
+  EXPECT_TRUE(has(r, "is a FIFO")) << r.out;
   fs::remove_all(d);
 }

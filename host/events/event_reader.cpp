@@ -146,9 +146,24 @@ void check_event_file(const std::string& path) {
   const auto st = std::filesystem::status(path, ec);
   if (!std::filesystem::exists(st)) throw Error(path + ": event file does not exist");
   if (std::filesystem::is_directory(st)) throw Error(path + ": is a folder, expected an event file");
+  if (const std::string kind = special_file_kind(path); !kind.empty())
+    throw Error(path + ": is " + kind + ", expected an event file (a regular file: reading " + kind +
+                " could block for ever)");
 }
 
 }  // namespace detail
+
+std::string special_file_kind(const std::string& path) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  switch (fs::status(path, ec).type()) {
+    case fs::file_type::fifo: return "a FIFO";
+    case fs::file_type::character: return "a character device";
+    case fs::file_type::block: return "a block device";
+    case fs::file_type::socket: return "a socket";
+    default: return "";
+  }
+}
 
 std::string detect_event_format(const std::string& path) {
   detail::FileSource src(path);

@@ -112,6 +112,10 @@ uint64_t scan_events(const std::string& path, const EventReadOptions& options,
 // The format read_events would use for `path` ("txt","h5","npy","npz","evt2","evt3","dat","aedat4").
 std::string detect_event_format(const std::string& path);
 
+// "a FIFO", "a character device", "a block device" or "a socket" for such a path, else "" (a
+// regular file, a folder, nothing): inputs that could block a read for ever are refused by name.
+std::string special_file_kind(const std::string& path);
+
 // DRE-style HDF5 image timestamps (`image_ts`, `start_image_ts`, `end_image_ts`, microseconds);
 // a missing dataset stays empty. Throws when the file has none of the three.
 struct ImageTimestamps {

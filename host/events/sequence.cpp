@@ -10,6 +10,7 @@
 #include <regex>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/host/events/event_reader.hpp"
 
 namespace vkunroll {
 namespace fs = std::filesystem;
@@ -303,6 +304,8 @@ void check_image(const Sequence& s, const std::string& image, const char* what) 
   std::error_code ec;
   if (!fs::exists(image, ec)) throw Error(s.root + ": " + what + " image '" + image + "' does not exist");
   if (fs::is_directory(image, ec)) throw Error(image + ": " + what + " image is a folder");
+  if (const std::string kind = special_file_kind(image); !kind.empty())
+    throw Error(image + ": " + what + " image is " + kind + ", expected a regular file");
   const auto [w, h] = image_size(image);
   if (w != s.width || h != s.height)
     throw Error(image + ": " + what + " image is " + std::to_string(w) + "x" + std::to_string(h) + ", the sensor is " +

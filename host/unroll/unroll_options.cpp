@@ -4,6 +4,7 @@
 #include <filesystem>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/host/events/event_reader.hpp"
 #include "vkunroll/host/unroll/value_list.hpp"
 
 namespace vkunroll {
@@ -33,6 +34,8 @@ void check_exists(const std::string& path, const std::string& what, bool folder)
   if (!fs::exists(st)) throw InputMissingError(what + " " + path + ": no such " + (folder ? "folder" : "file"));
   if (folder && !fs::is_directory(st)) throw DataError(what + " " + path + ": is not a folder");
   if (!folder && fs::is_directory(st)) throw DataError(what + " " + path + ": is a folder, expected a file");
+  if (const std::string kind = special_file_kind(path); !folder && !kind.empty())
+    throw DataError(what + " " + path + ": is " + kind + ", expected a regular file (reading it could block for ever)");
 }
 
 }  // namespace
