@@ -160,3 +160,33 @@ TEST(InputKinds, AFifoIsRefusedWhereverAFileIsRead) {
   EXPECT_TRUE(has(r, "is a FIFO")) << r.out;
   fs::remove_all(d);
 }
+
+// simulate and demo write their sequence staged and renamed into place whole: a second run never
+// leaves the first one's files beside its own, and replaces a sequence only with --overwrite (demo:
+// its own earlier one) and only when it holds nothing vkunroll did not write.
+TEST(OutputApart, SimulateAndDemoReplaceASequenceWholeOrRefuse) {
+  const fs::path d = temp_dir("simulate");
+  const std::string sim = "simulate --out " + (d / "seq").string() + " --preset clean --size 48x32 --gt-per-frame 1 --quiet";
+  ASSERT_EQ(cli(sim + " --frames 3").rc, 0);
+  EXPECT_TRUE(fs::exists(d / "seq" / "rs" / "000002.png"));
+  CliRun r = cli(sim + " --frames 2");
+  EXPECT_EQ(r.rc, 2) << r.out;
+  EXPECT_TRUE(has(r, "--overwrite")) << r.out;
+  r = cli(sim + " --frames 2 --overwrite");
+  EXPECT_EQ(r.rc, 0) << r.out;
+  EXPECT_FALSE(fs::exists(d / "seq" / "rs" / "000002.png"));  // the first run's third frame is gone
+  EXPECT_FALSE(fs::exists(d / ".seq.partial"));
+  std::ofstream(d / "seq" / "rs" / "mine.txt") << "mine";
+  r = cli(sim + " --frames 2 --overwrite");
+  EXPECT_EQ(r.rc, 2) << r.out;
+  EXPECT_TRUE(has(r, "rs/mine.txt")) << r.out;
+  EXPECT_TRUE(fs::exists(d / "seq" / "meta.json"));
+  // The demo into its own earlier folder.
+  const std::string demo = "demo --out " + (d / "demo").string() + " --physics-only --size 32x24";
+  ASSERT_EQ(cli(demo + " --frames 3").rc, 0);
+  EXPECT_TRUE(fs::exists(d / "demo" / "sequence" / "rs" / "000002.png"));
+  r = cli(demo + " --frames 2");
+  EXPECT_EQ(r.rc, 0) << r.out;
+  EXPECT_FALSE(fs::exists(d / "demo" / "sequence" / "rs" / "000002.png"));
+  fs::remove_all(d);
+}

@@ -124,7 +124,8 @@ HELDOUT = [
 def simulate(cli: str, out: str, photo: dict, args: List[str], kind: str, extra: Optional[Dict] = None) -> float:
     if os.path.isfile(os.path.join(out, "natural.json")):
         return 0.0
-    cmd = [cli, "simulate", "--out", out, "--texture", photo["file"], "--quiet"] + args
+    # --overwrite: a folder without natural.json is an unfinished earlier attempt
+    cmd = [cli, "simulate", "--out", out, "--texture", photo["file"], "--quiet", "--overwrite"] + args
     t0 = time.time()
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:

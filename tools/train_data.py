@@ -293,7 +293,8 @@ def make_data(out: str, count: int, seed_base: int, size: str, frames: int, gt_p
             continue
         cmd = [cli, "simulate", "--out", d, "--seed", str(seed), "--preset", PRESET_CYCLE[i % len(PRESET_CYCLE)],
                "--motion", MOTIONS[i % len(MOTIONS)], "--size", size, "--frames", str(frames),
-               "--gt-per-frame", str(gt_per_frame), "--speed", f"{speeds[i % len(speeds)]:g}", "--quiet"]
+               "--gt-per-frame", str(gt_per_frame), "--speed", f"{speeds[i % len(speeds)]:g}", "--quiet",
+               "--overwrite"]  # a folder without meta.json is a killed earlier run
         if (i // len(MOTIONS)) % 3 == 2:
             cmd += ["--readout", "bottom-up"]
         cmd += extra

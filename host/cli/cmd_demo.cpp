@@ -9,6 +9,7 @@
 
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/output_folder.hpp"
 #include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 
@@ -57,7 +58,10 @@ int run_demo(const DemoArgs& a) {
   const auto t0 = std::chrono::steady_clock::now();
   const auto seq = sim::simulate(cfg);
   try {
-    sim::write_sequence(cfg, seq, (out / "sequence").string());
+    // The demo's own earlier sequence is replaced whole, never mixed with this one's files.
+    OutputFolder folder(out / "sequence", ExistingOutput::overwrite, sequence_output_layout());
+    sim::write_sequence(cfg, seq, folder.staging().string());
+    folder.commit();
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::unspecified) throw;
     throw IoError(e.what());

@@ -6,6 +6,7 @@
 
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/sim/recording.hpp"
+#include "vkunroll/host/unroll/output_folder.hpp"
 
 namespace vkunroll::cli {
 
@@ -14,7 +15,7 @@ namespace {
 struct SimulateArgs {
   std::string out, preset = "realistic", size, readout, motion = "mixed", texture, events_format;
   long long seed = 1;
-  bool gray = false, quiet = false;
+  bool gray = false, quiet = false, overwrite = false;
   // Overrides of the preset's values (unset: the preset's).
   std::optional<int> frames, gt_per_frame, sprites, bit_depth, supersample;
   std::optional<double> fps, line_delay_us, exposure_us, speed, flicker_amp, flicker_hz, gamma, lead_in_us, step_fraction,
@@ -75,6 +76,9 @@ sim::SimulationConfig to_config(const SimulateArgs& a) {
 
 int run_simulate(const SimulateArgs& a) {
   const sim::SimulationConfig c = to_config(a);
+  // Staged and renamed into place whole: a killed run leaves no sequence, an earlier one is never
+  // mixed with this one's files (and replaced only with --overwrite, if it holds only its own).
+  OutputFolder folder(a.out, a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, sequence_output_layout());
   const auto t0 = std::chrono::steady_clock::now();
   const sim::SimulatedSequence seq = sim::simulate(c);
   const auto t1 = std::chrono::steady_clock::now();
@@ -92,11 +96,12 @@ int run_simulate(const SimulateArgs& a) {
     std::printf("simulate %.0f ms\n", ms(t0, t1));
   }
   try {
-    sim::write_sequence(c, seq, a.out);
+    sim::write_sequence(c, seq, folder.staging().string());
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::unspecified) throw;
     throw IoError(e.what());
   }
+  folder.commit();
   if (!a.quiet)
     std::printf("write %.0f ms\n", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count());
   return 0;
@@ -160,6 +165,7 @@ Command add_simulate(CLI::App& parent) {
   c->add_option("--full-well", a->full_well, "frame sensor full well (electrons)")->check(finite_at_least(0, true))->group(g);
   c->add_option("--read-noise", a->read_noise, "frame sensor read noise (electrons)")->check(finite_at_least(0))->group(g);
   c->add_flag("--quiet", a->quiet, "print nothing on success");
+  c->add_flag("--overwrite", a->overwrite, "replace an existing sequence in --out (one that vkunroll wrote)");
   return {c, [a] { return run_simulate(*a); }};
 }
 

@@ -92,10 +92,15 @@ const char* existing_output_name(ExistingOutput e) {
   return "?";
 }
 
-const std::vector<std::string>& output_folder_names() {
-  static const std::vector<std::string> names = {"frames",      "gs_video.mp4", "contact_sheet.png",
-                                                 "metrics.csv", "summary.json", "frames.jsonl"};
-  return names;
+const OutputLayout& unroll_output_layout() {
+  static const OutputLayout layout = {
+      {"frames", "gs_video.mp4", "contact_sheet.png", "metrics.csv", "summary.json", "frames.jsonl"}, {"frames"}, {"frames"}, true};
+  return layout;
+}
+
+const OutputLayout& sequence_output_layout() {
+  static const OutputLayout layout = {{"meta.json", "rs", "gs", "events.h5", "events.txt"}, {"rs", "gs"}, {}, false};
+  return layout;
 }
 
 std::string sha256_file(const fs::path& path) {
@@ -118,7 +123,8 @@ std::string sha256_file(const fs::path& path) {
   return h.hex();
 }
 
-OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing) : existing_(existing) {
+OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const OutputLayout& layout)
+    : existing_(existing), layout_(layout) {
   std::string text = final_dir.string();
   while (text.size() > 1 && text.back() == '/') text.pop_back();
   if (text.empty()) throw UsageError("--out: empty folder name");
@@ -134,8 +140,10 @@ OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing) : existi
   try {
     check_final();
     if (existing_ != ExistingOutput::resume) clear_staging();
-    fs::create_directories(staging_ / "frames", ec);
-    if (ec) throw IoError(staging_.string() + ": cannot create the staging folder (" + ec.message() + ")");
+    for (const auto& dir : layout_.make) {
+      fs::create_directories(staging_ / dir, ec);
+      if (ec) throw IoError(staging_.string() + ": cannot create the staging folder (" + ec.message() + ")");
+    }
   } catch (...) {
     // A staging folder made only for this attempt goes; a killed run's files stay for --resume.
     std::error_code ec2;
@@ -195,20 +203,22 @@ void OutputFolder::check_final() {
   if (is_empty_dir(final_)) return;
   if (existing_ == ExistingOutput::refuse)
     throw UsageError("--out " + final_.string() +
-                     ": the folder exists and is not empty; pass --overwrite to replace it, or --resume to "
-                     "continue it (its valid GS frames are kept)");
+                     ": the folder exists and is not empty; pass --overwrite to replace it" +
+                     std::string(layout_.resumable ? ", or --resume to continue it (its valid GS frames are kept)" : ""));
   // Everything inside, at any depth, must be what vkunroll wrote there: listed in the folder's
   // manifest, or (an output from before manifests) one of the output's names, frames/ holding only PNGs.
   const std::set<std::string> listed = read_manifest(final_);
   const bool has_manifest = fs::exists(final_ / kManifestName, ec);
-  const auto& names = output_folder_names();
+  const auto& names = layout_.names;
+  const auto& pngs = layout_.png_folders;
   for (auto it = fs::recursive_directory_iterator(final_, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
     const fs::path rel = it->path().lexically_relative(final_);
     const std::string r = rel.string();
     const bool dir = it->is_directory(ec) && !it->is_symlink(ec);
     bool ours;
     if (has_manifest) ours = r == kManifestName || (dir ? listed_folder(listed, r) : listed.count(r) > 0);
-    else if (rel.has_parent_path()) ours = *rel.begin() == "frames" && !dir && rel.extension() == ".png" && rel.parent_path() == "frames";
+    else if (rel.has_parent_path())
+      ours = !dir && rel.extension() == ".png" && std::find(pngs.begin(), pngs.end(), rel.parent_path().string()) != pngs.end();
     else ours = std::find(names.begin(), names.end(), r) != names.end();
     if (!ours)
       throw UsageError("--out " + final_.string() + ": holds '" + r + "', which vkunroll did not write there" +
@@ -318,7 +328,7 @@ void OutputFolder::commit() {
     append_fd_ = -1;
   }
   write_manifest();
-  fsync_path(staging_ / "frames", true);
+  for (const auto& dir : layout_.make) fsync_path(staging_ / dir, true);
   fsync_path(staging_, true);
   // The lock file stays out of the final folder; the lock itself is held until the rename is done.
   ::unlink((staging_ / kLockName).c_str());

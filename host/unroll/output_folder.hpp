@@ -23,6 +23,17 @@ enum class ExistingOutput {
 };
 const char* existing_output_name(ExistingOutput e);
 
+// What kind of folder an output is: the names it holds at its top (an output from before
+// manifests may hold only these, and PNGs in `png_folders`), and the folders made up front.
+struct OutputLayout {
+  std::vector<std::string> names;
+  std::vector<std::string> png_folders;
+  std::vector<std::string> make;
+  bool resumable = false;  // --resume applies (the refusal names it)
+};
+const OutputLayout& unroll_output_layout();    // frames/, gs_video.mp4, contact_sheet.png, ...
+const OutputLayout& sequence_output_layout();  // a simulated sequence: meta.json, rs/, gs/, events
+
 class OutputFolder {
  public:
   // Creates the parent folders, takes the lock (OutputBusyError when another run holds it) and
@@ -31,7 +42,8 @@ class OutputFolder {
   // that holds, at any depth, anything vkunroll did not write there: what its manifest
   // (.vkunroll-manifest, written at commit) does not list, or for an output from before
   // manifests, anything but the output's names and PNGs in frames/ (nothing else is ever deleted).
-  OutputFolder(std::filesystem::path final_dir, ExistingOutput existing);
+  OutputFolder(std::filesystem::path final_dir, ExistingOutput existing,
+               const OutputLayout& layout = unroll_output_layout());
   // Without commit: the staging folder is removed (kept under `resume`, for the next --resume).
   ~OutputFolder();
   OutputFolder(const OutputFolder&) = delete;
@@ -69,6 +81,7 @@ class OutputFolder {
 
   std::filesystem::path final_, staging_;
   ExistingOutput existing_;
+  OutputLayout layout_;
   bool replaces_ = false;
   bool committed_ = false;
   int lock_fd_ = -1;
@@ -76,8 +89,6 @@ class OutputFolder {
   std::string append_rel_;
 };
 
-// The names a vkunroll output folder holds (what --overwrite may replace).
-const std::vector<std::string>& output_folder_names();
 
 // SHA-256 of a file's bytes (hex); throws IoError naming the file.
 std::string sha256_file(const std::filesystem::path& path);
