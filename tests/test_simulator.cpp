@@ -348,7 +348,7 @@ TEST(Simulator, CliOutputIsDeterministicPerSeed) {
     EXPECT_EQ(slurp(entry.path()), slurp(root / "b" / rel)) << rel << " differs between two runs with the same seed";
     ++files;
   }
-  EXPECT_EQ(files, 2u + 4u + 3u);  // rs x2, gs x4, events.h5, events.txt, meta.json
+  EXPECT_EQ(files, 2u + 4u + 3u + 1u);  // rs x2, gs x4, events.h5, events.txt, meta.json, .vkunroll-manifest
   EXPECT_NE(slurp(root / "a" / "events.h5"), slurp(root / "c" / "events.h5"));
   EXPECT_NE(slurp(root / "a" / "rs" / "000000.png"), slurp(root / "c" / "rs" / "000000.png"));
   fs::remove_all(root);

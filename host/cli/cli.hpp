@@ -12,10 +12,6 @@
 
 #include "vkunroll/host/events/sequence.hpp"
 
-namespace vkunroll::sim {
-struct SimulationConfig;
-}
-
 namespace vkunroll::cli {
 
 // A declared subcommand and what runs it once its options are parsed (returns the exit code).
@@ -59,10 +55,6 @@ void add_device_options(CLI::App* app, DeviceArgs& a);
 // Bounds the process's threads before any Vulkan instance exists: LP_NUM_THREADS (lavapipe's
 // rasterizer workers) and OpenCV's pool (the CPU backend's convolutions, image encoding).
 void apply_threads(unsigned threads);
-
-// --texture of simulate and demo: a procedural name, else an image file (InputMissingError when
-// neither).
-void set_texture(sim::SimulationConfig& c, const std::string& texture);
 
 // "WIDTHxHEIGHT", each 2 to 32767; UsageError naming `what` (the option) otherwise.
 void parse_size(const std::string& s, const std::string& what, int& w, int& h);

@@ -49,7 +49,7 @@ int run_demo(const DemoArgs& a) {
   cfg.frames = a.frames;
   cfg.gt_per_frame = 3;
   cfg.line_delay_us = 25900.0 / cfg.height;  // the same 25.9 ms readout as the 260-row default
-  if (!a.texture.empty()) set_texture(cfg, a.texture);
+  if (!a.texture.empty()) sim::set_texture(cfg, a.texture);
   try {
     cfg.validate();
   } catch (const Error& e) {

@@ -45,7 +45,7 @@ sim::SimulationConfig to_config(const SimulateArgs& a) {
   set(c.exposure_us, a.exposure_us);
   if (!a.readout.empty()) c.readout = a.readout;
   set(c.speed_scale, a.speed);
-  if (!a.texture.empty()) set_texture(c, a.texture);
+  if (!a.texture.empty()) sim::set_texture(c, a.texture);
   set(c.sprites, a.sprites);
   set(c.flicker_amplitude, a.flicker_amp);
   set(c.flicker_hz, a.flicker_hz);
@@ -108,17 +108,6 @@ int run_simulate(const SimulateArgs& a) {
 }
 
 }  // namespace
-
-void set_texture(sim::SimulationConfig& c, const std::string& texture) {
-  try {
-    c.texture = sim::parse_texture_kind(texture);
-  } catch (const Error&) {
-    // Not a procedural name: an image file.
-    if (!std::ifstream(texture))
-      throw InputMissingError("--texture '" + texture + "' is neither checkerboard, bars, noise, text, mixed nor a readable image file");
-    c.texture_file = texture;
-  }
-}
 
 Command add_simulate(CLI::App& parent) {
   auto a = std::make_shared<SimulateArgs>();

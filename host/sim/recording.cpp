@@ -388,4 +388,14 @@ nlohmann::json write_sequence(const SimulationConfig& config, const SimulatedSeq
   return meta;
 }
 
+void set_texture(SimulationConfig& c, const std::string& texture) {
+  try {
+    c.texture = parse_texture_kind(texture);
+  } catch (const Error&) {  // not a procedural name: an image file
+    if (!std::ifstream(texture))
+      throw InputMissingError("texture '" + texture + "' (--texture) is neither checkerboard, bars, noise, text, mixed nor a readable image file");
+    c.texture_file = texture;
+  }
+}
+
 }  // namespace vkunroll::sim

@@ -69,6 +69,10 @@ struct SimulationConfig {
 // The defaults with the preset's event and frame noise parameters filled in.
 SimulationConfig simulation_preset(const std::string& preset);
 
+// The background texture: a procedural kind by name, else an image file (InputMissingError naming
+// `texture` when it is neither). Used by `vkunroll simulate`, `vkunroll demo` and Python's simulate.
+void set_texture(SimulationConfig& c, const std::string& texture);
+
 struct GroundTruthFrame {
   int frame = 0;        // the RS frame period it belongs to
   int index = 0;        // instant index within that period

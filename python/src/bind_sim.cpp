@@ -28,17 +28,7 @@ bool set_setting(sim::SimulationConfig& c, const std::string& key, const py::han
   if (key == "events_format") return c.events_format = v.cast<std::string>(), true;
   if (key == "color") return c.color = v.cast<bool>(), true;
   if (key == "motion") return c.motion = sim::parse_motion_kind(v.cast<std::string>()), true;
-  if (key == "texture") {
-    const std::string t = v.cast<std::string>();
-    try {
-      c.texture = sim::parse_texture_kind(t);
-    } catch (const Error&) {
-      if (!std::ifstream(t))
-        throw Error("simulate: texture '" + t + "' is neither checkerboard, bars, noise, text, mixed nor a readable image file");
-      c.texture_file = t;
-    }
-    return true;
-  }
+  if (key == "texture") return sim::set_texture(c, v.cast<std::string>()), true;
   return false;
 }
 
