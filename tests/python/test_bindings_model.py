@@ -134,7 +134,9 @@ def test_model_call_releases_the_gil(models):
     # Holding the GIL, the call would leave the counter where it was (a switch interval at most).
     assert t1 - t0 > 0.05, "the call is long enough to tell"
     assert c1 - c0 > 10000, f"the thread counted {c1 - c0} times during a {t1 - t0:.2f} s model call"
-    assert held < (c1 - c0) / 10, f"control: {held} counts while a GIL-holding call ran, {c1 - c0} during the model call"
+    # The control is not zero on a loaded machine: after the GIL-holding call the counter may run
+    # until the main thread is scheduled again (seen: 1/9 of the model call's count under ctest -j2).
+    assert held < (c1 - c0) / 3, f"control: {held} counts while a GIL-holding call ran, {c1 - c0} during the model call"
 
 
 def test_errors_have_python_types_and_library_messages(models, tmp_path):
