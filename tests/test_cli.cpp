@@ -283,6 +283,12 @@ TEST(Cli, MessagesNameTheOptionAndExitCodesFollowSysexits) {
       {"unroll " + (dir / "nothere").string() + " --out " + out.string(), "", "nothere", 66},
       {"frobnicate", "", "unknown command 'frobnicate'", 2},
       {u + " --frames 99", "", "--frames: " + seq.string() + ": frame 99 does not exist", 2},
+      // Numbers a sensor cannot have and empty values (issue 28): refused, naming the option.
+      {u + " --gamma 1e300", "", "--gamma 1", 2},
+      {u + " --gamma 1e300", "", "expected a decode gamma in [0.1, 10]", 2},
+      {u + " --contrast 1e9", "", "expected a log-intensity threshold in (0, 5]", 2},
+      {u + " --line-delay-us 1e12", "", "--line-delay-us 1000000000000: expected 0 to 1e6 us", 2},
+      {u + " --frames \"\"", "", "--frames: empty value", 2},
   };
   for (const auto& c : cases) {
     const CliRun r = cli(c.args, c.env);

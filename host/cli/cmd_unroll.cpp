@@ -12,7 +12,8 @@ namespace vkunroll::cli {
 namespace {
 
 struct UnrollArgs {
-  std::string sequence, out, model, mode = "auto", times = "0.5", times_us, frames, channel_order, backend = "vulkan",
+  std::optional<std::string> frames;  // given empty: an error (never "all frames" by accident)
+  std::string sequence, out, model, mode = "auto", times = "0.5", times_us, channel_order, backend = "vulkan",
                            precision = "fp32", sparse = "exact", frame_format, bit_depth, conv_choice = "auto";
   std::optional<double> contrast, gamma, fps;
   double sparse_threshold = 0.05;
@@ -32,7 +33,10 @@ UnrollOptions to_options(const UnrollArgs& a) {
   o.model_source = model.source;
   try {
     o.times = parse_target_times(a.times, a.times_us);
-    if (!a.frames.empty()) o.frames = parse_frame_list(a.frames, "--frames");
+    if (a.frames) {
+      if (a.frames->empty()) throw UsageError("--frames: empty value: expected frames like 0:3 or 1,4 (leave the option out for all)");
+      o.frames = parse_frame_list(*a.frames, "--frames");
+    }
   } catch (const Error& e) {
     throw UsageError(e.what());
   }

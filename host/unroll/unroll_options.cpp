@@ -83,7 +83,8 @@ TargetTimes parse_target_times(const std::string& times, const std::string& time
 void validate_sequence_options(const SequenceOptions& o) {
   if (o.line_delay_us) {
     check_time(*o.line_delay_us, "--line-delay-us");
-    if (*o.line_delay_us < Rational(0)) throw UsageError("--line-delay-us " + o.line_delay_us->str() + ": expected >= 0 us");
+    if (*o.line_delay_us < Rational(0) || *o.line_delay_us > Rational(1000000))
+      throw UsageError("--line-delay-us " + o.line_delay_us->str() + ": expected 0 to 1e6 us (a row-to-row delay; sensors use 1 to 100 us)");
   }
   if (o.exposure_us) {
     check_time(*o.exposure_us, "--exposure-us");
@@ -114,10 +115,11 @@ void validate_unroll_options(const UnrollOptions& o) {
     throw UsageError("--halo " + std::to_string(o.halo) + ": expected -1 (automatic) or a non-negative multiple of " + std::to_string(kTileAlign));
   if (!(o.sparse_threshold >= 0) || std::isinf(o.sparse_threshold))
     throw UsageError("--sparse-threshold " + number_text(o.sparse_threshold) + ": expected a finite value >= 0 events per pixel");
-  if (o.contrast && !(*o.contrast > 0 && std::isfinite(*o.contrast)))
-    throw UsageError("--contrast " + number_text(*o.contrast) + ": expected a finite positive value");
-  if (o.gamma && !(*o.gamma > 0 && std::isfinite(*o.gamma)))
-    throw UsageError("--gamma " + number_text(*o.gamma) + ": expected a finite positive value");
+  // Ranges a real sensor can have: event thresholds are 0.05 to 1 in log intensity, decode gammas 1 to 2.6.
+  if (o.contrast && !(*o.contrast > 0 && *o.contrast <= 5))
+    throw UsageError("--contrast " + number_text(*o.contrast) + ": expected a log-intensity threshold in (0, 5]");
+  if (o.gamma && !(*o.gamma >= 0.1 && *o.gamma <= 10))
+    throw UsageError("--gamma " + number_text(*o.gamma) + ": expected a decode gamma in [0.1, 10] (2.2 for sRGB-like frames, 1 for linear)");
   if (o.output.video_fps && !(*o.output.video_fps > 0 && *o.output.video_fps <= 1000))
     throw UsageError("--fps " + number_text(*o.output.video_fps) + ": expected a frame rate in (0, 1000]");
   if (o.times.kind != TargetTimes::Kind::ground_truth && o.times.values.empty())

@@ -162,3 +162,11 @@ def test_contrast_without_a_successor_is_said_as_in_the_cli(seq, tmp_path):
     summary = cli_unroll(seq, tmp_path / "cli", "--times", "0.5", "--mode", "physics", "--frames", str(last))[3]
     assert summary["physics"]["contrast_source"] == result.stats["contrast_source"]
     assert any("fixed default" in w for w in summary["warnings"])
+
+
+def test_option_ranges_are_the_clis(seq):
+    # One rule in the library for both front ends: a gamma or contrast no sensor has is refused.
+    with pytest.raises(ValueError, match=r"gamma .*expected a decode gamma in \[0.1, 10\]"):
+        vkunroll.unroll(seq, times=[0.5], mode="physics", gamma=1e300)
+    with pytest.raises(ValueError, match=r"expected a log-intensity threshold in \(0, 5\]"):
+        vkunroll.unroll(seq, times=[0.5], mode="physics", contrast=1e9)
