@@ -19,8 +19,13 @@ constexpr uint32_t kTexelsPerSet = Pipeline::kMaxTexelBindings;
 constexpr uint32_t kMaxDispatchesPerSubmit = 2048;  // timestamp pairs per query pool
 
 double default_timeout() {
-  if (const char* v = std::getenv("VKUNROLL_FENCE_TIMEOUT_S"); v && *v) return std::atof(v);
-  return 600.0;  // a full-size model pass on a software rasterizer can take minutes
+  const char* v = std::getenv("VKUNROLL_FENCE_TIMEOUT_S");
+  if (!v || !*v) return 600.0;
+  char* end = nullptr;
+  const double s = std::strtod(v, &end);  // the whole value, a number of seconds in range: never a silent 0
+  if (end == v || *end != '\0' || !(s > 0 && s <= 1e6))
+    throw Error(std::string("VKUNROLL_FENCE_TIMEOUT_S='") + v + "': expected seconds in (0, 1e6] (default 600)");
+  return s;  // a full-size model pass on a software rasterizer can take minutes
 }
 
 }  // namespace

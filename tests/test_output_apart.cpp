@@ -35,8 +35,8 @@ fs::path make_sequence(const fs::path& where) {
   return where;
 }
 
-CliRun unroll(const fs::path& seq, const fs::path& out, const std::string& extra = "") {
-  return cli("unroll " + seq.string() + " --out " + out.string() + " --mode physics --times 0.5 --quiet --no-video " + extra);
+CliRun unroll(const fs::path& seq, const fs::path& out, const std::string& extra = "", const std::string& env = "") {
+  return cli("unroll " + seq.string() + " --out " + out.string() + " --mode physics --times 0.5 --quiet --no-video " + extra, env);
 }
 
 std::set<std::string> manifest(const fs::path& out) {
@@ -188,5 +188,35 @@ TEST(OutputApart, SimulateAndDemoReplaceASequenceWholeOrRefuse) {
   r = cli(demo + " --frames 2");
   EXPECT_EQ(r.rc, 0) << r.out;
   EXPECT_FALSE(fs::exists(d / "demo" / "sequence" / "rs" / "000002.png"));
+  fs::remove_all(d);
+}
+
+// Values that were read in silence (issue 28): a gamma in meta.json that is not a number (read as
+// 1 before), an event file meta.json names that is missing (exit 66, not 65), and a fence timeout
+// that is not a number of seconds (atof made it 0).
+TEST(InputKinds, BadMetadataAndEnvironmentValuesAreNamed) {
+  const fs::path d = temp_dir("meta-values");
+  const fs::path seq = make_sequence(d / "seq");
+  const std::string meta = slurp(seq / "meta.json");
+  auto with_meta = [&](const std::string& from, const std::string& to) {
+    std::string m = meta;
+    const size_t at = m.find(from);
+    ASSERT_NE(at, std::string::npos) << from;
+    m.replace(at, from.size(), to);
+    std::ofstream(seq / "meta.json") << m;
+  };
+  with_meta("\"gamma\": 2.2", "\"gamma\": \"2.2\"");
+  CliRun r = unroll(seq, d / "o1");
+  EXPECT_EQ(r.rc, 65) << r.out;
+  EXPECT_TRUE(has(r, "source.settings.gamma is \"2.2\"")) << r.out;
+  EXPECT_EQ(cli("unroll " + seq.string() + " --out " + (d / "o2").string() + " --mode physics --gamma 2.2 --quiet").rc, 0);
+  with_meta("\"events\": \"events.txt\"", "\"events\": \"gone.txt\"");
+  r = unroll(seq, d / "o3");
+  EXPECT_EQ(r.rc, 66) << r.out;
+  EXPECT_TRUE(has(r, "gone.txt' does not exist")) << r.out;
+  std::ofstream(seq / "meta.json") << meta;
+  r = unroll(seq, d / "o4", "", "VKUNROLL_FENCE_TIMEOUT_S=abc ");
+  EXPECT_NE(r.rc, 0) << r.out;
+  EXPECT_TRUE(has(r, "VKUNROLL_FENCE_TIMEOUT_S='abc'")) << r.out;
   fs::remove_all(d);
 }

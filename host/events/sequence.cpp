@@ -436,7 +436,7 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
   }
   for (const auto& e : s.event_files) {
     std::error_code ec;
-    if (!fs::exists(e, ec)) throw Error(s.root + ": event file '" + e + "' does not exist");
+    if (!fs::exists(e, ec)) throw InputMissingError(s.root + ": event file '" + e + "' does not exist");
   }
   // The reader checks every event against the sensor (error, or drop and count, per policy).
   s.event_options.width = s.width;

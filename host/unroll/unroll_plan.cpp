@@ -71,14 +71,23 @@ int frame_for_time(const Sequence& seq, const std::vector<int>& frames, double t
 double read_meta_gamma(const Sequence& seq) {
   const fs::path meta = fs::path(seq.root) / "meta.json";
   if (seq.layout != SequenceLayout::generic || !fs::exists(meta)) return 1.0;
+  nlohmann::json j;
   try {
     std::ifstream in(meta);
-    const auto j = nlohmann::json::parse(in);
-    // The simulator records its output encoding under source.settings.gamma.
-    if (j.contains("source") && j["source"].contains("settings") && j["source"]["settings"].contains("gamma"))
-      return j["source"]["settings"]["gamma"].get<double>();
-    if (j.contains("source") && j["source"].contains("gamma")) return j["source"]["gamma"].get<double>();
-  } catch (const std::exception&) {
+    j = nlohmann::json::parse(in);
+  } catch (const std::exception& e) {
+    throw DataError(meta.string() + ": cannot be parsed (" + e.what() + ")");
+  }
+  // The simulator records its output encoding under source.settings.gamma; a value that is there
+  // must be a plausible number (a string "2.2" was read as gamma 1 before).
+  for (const char* key : {"/source/settings/gamma", "/source/gamma"}) {
+    const nlohmann::json::json_pointer at(key);
+    if (!j.contains(at)) continue;
+    const nlohmann::json& g = j.at(at);
+    if (!g.is_number() || !(g.get<double>() >= 0.1 && g.get<double>() <= 10))
+      throw DataError(meta.string() + ": " + (key[8] == 's' ? "source.settings.gamma" : "source.gamma") + " is " + g.dump() +
+                      ": expected a number in [0.1, 10] (the frames' encoding gamma; --gamma overrides it)");
+    return g.get<double>();
   }
   return 1.0;
 }
