@@ -221,7 +221,7 @@ void plot(const std::vector<RowResult>& rows, const std::string& path) {
 }  // namespace
 
 int main(int argc, char** argv) try {
-  std::string out = "report", model = vkunroll::find_default_model().path;  // the shipped default
+  std::string out = "report", model;  // empty: the shipped default, looked up once the arguments are read
   std::string sizes_arg = "346x260,640x480", scenes_arg = "static,camera,noisy", published_size = "346x260";
   std::string thresholds_arg = "0.002,0.01,0.05";
   int frames = 3, gt_per_frame = 2;
@@ -280,6 +280,7 @@ int main(int argc, char** argv) try {
     } else
       throw Error("vkunroll-bench-report: unknown argument '" + k + "' (see --help)");
   }
+  if (model.empty()) model = vkunroll::find_default_model().path;
   if (model.empty()) throw Error("vkunroll-bench-report: no default model found; --model FILE");
   fs::create_directories(out);
   const fs::path data = fs::path(out) / "data", runs = fs::path(out) / "runs";

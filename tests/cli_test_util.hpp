@@ -1,8 +1,10 @@
 // Runs the built `vkunroll` binary as a user would (shared by the CLI tests).
 #pragma once
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <cstdio>
+#include <filesystem>
 #include <string>
 
 namespace clitest {
@@ -27,5 +29,13 @@ inline CliRun cli(const std::string& args, const std::string& prefix = "") {
 }
 
 inline bool has(const CliRun& r, const std::string& needle) { return r.out.find(needle) != std::string::npos; }
+
+// A fresh, empty folder /tmp/vkunroll-<suite>-<name>-<pid>.
+inline std::filesystem::path temp_dir(const std::string& suite, const std::string& name) {
+  const auto d = std::filesystem::temp_directory_path() / ("vkunroll-" + suite + "-" + name + "-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d;
+}
 
 }  // namespace clitest

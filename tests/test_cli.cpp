@@ -26,12 +26,7 @@ using clitest::has;
 
 namespace {
 
-fs::path temp_dir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("vkunroll-cli-" + name + "-" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path temp_dir(const std::string& name) { return clitest::temp_dir("cli", name); }
 
 // A clean 64x48 sequence of 3 frames (RS frame k at t0 = 10000 + 50000k us), events in a .txt.
 fs::path make_sequence(const fs::path& dir) {

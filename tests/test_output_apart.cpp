@@ -21,12 +21,7 @@ using clitest::has;
 
 namespace {
 
-fs::path temp_dir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("vkunroll-apart-" + name + "-" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path temp_dir(const std::string& name) { return clitest::temp_dir("apart", name); }
 
 fs::path make_sequence(const fs::path& where) {
   const CliRun r = cli("simulate --out " + where.string() +

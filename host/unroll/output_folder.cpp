@@ -11,6 +11,7 @@
 #include <cstring>
 #include <ctime>
 #include <fstream>
+#include <optional>
 #include <set>
 
 #include "vkunroll/base/error.hpp"
@@ -60,8 +61,11 @@ std::string host_name() {
 constexpr const char* kManifestName = ".vkunroll-manifest";
 constexpr const char* kManifestHeader = "# vkunroll output manifest 1: the files this output holds";
 
-std::set<std::string> read_manifest(const fs::path& dir) {
-  std::set<std::string> files;
+// The files a folder's manifest lists; none when it has no manifest (an output from before them).
+std::optional<std::set<std::string>> read_manifest(const fs::path& dir) {
+  std::error_code ec;
+  if (!fs::exists(dir / kManifestName, ec)) return std::nullopt;
+  std::set<std::string> files;  // an unreadable manifest lists nothing: everything is refused
   std::ifstream in(dir / kManifestName);
   std::string line;
   while (std::getline(in, line))
@@ -207,8 +211,8 @@ void OutputFolder::check_final() {
                      std::string(layout_.resumable ? ", or --resume to continue it (its valid GS frames are kept)" : ""));
   // Everything inside, at any depth, must be what vkunroll wrote there: listed in the folder's
   // manifest, or (an output from before manifests) one of the output's names, frames/ holding only PNGs.
-  const std::set<std::string> listed = read_manifest(final_);
-  const bool has_manifest = fs::exists(final_ / kManifestName, ec);
+  const std::optional<std::set<std::string>> listed = read_manifest(final_);
+  const bool has_manifest = listed.has_value();
   const auto& names = layout_.names;
   const auto& pngs = layout_.png_folders;
   for (auto it = fs::recursive_directory_iterator(final_, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
@@ -216,7 +220,7 @@ void OutputFolder::check_final() {
     const std::string r = rel.string();
     const bool dir = it->is_directory(ec) && !it->is_symlink(ec);
     bool ours;
-    if (has_manifest) ours = r == kManifestName || (dir ? listed_folder(listed, r) : listed.count(r) > 0);
+    if (has_manifest) ours = r == kManifestName || (dir ? listed_folder(*listed, r) : listed->count(r) > 0);
     else if (rel.has_parent_path())
       ours = !dir && rel.extension() == ".png" && std::find(pngs.begin(), pngs.end(), rel.parent_path().string()) != pngs.end();
     else ours = std::find(names.begin(), names.end(), r) != names.end();

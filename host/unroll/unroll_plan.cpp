@@ -80,12 +80,12 @@ double read_meta_gamma(const Sequence& seq) {
   }
   // The simulator records its output encoding under source.settings.gamma; a value that is there
   // must be a plausible number (a string "2.2" was read as gamma 1 before).
-  for (const char* key : {"/source/settings/gamma", "/source/gamma"}) {
-    const nlohmann::json::json_pointer at(key);
+  for (const auto& [pointer, name] : {std::pair{"/source/settings/gamma", "source.settings.gamma"}, std::pair{"/source/gamma", "source.gamma"}}) {
+    const nlohmann::json::json_pointer at(pointer);
     if (!j.contains(at)) continue;
     const nlohmann::json& g = j.at(at);
     if (!g.is_number() || !(g.get<double>() >= 0.1 && g.get<double>() <= 10))
-      throw DataError(meta.string() + ": " + (key[8] == 's' ? "source.settings.gamma" : "source.gamma") + " is " + g.dump() +
+      throw DataError(meta.string() + ": " + name + " is " + g.dump() +
                       ": expected a number in [0.1, 10] (the frames' encoding gamma; --gamma overrides it)");
     return g.get<double>();
   }
@@ -220,7 +220,8 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
     data.push_back(std::move(p));
   }
   double best_c = 0.2, best_err = 1e300;
-  for (double c = 0.05; c <= 0.6001; c += 0.025) {
+  int grid_points = 0, best_point = -1;  // which grid point won: the first or the last is an edge
+  for (double c = 0.05; c <= 0.6001; c += 0.025, ++grid_points) {
     PhysicsUnrollParams prm;
     prm.contrast = static_cast<float>(c);
     prm.gamma = static_cast<float>(gamma);
@@ -234,10 +235,10 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
       }
     }
     err /= std::max<size_t>(n, 1);
-    if (err < best_err) best_err = err, best_c = c;
+    if (err < best_err) best_err = err, best_c = c, best_point = grid_points;
   }
   ContrastEstimate r{best_c, "estimated (temporal consistency of consecutive frames)", ""};
-  if (best_c < 0.05 + 1e-9 || best_c > 0.6 - 0.025 + 1e-9) {
+  if (best_point == 0 || best_point == grid_points - 1) {
     char text[240];
     std::snprintf(text, sizeof text,
                   "the contrast estimate c = %.3f lies on the edge of its search grid (0.05 to 0.6): the true "
