@@ -44,6 +44,11 @@ struct DeviceUnavailableError : Error {
 struct IoError : Error {
   explicit IoError(const std::string& what) : Error(what, ErrorKind::io) {}
 };
+// Exact time arithmetic out of its range (Rational: overflow, a zero denominator, a non-finite
+// value); callers that know which option named the time turn it into a UsageError naming it.
+struct TimeRangeError : Error {
+  explicit TimeRangeError(const std::string& what) : Error(what, ErrorKind::data) {}
+};
 // Device lost or a submit that did not finish in time (VulkanError with VK_ERROR_DEVICE_LOST or
 // VK_TIMEOUT is classified the same way by the CLI).
 struct DeviceLostError : Error {

@@ -24,7 +24,7 @@ int bits(int128_t v) {
 }
 
 int128_t mul_checked(int128_t a, int128_t b) {
-  if (bits(a) + bits(b) > 125) throw Error("Rational: time arithmetic overflows 128 bits (denominators too large)");
+  if (bits(a) + bits(b) > 125) throw TimeRangeError("Rational: time arithmetic overflows 128 bits (denominators too large)");
   return a * b;
 }
 
@@ -43,7 +43,7 @@ std::string to_string128(int128_t v) {
 }  // namespace
 
 Rational::Rational(int128_t num, int128_t den) {
-  if (den == 0) throw Error("Rational: zero denominator");
+  if (den == 0) throw TimeRangeError("Rational: zero denominator");
   if (den < 0) {
     num = -num;
     den = -den;
@@ -51,11 +51,11 @@ Rational::Rational(int128_t num, int128_t den) {
   const int128_t g = gcd128(num, den);
   num_ = g ? num / g : 0;
   den_ = g ? den / g : 1;
-  if (abs128(num_) > kLimit || den_ > kLimit) throw Error("Rational: value out of the 120-bit range");
+  if (abs128(num_) > kLimit || den_ > kLimit) throw TimeRangeError("Rational: value out of the 120-bit range");
 }
 
 Rational Rational::from_double(double v) {
-  if (!std::isfinite(v)) throw Error("Rational: non-finite time value " + std::to_string(v));
+  if (!std::isfinite(v)) throw TimeRangeError("Rational: non-finite time value " + std::to_string(v));
   if (v == std::floor(v) && std::fabs(v) < 9e18) return Rational(static_cast<int64_t>(v));
   // Continued-fraction convergents: the first p/q that rounds back to v is the number meant.
   const double sign = v < 0 ? -1.0 : 1.0;
@@ -82,7 +82,7 @@ Rational Rational::from_double(double v) {
   const double m = std::frexp(x, &e);  // x = m * 2^e, m in [0.5, 1)
   const auto mant = static_cast<int128_t>(std::ldexp(m, 53));
   int shift = e - 53;
-  if (shift < -110 || shift > 60) throw Error("Rational: time value " + std::to_string(v) + " is out of range");
+  if (shift < -110 || shift > 60) throw TimeRangeError("Rational: time value " + std::to_string(v) + " is out of range");
   Rational out = shift >= 0 ? Rational(mant << shift, 1) : Rational(mant, static_cast<int128_t>(1) << (-shift));
   return sign < 0 ? -out : out;
 }
@@ -143,7 +143,7 @@ double Rational::to_double() const { return static_cast<double>(num_) / static_c
 int64_t Rational::floor() const {
   const int128_t f = floor_div(num_, den_);
   if (f > std::numeric_limits<int64_t>::max() || f < std::numeric_limits<int64_t>::min())
-    throw Error("Rational: " + str() + " out of int64 range");
+    throw TimeRangeError("Rational: " + str() + " out of int64 range");
   return static_cast<int64_t>(f);
 }
 int64_t Rational::ceil() const { return -(-*this).floor(); }
@@ -162,7 +162,7 @@ Rational operator*(const Rational& a, const Rational& b) {
   return Rational(mul_checked(a.num_ / g1, b.num_ / g2), mul_checked(a.den_ / g2, b.den_ / g1));
 }
 Rational operator/(const Rational& a, const Rational& b) {
-  if (b.num_ == 0) throw Error("Rational: division by zero");
+  if (b.num_ == 0) throw TimeRangeError("Rational: division by zero");
   return a * Rational(b.den_, b.num_);
 }
 int compare(const Rational& a, const Rational& b) {

@@ -107,8 +107,7 @@ int run_voxelize(const VoxelizeArgs& a) {
         pairs.push_back({tm, ts, texp});
         pair_meta.push_back({{"frame", f}, {"target", v.str()}, {"t_star_us", ts.str()}, {"t_star_us_float", ts.to_double()}});
       }
-  } catch (const Error& e) {
-    if (std::string(e.what()).rfind("Rational", 0) != 0) throw;
+  } catch (const TimeRangeError& e) {
     throw UsageError(std::string(tau ? "--times" : "--times-us") + ": a target is out of the range of exact time arithmetic (" +
                      e.what() + ")");
   }

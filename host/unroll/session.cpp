@@ -30,6 +30,22 @@ BufferSlice whole(Backend& b, int buf) {
 
 }  // namespace
 
+const char* frame_method_name(FrameTarget::Method m) {
+  switch (m) {
+    case FrameTarget::Method::s: return "s";
+    case FrameTarget::Method::m: return "m";
+    case FrameTarget::Method::physics: return "physics";
+  }
+  return "?";
+}
+
+FrameTarget::Method parse_frame_method(const std::string& s, const std::string& what) {
+  if (s == "s") return FrameTarget::Method::s;
+  if (s == "m") return FrameTarget::Method::m;
+  if (s == "physics") return FrameTarget::Method::physics;
+  throw UsageError(what + " '" + s + "': expected s, m or physics");
+}
+
 UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
   if (o.precision == Precision::fp16 && o.backend == BackendKind::cpu)
     throw Error("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
@@ -103,10 +119,23 @@ uint64_t UnrollSession::peak_device_bytes() const {
   return peak;
 }
 
-int UnrollSession::upload_image(const cv::Mat& bgr, bool rgb) {
-  const int buf = backend_->alloc({1, 3, bgr.rows, bgr.cols}, rgb ? "rs (rgb)" : "rs (bgr)");
-  backend_->upload(whole(*backend_, buf), image_planes(bgr, rgb));
-  return buf;
+UnrollSession::FramePlanes UnrollSession::upload_frame(const FrameInput& in, bool with_next) {
+  const auto t0 = Clock::now();
+  FramePlanes fp;
+  fp.rgb = model_ ? rgb_ : false;  // physics is per channel: any order serves it
+  const int H = in.rs1.rows, W = in.rs1.cols;
+  fp.rs1 = image_planes(in.rs1, fp.rgb);
+  fp.rs1_buf = backend_->alloc({1, 3, H, W}, "rs1");
+  backend_->upload(whole(*backend_, fp.rs1_buf), fp.rs1);
+  stats_.image_uploads++;
+  if (with_next) {
+    fp.rs2 = image_planes(in.rs2, fp.rgb);
+    fp.rs2_buf = backend_->alloc({1, 3, H, W}, "rs2");
+    backend_->upload(whole(*backend_, fp.rs2_buf), fp.rs2);
+    stats_.image_uploads++;
+  }
+  stats_.ms["transfer"] += ms_since(t0);
+  return fp;
 }
 
 void UnrollSession::add_tile_stats(const TileStats& run, size_t targets, int H, int W) {
@@ -130,20 +159,31 @@ std::vector<cv::Mat> UnrollSession::unroll(const FrameInput& in, const std::vect
   if (!groups[1].empty() && (in.rs2.empty() || in.rs2.size() != in.rs1.size()))
     throw Error("unroll session: SelfUnroll-M targets need the next RS frame");
   std::vector<cv::Mat> results(targets.size());
-  if (!groups[2].empty()) run_physics(in, targets, groups[2], results);
-  if (!groups[0].empty()) run_model(in, targets, groups[0], false, results);
-  if (!groups[1].empty()) run_model(in, targets, groups[1], true, results);
+  stats_.frames_unrolled++;
+  if (targets.empty()) return results;
+  FramePlanes fp = upload_frame(in, !groups[1].empty());
+  try {
+    if (!groups[2].empty()) run_physics(in, fp, targets, groups[2], results);
+    if (!groups[0].empty()) run_model(in, fp, targets, groups[0], false, results);
+    if (!groups[1].empty()) run_model(in, fp, targets, groups[1], true, results);
+  } catch (...) {
+    backend_->release(fp.rs1_buf);
+    if (fp.rs2_buf >= 0) backend_->release(fp.rs2_buf);
+    throw;
+  }
+  backend_->release(fp.rs1_buf);
+  if (fp.rs2_buf >= 0) backend_->release(fp.rs2_buf);
   return results;
 }
 
-void UnrollSession::run_physics(const FrameInput& in, const std::vector<FrameTarget>& targets,
+void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
                                 const std::vector<size_t>& which, std::vector<cv::Mat>& results) {
   Backend& b = *backend_;
   const int H = in.rs1.rows, W = in.rs1.cols;
   auto t0 = Clock::now();
-  const std::vector<float> rs = image_planes(in.rs1, /*rgb=*/false);
+  const std::vector<float>& rs = fp.rs1;
   const auto starts = in.timing1.start_times_us(), ends = in.timing1.end_times_us();
-  const int rs_buf = upload_image(in.rs1, false);
+  const int rs_buf = fp.rs1_buf;
   std::vector<std::pair<size_t, int>> on_device;  // (target, output buffer)
   for (size_t j : which) {
     const PixelEventLists lists = gather_pixel_events(*in.events, targets[j].t_us.to_double(), starts, ends, 0, 0, W, H);
@@ -151,7 +191,7 @@ void UnrollSession::run_physics(const FrameInput& in, const std::vector<FrameTar
     if (!PhysicsUnroll::fits(lists)) {
       // A pixel beyond the GPU kernel's loop limit: the CPU reference has none.
       const std::vector<float> gs = physics_unroll_ref(rs, 3, lists, physics_);
-      results[j] = planes_image(gs.data(), H, W, false);
+      results[j] = planes_image(gs.data(), H, W, fp.rgb);
       stats_.physics_on_cpu++;
       continue;
     }
@@ -165,15 +205,15 @@ void UnrollSession::run_physics(const FrameInput& in, const std::vector<FrameTar
   for (size_t q = 0; q < on_device.size(); ++q) b.download(whole(b, on_device[q].second), planes[q]);
   b.flush();
   for (size_t q = 0; q < on_device.size(); ++q) {
-    results[on_device[q].first] = planes_image(planes[q].data(), H, W, false);
+    results[on_device[q].first] = planes_image(planes[q].data(), H, W, fp.rgb);
     b.release(on_device[q].second);
   }
-  b.release(rs_buf);
   stats_.ms["transfer"] += ms_since(t0);
   stats_.runs_physics += which.size();
 }
 
-int UnrollSession::physics_input(const FrameInput& in, const std::vector<EventTensorPair>& pairs, int rs1, int rs2) {
+int UnrollSession::physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs) {
+  const int rs1 = fp.rs1_buf, rs2 = fp.rs2_buf;
   Backend& b = *backend_;
   const int H = in.rs1.rows, W = in.rs1.cols;
   const int64_t B = static_cast<int64_t>(pairs.size());
@@ -185,8 +225,7 @@ int UnrollSession::physics_input(const FrameInput& in, const std::vector<EventTe
                                                       t.end_times_us(), 0, 0, W, H);
     const BufferSlice dst{phys, i, 1, 0, 3};
     if (!PhysicsUnroll::fits(lists)) {  // beyond the GPU kernel's per-pixel event limit
-      const std::vector<float> planes = image_planes(second ? in.rs2 : in.rs1, rgb_);
-      b.upload(dst, physics_unroll_ref(planes, 3, lists, physics_));
+      b.upload(dst, physics_unroll_ref(second ? fp.rs2 : fp.rs1, 3, lists, physics_));
       stats_.physics_on_cpu++;
       continue;
     }
@@ -198,25 +237,24 @@ int UnrollSession::physics_input(const FrameInput& in, const std::vector<EventTe
   return phys;
 }
 
-void UnrollSession::run_model(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which,
-                              bool m, std::vector<cv::Mat>& results) {
+void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
+                              const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results) {
   Backend& b = *backend_;
   const int H = in.rs1.rows, W = in.rs1.cols;
   const int64_t per = m ? 2 : 1;
   // The event tensors of a build ([3B, 2N, H, W]) live in one binding: as many targets per build as fit.
   const uint64_t per_target = uint64_t(3 * per) * 2 * model_->config().N * H * W * 4;
   const size_t fit = static_cast<size_t>(b.max_buffer_bytes() / per_target);
-  if (fit == 0) return run_model_on_host(in, targets, which, m, results);
+  if (fit == 0) return run_model_on_host(in, fp, targets, which, m, results);
   if (which.size() > fit) {
     for (size_t i = 0; i < which.size(); i += fit)
-      run_model(in, targets, std::vector<size_t>(which.begin() + i, which.begin() + std::min(which.size(), i + fit)), m, results);
+      run_model(in, fp, targets, std::vector<size_t>(which.begin() + i, which.begin() + std::min(which.size(), i + fit)), m, results);
     return;
   }
   const int64_t B = static_cast<int64_t>(which.size()) * per;
   auto t0 = Clock::now();
-  // The RS frame(s) uploaded once, repeated on the device for every target of the batch.
-  const int rs1 = upload_image(in.rs1, rgb_);
-  const int rs2 = m ? upload_image(in.rs2, rgb_) : -1;
+  // The RS frame(s), uploaded once per frame, repeated on the device for every target of the batch.
+  const int rs1 = fp.rs1_buf, rs2 = fp.rs2_buf;
   int rs = rs1;
   if (B > 1) {
     rs = b.alloc({B, 3, H, W}, "rs batch");
@@ -235,7 +273,7 @@ void UnrollSession::run_model(const FrameInput& in, const std::vector<FrameTarge
   const int64_t C = 2 * spec.bins;
   ModelBuffers inputs{{rs, 0, B, 0, 3}, {ev, 0, B, 0, C}, {ev, B, B, 0, C}, {ev, 2 * B, B, 0, C}};
   const bool variant = model_->config().physics_input;
-  if (variant) inputs.phys = {physics_input(in, pairs, rs1, rs2), 0, B, 0, 3};
+  if (variant) inputs.phys = {physics_input(in, fp, pairs), 0, B, 0, 3};
   ActivityTables activity;
   if (tiling_.sparse != SparsePolicy::off) activity = activity_tables(selected_event_counts(*in.events, pairs, spec), H, W);
   stats_.ms["event_tensors"] += ms_since(t0);
@@ -255,20 +293,19 @@ void UnrollSession::run_model(const FrameInput& in, const std::vector<FrameTarge
   b.release(ev);
   if (variant) b.release(inputs.phys.buf);
   if (rs != rs1) b.release(rs);
-  b.release(rs1);
-  if (rs2 >= 0) b.release(rs2);
   stats_.ms["transfer"] += ms_since(t0);
   add_tile_stats(run, which.size(), H, W);
   (m ? stats_.runs_m : stats_.runs_s) += which.size();
 }
 
-void UnrollSession::run_model_on_host(const FrameInput& in, const std::vector<FrameTarget>& targets,
+void UnrollSession::run_model_on_host(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
                                       const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results) {
   const int H = in.rs1.rows, W = in.rs1.cols;
   const int64_t per = m ? 2 : 1;
   EventTensorSpec spec;
   spec.bins = model_->config().N;
-  const std::vector<float> p1 = image_planes(in.rs1, rgb_), p2 = m ? image_planes(in.rs2, rgb_) : std::vector<float>{};
+  const std::vector<float>& p1 = fp.rs1;
+  const std::vector<float>& p2 = fp.rs2;
   for (size_t j : which) {  // one target at a time: the host copies of its tensors are large already
     auto t0 = Clock::now();
     std::vector<EventTensorPair> pairs{{in.timing1, targets[j].t_us, std::nullopt}};

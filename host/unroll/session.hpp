@@ -37,6 +37,9 @@ struct FrameTarget {
   Method method = Method::s;
 };
 
+const char* frame_method_name(FrameTarget::Method m);  // "s", "m", "physics"
+FrameTarget::Method parse_frame_method(const std::string& s, const std::string& what);
+
 // One RS frame's inputs.
 struct FrameInput {
   cv::Mat rs1;          // BGR float32 in [0, 1], the sensor's size
@@ -49,6 +52,8 @@ struct FrameInput {
 // What the session did, summed over its frames.
 struct SessionStats {
   size_t runs_s = 0, runs_m = 0, runs_physics = 0;
+  size_t frames_unrolled = 0;  // unroll() calls
+  size_t image_uploads = 0;    // RS images uploaded: one per frame, two with M targets, whatever the targets
   size_t physics_on_cpu = 0;  // physics targets with a pixel beyond the GPU kernel's event limit
   // Targets whose full-frame event tensors exceed one storage-buffer binding: memory forced the host
   // path (tensors built, downloaded, and cut into tiles on the host).
@@ -101,17 +106,24 @@ class UnrollSession {
   const SessionStats& stats() const { return stats_; }
 
  private:
-  void run_physics(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which,
-                   std::vector<cv::Mat>& results);
-  void run_model(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which, bool m,
-                 std::vector<cv::Mat>& results);
-  void run_model_on_host(const FrameInput& in, const std::vector<FrameTarget>& targets, const std::vector<size_t>& which,
-                         bool m, std::vector<cv::Mat>& results);
+  // A frame's RS image(s) as planes in the device's channel order (the model's; BGR without a
+  // model), converted once and uploaded once for every target group of the frame.
+  struct FramePlanes {
+    std::vector<float> rs1, rs2;  // host planes [3, H, W]; rs2 empty without M targets
+    int rs1_buf = -1, rs2_buf = -1;
+    bool rgb = false;
+  };
+  FramePlanes upload_frame(const FrameInput& in, bool with_next);
+  void run_physics(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
+                   const std::vector<size_t>& which, std::vector<cv::Mat>& results);
+  void run_model(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
+                 const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results);
+  void run_model_on_host(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
+                         const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results);
   void add_tile_stats(const TileStats& run, size_t targets, int H, int W);
-  int upload_image(const cv::Mat& bgr, bool rgb);  // a [1, 3, H, W] buffer
   // The physics-informed variant's input: [B, 3, H, W] physics estimates of the batch's (frame,
-  // target) pairs, computed on the device from the uploaded frames rs1 / rs2 (model order).
-  int physics_input(const FrameInput& in, const std::vector<EventTensorPair>& pairs, int rs1, int rs2);
+  // target) pairs, computed on the device from the uploaded frames (model order).
+  int physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs);
 
   SessionOptions options_;
   std::unique_ptr<Context> ctx_;

@@ -71,7 +71,8 @@ const char* backend_kind_name(BackendKind b) { return b == BackendKind::cpu ? "c
 ChannelOrder parse_channel_order(const std::string& s, const std::string& what) {
   if (s == "rgb") return ChannelOrder::rgb;
   if (s == "bgr") return ChannelOrder::bgr;
-  throw UsageError(what + " '" + s + "' (expected rgb or bgr)");
+  if (s == "model") return ChannelOrder::model;
+  throw UsageError(what + " '" + s + "' (expected rgb, bgr or model: the weights' metadata)");
 }
 
 TargetTimes parse_target_times(const std::string& times, const std::string& times_us) {

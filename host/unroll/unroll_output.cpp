@@ -190,16 +190,7 @@ GsFrameRecord UnrollOutput::add(int frame, double t_us, const std::string& t_exa
   }
   const std::string bytes = encode_frame(image, options_.frame_format);
   folder_.write(r.file, bytes);
-  if (!gt.empty()) {
-    const cv::Mat unit = to_unit_float(image);
-    r.gt_file = gt_file;
-    r.psnr = psnr(unit, gt);
-    r.ssim = ssim(unit, gt);
-    if (!rs_input.empty()) {
-      r.rs_psnr = psnr(rs_input, gt);
-      r.rs_ssim = ssim(rs_input, gt);
-    }
-  }
+  score_against_ground_truth(r, image, rs_input, gt, gt_file);
   file_record(r, sha256_hex(bytes), bytes.size(), image, rs_input, gt);
   return r;
 }
@@ -309,17 +300,12 @@ nlohmann::json UnrollOutput::finish(const nlohmann::json& extra) {
     keep.push_back("contact_sheet.png");
   }
   nlohmann::json frames = nlohmann::json::array();
-  double sp = 0, ss = 0, rp = 0, rs = 0;
-  int n = 0, n_rs = 0;
   std::string csv = "frame,t_us,tau,file,gt_file,psnr,ssim,rs_psnr,rs_ssim\n";
   auto opt = [](const std::optional<double>& v) { return v ? csv_number(json_psnr(*v)) : std::string(); };
   for (const auto& r : records_) {
     csv += std::to_string(r.frame) + "," + csv_number(r.t_us) + "," + csv_number(r.tau) + "," + csv_field(r.file) + "," +
            csv_field(r.gt_file) + "," + opt(r.psnr) + "," + opt(r.ssim) + "," + opt(r.rs_psnr) + "," + opt(r.rs_ssim) + "\n";
     frames.push_back(record_json(r));
-    if (!r.psnr) continue;
-    sp += json_psnr(*r.psnr), ss += *r.ssim, n++;
-    if (r.rs_psnr) rp += json_psnr(*r.rs_psnr), rs += *r.rs_ssim, n_rs++;
   }
   folder_.write("metrics.csv", csv);
   outputs["metrics"] = "metrics.csv";
@@ -335,15 +321,40 @@ nlohmann::json UnrollOutput::finish(const nlohmann::json& extra) {
   nlohmann::json summary = extra;
   summary["gs_frames"] = frames;
   summary["outputs"] = outputs;
-  if (n)
-    summary["metrics"] = {{"count", n}, {"mean_psnr", sp / n}, {"mean_ssim", ss / n},
-                          {"rs_mean_psnr", n_rs ? rp / n_rs : 0.0}, {"rs_mean_ssim", n_rs ? rs / n_rs : 0.0}};
+  const nlohmann::json means = metric_means(records_);
+  if (means["count"].get<int>() > 0) summary["metrics"] = means;
   if (options_.existing == ExistingOutput::resume) summary["resume"] = {{"reused", reused_}, {"computed", records_.size() - reused_}};
   summary["output_dir"] = folder_.final_dir().string();
   folder_.write("summary.json", summary.dump(2) + "\n");  // last: everything it lists exists
   folder_.commit();
   finished_ = true;
   return summary;
+}
+
+void score_against_ground_truth(GsFrameRecord& r, const cv::Mat& image, const cv::Mat& rs_input, const cv::Mat& gt,
+                                const std::string& gt_file) {
+  if (gt.empty()) return;
+  const cv::Mat unit = to_unit_float(image);
+  r.gt_file = gt_file;
+  r.psnr = psnr(unit, gt);
+  r.ssim = ssim(unit, gt);
+  if (!rs_input.empty()) {
+    r.rs_psnr = psnr(rs_input, gt);
+    r.rs_ssim = ssim(rs_input, gt);
+  }
+}
+
+nlohmann::json metric_means(const std::vector<GsFrameRecord>& records) {
+  double sp = 0, ss = 0, rp = 0, rs = 0;
+  int n = 0, n_rs = 0;
+  for (const auto& r : records) {
+    if (!r.psnr) continue;
+    sp += json_psnr(*r.psnr), ss += *r.ssim, n++;
+    if (r.rs_psnr) rp += json_psnr(*r.rs_psnr), rs += *r.rs_ssim, n_rs++;
+  }
+  if (!n) return {{"count", 0}};
+  return {{"count", n}, {"mean_psnr", sp / n}, {"mean_ssim", ss / n},
+          {"rs_mean_psnr", n_rs ? rp / n_rs : 0.0}, {"rs_mean_ssim", n_rs ? rs / n_rs : 0.0}};
 }
 
 }  // namespace vkunroll

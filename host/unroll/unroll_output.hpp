@@ -111,6 +111,14 @@ class UnrollOutput {
   bool finished_ = false;
 };
 
+// The record's PSNR/SSIM against `gt` (the image clamped to [0, 1]), and the RS input's; nothing
+// without ground truth. The CLI's folder and Python's arrays score alike.
+void score_against_ground_truth(GsFrameRecord& r, const cv::Mat& image, const cv::Mat& rs_input, const cv::Mat& gt,
+                                const std::string& gt_file);
+// The means over the records with ground truth, PSNR capped at 100 dB as in summary.json:
+// {"count": n, "mean_psnr", "mean_ssim", "rs_mean_psnr", "rs_mean_ssim"} ({"count": 0} without any).
+nlohmann::json metric_means(const std::vector<GsFrameRecord>& records);
+
 // "f000012_t+0001234.5us.png": frame and time in the name, sortable.
 std::string gs_frame_name(int frame, double t_us, const char* extension = ".png");
 

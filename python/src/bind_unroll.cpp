@@ -1,6 +1,7 @@
-// The unroll job for Python: UnrollSession frame by frame, with run_unroll's planning
-// (host/unroll/unroll_plan.hpp). The Python layer (vkunroll/_unroll.py) drives the frames.
+// UnrollSession for Python (vkunroll._Session: one frame at a time) and the library's unroll job
+// (host/unroll/unroll_job.hpp) over a sequence or arrays, into an array sink (bind_unroll_job.cpp).
 #include "common.hpp"
+#include "py_session.hpp"
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/session.hpp"
@@ -11,102 +12,14 @@ namespace vkunroll::python {
 
 namespace {
 
-struct PySession {
-  std::unique_ptr<UnrollSession> session;
-  std::mutex mutex;  // one frame at a time (the session's buffers and device queue)
-  // Frames go into the model as v^to_model, its results come back as v^(1/to_model) (plan_physics).
-  double to_model = 1.0;
-};
-
-const char* method_name(FrameTarget::Method m) {
-  switch (m) {
-    case FrameTarget::Method::s: return "s";
-    case FrameTarget::Method::m: return "m";
-    case FrameTarget::Method::physics: return "physics";
-  }
-  return "?";
-}
-
-FrameTarget::Method parse_method(const std::string& s) {
-  if (s == "s") return FrameTarget::Method::s;
-  if (s == "m") return FrameTarget::Method::m;
-  if (s == "physics") return FrameTarget::Method::physics;
-  throw Error("unroll: target method '" + s + "' (expected s, m or physics)");
-}
-
-// A Sequence that holds only timing (and ground-truth instants): what the planner reads.
-Sequence timing_sequence(const std::vector<RowTiming>& timings, const std::vector<Rational>& gt_times) {
-  Sequence seq;
-  for (const RowTiming& t : timings) seq.frames.push_back({"", t});
-  for (const Rational& t : gt_times) seq.ground_truth.push_back({"", t});
-  if (!timings.empty()) seq.height = timings.front().rows;
-  return seq;
-}
-
-// The checks run_unroll makes before any work (validate_unroll_options), on the Python arguments.
-void validate(const std::string& mode, bool has_model, int64_t tile, int64_t halo, const std::string& sparse,
-              double threshold, const py::object& contrast, const py::object& gamma, TargetTimes::Kind kind,
-              size_t n_values) {
-  UnrollOptions o;
-  o.sequence = o.out_dir = "(python)";
-  o.mode = parse_unroll_mode(mode, "mode");
-  if (has_model) o.session.model_path = "(model)";
-  o.tile = tile;
-  o.halo = halo;
-  o.sparse = parse_sparse_policy(sparse, "sparse");
-  o.sparse_threshold = threshold;
-  if (!contrast.is_none()) o.contrast = contrast.cast<double>();
-  if (!gamma.is_none()) o.gamma = gamma.cast<double>();
-  o.times.kind = kind;
-  o.times.values.assign(n_values, Rational(0));
-  validate_unroll_options(o);
-}
-
-py::list plan(const std::vector<RowTiming>& timings, const std::vector<Rational>& gt_times, const std::vector<int>& requested,
-              const TargetTimes& times, UnrollMode mode, bool moa, std::map<std::string, int>& notes) {
-  const Sequence seq = timing_sequence(timings, gt_times);
-  if (seq.frames.empty()) throw Error("unroll: the sequence has no frames");
-  const std::vector<int> frames = chosen_frames(seq, requested);
-  const auto targets = plan_targets(seq, frames, times, "unroll");
-  py::list out;
-  for (int k : frames) {
-    auto it = targets.find(k);
-    if (it == targets.end()) continue;
-    const SequenceFrame& f1 = seq.frames[k];
-    const bool has_next = k + 1 < static_cast<int>(seq.frames.size());
-    std::vector<FrameTarget> methods;
-    for (const UnrollTarget& t : it->second) {
-      const double tv = t.t_us.to_double();
-      const bool inside = tv >= f1.timing.first_start().to_double() && tv <= f1.timing.last_end().to_double();
-      methods.push_back({t.t_us, target_method(mode, moa, has_next, inside, k, notes)});
-    }
-    const bool any_m = std::any_of(methods.begin(), methods.end(), [](const FrameTarget& t) { return t.method == FrameTarget::Method::m; });
-    const auto [lo, hi] = frame_window(f1, any_m ? &seq.frames[k + 1] : nullptr, it->second, methods);
-    py::list ts;
-    for (size_t j = 0; j < methods.size(); ++j) {
-      py::dict d;
-      d["t_us"] = to_fraction(it->second[j].t_us);
-      d["tau"] = it->second[j].tau;
-      d["gt"] = it->second[j].gt;
-      d["method"] = method_name(methods[j].method);
-      ts.append(d);
-    }
-    py::dict f;
-    f["frame"] = k;
-    f["next"] = any_m ? k + 1 : -1;
-    f["targets"] = ts;
-    f["window_us"] = py::make_tuple(lo, hi);
-    out.append(f);
-  }
-  return out;
-}
-
 py::dict stats_dict(const UnrollSession& s) {
   const SessionStats& st = s.stats();
   py::dict d;
   d["runs_s"] = st.runs_s;
   d["runs_m"] = st.runs_m;
   d["runs_physics"] = st.runs_physics;
+  d["frames_unrolled"] = st.frames_unrolled;
+  d["image_uploads"] = st.image_uploads;
   d["physics_on_cpu"] = st.physics_on_cpu;
   d["host_path_targets"] = st.host_path_targets;
   d["tiles"] = st.tiles;
@@ -139,7 +52,7 @@ std::vector<cv::Mat> unroll_frame(PySession& ps, const F32Array& rs1, const RowT
     }
     for (size_t j = 0; j < targets.size(); ++j) {
       const py::tuple t = targets[j].cast<py::tuple>();
-      ts.push_back({to_rational(t[0], "target t_us"), parse_method(t[1].cast<std::string>())});
+      ts.push_back({to_rational(t[0], "target t_us"), parse_frame_method(t[1].cast<std::string>(), "target method")});
     }
   });
   in.events = &events;
@@ -170,6 +83,7 @@ void bind_session(py::module_& m) {
                return so;
              });
              auto ps = std::make_shared<PySession>();
+             ps->model_path = model_path;
              CallInfo call{{model_path}, o.backend == BackendKind::vulkan};
              ps->session = without_gil(call, [&] { return std::make_unique<UnrollSession>(o); });
              return ps;
@@ -184,42 +98,6 @@ void bind_session(py::module_& m) {
                              [](const PySession& s) { return s.session->has_model() ? s.session->model_config().summary() : std::string(); })
       .def_property("model_rgb", [](const PySession& s) { return s.session->model_rgb(); },
                     [](PySession& s, bool rgb) { s.session->set_model_rgb(rgb); })
-      .def("set_tiling",
-           [](PySession& s, int64_t tile, int64_t halo, const std::string& sparse, double threshold) {
-             TileOptions t;
-             t.sparse = guarded({}, [&] { return parse_sparse_policy(sparse, "sparse"); });
-             const bool on = t.sparse != SparsePolicy::off;
-             t.tile = tile > 0 ? tile : (on ? kTileAlign : 0);
-             t.halo = halo >= 0 ? halo : (on ? kTileAlign : 2 * kTileAlign);
-             t.threshold = threshold;
-             s.session->set_tiling(t);
-           })
-      .def(
-          "plan_physics",
-          [](PySession& ps, const std::string& mode, double seq_gamma, const py::object& contrast, const py::function& estimate) {
-            const PhysicsPlan p = guarded({}, [&] {
-              std::optional<double> c;
-              if (!contrast.is_none()) c = contrast.cast<double>();
-              return plan_physics(parse_unroll_mode(mode, "mode"), *ps.session, seq_gamma, c,
-                                  [&](double gamma) {
-                                    const auto t = estimate(gamma).cast<std::tuple<double, std::string, std::string>>();
-                                    return ContrastEstimate{std::get<0>(t), std::get<1>(t), std::get<2>(t)};
-                                  });
-            });
-            ps.session->set_physics(p.params);
-            ps.to_model = p.to_model;
-            py::dict d;
-            d["uses_physics"] = p.uses_physics;
-            d["variant"] = p.variant;
-            d["contrast"] = p.params.contrast;
-            d["gamma"] = p.params.gamma;
-            d["contrast_source"] = p.contrast_source;
-            d["contrast_warning"] = p.contrast_warning;
-            d["seq_gamma"] = p.seq_gamma;
-            d["to_model"] = p.to_model;
-            return d;
-          },
-          py::arg("mode"), py::arg("seq_gamma"), py::arg("contrast"), py::arg("estimate"))
       .def("stats", [](const PySession& s) { return stats_dict(*s.session); })
       .def(
           "unroll_frame",
@@ -257,79 +135,7 @@ void bind_unroll(py::module_& m) {
     });
   }, py::arg("mode"), py::arg("given"));
 
-  m.def(
-      "_plan",
-      [](const std::vector<RowTiming>& timings, const py::sequence& gt_times, const std::vector<int>& frames,
-         const std::string& kind, const py::sequence& values, const std::string& mode, bool has_model, bool moa,
-         int64_t tile, int64_t halo, const std::string& sparse, double threshold, const py::object& contrast,
-         const py::object& gamma) {
-        return guarded({}, [&] {
-          TargetTimes times;
-          if (kind == "tau") times.kind = TargetTimes::Kind::normalized;
-          else if (kind == "us") times.kind = TargetTimes::Kind::absolute_us;
-          else if (kind == "gt") times.kind = TargetTimes::Kind::ground_truth;
-          else throw Error("unroll: times kind '" + kind + "'");
-          times.values = to_rationals(values, kind == "us" ? "times_us" : "times");
-          validate(mode, has_model, tile, halo, sparse, threshold, contrast, gamma, times.kind, times.values.size());
-          for (int k : frames)
-            if (k < 0) throw Error("frames: frame index " + std::to_string(k) + " is negative");
-          UnrollMode um = parse_unroll_mode(mode, "mode");
-          if (um == UnrollMode::automatic && !has_model) um = UnrollMode::physics;
-          if (um == UnrollMode::m && !moa)
-            throw Error("mode m: the model has no MOA weights (attfusion_net), so it runs SelfUnroll-S only; use mode='s'");
-          std::map<std::string, int> notes;
-          py::list frames_plan = plan(timings, to_rationals(gt_times, "ground truth"), frames, times, um, moa, notes);
-          py::list note_list;
-          for (const auto& [n, c] : notes) note_list.append(n + (c > 1 ? " (x" + std::to_string(c) + ")" : ""));
-          return py::make_tuple(frames_plan, std::string(unroll_mode_name(um)), note_list);
-        });
-      },
-      py::arg("timings"), py::arg("gt_times"), py::arg("frames"), py::arg("kind"), py::arg("values"), py::arg("mode"),
-      py::arg("has_model"), py::arg("moa"), py::arg("tile"), py::arg("halo"), py::arg("sparse"), py::arg("threshold"),
-      py::arg("contrast"), py::arg("gamma"));
-
-  m.def("_estimate_contrast_sequence", [](const Sequence& seq, const std::vector<int>& frames, double gamma) {
-    return without_gil({}, [&] {
-      std::vector<int> fs = frames;
-      if (fs.empty())
-        for (int k = 0; k < static_cast<int>(seq.frames.size()); ++k) fs.push_back(k);
-      const ContrastEstimate e = estimate_contrast(seq, fs, gamma);
-      return std::make_tuple(e.contrast, e.source, e.warning);
-    });
-  });
-
-  m.def("_estimate_contrast_arrays",
-        [](const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, const std::vector<F32Array>& images,
-           const I64Array& t, const U16Array& x, const U16Array& y, const I8Array& p) {
-          std::vector<cv::Mat> bgr;
-          EventStream ev;
-          guarded({}, [&] {
-            for (size_t k = 0; k < images.size(); ++k) bgr.push_back(rgb_to_bgr_mat(images[k], "frame " + std::to_string(k)));
-            if (bgr.empty()) throw Error("unroll: no frames");
-            ev = to_event_stream(t, x, y, p, bgr[0].cols, bgr[0].rows);
-          });
-          return without_gil({}, [&] {
-            auto window = [&](double lo, double hi) {
-              EventStream w;
-              w.width = ev.width;
-              w.height = ev.height;
-              const auto b = std::lower_bound(ev.t.begin(), ev.t.end(), static_cast<int64_t>(std::floor(lo)));
-              const auto e = std::upper_bound(ev.t.begin(), ev.t.end(), static_cast<int64_t>(std::ceil(hi)));
-              const size_t i0 = b - ev.t.begin(), i1 = e - ev.t.begin();
-              w.t.assign(ev.t.begin() + i0, ev.t.begin() + i1);
-              w.x.assign(ev.x.begin() + i0, ev.x.begin() + i1);
-              w.y.assign(ev.y.begin() + i0, ev.y.begin() + i1);
-              w.p.assign(ev.p.begin() + i0, ev.p.begin() + i1);
-              return w;
-            };
-            std::vector<int> fs = frames;
-            if (fs.empty())
-              for (int k = 0; k < static_cast<int>(timings.size()); ++k) fs.push_back(k);
-            const ContrastEstimate e =
-                estimate_contrast(timings, fs, gamma, bgr[0].cols, bgr[0].rows, [&](int k) { return bgr.at(k); }, window);
-            return std::make_tuple(e.contrast, e.source, e.warning);
-          });
-        });
+  bind_unroll_job(m);
 }
 
 }  // namespace vkunroll::python

@@ -1,8 +1,7 @@
 """The unroll job: GS frames at chosen instants, frame by frame through one UnrollSession."""
+import json
 import logging
-import math
 import os
-import time
 from typing import NamedTuple
 
 import numpy as np
@@ -78,107 +77,34 @@ def _rgb(image, what):
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
-class _SequenceSource:
-    def __init__(self, seq):
-        self.seq = seq
-        self.timings = seq.timings
-        self.gt_times = [t for t, _ in seq.ground_truth]
-
-    def image(self, k):
-        return self.seq.frame(k)
-
-    def gt_image(self, j):
-        return self.seq.ground_truth_image(j)
-
-    def events(self, lo, hi):
-        (t, x, y, p, _, _), _info = self.seq._seq.read_events(lo, hi)
-        return t, x, y, p
-
-    def gamma(self):
-        return self.seq.meta_gamma()
-
-    def estimate_contrast(self, frames, gamma):
-        return _vk._estimate_contrast_sequence(self.seq._seq, frames, gamma)
-
-
-class _ArraySource:
-    def __init__(self, frames, timing, events, ground_truth=None):
-        self.frames = [_rgb(f, f"frame {k}") for k, f in enumerate(frames)]
-        self.timings = [timing] if isinstance(timing, _vk.RowTiming) else list(timing)
-        if len(self.timings) != len(self.frames):
-            raise ValueError(f"unroll: {len(self.frames)} frames but {len(self.timings)} timings (one per frame)")
-        self.t, self.x, self.y, self.p = event_fields(events)
-        if self.t.size > 1 and (np.diff(self.t) < 0).any():
-            raise ValueError("unroll: events must be sorted by t (np.sort(events, order='t'))")
-        gt = list(ground_truth or [])
-        self.gt_times = [t for t, _ in gt]
-        self.gt_images = [_rgb(im, f"ground truth {j}") for j, (_, im) in enumerate(gt)]
-
-    def image(self, k):
-        return self.frames[k]
-
-    def gt_image(self, j):
-        return self.gt_images[j]
-
-    def events(self, lo, hi):
-        i0, i1 = np.searchsorted(self.t, lo, "left"), np.searchsorted(self.t, hi, "left")
-        return self.t[i0:i1], self.x[i0:i1], self.y[i0:i1], self.p[i0:i1]
-
-    def gamma(self):
-        return 1.0
-
-    def estimate_contrast(self, frames, gamma):
-        return _vk._estimate_contrast_arrays(self.timings, frames, gamma, self.frames, self.t, self.x, self.y, self.p)
-
-
-def _source(source):
-    if isinstance(source, Sequence):
-        return _SequenceSource(source)
-    if isinstance(source, (str, os.PathLike)):
-        return _SequenceSource(Sequence.open(source))
-    if isinstance(source, dict):
-        missing = [k for k in ("frames", "timing", "events") if k not in source]
-        if missing:
-            raise ValueError(f"unroll: the source dict lacks {', '.join(missing)} (expected frames, timing, events"
-                             "[, ground_truth])")
-        return _ArraySource(source["frames"], source["timing"], source["events"], source.get("ground_truth"))
-    if isinstance(source, (tuple, list)) and len(source) in (3, 4):
-        return _ArraySource(*source)
-    raise TypeError("unroll: source must be a Sequence, a sequence folder, a dict {frames, timing, events"
-                    f"[, ground_truth]}} or a tuple (frames, timing, events[, ground_truth]), got {type(source).__name__}")
-
-
 class _Progress:
     """progress=None: nothing; True: tqdm when installed, else log lines; a callable:
-    progress(done, total, info) after every frame."""
+    progress(done, total, info) after every frame. `update` is what the job calls."""
 
-    def __init__(self, progress, total):
-        self.total, self.done, self.bar, self.callback = total, 0, None, None
-        self.logged = -1
-        if callable(progress):
-            self.callback = progress
-        elif progress:
+    def __init__(self, progress):
+        self.progress, self.bar, self.logged = progress, None, -1
+
+    def update(self, done, total, info):
+        if callable(self.progress):
+            self.progress(done, total, info)
+        elif self.progress:
+            self._show(done, total, info)
+
+    def _show(self, done, total, info):
+        if self.bar is None:
             try:
                 from tqdm import tqdm
                 self.bar = tqdm(total=total, desc="unroll", unit="GS frame")
             except ImportError:
-                self.callback = self._log
-
-    def _log(self, done, total, info):
-        percent = 100 * done // max(total, 1)
-        if percent // 10 != self.logged:
-            self.logged = percent // 10
+                self.bar = False
+        if self.bar:
+            self.bar.update(done - self.bar.n)
+        elif 100 * done // max(total, 1) // 10 != self.logged:
+            self.logged = 100 * done // max(total, 1) // 10
             _log.info("unroll: %d/%d GS frames (frame %d)", done, total, info["frame"])
 
-    def update(self, n, info):
-        self.done += n
-        if self.bar is not None:
-            self.bar.update(n)
-        if self.callback is not None:
-            self.callback(self.done, self.total, info)
-
     def close(self):
-        if self.bar is not None:
+        if self.bar:
             self.bar.close()
 
 
@@ -189,15 +115,6 @@ def _times(times, times_us):
     if isinstance(times, str) and times == "gt":
         return "gt", []
     return "tau", list(times) if isinstance(times, (list, tuple, np.ndarray)) else [times]
-
-
-def _metric_means(psnr, ssim, rs_psnr, rs_ssim):
-    have = ~np.isnan(psnr)
-    if not have.any():
-        return {"count": 0}
-    capped = lambda a: np.where(np.isinf(a), 100.0, a)[have]  # noqa: E731  (as summary.json: inf -> 100)
-    return {"count": int(have.sum()), "mean_psnr": float(capped(psnr).mean()), "mean_ssim": float(ssim[have].mean()),
-            "rs_mean_psnr": float(capped(rs_psnr).mean()), "rs_mean_ssim": float(rs_ssim[have].mean())}
 
 
 def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=None, backend="vulkan", device=None,
@@ -249,78 +166,50 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     Raises ValueError (bad option or input, named as the CLI names it), FileNotFoundError,
     RuntimeError (device failures). The GIL is released while frames are unrolled.
     """
-    start = time.perf_counter()
-    src = _source(source)
     if session is None and model is None:  # the shipped default, else physics (said), as the CLI
         model = _vk._choose_model(mode, "")[0] or None
     sess = session if session is not None else UnrollSession(model, backend, device, precision)
     kind, values = _times(times, times_us)
-    plan, mode_used, notes = _vk._plan(src.timings, src.gt_times, list(frames or []), kind, values, mode,
-                                       sess.has_model, sess.moa, int(tile), int(halo), sparse, float(sparse_threshold),
-                                       contrast, gamma)
-    if channel_order not in ("model", "rgb", "bgr"):
-        raise ValueError(f"channel_order {channel_order!r}: expected model, rgb or bgr")
-    if channel_order != "model":
-        sess._s.model_rgb = channel_order == "rgb"
-    stats = {"mode": mode_used, "notes": list(notes)}
-    seq_gamma = float(gamma) if gamma is not None else src.gamma()
-    chosen = list(frames) if frames else list(range(len(src.timings)))
-    # As `vkunroll unroll`: the physics parameters (of mode physics or of the physics-informed
-    # variant's input) and the exponent into the model's gamma encoding (plan_physics in C++).
-    phys = sess._s.plan_physics(mode_used, seq_gamma, None if contrast is None else float(contrast),
-                                lambda g: src.estimate_contrast(chosen, g))
-    stats["encoding"] = {"sequence_gamma": seq_gamma, "to_model": phys["to_model"]}
-    if phys["uses_physics"]:
-        stats.update(contrast=phys["contrast"], contrast_source=phys["contrast_source"], gamma=phys["gamma"])
-        if phys["contrast_warning"]:
-            stats["notes"].append(phys["contrast_warning"])
-            _log.warning("unroll: warning: %s", phys["contrast_warning"])
-        _log.info("unroll: %s, contrast c = %g (%s), gamma %g",
-                  "physics input of the model" if phys["variant"] else "physics unroller", phys["contrast"],
-                  phys["contrast_source"], phys["gamma"])
-    sess._s.set_tiling(int(tile), int(halo), sparse, float(sparse_threshold))
-    images, targets, metrics = _run_frames(sess, src, plan, progress)
-    total = max(len(images), 1)
-    stats["ms_per_gs_frame_total"] = (time.perf_counter() - start) * 1e3 / total
+    args = dict(mode=mode, kind=kind, values=values, frames=list(frames or []), channel_order=channel_order,
+                contrast=contrast, gamma=gamma, tile=int(tile), halo=int(halo), sparse=sparse,
+                sparse_threshold=float(sparse_threshold))
+    bar = _Progress(progress)
+    try:
+        images, targets, metrics, report = _run(sess, source, args, bar.update)
+    finally:
+        bar.close()
+    stats = json.loads(report)
+    if "physics" in stats:  # the physics parameters (of mode physics or of the variant's input), at the top
+        stats.update({k: stats["physics"][k] for k in ("contrast", "contrast_source", "gamma")})
     stats["session"] = sess.stats()
     for n in stats["notes"]:
         _log.info("unroll: %s", n)
+    for w in stats["warnings"]:
+        _log.warning("unroll: warning: %s", w)
     h, w = (images[0].shape[:2]) if images else (0, 0)
     frames_out = np.stack(images) if images else np.zeros((0, h, w, 3), np.float32)
     return UnrollResult(frames_out, metrics, targets, stats)
 
 
-def _run_frames(sess, src, plan, progress):
-    total = sum(len(f["targets"]) for f in plan)
-    bar = _Progress(progress, total)
-    images, targets = [], []
-    psnr, ssim, rs_psnr, rs_ssim = ([] for _ in range(4))
-    try:
-        for fp in plan:
-            k, nxt = fp["frame"], fp["next"]
-            rs1 = src.image(k)
-            rs2 = src.image(nxt) if nxt >= 0 else None
-            lo, hi = fp["window_us"]
-            t, x, y, p = src.events(int(math.floor(lo)), int(math.ceil(hi)) + 1)
-            pairs = [(tg["t_us"], tg["method"]) for tg in fp["targets"]]
-            out = sess._s.unroll_frame(rs1, src.timings[k], rs2, src.timings[nxt] if nxt >= 0 else None,
-                                       t, x, y, p, pairs)
-            for tg, img in zip(fp["targets"], out):
-                img = np.clip(img, 0.0, 1.0)
-                images.append(img)
-                targets.append({"frame": k, "t_us": tg["t_us"], "tau": tg["tau"], "method": tg["method"], "gt": tg["gt"]})
-                if tg["gt"] >= 0:
-                    gt = src.gt_image(tg["gt"])
-                    psnr.append(_vk.psnr(img, gt))
-                    ssim.append(_vk.ssim(img, gt))
-                    rs_psnr.append(_vk.psnr(rs1, gt))
-                    rs_ssim.append(_vk.ssim(rs1, gt))
-                else:
-                    for m in (psnr, ssim, rs_psnr, rs_ssim):
-                        m.append(math.nan)
-            bar.update(len(pairs), {"frame": k})
-    finally:
-        bar.close()
-    metrics = {"psnr": np.array(psnr), "ssim": np.array(ssim), "rs_psnr": np.array(rs_psnr), "rs_ssim": np.array(rs_ssim)}
-    metrics.update(_metric_means(*(metrics[k] for k in ("psnr", "ssim", "rs_psnr", "rs_ssim"))))
-    return images, targets, metrics
+def _run(sess, source, args, progress):
+    """The library's unroll job over a sequence (folder) or arrays."""
+    if isinstance(source, (str, os.PathLike)):
+        source = Sequence.open(source)
+    if isinstance(source, Sequence):
+        return _vk._unroll_sequence(sess._s, source._seq, args, progress)
+    if isinstance(source, dict):
+        missing = [k for k in ("frames", "timing", "events") if k not in source]
+        if missing:
+            raise ValueError(f"unroll: the source dict lacks {', '.join(missing)} (expected frames, timing, events"
+                             "[, ground_truth])")
+        source = (source["frames"], source["timing"], source["events"], source.get("ground_truth"))
+    if not isinstance(source, (tuple, list)) or len(source) not in (3, 4):
+        raise TypeError("unroll: source must be a Sequence, a sequence folder, a dict {frames, timing, events"
+                        f"[, ground_truth]}} or a tuple (frames, timing, events[, ground_truth]), got {type(source).__name__}")
+    frames, timing, events = source[:3]
+    gt = list(source[3] or []) if len(source) == 4 else []
+    timings = [timing] if isinstance(timing, _vk.RowTiming) else list(timing)
+    t, x, y, p = event_fields(events)
+    return _vk._unroll_arrays(sess._s, [_rgb(f, f"frame {k}") for k, f in enumerate(frames)], timings, t, x, y, p,
+                              [tt for tt, _ in gt], [_rgb(im, f"ground truth {j}") for j, (_, im) in enumerate(gt)],
+                              args, progress)

@@ -158,7 +158,7 @@ def test_contrast_without_a_successor_is_said_as_in_the_cli(seq, tmp_path):
     result = vkunroll.unroll(seq, times=[0.5], mode="physics", frames=[last])
     assert result.stats["contrast"] == pytest.approx(0.2)
     assert "not estimated" in result.stats["contrast_source"]
-    assert any("fixed default" in n for n in result.stats["notes"]), result.stats["notes"]
+    assert any("fixed default" in w for w in result.stats["warnings"]), result.stats["warnings"]
     summary = cli_unroll(seq, tmp_path / "cli", "--times", "0.5", "--mode", "physics", "--frames", str(last))[3]
     assert summary["physics"]["contrast_source"] == result.stats["contrast_source"]
     assert any("fixed default" in w for w in summary["warnings"])

@@ -1,0 +1,174 @@
+#include "vkunroll/host/unroll/unroll_job.hpp"
+
+#include <algorithm>
+#include <iostream>
+
+#include "vkunroll/base/error.hpp"
+
+namespace vkunroll {
+
+namespace {
+
+// Targets planned from the options; a time the rationals cannot hold names the option.
+std::map<int, std::vector<UnrollTarget>> planned_targets(const Sequence& layout, const std::vector<int>& frames,
+                                                         const TargetTimes& times, const std::string& where) {
+  try {
+    return plan_targets(layout, frames, times, where);
+  } catch (const TimeRangeError& e) {
+    const char* option = times.kind == TargetTimes::Kind::absolute_us ? "--times-us"
+                         : times.kind == TargetTimes::Kind::normalized ? "--times" : "--times gt";
+    throw UsageError(std::string(option) + ": a target instant is out of the range of exact time arithmetic (" + e.what() +
+                     "); targets must lie within +-2^53 us of the recording");
+  }
+}
+
+// The tiling the options ask for; unset values take the defaults of docs/tiling.md.
+TileOptions tile_options(const UnrollOptions& o) {
+  TileOptions t;
+  t.sparse = o.sparse;
+  const bool sparse_on = o.sparse != SparsePolicy::off;
+  t.tile = o.tile > 0 ? o.tile : (sparse_on ? kTileAlign : 0);
+  t.halo = o.halo >= 0 ? o.halo : (sparse_on ? kTileAlign : 2 * kTileAlign);
+  t.threshold = o.sparse_threshold;
+  return t;
+}
+
+bool is_m(const FrameTarget& t) { return t.method == FrameTarget::Method::m; }
+
+}  // namespace
+
+UnrollJob::UnrollJob(const UnrollOptions& o, UnrollSession& session, FrameSource& source)
+    : options_(o), session_(session), source_(source) {
+  mode_ = o.mode == UnrollMode::automatic && !session.has_model() ? UnrollMode::physics : o.mode;
+  if (mode_ != UnrollMode::physics && !session.has_model())
+    throw UsageError(std::string("--mode ") + unroll_mode_name(mode_) + " needs a model (--model FILE.safetensors)");
+  if (mode_ == UnrollMode::m && !session.model_config().moa)
+    throw UsageError(o.session.model_path + ": the model has no MOA weights (attfusion_net), so it runs SelfUnroll-S only; use --mode s");
+  if (o.channel_order != ChannelOrder::model) session.set_model_rgb(o.channel_order == ChannelOrder::rgb);
+  const Sequence& layout = source.layout();
+  if (layout.frames.empty()) throw DataError(o.sequence + ": the sequence has no frames");
+  frames_ = chosen_frames(layout, o.frames);
+  targets_ = planned_targets(layout, frames_, o.times, o.sequence);
+  for (const auto& [k, ts] : targets_) total_targets_ += ts.size();
+
+  // The frames' encoding and the model's: frames go into a model with a known gamma as
+  // v^(g_f/g_m) and its results come back (docs/model.md, "unroll").
+  const double seq_gamma = o.gamma ? *o.gamma : source.recorded_gamma();
+  std::vector<RowTiming> timings;
+  for (const SequenceFrame& f : layout.frames) timings.push_back(f.timing);
+  physics_ = plan_physics(mode_, session, seq_gamma, o.contrast, [&](double gamma) {
+    const auto t = Clock::now();
+    ContrastEstimate c = estimate_contrast(
+        timings, frames_, gamma, layout.width, layout.height, [&](int k) { return decoded(k).image; },
+        [&](double lo, double hi) { return source_.events(lo, hi); });
+    stage_ms_["contrast_estimate"] = ms_since(t);
+    return c;
+  });
+  if (physics_.uses_physics && !o.quiet)
+    std::cerr << "unroll: " << (physics_.variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
+              << physics_.params.contrast << " (" << physics_.contrast_source << "), gamma " << physics_.params.gamma << "\n";
+  session.set_physics(physics_.params);
+  tiling_ = tile_options(o);
+  session.set_tiling(tiling_);
+}
+
+UnrollJob::DecodedFrame& UnrollJob::decoded(int k) {
+  auto it = decoded_.find(k);
+  if (it != decoded_.end()) return it->second;
+  DecodedFrame f;
+  f.image = source_.decode_frame(k);
+  counters_.frame_decodes++;
+  ever_decoded_.insert(k);
+  counters_.distinct_frames_decoded = ever_decoded_.size();
+  return decoded_.emplace(k, std::move(f)).first->second;
+}
+
+const cv::Mat& UnrollJob::model_encoded(DecodedFrame& f) const {
+  // Encoded on first use in the loop: the contrast estimate decodes frames before to_model is known.
+  if (f.for_model.empty()) f.for_model = encode_for_model(f.image, physics_.to_model);
+  return f.for_model;
+}
+
+std::vector<FrameTarget> UnrollJob::methods_for(int k, const std::vector<UnrollTarget>& todo) {
+  const Sequence& layout = source_.layout();
+  const RowTiming& timing = layout.frames[size_t(k)].timing;
+  const bool has_next = k + 1 < static_cast<int>(layout.frames.size());
+  const bool moa = session_.has_model() && session_.model_config().moa;
+  std::vector<FrameTarget> methods;
+  for (const UnrollTarget& t : todo) {
+    const double tv = t.t_us.to_double();
+    const bool inside = tv >= timing.first_start().to_double() && tv <= timing.last_end().to_double();
+    methods.push_back({t.t_us, target_method(mode_, moa, has_next, inside, k, notes_)});
+  }
+  return methods;
+}
+
+void UnrollJob::run(ResultSink& sink) {
+  traffic_before_ = session_.traffic();
+  stats_before_ = session_.stats();
+  for (int k : frames_) {
+    auto it = targets_.find(k);
+    if (it != targets_.end()) run_frame(k, it->second, sink);
+  }
+  traffic_ = session_.traffic() - traffic_before_;
+}
+
+void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink& sink) {
+  const Sequence& layout = source_.layout();
+  std::vector<std::optional<cv::Mat>> reused(ts.size());
+  std::vector<UnrollTarget> todo;
+  for (size_t j = 0; j < ts.size(); ++j) {
+    reused[j] = sink.reusable(k, ts[j]);
+    if (!reused[j]) todo.push_back(ts[j]);
+  }
+  const std::vector<FrameTarget> methods = methods_for(k, todo);
+  auto t_read = Clock::now();
+  // A copy of the cache entry's header: the entry may leave the cache below, the pixels stay shared.
+  DecodedFrame rs1 = decoded(k);
+  std::vector<cv::Mat> results;
+  if (!todo.empty()) {
+    FrameInput in;
+    in.rs1 = model_encoded(decoded(k));
+    in.timing1 = layout.frames[size_t(k)].timing;
+    const bool any_m = std::any_of(methods.begin(), methods.end(), is_m);
+    const SequenceFrame* f2 = any_m ? &layout.frames[size_t(k) + 1] : nullptr;
+    if (f2) in.rs2 = model_encoded(decoded(k + 1)), in.timing2 = f2->timing;
+    const auto [lo, hi] = frame_window(layout.frames[size_t(k)], f2, todo, methods);
+    const EventStream ev = source_.events(lo, hi);
+    in.events = &ev;
+    stage_ms_["read"] += ms_since(t_read);
+    counters_.events_per_frame.push_back({k, ev.size()});
+    counters_.events_in_windows += ev.size();
+    counters_.frames_read++;
+    if (ev.empty()) counters_.frames_without_events.push_back(k);
+    results = session_.unroll(in, methods);
+    for (size_t j = 0; j < results.size(); ++j)
+      if (methods[j].method != FrameTarget::Method::physics) results[j] = encode_for_model(results[j], 1.0 / physics_.to_model);
+  } else {
+    stage_ms_["read"] += ms_since(t_read);
+  }
+  // Frames at or before k are past: only the next frame (k + 1, as f1) is used again.
+  decoded_.erase(decoded_.begin(), decoded_.upper_bound(k));
+  const auto t_write = Clock::now();
+  size_t next = 0;
+  for (size_t j = 0; j < ts.size(); ++j) {
+    GsResult r;
+    r.frame = k;
+    r.target = &ts[j];
+    r.rs_input = rs1.image;
+    r.reused = reused[j].has_value();
+    if (ts[j].gt >= 0) r.ground_truth = source_.decode_ground_truth(ts[j].gt), counters_.ground_truth_decodes++;
+    if (r.reused) {
+      r.image = *reused[j];
+    } else {
+      r.method = methods[next].method;
+      r.image = results[next++];
+    }
+    sink.add(r);
+  }
+  done_ += ts.size();
+  stage_ms_["write"] += ms_since(t_write);
+  sink.frame_finished(k, done_, total_targets_);
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,115 @@
+// The unroll job, once for every front end: a frame source in (a sequence folder or arrays), a
+// result sink out (the CLI's output folder, Python's arrays), and between them the whole loop —
+// the plan, each frame's image decoded once (and kept for the next frame), each frame's targets in
+// one UnrollSession call, the gamma encoding into the model and back, and the report of what was done.
+//
+//   SequenceFrameSource source(seq);
+//   UnrollJob job(options, session, source);   // plans; errors name the option
+//   job.run(sink);                              // sink.add() per GS frame
+//   nlohmann::json what = job.report();
+#pragma once
+#include <map>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "vkunroll/base/stopwatch.hpp"
+#include "vkunroll/host/unroll/frame_source.hpp"
+#include "vkunroll/host/unroll/session.hpp"
+#include "vkunroll/host/unroll/unroll_options.hpp"
+#include "vkunroll/host/unroll/unroll_plan.hpp"
+
+namespace vkunroll {
+
+// One GS frame, as the job hands it to a sink.
+struct GsResult {
+  int frame = 0;                   // the RS frame it was unrolled from
+  const UnrollTarget* target = nullptr;
+  FrameTarget::Method method = FrameTarget::Method::s;
+  cv::Mat image;                   // BGR float32 in the source's encoding (not clamped)
+  cv::Mat rs_input;                // the RS frame, decoded
+  cv::Mat ground_truth;            // empty: none at this instant
+  bool reused = false;             // the sink's own earlier image (ResultSink::reusable)
+};
+
+class ResultSink {
+ public:
+  virtual ~ResultSink() = default;
+  // An image the sink already holds for this target (an earlier run's, under --resume): the job
+  // then computes none and hands it back through add() with `reused` set.
+  virtual std::optional<cv::Mat> reusable(int /*frame*/, const UnrollTarget& /*target*/) { return std::nullopt; }
+  virtual void add(const GsResult& result) = 0;
+  // After each frame's results: `done` of `total` GS frames filed.
+  virtual void frame_finished(int /*frame*/, size_t /*done*/, size_t /*total*/) {}
+};
+
+// What the loop counted: reads, decodes, events.
+struct UnrollJobCounters {
+  size_t frame_decodes = 0;          // frame images decoded from the source (each frame once)
+  size_t distinct_frames_decoded = 0;
+  size_t ground_truth_decodes = 0;
+  size_t frames_read = 0;            // frames whose event window was read
+  uint64_t events_in_windows = 0;
+  std::vector<std::pair<int, size_t>> events_per_frame;  // (frame, events in its window)
+  std::vector<int> frames_without_events;
+};
+
+class UnrollJob {
+ public:
+  // Plans the job: the mode (auto without a model is physics), the frames, every frame's targets,
+  // the physics parameters (the contrast estimated from the source when neither given nor in the
+  // model), the model's channel order and the tiling, all set on `session`. Errors name the option.
+  UnrollJob(const UnrollOptions& options, UnrollSession& session, FrameSource& source);
+
+  UnrollMode mode() const { return mode_; }
+  const std::vector<int>& frames() const { return frames_; }
+  const std::map<int, std::vector<UnrollTarget>>& targets() const { return targets_; }
+  size_t total_targets() const { return total_targets_; }
+  const PhysicsPlan& physics() const { return physics_; }
+  const TileOptions& tiling() const { return tiling_; }
+  const UnrollJobCounters& counters() const { return counters_; }
+
+  // Every frame, in order, into `sink`.
+  void run(ResultSink& sink);
+
+  // What the job did, as summary.json says it: mode, runs, physics, encoding, tiling, events,
+  // reads, notes, warnings, ms per GS frame and device traffic (per GS frame). `total_ms`: the
+  // wall time the frames are charged (< 0: since the job was planned); host time is its rest after the GPU's.
+  nlohmann::json report(double total_ms = -1) const;
+
+ private:
+  struct DecodedFrame {
+    cv::Mat image;      // the source's encoding
+    cv::Mat for_model;  // v^to_model: the model's encoding
+  };
+  DecodedFrame& decoded(int k);
+  const cv::Mat& model_encoded(DecodedFrame& f) const;
+  void run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink& sink);
+  std::vector<FrameTarget> methods_for(int k, const std::vector<UnrollTarget>& todo);
+  nlohmann::json events_report(std::vector<std::string>& warnings) const;
+
+  const UnrollOptions& options_;
+  UnrollSession& session_;
+  FrameSource& source_;
+  Clock::time_point start_ = Clock::now();
+  UnrollMode mode_ = UnrollMode::automatic;
+  std::vector<int> frames_;
+  std::map<int, std::vector<UnrollTarget>> targets_;
+  size_t total_targets_ = 0;
+  PhysicsPlan physics_;
+  TileOptions tiling_;
+  std::map<int, DecodedFrame> decoded_;  // frames decoded and still needed (the next frame's f1)
+  std::set<int> ever_decoded_;
+  std::map<std::string, int> notes_;
+  std::map<std::string, double> stage_ms_{{"read", 0}, {"write", 0}};
+  UnrollJobCounters counters_;
+  DeviceTraffic traffic_before_, traffic_;
+  SessionStats stats_before_;
+  size_t done_ = 0;
+};
+
+}  // namespace vkunroll

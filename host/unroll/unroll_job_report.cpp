@@ -1,0 +1,140 @@
+// UnrollJob::report(): what the job did, in summary.json's words (the CLI adds the files, the
+// model file and the provenance; Python returns it as the result's stats).
+#include <algorithm>
+#include <string>
+
+#include "vkunroll/host/model/backend.hpp"
+#include "vkunroll/host/unroll/unroll_job.hpp"
+
+namespace vkunroll {
+
+namespace {
+
+nlohmann::json traffic_per_target(const DeviceTraffic& t, size_t targets) {
+  const double n = static_cast<double>(std::max<size_t>(targets, 1));
+  return {{"upload_bytes", double(t.upload_bytes) / n}, {"download_bytes", double(t.download_bytes) / n},
+          {"submits", double(t.submits) / n}};
+}
+
+nlohmann::json tiling_json(const UnrollOptions& o, const TileOptions& tiling, const SessionStats& st) {
+  nlohmann::json j{{"tile", tiling.tile}, {"tile_used", st.tile_used}, {"halo", tiling.halo},
+                   {"sparse", sparse_policy_name(o.sparse)}, {"sparse_threshold", o.sparse_threshold},
+                   {"tiles_per_target", st.tiles_per_target}, {"tiles", st.tiles}, {"tiles_run", st.tiles_run},
+                   {"active_tile_fraction", st.tiles ? double(st.tiles_run) / double(st.tiles) : 0.0},
+                   {"work_ratio", st.target_active_fraction.empty() ? 0.0 : st.work_pixels / double(st.target_active_fraction.size())}};
+  if (!st.target_active_fraction.empty()) {
+    double lo = 1, hi = 0, sum = 0;
+    for (double a : st.target_active_fraction) lo = std::min(lo, a), hi = std::max(hi, a), sum += a;
+    j["target_active_fraction"] = {{"min", lo}, {"mean", sum / double(st.target_active_fraction.size())}, {"max", hi}};
+  }
+  return j;
+}
+
+std::string joined(const std::vector<std::string>& items) {
+  std::string s;
+  for (const auto& i : items) s += (s.empty() ? "" : ", ") + i;
+  return s;
+}
+
+}  // namespace
+
+nlohmann::json UnrollJob::events_report(std::vector<std::string>& warnings) const {
+  const UnrollJobCounters& c = counters_;
+  nlohmann::json per_frame = nlohmann::json::array();
+  for (const auto& [k, n] : c.events_per_frame) per_frame.push_back({{"frame", k}, {"events", n}});
+  nlohmann::json j = {{"in_frame_windows", c.events_in_windows}, {"frames_read", c.frames_read},
+                      {"per_frame", per_frame}, {"frames_without_events", c.frames_without_events}};
+  const Sequence& layout = source_.layout();
+  if (layout.event_files.empty()) return j;  // arrays: no files to total
+  const EventTotals totals = layout.event_totals();
+  j["files"] = layout.event_files;
+  j["file_totals"] = {{"records", totals.records}, {"valid", totals.valid}, {"dropped", totals.dropped()},
+                      {"dropped_out_of_sensor", totals.dropped_out_of_sensor}, {"dropped_time_order", totals.dropped_time_order},
+                      {"dropped_nan", totals.dropped_nan}, {"dropped_unknown_word", totals.dropped_unknown_word},
+                      {"dropped_bad_polarity", totals.dropped_bad_polarity}, {"reordered", totals.reordered},
+                      {"empty_files", totals.empty_files}, {"summary", totals.summary()}};
+  const std::string files = joined(layout.event_files);
+  if (totals.dropped()) {
+    std::vector<std::string> kinds;
+    for (const auto& [n, what] : {std::pair<uint64_t, const char*>{totals.dropped_out_of_sensor, "out of sensor"},
+                                  {totals.dropped_time_order, "out of time order"}, {totals.dropped_nan, "NaN time"},
+                                  {totals.dropped_unknown_word, "unknown word"}, {totals.dropped_bad_polarity, "bad polarity"}})
+      if (n) kinds.push_back(std::to_string(n) + " " + what);
+    warnings.push_back("--on-bad drop: " + std::to_string(totals.dropped()) + " of " + std::to_string(totals.records) +
+                       " event record(s) broke a rule and were dropped (" + joined(kinds) + ") in " + files);
+  }
+  if (totals.reordered)
+    warnings.push_back("--on-bad sort: " + std::to_string(totals.reordered) + " event record(s) were out of time order and were sorted");
+  if (totals.empty_files) warnings.push_back(std::to_string(totals.empty_files) + " event file(s) are empty (0 bytes): " + files);
+  return j;
+}
+
+nlohmann::json UnrollJob::report(double total_ms) const {
+  const SessionStats& st = session_.stats();
+  const size_t n = total_targets_;
+  nlohmann::json r;
+  r["mode"] = unroll_mode_name(mode_);
+  r["frames"] = frames_.size();
+  r["targets"] = n;
+  r["runs"] = {{"s", st.runs_s - stats_before_.runs_s}, {"m", st.runs_m - stats_before_.runs_m},
+               {"physics", st.runs_physics - stats_before_.runs_physics},
+               {"physics_on_cpu", st.physics_on_cpu - stats_before_.physics_on_cpu},
+               {"host_path", st.host_path_targets - stats_before_.host_path_targets}};
+  if (physics_.uses_physics)
+    r["physics"] = {{"contrast", physics_.params.contrast}, {"contrast_source", physics_.contrast_source},
+                    {"gamma", physics_.params.gamma}, {"role", physics_.variant ? "the model's physics input" : "the unroller"}};
+  if (session_.has_model()) {
+    const auto& g = session_.model_config().gamma;
+    r["encoding"] = {{"sequence_gamma", physics_.seq_gamma}, {"model_gamma", g ? nlohmann::json(*g) : nlohmann::json()},
+                     {"to_model", physics_.to_model}};
+    r["tiling"] = tiling_json(options_, tiling_, st);
+  }
+  const UnrollJobCounters& c = counters_;
+  r["reads"] = {{"frame_decodes", c.frame_decodes}, {"distinct_frames_decoded", c.distinct_frames_decoded},
+                {"ground_truth_decodes", c.ground_truth_decodes},
+                {"image_uploads", st.image_uploads - stats_before_.image_uploads},
+                {"frames_unrolled", st.frames_unrolled - stats_before_.frames_unrolled}};
+  nlohmann::json ms;
+  for (const auto& [name, v] : stage_ms_) ms[name] = n ? v / double(n) : 0.0;
+  for (const auto& [name, v] : st.ms) {
+    const auto before = stats_before_.ms.find(name);
+    const double d = v - (before == stats_before_.ms.end() ? 0.0 : before->second);
+    ms[name] = ms.value(name, 0.0) + (n ? d / double(n) : 0.0);
+  }
+  r["ms_per_gs_frame"] = ms;
+  if (total_ms < 0) total_ms = ms_since(start_);
+  r["ms_per_gs_frame_total"] = n ? total_ms / double(n) : 0.0;
+  r["device_traffic_per_gs_frame"] = traffic_per_target(traffic_, n);
+  // Device time against wall time: on a GPU most of a frame should be device work.
+  r["gpu_ms_per_gs_frame"] = n ? traffic_.gpu_ms / double(n) : 0.0;
+  // The rest of the frame is host work and waits; the target on a GPU is a device share >= 0.8.
+  r["host_ms_per_gs_frame"] = n ? std::max(0.0, total_ms - traffic_.gpu_ms) / double(n) : 0.0;
+  r["gpu_share_of_frame_time"] = total_ms > 0 ? traffic_.gpu_ms / total_ms : 0.0;
+
+  std::map<std::string, int> notes = notes_;
+  if (const size_t host = st.host_path_targets - stats_before_.host_path_targets)
+    notes[std::to_string(host) + " target(s) too large for device-resident event tensors (one binding holds at most " +
+          std::to_string(session_.backend().max_buffer_bytes() >> 20) + " MiB): built, downloaded and tiled on the host"]++;
+  if (session_.memory_forced_submits())
+    notes["the device's memory forced " + std::to_string(session_.memory_forced_submits()) +
+          " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
+  r["notes"] = nlohmann::json::array();
+  for (const auto& [text, count] : notes) r["notes"].push_back(text + (count > 1 ? " (x" + std::to_string(count) + ")" : ""));
+  std::vector<std::string> warnings;
+  r["events"] = events_report(warnings);
+  if (c.frames_read && c.events_in_windows == 0) {
+    warnings.push_back("no events: the frame windows of " + std::to_string(c.frames_read) + " frame(s) hold no event (" +
+                       joined(source_.layout().event_files) + "); the GS frames are the RS input, unchanged");
+  } else if (!c.frames_without_events.empty()) {
+    std::string list;
+    for (size_t i = 0; i < c.frames_without_events.size() && i < 20; ++i) list += (i ? ", " : "") + std::to_string(c.frames_without_events[i]);
+    if (c.frames_without_events.size() > 20) list += ", ...";
+    warnings.push_back(std::to_string(c.frames_without_events.size()) + " of " + std::to_string(c.frames_read) +
+                       " frame(s) have no event in their window (frames " + list + "): their GS frames are the RS input");
+  }
+  if (!physics_.contrast_warning.empty()) warnings.push_back(physics_.contrast_warning);
+  r["warnings"] = warnings;
+  return r;
+}
+
+}  // namespace vkunroll
