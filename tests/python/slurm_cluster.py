@@ -20,7 +20,7 @@ class SlurmError(RuntimeError):
     """Slurm could not be started here; the message says why, with the daemons' last log lines."""
 
 
-def _die_with_parent():
+def die_with_parent():
     # A daemon must not outlive a test killed with SIGKILL (a CTest timeout).
     ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
@@ -112,7 +112,7 @@ class LocalSlurm:
     def _spawn(self, name, cmd):
         out = open(os.path.join(self.root, "log", f"{name}.out"), "w")
         self.procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=self.env(),
-                                            cwd=self.root, preexec_fn=_die_with_parent)
+                                            cwd=self.root, preexec_fn=die_with_parent)
 
     def _wait(self, what, ready, timeout_s):
         deadline = time.monotonic() + timeout_s

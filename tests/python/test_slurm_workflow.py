@@ -22,7 +22,7 @@ import time
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from slurm_cluster import LocalSlurm, SlurmError  # noqa: E402
+from slurm_cluster import LocalSlurm, SlurmError, die_with_parent  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 CLI = os.environ.get("VKUNROLL_CLI", str(ROOT / "build" / "vkunroll"))
@@ -107,7 +107,7 @@ def run_through_slurm(slurm, tmp, seqs, env):
     proc = subprocess.Popen(
         snakemake_cmd(tmp / "slurm_run", seqs, tmp / "slurm_run" / "out", "--profile",
                       str(ROOT / "workflow" / "profiles" / "slurm"), "--set-resources", "unroll:mem_mb=1000"),
-        stdout=log, stderr=subprocess.STDOUT, env=env)
+        stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=die_with_parent)  # else it polls a dead slurmctld
     try:
         def both_pending():
             ids = [j[0] for j in slurm.jobs() if j[1].startswith("vkunroll-unroll") and j[2] == "PENDING"]
@@ -160,6 +160,11 @@ def test_slurm_profile_runs_the_workflow_like_a_local_run(slurm, tmp_path):
             job_log = (tmp_path / "slurm_run" / f"slurm-{j['JobId']}.log").read_text()
             assert "rule unroll:" in job_log and '--device "$gpu"' in job_log, job_log
     assert not [j for j in slurm.finished_jobs() if j.get("Name", "").startswith("vkunroll-aggregate")]
+    status = str(ROOT / "workflow" / "profiles" / "slurm" / "slurm_status.py")
+    for jobid, want in ((done[-1]["JobId"], "success" if done[-1]["JobState"] == "COMPLETED" else "failed"),
+                        (cancelled, "failed"), ("999999", "failed")):  # the last: unknown to Slurm
+        r = subprocess.run([status, jobid], capture_output=True, text=True, timeout=60, env=env)
+        assert (r.returncode, r.stdout.strip()) == (0, want), (jobid, r.stdout, r.stderr)
 
     for n in NAMES:
         a, b = tmp_path / "local_run" / "out", tmp_path / "slurm_run" / "out"
