@@ -84,16 +84,16 @@ def output_files(out, name):
     return {f: (d / f).read_bytes() for f in files + ["contact_sheet.png"]}
 
 
-def wait_for(what, ready, timeout_s, slurm, proc):
+def wait_for(what, ready, timeout_s, slurm, proc, log_path):
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and proc.poll() is None:
         got = ready()
         if got:
             return got
-        if proc.poll() is not None:
-            break
         time.sleep(0.3)
-    pytest.fail(f"no {what} within {timeout_s} s; squeue: {slurm.jobs()}\n{slurm.logs()}", pytrace=False)
+    ended = "" if proc.poll() is None else f"snakemake exited {proc.returncode} first; "
+    pytest.fail(f"no {what} within {timeout_s} s; {ended}squeue: {slurm.jobs()}\n"
+                f"{log_path.read_text()[-4000:]}\n{slurm.logs()}", pytrace=False)
 
 
 def run_through_slurm(slurm, tmp, seqs, env):
@@ -103,26 +103,30 @@ def run_through_slurm(slurm, tmp, seqs, env):
                              capture_output=True, text=True, timeout=30, env=env)
     assert blocker.returncode == 0, f"sbatch of the blocking job failed: {blocker.stderr}"
     blocker_id = blocker.stdout.strip().split(";")[0]
-    log = open(tmp / "snakemake_slurm.log", "w")
-    proc = subprocess.Popen(
-        snakemake_cmd(tmp / "slurm_run", seqs, tmp / "slurm_run" / "out", "--profile",
-                      str(ROOT / "workflow" / "profiles" / "slurm"), "--set-resources", "unroll:mem_mb=1000"),
-        stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=die_with_parent)  # else it polls a dead slurmctld
-    try:
-        def both_pending():
-            ids = [j[0] for j in slurm.jobs() if j[1].startswith("vkunroll-unroll") and j[2] == "PENDING"]
-            return ids if len(ids) == 2 else None
+    log_path = tmp / "snakemake_slurm.log"
+    rc = None
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(  # dies with the test, else it polls a dead slurmctld for ever
+            snakemake_cmd(tmp / "slurm_run", seqs, tmp / "slurm_run" / "out", "--profile",
+                          str(ROOT / "workflow" / "profiles" / "slurm"), "--set-resources", "unroll:mem_mb=1000"),
+            stdout=log, stderr=subprocess.STDOUT, env=env, preexec_fn=die_with_parent)
+        try:
+            def both_pending():
+                ids = [j[0] for j in slurm.jobs() if j[1].startswith("vkunroll-unroll") and j[2] == "PENDING"]
+                return ids if len(ids) == 2 else None
 
-        cancelled = min(wait_for("two pending vkunroll-unroll jobs", both_pending, 60, slurm, proc), key=int)
-        subprocess.run(["scancel", cancelled], check=True, timeout=30, env=env)
-        subprocess.run(["scancel", blocker_id], check=True, timeout=30, env=env)
-        rc = proc.wait(timeout=WORKFLOW_TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        rc = None
-    log.close()
-    text = (tmp / "snakemake_slurm.log").read_text()
+            cancelled = min(wait_for("two pending vkunroll-unroll jobs", both_pending, 60, slurm, proc, log_path),
+                            key=int)
+            subprocess.run(["scancel", cancelled], check=True, timeout=30, env=env)
+            subprocess.run(["scancel", blocker_id], check=True, timeout=30, env=env)
+            rc = proc.wait(timeout=WORKFLOW_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            pass
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    text = log_path.read_text()
     state = (f"still running after {WORKFLOW_TIMEOUT_S} s, killed (a job Slurm cancelled never seen as failed?)"
              if rc is None else f"exit {rc}")
     assert rc == 0, f"snakemake with the Slurm profile: {state}\n{text[-6000:]}\n{slurm.logs()}"
