@@ -24,10 +24,13 @@ core_packages=(
 test_packages=(vulkan-validationlayers libgtest-dev libgmock-dev python3-pytest python3-torch python3-h5py python3-pil)
 # workflow/Snakefile (about 650 MB with its dependencies: cloud storage clients and more).
 workflow_packages=(snakemake)
+# The Slurm test (tests/python/test_slurm_workflow.py) starts its own munged, slurmctld and slurmd
+# (8 packages, 13 MB installed); it configures nothing outside its temporary folder.
+slurm_packages=(slurm-wlm munge)
 
 case "$mode" in
   demo | build) packages=("${core_packages[@]}") ;;
-  test) packages=("${core_packages[@]}" "${test_packages[@]}" "${workflow_packages[@]}") ;;
+  test) packages=("${core_packages[@]}" "${test_packages[@]}" "${workflow_packages[@]}" "${slurm_packages[@]}") ;;
   workflow) packages=("${core_packages[@]}" "${workflow_packages[@]}") ;;
   *)
     echo "usage: bash scripts/bootstrap.sh [demo|test|build|workflow]" >&2
