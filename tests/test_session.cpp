@@ -137,10 +137,40 @@ TEST(Session, DeviceResidentFrameEqualsTheHostPath) {
     EXPECT_EQ(d.download_bytes, uint64_t(3) * 3 * 48 * 64 * 4);
     // Up: per group the RS frame(s) and the window's events with their per-row records (at most
     // 8 bytes an event; records and ranges (N + 8) words per job and row), never the tensors.
-    const uint64_t N = session.model_config().N, images = uint64_t(5) * 3 * 48 * 64 * 4;
+    const uint64_t N = session.model_config().N, images = uint64_t(2) * 3 * 48 * 64 * 4;  // rs1, rs2 once for S and M
     const uint64_t per_build = 8 * ev.size() + uint64_t(3 * 4) * 48 * (N + 8) * 4;
     EXPECT_LE(d.upload_bytes, images + 2 * per_build) << d.upload_bytes << " bytes up";
   }
+  fs::remove_all(dir);
+}
+
+// Event tensors beyond one binding (HD frames on lavapipe's 128 MiB) take the host path: built on
+// the device, downloaded, cut into tiles on the host. It gives the device path's images and says so.
+TEST(Session, HostPathForTensorsBeyondOneBindingEqualsTheDevicePath) {
+  const fs::path dir = temp_dir("host-path");
+  const Sequence seq = load_sequence(make_sequence(dir, 160, 120, 3).string(), {});
+  const EventStream ev = seq.read_events(-100000, 400000);
+  const FrameInput in = frame_input(seq, 1, ev);
+  const std::vector<FrameTarget> targets{{in.timing1.target_time(Rational(1, 2)), FrameTarget::Method::s},
+                                         {in.timing1.target_time(Rational(3, 2)), FrameTarget::Method::m}};
+  SessionOptions so;
+  so.model_path = fixture("selfunroll_tiny.safetensors");
+  so.device = "llvmpipe";
+  so.announce = false;
+  UnrollSession session(so);
+  TileOptions tiles;
+  tiles.tile = 32, tiles.halo = 32;
+  session.set_tiling(tiles);
+  const std::vector<cv::Mat> device = session.unroll(in, targets);
+  ASSERT_EQ(session.stats().host_path_targets, 0u);
+  // One S target's tensors (ev1..ev3, [3, 2N, H, W] fp32) no longer fit one binding.
+  tiles.max_buffer_bytes = uint64_t(3) * 2 * session.model_config().N * 120 * 160 * 4 - 1;
+  session.set_tiling(tiles);
+  ASSERT_LT(session.binding_limit(), session.backend().max_buffer_bytes());
+  const std::vector<cv::Mat> host = session.unroll(in, targets);
+  EXPECT_EQ(session.stats().host_path_targets, 2u);
+  ASSERT_EQ(host.size(), device.size());
+  for (size_t j = 0; j < host.size(); ++j) EXPECT_LE(max_abs(host[j], device[j]), 2e-5) << "target " << j;
   fs::remove_all(dir);
 }
 

@@ -108,6 +108,11 @@ const Weights& UnrollSession::weights() const {
 
 DeviceTraffic UnrollSession::traffic() const { return ctx_ ? ctx_->traffic() : DeviceTraffic{}; }
 
+uint64_t UnrollSession::binding_limit() const {
+  const uint64_t device = backend_->max_buffer_bytes();
+  return tiling_.max_buffer_bytes ? std::min(tiling_.max_buffer_bytes, device) : device;
+}
+
 uint64_t UnrollSession::memory_forced_submits() const {
   const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get());
   return vb ? vb->pool_flushes() : 0;
@@ -244,7 +249,7 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
   const int64_t per = m ? 2 : 1;
   // The event tensors of a build ([3B, 2N, H, W]) live in one binding: as many targets per build as fit.
   const uint64_t per_target = uint64_t(3 * per) * 2 * model_->config().N * H * W * 4;
-  const size_t fit = static_cast<size_t>(b.max_buffer_bytes() / per_target);
+  const size_t fit = static_cast<size_t>(binding_limit() / per_target);
   if (fit == 0) return run_model_on_host(in, fp, targets, which, m, results);
   if (which.size() > fit) {
     for (size_t i = 0; i < which.size(); i += fit)

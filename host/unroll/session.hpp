@@ -84,6 +84,9 @@ class UnrollSession {
   const Context* context() const { return ctx_.get(); }  // null on the CPU backend
   // Host <-> device traffic and submissions since the session started (zeros on the CPU backend).
   DeviceTraffic traffic() const;
+  // The most bytes one tensor may hold: the device's binding limit, or the tiling's lower one.
+  // Event tensors beyond it take the host path (SessionStats::host_path_targets).
+  uint64_t binding_limit() const;
   // Submissions the backend made because released buffers held too much memory.
   uint64_t memory_forced_submits() const;
   uint64_t peak_device_bytes() const;

@@ -114,7 +114,7 @@ nlohmann::json UnrollJob::report(double total_ms) const {
   std::map<std::string, int> notes = notes_;
   if (const size_t host = st.host_path_targets - stats_before_.host_path_targets)
     notes[std::to_string(host) + " target(s) too large for device-resident event tensors (one binding holds at most " +
-          std::to_string(session_.backend().max_buffer_bytes() >> 20) + " MiB): built, downloaded and tiled on the host"]++;
+          std::to_string(session_.binding_limit() >> 20) + " MiB): built, downloaded and tiled on the host"]++;
   if (session_.memory_forced_submits())
     notes["the device's memory forced " + std::to_string(session_.memory_forced_submits()) +
           " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
