@@ -93,12 +93,7 @@ RowIntervals intervals(const EventTensorPair& pair, int which) {
   return r;
 }
 
-
 }  // namespace
-
-RowIntervals ev1_intervals(const EventTensorPair& pair) { return intervals(pair, 0); }
-RowIntervals ev2_intervals(const EventTensorPair& pair) { return intervals(pair, 1); }
-RowIntervals ev3_intervals(const EventTensorPair& pair) { return intervals(pair, 2); }
 
 std::vector<RowIntervals> event_tensor_jobs(const std::vector<EventTensorPair>& pairs) {
   std::vector<RowIntervals> jobs;
@@ -224,7 +219,7 @@ std::vector<std::vector<uint32_t>> selected_event_counts(const EventStream& even
   const size_t plane = static_cast<size_t>(c.width) * c.height;
   std::vector<std::vector<uint32_t>> out(pairs.size(), std::vector<uint32_t>(plane, 0));
   for (size_t p = 0; p < pairs.size(); ++p) {
-    const RowIntervals jobs[2] = {ev1_intervals(pairs[p]), ev2_intervals(pairs[p])};
+    const RowIntervals jobs[2] = {intervals(pairs[p], 0), intervals(pairs[p], 1)};  // ev1, ev2
     check_jobs(events, {jobs[0], jobs[1]});
     // An integer t is selected iff min(a, b) <= t < max(a, b): ceil(min) <= t < ceil(max).
     std::vector<int64_t> lo(2 * c.height), hi(2 * c.height);

@@ -55,11 +55,8 @@ struct EventTensorPair {
   std::optional<Rational> target_exposure_us;  // ev3's window length; default timing.exposure
 };
 
-// ev1: a = t*, b = start[y]; ev2: a = t*, b = end[y]; ev3: a = t*, b = t* + target exposure.
-RowIntervals ev1_intervals(const EventTensorPair& pair);
-RowIntervals ev2_intervals(const EventTensorPair& pair);
-RowIntervals ev3_intervals(const EventTensorPair& pair);
-// Jobs of a batch, tensor-major: ev1 of every pair, then ev2 of every pair, then ev3.
+// Jobs of a batch, tensor-major: ev1 of every pair, then ev2 of every pair, then ev3
+// (ev1: a = t*, b = start[y]; ev2: a = t*, b = end[y]; ev3: a = t*, b = t* + target exposure).
 std::vector<RowIntervals> event_tensor_jobs(const std::vector<EventTensorPair>& pairs);
 
 // The resolved crop (checked against the sensor; throws Error naming the bad field).

@@ -47,9 +47,7 @@ cv::Mat read_frame_image(const std::string& path, int width, int height) {
   return to_unit_float(m);  // [0,1] float, BGR
 }
 
-double frame_mid(const SequenceFrame& f) {
-  return 0.5 * (f.timing.first_start().to_double() + f.timing.last_end().to_double());
-}
+double frame_mid(const SequenceFrame& f) { return timing_mid(f.timing); }
 
 namespace {
 
