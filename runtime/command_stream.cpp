@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <sstream>
 
+#include "vkunroll/base/env.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
 #include "vkunroll/runtime/profiler.hpp"
@@ -18,15 +19,8 @@ constexpr uint32_t kUniformsPerSet = Pipeline::kMaxUniformBindings;  // pool siz
 constexpr uint32_t kTexelsPerSet = Pipeline::kMaxTexelBindings;
 constexpr uint32_t kMaxDispatchesPerSubmit = 2048;  // timestamp pairs per query pool
 
-double default_timeout() {
-  const char* v = std::getenv("VKUNROLL_FENCE_TIMEOUT_S");
-  if (!v || !*v) return 600.0;
-  char* end = nullptr;
-  const double s = std::strtod(v, &end);  // the whole value, a number of seconds in range: never a silent 0
-  if (end == v || *end != '\0' || !(s > 0 && s <= 1e6))
-    throw Error(std::string("VKUNROLL_FENCE_TIMEOUT_S='") + v + "': expected seconds in (0, 1e6] (default 600)");
-  return s;  // a full-size model pass on a software rasterizer can take minutes
-}
+// A full-size model pass on a software rasterizer can take minutes.
+double default_timeout() { return env::seconds("VKUNROLL_FENCE_TIMEOUT_S", 600.0, 1e6); }
 
 }  // namespace
 

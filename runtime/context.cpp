@@ -12,6 +12,7 @@
 
 #include <unistd.h>
 
+#include "vkunroll/base/env.hpp"
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
 
@@ -25,11 +26,6 @@ const char* kNoDriverHelp =
     "`apt-get install mesa-vulkan-drivers libvulkan1` and, if the loader still finds none, point it "
     "at the ICD: `export VK_DRIVER_FILES=/usr/share/vulkan/icd.d/lvp_icd.x86_64.json` "
     "(and VK_ICD_FILENAMES for loaders older than 1.3.207)";
-
-bool env_flag(const char* name) {
-  const char* v = std::getenv(name);
-  return v && *v && std::string(v) != "0" && std::string(v) != "false";
-}
 
 std::string lower(std::string s) {
   std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
@@ -270,9 +266,9 @@ std::vector<VkPhysicalDevice> physical_devices(VkInstance instance) {
 }
 
 std::filesystem::path cache_dir() {
-  if (const char* d = std::getenv("VKUNROLL_CACHE_DIR"); d && *d) return d;
-  if (const char* d = std::getenv("XDG_CACHE_HOME"); d && *d) return std::filesystem::path(d) / "vkunroll";
-  if (const char* h = std::getenv("HOME"); h && *h) return std::filesystem::path(h) / ".cache" / "vkunroll";
+  if (const auto d = env::text("VKUNROLL_CACHE_DIR")) return *d;
+  if (const auto d = env::text("XDG_CACHE_HOME")) return std::filesystem::path(*d) / "vkunroll";
+  if (const auto h = env::text("HOME")) return std::filesystem::path(*h) / ".cache" / "vkunroll";
   return {};
 }
 
@@ -386,8 +382,7 @@ DeviceList Context::enumerate(bool validation) {
   try {
     auto pds = physical_devices(instance);
     for (uint32_t i = 0; i < pds.size(); ++i) list.devices.push_back(read_device_info(pds[i], i));
-    const char* env = std::getenv("VKUNROLL_DEVICE");
-    list.policy_choice = choose_device(list.devices, env ? env : "", "VKUNROLL_DEVICE");
+    list.policy_choice = choose_device(list.devices, env::text("VKUNROLL_DEVICE").value_or(""), "VKUNROLL_DEVICE");
   } catch (...) {
     vkDestroyInstance(instance, nullptr);
     throw;
@@ -397,8 +392,8 @@ DeviceList Context::enumerate(bool validation) {
 }
 
 Context::Context(ContextOptions options) : options_(std::move(options)) {
-  validation_ = options_.validation || env_flag("VKUNROLL_VALIDATION");
-  validation_fatal_ = options_.validation_fatal.value_or(env_flag("VKUNROLL_VALIDATION_FATAL"));
+  validation_ = options_.validation || env::flag("VKUNROLL_VALIDATION");
+  validation_fatal_ = options_.validation_fatal.value_or(env::flag("VKUNROLL_VALIDATION_FATAL"));
   create_instance(validation_);
   try {
     create_device();
@@ -461,7 +456,7 @@ void Context::create_device() {
   for (uint32_t i = 0; i < pds.size(); ++i) infos.push_back(read_device_info(pds[i], i));
   std::string selector = options_.device, source = "--device";
   if (selector.empty())
-    if (const char* env = std::getenv("VKUNROLL_DEVICE")) selector = env, source = "VKUNROLL_DEVICE";
+    if (const auto from_env = env::text("VKUNROLL_DEVICE")) selector = *from_env, source = "VKUNROLL_DEVICE";
   const uint32_t chosen = choose_device(infos, selector, source);
   physical_ = pds[chosen];
   info_ = infos[chosen];
@@ -533,7 +528,7 @@ void Context::create_device() {
 
 void Context::load_pipeline_cache() {
   std::vector<char> blob;
-  if (options_.persistent_pipeline_cache && !env_flag("VKUNROLL_NO_PIPELINE_CACHE")) {
+  if (options_.persistent_pipeline_cache && !env::flag("VKUNROLL_NO_PIPELINE_CACHE")) {
     const auto dir = cache_dir();
     if (!dir.empty()) {
       std::ostringstream name;

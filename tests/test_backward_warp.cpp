@@ -1,10 +1,9 @@
 // backward_warp: grid_sample(align_corners=True, padding_mode='border') semantics.
 #include <gtest/gtest.h>
 
-#include <algorithm>
-#include <cstdio>
 
 #include "kernel_test_util.hpp"
+#include "op_test_harness.hpp"
 #include "vkunroll/kernels/backward_warp.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
@@ -21,43 +20,35 @@ TEST(BackwardWarp, ReferenceKnownValues) {
 }
 
 namespace {
-// The output is a slice among canaries that must survive. fp16: image, flow and output stored as
+// fp32 bilinear of values in [0, 1]: max abs error 1e-5. fp16: image, flow and output stored as
 // half, against the same fp32 reference (docs/kernels.md, "Precision").
-constexpr double kTolFp16 = 5e-3;
-void run_cases(Context& ctx, Precision prec = Precision::fp32) {
+optest::OpTest warp_test() {
   std::mt19937 rng(11);
-  const DType dt = precision_dtype(prec);
-  double worst = 0;
+  optest::OpTest test{"backward_warp", {}, {1e-5, 5e-3}};
   struct C { int64_t n, c, h, w, img_extra, img_c0, flow_c0; };
-  // fp32 bilinear of values in [0, 1]: max abs error 1e-5.
   for (const C& c : std::vector<C>{{1, 3, 12, 16, 0, 0, 0}, {2, 3, 9, 7, 2, 1, 3}, {1, 3, 1, 11, 0, 0, 0},
                                    {1, 2, 10, 1, 0, 0, 0}, {1, 1, 1, 1, 0, 0, 1}}) {
-    HostTensor img = random_tensor({c.n, c.c + c.img_extra, c.h, c.w}, rng, 0.f, 1.f);
-    HostTensor flow = random_tensor({c.n, 2 + c.flow_c0, c.h, c.w}, rng, -6.f, 6.f);
-    const CanarySlice os = canary_slice({c.n, c.c, c.h, c.w}, rng);
-    HostTensor out_ref = os.host;
-    backward_warp_ref(HostSlice(img, c.img_c0, c.c), HostSlice(flow, c.flow_c0, 2), os.of(out_ref));
-    Tensor id = to_device(ctx, img, dt), fd = to_device(ctx, flow, dt), od = to_device(ctx, os.host, dt);
-    CommandStream cs(ctx);
-    backward_warp(cs, Slice(id, c.img_c0, c.c), Slice(fd, c.flow_c0, 2), os.of(od));
-    cs.submit_and_wait();
-    const HostTensor out = to_host(od);
-    const double err = max_abs_diff(out, out_ref, os);
-    worst = std::max(worst, err);
-    EXPECT_LE(err, prec == Precision::fp16 ? kTolFp16 : 1e-5) << c.h << "x" << c.w << " " << precision_name(prec);
-    EXPECT_EQ(canary_damage(out, os), "") << c.h << "x" << c.w;
+    optest::OpCase k;
+    k.what = Shape{c.n, c.c, c.h, c.w}.str();
+    k.inputs = {random_tensor({c.n, c.c + c.img_extra, c.h, c.w}, rng, 0.f, 1.f),
+                random_tensor({c.n, 2 + c.flow_c0, c.h, c.w}, rng, -6.f, 6.f)};
+    k.outputs = {{{c.n, c.c, c.h, c.w}}};
+    k.reference = [c](optest::HostRun& r) {
+      backward_warp_ref(HostSlice(r.inputs[0], c.img_c0, c.c), HostSlice(r.inputs[1], c.flow_c0, 2), r.out(0));
+    };
+    k.record = [c](optest::DeviceRun& d) {
+      backward_warp(d.stream, Slice(d.inputs[0], c.img_c0, c.c), Slice(d.inputs[1], c.flow_c0, 2), d.out(0));
+      return true;
+    };
+    test.cases.push_back(std::move(k));
   }
-  std::printf("[ measured ] backward_warp %s: max abs error %.3g\n", precision_name(prec), worst);
+  return test;
 }
 }  // namespace
 
-TEST(BackwardWarp, MatchesReference) { run_cases(vktest::context()); }
-TEST(BackwardWarp, Fp16MatchesReference) { run_cases(vktest::context(), Precision::fp16); }
+TEST(BackwardWarp, MatchesReferenceInBothPrecisions) { optest::run_op_test(vktest::context(), warp_test()); }
 // On a context that binds whole tensors a write outside the output slice lands on a canary.
-TEST(BackwardWarp, WritesNothingOutsideItsSlice) {
-  run_cases(vktest::whole_binding_context());
-  run_cases(vktest::whole_binding_context(), Precision::fp16);
-}
+TEST(BackwardWarp, WritesNothingOutsideItsSlice) { optest::run_op_test(vktest::whole_binding_context(), warp_test()); }
 
 TEST(BackwardWarp, ZeroFlowIsIdentityAndWrongFlowShapeIsAnError) {
   Context& ctx = vktest::context();

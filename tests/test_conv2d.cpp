@@ -1,9 +1,12 @@
 // conv2d parity: every algorithm against the CPU reference on odd shapes, slices and activations.
 #include <gtest/gtest.h>
 
-#include <cstdio>
+#include <cmath>
+#include <memory>
+#include <optional>
 
 #include "kernel_test_util.hpp"
+#include "op_test_harness.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
 #include "vkunroll/runtime/context.hpp"
@@ -74,112 +77,115 @@ struct Limits {
   uint64_t winograd_scratch = ~0ull;
   int64_t direct_chunk = 0;
   bool direct_texel_input = true;
-  ConvOptions options;
+  ConvOptions options;  // its precision is the run's
 };
+constexpr auto kFp32 = Precision::fp32;
+constexpr auto kFp16 = Precision::fp16;
+using Precisions = std::vector<Precision>;
 
-// Every case against the reference; the output slice sits among canaries (kernel_test_util.hpp),
-// which must survive: values outside the slice are never written.
-void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const Limits& lim = {}) {
-  std::mt19937 rng(1234);
-  int ran = 0;
-  double worst = 0;
-  const bool fp16 = lim.options.precision == Precision::fp16;
-  for (const Case& c : list) {
-    const Conv2dParams p{c.k, c.s, c.k / 2, c.act};
-    const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
-    HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
-    HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
-    Conv2d conv(ctx, w, b, p, "conv2d", nullptr, lim.options);
-    conv.set_winograd_scratch_limit(lim.winograd_scratch);
-    conv.set_direct_chunk_limit(lim.direct_chunk);
-    conv.set_direct_texel_input(lim.direct_texel_input);
-    if (!conv.supports(algo)) continue;
-    const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
-    const int64_t nb = std::max(c.batch, c.in_batch_total);
-    HostTensor x = random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng);
-    const CanarySlice ys = canary_slice({c.batch, c.cout, oh, ow}, rng, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1);
-    HostTensor r = random_tensor({nb, c.cout, oh, ow}, rng);
-    HostTensor y_ref = ys.host;
-    conv2d_ref(HostSlice(x, c.in_c0, c.cin, c.in_n0, c.batch), ys.of(y_ref), w, b, p,
-               c.residual ? std::optional<HostSlice>(HostSlice(r, 0, -1, c.in_n0, c.batch)) : std::nullopt);
-    const DType dt = precision_dtype(lim.options.precision);
-    Tensor xd = to_device(ctx, x, dt), yd = to_device(ctx, ys.host, dt), rd = to_device(ctx, r, dt);
-    CommandStream cs(ctx);
-    conv.record(cs, Slice(xd, c.in_c0, c.cin, c.in_n0, c.batch), ys.of(yd),
-                c.residual ? std::optional<Slice>(Slice(rd, 0, -1, c.in_n0, c.batch)) : std::nullopt, algo);
-    cs.submit_and_wait();
-    const HostTensor y = to_host(yd);
-    const std::string what = std::string(conv_algo_name(algo)) + " k" + std::to_string(c.k) + " s" +
-                             std::to_string(c.s) + " " + std::to_string(c.cin) + "->" + std::to_string(c.cout) + " " +
-                             std::to_string(c.h) + "x" + std::to_string(c.w) + " batch " + std::to_string(c.batch) +
-                             " act " + activation_name(c.act.kind);
-    const double err = max_abs_diff(y, y_ref, ys);
-    worst = std::max(worst, err);
-    EXPECT_LE(err, fp16 ? kTolFp16 : kTol) << what << " " << precision_name(lim.options.precision);
-    EXPECT_EQ(canary_damage(y, ys), "") << what;
-    ++ran;
-  }
-  EXPECT_GT(ran, 0) << "no case applies to " << conv_algo_name(algo);
-  std::printf("[ measured ] conv2d %s %s: max abs error %.3g over %d cases\n", conv_algo_name(algo),
-              precision_name(lim.options.precision), worst, ran);
+std::string case_name(const Case& c) {
+  return "k" + std::to_string(c.k) + " s" + std::to_string(c.s) + " " + std::to_string(c.cin) + "->" +
+         std::to_string(c.cout) + " " + std::to_string(c.h) + "x" + std::to_string(c.w) + " batch " +
+         std::to_string(c.batch) + " act " + activation_name(c.act.kind) + (c.residual ? " residual" : "");
 }
-void run_cases(ConvAlgo algo, const Limits& lim = {}) { run_cases(vktest::context(), algo, cases(), lim); }
-Limits fp16(Limits lim = {}) {
-  lim.options.precision = Precision::fp16;
-  return lim;
+
+// One case of the op: weights drawn here, the conv built per precision when the case is recorded.
+optest::OpCase conv_case(const Case& c, ConvAlgo algo, const Limits& lim, std::mt19937& rng) {
+  const Conv2dParams p{c.k, c.s, c.k / 2, c.act};
+  const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
+  const HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
+  const HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
+  const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
+  const int64_t nb = std::max(c.batch, c.in_batch_total);
+  optest::OpCase k;
+  k.what = case_name(c);
+  k.inputs = {random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng), random_tensor({nb, c.cout, oh, ow}, rng)};
+  k.outputs = {{{c.batch, c.cout, oh, ow}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
+  k.reference = [c, w, b, p](optest::HostRun& r) {
+    const HostSlice residual(r.inputs[1], 0, -1, c.in_n0, c.batch);
+    conv2d_ref(HostSlice(r.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch), r.out(0), w, b, p,
+               c.residual ? std::optional<HostSlice>(residual) : std::nullopt);
+  };
+  k.record = [c, w, b, p, algo, lim](optest::DeviceRun& d) {
+    ConvOptions options = lim.options;
+    options.precision = d.precision;
+    auto conv = std::make_shared<Conv2d>(d.ctx, w, b, p, "conv2d", nullptr, options);
+    conv->set_winograd_scratch_limit(lim.winograd_scratch);
+    conv->set_direct_chunk_limit(lim.direct_chunk);
+    conv->set_direct_texel_input(lim.direct_texel_input);
+    if (!conv->supports(algo)) return false;
+    const Slice residual(d.inputs[1], 0, -1, c.in_n0, c.batch);
+    conv->record(d.stream, Slice(d.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch), d.out(0),
+                 c.residual ? std::optional<Slice>(residual) : std::nullopt, algo);
+    d.keep_alive = conv;
+    return true;
+  };
+  return k;
+}
+
+// Every case against the reference in each precision; the output slice sits among canaries
+// (op_test_harness.hpp), which must survive: values outside the slice are never written.
+void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const Limits& lim = {},
+               const Precisions& precisions = {kFp32, kFp16}) {
+  std::mt19937 rng(1234);
+  const bool chunked = lim.winograd_scratch != ~0ull || lim.direct_chunk > 0;
+  optest::OpTest test{std::string("conv2d ") + conv_algo_name(algo) + (chunked ? " in chunks" : "") +
+                          (lim.direct_texel_input ? "" : " storage input"),
+                      {}, {kTol, kTolFp16}, precisions};
+  for (const Case& c : list) test.cases.push_back(conv_case(c, algo, lim, rng));
+  optest::run_op_test(ctx, test);
+}
+void run_cases(ConvAlgo algo, const Limits& lim = {}, const Precisions& precisions = {kFp32, kFp16}) {
+  run_cases(vktest::context(), algo, cases(), lim, precisions);
 }
 }  // namespace
 
+// Every algorithm in both precisions; fp16 against the same fp32 reference.
 TEST(Conv2d, NaiveMatchesReference) { run_cases(ConvAlgo::naive); }
 TEST(Conv2d, BlockedMatchesReference) { run_cases(ConvAlgo::blocked); }
 TEST(Conv2d, WinogradMatchesReference) { run_cases(ConvAlgo::winograd); }
-// Scratch for 3 input channels' tiles only: several chunks accumulated by the GEMM.
-TEST(Conv2d, WinogradInChunksMatchesReference) { run_cases(ConvAlgo::winograd, {3 * 36 * 4 * 64}); }
 TEST(Conv2d, GemmMatchesReference) { run_cases(ConvAlgo::gemm); }
-TEST(Conv2d, GemmInChunksMatchesReference) { run_cases(ConvAlgo::gemm, {2 * 4 * 80}); }
 TEST(Conv2d, DirectMatchesReference) { run_cases(ConvAlgo::direct); }
+TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
+// The chunked variants: fp32 on every case, fp16 on the shorter list.
+// Scratch for 3 input channels' tiles only: several chunks accumulated by the GEMM.
+TEST(Conv2d, WinogradInChunksMatchesReference) {
+  run_cases(ConvAlgo::winograd, {3 * 36 * 4 * 64}, {kFp32});
+  run_cases(vktest::context(), ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64}, {kFp16});
+}
+TEST(Conv2d, GemmInChunksMatchesReference) {
+  run_cases(ConvAlgo::gemm, {2 * 4 * 80}, {kFp32});
+  run_cases(vktest::context(), ConvAlgo::gemm, canary_cases(), {2 * 4 * 80}, {kFp16});
+}
 // 2 input channels per dispatch: chunks accumulate in the output, the last applies act + residual.
-TEST(Conv2d, DirectInChunksMatchesReference) { run_cases(ConvAlgo::direct, {~0ull, 2}); }
+TEST(Conv2d, DirectInChunksMatchesReference) { run_cases(ConvAlgo::direct, {~0ull, 2}, {kFp32}); }
 // Each chunk's weights are a uniform binding: on a device with a 256-byte offset alignment the
-// chunks start at aligned channels (found on NVIDIA, whose 64 bytes refused 2-channel chunks).
+// chunks start at aligned channels (found on NVIDIA, whose 64 bytes refused 2-channel chunks); fp16:
+// direct's slabs of 8 halves per uniform entry.
 TEST(Conv2d, DirectInChunksOnAStrictUniformAlignment) {
-  run_cases(vktest::strict_uniform_context(), ConvAlgo::direct, cases(), {~0ull, 2});
+  run_cases(vktest::strict_uniform_context(), ConvAlgo::direct, cases(), {~0ull, 2}, {kFp32});
+  run_cases(vktest::strict_uniform_context(), ConvAlgo::direct, canary_cases(), {~0ull, 2}, {kFp16});
 }
 // The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
-TEST(Conv2d, DirectStorageInputMatchesReference) { run_cases(ConvAlgo::direct, {~0ull, 0, false}); }
-TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
-
-// fp16: the same cases for every algorithm, against the same fp32 reference.
-TEST(Conv2d, Fp16NaiveMatchesReference) { run_cases(ConvAlgo::naive, fp16()); }
-TEST(Conv2d, Fp16BlockedMatchesReference) { run_cases(ConvAlgo::blocked, fp16()); }
-TEST(Conv2d, Fp16WinogradMatchesReference) { run_cases(ConvAlgo::winograd, fp16()); }
-TEST(Conv2d, Fp16GemmMatchesReference) { run_cases(ConvAlgo::gemm, fp16()); }
-TEST(Conv2d, Fp16DirectMatchesReference) { run_cases(ConvAlgo::direct, fp16()); }
-TEST(Conv2d, Fp16AutomaticMatchesReference) { run_cases(ConvAlgo::automatic, fp16()); }
-// The chunked variants on the shorter list: Winograd and GEMM scratch for a few channels, direct's
-// fp16 slabs (8 halves per uniform entry) in 2-channel chunks on a 256-byte uniform alignment, the
-// storage-buffer input, and direct on the whole-binding context (its slab geometry is the one
-// dispatch layout that differs between the precisions).
-TEST(Conv2d, Fp16ChunkedVariantsMatchReference) {
-  run_cases(vktest::context(), ConvAlgo::winograd, canary_cases(), fp16({3 * 36 * 4 * 64}));
-  run_cases(vktest::context(), ConvAlgo::gemm, canary_cases(), fp16({2 * 4 * 80}));
-  run_cases(vktest::strict_uniform_context(), ConvAlgo::direct, canary_cases(), fp16({~0ull, 2}));
-  run_cases(vktest::context(), ConvAlgo::direct, canary_cases(), fp16({~0ull, 0, false}));
-  run_cases(vktest::whole_binding_context(), ConvAlgo::direct, canary_cases(), fp16({~0ull, 2}));
+TEST(Conv2d, DirectStorageInputMatchesReference) {
+  run_cases(ConvAlgo::direct, {~0ull, 0, false}, {kFp32});
+  run_cases(vktest::context(), ConvAlgo::direct, canary_cases(), {~0ull, 0, false}, {kFp16});
 }
 
 // Every algorithm (and the chunked variants) on a context that binds whole tensors: a write
 // outside the output slice lands on a canary inside the binding. The blocked path's dispatch sized
 // by 8 output channels while its shader used 16 (fixed) wrote batch items past the slice here.
+// Direct in chunks in fp16 too: its slab geometry is the one dispatch layout that differs between
+// the precisions.
 TEST(Conv2d, WritesNothingOutsideItsSlice) {
   Context& ctx = vktest::whole_binding_context();
   for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
                      ConvAlgo::automatic})
-    run_cases(ctx, a, canary_cases());
-  run_cases(ctx, ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64});
-  run_cases(ctx, ConvAlgo::gemm, canary_cases(), {2 * 4 * 80});
+    run_cases(ctx, a, canary_cases(), {}, {kFp32});
+  run_cases(ctx, ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64}, {kFp32});
+  run_cases(ctx, ConvAlgo::gemm, canary_cases(), {2 * 4 * 80}, {kFp32});
   run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 2});
-  run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 0, false});
+  run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 0, false}, {kFp32});
 }
 
 // Non-default tuning knobs change the blocking, never the result.
@@ -189,17 +195,17 @@ TEST(Conv2d, OptionsChangeSpeedNotResults) {
   Limits lim;
   lim.options.blocked_cob = 4;
   lim.options.blocked_px = 5;
-  run_cases(ctx, ConvAlgo::blocked, few, lim);
+  run_cases(ctx, ConvAlgo::blocked, few, lim, {kFp32});
   lim.options = {};
   lim.options.direct_cob = 8;
   lim.options.direct_px = 3;
   lim.options.direct_py = 2;
-  run_cases(ctx, ConvAlgo::direct, few, lim);
+  run_cases(ctx, ConvAlgo::direct, few, lim, {kFp32});
   lim.options = {};
   lim.options.gemm_cob = 4;
   lim.options.gemm_tv = 1;
-  run_cases(ctx, ConvAlgo::winograd, few, lim);
-  run_cases(ctx, ConvAlgo::gemm, few, lim);
+  run_cases(ctx, ConvAlgo::winograd, few, lim, {kFp32});
+  run_cases(ctx, ConvAlgo::gemm, few, lim, {kFp32});
 }
 
 TEST(Conv2d, OptionsAreValidatedByName) {

@@ -3,9 +3,13 @@
 // the device has it (else skipped, naming the extension).
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdio>
+#include <memory>
+#include <optional>
 
 #include "kernel_test_util.hpp"
+#include "op_test_harness.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
@@ -67,65 +71,76 @@ struct Run {
 
 int64_t ceil_div(int64_t a, int64_t b) { return (a + b - 1) / b; }
 
-// Every case against the reference; the output slice sits among canaries (kernel_test_util.hpp).
-void run_cases(Context& ctx, const std::vector<Case>& list, const Run& run) {
-  std::mt19937 rng(4321);
-  int ran[2] = {0, 0};
-  double worst[2] = {0, 0};  // 1x1, 3x3
-  ConvOptions options;
-  options.precision = Precision::fp16;
-  // A shared scratch full of fp16 NaNs before every case: the padded rows of V must be written as
-  // zeros and M overwritten by the first chunk, or NaNs reach the output.
-  auto workspace = std::make_shared<ConvWorkspace>();
-  const auto poison = [&] {
-    CommandStream cs(ctx);
-    for (int slot : {0, 1}) cs.fill(workspace->get(ctx, slot, 4u << 20), 0x7e007e00u);
-    cs.submit_and_wait();
+// One case of the op in fp16: the conv built when it is recorded, on a shared scratch full of fp16
+// NaNs (the padded rows of V must be written as zeros and M overwritten by the first chunk, or NaNs
+// reach the output).
+optest::OpCase coopmat_case(const Case& c, const Run& run, const std::shared_ptr<ConvWorkspace>& workspace,
+                            std::mt19937& rng) {
+  const Conv2dParams p{c.k, 1, c.k / 2, c.act};
+  const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
+  const HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
+  const HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
+  const int64_t nb = std::max(c.batch, c.in_batch_total);
+  optest::OpCase k;
+  k.what = std::to_string(c.k) + "x" + std::to_string(c.k) + " " + std::to_string(c.cin) + "->" + std::to_string(c.cout) +
+           " " + std::to_string(c.h) + "x" + std::to_string(c.w) + " batch " + std::to_string(c.batch) + " act " +
+           activation_name(c.act.kind) + (c.residual ? " residual" : "");
+  k.inputs = {random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng), random_tensor({nb, c.cout, c.h, c.w}, rng)};
+  k.outputs = {{{c.batch, c.cout, c.h, c.w}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
+  k.reference = [c, w, b, p](optest::HostRun& r) {
+    const HostSlice residual(r.inputs[1], 0, -1, c.in_n0, c.batch);
+    conv2d_ref(HostSlice(r.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch), r.out(0), w, b, p,
+               c.residual ? std::optional<HostSlice>(residual) : std::nullopt);
   };
-  for (const Case& c : list) {
-    if (run.chunk_rows > 0 && c.k != 1) continue;  // the 3x3 path has no scratch to cap
-    poison();
-    const Conv2dParams p{c.k, 1, c.k / 2, c.act};
-    const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
-    HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
-    HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
-    Conv2d conv(ctx, w, b, p, "conv1x1", workspace, options);
-    if (run.emulated) conv.set_coopmat_emulation(true, run.n, run.k);
+  k.record = [c, w, b, p, run, workspace](optest::DeviceRun& d) {
+    if (run.chunk_rows > 0 && c.k != 1) return false;  // the 3x3 path has no scratch to cap
+    CommandStream poison(d.ctx);
+    for (int slot : {0, 1}) poison.fill(workspace->get(d.ctx, slot, 4u << 20), 0x7e007e00u);
+    poison.submit_and_wait();
+    ConvOptions options;
+    options.precision = Precision::fp16;
+    auto conv = std::make_shared<Conv2d>(d.ctx, w, b, p, "conv1x1", workspace, options);
+    if (run.emulated) conv->set_coopmat_emulation(true, run.n, run.k);
     const int64_t npix = c.batch * c.h * c.w;
     // V holds chunk_rows channels of the pixels padded to 128 (the workgroup's), fp16
     if (run.chunk_rows > 0)
-      conv.set_winograd_scratch_limit(static_cast<uint64_t>(run.chunk_rows * ceil_div(npix, 128) * 128 * 2));
-    ASSERT_TRUE(conv.supports(ConvAlgo::coopmat));
-    const int64_t nb = std::max(c.batch, c.in_batch_total);
-    HostTensor x = random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng);
-    const CanarySlice ys = canary_slice({c.batch, c.cout, c.h, c.w}, rng, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1);
-    HostTensor r = random_tensor({nb, c.cout, c.h, c.w}, rng);
-    HostTensor y_ref = ys.host;
-    conv2d_ref(HostSlice(x, c.in_c0, c.cin, c.in_n0, c.batch), ys.of(y_ref), w, b, p,
-               c.residual ? std::optional<HostSlice>(HostSlice(r, 0, -1, c.in_n0, c.batch)) : std::nullopt);
-    Tensor xd = to_device(ctx, x, DType::f16), yd = to_device(ctx, ys.host, DType::f16), rd = to_device(ctx, r, DType::f16);
-    const Slice in(xd, c.in_c0, c.cin, c.in_n0, c.batch);
-    ASSERT_TRUE(conv.supports(ConvAlgo::coopmat, in.shape()));
-    CommandStream cs(ctx);
-    conv.record(cs, in, ys.of(yd), c.residual ? std::optional<Slice>(Slice(rd, 0, -1, c.in_n0, c.batch)) : std::nullopt,
-                ConvAlgo::coopmat);
+      conv->set_winograd_scratch_limit(static_cast<uint64_t>(run.chunk_rows * ceil_div(npix, 128) * 128 * 2));
+    const Slice in(d.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch);
+    if (!conv->supports(ConvAlgo::coopmat) || !conv->supports(ConvAlgo::coopmat, in.shape())) {
+      ADD_FAILURE() << "coopmat does not apply to a case it is for";
+      return false;
+    }
+    const Slice residual(d.inputs[1], 0, -1, c.in_n0, c.batch);
+    conv->record(d.stream, in, d.out(0), c.residual ? std::optional<Slice>(residual) : std::nullopt, ConvAlgo::coopmat);
     // 1x1: pack + GEMM per input-channel chunk, one epilogue; 3x3: the GEMM (no scratch), the epilogue
     const int64_t chunks = run.chunk_rows > 0 ? ceil_div(c.cin, run.chunk_rows) : 1;
-    EXPECT_EQ(cs.recorded(), static_cast<size_t>(c.k == 3 ? 2 : 2 * chunks + 1));
-    cs.submit_and_wait();
-    const HostTensor y = to_host(yd);
-    const std::string what = std::to_string(c.k) + "x" + std::to_string(c.k) + " " + std::to_string(c.cin) + "->" +
-                             std::to_string(c.cout) + " " + std::to_string(c.h) + "x" + std::to_string(c.w) +
-                             " batch " + std::to_string(c.batch) + " act " + activation_name(c.act.kind) + (c.residual ? " residual" : "");
-    const double err = max_abs_diff(y, y_ref, ys);
-    worst[c.k == 3] = std::max(worst[c.k == 3], err);
-    EXPECT_LE(err, kTolFp16) << what;
-    EXPECT_EQ(canary_damage(y, ys), "") << what;
-    ++ran[c.k == 3];
+    EXPECT_EQ(d.stream.recorded(), static_cast<size_t>(c.k == 3 ? 2 : 2 * chunks + 1));
+    d.keep_alive = conv;
+    return true;
+  };
+  return k;
+}
+
+// Every case against the reference in fp16 (coopmat's only precision); the output slice sits among
+// canaries (op_test_harness.hpp).
+void run_cases(Context& ctx, const std::vector<Case>& list, const Run& run) {
+  std::mt19937 rng(4321);
+  auto workspace = std::make_shared<ConvWorkspace>();
+  optest::OpTest test{std::string("conv2d coopmat ") + (run.emulated ? "emulated" : "NV") + " 16x" +
+                          std::to_string(run.n) + "x" + std::to_string(run.k) +
+                          (run.chunk_rows ? ", chunks of " + std::to_string(run.chunk_rows) + " channels" : ""),
+                      {}, {0, kTolFp16}, {Precision::fp16}};
+  for (const Case& c : list) test.cases.push_back(coopmat_case(c, run, workspace, rng));
+  const optest::OpTestReport report = optest::run_op_test(ctx, test);
+  double worst[2] = {0, 0};  // 1x1, 3x3
+  int ran[2] = {0, 0};
+  for (size_t i = 0; i < list.size(); ++i) {
+    if (report.error[1][i] < 0) continue;
+    const int three = list[i].k == 3;
+    worst[three] = std::max(worst[three], report.error[1][i]);
+    ++ran[three];
   }
-  std::printf("[ measured ] conv2d coopmat fp16 %s 16x%ux%u%s: max abs error %.3g over %d 1x1 cases, %.3g over %d 3x3\n",
-              run.emulated ? "emulated" : "NV", run.n, run.k,
-              run.chunk_rows ? (", chunks of " + std::to_string(run.chunk_rows) + " channels").c_str() : "", worst[0],
+  std::printf("[ measured ] %s: max abs error %.3g over %d 1x1 cases, %.3g over %d 3x3\n", test.op.c_str(), worst[0],
               ran[0], worst[1], ran[1]);
 }
 

@@ -1,9 +1,11 @@
 // conv_transpose2d parity: every algorithm against the CPU reference (PyTorch weight layout).
 #include <gtest/gtest.h>
 
-#include <cstdio>
+#include <cmath>
+#include <memory>
 
 #include "kernel_test_util.hpp"
+#include "op_test_harness.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
@@ -21,12 +23,43 @@ struct Case {
   int64_t in_extra_c = 0, in_c0 = 0, out_extra_c = 0, out_c0 = 0, batch = 1;
 };
 
-void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0, bool direct_texel_input = true,
-               Precision prec = Precision::fp32) {
+struct Variant {
+  ConvTransposeAlgo algo = ConvTransposeAlgo::automatic;
+  int64_t direct_chunk_limit = 0;
+  bool direct_texel_input = true;
+  std::vector<Precision> precisions{Precision::fp32, Precision::fp16};
+};
+
+// One case of the op: weights drawn here, the op built per precision when the case is recorded.
+optest::OpCase deconv_case(const Case& c, const Variant& v, std::mt19937& rng) {
+  const ConvTranspose2dParams p{4, 2, 1, c.act};
+  const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * 4));
+  const HostTensor w = random_tensor({c.cin, c.cout, 4, 4}, rng, -ws, ws);
+  const HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
+  optest::OpCase k;
+  k.what = std::to_string(c.cin) + "->" + std::to_string(c.cout) + " " + std::to_string(c.h) + "x" +
+           std::to_string(c.w) + " batch " + std::to_string(c.batch);
+  k.inputs = {random_tensor({c.batch, c.cin + c.in_extra_c, c.h, c.w}, rng)};
+  k.outputs = {{{c.batch, c.cout, 2 * c.h, 2 * c.w}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
+  k.reference = [c, w, b, p](optest::HostRun& r) {
+    conv_transpose2d_ref(HostSlice(r.inputs[0], c.in_c0, c.cin), r.out(0), w, b, p);
+  };
+  k.record = [c, w, b, p, v](optest::DeviceRun& d) {
+    ConvOptions opt;
+    opt.precision = d.precision;
+    auto deconv = std::make_shared<ConvTranspose2d>(d.ctx, w, b, p, "conv_transpose2d", opt);
+    deconv->set_direct_chunk_limit(v.direct_chunk_limit);
+    deconv->set_direct_texel_input(v.direct_texel_input);
+    if (!deconv->supports(v.algo)) return false;
+    deconv->record(d.stream, Slice(d.inputs[0], c.in_c0, c.cin), d.out(0), v.algo);
+    d.keep_alive = deconv;
+    return true;
+  };
+  return k;
+}
+
+void run_cases(Context& ctx, const Variant& v) {
   std::mt19937 rng(99);
-  double worst = 0;
-  ConvOptions opt;
-  opt.precision = prec;
   const std::vector<Case> cases{
       {5, 7, 9, 11, leaky_relu(0.1f), 3, 2, 4, 4, 2},
       {16, 8, 1, 1, Act{}},
@@ -36,75 +69,38 @@ void run_cases(Context& ctx, ConvTransposeAlgo algo, int64_t direct_chunk_limit 
       {32, 16, 11, 9, leaky_relu(0.01f), 0, 0, 16, 16, 2},
       {33, 64, 5, 3, leaky_relu(0.2f), 2, 1, 0, 0, 1},  // direct's 32-channel blocks
   };
-  int ran = 0;
-  for (const Case& c : cases) {
-    const ConvTranspose2dParams p{4, 2, 1, c.act};
-    const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * 4));
-    HostTensor w = random_tensor({c.cin, c.cout, 4, 4}, rng, -ws, ws);
-    HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
-    ConvTranspose2d deconv(ctx, w, b, p, "conv_transpose2d", opt);
-    deconv.set_direct_chunk_limit(direct_chunk_limit);
-    deconv.set_direct_texel_input(direct_texel_input);
-    if (!deconv.supports(algo)) continue;
-    HostTensor x = random_tensor({c.batch, c.cin + c.in_extra_c, c.h, c.w}, rng);
-    // The output slice among canaries that must survive (kernel_test_util.hpp).
-    const CanarySlice ys =
-        canary_slice({c.batch, c.cout, 2 * c.h, 2 * c.w}, rng, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1);
-    HostTensor y_ref = ys.host;
-    conv_transpose2d_ref(HostSlice(x, c.in_c0, c.cin), ys.of(y_ref), w, b, p);
-    Tensor xd = to_device(ctx, x, precision_dtype(prec)), yd = to_device(ctx, ys.host, precision_dtype(prec));
-    CommandStream cs(ctx);
-    deconv.record(cs, Slice(xd, c.in_c0, c.cin), ys.of(yd), algo);
-    cs.submit_and_wait();
-    const HostTensor y = to_host(yd);
-    const std::string what = std::string(conv_transpose_algo_name(algo)) + " " + std::to_string(c.cin) + "->" +
-                             std::to_string(c.cout) + " " + std::to_string(c.h) + "x" + std::to_string(c.w);
-    const double err = max_abs_diff(y, y_ref, ys);
-    worst = std::max(worst, err);
-    EXPECT_LE(err, prec == Precision::fp16 ? kTolFp16 : kTol) << what << " " << precision_name(prec);
-    EXPECT_EQ(canary_damage(y, ys), "") << what;
-    ++ran;
-  }
-  EXPECT_GT(ran, 0);
-  std::printf("[ measured ] conv_transpose2d %s %s: max abs error %.3g over %d cases\n",
-              conv_transpose_algo_name(algo), precision_name(prec), worst, ran);
+  optest::OpTest test{std::string("conv_transpose2d ") + conv_transpose_algo_name(v.algo) +
+                          (v.direct_chunk_limit ? " in chunks" : "") + (v.direct_texel_input ? "" : " storage input"),
+                      {}, {kTol, kTolFp16}, v.precisions};
+  for (const Case& c : cases) test.cases.push_back(deconv_case(c, v, rng));
+  optest::run_op_test(ctx, test);
 }
-void run_cases(ConvTransposeAlgo algo, int64_t direct_chunk_limit = 0, bool direct_texel_input = true) {
-  run_cases(vktest::context(), algo, direct_chunk_limit, direct_texel_input);
-}
+void run_cases(const Variant& v) { run_cases(vktest::context(), v); }
+constexpr auto kFp32 = Precision::fp32;
 }  // namespace
 
-TEST(ConvTranspose2d, NaiveMatchesReference) { run_cases(ConvTransposeAlgo::naive); }
-TEST(ConvTranspose2d, BlockedMatchesReference) { run_cases(ConvTransposeAlgo::blocked); }
-TEST(ConvTranspose2d, DirectMatchesReference) { run_cases(ConvTransposeAlgo::direct); }
+// Every algorithm in both precisions; fp16 against the same fp32 reference.
+TEST(ConvTranspose2d, NaiveMatchesReference) { run_cases({ConvTransposeAlgo::naive}); }
+TEST(ConvTranspose2d, BlockedMatchesReference) { run_cases({ConvTransposeAlgo::blocked}); }
+TEST(ConvTranspose2d, DirectMatchesReference) { run_cases({ConvTransposeAlgo::direct}); }
 // 3 input channels per dispatch: chunks accumulate in the output, the last applies the activation.
-TEST(ConvTranspose2d, DirectInChunksMatchesReference) { run_cases(ConvTransposeAlgo::direct, 3); }
+TEST(ConvTranspose2d, DirectInChunksMatchesReference) { run_cases({ConvTransposeAlgo::direct, 3, true, {kFp32}}); }
 // Chunk starts on a 256-byte uniform offset alignment (see Conv2d.DirectInChunksOnAStrictUniformAlignment).
 TEST(ConvTranspose2d, DirectInChunksOnAStrictUniformAlignment) {
-  run_cases(vktest::strict_uniform_context(), ConvTransposeAlgo::direct, 3);
+  run_cases(vktest::strict_uniform_context(), {ConvTransposeAlgo::direct, 3});
 }
 // The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
-TEST(ConvTranspose2d, DirectStorageInputMatchesReference) { run_cases(ConvTransposeAlgo::direct, 0, false); }
-TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases(ConvTransposeAlgo::automatic); }
-
-// fp16: the same cases for every algorithm (direct also in chunks on a 256-byte uniform alignment,
-// and with the storage-buffer input), against the same fp32 reference.
-TEST(ConvTranspose2d, Fp16MatchesReference) {
-  Context& ctx = vktest::context();
-  for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
-    run_cases(ctx, a, 0, true, Precision::fp16);
-  run_cases(vktest::strict_uniform_context(), ConvTransposeAlgo::direct, 3, true, Precision::fp16);
-  run_cases(ctx, ConvTransposeAlgo::direct, 0, false, Precision::fp16);
-}
+TEST(ConvTranspose2d, DirectStorageInputMatchesReference) { run_cases({ConvTransposeAlgo::direct, 0, false}); }
+TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases({ConvTransposeAlgo::automatic, 0, true, {kFp32}}); }
 
 // Every algorithm on a context that binds whole tensors: a write outside the output slice lands on
 // a canary inside the binding (lavapipe drops writes past a binding).
 TEST(ConvTranspose2d, WritesNothingOutsideItsSlice) {
   Context& ctx = vktest::whole_binding_context();
   for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
-    run_cases(ctx, a);
-  run_cases(ctx, ConvTransposeAlgo::direct, 3);
-  run_cases(ctx, ConvTransposeAlgo::direct, 0, false);
+    run_cases(ctx, {a, 0, true, {kFp32}});
+  run_cases(ctx, {ConvTransposeAlgo::direct, 3, true, {kFp32}});
+  run_cases(ctx, {ConvTransposeAlgo::direct, 0, false, {kFp32}});
 }
 
 TEST(ConvTranspose2d, ReferenceKnownValues) {

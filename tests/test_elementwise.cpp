@@ -3,9 +3,10 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdio>
+#include <iterator>
 
 #include "kernel_test_util.hpp"
+#include "op_test_harness.hpp"
 #include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
@@ -18,72 +19,49 @@ constexpr double kTol = 1e-6;  // one or two fp32 roundings of values of order 1
 // fp16 (inputs and outputs stored as half, fp32 arithmetic) against the fp32 reference, relative
 // to the output's range: docs/kernels.md, "Precision".
 constexpr double kRelTolFp16 = 2e-3;
-}
+constexpr Activation kActivations[] = {Activation::none, Activation::leaky_relu, Activation::tanh,
+                                       Activation::sigmoid, Activation::hardsigmoid};
 
-namespace {
-// Every op into a slice among canaries that must survive.
-void run_cases(Context& ctx, Precision prec = Precision::fp32) {
+// Every op into its own slice among canaries, one case a shape: add, copy, clamp01, scale_act with
+// each activation (x100: its fp32 tolerance scales with it) and blend across batch items.
+optest::OpTest elementwise_test() {
   std::mt19937 rng(17);
-  const DType dt = precision_dtype(prec);
-  double worst = 0;
+  optest::OpTest test{"elementwise", {}, {kTol, kRelTolFp16, true}};
   for (Shape s : {Shape{2, 5, 7, 9}, Shape{2, 3, 1, 1}, Shape{2, 6, 1, 13}}) {
+    optest::OpCase k;
+    k.what = s.str();
     // One tensor holding two batch items and extra channels; ops read channel slices of it.
-    HostTensor t = random_tensor({s.n, s.c * 2 + 1, s.h, s.w}, rng, -4.f, 4.f);
-    HostTensor m = random_tensor({s.n, 1, s.h, s.w}, rng, 0.f, 1.f);
-    Tensor td = to_device(ctx, t, dt), md = to_device(ctx, m, dt);
-    const HostSlice a(t, 0, s.c), b(t, s.c, s.c);
-    const Slice ad(td, 0, s.c), bd(td, s.c, s.c);
-    const Shape half{1, s.c, s.h, s.w};
-    struct Out {
-      CanarySlice cs;
-      HostTensor ref;
-      Tensor dev;
+    k.inputs = {random_tensor({s.n, s.c * 2 + 1, s.h, s.w}, rng, -4.f, 4.f), random_tensor({s.n, 1, s.h, s.w}, rng, 0.f, 1.f)};
+    k.outputs.assign(3, {s});
+    for (size_t i = 0; i < std::size(kActivations); ++i) k.outputs.push_back({s, 1, 2, 100});
+    k.outputs.push_back({{1, s.c, s.h, s.w}});
+    k.reference = [s](optest::HostRun& r) {
+      const HostSlice a(r.inputs[0], 0, s.c), b(r.inputs[0], s.c, s.c);
+      add_ref(a, b, r.out(0));
+      copy_ref(b, r.out(1));
+      clamp01_ref(a, r.out(2));
+      for (size_t i = 0; i < std::size(kActivations); ++i) scale_act_ref(a, r.out(3 + i), {kActivations[i], 0.2f}, 100.f);
+      // MOA: m * (item 0) + (1 - m) * (item 1), the mask from item 0 of m.
+      blend_ref(HostSlice(r.inputs[1], 0, 1, 0, 1), HostSlice(r.inputs[0], 0, s.c, 0, 1),
+                HostSlice(r.inputs[0], 0, s.c, 1, 1), r.out(8));
     };
-    std::vector<Out> outs;
-    CommandStream cs(ctx);
-    auto next = [&](Shape os) -> Out& {
-      CanarySlice c = canary_slice(os, rng);
-      HostTensor ref = c.host;
-      Tensor dev = to_device(ctx, c.host, dt);
-      outs.push_back({std::move(c), std::move(ref), std::move(dev)});
-      return outs.back();
+    k.record = [s](optest::DeviceRun& d) {
+      const Slice a(d.inputs[0], 0, s.c), b(d.inputs[0], s.c, s.c);
+      add(d.stream, a, b, d.out(0));
+      copy(d.stream, b, d.out(1));
+      clamp01(d.stream, a, d.out(2));
+      for (size_t i = 0; i < std::size(kActivations); ++i) scale_act(d.stream, a, d.out(3 + i), {kActivations[i], 0.2f}, 100.f);
+      blend(d.stream, Slice(d.inputs[1], 0, 1, 0, 1), Slice(d.inputs[0], 0, s.c, 0, 1), Slice(d.inputs[0], 0, s.c, 1, 1),
+            d.out(8));
+      return true;
     };
-    outs.reserve(16);
-    { Out& o = next(s); add_ref(a, b, o.cs.of(o.ref)); add(cs, ad, bd, o.cs.of(o.dev)); }
-    { Out& o = next(s); copy_ref(b, o.cs.of(o.ref)); copy(cs, bd, o.cs.of(o.dev)); }
-    { Out& o = next(s); clamp01_ref(a, o.cs.of(o.ref)); clamp01(cs, ad, o.cs.of(o.dev)); }
-    for (Activation k : {Activation::none, Activation::leaky_relu, Activation::tanh, Activation::sigmoid,
-                         Activation::hardsigmoid}) {
-      Out& o = next(s);
-      scale_act_ref(a, o.cs.of(o.ref), {k, 0.2f}, 100.f);
-      scale_act(cs, ad, o.cs.of(o.dev), {k, 0.2f}, 100.f);
-    }
-    {  // MOA: m * (item 0) + (1 - m) * (item 1), the mask from item 0 of m.
-      Out& o = next(half);
-      blend_ref(HostSlice(m, 0, 1, 0, 1), HostSlice(t, 0, s.c, 0, 1), HostSlice(t, 0, s.c, 1, 1), o.cs.of(o.ref));
-      blend(cs, Slice(md, 0, 1, 0, 1), Slice(td, 0, s.c, 0, 1), Slice(td, 0, s.c, 1, 1), o.cs.of(o.dev));
-    }
-    cs.submit_and_wait();
-    for (size_t i = 0; i < outs.size(); ++i) {
-      // scale_act multiplies by 100: its tolerance scales with it.
-      const double tol = (i >= 3 && i < 8) ? 100 * kTol : kTol;
-      const HostTensor got = to_host(outs[i].dev);
-      if (prec == Precision::fp16) {
-        const double err = max_range_rel_diff(got, outs[i].ref, outs[i].cs);
-        worst = std::max(worst, err);
-        EXPECT_LE(err, kRelTolFp16) << "fp16 op " << i << " " << s.str();
-      } else {
-        EXPECT_LE(max_abs_diff(got, outs[i].ref, outs[i].cs), tol) << "op " << i << " " << s.str();
-      }
-      EXPECT_EQ(canary_damage(got, outs[i].cs), "") << "op " << i << " " << s.str();
-    }
+    test.cases.push_back(std::move(k));
   }
-  if (prec == Precision::fp16) std::printf("[ measured ] elementwise fp16: max relative error %.3g\n", worst);
+  return test;
 }
 }  // namespace
 
-TEST(Elementwise, EveryOpMatchesReference) { run_cases(vktest::context()); }
-TEST(Elementwise, Fp16EveryOpMatchesReference) { run_cases(vktest::context(), Precision::fp16); }
+TEST(Elementwise, EveryOpMatchesReferenceInBothPrecisions) { optest::run_op_test(vktest::context(), elementwise_test()); }
 
 // copy converts between an f32 and an f16 slice (the model's fp32 inputs and outputs), rounding to
 // nearest even and saturating at +-65504.
@@ -122,8 +100,7 @@ TEST(Elementwise, CopyConvertsBetweenFp32AndFp16Slices) {
 }
 // On a context that binds whole tensors a write outside an output slice lands on a canary.
 TEST(Elementwise, WritesNothingOutsideItsSlice) {
-  run_cases(vktest::whole_binding_context());
-  run_cases(vktest::whole_binding_context(), Precision::fp16);
+  optest::run_op_test(vktest::whole_binding_context(), elementwise_test());
 }
 
 TEST(Elementwise, InPlaceAddAndCopyIntoAConcatenation) {

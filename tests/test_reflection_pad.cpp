@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
+#include "op_test_harness.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
@@ -29,45 +30,44 @@ TEST(ReflectionPad, ReflectIndexMatchesPyTorchWherePyTorchWorks) {
 
 namespace {
 // Pure data movement: bit-exact, in fp16 too (against the reference on the inputs as fp16 stores
-// them). Both outputs are slices among canaries that must survive.
-void run_cases(Context& ctx, Precision prec = Precision::fp32) {
+// them). Both outputs are slices among canaries.
+optest::OpTest pad_and_crop_test() {
   std::mt19937 rng(7);
-  const DType dt = precision_dtype(prec);
+  optest::OpTest test{"reflection_pad + crop", {}, {0, 0, false, true}};
   struct C { int64_t n, c, h, w, extra, c0; };
   for (const C& c : std::vector<C>{{1, 3, 20, 30, 0, 0}, {2, 5, 33, 7, 3, 2}, {1, 2, 1, 13, 0, 0}, {1, 1, 1, 1, 1, 1},
                                    {1, 67, 5, 9, 0, 0}}) {
     const Pads pads = size_adapter_pads(c.h, c.w);
-    HostTensor x = random_tensor({c.n, c.c + c.extra, c.h, c.w}, rng);
-    if (prec == Precision::fp16) x = rounded_to_half(x);
-    const Shape ps{c.n, c.c, c.h + pads.top + pads.bottom, c.w + pads.left + pads.right};
-    const CanarySlice pcs = canary_slice(ps, rng);
-    HostTensor padded_ref = pcs.host;
-    reflection_pad_ref(HostSlice(x, c.c0, c.c), pcs.of(padded_ref), pads);
-    const CanarySlice ycs = canary_slice({c.n, c.c, c.h, c.w}, rng, c.c0 + 1, c.extra - c.c0 + 1);
-    HostTensor y_ref = ycs.host;
-    crop_ref(HostSlice(padded_ref, pcs.c0, pcs.c, pcs.n0, pcs.n), ycs.of(y_ref), pads.top, pads.left);
-    Tensor xd = to_device(ctx, x, dt), pd = to_device(ctx, pcs.host, dt), yd = to_device(ctx, ycs.host, dt);
-    CommandStream cs(ctx);
-    reflection_pad(cs, Slice(xd, c.c0, c.c), pcs.of(pd), pads);
-    crop(cs, pcs.of(pd), ycs.of(yd), pads.top, pads.left);
-    cs.submit_and_wait();
-    const HostTensor p = to_host(pd), y = to_host(yd);
-    EXPECT_EQ(max_abs_diff(p, padded_ref, pcs), 0.0) << c.h << "x" << c.w;
-    EXPECT_EQ(canary_damage(p, pcs), "") << "reflection_pad " << c.h << "x" << c.w;
-    EXPECT_EQ(max_abs_diff(y, y_ref, ycs), 0.0);
-    EXPECT_EQ(canary_damage(y, ycs), "") << "crop " << c.h << "x" << c.w;
+    optest::OpCase k;
+    k.what = Shape{c.n, c.c, c.h, c.w}.str();
+    k.inputs = {random_tensor({c.n, c.c + c.extra, c.h, c.w}, rng)};
+    k.outputs = {{{c.n, c.c, c.h + pads.top + pads.bottom, c.w + pads.left + pads.right}},
+                 {{c.n, c.c, c.h, c.w}, c.c0 + 1, c.extra - c.c0 + 1}};
+    k.reference = [c, pads](optest::HostRun& r) {
+      reflection_pad_ref(HostSlice(r.inputs[0], c.c0, c.c), r.out(0), pads);
+      crop_ref(r.written(0), r.out(1), pads.top, pads.left);
+    };
+    k.record = [c, pads](optest::DeviceRun& d) {
+      reflection_pad(d.stream, Slice(d.inputs[0], c.c0, c.c), d.out(0), pads);
+      crop(d.stream, d.out(0), d.out(1), pads.top, pads.left);
+      return true;
+    };
     // The crop undoes the pad.
-    for (int64_t n = 0; n < c.n; ++n)
-      for (int64_t ch = 0; ch < c.c; ++ch)
-        for (int64_t yy = 0; yy < c.h; ++yy)
-          for (int64_t xx = 0; xx < c.w; ++xx)
-            ASSERT_EQ(y_ref.at(ycs.n0 + n, ycs.c0 + ch, yy, xx), x.at(n, c.c0 + ch, yy, xx));
+    k.check = [c](const optest::HostRun& r, const std::vector<HostTensor>&) {
+      const HostSlice y = r.written(1);
+      for (int64_t n = 0; n < c.n; ++n)
+        for (int64_t ch = 0; ch < c.c; ++ch)
+          for (int64_t yy = 0; yy < c.h; ++yy)
+            for (int64_t xx = 0; xx < c.w; ++xx) ASSERT_EQ(y.at(n, ch, yy, xx), r.inputs[0].at(n, c.c0 + ch, yy, xx));
+    };
+    test.cases.push_back(std::move(k));
   }
+  return test;
 }
 }  // namespace
 
-TEST(ReflectionPad, PadAndCropMatchReference) {
-  run_cases(vktest::context());
+TEST(ReflectionPad, PadAndCropMatchReferenceInBothPrecisions) {
+  optest::run_op_test(vktest::context(), pad_and_crop_test());
   Context& ctx = vktest::context();
   Tensor a(ctx, {1, 1, 4, 4}), b(ctx, {1, 1, 3, 3});
   CommandStream cs(ctx);
@@ -76,8 +76,6 @@ TEST(ReflectionPad, PadAndCropMatchReference) {
 }
 
 // On a context that binds whole tensors a write outside an output slice lands on a canary.
-TEST(ReflectionPad, Fp16PadAndCropMatchReference) { run_cases(vktest::context(), Precision::fp16); }
 TEST(ReflectionPad, WritesNothingOutsideItsSlice) {
-  run_cases(vktest::whole_binding_context());
-  run_cases(vktest::whole_binding_context(), Precision::fp16);
+  optest::run_op_test(vktest::whole_binding_context(), pad_and_crop_test());
 }

@@ -2,7 +2,7 @@
 #include <gtest/gtest.h>
 
 #include "kernel_test_util.hpp"
-#include "vkunroll/kernels/elementwise.hpp"
+#include "op_test_harness.hpp"
 #include "vkunroll/kernels/space_to_depth.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vk_test_env.hpp"
@@ -12,50 +12,47 @@ using namespace vkunroll::ktest;
 
 namespace {
 // Pure data movement: the GPU result must be bit-exact (tolerance 0), in fp16 too (against the
-// reference on the inputs as fp16 stores them). Both outputs are slices among canaries that must survive.
-void run_cases(Context& ctx, Precision prec = Precision::fp32) {
+// reference on the inputs as fp16 stores them). Both outputs are slices among canaries.
+optest::OpTest space_to_depth_test() {
   std::mt19937 rng(5);
-  const DType dt = precision_dtype(prec);
+  optest::OpTest test{"space_to_depth + depth_to_space", {}, {0, 0, false, true}};
   struct C { int64_t n, c, h, w, extra_in, c0_in, extra_out, c0_out; };
   for (const C& c : std::vector<C>{{1, 3, 8, 6, 0, 0, 0, 0}, {2, 5, 7, 9, 2, 1, 4, 4}, {1, 1, 1, 1, 0, 0, 0, 0},
                                    {1, 2, 1, 13, 1, 1, 0, 0}, {1, 99, 12, 10, 0, 0, 0, 0}}) {
-    HostTensor x = random_tensor({c.n, c.c + c.extra_in, c.h, c.w}, rng);
-    if (prec == Precision::fp16) x = rounded_to_half(x);
     const Shape os = space_to_depth_shape({c.n, c.c, c.h, c.w});
-    const CanarySlice ys = canary_slice(os, rng, c.c0_out + 1, c.extra_out - c.c0_out + 1);
-    HostTensor y_ref = ys.host;
-    space_to_depth_ref(HostSlice(x, c.c0_in, c.c), ys.of(y_ref));
-    Tensor xd = to_device(ctx, x, dt), yd = to_device(ctx, ys.host, dt);
+    optest::OpCase k;
+    k.what = Shape{c.n, c.c, c.h, c.w}.str();
+    k.inputs = {random_tensor({c.n, c.c + c.extra_in, c.h, c.w}, rng)};
     // And back: depth_to_space of the result restores the input (cropped to its size).
-    const CanarySlice bs = canary_slice({c.n, c.c, os.h * 2, os.w * 2}, rng);
-    Tensor back = to_device(ctx, bs.host, dt);
-    CommandStream cs(ctx);
-    space_to_depth(cs, Slice(xd, c.c0_in, c.c), ys.of(yd));
-    depth_to_space(cs, ys.of(yd), bs.of(back));
-    cs.submit_and_wait();
-    const HostTensor y = to_host(yd);
-    EXPECT_EQ(max_abs_diff(y, y_ref, ys), 0.0) << c.h << "x" << c.w;
-    EXPECT_EQ(canary_damage(y, ys), "") << "space_to_depth " << c.h << "x" << c.w;
-    const HostTensor bd = to_host(back);
-    EXPECT_EQ(canary_damage(bd, bs), "") << "depth_to_space " << c.h << "x" << c.w;
-    HostTensor b({c.n, c.c, os.h * 2, os.w * 2}), b_ref = b;
-    copy_ref(HostSlice(bd, bs.c0, bs.c, bs.n0, bs.n), HostSliceOut(b));
-    depth_to_space_ref(HostSlice(y_ref, ys.c0, ys.c, ys.n0, ys.n), HostSliceOut(b_ref));
-    EXPECT_EQ(max_abs_diff(b, b_ref), 0.0);
-    for (int64_t ch = 0; ch < c.c; ++ch)
-      for (int64_t yy = 0; yy < os.h * 2; ++yy)
-        for (int64_t xx = 0; xx < os.w * 2; ++xx)
-          ASSERT_EQ(b.at(0, ch, yy, xx), (yy < c.h && xx < c.w) ? x.at(0, c.c0_in + ch, yy, xx) : 0.f);
+    k.outputs = {{os, c.c0_out + 1, c.extra_out - c.c0_out + 1}, {{c.n, c.c, os.h * 2, os.w * 2}}};
+    k.reference = [c](optest::HostRun& r) {
+      space_to_depth_ref(HostSlice(r.inputs[0], c.c0_in, c.c), r.out(0));
+      depth_to_space_ref(r.written(0), r.out(1));
+    };
+    k.record = [c](optest::DeviceRun& d) {
+      space_to_depth(d.stream, Slice(d.inputs[0], c.c0_in, c.c), d.out(0));
+      depth_to_space(d.stream, d.out(0), d.out(1));
+      return true;
+    };
+    k.check = [c, os](const optest::HostRun& r, const std::vector<HostTensor>& got) {
+      const HostSlice back(got[1], r.slices[1].c0, r.slices[1].c, r.slices[1].n0, r.slices[1].n);
+      for (int64_t ch = 0; ch < c.c; ++ch)
+        for (int64_t yy = 0; yy < os.h * 2; ++yy)
+          for (int64_t xx = 0; xx < os.w * 2; ++xx)
+            ASSERT_EQ(back.at(0, ch, yy, xx), (yy < c.h && xx < c.w) ? r.inputs[0].at(0, c.c0_in + ch, yy, xx) : 0.f);
+    };
+    test.cases.push_back(std::move(k));
   }
+  return test;
 }
 }  // namespace
 
-TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlices) { run_cases(vktest::context()); }
-TEST(SpaceToDepth, Fp16MatchesReferenceOnOddSizesAndSlices) { run_cases(vktest::context(), Precision::fp16); }
+TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlicesInBothPrecisions) {
+  optest::run_op_test(vktest::context(), space_to_depth_test());
+}
 // On a context that binds whole tensors a write outside an output slice lands on a canary.
 TEST(SpaceToDepth, WritesNothingOutsideItsSlice) {
-  run_cases(vktest::whole_binding_context());
-  run_cases(vktest::whole_binding_context(), Precision::fp16);
+  optest::run_op_test(vktest::whole_binding_context(), space_to_depth_test());
 }
 
 TEST(SpaceToDepth, PixelUnshuffleChannelOrder) {

@@ -12,8 +12,9 @@ namespace {
 
 const char* kFooter =
     "Run 'vkunroll <command> --help' for a command's options.\n\n"
-    "Environment: VKUNROLL_DEVICE (index, uuid:UUID or name), VKUNROLL_VALIDATION=1, VKUNROLL_CACHE_DIR,\n"
-    "VKUNROLL_FENCE_TIMEOUT_S, VK_DRIVER_FILES.\n\n"
+    "Environment: VKUNROLL_DEVICE (index, uuid:UUID or name), VKUNROLL_VALIDATION=1, VKUNROLL_VALIDATION_FATAL=1,\n"
+    "VKUNROLL_CACHE_DIR, VKUNROLL_NO_PIPELINE_CACHE=1, VKUNROLL_FENCE_TIMEOUT_S, VKUNROLL_MODEL, VK_DRIVER_FILES\n"
+    "(values: docs/usage.md, \"Environment\").\n\n"
     "Exit codes (sysexits): 0 success; 2 usage (refused option, existing output without --overwrite);\n"
     "65 bad input data; 66 missing input; 69 no usable device; 70 internal error; 71 out of memory;\n"
     "74 I/O error writing outputs; 75 temporary failure, retry (device lost, timeout, device memory,\n"

@@ -17,7 +17,7 @@ constexpr uint64_t kStreamOn = 0x0A11, kStreamOff = 0x0B22, kStreamLeak = 0x0C33
 
 // v2e's intensity-dependent photoreceptor bandwidth and shot-noise rate use the intensity in DN
 // with a 20 DN floor: (I * 255 + 20) / 275, clipped to [0, 1].
-inline double inten01(float linear) { return std::clamp((static_cast<double>(linear) * 255.0 + 20.0) / 275.0, 0.0, 1.0); }
+inline double intensity01(float linear) { return std::clamp((static_cast<double>(linear) * 255.0 + 20.0) / 275.0, 0.0, 1.0); }
 }  // namespace
 
 nlohmann::json EventSimParams::to_json() const {
@@ -104,17 +104,17 @@ uint64_t EventSimulator::draw_shot(size_t i) {
 void EventSimulator::reset(double t_us, const cv::Mat& luminance) {
   log_of(luminance, log_prev_);
   luminance.copyTo(lum_prev_);
-  log_prev_.copyTo(filt_);
-  log_prev_.copyTo(ref_);
+  log_prev_.copyTo(filtered_log_);
+  log_prev_.copyTo(reference_);
   const size_t n = static_cast<size_t>(width_) * height_;
   last_event_.assign(n, -1e300);
   next_shot_.assign(n, 1e300);
   shot_draws_.assign(n, 0);
   for (size_t i = 0; i < n; ++i) {
-    float* ref = ref_.ptr<float>() + i;
+    float* reference = reference_.ptr<float>() + i;
     // Leak: random initial distance to the ON threshold, so leak events are not synchronized.
     if (params_.leak_hz > 0)
-      *ref -= static_cast<float>(to_unit(hash3(params_.seed, kStreamLeak, i)) * c_on_.ptr<float>()[i]);
+      *reference -= static_cast<float>(to_unit(hash3(params_.seed, kStreamLeak, i)) * c_on_.ptr<float>()[i]);
     if (params_.shot_hz > 0)
       next_shot_[i] = t_us - std::log(to_unit_open0(draw_shot(i))) / params_.shot_hz * 1e6;
   }
@@ -128,152 +128,202 @@ double EventSimulator::propose(const cv::Mat& luminance) {
   log_of(luminance, log_next_);
   luminance.copyTo(lum_next_);
   proposed_ = true;
-  cv::Mat diff;
-  cv::absdiff(log_next_, log_prev_, diff);
-  double mx = 0;
-  cv::minMaxLoc(diff, nullptr, &mx);
-  return mx;
+  cv::Mat change;
+  cv::absdiff(log_next_, log_prev_, change);
+  double largest = 0;
+  cv::minMaxLoc(change, nullptr, &largest);
+  return largest;
 }
 
-void EventSimulator::accept(double t_us) {
-  if (!proposed_) throw Error("event simulator: accept() without a proposed sample");
-  if (!(t_us > t_)) throw Error("event simulator: sample time " + std::to_string(t_us) + " us is not after " + std::to_string(t_) + " us");
-  const double ta = t_, tb = t_us, dt = tb - ta;
-  const double leak_drop_per_on = params_.leak_hz * dt * 1e-6;  // times c_on: reference drift this step
-  const bool lowpass = params_.cutoff_hz > 0;
-  const double refr = params_.refractory_us;
-
-  // Photoreceptor update factor a = 1 - exp(-dt / tau(I)), tau = 1 / (2 pi f_c inten01(I)), so
-  // a = 1 - exp(-k inten01) with k = 2 pi f_c dt: a 5th-order series for k <= 0.5 (error < 3e-5,
+EventSimulator::Step EventSimulator::step_to(double t_end) const {
+  Step step;
+  step.t_start = t_;
+  step.t_end = t_end;
+  step.duration = t_end - t_;
+  step.leak_per_on_threshold = static_cast<float>(params_.leak_hz * step.duration * 1e-6);
+  step.lowpass = params_.cutoff_hz > 0;
+  // Photoreceptor update factor a = 1 - exp(-dt / tau(I)), tau = 1 / (2 pi f_c intensity01(I)), so
+  // a = 1 - exp(-k intensity01) with k = 2 pi f_c dt: a 5th-order series for k <= 0.5 (error < 3e-5,
   // vectorizes), the exact exp() beyond.
-  const double k_lp = kTwoPi * params_.cutoff_hz * dt * 1e-6;
-  const bool series = k_lp <= 0.5;
-  const float kf = static_cast<float>(k_lp), ldpo = static_cast<float>(leak_drop_per_on);
-  // Rows are independent and each writes only its own buffers: deterministic under any threading.
-  cv::parallel_for_(cv::Range(0, height_), [&](const cv::Range& rows) {
-    std::vector<float> sa_buf(width_), sb_buf(width_);
-    std::vector<uint8_t> flag(width_);
-    for (int y = rows.start; y < rows.end; ++y) {
-      std::vector<RawEvent>& out = row_events_[y];
-      out.clear();
-      uint64_t dropped = 0, shots = 0;
-      const float* lp = log_prev_.ptr<float>(y);
-      const float* ln = log_next_.ptr<float>(y);
-      const float* ia = lum_prev_.ptr<float>(y);
-      const float* ib = lum_next_.ptr<float>(y);
-      float* filt = filt_.ptr<float>(y);
-      float* ref = ref_.ptr<float>(y);
-      const float* con = c_on_.ptr<float>(y);
-      const float* coff = c_off_.ptr<float>(y);
-      float* sa = sa_buf.data();
-      float* sb = sb_buf.data();
-      uint8_t* fl = flag.data();
-      // Pass 1 (branch-free, vectorizable): filter, leak, and flag the pixels that cross a threshold.
-      if (lowpass) {
-        for (int x = 0; x < width_; ++x) {
-          // First-order photoreceptor whose bandwidth grows with intensity (v2e's model).
-          const float i01 = std::min(1.0f, std::max(0.0f, (ib[x] * 255.0f + 20.0f) * (1.0f / 275.0f)));
-          const float xk = kf * i01;
-          const float a = series ? xk * (1.0f - xk * (0.5f - xk * (1.0f / 6 - xk * (1.0f / 24 - xk * (1.0f / 120)))))
-                                 : static_cast<float>(-std::expm1(-static_cast<double>(xk)));
-          sa[x] = filt[x];
-          sb[x] = sa[x] + a * (ln[x] - sa[x]);
-          filt[x] = sb[x];
-        }
-      } else {
-        for (int x = 0; x < width_; ++x) {
-          sa[x] = lp[x];
-          sb[x] = ln[x];
-        }
-      }
-      for (int x = 0; x < width_; ++x) {
-        const float r = ref[x] - ldpo * con[x];  // the reference drifts down: leak
-        const float db = sb[x] - r;
-        ref[x] = r;
-        fl[x] = static_cast<uint8_t>((db >= con[x]) | (db <= -coff[x]));
-      }
-      bool shot_due = false;
-      if (params_.shot_hz > 0) {
-        const double* ns = next_shot_.data() + static_cast<size_t>(y) * width_;
-        for (int x = 0; x < width_; ++x) shot_due |= ns[x] <= tb;
-      }
-      // Pass 2: the few pixels with events.
-      for (int x = 0; x < width_; ++x) {
-        if (!fl[x] && !shot_due) continue;
-        const size_t i = static_cast<size_t>(y) * width_ + x;
-        const double c_on = con[x], c_off = coff[x];
-        double r = ref[x];
-        const double da = sa[x] - (r + ldpo * con[x]), db = sb[x] - r;
-        auto emit = [&](double t, int8_t p) {
-          if (t - last_event_[i] < refr) {
-            ++dropped;
-            return;
-          }
-          last_event_[i] = t;
-          out.push_back({std::llround(t), static_cast<uint16_t>(x), static_cast<uint16_t>(y), p});
-        };
-        if (fl[x]) {
-          if (db >= c_on) {
-            // Crossings of ref + c_on, ref + 2 c_on, ... along the linear segment, each at its own time.
-            const int n = static_cast<int>(std::floor(db / c_on));
-            for (int k = 1; k <= n; ++k) {
-              const double u = std::clamp((k * c_on - da) / (db - da), 0.0, 1.0);
-              emit(ta + u * dt, 1);
-            }
-            r += n * c_on;
-          } else if (db <= -c_off) {
-            const int n = static_cast<int>(std::floor(-db / c_off));
-            for (int k = 1; k <= n; ++k) {
-              const double u = std::clamp((-k * c_off - da) / (db - da), 0.0, 1.0);
-              emit(ta + u * dt, -1);
-            }
-            r -= n * c_off;
-          }
-        }
-        // Shot noise: Poisson candidates at the dark rate, thinned to v2e's intensity dependence
-        // (rate x (1 - 0.75 intensity)); a noise event resets the pixel to the current level.
-        while (next_shot_[i] <= tb) {
-          const double ts = next_shot_[i];
-          const double u_accept = to_unit(draw_shot(i));
-          const double u_pol = to_unit(draw_shot(i));
-          const double frac = (ts - ta) / dt;
-          const float inten = static_cast<float>(ia[x] + frac * (ib[x] - ia[x]));
-          if (u_accept < 1.0 - 0.75 * inten01(inten)) {
-            const size_t before = out.size();
-            emit(ts, u_pol < 0.5 ? int8_t{1} : int8_t{-1});
-            if (out.size() > before) ++shots;
-            r = sb[x];
-          }
-          next_shot_[i] = ts - std::log(to_unit_open0(draw_shot(i))) / params_.shot_hz * 1e6;
-        }
-        ref[x] = static_cast<float>(r);
-      }
-      row_dropped_[y] = dropped;
-      row_shot_[y] = shots;
-    }
-  });
+  const double exponent = kTwoPi * params_.cutoff_hz * step.duration * 1e-6;
+  step.series_update = exponent <= 0.5;
+  step.bandwidth_exponent = static_cast<float>(exponent);
+  return step;
+}
 
-  // Gather in a fixed order and sort by (t, y, x, p): independent of how rows were scheduled.
-  batch_.clear();
+// Pass 1a (branch-free, vectorizable): the row's log levels at the step's ends, through the
+// first-order photoreceptor whose bandwidth grows with intensity (v2e's model) when it is limited.
+void EventSimulator::photoreceptor_row(int y, const Step& step, RowLevels& levels) {
+  float* at_start = levels.at_start.data();
+  float* at_end = levels.at_end.data();
+  const float* log_prev = log_prev_.ptr<float>(y);
+  const float* log_next = log_next_.ptr<float>(y);
+  if (!step.lowpass) {
+    for (int x = 0; x < width_; ++x) {
+      at_start[x] = log_prev[x];
+      at_end[x] = log_next[x];
+    }
+    return;
+  }
+  const float* lum_next = lum_next_.ptr<float>(y);
+  float* filtered = filtered_log_.ptr<float>(y);
+  const float k = step.bandwidth_exponent;
+  for (int x = 0; x < width_; ++x) {
+    const float intensity = std::min(1.0f, std::max(0.0f, (lum_next[x] * 255.0f + 20.0f) * (1.0f / 275.0f)));
+    const float kx = k * intensity;
+    const float update = step.series_update
+                             ? kx * (1.0f - kx * (0.5f - kx * (1.0f / 6 - kx * (1.0f / 24 - kx * (1.0f / 120)))))
+                             : static_cast<float>(-std::expm1(-static_cast<double>(kx)));
+    at_start[x] = filtered[x];
+    at_end[x] = at_start[x] + update * (log_next[x] - at_start[x]);
+    filtered[x] = at_end[x];
+  }
+}
+
+// Pass 1b (vectorizable): the reference drifts down (leak); flag the pixels whose level at the
+// step's end crosses a threshold.
+void EventSimulator::leak_and_flag_row(int y, const Step& step, RowLevels& levels) {
+  float* reference = reference_.ptr<float>(y);
+  const float* on_threshold = c_on_.ptr<float>(y);
+  const float* off_threshold = c_off_.ptr<float>(y);
+  const float* at_end = levels.at_end.data();
+  uint8_t* crosses = levels.crosses.data();
+  for (int x = 0; x < width_; ++x) {
+    const float drifted = reference[x] - step.leak_per_on_threshold * on_threshold[x];
+    const float change = at_end[x] - drifted;
+    reference[x] = drifted;
+    crosses[x] = static_cast<uint8_t>((change >= on_threshold[x]) | (change <= -off_threshold[x]));
+  }
+}
+
+bool EventSimulator::shot_due_in_row(int y, double t_end) const {
+  if (!(params_.shot_hz > 0)) return false;
+  const double* next_shot = next_shot_.data() + static_cast<size_t>(y) * width_;
+  bool due = false;
+  for (int x = 0; x < width_; ++x) due |= next_shot[x] <= t_end;
+  return due;
+}
+
+// An event of pixel (x, y) at t, unless it falls within the refractory period of the pixel's last.
+void EventSimulator::emit(RowEvents& row, int x, int y, double t_us, int8_t polarity) {
+  const size_t i = static_cast<size_t>(y) * width_ + x;
+  if (t_us - last_event_[i] < params_.refractory_us) {
+    ++row.dropped_refractory;
+    return;
+  }
+  last_event_[i] = t_us;
+  row.events.push_back({std::llround(t_us), static_cast<uint16_t>(x), static_cast<uint16_t>(y), polarity});
+}
+
+// Crossings of reference + c_on, reference + 2 c_on, ... (or the OFF ones) along the linear segment
+// of the level's change from the reference, each at its own time. Returns the new reference.
+double EventSimulator::emit_threshold_crossings(int x, int y, const Step& step, double change_at_start,
+                                                double change_at_end, double reference, RowEvents& row) {
+  const double c_on = c_on_.ptr<float>(y)[x], c_off = c_off_.ptr<float>(y)[x];
+  if (change_at_end >= c_on) {
+    const int crossings = static_cast<int>(std::floor(change_at_end / c_on));
+    for (int k = 1; k <= crossings; ++k) {
+      const double u = std::clamp((k * c_on - change_at_start) / (change_at_end - change_at_start), 0.0, 1.0);
+      emit(row, x, y, step.t_start + u * step.duration, 1);
+    }
+    return reference + crossings * c_on;
+  }
+  if (change_at_end <= -c_off) {
+    const int crossings = static_cast<int>(std::floor(-change_at_end / c_off));
+    for (int k = 1; k <= crossings; ++k) {
+      const double u = std::clamp((-k * c_off - change_at_start) / (change_at_end - change_at_start), 0.0, 1.0);
+      emit(row, x, y, step.t_start + u * step.duration, -1);
+    }
+    return reference - crossings * c_off;
+  }
+  return reference;
+}
+
+// Shot noise: Poisson candidates at the dark rate, thinned to v2e's intensity dependence
+// (rate x (1 - 0.75 intensity)); a noise event resets the pixel to the current level. Returns the
+// new reference.
+double EventSimulator::emit_shot_noise(int x, int y, const Step& step, float level_end, double reference,
+                                       RowEvents& row) {
+  const size_t i = static_cast<size_t>(y) * width_ + x;
+  const float lum_prev = lum_prev_.ptr<float>(y)[x], lum_next = lum_next_.ptr<float>(y)[x];
+  while (next_shot_[i] <= step.t_end) {
+    const double t_shot = next_shot_[i];
+    const double u_accept = to_unit(draw_shot(i));
+    const double u_polarity = to_unit(draw_shot(i));
+    const double fraction = (t_shot - step.t_start) / step.duration;
+    const float lum = static_cast<float>(lum_prev + fraction * (lum_next - lum_prev));
+    if (u_accept < 1.0 - 0.75 * intensity01(lum)) {
+      const size_t before = row.events.size();
+      emit(row, x, y, t_shot, u_polarity < 0.5 ? int8_t{1} : int8_t{-1});
+      if (row.events.size() > before) ++row.shot;
+      reference = level_end;
+    }
+    next_shot_[i] = t_shot - std::log(to_unit_open0(draw_shot(i))) / params_.shot_hz * 1e6;
+  }
+  return reference;
+}
+
+// Pass 2: the few pixels with events (a crossing, or a shot-noise candidate due in the row).
+void EventSimulator::emit_row(int y, const Step& step, const RowLevels& levels, bool shot_due, RowEvents& row) {
+  float* reference = reference_.ptr<float>(y);
+  const float* on_threshold = c_on_.ptr<float>(y);
+  for (int x = 0; x < width_; ++x) {
+    const bool crosses = levels.crosses[x] != 0;
+    if (!crosses && !shot_due) continue;
+    double r = reference[x];
+    if (crosses) {
+      // The change from the reference at the step's start (before this step's leak) and end.
+      const double change_at_start = levels.at_start[x] - (r + step.leak_per_on_threshold * on_threshold[x]);
+      const double change_at_end = levels.at_end[x] - r;
+      r = emit_threshold_crossings(x, y, step, change_at_start, change_at_end, r, row);
+    }
+    r = emit_shot_noise(x, y, step, levels.at_end[x], r, row);
+    reference[x] = static_cast<float>(r);
+  }
+}
+
+// Gather in a fixed order and sort by (t, y, x, p): independent of how rows were scheduled.
+void EventSimulator::gather_events() {
+  step_events_.clear();
   for (int y = 0; y < height_; ++y) {
-    batch_.insert(batch_.end(), row_events_[y].begin(), row_events_[y].end());
+    step_events_.insert(step_events_.end(), row_events_[y].begin(), row_events_[y].end());
     stats_.dropped_refractory += row_dropped_[y];
     stats_.shot += row_shot_[y];
   }
-  std::sort(batch_.begin(), batch_.end(), [](const RawEvent& a, const RawEvent& b) {
+  std::sort(step_events_.begin(), step_events_.end(), [](const RawEvent& a, const RawEvent& b) {
     if (a.t != b.t) return a.t < b.t;
     if (a.y != b.y) return a.y < b.y;
     if (a.x != b.x) return a.x < b.x;
     return a.p < b.p;
   });
-  for (const RawEvent& e : batch_) {
+  for (const RawEvent& e : step_events_) {
     events_.push(e.t, e.x, e.y, e.p);
     (e.p > 0 ? stats_.on : stats_.off) += 1;
   }
+}
+
+void EventSimulator::accept(double t_us) {
+  if (!proposed_) throw Error("event simulator: accept() without a proposed sample");
+  if (!(t_us > t_)) throw Error("event simulator: sample time " + std::to_string(t_us) + " us is not after " + std::to_string(t_) + " us");
+  const Step step = step_to(t_us);
+  // Rows are independent and each writes only its own buffers: deterministic under any threading.
+  cv::parallel_for_(cv::Range(0, height_), [&](const cv::Range& rows) {
+    RowLevels levels{std::vector<float>(width_), std::vector<float>(width_), std::vector<uint8_t>(width_)};
+    for (int y = rows.start; y < rows.end; ++y) {
+      RowEvents row{row_events_[y]};
+      row.events.clear();
+      photoreceptor_row(y, step, levels);
+      leak_and_flag_row(y, step, levels);
+      emit_row(y, step, levels, shot_due_in_row(y, step.t_end), row);
+      row_dropped_[y] = row.dropped_refractory;
+      row_shot_[y] = row.shot;
+    }
+  });
+  gather_events();
   std::swap(log_prev_, log_next_);
   std::swap(lum_prev_, lum_next_);
-  if (!lowpass) log_prev_.copyTo(filt_);
-  t_ = tb;
+  if (!step.lowpass) log_prev_.copyTo(filtered_log_);
+  t_ = t_us;
   proposed_ = false;
   ++stats_.samples;
 }

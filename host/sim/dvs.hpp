@@ -72,9 +72,38 @@ class EventSimulator {
     uint16_t x, y;
     int8_t p;
   };
+  // What one accepted step (last sample -> t_end) is, the same for every row.
+  struct Step {
+    double t_start = 0, t_end = 0, duration = 0;
+    float leak_per_on_threshold = 0;  // reference drift this step, in units of the pixel's ON threshold
+    bool lowpass = false;             // photoreceptor bandwidth limited (cutoff_hz > 0)
+    bool series_update = false;       // the low-pass factor from its series (exact exp() beyond)
+    float bandwidth_exponent = 0;     // 2 pi f_c dt: the low-pass exponent at full intensity
+  };
+  // One row's output of a step: its events and what it counted.
+  struct RowEvents {
+    std::vector<RawEvent>& events;
+    uint64_t dropped_refractory = 0, shot = 0;
+  };
+  // One row's log levels at the step's start and end (after the photoreceptor), and which pixels
+  // cross a threshold; scratch reused by the rows a thread runs.
+  struct RowLevels {
+    std::vector<float> at_start, at_end;
+    std::vector<uint8_t> crosses;
+  };
   void log_of(const cv::Mat& luminance, cv::Mat& out) const;
   // The next random draw of pixel i's shot-noise stream (each pixel has its own counter).
   uint64_t draw_shot(size_t i);
+  Step step_to(double t_end) const;
+  void photoreceptor_row(int y, const Step& step, RowLevels& levels);
+  void leak_and_flag_row(int y, const Step& step, RowLevels& levels);
+  bool shot_due_in_row(int y, double t_end) const;
+  void emit_row(int y, const Step& step, const RowLevels& levels, bool shot_due, RowEvents& row);
+  double emit_threshold_crossings(int x, int y, const Step& step, double level_start, double level_end,
+                                  double reference, RowEvents& row);
+  double emit_shot_noise(int x, int y, const Step& step, float level_end, double reference, RowEvents& row);
+  void emit(RowEvents& row, int x, int y, double t_us, int8_t polarity);
+  void gather_events();
 
   int width_, height_;
   EventSimParams params_;
@@ -83,15 +112,15 @@ class EventSimulator {
   double t_ = 0.0;
   cv::Mat log_prev_, log_next_;          // raw log intensity at the last / proposed sample
   cv::Mat lum_prev_, lum_next_;          // linear luminance (noise and bandwidth depend on it)
-  cv::Mat filt_;                         // low-pass-filtered log intensity (when cutoff_hz > 0)
-  cv::Mat ref_;                          // memorized reference level per pixel
+  cv::Mat filtered_log_;                 // low-pass-filtered log intensity (when cutoff_hz > 0)
+  cv::Mat reference_;                    // memorized reference level per pixel
   cv::Mat c_on_, c_off_;                 // per-pixel thresholds
   std::vector<double> last_event_;       // per-pixel time of the last emitted event
   std::vector<double> next_shot_;        // per-pixel time of the next shot-noise candidate
   std::vector<uint32_t> shot_draws_;     // per-pixel counter of random draws
   std::vector<std::vector<RawEvent>> row_events_;
   std::vector<uint64_t> row_dropped_, row_shot_;
-  std::vector<RawEvent> batch_;
+  std::vector<RawEvent> step_events_;    // one step's events of every row, sorted
   EventStream events_;
   EventSimStats stats_;
 };

@@ -189,6 +189,154 @@ void add_ground_truth(const SimulationConfig& config, Scene& scene, SimulatedSeq
     }
   }
 }
+// Per-frame row exposure windows, and the span in which any row of a frame is exposing.
+struct ExposureWindows {
+  std::vector<std::vector<double>> row_start;  // [frame][row]: when the row starts exposing
+  std::vector<double> span_lo, span_hi;        // [frame]
+  bool overlaps(int k, double a, double b) const { return span_lo[k] < b && a < span_hi[k]; }
+  // Whether any frame is exposing in (a, b): a step there needs the color image.
+  bool any_overlaps(double a, double b) const {
+    for (int k = 0; k < static_cast<int>(span_lo.size()); ++k)
+      if (overlaps(k, a, b)) return true;
+    return false;
+  }
+};
+
+ExposureWindows exposure_windows(const SimulationConfig& config) {
+  const int K = config.frames, H = config.height;
+  ExposureWindows w{std::vector<std::vector<double>>(K, std::vector<double>(H)), std::vector<double>(K),
+                    std::vector<double>(K)};
+  for (int k = 0; k < K; ++k) {
+    for (int y = 0; y < H; ++y) w.row_start[k][y] = config.row_start_us(k, y);
+    w.span_lo[k] = config.frame_t0_us(k);
+    w.span_hi[k] = w.span_lo[k] + (H - 1) * config.line_delay_us + config.exposure_us;
+  }
+  return w;
+}
+
+// One simulation run: adaptive time steps through the scene, each feeding the event simulator and,
+// where a frame is exposing, the rolling-shutter frames' integrals.
+class Recorder {
+ public:
+  Recorder(const SimulationConfig& config, Scene& scene, SimulatedSequence& seq)
+      : config_(config), scene_(scene), seq_(seq), windows_(exposure_windows(config)), acc_(config.frames),
+        events_(config.width, config.height, event_params(config)) {
+    limit_ = config.step_fraction * std::min(config.events.c_on, config.events.c_off);
+    dt_max_ = config.dt_max_us;
+    // The photoreceptor filter is integrated per step: keep steps well below its time constant.
+    if (config.events.cutoff_hz > 0)
+      dt_max_ = std::min(dt_max_, std::max(config.dt_min_us, 0.5e6 / (kTwoPi * config.events.cutoff_hz)));
+  }
+
+  // Runs to the end; the events, step statistics and RS integrals go into the sequence.
+  void run();
+
+ private:
+  static EventSimParams event_params(const SimulationConfig& config) {
+    EventSimParams p = config.events;
+    p.seed = config.seed;  // one seed drives everything (events.seed is for standalone use)
+    return p;
+  }
+  void render(double t, bool color, cv::Mat& c, cv::Mat& l);
+  // The end of the next step from t: the proposed sample split until no pixel's log change passes
+  // the limit (or the step is at its minimum); `dt` is the step to try, shrunk by the splits.
+  double propose_step(double t, double& dt, bool& color, double& change);
+  // Each row integrates the piecewise-linear signal over [start, start + exposure] within the step.
+  void integrate_rows(int k, double t_start, double t_end);
+
+  const SimulationConfig& config_;
+  Scene& scene_;
+  SimulatedSequence& seq_;
+  const ExposureWindows windows_;
+  std::vector<cv::Mat> acc_;  // per frame: the rows' integrals so far
+  EventSimulator events_;
+  double limit_ = 0, dt_max_ = 0;
+  cv::Mat color_start_, color_end_, lum_start_, lum_end_;  // color and luminance at the step's ends
+};
+
+void Recorder::render(double t, bool color, cv::Mat& c, cv::Mat& l) {
+  if (color) {
+    scene_.render(t, c);
+    cv::transform(c, l, cv::Matx13f(static_cast<float>(kLumB), static_cast<float>(kLumG), static_cast<float>(kLumR)));
+    ++seq_.steps.color_renders;
+  } else {
+    scene_.render_luminance(t, l);
+    ++seq_.steps.luminance_renders;
+  }
+}
+
+double Recorder::propose_step(double t, double& dt, bool& color, double& change) {
+  const double t_end = config_.end_us();
+  for (;;) {
+    double tb = std::min(t_end, t + dt);
+    if (t_end - tb < config_.dt_min_us) tb = t_end;  // no sliver step at the end
+    color = windows_.any_overlaps(t, tb);
+    render(tb, color, color_end_, lum_end_);
+    change = events_.propose(lum_end_);
+    if (change > limit_ && tb - t > config_.dt_min_us) {
+      // Split: shrink toward the step that would just meet the limit.
+      dt = std::max(config_.dt_min_us, (tb - t) * std::clamp(0.8 * limit_ / change, 0.1, 0.5));
+      ++seq_.steps.rejected;
+      continue;
+    }
+    return tb;
+  }
+}
+
+void Recorder::integrate_rows(int k, double t_start, double t_end) {
+  const int W = config_.width, H = config_.height;
+  const double e = config_.exposure_us, span = t_end - t_start;
+  if (acc_[k].empty()) acc_[k] = cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0));
+  const std::vector<double>& row_start = windows_.row_start[k];
+  cv::parallel_for_(cv::Range(0, H), [&](const cv::Range& rows) {
+    for (int y = rows.start; y < rows.end; ++y) {
+      const double lo = std::max(t_start, row_start[y]), hi = std::min(t_end, row_start[y] + e);
+      if (!(hi > lo)) continue;
+      const double u = (0.5 * (lo + hi) - t_start) / span;
+      const float wa = static_cast<float>((hi - lo) * (1.0 - u)), wb = static_cast<float>((hi - lo) * u);
+      float* dst = acc_[k].ptr<float>(y);
+      const float* pa = color_start_.ptr<float>(y);
+      const float* pb = color_end_.ptr<float>(y);
+      for (int i = 0; i < W * 3; ++i) dst[i] += wa * pa[i] + wb * pb[i];
+    }
+  });
+}
+
+void Recorder::run() {
+  const double t_end = config_.end_us();
+  double t = 0.0;
+  bool color_start_valid = windows_.any_overlaps(0.0, 0.0);
+  render(0.0, color_start_valid, color_start_, lum_start_);
+  events_.reset(0.0, lum_start_);
+  double dt = std::min(dt_max_, 100.0), min_dt = 1e300;
+  while (t < t_end) {
+    dt = std::min(dt, dt_max_);
+    bool color = false;
+    double change = 0;
+    const double tb = propose_step(t, dt, color, change);
+    if (change > limit_) ++seq_.steps.over_limit;
+    // The previous step was luminance-only: this one needs color at its start.
+    if (color && !color_start_valid) render(t, true, color_start_, lum_start_);
+    events_.accept(tb);
+    if (color)
+      for (int k = 0; k < config_.frames; ++k)
+        if (windows_.overlaps(k, t, tb)) integrate_rows(k, t, tb);
+    min_dt = std::min(min_dt, tb - t);
+    std::swap(color_start_, color_end_);
+    std::swap(lum_start_, lum_end_);
+    color_start_valid = color;
+    // Next step: aim at 80% of the limit, growing at most 2x per step.
+    const double step = tb - t;
+    dt = step * std::clamp(change > 0 ? 0.8 * limit_ / change : 2.0, 0.5, 2.0);
+    t = tb;
+  }
+  seq_.steps.samples = events_.stats().samples;
+  seq_.steps.min_dt_us = min_dt;
+  seq_.steps.mean_dt_us = t_end / std::max<uint64_t>(1, seq_.steps.samples);
+  seq_.event_stats = events_.stats();
+  seq_.events = events_.take_events();
+  for (int k = 0; k < config_.frames; ++k) seq_.rs.push_back(finish_rs_frame(acc_[k], config_, k));
+}
 }  // namespace
 
 SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
@@ -196,116 +344,12 @@ SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
   if (scene.width() != config.width || scene.height() != config.height)
     throw Error("simulate: scene size " + std::to_string(scene.width()) + "x" + std::to_string(scene.height()) +
                 " differs from the configured " + std::to_string(config.width) + "x" + std::to_string(config.height));
-  const int W = config.width, H = config.height, K = config.frames;
-  const double e = config.exposure_us, t_end = config.end_us();
-
   SimulatedSequence seq;
-  seq.width = W;
-  seq.height = H;
+  seq.width = config.width;
+  seq.height = config.height;
   seq.scene = scene.describe();
-  for (int k = 0; k < K; ++k) seq.frame_t0_us.push_back(config.frame_t0_us(k));
-
-  // Per-frame row windows and the span in which any row of the frame is exposing.
-  std::vector<std::vector<double>> row_start(K, std::vector<double>(H));
-  std::vector<double> span_lo(K), span_hi(K);
-  for (int k = 0; k < K; ++k) {
-    for (int y = 0; y < H; ++y) row_start[k][y] = config.row_start_us(k, y);
-    span_lo[k] = config.frame_t0_us(k);
-    span_hi[k] = span_lo[k] + (H - 1) * config.line_delay_us + e;
-  }
-  std::vector<cv::Mat> acc(K);
-  auto overlaps = [&](int k, double a, double b) { return span_lo[k] < b && a < span_hi[k]; };
-  auto needs_color = [&](double a, double b) {
-    for (int k = 0; k < K; ++k)
-      if (overlaps(k, a, b)) return true;
-    return false;
-  };
-
-  EventSimParams event_params = config.events;
-  event_params.seed = config.seed;  // one seed drives everything (events.seed is for standalone use)
-  EventSimulator ev(W, H, event_params);
-  const double limit = config.step_fraction * std::min(config.events.c_on, config.events.c_off);
-  double dt_max = config.dt_max_us;
-  // The photoreceptor filter is integrated per step: keep steps well below its time constant.
-  if (config.events.cutoff_hz > 0) dt_max = std::min(dt_max, std::max(config.dt_min_us, 0.5e6 / (kTwoPi * config.events.cutoff_hz)));
-
-  cv::Mat ca, cb, la, lb;  // color and luminance at the step's start and end
-  bool ca_valid = false;
-  auto render = [&](double t, bool color, cv::Mat& c, cv::Mat& l) {
-    if (color) {
-      scene.render(t, c);
-      cv::transform(c, l, cv::Matx13f(static_cast<float>(kLumB), static_cast<float>(kLumG), static_cast<float>(kLumR)));
-      ++seq.steps.color_renders;
-    } else {
-      scene.render_luminance(t, l);
-      ++seq.steps.luminance_renders;
-    }
-  };
-
-  double t = 0.0;
-  ca_valid = needs_color(0.0, 0.0);
-  render(0.0, ca_valid, ca, la);
-  ev.reset(0.0, la);
-  double dt = std::min(dt_max, 100.0), min_dt = 1e300;
-  while (t < t_end) {
-    dt = std::min(dt, dt_max);
-    double tb = 0, change = 0;
-    bool color = false;
-    for (;;) {
-      tb = std::min(t_end, t + dt);
-      if (t_end - tb < config.dt_min_us) tb = t_end;  // no sliver step at the end
-      color = needs_color(t, tb);
-      render(tb, color, cb, lb);
-      change = ev.propose(lb);
-      if (change > limit && tb - t > config.dt_min_us) {
-        // Split: shrink toward the step that would just meet the limit.
-        dt = std::max(config.dt_min_us, (tb - t) * std::clamp(0.8 * limit / change, 0.1, 0.5));
-        ++seq.steps.rejected;
-        continue;
-      }
-      break;
-    }
-    if (change > limit) ++seq.steps.over_limit;
-    if (color && !ca_valid) {
-      render(t, true, ca, la);  // the previous step was luminance-only; need color at its end
-    }
-    ev.accept(tb);
-    if (color) {
-      // Each row integrates the piecewise-linear signal over [start, start + exposure].
-      for (int k = 0; k < K; ++k) {
-        if (!overlaps(k, t, tb)) continue;
-        if (acc[k].empty()) acc[k] = cv::Mat(H, W, CV_32FC3, cv::Scalar::all(0));
-        const double ta = t, span = tb - t;
-        cv::parallel_for_(cv::Range(0, H), [&](const cv::Range& rows) {
-          for (int y = rows.start; y < rows.end; ++y) {
-            const double lo = std::max(ta, row_start[k][y]), hi = std::min(tb, row_start[k][y] + e);
-            if (!(hi > lo)) continue;
-            const double u = (0.5 * (lo + hi) - ta) / span;
-            const float wa = static_cast<float>((hi - lo) * (1.0 - u)), wb = static_cast<float>((hi - lo) * u);
-            float* dst = acc[k].ptr<float>(y);
-            const float* pa = ca.ptr<float>(y);
-            const float* pb = cb.ptr<float>(y);
-            for (int i = 0; i < W * 3; ++i) dst[i] += wa * pa[i] + wb * pb[i];
-          }
-        });
-      }
-    }
-    min_dt = std::min(min_dt, tb - t);
-    std::swap(ca, cb);
-    std::swap(la, lb);
-    ca_valid = color;
-    // Next step: aim at 80% of the limit, growing at most 2x per step.
-    const double step = tb - t;
-    dt = step * std::clamp(change > 0 ? 0.8 * limit / change : 2.0, 0.5, 2.0);
-    t = tb;
-  }
-  seq.steps.samples = ev.stats().samples;
-  seq.steps.min_dt_us = min_dt;
-  seq.steps.mean_dt_us = t_end / std::max<uint64_t>(1, seq.steps.samples);
-  seq.event_stats = ev.stats();
-  seq.events = ev.take_events();
-
-  for (int k = 0; k < K; ++k) seq.rs.push_back(finish_rs_frame(acc[k], config, k));
+  for (int k = 0; k < config.frames; ++k) seq.frame_t0_us.push_back(config.frame_t0_us(k));
+  Recorder(config, scene, seq).run();
   add_ground_truth(config, scene, seq);
   return seq;
 }

@@ -9,6 +9,7 @@
 #include <streambuf>
 
 #include "common.hpp"
+#include "vkunroll/base/env.hpp"
 
 namespace vkunroll::python {
 
@@ -61,9 +62,13 @@ class LineForwarder final : public std::streambuf {
     const bool error = line.rfind("validation error", 0) == 0 || line.rfind("aborting", 0) == 0;
     const bool warning = line.rfind("validation warning", 0) == 0;
     // Under VKUNROLL_VALIDATION_FATAL the process aborts right after: say it where it is seen.
+    // A value it does not take is refused, by name, where a Context reads it.
     static const bool fatal = [] {
-      const char* v = std::getenv("VKUNROLL_VALIDATION_FATAL");
-      return v && std::string(v) == "1";
+      try {
+        return env::flag("VKUNROLL_VALIDATION_FATAL");
+      } catch (const Error&) {
+        return false;
+      }
     }();
     if (fatal && (error || warning)) std::fprintf(stderr, "vkunroll: %s\n", line.c_str());
     log_message(error ? kError : warning ? kWarning : kInfo, line);
