@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <iostream>
 
+#include "vkunroll/base/env.hpp"
 #include "vkunroll/base/error.hpp"
 
 namespace vkunroll {
@@ -30,11 +31,11 @@ fs::path binary_dir() {
 
 DefaultModelSearch find_default_model() {
   DefaultModelSearch r;
-  if (const char* m = std::getenv("VKUNROLL_MODEL"); m && *m) {
+  if (const std::optional<std::string> m = env::text("VKUNROLL_MODEL")) {
     std::error_code ec;
-    if (!fs::is_regular_file(m, ec))
-      throw UsageError(std::string("VKUNROLL_MODEL=") + m + ": no such model file (unset it to use the shipped default)");
-    return {m, "VKUNROLL_MODEL", {std::string("VKUNROLL_MODEL=") + m}};
+    if (!fs::is_regular_file(*m, ec))
+      throw UsageError("VKUNROLL_MODEL=" + *m + ": no such model file (unset it to use the shipped default)");
+    return {*m, "VKUNROLL_MODEL", {"VKUNROLL_MODEL=" + *m}};
   }
   std::vector<std::pair<fs::path, std::string>> places;
   if (const fs::path dir = binary_dir(); !dir.empty()) {

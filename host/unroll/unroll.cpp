@@ -13,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 #include <optional>
 
+#include "vkunroll/base/env.hpp"
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/unroll/provenance.hpp"
 #include "vkunroll/host/unroll/sha256.hpp"
@@ -91,9 +92,9 @@ nlohmann::json thread_report(const UnrollOptions& o) {
     std::getline(comm, name);
     lavapipe += name.rfind("llvmpipe-", 0) == 0;
   }
-  const char* lp = std::getenv("LP_NUM_THREADS");
+  const std::optional<std::string> lp = env::text("LP_NUM_THREADS");  // Mesa's, reported as given
   return {{"requested", o.session.cpu_threads}, {"opencv", cv::getNumThreads()},
-          {"lavapipe_workers", lavapipe}, {"LP_NUM_THREADS", lp ? nlohmann::json(lp) : nlohmann::json()}};
+          {"lavapipe_workers", lavapipe}, {"LP_NUM_THREADS", lp ? nlohmann::json(*lp) : nlohmann::json()}};
 }
 
 }  // namespace
