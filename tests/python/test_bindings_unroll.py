@@ -68,14 +68,18 @@ def test_physics_equals_cli(seq, tmp_path):
 def test_default_model_equals_cli(seq, tmp_path, monkeypatch):
     # No model named, in both: the shipped default, found by one rule (host/unroll/default_model.hpp).
     monkeypatch.delenv("VKUNROLL_MODEL", raising=False)
-    cli = cli_unroll(seq, tmp_path / "cli", "--times", "0.25", "--frames", "0")
+    cli = cli_unroll(seq, tmp_path / "cli", "--times", "0.25,0.75")
     summary = cli[3]
     assert os.path.basename(summary["model"]["path"]) == "selfunroll_small_physics.safetensors"
     assert summary["model"]["source"] == "default (source tree)" and len(summary["model"]["sha256"]) == 64
     assert os.path.samefile(vkunroll.default_model(), summary["model"]["path"])
-    result = vkunroll.unroll(seq, times=[0.25], frames=[0])
-    assert [t["method"] for t in result.targets] == ["m"]
+    result = vkunroll.unroll(seq, times=[0.25, 0.75])  # every frame: M where a next frame exists, then S
+    assert [t["method"] for t in result.targets] == ["m", "m", "m", "m", "s", "s"]
     assert_same_as_cli(result, cli)
+    # One job behind both: the same report, each frame decoded once.
+    for key in ("mode", "runs", "physics", "reads"):
+        assert result.stats[key] == summary[key], key
+    assert summary["reads"]["frame_decodes"] == len(seq)
     # VKUNROLL_MODEL names another file for both; a missing one is an error naming it.
     monkeypatch.setenv("VKUNROLL_MODEL", str(tmp_path / "gone.safetensors"))
     with pytest.raises(ValueError, match="VKUNROLL_MODEL=.*gone.safetensors: no such model file"):
