@@ -332,7 +332,8 @@ void CommandStream::submit_and_wait() {
   VkSubmitInfo si{VK_STRUCTURE_TYPE_SUBMIT_INFO};
   si.commandBufferCount = 1;
   si.pCommandBuffers = &cb_;
-  VkResult r = vkQueueSubmit(ctx_.queue(), 1, &si, fence_);
+  VkResult r = ctx_.faults().next(FaultInjection::Site::submit);
+  if (r == VK_SUCCESS) r = vkQueueSubmit(ctx_.queue(), 1, &si, fence_);
   ctx_.traffic().submits++;
   if (r != VK_SUCCESS) {
     const std::string what = in_flight_description();

@@ -394,6 +394,10 @@ DeviceList Context::enumerate(bool validation) {
 Context::Context(ContextOptions options) : options_(std::move(options)) {
   validation_ = options_.validation || env::flag("VKUNROLL_VALIDATION");
   validation_fatal_ = options_.validation_fatal.value_or(env::flag("VKUNROLL_VALIDATION_FATAL"));
+  FaultInjection fault = options_.fault;
+  if (fault.site == FaultInjection::Site::none)
+    if (const auto text = env::text("VKUNROLL_INJECT_FAULT")) fault = parse_fault_injection(*text, "VKUNROLL_INJECT_FAULT");
+  faults_ = FaultInjector(fault);
   create_instance(validation_);
   try {
     create_device();

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "vkunroll/runtime/fault_injection.hpp"
 #include "vkunroll/runtime/vk_error.hpp"
 
 namespace vkunroll {
@@ -43,6 +44,9 @@ struct ContextOptions {
   // Create the device without VK_NV_cooperative_matrix even where it has it (the conv `coopmat`
   // path then reports itself unsupported), as on a device that lacks it.
   bool without_coopmat = false;
+  // Tests: make the Nth submission, allocation or map fail (runtime/fault_injection.hpp). Unset
+  // (site none): VKUNROLL_INJECT_FAULT, e.g. "submit:3:device-lost".
+  FaultInjection fault;
   // Bind each dispatch's buffers with VK_KHR_push_descriptor where the device has it (recorded into
   // the command buffer: no descriptor set allocated or updated per dispatch); false: descriptor sets
   // from pools, the portable path (tests run both).
@@ -157,6 +161,9 @@ class Context {
   Allocator& allocator() { return *allocator_; }
   bool validation_enabled() const { return validation_; }
   DeviceTraffic& traffic() { return traffic_; }
+  // The test-only fault plan's counter: submissions, allocations and maps ask it before the call.
+  FaultInjector& faults() { return faults_; }
+  const FaultInjector& faults() const { return faults_; }
   const DeviceTraffic& traffic() const { return traffic_; }
 
   // Pipelines are created once per (shader, specialization, push size) and kept here.
@@ -193,6 +200,7 @@ class Context {
   size_t pipeline_cache_loaded_bytes_ = 0;
   DeviceInfo info_;
   DeviceTraffic traffic_;
+  FaultInjector faults_;
   std::unique_ptr<Allocator> allocator_;
   std::map<std::string, std::unique_ptr<Pipeline>> pipelines_;
   mutable std::mutex messages_mutex_;

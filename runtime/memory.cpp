@@ -72,7 +72,8 @@ uint32_t Allocator::new_block(VkDeviceSize size, bool host_visible) {
   VkMemoryAllocateInfo ai{VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO};
   ai.allocationSize = req.size;
   ai.memoryTypeIndex = memory_type(req.memoryTypeBits, host_visible);
-  VkResult r = vkAllocateMemory(ctx_.device(), &ai, nullptr, &b.memory);
+  VkResult r = ctx_.faults().next(FaultInjection::Site::allocation);
+  if (r == VK_SUCCESS) r = vkAllocateMemory(ctx_.device(), &ai, nullptr, &b.memory);
   if (r != VK_SUCCESS) {
     vkDestroyBuffer(ctx_.device(), b.buffer, nullptr);
     std::ostringstream os;
@@ -84,7 +85,15 @@ uint32_t Allocator::new_block(VkDeviceSize size, bool host_visible) {
   VkPhysicalDeviceMemoryProperties mem{};
   vkGetPhysicalDeviceMemoryProperties(ctx_.physical_device(), &mem);
   b.host_visible = mem.memoryTypes[ai.memoryTypeIndex].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT;
-  if (b.host_visible) VK_CHECK(vkMapMemory(ctx_.device(), b.memory, 0, VK_WHOLE_SIZE, 0, &b.mapped));
+  if (b.host_visible) {
+    r = ctx_.faults().next(FaultInjection::Site::map);
+    if (r == VK_SUCCESS) r = vkMapMemory(ctx_.device(), b.memory, 0, VK_WHOLE_SIZE, 0, &b.mapped);
+    if (r != VK_SUCCESS) {  // the block is not kept: nothing leaks past the error
+      vkFreeMemory(ctx_.device(), b.memory, nullptr);
+      vkDestroyBuffer(ctx_.device(), b.buffer, nullptr);
+      throw_vk_error(r, "vkMapMemory", __FILE__, __LINE__, "mapping a " + std::to_string(size >> 20) + " MiB memory block");
+    }
+  }
   b.free.push_back({0, size});
   stats_.block_bytes += size;
   stats_.blocks++;

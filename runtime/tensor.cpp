@@ -42,10 +42,12 @@ void copy_buffer(Context& ctx, BufferRange src, BufferRange dst) {
   VkSubmitInfo si{VK_STRUCTURE_TYPE_SUBMIT_INFO};
   si.commandBufferCount = 1;
   si.pCommandBuffers = &cb;
-  VK_CHECK(vkQueueSubmit(ctx.queue(), 1, &si, VK_NULL_HANDLE));
+  VkResult r = ctx.faults().next(FaultInjection::Site::submit);
+  if (r == VK_SUCCESS) r = vkQueueSubmit(ctx.queue(), 1, &si, VK_NULL_HANDLE);
   ctx.traffic().submits++;
-  VK_CHECK(vkQueueWaitIdle(ctx.queue()));
+  if (r == VK_SUCCESS) r = vkQueueWaitIdle(ctx.queue());
   vkDestroyCommandPool(ctx.device(), pool, nullptr);
+  if (r != VK_SUCCESS) throw_vk_error(r, "vkQueueSubmit", __FILE__, __LINE__, "a buffer copy");
 }
 }  // namespace
 

@@ -21,6 +21,7 @@
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/host/unroll/progress.hpp"
 #include "vkunroll/host/model/backend.hpp"
+#include "vkunroll/host/unroll/device_stage.hpp"
 #include "vkunroll/host/unroll/session.hpp"
 #include "vkunroll/host/unroll/unroll_job.hpp"
 #include "vkunroll/host/unroll/unroll_output.hpp"
@@ -126,7 +127,13 @@ nlohmann::json summary_extra(const UnrollOptions& o, const UnrollJob& job, const
   }
   extra["backend"] = backend_kind_name(session.backend_kind());
   extra["precision"] = precision_name(o.session.precision);
-  if (session.context()) extra["device"] = session.context()->info().name;
+  if (const Context* ctx = session.context()) {
+    extra["device"] = ctx->info().name;
+    // What a fault sweep iterates over (runtime/fault_injection.hpp): the run's device calls.
+    using Site = FaultInjection::Site;
+    extra["device_calls"] = {{"submits", ctx->faults().calls(Site::submit)},
+                             {"allocations", ctx->faults().calls(Site::allocation)}, {"maps", ctx->faults().calls(Site::map)}};
+  }
   extra["conv_algorithms"] = session.conv_choice_report();
   extra["memory_forced_submits"] = session.memory_forced_submits();
   extra["peak_device_bytes"] = session.peak_device_bytes();
@@ -191,7 +198,8 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   SessionOptions session_options = o.session;
   session_options.announce = session_options.announce && !o.quiet;
   if (o.mode == UnrollMode::physics) session_options.model_path.clear();
-  UnrollSession session(session_options);  // the model and the device before the sequence: their errors come first
+  // The model and the device before the sequence: their errors come first.
+  UnrollSession session = in_device_stage("setting up the device and the model", [&] { return UnrollSession(session_options); });
   const auto t_load = Clock::now();
   const Sequence seq = load_sequence(o.sequence, o.sequence_options);
   const double load_ms = ms_since(t_load);

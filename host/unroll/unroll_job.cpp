@@ -4,6 +4,7 @@
 #include <iostream>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/host/unroll/device_stage.hpp"
 
 namespace vkunroll {
 
@@ -141,7 +142,8 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
     counters_.events_in_windows += ev.size();
     counters_.frames_read++;
     if (ev.empty()) counters_.frames_without_events.push_back(k);
-    results = session_.unroll(in, methods);
+    results = in_device_stage("frame " + std::to_string(k) + ", unrolling " + std::to_string(methods.size()) + " target(s)",
+                              [&] { return session_.unroll(in, methods); });
     for (size_t j = 0; j < results.size(); ++j)
       if (methods[j].method != FrameTarget::Method::physics) results[j] = encode_for_model(results[j], 1.0 / physics_.to_model);
   } else {
