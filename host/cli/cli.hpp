@@ -39,7 +39,7 @@ class Formatter : public CLI::Formatter {
 
 // The sequence timing options, the same names for unroll and voxelize (group "Sequence timing").
 struct SequenceTimingArgs {
-  std::string layout, line_delay, exposure, readout, t0s, frame_period, on_bad = "error", events;
+  std::string layout, line_delay, exposure, readout, t0s, frame_period, on_bad = "error", events, events_topic;
   bool gev_half_row = false;
 };
 void add_sequence_timing(CLI::App* app, SequenceTimingArgs& a);
