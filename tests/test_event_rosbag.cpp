@@ -72,13 +72,15 @@ TEST_P(RosbagKinds, ReadsBackExactlyAndWindowsEqualTheFullScan) {
   EXPECT_EQ(reader.totals().records, ev.size());
 }
 
+std::string case_name(const ::testing::TestParamInfo<Case>& c) {
+  static const char* kinds[] = {"dvs", "evt3", "mono"};
+  return std::string(kinds[int(c.param.kind)]) + "_" + c.param.compression;
+}
+
 INSTANTIATE_TEST_SUITE_P(Bags, RosbagKinds,
                          ::testing::Values(Case{BagMessage::dvs_array, "none"}, Case{BagMessage::dvs_array, "bz2"},
                                            Case{BagMessage::evt3_packet, "lz4"}, Case{BagMessage::mono_packet, "none"}),
-                         [](const auto& info) {
-                           const char* k[] = {"dvs", "evt3", "mono"};
-                           return std::string(k[int(info.param.kind)]) + "_" + info.param.compression;
-                         });
+                         case_name);
 
 TEST(Rosbag, WithoutIndexReadsTheSameAndSaysSo) {
   const EventStream ev = evtest::random_stream(3000, 64, 48, 3);

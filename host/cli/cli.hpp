@@ -23,6 +23,7 @@ struct Command {
 Command add_devices(CLI::App& parent);
 Command add_simulate(CLI::App& parent);
 Command add_events(CLI::App& parent);
+Command add_bag_sequence(CLI::App& parent);
 Command add_voxelize(CLI::App& parent);
 Command add_demo(CLI::App& parent);
 Command add_unroll(CLI::App& parent);

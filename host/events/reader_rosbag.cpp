@@ -296,6 +296,12 @@ bool EventVisitor::decode_packet(RosCursor& c, uint64_t chunk_offset) {
 
 }  // namespace
 
+std::string bag_event_topic(ByteSource& src, const std::string& asked) {
+  EventReadOptions o;
+  o.events_topic = asked;
+  return plan_bag(src, o)->topic;
+}
+
 void read_rosbag(ByteSource& src, EventSink& sink) {
   StreamIndex* index = sink.index();
   std::shared_ptr<const BagPlan> plan;

@@ -117,46 +117,65 @@ BagConnection connection_of(const RecordView& r, const uint8_t* data, size_t n, 
   return c;
 }
 
+// The output buffer of a decompressor: grown as the data needs (a hostile `size` field allocates
+// nothing it does not fill), never past `size`.
+bool grow(std::vector<uint8_t>& out, size_t used, uint64_t size) {
+  if (used < out.size()) return true;
+  if (out.size() >= size) return false;
+  out.resize(size_t(std::min<uint64_t>(size, std::max<size_t>(out.size() * 2, size_t(1) << 16))));
+  return true;
+}
+
+std::vector<uint8_t> inflate_bz2(const std::vector<uint8_t>& in, uint64_t size, std::string& why) {
+  std::vector<uint8_t> out;
+  bz_stream z{};
+  if (BZ2_bzDecompressInit(&z, 0, 0) != BZ_OK) throw Error("bz2: cannot initialise the decompressor");
+  z.next_in = reinterpret_cast<char*>(const_cast<uint8_t*>(in.data()));
+  z.avail_in = unsigned(in.size());
+  size_t used = 0;
+  int rc = BZ_OK;
+  // Also with all input taken: a full output buffer may leave output inside the decompressor.
+  while (rc == BZ_OK && (z.avail_in > 0 || used == out.size()) && grow(out, used, size)) {
+    z.next_out = reinterpret_cast<char*>(out.data() + used);
+    z.avail_out = unsigned(out.size() - used);
+    rc = BZ2_bzDecompress(&z);
+    used = out.size() - z.avail_out;
+  }
+  if (rc != BZ_OK && rc != BZ_STREAM_END) why = "bz2 data error " + std::to_string(rc);
+  BZ2_bzDecompressEnd(&z);
+  out.resize(used);
+  return out;
+}
+
+std::vector<uint8_t> inflate_lz4(const std::vector<uint8_t>& in, uint64_t size, std::string& why) {
+  std::vector<uint8_t> out;
+  LZ4F_dctx* ctx = nullptr;
+  if (LZ4F_isError(LZ4F_createDecompressionContext(&ctx, LZ4F_VERSION))) throw Error("lz4: cannot create a context");
+  std::unique_ptr<LZ4F_dctx, decltype(&LZ4F_freeDecompressionContext)> guard(ctx, LZ4F_freeDecompressionContext);
+  size_t in_at = 0, used = 0;
+  while ((in_at < in.size() || used == out.size()) && grow(out, used, size)) {
+    size_t in_n = in.size() - in_at, out_n = out.size() - used;
+    const size_t rc = LZ4F_decompress(ctx, out.data() + used, &out_n, in.data() + in_at, &in_n, nullptr);
+    if (LZ4F_isError(rc)) {
+      why = std::string("lz4 frame error: ") + LZ4F_getErrorName(rc);
+      break;
+    }
+    in_at += in_n, used += out_n;
+    if (rc == 0 || (in_n == 0 && out_n == 0)) break;
+  }
+  out.resize(used);
+  return out;
+}
+
 // Decompresses a chunk's data (maybe cut short: then the decompressed prefix). `why` says what went
 // wrong when the output is not `size` bytes.
 std::vector<uint8_t> decompress_chunk(const std::string& method, const std::vector<uint8_t>& in, uint64_t size,
                                       std::string& why) {
   std::vector<uint8_t> out;
-  if (method == "none") {
-    out = in;
-  } else if (method == "bz2") {
-    out.resize(size_t(size));
-    bz_stream z{};
-    if (BZ2_bzDecompressInit(&z, 0, 0) != BZ_OK) throw Error("bz2: cannot initialise the decompressor");
-    z.next_in = reinterpret_cast<char*>(const_cast<uint8_t*>(in.data()));
-    z.avail_in = unsigned(in.size());
-    z.next_out = reinterpret_cast<char*>(out.data());
-    z.avail_out = unsigned(out.size());
-    int rc = BZ_OK;
-    while (rc == BZ_OK && z.avail_in > 0 && z.avail_out > 0) rc = BZ2_bzDecompress(&z);
-    if (rc != BZ_OK && rc != BZ_STREAM_END) why = "bz2 data error " + std::to_string(rc);
-    out.resize(out.size() - z.avail_out);
-    BZ2_bzDecompressEnd(&z);
-  } else if (method == "lz4") {
-    out.resize(size_t(size));
-    LZ4F_dctx* ctx = nullptr;
-    if (LZ4F_isError(LZ4F_createDecompressionContext(&ctx, LZ4F_VERSION))) throw Error("lz4: cannot create a context");
-    std::unique_ptr<LZ4F_dctx, decltype(&LZ4F_freeDecompressionContext)> guard(ctx, LZ4F_freeDecompressionContext);
-    size_t in_at = 0, out_at = 0;
-    while (in_at < in.size() && out_at < out.size()) {
-      size_t in_n = in.size() - in_at, out_n = out.size() - out_at;
-      const size_t rc = LZ4F_decompress(ctx, out.data() + out_at, &out_n, in.data() + in_at, &in_n, nullptr);
-      if (LZ4F_isError(rc)) {
-        why = std::string("lz4 frame error: ") + LZ4F_getErrorName(rc);
-        break;
-      }
-      in_at += in_n, out_at += out_n;
-      if (rc == 0 || (in_n == 0 && out_n == 0)) break;
-    }
-    out.resize(out_at);
-  } else {
-    why = "unknown chunk compression '" + method + "' (expected none, bz2 or lz4)";
-  }
+  if (method == "none") out = in;
+  else if (method == "bz2") out = inflate_bz2(in, size, why);
+  else if (method == "lz4") out = inflate_lz4(in, size, why);
+  else why = "unknown chunk compression '" + method + "' (expected none, bz2 or lz4)";
   if (why.empty() && out.size() != size)
     why = "the chunk decompresses to " + std::to_string(out.size()) + " bytes, its header says " + std::to_string(size);
   return out;
@@ -166,7 +185,9 @@ std::vector<uint8_t> decompress_chunk(const std::string& method, const std::vect
 // then a record cut short at the end is that truncation, not a second damage.
 bool visit_chunk(const std::vector<uint8_t>& d, uint64_t chunk_off, bool cut, const std::string& name, BagVisitor& v) {
   uint64_t at = 0;
-  auto read = [&](uint64_t o, void* dst, size_t n) { std::memcpy(dst, d.data() + o, n); };
+  auto read = [&](uint64_t o, void* dst, size_t n) {
+    if (n) std::memcpy(dst, d.data() + o, n);  // an empty header has no buffer
+  };
   while (at < d.size()) {
     RecordView r;
     const std::string err = read_record(at, d.size(), read, r, false);
@@ -317,8 +338,12 @@ BagInfo read_bag_info(ByteSource& src) {
   info.data_start = r.end;
   ConnectionCollector index(info);
   if (info.index_pos >= info.data_start && info.index_pos < src.size()) {
-    scan_bag_records(src, info.index_pos, index);
-    info.indexed = !index.damaged_seen;
+    try {
+      scan_bag_records(src, info.index_pos, index);
+      info.indexed = !index.damaged_seen;
+    } catch (const Error&) {
+      info.indexed = false;  // a damaged index section: the scan of the chunks below finds the connections
+    }
   }
   if (!info.indexed) {
     info.connections.clear();

@@ -53,6 +53,10 @@ BagInfo read_bag_info(ByteSource& src);
 // Records at and after a valid index_pos (connections, chunk infos) are visited too.
 void scan_bag_records(ByteSource& src, uint64_t offset, BagVisitor& visitor);
 
+// The event topic a read with `asked` (EventReadOptions::events_topic) decodes; throws the read's
+// Error when there is none, several, or its type or md5 is not known (reader_rosbag.cpp).
+std::string bag_event_topic(ByteSource& src, const std::string& asked);
+
 // Little-endian readers of a message's bytes with bounds checks: a read past the end throws
 // Error(what + ": message ends early").
 struct RosCursor {

@@ -231,3 +231,55 @@ def test_mono_packets_and_packet_time_base(tmp_path):
     assert np.array_equal(got["t"], ((base_ns + dt_ns) // 1000).astype(np.int64))
     assert np.array_equal(got["x"], x) and np.array_equal(got["y"], y)
     assert np.array_equal(got["p"], np.where(p == 1, 1, -1))
+
+
+IMAGE_DEF = "Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\nuint32 step\nuint8[] data\n"
+IMAGE = msg_class("sensor_msgs/Image", IMAGE_DEF, [("std_msgs/Header", HEADER_DEF)])
+
+
+def image_message(seq, t_us, pixels, encoding):
+    h, w = pixels.shape[:2]
+    enc = encoding.encode()
+    data = np.ascontiguousarray(pixels).tobytes()
+    return (header_bytes(seq, t_us) + np.array([h, w, len(enc)], "<u4").tobytes() + enc + b"\x00" +
+            np.array([len(data) // h, len(data)], "<u4").tobytes() + data)
+
+
+def test_bag_sequence_from_a_davis_like_bag(tmp_path):
+    """`vkunroll bag-sequence`: frames of an image topic -> rs/*.png + meta.json naming the bag for the
+    events; the folder opens as a sequence whose frames and events are the bag's."""
+    from PIL import Image
+    w, h, n = 40, 30, 3
+    rng = np.random.default_rng(5)
+    ev = np.zeros(4000, vkunroll.EVENT_DTYPE)
+    ev["t"] = 1_700_000_000_000_000 + np.arange(4000) * 25
+    ev["x"], ev["y"] = rng.integers(0, w, 4000), rng.integers(0, h, 4000)
+    ev["p"] = np.where(rng.integers(0, 2, 4000) == 1, 1, -1)
+    frames = [rng.integers(0, 256, (h, w, 3), dtype=np.uint8) for _ in range(n)]
+    t0s = [int(ev["t"][0]) + 20000 * k + 5000 for k in range(n)]
+    path = str(tmp_path / "davis.bag")
+    with rosbag.Bag(path, "w", compression="lz4") as bag:
+        for k in range(0, 4000, 400):
+            write_raw(bag, "/dvs/events", DVS, array_message(k // 400, ev[k:k + 400], w, h), int(ev["t"][k + 399]))
+        for k in range(n):
+            write_raw(bag, "/dvs/image_raw", IMAGE, image_message(k, t0s[k], frames[k], "rgb8"), t0s[k])
+    out = tmp_path / "seq"
+    r = subprocess.run([CLI, "bag-sequence", path, str(out), "--line-delay-us", "73000/259", "--exposure-us", "3000"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "3 from /dvs/image_raw (rgb8, 40x30)" in r.stdout
+    for k in range(n):
+        assert np.array_equal(np.asarray(Image.open(out / "rs" / f"{k:06d}.png").convert("RGB")), frames[k])
+    seq = vkunroll.Sequence.open(out)
+    assert len(seq) == n and (seq.width, seq.height) == (w, h)
+    assert [int(seq.timing(k).t0_us) for k in range(n)] == t0s
+    t0, t1 = t0s[1], t0s[2]
+    same_events(seq.events(t0, t1), ev[(ev["t"] >= t0) & (ev["t"] < t1)])
+    # An image encoding that is not read is named.
+    path2 = str(tmp_path / "bayer.bag")
+    with rosbag.Bag(path2, "w") as bag:
+        write_raw(bag, "/dvs/events", DVS, array_message(0, ev[:10], w, h), int(ev["t"][9]))
+        write_raw(bag, "/cam/image", IMAGE, image_message(0, t0s[0], frames[0][:, :, 0], "bayer_rggb8"), t0s[0])
+    r = subprocess.run([CLI, "bag-sequence", path2, str(tmp_path / "s2"), "--line-delay-us", "10", "--exposure-us", "100"],
+                       capture_output=True, text=True)
+    assert r.returncode != 0 and "image encoding 'bayer_rggb8' is not read" in r.stderr
