@@ -60,6 +60,9 @@ TEST_P(RosbagKinds, ReadsBackExactlyAndWindowsEqualTheFullScan) {
   EXPECT_EQ(rep.dropped(), 0u);
   // Windows through the index (checkpoints at chunk records) against the slices of the stream.
   EventFileReader reader = detail::memory_file_reader("test.bag", bytes.data(), bytes.size(), "bag", {});
+  EventReadOptions sort;
+  sort.on_bad = BadEventPolicy::sort;
+  EventFileReader sorted = detail::memory_file_reader("test.bag", bytes.data(), bytes.size(), "bag", sort);
   for (int k = 7; k >= 0; --k) {
     const size_t a = size_t(k) * 2500 + 11, b = std::min(ev.size() - 1, a + 3100);
     const int64_t t_begin = ev.t[a], t1 = ev.t[b];
@@ -67,7 +70,11 @@ TEST_P(RosbagKinds, ReadsBackExactlyAndWindowsEqualTheFullScan) {
     const size_t lo = size_t(std::lower_bound(ev.t.begin(), ev.t.end(), t_begin) - ev.t.begin());
     const size_t hi = size_t(std::lower_bound(ev.t.begin(), ev.t.end(), t1) - ev.t.begin());
     expect_same(w, ev, lo, hi);
+    expect_same(sorted.read(t_begin, t1), ev, lo, hi);  // on_bad=sort decodes every segment meeting the window
   }
+  // The windows above end before the last event: a last open window reads the rest.
+  const size_t last = size_t(std::lower_bound(ev.t.begin(), ev.t.end(), ev.t.back()) - ev.t.begin());
+  expect_same(reader.read(ev.t.back(), std::nullopt), ev, last, ev.size());
   EXPECT_GT(reader.checkpoints(), 2u);
   EXPECT_EQ(reader.totals().records, ev.size());
 }

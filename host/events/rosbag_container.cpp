@@ -321,9 +321,12 @@ struct ConnectionCollector final : BagVisitor {
 BagInfo read_bag_info(ByteSource& src) {
   const auto head = read_range(src, 0, kMagicSize);
   if (head.size() < kMagicSize || std::memcmp(head.data(), kMagic, kMagicSize) != 0) {
-    if (head.size() >= 9 && std::memcmp(head.data(), "#ROSBAG V", 9) == 0)
-      throw Error(src.name() + ": ROS bag version '" + std::string(head.begin() + 9, head.end() - 1) +
+    if (head.size() >= 9 && std::memcmp(head.data(), "#ROSBAG V", 9) == 0) {
+      std::string version(head.begin() + 9, head.end());  // up to the newline (a cut file may have none)
+      version = version.substr(0, version.find('\n'));
+      throw Error(src.name() + ": ROS bag version '" + version +
                   "' is not supported (bag format 2.0 is; `rosbag fix` converts older bags)");
+    }
     throw Error(src.name() + ": not a ROS bag (no '#ROSBAG V2.0' line at byte 0)");
   }
   BagInfo info;
