@@ -160,6 +160,7 @@ BagSequenceReport write_bag_sequence(const std::string& bag, const std::string& 
                          {"readout", readout_name(o.readout)},
                          {"frames", w.frames},
                          {"events", fs::absolute(bag).lexically_normal().string()},
+                         {"events_topic", rep.events_topic},
                          {"source", {{"ros_bag", fs::absolute(bag).lexically_normal().string()},
                                      {"frames_topic", rep.frames_topic},
                                      {"events_topic", rep.events_topic},

@@ -2,6 +2,7 @@
 serialized by hand from the .msg layouts (numpy), read back by vkunroll's own bag reader from the CLI
 and from Python. The real EVT 3.0 recording goes into a bag twice, as dvs_msgs/EventArray and as
 event_camera_msgs/EventPacket (evt3), and must read back with its exact events."""
+import json
 import os
 import re
 import subprocess
@@ -261,15 +262,19 @@ def test_bag_sequence_from_a_davis_like_bag(tmp_path):
     with rosbag.Bag(path, "w", compression="lz4") as bag:
         for k in range(0, 4000, 400):
             write_raw(bag, "/dvs/events", DVS, array_message(k // 400, ev[k:k + 400], w, h), int(ev["t"][k + 399]))
+            # A second event topic: meta.json's events_topic must pick /dvs/events when the sequence opens.
+            write_raw(bag, "/other/events", PROPHESEE, array_message(k // 400, ev[k:k + 2], w, h), int(ev["t"][k + 399]))
         for k in range(n):
             write_raw(bag, "/dvs/image_raw", IMAGE, image_message(k, t0s[k], frames[k], "rgb8"), t0s[k])
     out = tmp_path / "seq"
-    r = subprocess.run([CLI, "bag-sequence", path, str(out), "--line-delay-us", "73000/259", "--exposure-us", "3000"],
-                       capture_output=True, text=True)
+    r = subprocess.run([CLI, "bag-sequence", path, str(out), "--line-delay-us", "73000/259", "--exposure-us", "3000",
+                        "--events-topic", "/dvs/events"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "3 from /dvs/image_raw (rgb8, 40x30)" in r.stdout
     for k in range(n):
         assert np.array_equal(np.asarray(Image.open(out / "rs" / f"{k:06d}.png").convert("RGB")), frames[k])
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["events_topic"] == "/dvs/events" and meta["line_delay_us"] == "73000/259"
     seq = vkunroll.Sequence.open(out)
     assert len(seq) == n and (seq.width, seq.height) == (w, h)
     assert [int(seq.timing(k).t0_us) for k in range(n)] == t0s
