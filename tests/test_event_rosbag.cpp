@@ -41,6 +41,11 @@ struct Case {
   const char* compression;
 };
 
+void PrintTo(const Case& c, std::ostream* os) {  // gtest's name of a case (not its bytes)
+  static const char* kinds[] = {"dvs", "evt3", "mono"};
+  *os << kinds[int(c.kind)] << " " << c.compression;
+}
+
 class RosbagKinds : public ::testing::TestWithParam<Case> {};
 
 TEST_P(RosbagKinds, ReadsBackExactlyAndWindowsEqualTheFullScan) {

@@ -280,6 +280,8 @@ def test_bag_sequence_from_a_davis_like_bag(tmp_path):
     assert [int(seq.timing(k).t0_us) for k in range(n)] == t0s
     t0, t1 = t0s[1], t0s[2]
     same_events(seq.events(t0, t1), ev[(ev["t"] >= t0) & (ev["t"] < t1)])
+    other = vkunroll.Sequence.open(out, events_topic="/other/events")  # the option wins over meta.json
+    assert len(other.events(None, None)) == 20
     # An image encoding that is not read is named.
     path2 = str(tmp_path / "bayer.bag")
     with rosbag.Bag(path2, "w") as bag:
