@@ -131,7 +131,7 @@ Command add_events(CLI::App& parent) {
   auto a = std::make_shared<EventsArgs>();
   CLI::App* c = parent.add_subcommand("events", "read an event file: count, time span, rate, sensor size, polarity, drops");
   c->description(
-      "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt3 .raw and .dat, AEDAT 4) in bounded\n"
+      "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt3 .raw and .dat, AEDAT 4, ROS 1 bag) in bounded\n"
       "memory and prints the event count, time span, rate, sensor size, polarity balance, read speed, and\n"
       "what was dropped or ignored.");
   c->add_option("FILE", a->file, "the event file")->required();

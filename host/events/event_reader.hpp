@@ -1,5 +1,5 @@
 // Event file readers: one entry point for every format users have (text/CSV, HDF5 layouts,
-// NumPy .npy/.npz, Prophesee EVT 2.0 / EVT 3.0 .raw and .dat, iniVation AEDAT 4).
+// NumPy .npy/.npz, Prophesee EVT 2.0 / EVT 3.0 .raw and .dat, iniVation AEDAT 4, ROS 1 bags).
 // Every reader checks each record (sensor bounds, time order, NaN times, polarity, unknown
 // words) and either throws vkunroll::Error naming the file, record and rule, or drops/sorts
 // and counts what it did in an EventReadReport. See docs/events.md.
