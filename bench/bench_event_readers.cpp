@@ -26,6 +26,10 @@
 #define VKUNROLL_HAVE_FILE_READER 1
 #endif
 #include "../tests/event_test_encoders.hpp"
+#if __has_include("vkunroll/host/events/rosbag_detail.hpp")
+#include "../tests/rosbag_test_encoder.hpp"
+#define VKUNROLL_HAVE_ROSBAG 1
+#endif
 
 namespace fs = std::filesystem;
 using namespace vkunroll;
@@ -77,6 +81,18 @@ std::vector<std::pair<std::string, std::string>> write_all(const fs::path& dir, 
   write_bytes((dir / "ev.dat").string(), evtest::encode_dat(ev)), add("Prophesee .dat", "ev.dat");
   write_bytes((dir / "lz4.aedat4").string(), evtest::encode_aedat4(ev, 1, 5000)), add("AEDAT 4 LZ4", "lz4.aedat4");
   write_bytes((dir / "zstd.aedat4").string(), evtest::encode_aedat4(ev, 3, 5000)), add("AEDAT 4 zstd", "zstd.aedat4");
+#ifdef VKUNROLL_HAVE_ROSBAG
+  // ROS bags: 1000 events a message, 50 messages a chunk (near rosbag's 768 KiB chunks).
+  evtest::BagOptions bo;
+  bo.events_per_message = 1000, bo.messages_per_chunk = 50;
+  write_bytes((dir / "dvs.bag").string(), evtest::encode_rosbag(ev, bo)), add("bag dvs_msgs", "dvs.bag");
+  bo.compression = "lz4";
+  write_bytes((dir / "dvs_lz4.bag").string(), evtest::encode_rosbag(ev, bo)), add("bag dvs_msgs lz4", "dvs_lz4.bag");
+  bo.compression = "bz2";
+  write_bytes((dir / "dvs_bz2.bag").string(), evtest::encode_rosbag(ev, bo)), add("bag dvs_msgs bz2", "dvs_bz2.bag");
+  bo.kind = evtest::BagMessage::evt3_packet, bo.compression = "lz4";
+  write_bytes((dir / "evt3.bag").string(), evtest::encode_rosbag(ev, bo)), add("bag EventPacket evt3 lz4", "evt3.bag");
+#endif
   return files;
 }
 

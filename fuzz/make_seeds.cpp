@@ -9,6 +9,7 @@
 #include <random>
 
 #include "event_test_encoders.hpp"
+#include "rosbag_test_encoder.hpp"
 
 namespace fs = std::filesystem;
 using namespace vkunroll;
@@ -89,6 +90,15 @@ int main(int argc, char** argv) {
   put(out / "text", "seed_txyp", text_bytes("# width 64 height 48\n1 2 3 1\n5 6 7 0\n5 8 9 -1\n"));
   put(out / "text", "seed_e2vid", text_bytes("240 180\n0.000001 1 2 1\n0.000123456 3 4 0\n"));
   put(out / "text", "seed_csv", text_bytes("x,y,timestamp,polarity\n1,2,1.5,True\n3,4,2e3,False\nnan,1,1,1\n"));
+  {
+    BagOptions bo;
+    bo.events_per_message = 7;
+    put(out / "rosbag", "seed_dvs", encode_rosbag(ev, bo));
+    bo.kind = BagMessage::evt3_packet, bo.compression = "lz4";
+    put(out / "rosbag", "seed_evt3_lz4", encode_rosbag(ev, bo));
+    bo.kind = BagMessage::mono_packet, bo.compression = "bz2", bo.index = false;
+    put(out / "rosbag", "seed_mono_bz2_noindex", encode_rosbag(ev, bo));
+  }
   std::mt19937 rng(3);
   for (int k = 0; k < 4; ++k) {
     std::vector<uint8_t> r(size_t(200 + 200 * k));

@@ -16,12 +16,14 @@ core_packages=(
   cmake ninja-build g++ pkg-config git
   libvulkan-dev libvulkan-volk-dev mesa-vulkan-drivers glslang-tools spirv-tools
   libglm-dev libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev libopencv-videoio-dev
-  libhdf5-dev hdf5-filter-plugin-blosc-serial liblz4-dev libzstd-dev libflatbuffers-dev libzip-dev zlib1g-dev
+  libhdf5-dev hdf5-filter-plugin-blosc-serial liblz4-dev libzstd-dev libflatbuffers-dev libzip-dev zlib1g-dev libbz2-dev
   nlohmann-json3-dev libcli11-dev
   python3-dev pybind11-dev python3-numpy
 )
-# The suite: validation layer, GoogleTest, and Debian's PyTorch for the mirror and trainer tests.
-test_packages=(vulkan-validationlayers libgtest-dev libgmock-dev python3-pytest python3-torch python3-h5py python3-pil)
+# The suite: validation layer, GoogleTest, Debian's PyTorch for the mirror and trainer tests, and
+# Debian's rosbag for the tests that write ROS bags.
+test_packages=(vulkan-validationlayers libgtest-dev libgmock-dev python3-pytest python3-torch python3-h5py python3-pil
+  python3-rosbag python3-roslz4)
 # workflow/Snakefile (about 650 MB with its dependencies: cloud storage clients and more).
 workflow_packages=(snakemake)
 # The Slurm test (tests/python/test_slurm_workflow.py) starts its own munged, slurmctld and slurmd

@@ -23,6 +23,7 @@ struct Command {
 Command add_devices(CLI::App& parent);
 Command add_simulate(CLI::App& parent);
 Command add_events(CLI::App& parent);
+Command add_bag_sequence(CLI::App& parent);
 Command add_voxelize(CLI::App& parent);
 Command add_demo(CLI::App& parent);
 Command add_unroll(CLI::App& parent);
@@ -39,7 +40,7 @@ class Formatter : public CLI::Formatter {
 
 // The sequence timing options, the same names for unroll and voxelize (group "Sequence timing").
 struct SequenceTimingArgs {
-  std::string layout, line_delay, exposure, readout, t0s, frame_period, on_bad = "error", events;
+  std::string layout, line_delay, exposure, readout, t0s, frame_period, on_bad = "error", events, events_topic;
   bool gev_half_row = false;
 };
 void add_sequence_timing(CLI::App* app, SequenceTimingArgs& a);

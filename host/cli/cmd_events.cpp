@@ -14,7 +14,7 @@ namespace vkunroll::cli {
 namespace {
 
 struct EventsArgs {
-  std::string file, format, on_bad = "error", window, columns = "txyp", time_unit, array_time_unit;
+  std::string file, format, on_bad = "error", window, columns = "txyp", time_unit, array_time_unit, events_topic;
   std::optional<int> width, height;
   bool json = false;
 };
@@ -51,6 +51,7 @@ EventReadOptions to_options(const EventsArgs& a) {
   o.text_columns = a.columns;
   o.text_time_unit = a.time_unit;
   o.array_time_unit = a.array_time_unit;
+  o.events_topic = a.events_topic;
   return o;
 }
 
@@ -130,12 +131,12 @@ Command add_events(CLI::App& parent) {
   auto a = std::make_shared<EventsArgs>();
   CLI::App* c = parent.add_subcommand("events", "read an event file: count, time span, rate, sensor size, polarity, drops");
   c->description(
-      "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt3 .raw and .dat, AEDAT 4) in bounded\n"
+      "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt3 .raw and .dat, AEDAT 4, ROS 1 bag) in bounded\n"
       "memory and prints the event count, time span, rate, sensor size, polarity balance, read speed, and\n"
       "what was dropped or ignored.");
   c->add_option("FILE", a->file, "the event file")->required();
-  c->add_option("--format", a->format, "txt, h5, npy, npz, evt2, evt3, dat, aedat4 (default: detect)")
-      ->check(CLI::IsMember({"txt", "h5", "npy", "npz", "evt2", "evt3", "dat", "aedat4"}))->type_name("F");
+  c->add_option("--format", a->format, "txt, h5, npy, npz, evt2, evt3, dat, aedat4, bag (default: detect)")
+      ->check(CLI::IsMember({"txt", "h5", "npy", "npz", "evt2", "evt3", "dat", "aedat4", "bag"}))->type_name("F");
   c->add_option("--on-bad", a->on_bad,
                 "error: stop at the first bad record | drop: drop and count bad records | sort: keep out-of-order "
                 "records and sort by t")
@@ -149,6 +150,9 @@ Command add_events(CLI::App& parent) {
       ->check(CLI::IsMember({"s", "ms", "us", "ns"}))->type_name("U");
   c->add_option("--array-time-unit", a->array_time_unit, "unit of float time arrays in npy/npz/h5 (default us)")
       ->check(CLI::IsMember({"s", "ms", "us", "ns"}))->type_name("U");
+  c->add_option("--events-topic", a->events_topic,
+                "ROS bags: the event topic to read (default: the bag's only topic of an event type)")
+      ->type_name("TOPIC");
   c->add_flag("--json", a->json, "print the report as JSON");
   return {c, [a] { return run_events(*a); }};
 }

@@ -76,6 +76,8 @@ void add_sequence_timing(CLI::App* app, SequenceTimingArgs& a) {
       ->capture_default_str()
       ->check(CLI::IsMember({"error", "drop", "sort"}))->group(g)->type_name("P");
   app->add_option("--events", a.events, "read the events from this file instead of the sequence's")->group(g)->type_name("FILE");
+  app->add_option("--events-topic", a.events_topic, "ROS bag events: the topic (default: the bag's only event topic)")
+      ->group(g)->type_name("TOPIC");
   add_deprecated_alias(app, "--line-delay", "--line-delay-us", a.line_delay);
   add_deprecated_alias(app, "--exposure", "--exposure-us", a.exposure);
   add_deprecated_alias(app, "--t0s", "--t0s-us", a.t0s);
@@ -104,6 +106,7 @@ SequenceOptions sequence_options(const SequenceTimingArgs& a) {
   so.gev_half_row = a.gev_half_row;
   so.events.on_bad = a.on_bad == "drop" ? BadEventPolicy::drop : a.on_bad == "sort" ? BadEventPolicy::sort : BadEventPolicy::error;
   if (!a.events.empty()) so.events_file = a.events;
+  so.events.events_topic = a.events_topic;
   validate_sequence_options(so);
   return so;
 }

@@ -45,7 +45,7 @@ int main(int argc, char** argv) {
   app.fallthrough(false);
   std::vector<Command> commands = {add_devices(app), add_simulate(app), add_events(app), add_voxelize(app),
                                    add_demo(app),    add_unroll(app),   add_infer(app),
-                                   add_tune(app)};
+                                   add_tune(app),    add_bag_sequence(app)};
   for (auto& c : commands) c.app->formatter(formatter);
   if (argc == 2 && !std::strcmp(argv[1], "help")) {
     std::cout << app.help();

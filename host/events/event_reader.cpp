@@ -78,10 +78,12 @@ std::string detect_format(ByteSource& src, const std::string& path) {
   if (starts("\x93NUMPY", 6)) return "npy";
   if (starts("PK\x03\x04", 4) || starts("PK\x05\x06", 4)) return "npz";
   if (starts("#!AER-DAT4", 10)) return "aedat4";
+  if (starts("#ROSBAG V", 9)) return "bag";
   const std::string ext = lower_ext(path);
   if (ext == ".h5" || ext == ".hdf5" || ext == ".hdf") return "h5";
   if (ext == ".npy") return "npy";
   if (ext == ".npz") return "npz";
+  if (ext == ".bag") return "bag";
   if (ext == ".aedat4" || ext == ".aedat") return "aedat4";
   if (ext == ".txt" || ext == ".csv" || ext == ".tsv") return "txt";
   if (ext == ".dat") return "dat";
@@ -95,7 +97,7 @@ std::string detect_format(ByteSource& src, const std::string& path) {
     throw Error(path + ": Prophesee encoding EVT " + h.evt + " is not supported (EVT 2.0 and 3.0 are)");
   }
   throw Error(path + ": cannot tell the event format from the extension '" + ext +
-              "' or the first bytes; pass --format (txt, h5, npy, npz, evt2, evt3, dat, aedat4)");
+              "' or the first bytes; pass --format (txt, h5, npy, npz, evt2, evt3, dat, aedat4, bag)");
 }
 
 BinaryGuess guess_binary_format(ByteSource& src) {
@@ -105,6 +107,7 @@ BinaryGuess guess_binary_format(ByteSource& src) {
   if (starts("\x93NUMPY", 6)) return {"npy", ".npy", "a NumPy .npy array (\\x93NUMPY magic)"};
   if (starts("PK\x03\x04", 4) || starts("PK\x05\x06", 4)) return {"npz", ".npz", "a zip archive (.npz; 'PK' magic)"};
   if (starts("#!AER-DAT4", 10)) return {"aedat4", ".aedat4", "an AEDAT 4 recording ('#!AER-DAT4' magic)"};
+  if (starts("#ROSBAG V", 9)) return {"bag", ".bag", "a ROS bag ('#ROSBAG' magic)"};
   if (!head.empty() && head[0] == '%') {
     const PropheseeHeader h = parse_prophesee_header(src);
     if (h.evt == "3.0") return {"evt3", ".raw", "a Prophesee EVT 3.0 recording (its '%' header says EVT 3.0)"};
@@ -121,9 +124,10 @@ void read_source(const std::string& format, ByteSource& src, EventSink& sink) {
   else if (format == "evt3") read_evt3(src, sink);
   else if (format == "dat") read_dat(src, sink);
   else if (format == "aedat4") read_aedat4(src, sink);
+  else if (format == "bag") read_rosbag(src, sink);
   else if (format == "npy") read_npy(src, sink);
   else throw Error(src.name() + ": unknown event format '" + format +
-                   "' (expected txt, h5, npy, npz, evt2, evt3, dat, aedat4)");
+                   "' (expected txt, h5, npy, npz, evt2, evt3, dat, aedat4, bag)");
 }
 
 std::string canonical_format(const std::string& format) {

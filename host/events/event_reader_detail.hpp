@@ -210,6 +210,7 @@ void read_evt2(ByteSource& src, EventSink& sink);
 void read_evt3(ByteSource& src, EventSink& sink);
 void read_dat(ByteSource& src, EventSink& sink);
 void read_aedat4(ByteSource& src, EventSink& sink);
+void read_rosbag(ByteSource& src, EventSink& sink);  // ROS 1 bag 2.0 (reader_rosbag.cpp)
 void read_npy(ByteSource& src, EventSink& sink);
 // .npz from a file path, or from memory when `data` is non-null (fuzzing).
 void read_npz(const std::string& path, const uint8_t* data, size_t size, EventSink& sink);

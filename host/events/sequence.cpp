@@ -159,6 +159,9 @@ void load_generic(Sequence& s, const fs::path& root) {
     s.frames.push_back(fr);
   }
   s.event_files.push_back(resolve(root, json_string(m, "events", meta_path)));
+  // Extension: a ROS bag's event topic (vkunroll bag-sequence writes it); an --events-topic wins.
+  if (m.contains("events_topic") && s.event_options.events_topic.empty())
+    s.event_options.events_topic = json_string(m, "events_topic", meta_path);
   if (m.contains("ground_truth")) {
     const auto& g = m["ground_truth"];
     if (!g.is_array()) throw Error(meta_path + ": field 'ground_truth' must be a list of {\"file\", \"t_us\"}");

@@ -161,17 +161,18 @@ void bind_events(py::module_& m) {
       "_read_events",
       [](const std::string& path, const py::object& t_begin, const py::object& t_end, const std::string& format,
          const std::string& on_bad, int width, int height, const std::string& columns, const std::string& time_unit,
-         const std::string& array_time_unit) {
-        const EventReadOptions o = guarded({{path}}, [&] {
+         const std::string& array_time_unit, const std::string& topic) {
+        EventReadOptions o = guarded({{path}}, [&] {
           return read_options(t_begin, t_end, format, on_bad, width, height, columns, time_unit, array_time_unit);
         });
+        o.events_topic = topic;
         EventReadReport report;
         EventStream ev = without_gil({{path}}, [&] { return read_events(path, o, &report); });
         report.path = path;
         return py::make_tuple(from_event_stream(std::move(ev)), report_dict(report));
       },
       py::arg("path"), py::arg("t_begin"), py::arg("t_end"), py::arg("format"), py::arg("on_bad"), py::arg("width"),
-      py::arg("height"), py::arg("columns"), py::arg("time_unit"), py::arg("array_time_unit"));
+      py::arg("height"), py::arg("columns"), py::arg("time_unit"), py::arg("array_time_unit"), py::arg("topic") = "");
 
   m.def("_detect_event_format", [](const std::string& path) {
     return guarded({{path}}, [&] { return detect_event_format(path); });

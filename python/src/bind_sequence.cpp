@@ -21,12 +21,14 @@ SequenceOptions sequence_options(const py::dict& kw) {
   if (has("gev_half_row")) o.gev_half_row = kw["gev_half_row"].cast<bool>();
   if (has("fastec_frame_step_gs")) o.fastec_frame_step_gs = kw["fastec_frame_step_gs"].cast<int>();
   if (has("events_file")) o.events_file = kw["events_file"].cast<std::string>();
+  if (has("events_topic")) o.events.events_topic = kw["events_topic"].cast<std::string>();
   if (has("on_bad")) o.events.on_bad = parse_on_bad(kw["on_bad"].cast<std::string>());
   if (has("check_frame_sizes")) o.check_frame_sizes = kw["check_frame_sizes"].cast<bool>();
   for (auto item : kw) {
     const std::string k = py::str(item.first);
     static const char* known[] = {"layout", "line_delay_us", "exposure_us", "readout", "t0s_us", "frame_period_us",
-                                  "gev_half_row", "fastec_frame_step_gs", "events_file", "on_bad", "check_frame_sizes"};
+                                  "gev_half_row", "fastec_frame_step_gs", "events_file", "events_topic", "on_bad",
+                                  "check_frame_sizes"};
     if (std::none_of(std::begin(known), std::end(known), [&](const char* n) { return k == n; }))
       throw Error("Sequence.open: unknown option '" + k + "'");
   }

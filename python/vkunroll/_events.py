@@ -108,17 +108,17 @@ def convert_events(events, dtype=EVENT_DTYPE, p_off=None):
 
 def detect_event_format(path):
     """The format :func:`read_events` would read ``path`` as: "txt", "h5", "npy", "npz", "evt2",
-    "evt3", "dat" or "aedat4" (from the magic bytes, header and extension)."""
+    "evt3", "dat", "aedat4" or "bag" (from the magic bytes, header and extension)."""
     return _vk._detect_event_format(os.fspath(path))
 
 
 def read_events(path, t_start=None, t_end=None, format=None, on_bad="error", *, dtype=None, sensor_size=None,
-                columns=None, time_unit=None, array_time_unit=None, return_info=False):
+                columns=None, time_unit=None, array_time_unit=None, topic=None, return_info=False):
     """Read an event file into a numpy structured array.
 
     Formats: text/CSV, HDF5 (vkunroll, Gev-RS, DRE, DSEC, v2e layouts), NumPy .npy/.npz,
-    Prophesee EVT 2.0 / EVT 3.0 .raw and .dat, iniVation AEDAT 4 (detected from the file, or
-    ``format`` = "txt", "h5", "npy", "npz", "evt2", "evt3", "dat", "aedat4").
+    Prophesee EVT 2.0 / EVT 3.0 .raw and .dat, iniVation AEDAT 4, ROS 1 bags (detected from the
+    file, or ``format`` = "txt", "h5", "npy", "npz", "evt2", "evt3", "dat", "aedat4", "bag").
 
     Parameters:
       t_start, t_end: read only events with t_start <= t < t_end (integer microseconds; None:
@@ -132,6 +132,8 @@ def read_events(path, t_start=None, t_end=None, format=None, on_bad="error", *, 
       columns: text column order, a permutation of "txyp" ('_' skips a column).
       time_unit: text time unit "s", "ms", "us", "ns" (default: detected).
       array_time_unit: unit of float time arrays in .npy/.npz/.h5 (default "us").
+      topic: ROS bags: the event topic (default: the bag's only topic of an event type,
+        dvs_msgs/EventArray, prophesee_event_msgs/EventArray or event_camera_msgs/EventPacket).
       return_info: also return a dict: format, sensor_size, records, kept, dropped counts,
         ignored record kinds, notes and a one-paragraph summary.
 
@@ -141,7 +143,7 @@ def read_events(path, t_start=None, t_end=None, format=None, on_bad="error", *, 
     width, height = (0, 0) if sensor_size is None else (int(sensor_size[0]), int(sensor_size[1]))
     (t, x, y, p, w, h), info = _vk._read_events(
         os.fspath(path), None if t_start is None else int(t_start), None if t_end is None else int(t_end),
-        format or "", on_bad, width, height, columns or "", time_unit or "", array_time_unit or "")
+        format or "", on_bad, width, height, columns or "", time_unit or "", array_time_unit or "", topic or "")
     info = dict(info)
     info["sensor_size"] = (w, h)
     if info["dropped"] or info["sorted"]:

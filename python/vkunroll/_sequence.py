@@ -53,7 +53,8 @@ class Sequence:
         ``layout``: "auto" (detected), "generic", "gev-rs", "gev-rs-real", "dre", "fastec".
         Options (None keeps the layout's value): ``line_delay_us``, ``exposure_us``, ``readout``,
         ``t0s_us`` (one per frame), ``frame_period_us`` (Gev-RS-Real), ``gev_half_row`` (Gev-RS),
-        ``fastec_frame_step_gs``, ``events_file`` (replaces the layout's), ``on_bad``
+        ``fastec_frame_step_gs``, ``events_file`` (replaces the layout's), ``events_topic`` (a ROS
+        bag's event topic, over meta.json's ``events_topic``), ``on_bad``
         ("error", "drop", "sort"), ``check_frame_sizes``. Times are exact (ints, floats, strings
         like "73000/259", Fractions).
 

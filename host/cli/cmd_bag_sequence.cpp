@@ -1,0 +1,68 @@
+// vkunroll bag-sequence: a generic sequence folder from a ROS bag alone (frames from an image topic,
+// events read from the bag in place, row timing from the options); see docs/events.md, "ROS bags".
+#include <iostream>
+#include <memory>
+
+#include "vkunroll/host/cli/cli.hpp"
+#include "vkunroll/host/events/rosbag_sequence.hpp"
+
+namespace vkunroll::cli {
+
+namespace {
+
+struct BagSequenceArgs {
+  std::string bag, out, frames_topic, events_topic, line_delay, exposure, readout = "top-down", t0_offset = "0";
+  uint64_t max_frames = 0;
+};
+
+Rational exact_option(const std::string& text, const std::string& name) {
+  try {
+    return Rational::parse(text, name);
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
+}
+
+int run_bag_sequence(const BagSequenceArgs& a) {
+  BagSequenceOptions o;
+  o.frames_topic = a.frames_topic;
+  o.events_topic = a.events_topic;
+  o.line_delay_us = exact_option(a.line_delay, "--line-delay-us");
+  o.exposure_us = exact_option(a.exposure, "--exposure-us");
+  o.t0_offset_us = exact_option(a.t0_offset, "--t0-offset-us");
+  o.readout = parse_readout(a.readout);
+  o.max_frames = a.max_frames;
+  const BagSequenceReport r = write_bag_sequence(a.bag, a.out, o);
+  std::cout << "sequence     " << a.out << "\n"
+            << "frames       " << r.frames << " from " << r.frames_topic << " (" << r.encoding << ", " << r.width << "x"
+            << r.height << ")\n"
+            << "events       " << r.events_topic << " (read from the bag in place)\n";
+  for (const auto& n : r.notes) std::cout << "note         " << n << "\n";
+  return 0;
+}
+
+}  // namespace
+
+Command add_bag_sequence(CLI::App& parent) {
+  auto a = std::make_shared<BagSequenceArgs>();
+  CLI::App* c = parent.add_subcommand("bag-sequence", "a sequence folder from a ROS bag: RS frames of an image topic + its events");
+  c->description(
+      "Writes OUT/rs/NNNNNN.png from a sensor_msgs/Image topic and OUT/meta.json (the generic layout) whose\n"
+      "events are the bag itself; each frame's t0 is its header stamp (+ --t0-offset-us). A bag holds no\n"
+      "row timing: give --line-delay-us and --exposure-us. Then: vkunroll unroll OUT [--events-topic T].");
+  c->add_option("BAG", a->bag, "the ROS 1 bag")->required();
+  c->add_option("OUT", a->out, "the sequence folder to write")->required();
+  c->add_option("--frames-topic", a->frames_topic, "the sensor_msgs/Image topic (default: the bag's only one)")->type_name("TOPIC");
+  c->add_option("--events-topic", a->events_topic, "the event topic (default: the bag's only one)")->type_name("TOPIC");
+  c->add_option("--line-delay-us", a->line_delay, "row-to-row start delay of the RS camera (exact: '73000/259')")
+      ->required()->type_name("US");
+  c->add_option("--exposure-us", a->exposure, "row exposure")->required()->type_name("US");
+  c->add_option("--readout", a->readout, "top-down | bottom-up")
+      ->check(CLI::IsMember({"top-down", "bottom-up"}))->capture_default_str()->type_name("DIR");
+  c->add_option("--t0-offset-us", a->t0_offset, "added to each header stamp to give the first row's exposure start")
+      ->capture_default_str()->type_name("US");
+  c->add_option("--max-frames", a->max_frames, "write at most N frames (0: all)")->type_name("N");
+  return {c, [a] { return run_bag_sequence(*a); }};
+}
+
+}  // namespace vkunroll::cli

@@ -1,0 +1,180 @@
+// write_bag_sequence (rosbag_sequence.hpp): sensor_msgs/Image messages -> rs/NNNNNN.png, meta.json.
+// Image: Header header, uint32 height, uint32 width, string encoding, uint8 is_bigendian,
+// uint32 step (bytes per row), uint8[] data. Streamed message by message (one frame in memory).
+#include "vkunroll/host/events/rosbag_sequence.hpp"
+
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/core.hpp>
+
+#include "vkunroll/host/events/rosbag_detail.hpp"
+
+namespace vkunroll {
+
+namespace {
+
+namespace fs = std::filesystem;
+using detail::BagConnection;
+using detail::BagInfo;
+
+constexpr const char* kImageType = "sensor_msgs/Image";
+constexpr const char* kImageMd5 = "060021388200f6f0f447d0fcd9c64743";
+
+std::vector<uint32_t> frame_connections(const BagInfo& info, const std::string& asked, const std::string& bag,
+                                        std::string& topic) {
+  std::vector<std::string> images;
+  for (const auto& [id, c] : info.connections)
+    if (c.type == kImageType && std::find(images.begin(), images.end(), c.topic) == images.end()) images.push_back(c.topic);
+  topic = asked;
+  if (topic.empty()) {
+    std::string list;
+    for (const auto& t : images) list += (list.empty() ? "" : ", ") + t;
+    if (images.size() != 1)
+      throw Error(bag + ": " + (images.empty() ? std::string("the bag has no sensor_msgs/Image topic")
+                                               : "the bag has several image topics (" + list + "); choose one with --frames-topic"));
+    topic = images.front();
+  }
+  std::vector<uint32_t> conns;
+  for (const auto& [id, c] : info.connections) {
+    if (c.topic != topic) continue;
+    if (c.type != kImageType || c.md5sum != kImageMd5)
+      throw Error(bag + ": frames topic '" + topic + "' has type " + c.type + " (md5 " + c.md5sum + "), expected " +
+                  kImageType + " (md5 " + kImageMd5 + ")");
+    conns.push_back(id);
+  }
+  if (conns.empty()) throw Error(bag + ": the bag has no topic '" + topic + "'");
+  return conns;
+}
+
+// The image as OpenCV's gray or BGR Mat (8 or 16 bits); throws Error naming the message.
+cv::Mat image_of(const uint8_t* data, size_t size, const std::string& what, std::string& encoding, int64_t& stamp_us) {
+  detail::RosCursor c{data, size, 0, &what};
+  c.u32();
+  const uint32_t sec = c.u32(), nsec = c.u32();
+  c.string();
+  stamp_us = int64_t(sec) * 1000000 + nsec / 1000;
+  const uint32_t h = c.u32(), w = c.u32();
+  encoding = c.string();
+  const bool big = c.u8() != 0;
+  const uint32_t step = c.u32(), len = c.u32();
+  c.need(len);
+  // blue_from: the source channel of OpenCV's blue (red is 2 - blue_from); -1: gray.
+  struct Enc { const char* name; int type, blue_from; };
+  static const Enc kEnc[] = {{"mono8", CV_8UC1, -1}, {"8UC1", CV_8UC1, -1}, {"mono16", CV_16UC1, -1},
+                             {"16UC1", CV_16UC1, -1}, {"bgr8", CV_8UC3, 0}, {"rgb8", CV_8UC3, 2},
+                             {"bgra8", CV_8UC4, 0}, {"rgba8", CV_8UC4, 2}};
+  const Enc* e = nullptr;
+  for (const auto& k : kEnc)
+    if (encoding == k.name) e = &k;
+  if (!e)
+    throw Error(what + ": image encoding '" + encoding +
+                "' is not read (mono8, mono16, 8UC1, 16UC1, bgr8, rgb8, bgra8, rgba8 are; debayer the topic first)");
+  const size_t row = size_t(w) * size_t(CV_ELEM_SIZE(e->type));
+  if (w == 0 || h == 0 || w > 65536 || h > 65536 || step < row || uint64_t(step) * h > len)
+    throw Error(what + ": image " + std::to_string(w) + "x" + std::to_string(h) + " with step " + std::to_string(step) +
+                " does not fit its " + std::to_string(len) + " data bytes");
+  cv::Mat m(int(h), int(w), e->type, const_cast<uint8_t*>(c.p + c.at), step);
+  cv::Mat out = m.clone();
+  if (CV_ELEM_SIZE1(e->type) == 2 && big) {
+    for (int y = 0; y < out.rows; ++y)
+      for (auto* p = out.ptr<uint16_t>(y); p != out.ptr<uint16_t>(y) + out.cols; ++p) *p = uint16_t(*p >> 8 | *p << 8);
+  }
+  if (e->blue_from < 0) return out;
+  cv::Mat bgr(out.rows, out.cols, CV_8UC3);
+  const int from_to[] = {e->blue_from, 0, 1, 1, 2 - e->blue_from, 2};
+  cv::mixChannels(&out, 1, &bgr, 1, from_to, 3);
+  return bgr;
+}
+
+// A time as meta.json holds it: an integer, or an exact fraction as a string ("73000/259").
+nlohmann::json exact(const Rational& r) {
+  return r.den() == 1 ? nlohmann::json(int64_t(r.num())) : nlohmann::json(r.str());
+}
+
+struct FrameWriter final : detail::BagVisitor {
+  const std::vector<uint32_t>& conns;
+  const BagSequenceOptions& o;
+  fs::path dir;
+  std::string bag, topic;
+  BagSequenceReport& rep;
+  nlohmann::json frames = nlohmann::json::array();
+  Rational last_t0;
+  FrameWriter(const std::vector<uint32_t>& c, const BagSequenceOptions& opt, fs::path d, std::string b, std::string t,
+              BagSequenceReport& r)
+      : conns(c), o(opt), dir(std::move(d)), bag(std::move(b)), topic(std::move(t)), rep(r) {}
+
+  bool top_record(uint64_t) override { return o.max_frames == 0 || rep.frames < o.max_frames; }
+  void connection(const detail::BagConnection&) override {}
+  void damaged(uint64_t, const std::string& what) override {
+    rep.notes.push_back(bag + ": " + what + "; the frames before it were written");
+  }
+  bool message(uint32_t conn, uint64_t, const uint8_t* data, size_t size, uint64_t chunk_offset) override {
+    if (std::find(conns.begin(), conns.end(), conn) == conns.end()) return true;
+    if (o.max_frames && rep.frames >= o.max_frames) return false;
+    const std::string what = bag + ": image " + std::to_string(rep.frames) + " of topic " + topic + " (chunk at byte " +
+                             std::to_string(chunk_offset) + ")";
+    std::string encoding;
+    int64_t stamp_us = 0;
+    const cv::Mat im = image_of(data, size, what, encoding, stamp_us);
+    if (rep.frames == 0) rep.width = im.cols, rep.height = im.rows, rep.encoding = encoding;
+    if (im.cols != rep.width || im.rows != rep.height)
+      throw Error(what + ": " + std::to_string(im.cols) + "x" + std::to_string(im.rows) + ", the first image is " +
+                  std::to_string(rep.width) + "x" + std::to_string(rep.height));
+    const Rational t0 = Rational(stamp_us) + o.t0_offset_us;
+    if (rep.frames > 0 && !(last_t0 < t0))
+      throw Error(what + ": its stamp " + t0.str() + " us is not after the previous image's " + last_t0.str() + " us");
+    last_t0 = t0;
+    char name[32];
+    std::snprintf(name, sizeof name, "rs/%06llu.png", static_cast<unsigned long long>(rep.frames));
+    if (!cv::imwrite((dir / name).string(), im)) throw Error((dir / name).string() + ": cannot write the image");
+    frames.push_back({{"file", name}, {"t0_us", exact(t0)}});
+    ++rep.frames;
+    return true;
+  }
+};
+
+}  // namespace
+
+BagSequenceReport write_bag_sequence(const std::string& bag, const std::string& out_dir, const BagSequenceOptions& o) {
+  if (!(Rational(0) < o.line_delay_us) || !(Rational(0) < o.exposure_us))
+    throw Error("the row timing needs a line delay and an exposure above 0 us (a bag does not hold them)");
+  detail::FileSource src(bag);
+  const BagInfo info = detail::read_bag_info(src);
+  BagSequenceReport rep;
+  const std::vector<uint32_t> conns = frame_connections(info, o.frames_topic, bag, rep.frames_topic);
+  rep.events_topic = detail::bag_event_topic(src, o.events_topic);
+  rep.notes = info.notes;
+  const fs::path dir(out_dir);
+  std::error_code ec;
+  fs::create_directories(dir / "rs", ec);
+  if (ec) throw Error((dir / "rs").string() + ": cannot create the folder: " + ec.message());
+  FrameWriter w(conns, o, dir, bag, rep.frames_topic, rep);
+  detail::scan_bag_records(src, info.data_start, w);
+  if (rep.frames == 0) throw Error(bag + ": topic " + rep.frames_topic + " holds no image");
+  nlohmann::json meta = {{"width", rep.width},
+                         {"height", rep.height},
+                         {"line_delay_us", exact(o.line_delay_us)},
+                         {"exposure_us", exact(o.exposure_us)},
+                         {"readout", readout_name(o.readout)},
+                         {"frames", w.frames},
+                         {"events", fs::absolute(bag).lexically_normal().string()},
+                         {"events_topic", rep.events_topic},
+                         {"source", {{"ros_bag", fs::absolute(bag).lexically_normal().string()},
+                                     {"frames_topic", rep.frames_topic},
+                                     {"events_topic", rep.events_topic},
+                                     {"image_encoding", rep.encoding}}}};
+  const fs::path tmp = dir / "meta.json.tmp";
+  {
+    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
+    if (!f) throw Error(tmp.string() + ": cannot open for writing");
+    f << meta.dump(2) << "\n";
+    if (!f.flush()) throw Error(tmp.string() + ": error writing (disk full?)");
+  }
+  fs::rename(tmp, dir / "meta.json", ec);
+  if (ec) throw Error((dir / "meta.json").string() + ": cannot move meta.json into place: " + ec.message());
+  return rep;
+}
+
+}  // namespace vkunroll
