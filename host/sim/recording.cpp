@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <tuple>
 
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -66,7 +67,15 @@ void SimulationConfig::validate() const {
   if (!(fps > 0) || fps > 1e5) fail("--fps must be in (0, 100000]");
   if (!(line_delay_us >= 0)) fail("--line-delay-us must be >= 0");
   if (!(exposure_us > 0)) fail("--exposure-us must be > 0");
-  if (!(lead_in_us >= 0)) fail("lead-in must be >= 0");
+  if (!(lead_in_us >= 0 && lead_in_us <= 1e7)) fail("--lead-in-us " + num(lead_in_us) + " must be in [0, 1e7] us (10 s)");
+  if (!(speed_scale >= 0 && speed_scale <= 1000)) fail("--speed " + num(speed_scale) + " must be in [0, 1000]");
+  // Plausible sensor ranges (docs/simulator.md): beyond them a run only grows without bound.
+  for (const auto& [value, name, hi] : {std::tuple<double, const char*, double>{events.shot_hz, "--shot-hz", 1e4},
+                                        {events.leak_hz, "--leak-hz", 1e4}, {events.refractory_us, "--refractory-us", 1e7},
+                                        {events.sigma, "--sigma", 1.0}, {events.c_on, "--c-on", 5.0}, {events.c_off, "--c-off", 5.0},
+                                        {events.cutoff_hz, "--cutoff-hz", 1e9}, {events.eps, "--eps", 1.0},
+                                        {flicker_hz, "--flicker-hz", 1e5}})
+    if (!(value >= 0 && value <= hi)) fail(std::string(name) + " " + num(value) + " must be in [0, " + num(hi) + "]");
   const double period = frame_period_us(), readout_time = (height - 1) * line_delay_us;
   if (readout_time > period)
     fail("--line-delay-us " + num(line_delay_us) + " x " + std::to_string(height - 1) + " rows = " +
@@ -80,7 +89,7 @@ void SimulationConfig::validate() const {
   if (!(gamma > 0.1 && gamma < 10)) fail("--gamma must be in (0.1, 10)");
   if (sprites < 0 || sprites > 64) fail("--sprites must be in 0..64");
   if (supersample < 1 || supersample > 8) fail("--supersample must be in 1..8");
-  if (!(step_fraction > 0 && step_fraction <= 4)) fail("step fraction must be in (0, 4]");
+  if (!(step_fraction > 0 && step_fraction <= 4)) fail("--step-fraction " + num(step_fraction) + " must be in (0, 4]");
   if (!(dt_min_us > 0) || !(dt_max_us >= dt_min_us)) fail("time step bounds need 0 < dt_min <= dt_max");
   if (flicker_amplitude < 0 || flicker_amplitude >= 1) fail("--flicker-amp must be in [0, 1)");
   if (flicker_amplitude > 0 && !(flicker_hz > 0)) fail("--flicker-hz must be > 0");
