@@ -26,6 +26,7 @@
 #define VKUNROLL_HAVE_FILE_READER 1
 #endif
 #include "../tests/event_test_encoders.hpp"
+#include "../tests/event_test_encoders_jaer.hpp"
 
 namespace fs = std::filesystem;
 using namespace vkunroll;
@@ -77,6 +78,16 @@ std::vector<std::pair<std::string, std::string>> write_all(const fs::path& dir, 
   write_bytes((dir / "ev.dat").string(), evtest::encode_dat(ev)), add("Prophesee .dat", "ev.dat");
   write_bytes((dir / "lz4.aedat4").string(), evtest::encode_aedat4(ev, 1, 5000)), add("AEDAT 4 LZ4", "lz4.aedat4");
   write_bytes((dir / "zstd.aedat4").string(), evtest::encode_aedat4(ev, 3, 5000)), add("AEDAT 4 zstd", "zstd.aedat4");
+  write_bytes((dir / "ev21.raw").string(), evtest::encode_evt21(ev, "% evt 2.1\n" + geometry, false)),
+      add("EVT 2.1 .raw", "ev21.raw");
+  write_bytes((dir / "ev3.aedat").string(), evtest::encode_aedat3(ev, "DAVIS346B", 4096, false)),
+      add("AEDAT 3.1", "ev3.aedat");
+  // AEDAT 2.0's DAVIS addresses hold x < 1024, y < 512: the same times and count on a DAVIS346.
+  EventStream davis = ev;
+  davis.width = 346, davis.height = 260;
+  for (size_t i = 0; i < davis.size(); ++i) davis.x[i] = uint16_t(davis.x[i] % 346), davis.y[i] = uint16_t(davis.y[i] % 260);
+  write_bytes((dir / "ev2.aedat").string(), evtest::encode_aedat2(davis, "# AEChip: Davis346B\r\n", false)),
+      add("AEDAT 2.0 (346x260)", "ev2.aedat");
   return files;
 }
 
