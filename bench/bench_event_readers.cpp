@@ -80,7 +80,7 @@ std::vector<std::pair<std::string, std::string>> write_all(const fs::path& dir, 
   write_bytes((dir / "zstd.aedat4").string(), evtest::encode_aedat4(ev, 3, 5000)), add("AEDAT 4 zstd", "zstd.aedat4");
   write_bytes((dir / "ev21.raw").string(), evtest::encode_evt21(ev, "% evt 2.1\n" + geometry, false)),
       add("EVT 2.1 .raw", "ev21.raw");
-  write_bytes((dir / "ev3.aedat").string(), evtest::encode_aedat3(ev, "DAVIS346B", 4096, false)),
+  write_bytes((dir / "ev3.aedat").string(), evtest::encode_aedat3(ev, "1280x720 test sensor", 4096, false)),
       add("AEDAT 3.1", "ev3.aedat");
   // AEDAT 2.0's DAVIS addresses hold x < 1024, y < 512: the same times and count on a DAVIS346.
   EventStream davis = ev;
