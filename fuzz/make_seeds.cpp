@@ -134,6 +134,18 @@ int main(int argc, char** argv) {
         b.insert(b.end(), bodies[size_t(f)].begin(), bodies[size_t(f)].end());
         put(out / "index", "seed_" + std::to_string(f) + "_" + std::to_string(policy), b);
       }
+    // EVT 2.1, AEDAT 2.0, AEDAT 3.1: first byte 15 + format + 3 * policy (fuzz_index.hpp).
+    EventStream davis = many;
+    davis.width = 346, davis.height = 260;
+    const std::vector<std::vector<uint8_t>> jaer = {encode_evt21(many, "% evt 2.1\n% geometry 64x48\n", false),
+                                                    encode_aedat2(davis, "# AEChip: Davis346B\r\n", true),
+                                                    encode_aedat3(many, "DAVIS346B", 300, true)};
+    for (int f = 0; f < 3; ++f)
+      for (int policy = 0; policy < 3; ++policy) {
+        std::vector<uint8_t> b{uint8_t(15 + f + 3 * policy)};
+        b.insert(b.end(), jaer[size_t(f)].begin(), jaer[size_t(f)].end());
+        put(out / "index", "seed_jaer_" + std::to_string(f) + "_" + std::to_string(policy), b);
+      }
   }
   if (argc > 2) {
     const fs::path shared = argv[2];
