@@ -80,8 +80,8 @@ class HeaderLines {
         }
         if (nl - b > (1 << 16) || base_ + buf_.size() >= src_.size()) return false;
       }
-      base_ = offset;
-      buf_ = read_range(src_, offset, 1 << 20);
+      base_ = offset;  // sized to the data: a short file does not pay for a 1 MiB buffer
+      buf_ = read_range(src_, offset, size_t(std::min<uint64_t>(1 << 20, src_.size() - std::min(src_.size(), offset))));
     }
     return false;
   }
