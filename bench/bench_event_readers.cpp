@@ -30,6 +30,7 @@
 #include "../tests/rosbag_test_encoder.hpp"
 #define VKUNROLL_HAVE_ROSBAG 1
 #endif
+#include "../tests/event_test_encoders_jaer.hpp"
 
 namespace fs = std::filesystem;
 using namespace vkunroll;
@@ -93,6 +94,16 @@ std::vector<std::pair<std::string, std::string>> write_all(const fs::path& dir, 
   bo.kind = evtest::BagMessage::evt3_packet, bo.compression = "lz4";
   write_bytes((dir / "evt3.bag").string(), evtest::encode_rosbag(ev, bo)), add("bag EventPacket evt3 lz4", "evt3.bag");
 #endif
+  write_bytes((dir / "ev21.raw").string(), evtest::encode_evt21(ev, "% evt 2.1\n" + geometry, false)),
+      add("EVT 2.1 .raw", "ev21.raw");
+  write_bytes((dir / "ev3.aedat").string(), evtest::encode_aedat3(ev, "1280x720 test sensor", 4096, false)),
+      add("AEDAT 3.1", "ev3.aedat");
+  // AEDAT 2.0's DAVIS addresses hold x < 1024, y < 512: the same times and count on a DAVIS346.
+  EventStream davis = ev;
+  davis.width = 346, davis.height = 260;
+  for (size_t i = 0; i < davis.size(); ++i) davis.x[i] = uint16_t(davis.x[i] % 346), davis.y[i] = uint16_t(davis.y[i] % 260);
+  write_bytes((dir / "ev2.aedat").string(), evtest::encode_aedat2(davis, "# AEChip: Davis346B\r\n", false)),
+      add("AEDAT 2.0 (346x260)", "ev2.aedat");
   return files;
 }
 

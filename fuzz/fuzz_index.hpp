@@ -1,6 +1,6 @@
 // Differential check of the index (fuzz_index and the corpus regression test): windowed reads
 // through EventFileReader against the full scan. The first byte picks the format (text, EVT 2.0,
-// EVT 3.0, .dat, AEDAT 4) and the policy, the last bytes the windows. Under drop/sort every window
+// EVT 3.0, .dat, AEDAT 4, EVT 2.1, AEDAT 2.0, AEDAT 3.1) and the policy, the last bytes the windows. Under drop/sort every window
 // must equal the full scan filtered to it; under error each window must throw exactly when (and
 // with the message) a scan from the start to the window's end does.
 #pragma once
@@ -32,11 +32,13 @@ inline bool same_stream(const EventStream& a, const EventStream& b) {
 // False when an indexed read differs from the full scan.
 inline bool index_matches_full_scan(const uint8_t* data, size_t size) {
   if (size < 4) return true;
-  static const char* kFormats[] = {"txt", "evt2", "evt3", "dat", "aedat4"};
-  const std::string format = kFormats[data[0] % 5];
+  static const char* kFormats[] = {"txt", "evt2", "evt3", "dat", "aedat4", "evt21", "aedat2", "aedat3"};
+  // (first byte & 0x7f) 0-14: the first five formats x 3 policies; 15-23: the last three x 3; more: as 0-14.
+  const int k = data[0] & 0x7F, f = k >= 15 && k < 24 ? 5 + (k - 15) % 3 : k % 5;
+  const int policy = k >= 15 && k < 24 ? (k - 15) / 3 : (k / 5) % 3;
+  const std::string format = kFormats[f];
   EventReadOptions o;
-  o.on_bad = (data[0] / 5) % 3 == 0 ? BadEventPolicy::error : (data[0] / 5) % 3 == 1 ? BadEventPolicy::drop
-                                                                                      : BadEventPolicy::sort;
+  o.on_bad = policy == 0 ? BadEventPolicy::error : policy == 1 ? BadEventPolicy::drop : BadEventPolicy::sort;
   if (data[0] & 0x80) o.width = 64, o.height = 48;
   const uint8_t* body = data + 1;
   const size_t n = size - 1;

@@ -10,6 +10,8 @@
 
 #include "event_test_encoders.hpp"
 #include "rosbag_test_encoder.hpp"
+#include "event_test_encoders_jaer.hpp"
+#include "vkunroll/host/events/event_reader_detail.hpp"
 
 namespace fs = std::filesystem;
 using namespace vkunroll;
@@ -46,6 +48,17 @@ std::vector<uint8_t> make_zip(const std::vector<std::pair<std::string, std::vect
   return b;
 }
 
+// The events of a real recording's first bytes (EVT 3.0; drop: the cut last word is dropped).
+EventStream first_events(const std::vector<uint8_t>& raw) {
+  EventReadOptions o;
+  o.on_bad = BadEventPolicy::drop;
+  EventReadReport rep;
+  detail::MemorySource src("head.raw", raw.data(), raw.size());
+  detail::EventSink sink("head.raw", o, rep);
+  detail::read_evt3(src, sink);
+  return sink.finish();
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -66,6 +79,15 @@ int main(int argc, char** argv) {
   put(out / "aedat4", "seed_none", encode_aedat4(ev, 0, 16));
   put(out / "aedat4", "seed_lz4", encode_aedat4(ev, 1, 16));
   put(out / "aedat4", "seed_zstd_notable", encode_aedat4(ev, 3, 16, false));
+  put(out / "evt21", "seed_small", encode_evt21(ev, "% evt 2.1\n% format EVT21;height=48;width=64\n% end\n", false));
+  put(out / "evt21", "seed_legacy_wrap",
+      encode_evt21(big, "% format EVT21;endianness=legacy;height=720;width=1280\n", true));
+  put(out / "aedat2", "seed_davis346", encode_aedat2(random_stream(120, 346, 260, 5), "# AEChip: Davis346B\r\n", true));
+  put(out / "aedat2", "seed_no_end_line",
+      encode_aedat2(random_stream(40, 240, 180, 6), "# AEChip: DAVIS240C\r\n", false, nullptr, false));
+  put(out / "aedat3", "seed_dvs128", encode_aedat3(ev, "DVS128", 16, true));
+  put(out / "aedat3", "seed_davis346_overflow",
+      encode_aedat3(random_stream(60, 346, 260, 7, (int64_t(1) << 31) - 30), "DAVIS346B", 25, false));
   put(out / "npy", "seed_i8", encode_npy_nx4<int64_t>(ev, "<i8"));
   put(out / "npy", "seed_f4_fortran", encode_npy_nx4<float>(ev, "<f4", true, true));
   put(out / "npy", "seed_record", encode_npy_record(ev));
@@ -122,11 +144,30 @@ int main(int argc, char** argv) {
         b.insert(b.end(), bodies[size_t(f)].begin(), bodies[size_t(f)].end());
         put(out / "index", "seed_" + std::to_string(f) + "_" + std::to_string(policy), b);
       }
+    // EVT 2.1, AEDAT 2.0, AEDAT 3.1: first byte 15 + format + 3 * policy (fuzz_index.hpp).
+    EventStream davis = many;
+    davis.width = 346, davis.height = 260;
+    const std::vector<std::vector<uint8_t>> jaer = {encode_evt21(many, "% evt 2.1\n% geometry 64x48\n", false),
+                                                    encode_aedat2(davis, "# AEChip: Davis346B\r\n", true),
+                                                    encode_aedat3(many, "DAVIS346B", 300, true)};
+    for (int f = 0; f < 3; ++f)
+      for (int policy = 0; policy < 3; ++policy) {
+        std::vector<uint8_t> b{uint8_t(15 + f + 3 * policy)};
+        b.insert(b.end(), jaer[size_t(f)].begin(), jaer[size_t(f)].end());
+        put(out / "index", "seed_jaer_" + std::to_string(f) + "_" + std::to_string(policy), b);
+      }
   }
   if (argc > 2) {
     const fs::path shared = argv[2];
     if (fs::exists(shared / "data/real-events/evt3_sample.raw"))
       put(out / "evt3", "seed_real_head", head(shared / "data/real-events/evt3_sample.raw", 4096));
+    if (fs::exists(shared / "data/real-events/evt3_sample.raw")) {
+      // The real recording's first events, re-encoded as EVT 2.1 and AEDAT 3.1.
+      const auto raw = head(shared / "data/real-events/evt3_sample.raw", 4096);
+      const EventStream real = first_events(raw);
+      put(out / "evt21", "seed_real_head", encode_evt21(real, "% evt 2.1\n% format EVT21;height=720;width=1280\n", false));
+      put(out / "aedat3", "seed_real_head", encode_aedat3(real, "Prophesee", 64, false));
+    }
     if (fs::exists(shared / "data/real-events/sample.aedat4"))
       put(out / "aedat4", "seed_real_head", head(shared / "data/real-events/sample.aedat4", 2334 + 8 + 7949 + 8 + 383));
   }

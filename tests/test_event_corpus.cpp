@@ -32,7 +32,8 @@ TEST(EventReadersFuzzCorpus, EveryReaderSurvivesEveryCorpusFile) {
   const std::vector<std::pair<std::string, std::function<void(ByteSource&, EventSink&)>>> readers = {
       {"evt2", detail::read_evt2}, {"evt3", detail::read_evt3}, {"dat", detail::read_dat},
       {"aedat4", detail::read_aedat4}, {"npy", detail::read_npy}, {"text", detail::read_text},
-      {"rosbag", detail::read_rosbag}};
+      {"rosbag", detail::read_rosbag},
+      {"evt21", detail::read_evt21}, {"aedat2", detail::read_aedat2}, {"aedat3", detail::read_aedat3}};
   size_t files = 0;
   for (const auto& dir : fs::directory_iterator(root)) {
     if (!dir.is_directory()) continue;

@@ -131,12 +131,13 @@ Command add_events(CLI::App& parent) {
   auto a = std::make_shared<EventsArgs>();
   CLI::App* c = parent.add_subcommand("events", "read an event file: count, time span, rate, sensor size, polarity, drops");
   c->description(
-      "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt3 .raw and .dat, AEDAT 4, ROS 1 bag) in bounded\n"
-      "memory and prints the event count, time span, rate, sensor size, polarity balance, read speed, and\n"
-      "what was dropped or ignored.");
+      "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt21/evt3 .raw and .dat, jAER AEDAT 2.0,\n"
+      "AEDAT 3.1, AEDAT 4, ROS 1 bag) in bounded memory and prints the event count, time span, rate, sensor size,\n"
+      "polarity balance, read speed, and what was dropped or ignored.");
   c->add_option("FILE", a->file, "the event file")->required();
-  c->add_option("--format", a->format, "txt, h5, npy, npz, evt2, evt3, dat, aedat4, bag (default: detect)")
-      ->check(CLI::IsMember({"txt", "h5", "npy", "npz", "evt2", "evt3", "dat", "aedat4", "bag"}))->type_name("F");
+  c->add_option("--format", a->format, "txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4, bag (default: detect)")
+      ->check(CLI::IsMember({"txt", "h5", "npy", "npz", "evt2", "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4", "bag"}))
+      ->type_name("F");
   c->add_option("--on-bad", a->on_bad,
                 "error: stop at the first bad record | drop: drop and count bad records | sort: keep out-of-order "
                 "records and sort by t")

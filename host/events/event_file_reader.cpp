@@ -37,7 +37,7 @@ struct FileReaderState {
 
   bool streamed() const {
     return format == "txt" || format == "evt2" || format == "evt3" || format == "dat" || format == "aedat4" ||
-           format == "bag";
+           format == "bag" || format == "evt21" || format == "aedat2" || format == "aedat3";
   }
   void sync_prefix_max() {
     for (size_t i = prefix_max.size(); i < index.segments.size(); ++i)

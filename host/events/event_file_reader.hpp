@@ -1,5 +1,5 @@
 // Windowed reads of one event file, many times: the first read indexes what it decodes and later
-// reads seek. Streamed formats (text, EVT 2.0/3.0, .dat, AEDAT 4, ROS bags) keep decoder checkpoints every
+// reads seek. Streamed formats (text, EVT 2.0/2.1/3.0, .dat, AEDAT 2/3/4, ROS bags) keep decoder checkpoints every
 // ~32 KiB; .npy, .npz (stored or deflated, through an inflate index) and HDF5 are read by binary
 // search on t. Every read returns exactly what read_events(path, options with the window) returns
 // from a full scan. Sequence::read_events reads through one of these per event file.

@@ -1,4 +1,4 @@
-// The per-file index of the streamed event formats (text, EVT 2.0/3.0, .dat, AEDAT 4): decoder
+// The per-file index of the streamed event formats (text, EVT 2.0/2.1/3.0, .dat, AEDAT 2/3/4): decoder
 // checkpoints every ~32 KiB, each with the time range of the valid records up to the next one, so a
 // windowed read resumes near its window instead of re-parsing from the start. Built incrementally
 // by the reads themselves (a read that decodes past the indexed part extends it). See

@@ -79,25 +79,31 @@ std::string detect_format(ByteSource& src, const std::string& path) {
   if (starts("PK\x03\x04", 4) || starts("PK\x05\x06", 4)) return "npz";
   if (starts("#!AER-DAT4", 10)) return "aedat4";
   if (starts("#ROSBAG V", 9)) return "bag";
+  if (starts("#!AER-DAT2.0", 12)) return "aedat2";
+  if (starts("#!AER-DAT3", 10)) return "aedat3";  // the AEDAT 3 reader names a 3.0 file's problem
   const std::string ext = lower_ext(path);
   if (ext == ".h5" || ext == ".hdf5" || ext == ".hdf") return "h5";
   if (ext == ".npy") return "npy";
   if (ext == ".npz") return "npz";
   if (ext == ".bag") return "bag";
-  if (ext == ".aedat4" || ext == ".aedat") return "aedat4";
+  if (ext == ".aedat4") return "aedat4";
+  if (ext == ".aedat" || ext == ".aedat2" || ext == ".aedat3")
+    throw Error(path + ": an AEDAT file without a '#!AER-DAT2.0', '#!AER-DAT3.1' or '#!AER-DAT4.0' version line "
+                       "(AEDAT 1.0 and headerless files are not supported); pass --format aedat2/aedat3/aedat4 if it is one");
   if (ext == ".txt" || ext == ".csv" || ext == ".tsv") return "txt";
   if (ext == ".dat") return "dat";
   if (ext == ".raw" || (!head.empty() && head[0] == '%')) {
     const PropheseeHeader h = parse_prophesee_header(src);
     if (h.evt == "3.0") return "evt3";
     if (h.evt == "2.0") return "evt2";
+    if (h.evt == "2.1") return "evt21";
     if (h.evt.empty())
       throw Error(path + ": Prophesee header does not say the encoding (no '% evt' or '% format' line, unknown plugin);"
-                         " pass --format evt2 or evt3");
-    throw Error(path + ": Prophesee encoding EVT " + h.evt + " is not supported (EVT 2.0 and 3.0 are)");
+                         " pass --format evt2, evt21 or evt3");
+    throw Error(path + ": Prophesee encoding EVT " + h.evt + " is not supported (EVT 2.0, 2.1 and 3.0 are)");
   }
   throw Error(path + ": cannot tell the event format from the extension '" + ext +
-              "' or the first bytes; pass --format (txt, h5, npy, npz, evt2, evt3, dat, aedat4, bag)");
+              "' or the first bytes; pass --format (txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4, bag)");
 }
 
 BinaryGuess guess_binary_format(ByteSource& src) {
@@ -108,11 +114,15 @@ BinaryGuess guess_binary_format(ByteSource& src) {
   if (starts("PK\x03\x04", 4) || starts("PK\x05\x06", 4)) return {"npz", ".npz", "a zip archive (.npz; 'PK' magic)"};
   if (starts("#!AER-DAT4", 10)) return {"aedat4", ".aedat4", "an AEDAT 4 recording ('#!AER-DAT4' magic)"};
   if (starts("#ROSBAG V", 9)) return {"bag", ".bag", "a ROS bag ('#ROSBAG' magic)"};
+  if (starts("#!AER-DAT2.0", 12)) return {"aedat2", ".aedat", "a jAER AEDAT 2.0 recording ('#!AER-DAT2.0' magic)"};
+  if (starts("#!AER-DAT3", 10)) return {"aedat3", ".aedat", "an AEDAT 3 recording ('#!AER-DAT3' magic)"};
   if (!head.empty() && head[0] == '%') {
     const PropheseeHeader h = parse_prophesee_header(src);
     if (h.evt == "3.0") return {"evt3", ".raw", "a Prophesee EVT 3.0 recording (its '%' header says EVT 3.0)"};
     if (h.evt == "2.0") return {"evt2", ".raw", "a Prophesee EVT 2.0 recording (its '%' header says EVT 2.0)"};
-    if (!h.evt.empty()) return {"", "", "a Prophesee EVT " + h.evt + " recording, which is not supported (EVT 2.0 and 3.0 are)"};
+    if (h.evt == "2.1") return {"evt21", ".raw", "a Prophesee EVT 2.1 recording (its '%' header says EVT 2.1)"};
+    if (!h.evt.empty())
+      return {"", "", "a Prophesee EVT " + h.evt + " recording, which is not supported (EVT 2.0, 2.1 and 3.0 are)"};
     return {"dat", ".dat", "a Prophesee recording ('%' header lines, no EVT encoding named: .dat, or .raw with --format evt2/evt3)"};
   }
   return {"", "", "its first bytes match no event format vkunroll reads"};
@@ -125,9 +135,12 @@ void read_source(const std::string& format, ByteSource& src, EventSink& sink) {
   else if (format == "dat") read_dat(src, sink);
   else if (format == "aedat4") read_aedat4(src, sink);
   else if (format == "bag") read_rosbag(src, sink);
+  else if (format == "evt21") read_evt21(src, sink);
+  else if (format == "aedat2") read_aedat2(src, sink);
+  else if (format == "aedat3") read_aedat3(src, sink);
   else if (format == "npy") read_npy(src, sink);
   else throw Error(src.name() + ": unknown event format '" + format +
-                   "' (expected txt, h5, npy, npz, evt2, evt3, dat, aedat4, bag)");
+                   "' (expected txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4, bag)");
 }
 
 std::string canonical_format(const std::string& format) {

@@ -61,6 +61,37 @@ class MemorySource final : public ByteSource {
 // Reads everything of a source (for small headers and the fuzzers' sanity checks).
 std::vector<uint8_t> read_range(ByteSource& src, uint64_t offset, size_t n);
 
+// Text header lines of a binary file, read in 1 MiB blocks (headers with preference dumps are
+// large; one read per line would be quadratic). line() gives the line at `offset` without its
+// "\n" (and "\r"), or false when the data ends before a "\n" or the line is longer than 64 KiB.
+class HeaderLines {
+ public:
+  explicit HeaderLines(ByteSource& src) : src_(src) {}
+  bool line(uint64_t offset, std::string& out, uint64_t& next) {
+    for (int pass = 0; pass < 2; ++pass) {
+      if (offset >= base_ && offset <= base_ + buf_.size()) {
+        const auto b = buf_.begin() + long(offset - base_);
+        const auto nl = std::find(b, buf_.end(), uint8_t('\n'));
+        if (nl != buf_.end() && nl - b <= (1 << 16)) {
+          out.assign(b, nl);
+          if (!out.empty() && out.back() == '\r') out.pop_back();
+          next = base_ + uint64_t(nl - buf_.begin()) + 1;
+          return true;
+        }
+        if (nl - b > (1 << 16) || base_ + buf_.size() >= src_.size()) return false;
+      }
+      base_ = offset;  // sized to the data: a short file does not pay for a 1 MiB buffer
+      buf_ = read_range(src_, offset, size_t(std::min<uint64_t>(1 << 20, src_.size() - std::min(src_.size(), offset))));
+    }
+    return false;
+  }
+
+ private:
+  ByteSource& src_;
+  uint64_t base_ = 0;
+  std::vector<uint8_t> buf_;
+};
+
 // Applies the rules to each decoded record, in file order, and collects the kept events.
 class EventSink {
  public:
@@ -211,6 +242,9 @@ void read_evt3(ByteSource& src, EventSink& sink);
 void read_dat(ByteSource& src, EventSink& sink);
 void read_aedat4(ByteSource& src, EventSink& sink);
 void read_rosbag(ByteSource& src, EventSink& sink);  // ROS 1 bag 2.0 (reader_rosbag.cpp)
+void read_evt21(ByteSource& src, EventSink& sink);   // Prophesee EVT 2.1 (64-bit vectorized words)
+void read_aedat2(ByteSource& src, EventSink& sink);  // jAER AEDAT 2.0, DAVIS address layout
+void read_aedat3(ByteSource& src, EventSink& sink);  // AEDAT 3.1 packets (libcaer / cAER)
 void read_npy(ByteSource& src, EventSink& sink);
 // .npz from a file path, or from memory when `data` is non-null (fuzzing).
 void read_npz(const std::string& path, const uint8_t* data, size_t size, EventSink& sink);
@@ -224,6 +258,9 @@ struct PropheseeHeader {
   int width = 0, height = 0;
   std::string geometry_source;
   std::string evt;  // "2.0", "3.0", "2.1" or "" when the header does not say
+  // EVT 2.1 byte order: "% format EVT21;endianness=legacy" (IMX636: the 64-bit word's high 32-bit
+  // half first) rather than one little-endian 64-bit word (OpenEB's default "EVT21").
+  bool evt21_legacy = false;
 };
 PropheseeHeader parse_prophesee_header(ByteSource& src);
 

@@ -1,5 +1,5 @@
-// Prophesee files: '%' header lines, then EVT 2.0 (32-bit words), EVT 3.0 (16-bit stateful words,
-// 24-bit time that wraps) in .raw, or fixed 8-byte CD records in .dat. Streamed in 1 MiB blocks;
+// Prophesee files: '%' header lines, then EVT 2.0 (32-bit words), EVT 2.1 (64-bit words: 32-pixel
+// masks), EVT 3.0 (16-bit stateful words, 24-bit time that wraps) in .raw, or fixed 8-byte CD records in .dat. Streamed in 1 MiB blocks;
 // reading stops at the end of the time window. Indexed reads (EventFileReader) resume at decoder
 // checkpoints; a one-off .dat window starts by binary search.
 #include <algorithm>
@@ -159,6 +159,7 @@ PropheseeHeader parse_prophesee_header(ByteSource& src) {
         const std::string kv = fv.substr(p, e == std::string::npos ? std::string::npos : e - p);
         if (kv.rfind("width=", 0) == 0) fw = to_int(kv.substr(6));
         if (kv.rfind("height=", 0) == 0) fh = to_int(kv.substr(7));
+        if (kv == "endianness=legacy") h.evt21_legacy = true;
       }
       if (fw > 0 && fh > 0) h.width = fw, h.height = fh, h.geometry_source = "the '% format' line";
     } else if (key == "evt") {
@@ -283,6 +284,80 @@ void read_evt2(ByteSource& src, EventSink& sink) {
     return true;
   });
   finish_words(sink, end, record, "32-bit EVT 2.0 word", checkpoint_at(end.offset, record, st));
+  sink.set_byte_offset(-1);
+}
+
+namespace {
+
+// One EVT 2.1 word (hi: type, time low, x, y or time high; lo: the valid mask); false when the sink
+// says stop.
+inline bool evt21_word(uint32_t hi, uint32_t lo, uint64_t off, Evt2State& st, uint64_t& record, EventSink& sink) {
+  const uint32_t type = hi >> 28;
+  switch (type) {
+    case 0x0:    // EVT_NEG
+    case 0x1: {  // EVT_POS: 32 pixels from x (aligned on 32), one bit each
+      if (lo == 0) {
+        sink.ignored("EVT_NEG/EVT_POS words with an empty mask");
+        break;
+      }
+      const int64_t t = int64_t(st.loop + (st.time_high << 6) + ((hi >> 22) & 0x3F));
+      const int64_t x = (hi >> 11) & 0x7FF, y = hi & 0x7FF;
+      for (uint32_t mask = lo; mask; mask &= mask - 1) {
+        sink.set_record_index(record++);
+        sink.set_byte_offset(int64_t(off));
+        // The word is consumed whole (a resumed read never restarts inside it).
+        if (!sink.add(t, x + __builtin_ctz(mask), y, type)) return false;
+      }
+      break;
+    }
+    case 0x8: {  // EVT_TIME_HIGH: bits 6..33 of the time
+      const uint64_t th = hi & 0x0FFFFFFF;
+      if (st.have_high && th < st.time_high && st.time_high - th > (uint64_t(1) << 27)) st.loop += uint64_t(1) << 34;
+      st.time_high = th;
+      st.have_high = true;
+      break;
+    }
+    case 0xA: sink.ignored("EXT_TRIGGER"); break;
+    case 0xE: sink.ignored("OTHERS"); break;
+    case 0xF: sink.ignored("CONTINUED"); break;
+    default:
+      sink.set_record_index(record++);
+      sink.set_byte_offset(int64_t(off));
+      sink.unknown_record_lazy([&] {
+        return "unknown EVT 2.1 word type " + hex(type, 1) + " (word " + hex((uint64_t(hi) << 32) | lo, 16) + ")";
+      });
+  }
+  return true;
+}
+
+}  // namespace
+
+void read_evt21(ByteSource& src, EventSink& sink) {
+  const PropheseeHeader h = parse_prophesee_header(src);
+  apply_header(h, sink, "EVT 2.1");
+  if (!h.evt.empty() && h.evt != "2.1") sink.note("header says EVT " + h.evt + " but EVT 2.1 was asked for");
+  const bool legacy = h.evt21_legacy;
+  sink.note(legacy ? "EVT 2.1 words as two little-endian 32-bit halves, the high half first (endianness=legacy, IMX636)"
+                   : "EVT 2.1 words as little-endian 64-bit words");
+  Evt2State st;
+  uint64_t record = 0;
+  const uint64_t start = start_words(sink, h.data_offset, st, record);
+  if (!sink.boundary(checkpoint_at(start, record, st))) return;
+  uint64_t next = sink.next_checkpoint(start, h.data_offset);
+  const BlockEnd end = for_each_block(src, sink, start, 8, [&](const uint8_t* p, size_t n, uint64_t off) {
+    for (size_t i = 0; i < n; ++i) {
+      const uint64_t at = off + 8 * i;
+      if (at >= next) {
+        if (!sink.boundary(checkpoint_at(at, record, st))) return false;
+        next = sink.next_checkpoint(at, h.data_offset);
+      }
+      const uint32_t first = le32(p + 8 * i), second = le32(p + 8 * i + 4);
+      const uint32_t hi = legacy ? first : second, lo = legacy ? second : first;
+      if (!evt21_word(hi, lo, at, st, record, sink)) return false;
+    }
+    return true;
+  });
+  finish_words(sink, end, record, "64-bit EVT 2.1 word", checkpoint_at(end.offset, record, st));
   sink.set_byte_offset(-1);
 }
 

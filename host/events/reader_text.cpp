@@ -244,7 +244,7 @@ void refuse_binary(ByteSource& src) {
     msg += "; it looks like " + g.description + ": read it with --format " + g.format + " (EventReadOptions::format = \"" +
            g.format + "\") or give it the " + g.extension + " extension";
   else
-    msg += "; " + g.description + " (pass --format if it is one of txt, h5, npy, npz, evt2, evt3, dat, aedat4)";
+    msg += "; " + g.description + " (pass --format if it is one of txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4)";
   throw Error(msg);
 }
 

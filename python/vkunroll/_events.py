@@ -108,7 +108,8 @@ def convert_events(events, dtype=EVENT_DTYPE, p_off=None):
 
 def detect_event_format(path):
     """The format :func:`read_events` would read ``path`` as: "txt", "h5", "npy", "npz", "evt2",
-    "evt3", "dat", "aedat4" or "bag" (from the magic bytes, header and extension)."""
+    "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4" or "bag" (from the magic bytes, header and
+    extension)."""
     return _vk._detect_event_format(os.fspath(path))
 
 
@@ -117,8 +118,9 @@ def read_events(path, t_start=None, t_end=None, format=None, on_bad="error", *, 
     """Read an event file into a numpy structured array.
 
     Formats: text/CSV, HDF5 (vkunroll, Gev-RS, DRE, DSEC, v2e layouts), NumPy .npy/.npz,
-    Prophesee EVT 2.0 / EVT 3.0 .raw and .dat, iniVation AEDAT 4, ROS 1 bags (detected from the
-    file, or ``format`` = "txt", "h5", "npy", "npz", "evt2", "evt3", "dat", "aedat4", "bag").
+    Prophesee EVT 2.0 / 2.1 / 3.0 .raw and .dat, jAER AEDAT 2.0, AEDAT 3.1, iniVation AEDAT 4, ROS 1
+    bags (detected from the file, or ``format`` = "txt", "h5", "npy", "npz", "evt2", "evt21", "evt3",
+    "dat", "aedat2", "aedat3", "aedat4", "bag").
 
     Parameters:
       t_start, t_end: read only events with t_start <= t < t_end (integer microseconds; None:
