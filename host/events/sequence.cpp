@@ -417,8 +417,8 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
   if (s.frames.empty()) throw Error(s.root + ": the sequence has no frames");
   // Overrides.
   if (o.t0s_us && o.t0s_us->size() != s.frames.size())
-    throw Error("t0s: " + std::to_string(o.t0s_us->size()) + " values given, the sequence has " +
-                std::to_string(s.frames.size()) + " frames");
+    throw UsageError("--t0s-us: " + std::to_string(o.t0s_us->size()) + " values given, the sequence has " +
+                     std::to_string(s.frames.size()) + " frames (one first-row start per frame)");
   for (size_t k = 0; k < s.frames.size(); ++k) {
     auto& t = s.frames[k].timing;
     if (o.line_delay_us) t.line_delay = *o.line_delay_us;
