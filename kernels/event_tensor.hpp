@@ -188,6 +188,13 @@ class EventTensorBuilder {
   void execute(const EventStream& events, const BinningPlan& plan,
                const std::vector<std::pair<size_t, size_t>>& chunks,
                const std::function<void(size_t, Tensor&)>& done, bool allow_sparse);
+  // execute()'s dense algorithms, reading the plan's uploaded records `rec`.
+  void execute_per_pixel(const EventStream& events, const BinningPlan& plan, const std::vector<std::pair<size_t, size_t>>& chunks,
+                         const std::function<void(size_t, Tensor&)>& done, const Tensor& rec);
+  void execute_per_row(const EventStream& events, const BinningPlan& plan, const std::vector<std::pair<size_t, size_t>>& chunks,
+                       const std::function<void(size_t, Tensor&)>& done, const Tensor& rec);
+  void execute_per_event(const EventStream& events, const BinningPlan& plan, const std::vector<std::pair<size_t, size_t>>& chunks,
+                         const std::function<void(size_t, Tensor&)>& done, const Tensor& rec);
   // The sparse path; false (nothing done) when a buffer would exceed one binding.
   // external: record into that stream without submitting (record_resident).
   bool execute_sparse(const EventStream& events, const BinningPlan& plan,

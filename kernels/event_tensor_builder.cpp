@@ -181,75 +181,90 @@ void EventTensorBuilder::execute(const EventStream& events, const BinningPlan& p
       throw Error("event tensor: the per-row algorithm needs the window's events in one binding");
     algo = EventBinAlgorithm::per_event;
   }
-  const bool per_pixel = algo == EventBinAlgorithm::per_pixel;
   last_algorithm_ = algo;
   Tensor rec(ctx_, Shape{1, 1, 1, static_cast<int64_t>(std::max<size_t>(1, plan.records.size()))}, DType::i32);
   if (!plan.records.empty()) rec.upload(plan.records);
   else rec.upload(std::vector<int32_t>{0});
+  if (algo == EventBinAlgorithm::per_pixel) execute_per_pixel(events, plan, chunks, done, rec);
+  else if (algo == EventBinAlgorithm::per_row) execute_per_row(events, plan, chunks, done, rec);
+  else execute_per_event(events, plan, chunks, done, rec);
+}
 
-  if (per_pixel) {
-    std::vector<uint32_t> offsets, packed;
-    last_events_ = pack_events_by_pixel(events, plan, offsets, packed);
-    if (packed.empty()) packed.push_back(0);  // a valid (never read) binding
-    Tensor off(ctx_, Shape{1, 1, 1, static_cast<int64_t>(offsets.size())}, DType::u32);
-    off.upload(offsets);
-    Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
-    ev.upload(packed);
-    const Pipeline& pipe = kernel_pipeline(ctx_, "event_tensor_pixels", {static_cast<uint32_t>(plan.bins)}, sizeof(PixelPush));
-    const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((plane + 63) / 64, 65535));
-    // Loop iterations of one invocation per job: its pixels (grid stride) x (events + 4N).
-    size_t busiest = 0, busiest_pixel = 0;
-    for (size_t k = 0; k < plane; ++k)
-      if (offsets[k + 1] - offsets[k] > busiest) busiest = offsets[k + 1] - offsets[k], busiest_pixel = k;
-    const size_t per_job = (plane + size_t{groups} * 64 - 1) / (size_t{groups} * 64) * (busiest + 4 * plan.bins + 2);
-    if (per_job > kLoopBudget)
-      throw Error("event tensor: the per-pixel algorithm cannot bin pixel (x=" +
-                  std::to_string(plan.x0 + busiest_pixel % plan.width) + ", y=" +
-                  std::to_string(plan.y0 + busiest_pixel / plan.width) + ") with " + std::to_string(busiest) +
-                  " events in the window: one invocation would loop more than " + std::to_string(kLoopBudget) +
-                  " times (lavapipe ends shader loops after 65535); use the per-row algorithm");
-    const size_t jobs_per_dispatch = std::max<size_t>(1, kLoopBudget / per_job);
-    for (const auto& [j0, nj] : chunks) {
-      Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
-      CommandStream cs(ctx_, profiler_);
-      for (size_t js = 0; js < nj; js += jobs_per_dispatch) {
-        const size_t n = std::min(jobs_per_dispatch, nj - js);
-        PixelPush push{static_cast<uint32_t>(n), static_cast<uint32_t>(j0 + js), static_cast<uint32_t>(plan.width),
-                       static_cast<uint32_t>(plan.height), static_cast<uint32_t>(js)};
-        cs.dispatch(pipe, {in(off), in(ev), in(rec), vkunroll::out(dst)}, push, {groups},
-                    {"event_tensor_pixels", 0, 4.0 * (plane + window * n) + 4.0 * plane * 2 * plan.bins * n});
-      }
-      cs.submit_and_wait();
-      done(j0, dst);
+// One invocation per pixel over its events (packed by pixel), at most kLoopBudget loop iterations.
+void EventTensorBuilder::execute_per_pixel(const EventStream& events, const BinningPlan& plan,
+                                           const std::vector<std::pair<size_t, size_t>>& chunks,
+                                           const std::function<void(size_t, Tensor&)>& done, const Tensor& rec) {
+  const size_t plane = static_cast<size_t>(plan.width) * plan.height;
+  const size_t window = plan.last_event - plan.first_event;
+  std::vector<uint32_t> offsets, packed;
+  last_events_ = pack_events_by_pixel(events, plan, offsets, packed);
+  if (packed.empty()) packed.push_back(0);  // a valid (never read) binding
+  Tensor off(ctx_, Shape{1, 1, 1, static_cast<int64_t>(offsets.size())}, DType::u32);
+  off.upload(offsets);
+  Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
+  ev.upload(packed);
+  const Pipeline& pipe = kernel_pipeline(ctx_, "event_tensor_pixels", {static_cast<uint32_t>(plan.bins)}, sizeof(PixelPush));
+  const uint32_t groups = static_cast<uint32_t>(std::min<size_t>((plane + 63) / 64, 65535));
+  // Loop iterations of one invocation per job: its pixels (grid stride) x (events + 4N).
+  size_t busiest = 0, busiest_pixel = 0;
+  for (size_t k = 0; k < plane; ++k)
+    if (offsets[k + 1] - offsets[k] > busiest) busiest = offsets[k + 1] - offsets[k], busiest_pixel = k;
+  const size_t per_job = (plane + size_t{groups} * 64 - 1) / (size_t{groups} * 64) * (busiest + 4 * plan.bins + 2);
+  if (per_job > kLoopBudget)
+    throw Error("event tensor: the per-pixel algorithm cannot bin pixel (x=" +
+                std::to_string(plan.x0 + busiest_pixel % plan.width) + ", y=" +
+                std::to_string(plan.y0 + busiest_pixel / plan.width) + ") with " + std::to_string(busiest) +
+                " events in the window: one invocation would loop more than " + std::to_string(kLoopBudget) +
+                " times (lavapipe ends shader loops after 65535); use the per-row algorithm");
+  const size_t jobs_per_dispatch = std::max<size_t>(1, kLoopBudget / per_job);
+  for (const auto& [j0, nj] : chunks) {
+    Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+    CommandStream cs(ctx_, profiler_);
+    for (size_t js = 0; js < nj; js += jobs_per_dispatch) {
+      const size_t n = std::min(jobs_per_dispatch, nj - js);
+      PixelPush push{static_cast<uint32_t>(n), static_cast<uint32_t>(j0 + js), static_cast<uint32_t>(plan.width),
+                     static_cast<uint32_t>(plan.height), static_cast<uint32_t>(js)};
+      cs.dispatch(pipe, {in(off), in(ev), in(rec), vkunroll::out(dst)}, push, {groups},
+                  {"event_tensor_pixels", 0, 4.0 * (plane + window * n) + 4.0 * plane * 2 * plan.bins * n});
     }
-    return;
+    cs.submit_and_wait();
+    done(j0, dst);
   }
+}
 
-  if (algo == EventBinAlgorithm::per_row) {
-    std::vector<uint32_t> packed, ranges;
-    last_events_ = pack_events_by_row(events, plan, packed, ranges);
-    if (packed.empty()) packed.assign(2, 0);  // a valid (never read) binding
-    Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
-    ev.upload(packed);
-    Tensor rg(ctx_, Shape{1, 1, 1, static_cast<int64_t>(ranges.size())}, DType::u32);
-    rg.upload(ranges);
-    const Pipeline& pipe = kernel_pipeline(ctx_, "event_tensor_rows", {}, sizeof(RowPush));
-    const uint32_t pieces = row_pieces(ranges, 2, 0, ranges.size() / 2);  // <= 1024 for the 16M-event window
-    for (const auto& [j0, nj] : chunks) {
-      Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
-      CommandStream cs(ctx_, profiler_);
-      cs.fill(dst, 0);
-      RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
-                   static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)};
-      cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push,
-                  {row_groups(nj * plan.height, row_workgroups_), 1, pieces},
-                  {"event_tensor_rows", 0, 12.0 * last_events_ * nj});
-      cs.submit_and_wait();
-      done(j0, dst);
-    }
-    return;
+// Workgroups per (job, row) over the row's selected events (packed by row), pieces along z.
+void EventTensorBuilder::execute_per_row(const EventStream& events, const BinningPlan& plan,
+                                         const std::vector<std::pair<size_t, size_t>>& chunks,
+                                         const std::function<void(size_t, Tensor&)>& done, const Tensor& rec) {
+  std::vector<uint32_t> packed, ranges;
+  last_events_ = pack_events_by_row(events, plan, packed, ranges);
+  if (packed.empty()) packed.assign(2, 0);  // a valid (never read) binding
+  Tensor ev(ctx_, Shape{1, 1, 1, static_cast<int64_t>(packed.size())}, DType::u32);
+  ev.upload(packed);
+  Tensor rg(ctx_, Shape{1, 1, 1, static_cast<int64_t>(ranges.size())}, DType::u32);
+  rg.upload(ranges);
+  const Pipeline& pipe = kernel_pipeline(ctx_, "event_tensor_rows", {}, sizeof(RowPush));
+  const uint32_t pieces = row_pieces(ranges, 2, 0, ranges.size() / 2);  // <= 1024 for the 16M-event window
+  for (const auto& [j0, nj] : chunks) {
+    Tensor dst(ctx_, Shape{static_cast<int64_t>(nj), 2 * plan.bins, plan.height, plan.width}, DType::f32);
+    CommandStream cs(ctx_, profiler_);
+    cs.fill(dst, 0);
+    RowPush push{static_cast<uint32_t>(j0), static_cast<uint32_t>(plan.bins), static_cast<uint32_t>(plan.width),
+                 static_cast<uint32_t>(plan.height), static_cast<uint32_t>(nj)};
+    cs.dispatch(pipe, {in(ev), in(rec), in(rg), inout(dst)}, push,
+                {row_groups(nj * plan.height, row_workgroups_), 1, pieces},
+                {"event_tensor_rows", 0, 12.0 * last_events_ * nj});
+    cs.submit_and_wait();
+    done(j0, dst);
   }
+}
 
+// One invocation per event and job over every event of the window, in pieces of one binding.
+void EventTensorBuilder::execute_per_event(const EventStream& events, const BinningPlan& plan,
+                                           const std::vector<std::pair<size_t, size_t>>& chunks,
+                                           const std::function<void(size_t, Tensor&)>& done, const Tensor& rec) {
+  const auto& info = ctx_.info();
+  const size_t max_range = info.max_storage_buffer_range;
   std::vector<uint32_t> packed;
   const size_t n_events = pack_events(events, plan, packed);
   last_events_ = n_events;

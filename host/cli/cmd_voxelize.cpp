@@ -59,101 +59,87 @@ void output_io(F&& f) {
   }
 }
 
-int run_voxelize(const VoxelizeArgs& a) {
-  SequenceOptions so = sequence_options(a.timing);
-  check_output_file(a.out, "--out");
-  check_output_apart(a.out, "--out", {{"SEQUENCE", a.sequence}, {"--events file", so.events_file.value_or("")}});
-  const bool tau = !a.times.empty();
-  if (tau == !a.times_us.empty()) throw UsageError("give exactly one of --times and --times-us");
+// The targets and frames of the command line, parsed and range-checked.
+struct VoxelizeTargets {
+  bool tau = false;  // --times (normalized) rather than --times-us
   std::vector<Rational> targets;
   std::vector<int> frames;
-  std::optional<Rational> texp;
+  std::optional<Rational> exposure;  // --target-exposure
+};
+
+VoxelizeTargets parse_targets(const VoxelizeArgs& a) {
+  VoxelizeTargets t;
+  t.tau = !a.times.empty();
+  if (t.tau == !a.times_us.empty()) throw UsageError("give exactly one of --times and --times-us");
   try {
-    targets = parse_value_list(tau ? a.times : a.times_us, tau ? "--times" : "--times-us");
-    frames = parse_frame_list(a.frames, "--frames");
-    if (!a.target_exposure.empty()) texp = Rational::parse(a.target_exposure, "--target-exposure");
+    t.targets = parse_value_list(t.tau ? a.times : a.times_us, t.tau ? "--times" : "--times-us");
+    t.frames = parse_frame_list(a.frames, "--frames");
+    if (!a.target_exposure.empty()) t.exposure = Rational::parse(a.target_exposure, "--target-exposure");
   } catch (const Error& e) {
     throw UsageError(e.what());
   }
-  for (const Rational& v : targets)
-    if (!(std::abs(v.to_double()) <= (tau ? kMaxTau : kMaxTimeUs)))
-      throw UsageError(std::string(tau ? "--times " : "--times-us ") + v.str() + ": out of range (" +
-                       (tau ? "a normalized target must lie within +-1e6 frame spans)" : "times must lie within +-2^53 us)"));
-  if (texp && (*texp <= Rational(0) || texp->to_double() > kMaxTimeUs))
-    throw UsageError("--target-exposure " + texp->str() + ": expected a window length > 0 us (and within 2^53 us)");
-  EventTensorSpec spec;
-  spec.bins = a.bins;
-  if (!a.crop.empty()) spec.crop = parse_crop(a.crop);
-  std::error_code ec;
-  if (!std::filesystem::exists(a.sequence, ec)) throw InputMissingError("SEQUENCE " + a.sequence + ": no such folder");
-  const Sequence seq = load_sequence(a.sequence, so);
-  for (const auto& f : seq.event_files) check_output_apart(a.out, "--out", {{"event file", f}});
-  for (int f : frames) (void)seq.frame(f);
-  SensorCrop crop;
-  try {
-    crop = resolve_crop(spec.crop, seq.width, seq.height);
-  } catch (const Error& e) {
-    throw UsageError("--crop " + a.crop + ": " + e.what());
-  }
+  for (const Rational& v : t.targets)
+    if (!(std::abs(v.to_double()) <= (t.tau ? kMaxTau : kMaxTimeUs)))
+      throw UsageError(std::string(t.tau ? "--times " : "--times-us ") + v.str() + ": out of range (" +
+                       (t.tau ? "a normalized target must lie within +-1e6 frame spans)" : "times must lie within +-2^53 us)"));
+  if (t.exposure && (*t.exposure <= Rational(0) || t.exposure->to_double() > kMaxTimeUs))
+    throw UsageError("--target-exposure " + t.exposure->str() + ": expected a window length > 0 us (and within 2^53 us)");
+  return t;
+}
 
-  // Pairs, frame-major.
+// The (frame, target) pairs, frame-major, and their description for the file's metadata.
+std::vector<EventTensorPair> voxelize_pairs(const Sequence& seq, const VoxelizeTargets& t, nlohmann::json& pair_meta) {
   std::vector<EventTensorPair> pairs;
-  nlohmann::json pair_meta = nlohmann::json::array();
+  pair_meta = nlohmann::json::array();
   try {
-    for (int f : frames)
-      for (const auto& v : targets) {
+    for (int f : t.frames)
+      for (const auto& v : t.targets) {
         const RowTiming& tm = seq.frame(f).timing;
-        const Rational ts = tau ? tm.target_time(v) : v;
-        pairs.push_back({tm, ts, texp});
+        const Rational ts = t.tau ? tm.target_time(v) : v;
+        pairs.push_back({tm, ts, t.exposure});
         pair_meta.push_back({{"frame", f}, {"target", v.str()}, {"t_star_us", ts.str()}, {"t_star_us_float", ts.to_double()}});
       }
   } catch (const TimeRangeError& e) {
-    throw UsageError(std::string(tau ? "--times" : "--times-us") + ": a target is out of the range of exact time arithmetic (" +
+    throw UsageError(std::string(t.tau ? "--times" : "--times-us") + ": a target is out of the range of exact time arithmetic (" +
                      e.what() + ")");
   }
-  const int64_t P = static_cast<int64_t>(pairs.size());
-  const std::vector<int64_t> shape = {P, 2 * spec.bins, crop.height, crop.width};
-  const size_t slice = static_cast<size_t>(2 * spec.bins) * crop.height * crop.width;  // > 0: bins and crop checked
+  return pairs;
+}
 
+std::map<std::string, std::string> voxelize_metadata(const Sequence& seq, const VoxelizeTargets& t, const EventTensorSpec& spec,
+                                                     const SensorCrop& crop, const nlohmann::json& pair_meta) {
   nlohmann::json frames_meta = nlohmann::json::array();
-  for (int f : frames) {
+  for (int f : t.frames) {
     const auto& tm = seq.frame(f).timing;
     frames_meta.push_back({{"frame", f}, {"image", seq.frame(f).image}, {"t0_us", tm.t0.str()},
                            {"line_delay_us", tm.line_delay.str()}, {"exposure_us", tm.exposure.str()},
                            {"readout", readout_name(tm.readout)}});
   }
-  const std::map<std::string, std::string> meta = {
+  return {
       {"format", "vkunroll-event-tensors-1"},
       {"sequence", seq.root},
       {"layout", sequence_layout_name(seq.layout)},
       {"bins", std::to_string(spec.bins)},
       {"crop", std::to_string(crop.x0) + "," + std::to_string(crop.y0) + "," + std::to_string(crop.width) + "," +
                    std::to_string(crop.height)},
-      {"target_kind", tau ? "tau" : "absolute_us"},
+      {"target_kind", t.tau ? "tau" : "absolute_us"},
       {"frames", frames_meta.dump()},
       {"pairs", pair_meta.dump()},
       {"order", "frame-major: pair = frame_index * targets + target_index"},
   };
-  std::unique_ptr<SafetensorsStreamWriter> writer;
-  output_io([&] {
-    writer = std::make_unique<SafetensorsStreamWriter>(
-        a.out, std::vector<SafetensorsStreamWriter::Spec>{{"ev1", StDType::F32, shape}, {"ev2", StDType::F32, shape}, {"ev3", StDType::F32, shape}},
-        meta);
-  });
+}
 
-  std::unique_ptr<Context> ctx;
-  std::unique_ptr<EventTensorBuilder> builder;
-  if (!a.cpu) {
-    ContextOptions co;
-    co.device = a.device.device;
-    ctx = std::make_unique<Context>(co);
-    builder = std::make_unique<EventTensorBuilder>(*ctx);
-  }
-  // Pairs in batches that keep host memory bounded (three tensors of `batch` pairs).
-  int64_t batch = a.batch;
-  if (batch <= 0) batch = std::max<int64_t>(1, static_cast<int64_t>((256ull << 20) / (3 * slice * 4)));
-  const auto t_start = std::chrono::steady_clock::now();
+struct VoxelizeCounts {
   size_t events_read = 0, events_used = 0;
+};
+
+// The tensors of `pairs` in batches that keep host memory bounded (three tensors of `batch`
+// pairs), each written at its place in the file. builder null: the CPU reference.
+VoxelizeCounts write_tensors(const Sequence& seq, const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec,
+                             size_t slice, int64_t batch, EventTensorBuilder* builder, SafetensorsStreamWriter& writer) {
+  const int64_t P = static_cast<int64_t>(pairs.size());
+  if (batch <= 0) batch = std::max<int64_t>(1, static_cast<int64_t>((256ull << 20) / (3 * slice * 4)));
+  VoxelizeCounts counts;
   EventTensors t;
   for (int64_t p0 = 0; p0 < P; p0 += batch) {
     const int64_t np = std::min(batch, P - p0);
@@ -169,25 +155,69 @@ int run_voxelize(const VoxelizeArgs& a) {
       ev.height = seq.height;
     }
     if (report.dropped()) std::cerr << "voxelize: " << report.summary() << "\n";
-    events_read += ev.size();
+    counts.events_read += ev.size();
     // Reused across batches: the builder overwrites the same host storage (no fresh pages).
     if (builder) builder->build(ev, part, spec, t);
     else t = build_event_tensors_ref(ev, part, spec);
-    events_used += t.events_considered;
+    counts.events_used += t.events_considered;
     const size_t off = static_cast<size_t>(p0) * slice * 4, bytes = static_cast<size_t>(np) * slice * 4;
     output_io([&] {
-      writer->write("ev1", off, t.ev1.data(), bytes);
-      writer->write("ev2", off, t.ev2.data(), bytes);
-      writer->write("ev3", off, t.ev3.data(), bytes);
+      writer.write("ev1", off, t.ev1.data(), bytes);
+      writer.write("ev2", off, t.ev2.data(), bytes);
+      writer.write("ev3", off, t.ev3.data(), bytes);
     });
   }
+  return counts;
+}
+
+int run_voxelize(const VoxelizeArgs& a) {
+  SequenceOptions so = sequence_options(a.timing);
+  check_output_file(a.out, "--out");
+  check_output_apart(a.out, "--out", {{"SEQUENCE", a.sequence}, {"--events file", so.events_file.value_or("")}});
+  const VoxelizeTargets targets = parse_targets(a);
+  EventTensorSpec spec;
+  spec.bins = a.bins;
+  if (!a.crop.empty()) spec.crop = parse_crop(a.crop);
+  std::error_code ec;
+  if (!std::filesystem::exists(a.sequence, ec)) throw InputMissingError("SEQUENCE " + a.sequence + ": no such folder");
+  const Sequence seq = load_sequence(a.sequence, so);
+  for (const auto& f : seq.event_files) check_output_apart(a.out, "--out", {{"event file", f}});
+  for (int f : targets.frames) (void)seq.frame(f);
+  SensorCrop crop;
+  try {
+    crop = resolve_crop(spec.crop, seq.width, seq.height);
+  } catch (const Error& e) {
+    throw UsageError("--crop " + a.crop + ": " + e.what());
+  }
+  nlohmann::json pair_meta;
+  const std::vector<EventTensorPair> pairs = voxelize_pairs(seq, targets, pair_meta);
+  const int64_t P = static_cast<int64_t>(pairs.size());
+  const std::vector<int64_t> shape = {P, 2 * spec.bins, crop.height, crop.width};
+  const size_t slice = static_cast<size_t>(2 * spec.bins) * crop.height * crop.width;  // > 0: bins and crop checked
+  std::unique_ptr<SafetensorsStreamWriter> writer;
+  output_io([&] {
+    writer = std::make_unique<SafetensorsStreamWriter>(
+        a.out, std::vector<SafetensorsStreamWriter::Spec>{{"ev1", StDType::F32, shape}, {"ev2", StDType::F32, shape}, {"ev3", StDType::F32, shape}},
+        voxelize_metadata(seq, targets, spec, crop, pair_meta));
+  });
+
+  std::unique_ptr<Context> ctx;
+  std::unique_ptr<EventTensorBuilder> builder;
+  if (!a.cpu) {
+    ContextOptions co;
+    co.device = a.device.device;
+    ctx = std::make_unique<Context>(co);
+    builder = std::make_unique<EventTensorBuilder>(*ctx);
+  }
+  const auto t_start = std::chrono::steady_clock::now();
+  const VoxelizeCounts counts = write_tensors(seq, pairs, spec, slice, a.batch, builder.get(), *writer);
   output_io([&] { writer->finish(); });
   const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   std::cout << "wrote " << a.out << ": ev1, ev2, ev3 float32 [" << P << ", " << 2 * spec.bins << ", " << crop.height << ", "
-            << crop.width << "] (" << frames.size() << " frames x " << targets.size() << " targets), " << events_read
-            << " events read, " << events_used << " in the tensors' windows, " << (builder ? "GPU" : "CPU") << ", " << secs
-            << " s\n";
-  if (events_read == 0) std::cerr << "voxelize: warning: no events in the pairs' windows: every tensor is zero\n";
+            << crop.width << "] (" << targets.frames.size() << " frames x " << targets.targets.size() << " targets), "
+            << counts.events_read << " events read, " << counts.events_used << " in the tensors' windows, "
+            << (builder ? "GPU" : "CPU") << ", " << secs << " s\n";
+  if (counts.events_read == 0) std::cerr << "voxelize: warning: no events in the pairs' windows: every tensor is zero\n";
   for (const auto& n : seq.notes) std::cout << "  timing: " << n << "\n";
   return 0;
 }

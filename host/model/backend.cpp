@@ -6,7 +6,9 @@
 
 namespace vkunroll {
 
-int PlanningBackend::alloc(const Shape& shape, const std::string& what) {
+int PlanningBackend::alloc_id(const Shape& shape, const std::string& what) {
+  // As VulkanBackend: past the pool limit, released buffers are freed before the allocation.
+  if (pooled_bytes_ > pool_flush_bytes_) flush();
   const uint64_t bytes = static_cast<uint64_t>(shape.count()) * 4;
   if (bytes > max_buffer_bytes_)
     throw Error("plan: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
@@ -40,13 +42,11 @@ int PlanningBackend::alloc(const Shape& shape, const std::string& what) {
   return static_cast<int>(shapes_.size() - 1);
 }
 
-void PlanningBackend::release(int buf) {
-  if (buf < 0 || buf >= static_cast<int>(shapes_.size()) || !live_[buf]) throw Error("plan: release of a dead buffer");
-  live_[buf] = false;
-  account_release(static_cast<uint64_t>(shapes_[buf].count()) * 4);
-  pooled_.push_back(shapes_[buf]);
-  pooled_bytes_ += static_cast<uint64_t>(shapes_[buf].count()) * 4;
-  if (pooled_bytes_ > pool_flush_bytes_) flush();
+void PlanningBackend::release_id(int buf) noexcept {
+  live_[size_t(buf)] = false;  // a live buffer: only its handle releases it, once
+  account_release(static_cast<uint64_t>(shapes_[size_t(buf)].count()) * 4);
+  pooled_.push_back(shapes_[size_t(buf)]);
+  pooled_bytes_ += static_cast<uint64_t>(shapes_[size_t(buf)].count()) * 4;
 }
 
 void PlanningBackend::flush() {
@@ -55,10 +55,10 @@ void PlanningBackend::flush() {
   pooled_bytes_ = 0;
 }
 
-int PlanningBackend::event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
-                                   const EventTensorSpec& spec) {
+int PlanningBackend::event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                      const EventTensorSpec& spec) {
   const SensorCrop c = resolve_crop(spec.crop, events.width, events.height);
-  return alloc({3 * static_cast<int64_t>(pairs.size()), 2 * spec.bins, c.height, c.width}, "event tensors");
+  return alloc_id({3 * static_cast<int64_t>(pairs.size()), 2 * spec.bins, c.height, c.width}, "event tensors");
 }
 
 Shape PlanningBackend::shape(int buf) const { return shapes_.at(static_cast<size_t>(buf)); }

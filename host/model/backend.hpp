@@ -1,7 +1,8 @@
 // The backend interface the SelfUnroll graph (host/model/model.cpp) is written against, once:
-// buffers are NCHW float arrays owned by the backend, named by an int id; a BufferSlice is a batch
-// range and a channel range of one buffer (same height and width; the backend's counterpart of the
-// kernels' Slice of a Tensor), so concatenations are written in place.
+// buffers are NCHW float arrays of the backend, held by a move-only Buffer handle that releases its
+// buffer when it goes (so no buffer is released twice or forgotten), and named by an int id in the
+// ops; a BufferSlice is a batch range and a channel range of one buffer (same height and width; the
+// backend's counterpart of the kernels' Slice of a Tensor), so concatenations are written in place.
 // Backends: VulkanBackend (host/model/backend_vulkan.hpp, GPU kernels recorded into a CommandStream)
 // and CpuBackend (host/model/backend_cpu.hpp, the kernels' CPU references).
 #pragma once
@@ -19,10 +20,49 @@
 
 namespace vkunroll {
 
+// A view, owning nothing: the buffer must outlive it.
 struct BufferSlice {
   int buf = -1;
   int64_t n0 = 0, n = 0;  // batch items [n0, n0 + n)
   int64_t c0 = 0, c = 0;  // channels [c0, c0 + c)
+};
+
+class Backend;
+
+// One buffer of a backend, owned: released when the handle is destroyed, reset or assigned over.
+// Moved, never copied, so each buffer has one owner and is released once. The backend must outlive
+// its handles. An empty handle (default, or moved from) holds no buffer: id() -1.
+class Buffer {
+ public:
+  Buffer() = default;
+  Buffer(Buffer&& other) noexcept : backend_(other.backend_), id_(other.id_) { other.forget(); }
+  Buffer& operator=(Buffer&& other) noexcept {
+    if (this != &other) {
+      reset();
+      backend_ = other.backend_, id_ = other.id_;
+      other.forget();
+    }
+    return *this;
+  }
+  Buffer(const Buffer&) = delete;
+  Buffer& operator=(const Buffer&) = delete;
+  ~Buffer() { reset(); }
+
+  // Releases the buffer now (nothing when empty): its memory is reusable by later allocations,
+  // after the recorded reads of it (the backend orders the reuse).
+  void reset() noexcept;
+  int id() const { return id_; }
+  explicit operator bool() const { return id_ >= 0; }
+  Shape shape() const;
+  BufferSlice whole() const;                          // every item and channel
+  BufferSlice items(int64_t n0, int64_t n) const;     // items [n0, n0 + n), every channel
+
+ private:
+  friend class Backend;
+  Buffer(Backend* backend, int id) : backend_(backend), id_(id) {}
+  void forget() { backend_ = nullptr, id_ = -1; }
+  Backend* backend_ = nullptr;
+  int id_ = -1;
 };
 
 // One convolution layer of the network, prepared (weights uploaded / re-laid) once.
@@ -42,10 +82,10 @@ class Backend {
   // otherwise); host data is f32 either way.
   virtual Precision precision() const { return Precision::fp32; }
 
-  // Buffers. release() makes the memory reusable by later alloc() calls (the backend keeps
-  // ordering: a buffer is not overwritten before recorded reads of it have run).
-  virtual int alloc(const Shape& shape, const std::string& what) = 0;
-  virtual void release(int buf) = 0;
+  // Buffers, released by their handle (Buffer::reset or its destructor): the memory is then
+  // reusable by later alloc() calls (the backend keeps ordering: a buffer is not overwritten before
+  // recorded reads of it have run). `what` names the buffer in errors.
+  Buffer alloc(const Shape& shape, const std::string& what) { return Buffer(this, alloc_id(shape, what)); }
   virtual Shape shape(int buf) const = 0;
   // Host data in NCHW order with the slice's extent. Both are ordered with the recorded work:
   // upload() copies `data` before returning (no wait); download() fills `dst` by the next flush().
@@ -74,10 +114,12 @@ class Backend {
   virtual void fill_rect(const BufferSlice& out, const Rect& rect, float value) = 0;
 
   // Event tensors ev1, ev2, ev3 of `pairs` from the events: one buffer [3P, 2N, h, w] (ev1 is items
-  // [0, P), ev2 [P, 2P), ev3 [2P, 3P)) to read only; release() it when done. It stays valid until
-  // the next event_tensors() call, which may reuse its memory (the backend orders the reuse).
-  virtual int event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
-                            const EventTensorSpec& spec) = 0;
+  // [0, P), ev2 [P, 2P), ev3 [2P, 3P)) to read only. It stays valid until the next event_tensors()
+  // call, which may reuse its memory (the backend orders the reuse); a handle still held then names
+  // a buffer that is gone (ops on it throw Error).
+  Buffer event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec) {
+    return Buffer(this, event_tensors_id(events, pairs, spec));
+  }
   // The weight-free physics unroller for one target: out [1, C, H, W] from rs [1, C, H, W] (whole buffers).
   virtual void physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) = 0;
   // m = hardsigmoid(score) (or `forced` when >= 0); out = m * a + (1 - m) * b.
@@ -89,12 +131,19 @@ class Backend {
   // The largest tensor one buffer may hold (bytes); the graph splits batches to respect it.
   virtual uint64_t max_buffer_bytes() const = 0;
 
-  // Memory accounting of live buffers (bytes), maintained by alloc()/release().
+  // Memory accounting of live buffers (bytes), maintained by alloc() and the handles' release.
   uint64_t live_bytes() const { return live_bytes_; }
   uint64_t peak_bytes() const { return peak_bytes_; }
   void reset_peak() { peak_bytes_ = live_bytes_; }
 
  protected:
+  // What the backends implement: a new buffer's id, its release (only ever by its handle, once:
+  // bookkeeping that cannot fail; any submission it calls for waits for the next alloc), and the
+  // event tensors' buffer.
+  virtual int alloc_id(const Shape& shape, const std::string& what) = 0;
+  virtual void release_id(int buf) noexcept = 0;
+  virtual int event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                               const EventTensorSpec& spec) = 0;
   void account_alloc(uint64_t b) {
     live_bytes_ += b;
     if (live_bytes_ > peak_bytes_) peak_bytes_ = live_bytes_;
@@ -102,12 +151,25 @@ class Backend {
   void account_release(uint64_t b) { live_bytes_ -= b; }
 
  private:
+  friend class Buffer;
   uint64_t live_bytes_ = 0, peak_bytes_ = 0;
 };
 
+inline void Buffer::reset() noexcept {
+  if (backend_) backend_->release_id(id_);
+  forget();
+}
+inline Shape Buffer::shape() const { return backend_->shape(id_); }
+inline BufferSlice Buffer::whole() const {
+  const Shape s = shape();
+  return {id_, 0, s.n, 0, s.c};
+}
+inline BufferSlice Buffer::items(int64_t n0, int64_t n) const { return {id_, n0, n, 0, shape().c}; }
+
 // Released device buffers wait in a pool (reusable by an allocation of the same size) until the
-// recorded work that may still read them has run; past this many pooled bytes the backend submits
-// and frees them (a wait inside the work, counted), so device memory stays near the live bytes.
+// recorded work that may still read them has run; when an allocation finds more than this many
+// bytes pooled, the backend first submits and frees them (a wait inside the work, counted), so
+// device memory stays near the live bytes.
 // The default holds the pool of a whole SelfUnroll frame at the DAVIS346 size (tests/test_session.cpp).
 constexpr uint64_t kPoolFlushBytes = 256ull << 20;
 
@@ -115,8 +177,6 @@ constexpr uint64_t kPoolFlushBytes = 256ull << 20;
 class PlanningBackend final : public Backend {
  public:
   std::string name() const override { return "plan"; }
-  int alloc(const Shape& shape, const std::string& what) override;
-  void release(int buf) override;
   Shape shape(int buf) const override;
   void upload(const BufferSlice&, std::span<const float>) override {}
   void download(const BufferSlice&, std::span<float>) override {}
@@ -134,7 +194,6 @@ class PlanningBackend final : public Backend {
   void backward_warp(const BufferSlice&, const BufferSlice&, const BufferSlice&) override {}
   void copy_rect(const BufferSlice&, const BufferSlice&, const Rect&, int64_t, int64_t) override {}
   void fill_rect(const BufferSlice&, const Rect&, float) override {}
-  int event_tensors(const EventStream&, const std::vector<EventTensorPair>&, const EventTensorSpec&) override;
   void physics_unroll(int, const PixelEventLists&, const PhysicsUnrollParams&, int) override {}
   void hardsigmoid_blend(const BufferSlice&, const BufferSlice&, const BufferSlice&, const BufferSlice&, const BufferSlice&, float) override {}
   void flush() override;
@@ -142,7 +201,7 @@ class PlanningBackend final : public Backend {
   void set_max_buffer_bytes(uint64_t b) { max_buffer_bytes_ = b; }
   void set_pool_flush_bytes(uint64_t b) { pool_flush_bytes_ = b; }  // as VulkanBackend's
   // Device memory under VulkanBackend's policy (released buffers stay allocated until the next
-  // flush unless an allocation of the same shape reuses them): its peak.
+  // flush unless an allocation of the same size reuses them): its peak.
   uint64_t device_peak_bytes() const { return device_peak_; }
   // The largest single buffer allocated, with its description.
   uint64_t largest_buffer() const { return largest_; }
@@ -151,6 +210,9 @@ class PlanningBackend final : public Backend {
   const std::string& largest_buffer_name() const { return largest_name_; }
 
  private:
+  int alloc_id(const Shape& shape, const std::string& what) override;
+  void release_id(int buf) noexcept override;
+  int event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec) override;
   std::vector<Shape> shapes_;
   std::vector<std::string> names_;
   std::vector<bool> live_;

@@ -52,7 +52,7 @@ CpuBackend::CpuBackend(unsigned threads) : impl_(std::make_unique<Impl>()) {
 }
 CpuBackend::~CpuBackend() = default;
 
-int CpuBackend::alloc(const Shape& shape, const std::string&) {
+int CpuBackend::alloc_id(const Shape& shape, const std::string&) {
   account_alloc(static_cast<uint64_t>(shape.count()) * 4);
   for (size_t i = 0; i < impl_->bufs.size(); ++i)
     if (!impl_->bufs[i].live) {
@@ -63,10 +63,10 @@ int CpuBackend::alloc(const Shape& shape, const std::string&) {
   return static_cast<int>(impl_->bufs.size() - 1);
 }
 
-void CpuBackend::release(int id) {
-  HostTensor& t = impl_->buf(id);
-  account_release(static_cast<uint64_t>(t.shape.count()) * 4);
-  impl_->bufs[id] = {};
+void CpuBackend::release_id(int id) noexcept {
+  // A live buffer: only its handle releases it, once.
+  account_release(static_cast<uint64_t>(impl_->bufs[size_t(id)].t.shape.count()) * 4);
+  impl_->bufs[size_t(id)] = {};
 }
 
 Shape CpuBackend::shape(int id) const { return impl_->buf(id).shape; }
@@ -177,12 +177,12 @@ void CpuBackend::copy_rect(const BufferSlice& in, const BufferSlice& out, const 
 }
 void CpuBackend::fill_rect(const BufferSlice& out, const Rect& rect, float value) { fill_rect_ref(impl_->out(out), rect, value); }
 
-int CpuBackend::event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
-                              const EventTensorSpec& spec) {
+int CpuBackend::event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                 const EventTensorSpec& spec) {
   EventTensors& t = impl_->events;
   t = build_event_tensors_ref(events, pairs, spec);
   const int64_t P = t.pairs;
-  const int buf = alloc({3 * P, 2 * t.bins, t.height, t.width}, "event tensors");
+  const int buf = alloc_id({3 * P, 2 * t.bins, t.height, t.width}, "event tensors");
   HostTensor& dst = impl_->buf(buf);
   const size_t part = static_cast<size_t>(P) * t.slice();
   std::copy(t.ev1.begin(), t.ev1.end(), dst.data.begin());

@@ -13,8 +13,6 @@ class CpuBackend final : public Backend {
   explicit CpuBackend(unsigned threads = 0);
   ~CpuBackend() override;
   std::string name() const override { return "cpu"; }
-  int alloc(const Shape& shape, const std::string& what) override;
-  void release(int buf) override;
   Shape shape(int buf) const override;
   void upload(const BufferSlice& dst, std::span<const float> data) override;
   void download(const BufferSlice& src, std::span<float> dst) override;
@@ -32,8 +30,6 @@ class CpuBackend final : public Backend {
   void backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) override;
   void copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) override;
   void fill_rect(const BufferSlice& out, const Rect& rect, float value) override;
-  int event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
-                    const EventTensorSpec& spec) override;
   void physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) override;
   void hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,
                          float forced) override;
@@ -42,6 +38,9 @@ class CpuBackend final : public Backend {
   void set_max_buffer_bytes(uint64_t b) { max_buffer_bytes_ = b; }
 
  private:
+  int alloc_id(const Shape& shape, const std::string& what) override;
+  void release_id(int buf) noexcept override;
+  int event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec) override;
   struct Impl;
   std::unique_ptr<Impl> impl_;
   uint64_t max_buffer_bytes_ = 1ull << 34;

@@ -19,8 +19,11 @@ namespace vkunroll {
 struct VulkanBackend::Buf {
   Tensor t;
   bool live = false;
-  bool pooled = false;  // released, reusable by an alloc of the same shape until the next flush
+  bool pooled = false;  // released, reusable by an alloc of the same size until the next flush
   const Tensor* external = nullptr;  // a tensor the backend does not own (event_tensors())
+  // The builder's output of an earlier event_tensors() call whose handle is still held: not
+  // readable, its slot kept until the handle releases it (so the id names no other buffer).
+  bool stale = false;
   const Tensor& tensor() const { return external ? *external : t; }
 };
 
@@ -48,7 +51,13 @@ const Tensor& VulkanBackend::tensor(int id) const {
   return bufs_[id]->tensor();
 }
 
-int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
+int VulkanBackend::alloc_id(const Shape& shape, const std::string& what) {
+  // Released buffers past the pool's limit: submit what reads them and free them first (a release
+  // itself never submits, so a handle going out of scope cannot fail).
+  if (pooled_bytes_ > pool_flush_bytes_) {
+    pool_flushes_++;
+    flush();
+  }
   const uint64_t bytes = static_cast<uint64_t>(shape.count()) * dtype_size(dtype_);
   account_alloc(bytes);
   // A pooled buffer of the same size takes the new shape: only recorded dispatches (ordered by the
@@ -78,21 +87,17 @@ int VulkanBackend::alloc(const Shape& shape, const std::string& what) {
   return static_cast<int>(bufs_.size() - 1);
 }
 
-void VulkanBackend::release(int id) {
-  tensor(id);
-  if (bufs_[id]->external) {
-    bufs_[id].reset();
+void VulkanBackend::release_id(int id) noexcept {
+  Buf& b = *bufs_[size_t(id)];  // a live (or stale) buffer: only its handle releases it, once
+  if (b.external || b.stale) {
+    bufs_[size_t(id)].reset();
     if (id == events_buf_) events_buf_ = -1;
     return;
   }
-  account_release(bufs_[id]->t.bytes());
-  bufs_[id]->live = false;
-  bufs_[id]->pooled = true;
-  pooled_bytes_ += bufs_[id]->t.bytes();
-  if (pooled_bytes_ > pool_flush_bytes_) {
-    pool_flushes_++;
-    flush();
-  }
+  account_release(b.t.bytes());
+  b.live = false;
+  b.pooled = true;
+  pooled_bytes_ += b.t.bytes();
 }
 
 Shape VulkanBackend::shape(int id) const { return tensor(id).shape(); }
@@ -270,17 +275,23 @@ void VulkanBackend::fill_rect(const BufferSlice& out, const Rect& rect, float va
   vkunroll::fill_rect(*cs_, slice(tensor(out.buf), out), rect, value);
 }
 
-int VulkanBackend::event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
-                                 const EventTensorSpec& spec) {
+int VulkanBackend::event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs,
+                                    const EventTensorSpec& spec) {
   if (!events_) events_ = std::make_unique<EventTensorBuilder>(ctx_);
   // The builder reuses its buffers: what was recorded reading the previous build runs first.
   if (events_recorded_) flush();
-  if (events_buf_ >= 0 && bufs_[events_buf_]) bufs_[events_buf_].reset();  // stale: no longer readable
+  if (events_buf_ >= 0) {  // the previous build's handle is still held: no longer readable
+    Buf& old = *bufs_[size_t(events_buf_)];
+    old.external = nullptr;
+    old.live = false;
+    old.stale = true;
+    events_buf_ = -1;
+  }
   const Tensor& t = events_->record_resident(*cs_, events, pairs, spec);
   events_recorded_ = true;
   if (dtype_ != DType::f32) {
     // fp16: the counts are exact in the f32 build and stored saturated at 65504 (the conversion's clamp).
-    const int id = alloc(t.shape(), "event tensors (fp16)");
+    const int id = alloc_id(t.shape(), "event tensors (fp16)");
     vkunroll::copy(*cs_, Slice(t), slice(tensor(id), {id, 0, t.shape().n, 0, t.shape().c}));
     return id;
   }

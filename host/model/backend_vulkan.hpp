@@ -1,7 +1,8 @@
 // The Vulkan backend: the kernels' GPU ops recorded into one CommandStream per flush. Buffers are
-// device Tensors; a released buffer is reused by a later alloc() of the same shape within the same
+// device Tensors; a released buffer is reused by a later alloc() of the same size within the same
 // recording (the stream's hazard barriers order the reuse) and destroyed at the next flush (also
-// forced once pool_flush_bytes are pooled), so device memory follows the graph's liveness.
+// forced by an alloc() that finds more than pool_flush_bytes pooled), so device memory follows the
+// graph's liveness.
 #pragma once
 #include <deque>
 #include <map>
@@ -38,8 +39,6 @@ class VulkanBackend final : public Backend {
   ~VulkanBackend() override;
   std::string name() const override { return "vulkan"; }
   Precision precision() const override { return precision_; }
-  int alloc(const Shape& shape, const std::string& what) override;
-  void release(int buf) override;
   Shape shape(int buf) const override;
   void upload(const BufferSlice& dst, std::span<const float> data) override;
   void download(const BufferSlice& src, std::span<float> dst) override;
@@ -57,8 +56,6 @@ class VulkanBackend final : public Backend {
   void backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) override;
   void copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) override;
   void fill_rect(const BufferSlice& out, const Rect& rect, float value) override;
-  int event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs,
-                    const EventTensorSpec& spec) override;
   void physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) override;
   void hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,
                          float forced) override;
@@ -86,12 +83,15 @@ class VulkanBackend final : public Backend {
   uint64_t device_peak_bytes() const { return device_peak_; }
   // Bytes of prepared weights on the device (all packings the conv kernels keep).
   uint64_t weight_bytes() const { return weight_bytes_; }
-  // Submissions the backend made on its own because released buffers held more than
-  // kPoolFlushBytes (memory forced a wait inside the work).
+  // Submissions the backend made on its own (at an alloc()) because released buffers held more
+  // than pool_flush_bytes (memory forced a wait inside the work).
   uint64_t pool_flushes() const { return pool_flushes_; }
 
  private:
   struct Buf;
+  int alloc_id(const Shape& shape, const std::string& what) override;
+  void release_id(int buf) noexcept override;
+  int event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec) override;
   const Tensor& tensor(int buf) const;
   // An f32 tensor living until the next flush: the host side of an fp16 buffer's transfers.
   Tensor& scratch_f32(const Shape& shape);

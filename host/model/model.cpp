@@ -223,16 +223,16 @@ int64_t Model::item_buffer_bytes(int64_t h, int64_t w, Mode mode, int top, int l
 
 // ---- stages ----------------------------------------------------------------------------------
 
-int Model::resblock(const std::string& p, int x) {
+Buffer Model::resblock(const std::string& p, Buffer x) {
   Backend& b = backend_;
-  const Shape s = b.shape(x);
-  const int t = b.alloc(s, p + ".conv.0");
-  b.conv(conv(p + ".conv.0.0").id, whole(b, x), whole(b, t), nullptr);
-  const int y = b.alloc(s, p);
-  const BufferSlice res = whole(b, x);
-  b.conv(conv(p + ".conv.1").id, whole(b, t), whole(b, y), &res);
-  b.release(t);
-  b.release(x);
+  const Shape s = x.shape();
+  Buffer t = b.alloc(s, p + ".conv.0");
+  b.conv(conv(p + ".conv.0.0").id, x.whole(), t.whole(), nullptr);
+  Buffer y = b.alloc(s, p);
+  const BufferSlice res = x.whole();
+  b.conv(conv(p + ".conv.1").id, t.whole(), y.whole(), &res);
+  t.reset();
+  x.reset();
   return y;
 }
 
@@ -248,48 +248,46 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Bu
   if (left < 0) left = static_cast<int>((wp - w) / 2);
   int64_t cin = 0;
   for (const auto& v : pieces) cin += v.c;
-  const int xin = b.alloc({n, cin, hp, wp}, p + ".input");
+  Buffer xin = b.alloc({n, cin, hp, wp}, p + ".input");
   int64_t c0 = 0;
   for (const auto& v : pieces) {
-    b.reflect_pad(v, chans(whole(b, xin), c0, v.c), top, left);
+    b.reflect_pad(v, chans(xin.whole(), c0, v.c), top, left);
     c0 += v.c;
   }
-  int x = b.alloc({n, u.base, hp, wp}, p + ".head");
-  b.conv(conv(p + ".head").id, whole(b, xin), whole(b, x), nullptr);
-  b.release(xin);
-  std::vector<int> skips;
+  Buffer x = b.alloc({n, u.base, hp, wp}, p + ".head");
+  b.conv(conv(p + ".head").id, xin.whole(), x.whole(), nullptr);
+  xin.reset();
+  std::vector<Buffer> skips;
   for (int i = 0; i < u.depth; ++i) {
     const std::string d = p + ".down_path." + std::to_string(i);
-    const Shape s = b.shape(x);
-    x = resblock(d + ".conv1", x);
-    const int sk = b.alloc(s, d + ".skip");
-    b.conv(conv(d + ".conv2.0").id, whole(b, x), whole(b, sk), nullptr);
-    skips.push_back(sk);
-    const int dn = b.alloc({n, s.c * 2, s.h / 2, s.w / 2}, d + ".down");
-    b.conv(conv(d + ".down.0").id, whole(b, x), whole(b, dn), nullptr);
-    b.release(x);
-    x = dn;
+    const Shape s = x.shape();
+    x = resblock(d + ".conv1", std::move(x));
+    Buffer sk = b.alloc(s, d + ".skip");
+    b.conv(conv(d + ".conv2.0").id, x.whole(), sk.whole(), nullptr);
+    skips.push_back(std::move(sk));
+    Buffer dn = b.alloc({n, s.c * 2, s.h / 2, s.w / 2}, d + ".down");
+    b.conv(conv(d + ".down.0").id, x.whole(), dn.whole(), nullptr);
+    x = std::move(dn);  // releases the level's input
   }
-  x = resblock(p + ".bottom.0", x);
-  x = resblock(p + ".bottom.1", x);
+  x = resblock(p + ".bottom.0", std::move(x));
+  x = resblock(p + ".bottom.1", std::move(x));
   for (int i = u.depth - 1; i >= 0; --i) {
     const std::string q = p + ".up_path." + std::to_string(i);
-    const Shape s = b.shape(skips[i]);
-    const int cat = b.alloc({n, 2 * s.c, s.h, s.w}, q + ".cat");
-    b.conv(conv(q + ".deconv.0").id, whole(b, x), chans(whole(b, cat), 0, s.c), nullptr);
-    b.release(x);
-    b.conv(conv(q + ".conv_skip.0").id, whole(b, skips[i]), chans(whole(b, cat), s.c, s.c), nullptr);
-    b.release(skips[i]);
+    const Shape s = skips[i].shape();
+    Buffer cat = b.alloc({n, 2 * s.c, s.h, s.w}, q + ".cat");
+    b.conv(conv(q + ".deconv.0").id, x.whole(), chans(cat.whole(), 0, s.c), nullptr);
+    x.reset();
+    b.conv(conv(q + ".conv_skip.0").id, skips[i].whole(), chans(cat.whole(), s.c, s.c), nullptr);
+    skips[i].reset();
     x = b.alloc(s, q + ".conv1");
-    b.conv(conv(q + ".conv1.0").id, whole(b, cat), whole(b, x), nullptr);
-    b.release(cat);
-    x = resblock(q + ".conv2", x);
+    b.conv(conv(q + ".conv1.0").id, cat.whole(), x.whole(), nullptr);
+    cat.reset();
+    x = resblock(q + ".conv2", std::move(x));
   }
-  const int pred = b.alloc({n, out.c, hp, wp}, p + ".pred");
-  b.conv(conv(p + ".pred").id, whole(b, x), whole(b, pred), nullptr);
-  b.release(x);
-  b.crop(whole(b, pred), out, top, left);
-  b.release(pred);
+  Buffer pred = b.alloc({n, out.c, hp, wp}, p + ".pred");
+  b.conv(conv(p + ".pred").id, x.whole(), pred.whole(), nullptr);
+  x.reset();
+  b.crop(pred.whole(), out, top, left);
 }
 
 void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
@@ -297,98 +295,96 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   const int64_t ev = cfg_.ev_channels(), h2 = ch.he / 2, w2 = ch.we / 2;
   // space_to_depth(cat(rs, ev1, ev2, ev3)): input channel c lands in output channels 4c..4c+3,
   // so each piece goes straight into its range and the 99-channel concatenation never exists.
-  const int xs = b.alloc({n, 4 * int64_t(cfg_.synthesis_channels()), h2, w2}, "space_to_depth");
-  b.space_to_depth(sub(ch.rs, i0, n), chans(whole(b, xs), 0, 12));
+  Buffer xs = b.alloc({n, 4 * int64_t(cfg_.synthesis_channels()), h2, w2}, "space_to_depth");
+  b.space_to_depth(sub(ch.rs, i0, n), chans(xs.whole(), 0, 12));
   // The variant: p = clamp(phys, 0, 1) is the last piece of E-IC_T's input and the base of sys.
-  int phys_clamped = -1;
+  Buffer phys_clamped;
   if (cfg_.physics_input) {
     phys_clamped = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
-    b.clamp01(sub(ch.phys, i0, n), whole(b, phys_clamped));
-    b.space_to_depth(whole(b, phys_clamped), chans(whole(b, xs), 12 + 12 * ev, 12));
+    b.clamp01(sub(ch.phys, i0, n), phys_clamped.whole());
+    b.space_to_depth(phys_clamped.whole(), chans(xs.whole(), 12 + 12 * ev, 12));
   }
-  b.space_to_depth(sub(ch.ev1, i0, n), chans(whole(b, xs), 12, 4 * ev));
-  b.space_to_depth(sub(ch.ev2, i0, n), chans(whole(b, xs), 12 + 4 * ev, 4 * ev));
-  b.space_to_depth(sub(ch.ev3, i0, n), chans(whole(b, xs), 12 + 8 * ev, 4 * ev));
-  const int f1 = b.alloc({n, cfg_.G0, h2, w2}, "SFENet1");
-  b.conv(conv("SFENet1").id, whole(b, xs), whole(b, f1), nullptr);
-  b.release(xs);
+  b.space_to_depth(sub(ch.ev1, i0, n), chans(xs.whole(), 12, 4 * ev));
+  b.space_to_depth(sub(ch.ev2, i0, n), chans(xs.whole(), 12 + 4 * ev, 4 * ev));
+  b.space_to_depth(sub(ch.ev3, i0, n), chans(xs.whole(), 12 + 8 * ev, 4 * ev));
+  Buffer f1 = b.alloc({n, cfg_.G0, h2, w2}, "SFENet1");
+  b.conv(conv("SFENet1").id, xs.whole(), f1.whole(), nullptr);
+  xs.reset();
   // Each block works in one buffer whose first G0 channels are its input and whose growing tail
   // holds its convs' outputs; LFF (+ block input) writes the block output to a G0-channel buffer,
   // GFF.0 accumulates it, and it is copied back into the head of the block buffer for the next
   // block. Only one block buffer and two G0-channel accumulators are live.
-  const int blk = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
-  const int block_out = b.alloc({n, cfg_.G0, h2, w2}, "RDB output");
-  int acc = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
-  int acc2 = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
-  b.conv(conv("SFENet2").id, whole(b, f1), chans(whole(b, blk), 0, cfg_.G0), nullptr);
+  Buffer blk = b.alloc({n, cfg_.G0 + int64_t(cfg_.C) * cfg_.G, h2, w2}, "RDB");
+  Buffer block_out = b.alloc({n, cfg_.G0, h2, w2}, "RDB output");
+  Buffer acc = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
+  Buffer acc2 = b.alloc({n, cfg_.G0, h2, w2}, "GFF.0");
+  b.conv(conv("SFENet2").id, f1.whole(), chans(blk.whole(), 0, cfg_.G0), nullptr);
   for (int d = 0; d < cfg_.D; ++d) {
     const std::string p = "RDBs." + std::to_string(d);
     for (int c = 0; c < cfg_.C; ++c)
-      b.conv(conv(p + ".convs." + std::to_string(c) + ".conv.0").id, chans(whole(b, blk), 0, cfg_.G0 + c * cfg_.G),
-             chans(whole(b, blk), cfg_.G0 + c * cfg_.G, cfg_.G), nullptr);
-    const BufferSlice res = chans(whole(b, blk), 0, cfg_.G0);
-    b.conv(conv(p + ".LFF").id, whole(b, blk), whole(b, block_out), &res);
-    const BufferSlice prev = whole(b, acc);
-    b.conv(conv("GFF.0.part" + std::to_string(d)).id, whole(b, block_out), whole(b, acc2), d ? &prev : nullptr);
+      b.conv(conv(p + ".convs." + std::to_string(c) + ".conv.0").id, chans(blk.whole(), 0, cfg_.G0 + c * cfg_.G),
+             chans(blk.whole(), cfg_.G0 + c * cfg_.G, cfg_.G), nullptr);
+    const BufferSlice res = chans(blk.whole(), 0, cfg_.G0);
+    b.conv(conv(p + ".LFF").id, blk.whole(), block_out.whole(), &res);
+    const BufferSlice prev = acc.whole();
+    b.conv(conv("GFF.0.part" + std::to_string(d)).id, block_out.whole(), acc2.whole(), d ? &prev : nullptr);
     std::swap(acc, acc2);
-    if (d + 1 < cfg_.D) b.copy(whole(b, block_out), chans(whole(b, blk), 0, cfg_.G0));
+    if (d + 1 < cfg_.D) b.copy(block_out.whole(), chans(blk.whole(), 0, cfg_.G0));
   }
-  b.release(blk);
-  b.release(block_out);
-  b.release(acc2);
-  const int g0 = acc;
-  const int g = b.alloc({n, cfg_.G0, h2, w2}, "GFF.1");
-  const BufferSlice f1v = whole(b, f1);
-  b.conv(conv("GFF.1").id, whole(b, g0), whole(b, g), &f1v);
-  b.release(g0);
-  b.release(f1);
-  const int up = b.alloc({n, cfg_.upnet_width, h2, w2}, "UPNet.0");
-  b.conv(conv("UPNet.0").id, whole(b, g), whole(b, up), nullptr);
-  b.release(g);
-  const int shuf = b.alloc({n, cfg_.upnet_width / 4, ch.he, ch.we}, "depth_to_space");
-  b.depth_to_space(whole(b, up), whole(b, shuf));
-  b.release(up);
-  const int e_raw = b.alloc({n, 3, ch.he, ch.we}, "UPNet.2");
-  b.conv(conv("UPNet.2").id, whole(b, shuf), whole(b, e_raw), nullptr);
-  b.release(shuf);
-  b.tanh_scale(whole(b, e_raw), items(b, ch.E, i0, n), 1.f);
-  b.release(e_raw);
-  b.add(phys_clamped >= 0 ? whole(b, phys_clamped) : sub(ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
-  if (phys_clamped >= 0) b.release(phys_clamped);
+  blk.reset();
+  block_out.reset();
+  acc2.reset();
+  Buffer g0 = std::move(acc);
+  Buffer g = b.alloc({n, cfg_.G0, h2, w2}, "GFF.1");
+  const BufferSlice f1v = f1.whole();
+  b.conv(conv("GFF.1").id, g0.whole(), g.whole(), &f1v);
+  g0.reset();
+  f1.reset();
+  Buffer up = b.alloc({n, cfg_.upnet_width, h2, w2}, "UPNet.0");
+  b.conv(conv("UPNet.0").id, g.whole(), up.whole(), nullptr);
+  g.reset();
+  Buffer shuf = b.alloc({n, cfg_.upnet_width / 4, ch.he, ch.we}, "depth_to_space");
+  b.depth_to_space(up.whole(), shuf.whole());
+  up.reset();
+  Buffer e_raw = b.alloc({n, 3, ch.he, ch.we}, "UPNet.2");
+  b.conv(conv("UPNet.2").id, shuf.whole(), e_raw.whole(), nullptr);
+  shuf.reset();
+  b.tanh_scale(e_raw.whole(), items(b, ch.E, i0, n), 1.f);
+  e_raw.reset();
+  b.add(phys_clamped ? phys_clamped.whole() : sub(ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
 }
 
 void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
-  const int raw = b.alloc({n, 2, ch.he, ch.we}, "flownet");
+  Buffer raw = b.alloc({n, 2, ch.he, ch.we}, "flownet");
   unet("flownet", cfg_.flownet, {sub(ch.ev1, i0, n), sub(ch.ev2, i0, n), sub(ch.rs, i0, n)},
-       whole(b, raw), ch.pad_top, ch.pad_left);
-  b.tanh_scale(whole(b, raw), items(b, ch.flow, i0, n), 100.f);
-  b.release(raw);
+       raw.whole(), ch.pad_top, ch.pad_left);
+  b.tanh_scale(raw.whole(), items(b, ch.flow, i0, n), 100.f);
+  raw.reset();
   b.backward_warp(sub(ch.rs, i0, n), items(b, ch.flow, i0, n), items(b, ch.warped, i0, n));
 }
 
 void Model::stage_fusion(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
   const bool gated = cfg_.physics_gate >= 0;
-  const int raw = gated ? b.alloc({n, 3, ch.he, ch.we}, "fusion_net output") : -1;
+  Buffer raw = gated ? b.alloc({n, 3, ch.he, ch.we}, "fusion_net output") : Buffer();
   unet("fusion_net", cfg_.fusion_net,
        {items(b, ch.sys, i0, n), items(b, ch.warped, i0, n), items(b, ch.flow, i0, n), sub(ch.ev3, i0, n),
         sub(ch.rs, i0, n)},
-       gated ? whole(b, raw) : items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
+       gated ? raw.whole() : items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
   if (!gated) return;
   // fused = g * fusion_net + (1 - g) * clamp(phys, 0, 1), g = 1 where an ev1/ev2 event is near.
   const Shape plane{n, 1, ch.he, ch.we};
-  const int part = b.alloc(plane, "physics gate ev1");
-  b.conv(conv("physics_gate.ev1").id, sub(ch.ev1, i0, n), whole(b, part), nullptr);
-  const int score = b.alloc(plane, "physics gate");
-  const BufferSlice ev1_part = whole(b, part);
-  b.conv(conv("physics_gate.ev2").id, sub(ch.ev2, i0, n), whole(b, score), &ev1_part);
-  b.release(part);
-  const int phys = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
-  b.clamp01(sub(ch.phys, i0, n), whole(b, phys));
-  const int g = b.alloc(plane, "physics gate m");
-  b.hardsigmoid_blend(whole(b, score), whole(b, raw), whole(b, phys), whole(b, g), items(b, ch.fused, i0, n), -1.f);
-  for (int buf : {score, phys, g, raw}) b.release(buf);
+  Buffer part = b.alloc(plane, "physics gate ev1");
+  b.conv(conv("physics_gate.ev1").id, sub(ch.ev1, i0, n), part.whole(), nullptr);
+  Buffer score = b.alloc(plane, "physics gate");
+  const BufferSlice ev1_part = part.whole();
+  b.conv(conv("physics_gate.ev2").id, sub(ch.ev2, i0, n), score.whole(), &ev1_part);
+  part.reset();
+  Buffer phys = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
+  b.clamp01(sub(ch.phys, i0, n), phys.whole());
+  Buffer g = b.alloc(plane, "physics gate m");
+  b.hardsigmoid_blend(score.whole(), raw.whole(), phys.whole(), g.whole(), items(b, ch.fused, i0, n), -1.f);
 }
 
 void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
@@ -396,10 +392,10 @@ void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
   const int64_t ev = cfg_.ev_channels();
   // Frames 1 and 2 of a target are batch items 2k and 2k+1: gather them into channel pieces.
   const int64_t cin = 3 + 3 + 2 * ev + 2 + 2;
-  const int gathered = b.alloc({nt, cin, ch.he, ch.we}, "attfusion_net.gather");
+  Buffer gathered = b.alloc({nt, cin, ch.he, ch.we}, "attfusion_net.gather");
   for (int64_t k = 0; k < nt; ++k) {
     const int64_t f1 = 2 * (t0 + k), f2 = f1 + 1;
-    const BufferSlice dst = items(b, gathered, k, 1);
+    const BufferSlice dst = gathered.items(k, 1);
     b.copy(items(b, ch.E, f1, 1), chans(dst, 0, 3));
     b.copy(items(b, ch.E, f2, 1), chans(dst, 3, 3));
     b.copy(sub(ch.ev1, f1, 1), chans(dst, 6, ev));
@@ -407,15 +403,14 @@ void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
     b.copy(items(b, ch.flow, f1, 1), chans(dst, 6 + 2 * ev, 2));
     b.copy(items(b, ch.flow, f2, 1), chans(dst, 8 + 2 * ev, 2));
   }
-  const int score = b.alloc({nt, 1, ch.he, ch.we}, "attfusion_net");
-  unet("attfusion_net", cfg_.attfusion_net, {whole(b, gathered)}, whole(b, score), ch.pad_top, ch.pad_left);
-  b.release(gathered);
+  Buffer score = b.alloc({nt, 1, ch.he, ch.we}, "attfusion_net");
+  unet("attfusion_net", cfg_.attfusion_net, {gathered.whole()}, score.whole(), ch.pad_top, ch.pad_left);
+  gathered.reset();
   for (int64_t k = 0; k < nt; ++k) {
     const int64_t f1 = 2 * (t0 + k);
-    b.hardsigmoid_blend(items(b, score, k, 1), items(b, ch.fused, f1, 1), items(b, ch.fused, f1 + 1, 1),
+    b.hardsigmoid_blend(score.items(k, 1), items(b, ch.fused, f1, 1), items(b, ch.fused, f1 + 1, 1),
                         items(b, ch.m, t0 + k, 1), items(b, ch.out, t0 + k, 1), force_m);
   }
-  b.release(score);
 }
 
 // ---- run -------------------------------------------------------------------------------------
@@ -449,33 +444,32 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
   for (int64_t c0 = 0; c0 < B; c0 += per_chunk) {
     const int64_t n = std::min(per_chunk, B - c0);
     ModelBuffers buffers;
+    std::vector<Buffer> uploaded;  // handed over: the run releases each after its last reader
     for (const auto& [a, dst, name] : {std::tuple{&in.rs, &buffers.rs, "rs"}, std::tuple{&in.ev1, &buffers.ev1, "ev1"},
                                        std::tuple{&in.ev2, &buffers.ev2, "ev2"}, std::tuple{&in.ev3, &buffers.ev3, "ev3"},
                                        std::tuple{&in.phys, &buffers.phys, "phys"}}) {
       if (a == &in.phys && !cfg_.physics_input) continue;
       const int64_t item = a->shape.c * H * W;
-      const int buf = b.alloc({n, a->shape.c, H, W}, name);
-      *dst = whole(b, buf);
+      uploaded.push_back(b.alloc({n, a->shape.c, H, W}, name));
+      *dst = uploaded.back().whole();
       b.upload(*dst, std::span<const float>(a->data.data() + c0 * item, size_t(n * item)));
     }
     RunOptions ro = opt;
     ro.max_items = static_cast<int>(n);
-    buffers.consume = true;
-    const std::map<std::string, int> outs = run_on_backend(buffers, ro);
+    const std::map<std::string, Buffer> outs = run_on_backend(buffers, ro, std::move(uploaded));
     for (const auto& [name, buf] : outs) {
-      const Shape s = b.shape(buf);
+      const Shape s = buf.shape();
       HostTensor& t = result[name];
       const int64_t items = (name == "m" || name == "out") ? B / 2 : B, first = (name == "m" || name == "out") ? c0 / 2 : c0;
       if (t.data.empty()) t = HostTensor(Shape{items, s.c, s.h, s.w});
-      b.download(whole(b, buf), std::span<float>(t.data.data() + first * s.c * s.h * s.w, size_t(s.count())));
+      b.download(buf.whole(), std::span<float>(t.data.data() + first * s.c * s.h * s.w, size_t(s.count())));
     }
     b.flush();
-    for (const auto& [name, buf] : outs) b.release(buf);
   }
   return result;
 }
 
-void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt) const {
+void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt, const std::vector<Buffer>& handed_over) const {
   if (opt.precision && *opt.precision != backend_.precision())
     throw Error(std::string("model run: precision ") + precision_name(*opt.precision) + " asked of the " + backend_.name() +
                 " backend, which runs in " + precision_name(backend_.precision()) + " (choose it when creating the backend)");
@@ -500,115 +494,145 @@ void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt) const {
   }
   if (opt.mode == Mode::m && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
   if (opt.mode == Mode::m && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
+  // A handed-over buffer is released after its input's last reader: no other input may read it.
+  for (const Buffer& h : handed_over) {
+    int readers = 0;
+    for (const BufferSlice* v : {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys}) readers += h && v->buf == h.id();
+    if (h && readers != 1)
+      throw Error("model run: handed-over buffer " + std::to_string(h.id()) + " is the buffer of " + std::to_string(readers) +
+                  " inputs, expected exactly one");
+  }
 }
 
-std::map<std::string, int> Model::run_on_backend(const ModelBuffers& in, const RunOptions& opt) {
-  Backend& b = backend_;
-  check_buffers(in, opt);
-  const int64_t B = in.rs.n, H = b.shape(in.rs.buf).h, W = b.shape(in.rs.buf).w, ev = cfg_.ev_channels();
-  const bool m_mode = opt.mode == Mode::m;
-  const std::vector<std::string> wanted = resolve_outputs(opt.outputs, opt.mode);
-  const std::set<std::string> want(wanted.begin(), wanted.end());
+struct Model::SubBatches {
+  int synthesis = 1, flow = 1, fusion = 1, moa = 1;  // batch items per stage call (moa: targets)
+};
 
-  const int64_t he = round_up(H, 2), we = round_up(W, 2);
-  int64_t per_chunk = opt.max_items > 0 ? opt.max_items : items_per_chunk(H, W, opt.mode, opt.memory_budget);
-  if (m_mode) per_chunk = std::max<int64_t>(2, per_chunk & ~int64_t(1));
-  per_chunk = std::min(per_chunk, B);
+Model::SubBatches Model::sub_batches(int64_t he, int64_t we, const RunOptions& opt) const {
+  const int64_t ev = cfg_.ev_channels();
   const uint64_t budget = opt.memory_budget;
-  const int sub_t = sub_items(synthesis_item_bytes(he, we), budget);
+  SubBatches sb;
+  sb.synthesis = sub_items(synthesis_item_bytes(he, we), budget);
   if (opt.unet_pad_top >= he || opt.unet_pad_left >= we)
     throw Error("model: UNet input offset (" + std::to_string(opt.unet_pad_top) + ", " + std::to_string(opt.unet_pad_left) +
                 ") must lie inside the " + std::to_string(we) + "x" + std::to_string(he) + " input (reflection padding)");
   const int ptop = std::max(opt.unet_pad_top, 0), pleft = std::max(opt.unet_pad_left, 0);
-  const int sub_f = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, ptop, pleft), budget);
-  const int sub_u = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, ptop, pleft), budget);
-  const int sub_m =
-      m_mode ? sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, ptop, pleft), budget) : 1;
+  sb.flow = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, ptop, pleft), budget);
+  sb.fusion = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, ptop, pleft), budget);
+  if (opt.mode == Mode::m) sb.moa = sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, ptop, pleft), budget);
+  return sb;
+}
 
+std::map<std::string, Buffer> Model::run_on_backend(const ModelBuffers& in, const RunOptions& opt, std::vector<Buffer> handed_over) {
+  Backend& b = backend_;
+  check_buffers(in, opt, handed_over);
+  const int64_t B = in.rs.n, H = b.shape(in.rs.buf).h, W = b.shape(in.rs.buf).w;
+  const bool m_mode = opt.mode == Mode::m;
+  const std::vector<std::string> wanted = resolve_outputs(opt.outputs, opt.mode);
+  const std::set<std::string> want(wanted.begin(), wanted.end());
+  const int64_t he = round_up(H, 2), we = round_up(W, 2);
+  int64_t per_chunk = opt.max_items > 0 ? opt.max_items : items_per_chunk(H, W, opt.mode, opt.memory_budget);
+  if (m_mode) per_chunk = std::max<int64_t>(2, per_chunk & ~int64_t(1));
+  per_chunk = std::min(per_chunk, B);
+  const SubBatches sb = sub_batches(he, we, opt);
   const int64_t K = m_mode ? B / 2 : 0;
-  std::map<std::string, int> result;
+  std::map<std::string, Buffer> result;
   for (const auto& nme : want) {
     const int64_t items = (nme == "m" || nme == "out") ? K : B;
     const int64_t c = nme == "m" ? 1 : (nme == "flow" ? 2 : 3);
     result[nme] = b.alloc({items, c, H, W}, nme);
   }
-
-  for (int64_t c0 = 0; c0 < B; c0 += per_chunk) {
-    Chunk ch;
-    ch.n = std::min(per_chunk, B - c0);
-    ch.nt = m_mode ? ch.n / 2 : 0;
-    ch.he = he;
-    ch.we = we;
-    ch.pad_top = opt.unet_pad_top;
-    ch.pad_left = opt.unet_pad_left;
-    // Inputs are read in place; at an odd size they are reflected by one row/column to even size.
-    std::vector<int> owned;
-    auto input = [&](const BufferSlice& v, const char* nme) {
-      const BufferSlice part = sub(v, c0, ch.n);
-      if (he == H && we == W) return part;
-      const int buf = b.alloc({ch.n, v.c, he, we}, std::string(nme) + ".even");
-      owned.push_back(buf);
-      b.reflect_pad(part, whole(b, buf), 0, 0);
-      return whole(b, buf);
-    };
-    ch.rs = input(in.rs, "rs");
-    ch.ev1 = input(in.ev1, "ev1");
-    ch.ev2 = input(in.ev2, "ev2");
-    ch.ev3 = input(in.ev3, "ev3");
-    if (cfg_.physics_input) ch.phys = input(in.phys, "phys");
-    // One chunk at an even size computes straight into the outputs; otherwise into chunk buffers
-    // that are cropped into them.
-    const bool direct = ch.n == B && he == H && we == W;
-    auto chunk_buffer = [&](const char* nme, const Shape& s) {
-      return direct && want.count(nme) ? result.at(nme) : b.alloc(s, nme);
-    };
-    ch.E = chunk_buffer("E", {ch.n, 3, he, we});
-    ch.sys = chunk_buffer("sys", {ch.n, 3, he, we});
-    ch.flow = chunk_buffer("flow", {ch.n, 2, he, we});
-    ch.warped = chunk_buffer("warped", {ch.n, 3, he, we});
-    ch.fused = chunk_buffer("fused", {ch.n, 3, he, we});
-    // Stages are recorded back to back; the backend submits only where memory forces it.
-    for (int64_t i = 0; i < ch.n; i += sub_t) stage_synthesis(ch, i, std::min<int64_t>(sub_t, ch.n - i));
-    // Handed-over inputs go as soon as the last chunk has read them.
-    const bool last = c0 + ch.n >= B;
-    auto consumed = [&](const BufferSlice& chunk_view, const BufferSlice& given) {
-      if (chunk_view.buf != given.buf) b.release(chunk_view.buf), owned.erase(std::find(owned.begin(), owned.end(), chunk_view.buf));
-      if (in.consume && last) b.release(given.buf);
-    };
-    for (int64_t i = 0; i < ch.n; i += sub_f) stage_flow(ch, i, std::min<int64_t>(sub_f, ch.n - i));
-    // ev2 and phys are read by E-IC_T and flownet, and by the variant's event gate after fusion_net.
-    const bool gated = cfg_.physics_gate >= 0;
-    auto consumed_ev2_phys = [&] {
-      consumed(ch.ev2, in.ev2);
-      if (cfg_.physics_input) consumed(ch.phys, in.phys);
-    };
-    if (!gated) consumed_ev2_phys();
-    for (int64_t i = 0; i < ch.n; i += sub_u) stage_fusion(ch, i, std::min<int64_t>(sub_u, ch.n - i));
-    consumed(ch.ev3, in.ev3);
-    if (gated) consumed_ev2_phys();
-    if (m_mode) {
-      ch.m = chunk_buffer("m", {ch.nt, 1, he, we});
-      ch.out = chunk_buffer("out", {ch.nt, 3, he, we});
-      for (int64_t t = 0; t < ch.nt; t += sub_m) stage_moa(ch, t, std::min<int64_t>(sub_m, ch.nt - t), opt.force_m);
-    }
-    // The chunk's results, cropped to H x W, into the outputs.
-    auto keep = [&](const std::string& nme, int buf, int64_t first) {
-      if (want.count(nme) && buf != result.at(nme)) b.crop(whole(b, buf), items(b, result.at(nme), first, b.shape(buf).n), 0, 0);
-      if (!want.count(nme) || buf != result.at(nme)) b.release(buf);
-    };
-    keep("sys", ch.sys, c0);
-    keep("E", ch.E, c0);
-    keep("flow", ch.flow, c0);
-    keep("warped", ch.warped, c0);
-    keep("fused", ch.fused, c0);
-    if (m_mode) {
-      keep("m", ch.m, c0 / 2);
-      keep("out", ch.out, c0 / 2);
-    }
-    for (int buf : owned) b.release(buf);
-    if (in.consume && last) b.release(in.rs.buf), b.release(in.ev1.buf);
-  }
+  for (int64_t c0 = 0; c0 < B; c0 += per_chunk) run_chunk(in, opt, want, c0, std::min(per_chunk, B - c0), sb, result, handed_over);
   return result;
+}
+
+namespace {
+// Releases the handle of buffer `id` among `held` (none there: nothing).
+void drop(std::vector<Buffer>& held, int id) {
+  auto it = std::find_if(held.begin(), held.end(), [&](const Buffer& h) { return h && h.id() == id; });
+  if (it != held.end()) held.erase(it);
+}
+}  // namespace
+
+void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::set<std::string>& want, int64_t c0, int64_t n,
+                      const SubBatches& sb, std::map<std::string, Buffer>& result, std::vector<Buffer>& handed_over) {
+  Backend& b = backend_;
+  const int64_t B = in.rs.n, H = b.shape(in.rs.buf).h, W = b.shape(in.rs.buf).w;
+  const bool m_mode = opt.mode == Mode::m;
+  Chunk ch;
+  ch.n = n;
+  ch.nt = m_mode ? ch.n / 2 : 0;
+  ch.he = round_up(H, 2);
+  ch.we = round_up(W, 2);
+  ch.pad_top = opt.unet_pad_top;
+  ch.pad_left = opt.unet_pad_left;
+  // Inputs are read in place; at an odd size they are reflected by one row/column to even size.
+  std::vector<Buffer> even_inputs;
+  auto input = [&](const BufferSlice& v, const char* nme) {
+    const BufferSlice part = sub(v, c0, ch.n);
+    if (ch.he == H && ch.we == W) return part;
+    even_inputs.push_back(b.alloc({ch.n, v.c, ch.he, ch.we}, std::string(nme) + ".even"));
+    b.reflect_pad(part, even_inputs.back().whole(), 0, 0);
+    return even_inputs.back().whole();
+  };
+  ch.rs = input(in.rs, "rs");
+  ch.ev1 = input(in.ev1, "ev1");
+  ch.ev2 = input(in.ev2, "ev2");
+  ch.ev3 = input(in.ev3, "ev3");
+  if (cfg_.physics_input) ch.phys = input(in.phys, "phys");
+  // One chunk at an even size computes straight into the outputs; otherwise into chunk buffers
+  // that are cropped into them.
+  const bool direct = ch.n == B && ch.he == H && ch.we == W;
+  std::vector<Buffer> chunk_buffers;
+  auto chunk_buffer = [&](const char* nme, const Shape& s) {
+    if (direct && want.count(nme)) return result.at(nme).id();
+    chunk_buffers.push_back(b.alloc(s, nme));
+    return chunk_buffers.back().id();
+  };
+  ch.E = chunk_buffer("E", {ch.n, 3, ch.he, ch.we});
+  ch.sys = chunk_buffer("sys", {ch.n, 3, ch.he, ch.we});
+  ch.flow = chunk_buffer("flow", {ch.n, 2, ch.he, ch.we});
+  ch.warped = chunk_buffer("warped", {ch.n, 3, ch.he, ch.we});
+  ch.fused = chunk_buffer("fused", {ch.n, 3, ch.he, ch.we});
+  // Stages are recorded back to back; the backend submits only where memory forces it.
+  for (int64_t i = 0; i < ch.n; i += sb.synthesis) stage_synthesis(ch, i, std::min<int64_t>(sb.synthesis, ch.n - i));
+  // Handed-over inputs go as soon as the last chunk has read them.
+  const bool last = c0 + ch.n >= B;
+  auto consumed = [&](const BufferSlice& chunk_view, const BufferSlice& given) {
+    if (chunk_view.buf != given.buf) drop(even_inputs, chunk_view.buf);
+    if (last) drop(handed_over, given.buf);
+  };
+  for (int64_t i = 0; i < ch.n; i += sb.flow) stage_flow(ch, i, std::min<int64_t>(sb.flow, ch.n - i));
+  // ev2 and phys are read by E-IC_T and flownet, and by the variant's event gate after fusion_net.
+  const bool gated = cfg_.physics_gate >= 0;
+  auto consumed_ev2_phys = [&] {
+    consumed(ch.ev2, in.ev2);
+    if (cfg_.physics_input) consumed(ch.phys, in.phys);
+  };
+  if (!gated) consumed_ev2_phys();
+  for (int64_t i = 0; i < ch.n; i += sb.fusion) stage_fusion(ch, i, std::min<int64_t>(sb.fusion, ch.n - i));
+  consumed(ch.ev3, in.ev3);
+  if (gated) consumed_ev2_phys();
+  if (m_mode) {
+    ch.m = chunk_buffer("m", {ch.nt, 1, ch.he, ch.we});
+    ch.out = chunk_buffer("out", {ch.nt, 3, ch.he, ch.we});
+    for (int64_t t = 0; t < ch.nt; t += sb.moa) stage_moa(ch, t, std::min<int64_t>(sb.moa, ch.nt - t), opt.force_m);
+  }
+  // The chunk's results, cropped to H x W, into the outputs (the chunk buffers go with the chunk).
+  auto keep = [&](const std::string& nme, int buf, int64_t first) {
+    if (want.count(nme) && buf != result.at(nme).id())
+      b.crop(whole(b, buf), result.at(nme).items(first, b.shape(buf).n), 0, 0);
+  };
+  keep("sys", ch.sys, c0);
+  keep("E", ch.E, c0);
+  keep("flow", ch.flow, c0);
+  keep("warped", ch.warped, c0);
+  keep("fused", ch.fused, c0);
+  if (m_mode) {
+    keep("m", ch.m, c0 / 2);
+    keep("out", ch.out, c0 / 2);
+  }
+  if (last) handed_over.clear();
 }
 
 }  // namespace vkunroll

@@ -8,6 +8,7 @@
 #pragma once
 #include <map>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -24,9 +25,6 @@ enum class Mode { s, m };
 struct ModelBuffers {
   BufferSlice rs, ev1, ev2, ev3;
   BufferSlice phys;  // the physics-informed variant's [B, 3, H, W] estimate (buf -1: none)
-  // The inputs are whole buffers handed over: run_on_backend releases each once its last reader is
-  // recorded (ev2 after the flow, ev3 after the fusion), which lowers the peak memory.
-  bool consume = false;
 };
 
 struct ModelInputs {
@@ -67,9 +65,12 @@ class Model {
   // the input's H x W (sys, E, flow, warped, fused: B items; m, out: K = B/2 items).
   std::map<std::string, HostTensor> run(const ModelInputs& in, const RunOptions& opt);
   // The same on inputs already in the backend, recorded without waiting: returns the outputs as
-  // new backend buffers (the caller downloads and releases them). Nothing is submitted unless the
-  // backend's memory forces it.
-  std::map<std::string, int> run_on_backend(const ModelBuffers& in, const RunOptions& opt);
+  // new backend buffers (the caller downloads them; they go with their handles). Nothing is
+  // submitted unless the backend's memory forces it. `handed_over`: buffers of the inputs the caller
+  // gives up, each the buffer of exactly one input: released once its last reader is recorded (ev2
+  // after the flow, ev3 after the fusion), which lowers the peak memory.
+  std::map<std::string, Buffer> run_on_backend(const ModelBuffers& in, const RunOptions& opt,
+                                               std::vector<Buffer> handed_over = {});
 
   // Batch items one chunk holds for inputs of this size (what run() uses when max_items = 0).
   int items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const;
@@ -104,9 +105,15 @@ class Model {
   // top, left >= 0: the input's offset in the padded input (RunOptions::unet_pad_top / left).
   void unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out, int top = -1,
             int left = -1);
-  int resblock(const std::string& p, int x);  // returns the output buffer; releases x
+  Buffer resblock(const std::string& p, Buffer x);  // returns the output buffer; releases x
 
-  void check_buffers(const ModelBuffers& in, const RunOptions& opt) const;
+  void check_buffers(const ModelBuffers& in, const RunOptions& opt, const std::vector<Buffer>& handed_over) const;
+  struct SubBatches;
+  SubBatches sub_batches(int64_t he, int64_t we, const RunOptions& opt) const;
+  // Batch items [c0, c0 + n) of run_on_backend: the stages, into `result`; the last chunk releases
+  // `handed_over` as its inputs' readers are recorded.
+  void run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::set<std::string>& want, int64_t c0, int64_t n,
+                 const SubBatches& sb, std::map<std::string, Buffer>& result, std::vector<Buffer>& handed_over);
   int64_t synthesis_item_bytes(int64_t h, int64_t w) const;
   int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w, int top = 0, int left = 0) const;
   int sub_items(int64_t item_bytes, uint64_t memory_budget) const;

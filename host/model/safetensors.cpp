@@ -184,6 +184,90 @@ std::vector<std::string> SafetensorsFile::names() const {
   return n;
 }
 
+namespace {
+
+// One tensor's header entry, checked against the data buffer's size.
+struct HeaderEntry {
+  std::string name;
+  StDType dtype;
+  std::vector<int64_t> shape;
+  uint64_t begin, end;
+};
+
+void parse_metadata(const std::string& where, const nlohmann::json& v, SafetensorsFile& file) {
+  if (!v.is_object()) throw Error(where + ": __metadata__ is a JSON " + json_type(v) + ", expected an object");
+  for (auto m = v.begin(); m != v.end(); ++m) {
+    if (!m.value().is_string())
+      throw Error(where + ": __metadata__ field '" + m.key() + "' is a JSON " + json_type(m.value()) + ", expected a string");
+    file.metadata[m.key()] = m.value().get<std::string>();
+  }
+}
+
+HeaderEntry parse_entry(const std::string& where, const std::string& name, const nlohmann::json& v, uint64_t buffer_size) {
+  const std::string tw = where + ": tensor '" + name + "'";
+  if (!v.is_object()) throw Error(tw + ": entry is a JSON " + json_type(v) + ", expected an object");
+  if (!v.contains("dtype") || !v["dtype"].is_string()) throw Error(tw + ": missing or non-string field 'dtype'");
+  if (!v.contains("shape") || !v["shape"].is_array()) throw Error(tw + ": missing or non-array field 'shape'");
+  if (!v.contains("data_offsets") || !v["data_offsets"].is_array() || v["data_offsets"].size() != 2)
+    throw Error(tw + ": field 'data_offsets' must be an array [begin, end]");
+  HeaderEntry e;
+  e.name = name;
+  try {
+    e.dtype = st_dtype_from_name(v["dtype"].get<std::string>());
+  } catch (const Error& err) {
+    throw Error(tw + ": " + err.what());
+  }
+  for (const auto& d : v["shape"]) {
+    if (!d.is_number_unsigned()) throw Error(tw + ": shape entries must be non-negative integers, got " + d.dump());
+    const uint64_t dv = d.get<uint64_t>();
+    if (dv > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) throw Error(tw + ": dimension too large");
+    e.shape.push_back(static_cast<int64_t>(dv));
+  }
+  for (int k = 0; k < 2; ++k)
+    if (!v["data_offsets"][k].is_number_unsigned())
+      throw Error(tw + ": data_offsets must be non-negative integers, got " + v["data_offsets"].dump());
+  e.begin = v["data_offsets"][0].get<uint64_t>();
+  e.end = v["data_offsets"][1].get<uint64_t>();
+  if (e.end < e.begin)
+    throw Error(tw + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] end before begin");
+  if (e.end > buffer_size)
+    throw Error(tw + ": data_offsets end " + std::to_string(e.end) + " is beyond the data buffer of " +
+                std::to_string(buffer_size) + " bytes (truncated file or lying header)");
+  uint64_t need;
+  try {
+    need = checked_mul(static_cast<uint64_t>(st_element_count(e.shape)), st_dtype_size(e.dtype), tw);
+  } catch (const Error& err) {
+    throw Error(tw + ": " + err.what());
+  }
+  if (e.end - e.begin != need)
+    throw Error(tw + ": data_offsets span " + std::to_string(e.end - e.begin) + " bytes, shape " +
+                nlohmann::json(e.shape).dump() + " of " + st_dtype_name(e.dtype) + " needs " + std::to_string(need));
+  return e;
+}
+
+// The tensors must tile the buffer: sorted by begin, each starts where the previous ended.
+void check_tiling(const std::string& where, std::vector<HeaderEntry>& entries, uint64_t buffer_size) {
+  std::sort(entries.begin(), entries.end(), [](const HeaderEntry& a, const HeaderEntry& b) {
+    return a.begin != b.begin ? a.begin < b.begin : a.end < b.end;
+  });
+  uint64_t cursor = 0;
+  for (size_t i = 0; i < entries.size(); ++i) {
+    const auto& e = entries[i];
+    if (e.begin < cursor)
+      throw Error(where + ": tensor '" + e.name + "' data [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
+                  ") overlaps tensor '" + entries[i - 1].name + "' (ends at " + std::to_string(cursor) + ")");
+    if (e.begin > cursor)
+      throw Error(where + ": " + std::to_string(e.begin - cursor) + " unclaimed bytes at offset " + std::to_string(cursor) +
+                  " before tensor '" + e.name + "' (hole in the data buffer)");
+    cursor = e.end;
+  }
+  if (cursor != buffer_size)
+    throw Error(where + ": data buffer has " + std::to_string(buffer_size) + " bytes but the tensors cover " +
+                std::to_string(cursor) + " (trailing bytes: corrupt or lying header)");
+}
+
+}  // namespace
+
 SafetensorsFile parse_safetensors(std::span<const uint8_t> bytes, const std::string& origin) {
   const std::string where = "safetensors '" + origin + "'";
   if (bytes.size() < 8)
@@ -206,84 +290,12 @@ SafetensorsFile parse_safetensors(std::span<const uint8_t> bytes, const std::str
   const uint64_t buffer_size = bytes.size() - 8 - hlen;
 
   SafetensorsFile file;
-  struct Entry {
-    std::string name;
-    StDType dtype;
-    std::vector<int64_t> shape;
-    uint64_t begin, end;
-  };
-  std::vector<Entry> entries;
+  std::vector<HeaderEntry> entries;
   for (auto it = h.begin(); it != h.end(); ++it) {
-    const std::string& name = it.key();
-    const auto& v = it.value();
-    if (name == "__metadata__") {
-      if (!v.is_object()) throw Error(where + ": __metadata__ is a JSON " + json_type(v) + ", expected an object");
-      for (auto m = v.begin(); m != v.end(); ++m) {
-        if (!m.value().is_string())
-          throw Error(where + ": __metadata__ field '" + m.key() + "' is a JSON " + json_type(m.value()) +
-                      ", expected a string");
-        file.metadata[m.key()] = m.value().get<std::string>();
-      }
-      continue;
-    }
-    const std::string tw = where + ": tensor '" + name + "'";
-    if (!v.is_object()) throw Error(tw + ": entry is a JSON " + json_type(v) + ", expected an object");
-    if (!v.contains("dtype") || !v["dtype"].is_string()) throw Error(tw + ": missing or non-string field 'dtype'");
-    if (!v.contains("shape") || !v["shape"].is_array()) throw Error(tw + ": missing or non-array field 'shape'");
-    if (!v.contains("data_offsets") || !v["data_offsets"].is_array() || v["data_offsets"].size() != 2)
-      throw Error(tw + ": field 'data_offsets' must be an array [begin, end]");
-    Entry e;
-    e.name = name;
-    try {
-      e.dtype = st_dtype_from_name(v["dtype"].get<std::string>());
-    } catch (const Error& err) {
-      throw Error(tw + ": " + err.what());
-    }
-    for (const auto& d : v["shape"]) {
-      if (!d.is_number_unsigned()) throw Error(tw + ": shape entries must be non-negative integers, got " + d.dump());
-      const uint64_t dv = d.get<uint64_t>();
-      if (dv > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) throw Error(tw + ": dimension too large");
-      e.shape.push_back(static_cast<int64_t>(dv));
-    }
-    for (int k = 0; k < 2; ++k)
-      if (!v["data_offsets"][k].is_number_unsigned())
-        throw Error(tw + ": data_offsets must be non-negative integers, got " + v["data_offsets"].dump());
-    e.begin = v["data_offsets"][0].get<uint64_t>();
-    e.end = v["data_offsets"][1].get<uint64_t>();
-    if (e.end < e.begin)
-      throw Error(tw + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] end before begin");
-    if (e.end > buffer_size)
-      throw Error(tw + ": data_offsets end " + std::to_string(e.end) + " is beyond the data buffer of " +
-                  std::to_string(buffer_size) + " bytes (truncated file or lying header)");
-    uint64_t need;
-    try {
-      need = checked_mul(static_cast<uint64_t>(st_element_count(e.shape)), st_dtype_size(e.dtype), tw);
-    } catch (const Error& err) {
-      throw Error(tw + ": " + err.what());
-    }
-    if (e.end - e.begin != need)
-      throw Error(tw + ": data_offsets span " + std::to_string(e.end - e.begin) + " bytes, shape " +
-                  nlohmann::json(e.shape).dump() + " of " + st_dtype_name(e.dtype) + " needs " + std::to_string(need));
-    entries.push_back(std::move(e));
+    if (it.key() == "__metadata__") parse_metadata(where, it.value(), file);
+    else entries.push_back(parse_entry(where, it.key(), it.value(), buffer_size));
   }
-  // The tensors must tile the buffer: sorted by begin, each starts where the previous ended.
-  std::sort(entries.begin(), entries.end(), [](const Entry& a, const Entry& b) {
-    return a.begin != b.begin ? a.begin < b.begin : a.end < b.end;
-  });
-  uint64_t cursor = 0;
-  for (size_t i = 0; i < entries.size(); ++i) {
-    const auto& e = entries[i];
-    if (e.begin < cursor)
-      throw Error(where + ": tensor '" + e.name + "' data [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
-                  ") overlaps tensor '" + entries[i - 1].name + "' (ends at " + std::to_string(cursor) + ")");
-    if (e.begin > cursor)
-      throw Error(where + ": " + std::to_string(e.begin - cursor) + " unclaimed bytes at offset " + std::to_string(cursor) +
-                  " before tensor '" + e.name + "' (hole in the data buffer)");
-    cursor = e.end;
-  }
-  if (cursor != buffer_size)
-    throw Error(where + ": data buffer has " + std::to_string(buffer_size) + " bytes but the tensors cover " +
-                std::to_string(cursor) + " (trailing bytes: corrupt or lying header)");
+  check_tiling(where, entries, buffer_size);
   for (auto& e : entries) {
     SafetensorsTensor t;
     t.name = e.name;

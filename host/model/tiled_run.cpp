@@ -17,10 +17,7 @@ namespace {
 
 bool per_target(const std::string& name) { return name == "m" || name == "out"; }
 
-BufferSlice item_of(Backend& b, int buf, int64_t i) {
-  const Shape s = b.shape(buf);
-  return {buf, i, 1, 0, s.c};
-}
+BufferSlice item_of(const Buffer& buf, int64_t i) { return buf.items(i, 1); }
 BufferSlice item_of(const BufferSlice& v, int64_t i) { return {v.buf, v.n0 + i, 1, v.c0, v.c}; }
 
 std::vector<double> summed_area(const std::vector<double>& plane, int64_t H, int64_t W) {
@@ -63,7 +60,7 @@ std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOpt
 
 // Inactive (tile, target): nothing moved there; the RS frame stands (E and flow 0, m 1).
 void fill_inactive(Backend& b, const ModelBuffers& in, const TilePlan& plan, const std::vector<std::vector<bool>>& active,
-                   const std::map<std::string, int>& outputs, int64_t per) {
+                   const std::map<std::string, Buffer>& outputs, int64_t per) {
   for (size_t t = 0; t < plan.tiles.size(); ++t)
     for (size_t k = 0; k < active[t].size(); ++k) {
       if (active[t][k]) continue;
@@ -71,7 +68,7 @@ void fill_inactive(Backend& b, const ModelBuffers& in, const TilePlan& plan, con
       for (const auto& [n, buf] : outputs) {
         const int64_t first = per_target(n) ? int64_t(k) : int64_t(k) * per, count = per_target(n) ? 1 : per;
         for (int64_t i = first; i < first + count; ++i) {
-          const BufferSlice dst = item_of(b, buf, i);
+          const BufferSlice dst = item_of(buf, i);
           if (n == "m") b.fill_rect(dst, r, 1.f);
           else if (n == "E" || n == "flow") b.fill_rect(dst, r, 0.f);
           else b.copy_rect(item_of(in.rs, per_target(n) ? int64_t(k) * per : i), dst, r, r.y, r.x);
@@ -151,7 +148,7 @@ struct TileIO {
   // Writes the input rect `r` of source item `item` into batch item `q` of `batch`.
   std::function<void(const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r)> cut;
   // Takes one batch's outputs (backend buffers) for the listed (batch item, target, tile) triples.
-  std::function<void(const std::map<std::string, int>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed)> stitch;
+  std::function<void(const std::map<std::string, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed)> stitch;
 };
 
 // The rects of `work`, grouped by input-rect shape, run in batches.
@@ -183,9 +180,10 @@ void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const
       const int64_t channels[5] = {3, ev, ev, ev, 3};
       const char* names[5] = {"tile rs", "tile ev1", "tile ev2", "tile ev3", "tile phys"};
       const int inputs = model.config().physics_input ? 5 : 4;
+      std::vector<Buffer> cut_buffers;
       for (int a = 0; a < inputs; ++a) {
-        const int buf = b.alloc({nb, channels[a], rh, rw}, names[a]);
-        *cut[a] = {buf, 0, nb, 0, channels[a]};
+        cut_buffers.push_back(b.alloc({nb, channels[a], rh, rw}, names[a]));
+        *cut[a] = cut_buffers.back().whole();
       }
       std::vector<std::pair<int64_t, const Tile*>> placed;
       for (size_t q = 0; q < nw; ++q) {
@@ -193,10 +191,9 @@ void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const
         for (int64_t j = 0; j < per; ++j) io.cut(tin, int64_t(q) * per + j, it.target * per + j, runs[it.run].input);
         placed.push_back({it.target, &runs[it.run]});
       }
-      const std::map<std::string, int> out = model.run_on_backend(tin, ro);
-      for (int a = 0; a < inputs; ++a) b.release(cut[a]->buf);
+      const std::map<std::string, Buffer> out = model.run_on_backend(tin, ro);
+      cut_buffers.clear();  // before the stitch: the host path's flush then frees them
       io.stitch(out, placed);
-      for (const auto& [n, buf] : out) b.release(buf);
     }
   }
 }
@@ -315,14 +312,14 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
     const BufferSlice* cut[5] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3, &batch.phys};
     for (int a = 0; a < inputs; ++a) b.crop(item_of(*full[a], item), item_of(*cut[a], q), int(r.y), int(r.x));
   };
-  io.stitch = [&](const std::map<std::string, int>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
+  io.stitch = [&](const std::map<std::string, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
     for (size_t q = 0; q < placed.size(); ++q) {
       const auto [target, t] = placed[q];
       const Rect src{t->interior.y - t->input.y, t->interior.x - t->input.x, t->interior.h, t->interior.w};
       for (const auto& [n, buf] : out) {
         const int64_t count = per_target(n) ? 1 : p.per;
         for (int64_t j = 0; j < count; ++j)
-          b.copy_rect(item_of(b, buf, int64_t(q) * count + j), item_of(b, res.outputs.at(n), target * count + j), src,
+          b.copy_rect(item_of(buf, int64_t(q) * count + j), item_of(res.outputs.at(n), target * count + j), src,
                       t->interior.y, t->interior.x);
       }
     }
@@ -380,11 +377,11 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
       b.upload(item_of(*cut[a], q), crop.data);
     }
   };
-  io.stitch = [&](const std::map<std::string, int>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
+  io.stitch = [&](const std::map<std::string, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
     std::map<std::string, HostTensor> host;
     for (const auto& [n, buf] : out) {
-      host[n] = HostTensor(b.shape(buf));
-      b.download({buf, 0, host[n].shape.n, 0, host[n].shape.c}, host[n].data);
+      host[n] = HostTensor(buf.shape());
+      b.download(buf.whole(), host[n].data);
     }
     b.flush();
     for (size_t q = 0; q < placed.size(); ++q) {

@@ -115,7 +115,7 @@ struct TiledResult : TileStats {
   std::map<std::string, HostTensor> outputs;  // as Model::run: full H x W
 };
 struct TiledBuffers : TileStats {
-  std::map<std::string, int> outputs;  // backend buffers [B or K, c, H, W]; the caller releases them
+  std::map<std::string, Buffer> outputs;  // backend buffers [B or K, c, H, W], held by the caller
 };
 
 // Per batch item, the summed-area table ((H + 1) x (W + 1)) of the events ev1 and ev2 select at

@@ -261,56 +261,54 @@ const WeightTensor& Weights::get(const std::string& name) const {
   return it->second;
 }
 
-Weights weights_from_safetensors(const SafetensorsFile& file, const std::string& origin) {
-  std::map<std::string, TensorShape> shapes;
-  for (const auto& t : file.tensors) shapes[t.name] = t.shape;
-  Weights w;
-  const auto& md = file.metadata;
-  try {
-    w.config = infer_config(shapes);
-  } catch (const Error& e) {
-    throw Error(origin + ": " + e.what());
+namespace {
+
+using Metadata = std::map<std::string, std::string>;
+
+// The configuration the metadata states (authoritative for what shapes cannot tell), checked
+// against the one the shapes imply.
+ModelConfig config_from_metadata(const Metadata& md, const std::map<std::string, TensorShape>& shapes, const ModelConfig& inferred,
+                                 const std::string& origin) {
+  ModelConfig m;
+  m.D = to_int(md, "D", m.D, origin);
+  m.C = to_int(md, "C", m.C, origin);
+  m.G = to_int(md, "G", m.G, origin);
+  m.G0 = to_int(md, "G0", m.G0, origin);
+  m.N = to_int(md, "N", m.N, origin);
+  m.upnet_width = to_int(md, "upnet_width", m.upnet_width, origin);
+  for (auto [name, u] : {std::pair{"flownet", &m.flownet}, {"fusion_net", &m.fusion_net}, {"attfusion_net", &m.attfusion_net}}) {
+    u->base = to_int(md, std::string(name) + ".base", u->base, origin);
+    u->depth = to_int(md, std::string(name) + ".depth", u->depth, origin);
   }
-  if (md.count("D") || md.count("G0")) {
-    // The metadata is authoritative for what shapes cannot tell; it must agree with the shapes.
-    ModelConfig m;
-    m.D = to_int(md, "D", m.D, origin);
-    m.C = to_int(md, "C", m.C, origin);
-    m.G = to_int(md, "G", m.G, origin);
-    m.G0 = to_int(md, "G0", m.G0, origin);
-    m.N = to_int(md, "N", m.N, origin);
-    m.upnet_width = to_int(md, "upnet_width", m.upnet_width, origin);
-    for (auto [name, u] : {std::pair{"flownet", &m.flownet}, {"fusion_net", &m.fusion_net}, {"attfusion_net", &m.attfusion_net}}) {
-      u->base = to_int(md, std::string(name) + ".base", u->base, origin);
-      u->depth = to_int(md, std::string(name) + ".depth", u->depth, origin);
-    }
-    m.moa = md.count("moa") ? md.at("moa") == "true" : w.config.moa;
-    m.physics_input = w.config.physics_input;
-    if (md.count("physics_input")) {
-      const std::string& v = md.at("physics_input");
-      if (v != "true" && v != "false")
-        throw Error(origin + ": metadata 'physics_input' = '" + v + "' (expected true or false)");
-      if ((v == "true") != w.config.physics_input)
-        throw Error(origin + ": metadata says physics_input=" + v + " but SFENet1.weight has " +
-                    std::to_string(shapes.at("SFENet1.weight")[1]) + " input channels (" +
-                    (w.config.physics_input ? "the physics-informed variant's" : "the family's") + ")");
-    }
-    if (md.count("moa") && md.at("moa") != "true" && md.at("moa") != "false")
-      throw Error(origin + ": metadata 'moa' = '" + md.at("moa") + "' (expected true or false)");
-    if (!m.same_shapes(w.config)) {
-      if (m.moa && !w.config.moa)
-        throw Error(origin + ": metadata says moa=true but the file has no attfusion_net tensors (missing key "
-                    "'attfusion_net.head.weight')");
-      throw Error(origin + ": the metadata configuration (" + m.summary() + ") disagrees with the tensor shapes (" +
-                  w.config.summary() + ")");
-    }
-    w.config = m;
+  m.moa = md.count("moa") ? md.at("moa") == "true" : inferred.moa;
+  m.physics_input = inferred.physics_input;
+  if (md.count("physics_input")) {
+    const std::string& v = md.at("physics_input");
+    if (v != "true" && v != "false") throw Error(origin + ": metadata 'physics_input' = '" + v + "' (expected true or false)");
+    if ((v == "true") != inferred.physics_input)
+      throw Error(origin + ": metadata says physics_input=" + v + " but SFENet1.weight has " +
+                  std::to_string(shapes.at("SFENet1.weight")[1]) + " input channels (" +
+                  (inferred.physics_input ? "the physics-informed variant's" : "the family's") + ")");
   }
-  w.config.rdb_slope = to_float(md, "rdb_slope", w.config.rdb_slope, origin);
-  w.config.unet_slope = to_float(md, "unet_slope", w.config.unet_slope, origin);
-  if (md.count("channel_order")) w.config.channel_order = md.at("channel_order");
-  if (md.count("description")) w.config.description = md.at("description");
-  if (md.count("physics_contrast")) w.config.physics_contrast = md.at("physics_contrast");
+  if (md.count("moa") && md.at("moa") != "true" && md.at("moa") != "false")
+    throw Error(origin + ": metadata 'moa' = '" + md.at("moa") + "' (expected true or false)");
+  if (!m.same_shapes(inferred)) {
+    if (m.moa && !inferred.moa)
+      throw Error(origin + ": metadata says moa=true but the file has no attfusion_net tensors (missing key "
+                  "'attfusion_net.head.weight')");
+    throw Error(origin + ": the metadata configuration (" + m.summary() + ") disagrees with the tensor shapes (" +
+                inferred.summary() + ")");
+  }
+  return m;
+}
+
+// What only the metadata tells: slopes, channel order, description, the variant's gate and gamma.
+void apply_metadata_settings(const Metadata& md, ModelConfig& config, const std::string& origin) {
+  config.rdb_slope = to_float(md, "rdb_slope", config.rdb_slope, origin);
+  config.unet_slope = to_float(md, "unet_slope", config.unet_slope, origin);
+  if (md.count("channel_order")) config.channel_order = md.at("channel_order");
+  if (md.count("description")) config.description = md.at("description");
+  if (md.count("physics_contrast")) config.physics_contrast = md.at("physics_contrast");
   if (md.count("physics_gate")) {
     const std::string& g = md.at("physics_gate");
     char* end = nullptr;
@@ -318,21 +316,19 @@ Weights weights_from_safetensors(const SafetensorsFile& file, const std::string&
     if (end == g.c_str() || *end || v < -1 || v > kMaxPhysicsGate)
       throw Error(origin + ": metadata 'physics_gate' = '" + g + "' (expected an integer radius 0.." +
                   std::to_string(kMaxPhysicsGate) + ", or -1 for no gate)");
-    w.config.physics_gate = static_cast<int>(v);
+    config.physics_gate = static_cast<int>(v);
   }
   if (md.count("gamma")) {
     const std::string& g = md.at("gamma");
     char* end = nullptr;
     const double v = std::strtod(g.c_str(), &end);
     if (end == g.c_str() || *end) throw Error(origin + ": metadata 'gamma' = '" + g + "' (expected a positive number)");
-    w.config.gamma = v;
+    config.gamma = v;
   }
-  try {
-    w.config.validate();
-  } catch (const Error& e) {
-    throw Error(origin + ": " + e.what());
-  }
+}
 
+// Exactly the configuration's tensors, each of its shape, a float dtype and finite values.
+void load_expected_tensors(const SafetensorsFile& file, Weights& w, const std::string& origin) {
   const auto expected = expected_tensors(w.config);
   std::set<std::string> expected_names;
   for (const auto& [name, shape] : expected) expected_names.insert(name);
@@ -359,6 +355,28 @@ Weights weights_from_safetensors(const SafetensorsFile& file, const std::string&
       if (!std::isfinite(v)) throw Error(origin + ": tensor '" + name + "' holds a non-finite value");
     w.tensors.emplace(name, std::move(wt));
   }
+}
+
+}  // namespace
+
+Weights weights_from_safetensors(const SafetensorsFile& file, const std::string& origin) {
+  std::map<std::string, TensorShape> shapes;
+  for (const auto& t : file.tensors) shapes[t.name] = t.shape;
+  Weights w;
+  const auto& md = file.metadata;
+  try {
+    w.config = infer_config(shapes);
+  } catch (const Error& e) {
+    throw Error(origin + ": " + e.what());
+  }
+  if (md.count("D") || md.count("G0")) w.config = config_from_metadata(md, shapes, w.config, origin);
+  apply_metadata_settings(md, w.config, origin);
+  try {
+    w.config.validate();
+  } catch (const Error& e) {
+    throw Error(origin + ": " + e.what());
+  }
+  load_expected_tensors(file, w, origin);
   if (!w.config.moa) w.notes.push_back("no attfusion_net (MOA) weights: SelfUnroll-S only");
   return w;
 }

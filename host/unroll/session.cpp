@@ -23,11 +23,6 @@ RunOptions group_run_options(bool m) {
   return ro;
 }
 
-BufferSlice whole(Backend& b, int buf) {
-  const Shape s = b.shape(buf);
-  return {buf, 0, s.n, 0, s.c};
-}
-
 }  // namespace
 
 const char* frame_method_name(FrameTarget::Method m) {
@@ -131,12 +126,12 @@ UnrollSession::FramePlanes UnrollSession::upload_frame(const FrameInput& in, boo
   const int H = in.rs1.rows, W = in.rs1.cols;
   fp.rs1 = image_planes(in.rs1, fp.rgb);
   fp.rs1_buf = backend_->alloc({1, 3, H, W}, "rs1");
-  backend_->upload(whole(*backend_, fp.rs1_buf), fp.rs1);
+  backend_->upload(fp.rs1_buf.whole(), fp.rs1);
   stats_.image_uploads++;
   if (with_next) {
     fp.rs2 = image_planes(in.rs2, fp.rgb);
     fp.rs2_buf = backend_->alloc({1, 3, H, W}, "rs2");
-    backend_->upload(whole(*backend_, fp.rs2_buf), fp.rs2);
+    backend_->upload(fp.rs2_buf.whole(), fp.rs2);
     stats_.image_uploads++;
   }
   stats_.ms["transfer"] += ms_since(t0);
@@ -166,18 +161,10 @@ std::vector<cv::Mat> UnrollSession::unroll(const FrameInput& in, const std::vect
   std::vector<cv::Mat> results(targets.size());
   stats_.frames_unrolled++;
   if (targets.empty()) return results;
-  FramePlanes fp = upload_frame(in, !groups[1].empty());
-  try {
-    if (!groups[2].empty()) run_physics(in, fp, targets, groups[2], results);
-    if (!groups[0].empty()) run_model(in, fp, targets, groups[0], false, results);
-    if (!groups[1].empty()) run_model(in, fp, targets, groups[1], true, results);
-  } catch (...) {
-    backend_->release(fp.rs1_buf);
-    if (fp.rs2_buf >= 0) backend_->release(fp.rs2_buf);
-    throw;
-  }
-  backend_->release(fp.rs1_buf);
-  if (fp.rs2_buf >= 0) backend_->release(fp.rs2_buf);
+  const FramePlanes fp = upload_frame(in, !groups[1].empty());  // its buffers go with it, also on an error
+  if (!groups[2].empty()) run_physics(in, fp, targets, groups[2], results);
+  if (!groups[0].empty()) run_model(in, fp, targets, groups[0], false, results);
+  if (!groups[1].empty()) run_model(in, fp, targets, groups[1], true, results);
   return results;
 }
 
@@ -188,8 +175,8 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
   auto t0 = Clock::now();
   const std::vector<float>& rs = fp.rs1;
   const auto starts = in.timing1.start_times_us(), ends = in.timing1.end_times_us();
-  const int rs_buf = fp.rs1_buf;
-  std::vector<std::pair<size_t, int>> on_device;  // (target, output buffer)
+  const int rs_buf = fp.rs1_buf.id();
+  std::vector<std::pair<size_t, Buffer>> on_device;  // (target, output buffer)
   for (size_t j : which) {
     const PixelEventLists lists = gather_pixel_events(*in.events, targets[j].t_us.to_double(), starts, ends, 0, 0, W, H);
     check_physics_image(rs, 3, lists);
@@ -200,44 +187,43 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
       stats_.physics_on_cpu++;
       continue;
     }
-    const int out = b.alloc({1, 3, H, W}, "physics");
-    b.physics_unroll(rs_buf, lists, physics_, out);
-    on_device.push_back({j, out});
+    Buffer out = b.alloc({1, 3, H, W}, "physics");
+    b.physics_unroll(rs_buf, lists, physics_, out.id());
+    on_device.emplace_back(j, std::move(out));
   }
   stats_.ms["physics"] += ms_since(t0);
   t0 = Clock::now();
   std::vector<std::vector<float>> planes(on_device.size(), std::vector<float>(size_t(3) * H * W));
-  for (size_t q = 0; q < on_device.size(); ++q) b.download(whole(b, on_device[q].second), planes[q]);
+  for (size_t q = 0; q < on_device.size(); ++q) b.download(on_device[q].second.whole(), planes[q]);
   b.flush();
   for (size_t q = 0; q < on_device.size(); ++q) {
     results[on_device[q].first] = planes_image(planes[q].data(), H, W, fp.rgb);
-    b.release(on_device[q].second);
+    on_device[q].second.reset();
   }
   stats_.ms["transfer"] += ms_since(t0);
   stats_.runs_physics += which.size();
 }
 
-int UnrollSession::physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs) {
-  const int rs1 = fp.rs1_buf, rs2 = fp.rs2_buf;
+Buffer UnrollSession::physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs) {
+  const int rs1 = fp.rs1_buf.id(), rs2 = fp.rs2_buf.id();  // rs2 -1: none
   Backend& b = *backend_;
   const int H = in.rs1.rows, W = in.rs1.cols;
   const int64_t B = static_cast<int64_t>(pairs.size());
-  const int phys = b.alloc({B, 3, H, W}, "phys");
+  Buffer phys = b.alloc({B, 3, H, W}, "phys");
   for (int64_t i = 0; i < B; ++i) {
     const bool second = rs2 >= 0 && i % 2 == 1;  // M: items 2k + 1 are the next frame
     const RowTiming& t = second ? in.timing2 : in.timing1;
     const PixelEventLists lists = gather_pixel_events(*in.events, pairs[size_t(i)].target_us.to_double(), t.start_times_us(),
                                                       t.end_times_us(), 0, 0, W, H);
-    const BufferSlice dst{phys, i, 1, 0, 3};
+    const BufferSlice dst = phys.items(i, 1);
     if (!PhysicsUnroll::fits(lists)) {  // beyond the GPU kernel's per-pixel event limit
       b.upload(dst, physics_unroll_ref(second ? fp.rs2 : fp.rs1, 3, lists, physics_));
       stats_.physics_on_cpu++;
       continue;
     }
-    const int out = b.alloc({1, 3, H, W}, "phys item");
-    b.physics_unroll(second ? rs2 : rs1, lists, physics_, out);
-    b.copy(whole(b, out), dst);
-    b.release(out);
+    const Buffer out = b.alloc({1, 3, H, W}, "phys item");
+    b.physics_unroll(second ? rs2 : rs1, lists, physics_, out.id());
+    b.copy(out.whole(), dst);
   }
   return phys;
 }
@@ -259,11 +245,12 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
   const int64_t B = static_cast<int64_t>(which.size()) * per;
   auto t0 = Clock::now();
   // The RS frame(s), uploaded once per frame, repeated on the device for every target of the batch.
-  const int rs1 = fp.rs1_buf, rs2 = fp.rs2_buf;
-  int rs = rs1;
+  int rs = fp.rs1_buf.id();
+  Buffer rs_batch;
   if (B > 1) {
-    rs = b.alloc({B, 3, H, W}, "rs batch");
-    for (int64_t i = 0; i < B; ++i) b.copy(whole(b, (m && i % 2) ? rs2 : rs1), {rs, i, 1, 0, 3});
+    rs_batch = b.alloc({B, 3, H, W}, "rs batch");
+    rs = rs_batch.id();
+    for (int64_t i = 0; i < B; ++i) b.copy(((m && i % 2) ? fp.rs2_buf : fp.rs1_buf).whole(), rs_batch.items(i, 1));
   }
   std::vector<EventTensorPair> pairs;
   for (size_t j : which) {
@@ -274,11 +261,13 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
   spec.bins = model_->config().N;
   stats_.ms["transfer"] += ms_since(t0);
   t0 = Clock::now();
-  const int ev = b.event_tensors(*in.events, pairs, spec);
-  const int64_t C = 2 * spec.bins;
-  ModelBuffers inputs{{rs, 0, B, 0, 3}, {ev, 0, B, 0, C}, {ev, B, B, 0, C}, {ev, 2 * B, B, 0, C}};
-  const bool variant = model_->config().physics_input;
-  if (variant) inputs.phys = {physics_input(in, fp, pairs), 0, B, 0, 3};
+  const Buffer ev = b.event_tensors(*in.events, pairs, spec);
+  ModelBuffers inputs{{rs, 0, B, 0, 3}, ev.items(0, B), ev.items(B, B), ev.items(2 * B, B)};
+  Buffer phys;
+  if (model_->config().physics_input) {
+    phys = physics_input(in, fp, pairs);
+    inputs.phys = phys.whole();
+  }
   ActivityTables activity;
   if (tiling_.sparse != SparsePolicy::off) activity = activity_tables(selected_event_counts(*in.events, pairs, spec), H, W);
   stats_.ms["event_tensors"] += ms_since(t0);
@@ -288,16 +277,11 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
   const TiledBuffers run = run_tiled_on_backend(*model_, inputs, ro, tiling_, &activity);
   stats_.ms["model"] += ms_since(t0);
   t0 = Clock::now();
-  const int out = run.outputs.at(name);
   std::vector<float> planes(static_cast<size_t>(which.size()) * 3 * H * W);
-  b.download(whole(b, out), planes);
+  b.download(run.outputs.at(name).whole(), planes);
   b.flush();
   for (size_t q = 0; q < which.size(); ++q)
     results[which[q]] = planes_image(planes.data() + q * 3 * H * W, H, W, rgb_);
-  b.release(out);
-  b.release(ev);
-  if (variant) b.release(inputs.phys.buf);
-  if (rs != rs1) b.release(rs);
   stats_.ms["transfer"] += ms_since(t0);
   add_tile_stats(run, which.size(), H, W);
   (m ? stats_.runs_m : stats_.runs_s) += which.size();

@@ -113,7 +113,7 @@ class UnrollSession {
   // model), converted once and uploaded once for every target group of the frame.
   struct FramePlanes {
     std::vector<float> rs1, rs2;  // host planes [3, H, W]; rs2 empty without M targets
-    int rs1_buf = -1, rs2_buf = -1;
+    Buffer rs1_buf, rs2_buf;  // rs2_buf empty without M targets
     bool rgb = false;
   };
   FramePlanes upload_frame(const FrameInput& in, bool with_next);
@@ -126,7 +126,7 @@ class UnrollSession {
   void add_tile_stats(const TileStats& run, size_t targets, int H, int W);
   // The physics-informed variant's input: [B, 3, H, W] physics estimates of the batch's (frame,
   // target) pairs, computed on the device from the uploaded frames (model order).
-  int physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs);
+  Buffer physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs);
 
   SessionOptions options_;
   std::unique_ptr<Context> ctx_;

@@ -9,11 +9,6 @@ namespace vkunroll::python {
 
 namespace {
 
-BufferSlice whole(Backend& b, int buf) {
-  const Shape s = b.shape(buf);
-  return {buf, 0, s.n, 0, s.c};
-}
-
 // [C, H, W] float planes of the physics unroller on the context's device, or on the CPU reference
 // (ctx null, or a pixel beyond the GPU kernel's per-pixel event limit).
 std::vector<float> physics_planes(SharedContext* ctx, const std::vector<float>& rs, int channels, const PixelEventLists& lists,
@@ -24,14 +19,12 @@ std::vector<float> physics_planes(SharedContext* ctx, const std::vector<float>& 
   std::lock_guard<std::mutex> lock(ctx->mutex);
   VulkanBackend& b = ctx->backend();
   const Shape shape{1, channels, lists.height, lists.width};
-  const int in = b.alloc(shape, "physics rs"), out = b.alloc(shape, "physics out");
-  b.upload(whole(b, in), rs);
-  b.physics_unroll(in, lists, prm, out);
+  const Buffer in = b.alloc(shape, "physics rs"), out = b.alloc(shape, "physics out");
+  b.upload(in.whole(), rs);
+  b.physics_unroll(in.id(), lists, prm, out.id());
   std::vector<float> result(rs.size());
-  b.download(whole(b, out), result);
+  b.download(out.whole(), result);
   b.flush();
-  b.release(in);
-  b.release(out);
   return result;
 }
 
