@@ -232,6 +232,22 @@ class EventSink {
   double probe_first_ = 0, probe_last_ = 0;
 };
 
+// Where a packet reader (AEDAT 3.1, AEDAT 4) starts: a resumed read's checkpoint (offset, record),
+// else `start` and record 0.
+inline uint64_t packet_start(EventSink& sink, uint64_t start, uint64_t& record) {
+  record = 0;
+  const Checkpoint* c = sink.resume_point();
+  if (!c) return start;
+  record = c->record;
+  sink.resume(*c);
+  return c->offset;
+}
+inline Checkpoint packet_checkpoint(uint64_t offset, uint64_t record) {
+  Checkpoint c;
+  c.offset = offset, c.record = record;
+  return c;
+}
+
 // Time unit name -> microseconds per unit as a power of ten exponent: s 6, ms 3, us 0, ns -3.
 int time_unit_exponent(const std::string& unit, const std::string& what);
 

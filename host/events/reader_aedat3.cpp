@@ -200,16 +200,9 @@ void read_aedat3(ByteSource& src, EventSink& sink) {
   sink.note("AEDAT 3.1 packets start at byte " + std::to_string(h.data_offset) +
             (h.source >= 0 ? "; polarity events of source " + std::to_string(h.source) + " are read"
                            : "; no '#Source' line: polarity events of every source are read"));
-  uint64_t off = h.data_offset, record = 0;
-  if (const Checkpoint* c = sink.resume_point()) {
-    off = c->offset, record = c->record;
-    sink.resume(*c);
-  }
-  auto checkpoint = [&](uint64_t offset) {
-    Checkpoint c;
-    c.offset = offset, c.record = record;
-    return c;
-  };
+  uint64_t record = 0;
+  uint64_t off = packet_start(sink, h.data_offset, record);
+  auto checkpoint = [&](uint64_t offset) { return packet_checkpoint(offset, record); };
   uint64_t next = off;  // a checkpoint at the first packet, then every ~32 KiB of packets
   std::vector<uint8_t> buf;
   const uint64_t size = src.size();

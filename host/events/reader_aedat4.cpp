@@ -317,16 +317,9 @@ void read_aedat4(ByteSource& src, EventSink& sink) {
   std::map<int64_t, TableEntry> table;
   if ((o.t_begin_us || o.t_end_us) && o.on_bad != BadEventPolicy::sort && !sink.indexing())
     table = read_data_table(src, sink, h);
-  uint64_t off = h.data_begin, record = 0;
-  if (const Checkpoint* c = sink.resume_point()) {
-    off = c->offset, record = c->record;
-    sink.resume(*c);
-  }
-  auto checkpoint = [&](uint64_t offset) {
-    Checkpoint c;
-    c.offset = offset, c.record = record;
-    return c;
-  };
+  uint64_t record = 0;
+  uint64_t off = packet_start(sink, h.data_begin, record);
+  auto checkpoint = [&](uint64_t offset) { return packet_checkpoint(offset, record); };
   uint64_t next = off;  // a checkpoint at the first packet, then every ~32 KiB of packets
   std::vector<uint8_t> in, out;
   while (off < h.data_end && !sink.done()) {
