@@ -3,6 +3,7 @@
 #include "vkunroll/host/events/event_reader.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -51,6 +52,24 @@ std::vector<uint8_t> read_range(ByteSource& src, uint64_t offset, size_t n) {
   std::vector<uint8_t> buf(n);
   buf.resize(src.read_at(offset, buf.data(), n));
   return buf;
+}
+
+bool sensor_size_from_device_name(const std::string& name, int& w, int& h) {
+  std::string n;
+  for (char c : name)
+    if (std::isalnum(static_cast<unsigned char>(c))) n += char(std::tolower(static_cast<unsigned char>(c)));
+  static const struct {
+    const char* key;
+    int w, h;
+  } kChips[] = {{"davis346", 346, 260}, {"davi346", 346, 260}, {"davis240", 240, 180}, {"davis640", 640, 480},
+                {"davis128", 128, 128}, {"davis208", 208, 192}, {"dvs128", 128, 128},   {"dvxplorerlite", 320, 240},
+                {"dvxplorer", 640, 480}};
+  for (const auto& c : kChips)
+    if (n.find(c.key) != std::string::npos) {
+      w = c.w, h = c.h;
+      return true;
+    }
+  return false;
 }
 
 int time_unit_exponent(const std::string& unit, const std::string& what) {

@@ -248,6 +248,10 @@ inline Checkpoint packet_checkpoint(uint64_t offset, uint64_t record) {
   return c;
 }
 
+// The sensor size of an iniVation camera named in a header line (jAER's AEChip / HardwareInterface,
+// libcaer's '#Source N: DAVIS346B'): letters and digits, any case; false for a name it does not know.
+bool sensor_size_from_device_name(const std::string& name, int& w, int& h);
+
 // Time unit name -> microseconds per unit as a power of ten exponent: s 6, ms 3, us 0, ns -3.
 int time_unit_exponent(const std::string& unit, const std::string& what);
 

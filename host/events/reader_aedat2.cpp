@@ -27,24 +27,6 @@ struct Aedat2Header {
   std::string chip;  // the header line that named the chip
 };
 
-// The DAVIS chips jAER writes, by the class or device name in an AEChip/HardwareInterface line.
-bool davis_size(const std::string& line, int& w, int& h) {
-  std::string n;
-  for (char c : line)
-    if (std::isalnum(static_cast<unsigned char>(c))) n += char(std::tolower(static_cast<unsigned char>(c)));
-  static const struct {
-    const char* key;
-    int w, h;
-  } kChips[] = {{"davis346", 346, 260}, {"davi346", 346, 260}, {"davis240", 240, 180}, {"davis640", 640, 480},
-                {"davis128", 128, 128}, {"davis208", 208, 192}};
-  for (const auto& c : kChips)
-    if (n.find(c.key) != std::string::npos) {
-      w = c.w, h = c.h;
-      return true;
-    }
-  return false;
-}
-
 Aedat2Header parse_aedat2_header(ByteSource& src) {
   Aedat2Header h;
   const auto magic = read_range(src, 0, 12);
@@ -73,7 +55,7 @@ Aedat2Header parse_aedat2_header(ByteSource& src) {
         throw Error(src.name() + ": AEDAT 2.0 header line '" + line +
                     "' names a DVS128, whose 16-bit address layout is not read (only jAER's DAVIS layout is)");
       int w = 0, hh = 0;
-      if ((h.width == 0 || low.find("aechip:") != std::string::npos) && davis_size(line, w, hh))
+      if ((h.width == 0 || low.find("aechip:") != std::string::npos) && sensor_size_from_device_name(line, w, hh))
         h.width = w, h.height = hh, h.chip = line;
     }
     if (low.rfind("# end of ascii header", 0) == 0) break;

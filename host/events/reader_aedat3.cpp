@@ -29,24 +29,6 @@ struct Aedat3Header {
   int width = 0, height = 0;
 };
 
-// Sensor size from a libcaer device name ('#Source 1: DAVIS346B').
-bool caer_size(const std::string& name, int& w, int& h) {
-  std::string n;
-  for (char c : name)
-    if (std::isalnum(static_cast<unsigned char>(c))) n += char(std::tolower(static_cast<unsigned char>(c)));
-  static const struct {
-    const char* key;
-    int w, h;
-  } kChips[] = {{"davis346", 346, 260}, {"davis240", 240, 180}, {"davis640", 640, 480}, {"davis128", 128, 128},
-                {"davis208", 208, 192}, {"dvs128", 128, 128},   {"dvxplorerlite", 320, 240}, {"dvxplorer", 640, 480}};
-  for (const auto& c : kChips)
-    if (n.find(c.key) != std::string::npos) {
-      w = c.w, h = c.h;
-      return true;
-    }
-  return false;
-}
-
 Aedat3Header parse_aedat3_header(ByteSource& src) {
   const std::string& file = src.name();
   const auto magic = read_range(src, 0, 12);
@@ -80,7 +62,7 @@ Aedat3Header parse_aedat3_header(ByteSource& src) {
       h.source = id;
       const size_t v = line.find_first_not_of(' ', colon + 1);
       h.source_name = v == std::string::npos ? "" : line.substr(v);
-      caer_size(h.source_name, h.width, h.height);
+      sensor_size_from_device_name(h.source_name, h.width, h.height);
     }
   }
   h.data_offset = off;
