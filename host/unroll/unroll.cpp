@@ -100,15 +100,6 @@ nlohmann::json thread_report(const UnrollOptions& o) {
 
 }  // namespace
 
-ContrastEstimate estimate_contrast(const Sequence& seq, const std::vector<int>& frames, double gamma) {
-  std::vector<RowTiming> timings;
-  for (const SequenceFrame& f : seq.frames) timings.push_back(f.timing);
-  return estimate_contrast(
-      timings, frames, gamma, seq.width, seq.height,
-      [&](int k) { return read_frame_image(seq.frames[k].image, seq.width, seq.height); },
-      [&](double lo, double hi) { return read_window(seq, lo, hi); });
-}
-
 namespace {
 
 // summary.json beyond the frames and outputs (UnrollOutput::finish adds those): the job's report,

@@ -124,12 +124,12 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
   }
   const std::vector<FrameTarget> methods = methods_for(k, todo);
   auto t_read = Clock::now();
-  // A copy of the cache entry's header: the entry may leave the cache below, the pixels stay shared.
-  DecodedFrame rs1 = decoded(k);
+  DecodedFrame& f1 = decoded(k);
+  const cv::Mat rs_input = f1.image;  // the header outlives the cache entry erased below (the pixels are shared)
   std::vector<cv::Mat> results;
   if (!todo.empty()) {
     FrameInput in;
-    in.rs1 = model_encoded(decoded(k));
+    in.rs1 = model_encoded(f1);
     in.timing1 = layout.frames[size_t(k)].timing;
     const bool any_m = std::any_of(methods.begin(), methods.end(), is_m);
     const SequenceFrame* f2 = any_m ? &layout.frames[size_t(k) + 1] : nullptr;
@@ -144,8 +144,7 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
     if (ev.empty()) counters_.frames_without_events.push_back(k);
     results = in_device_stage("frame " + std::to_string(k) + ", unrolling " + std::to_string(methods.size()) + " target(s)",
                               [&] { return session_.unroll(in, methods); });
-    for (size_t j = 0; j < results.size(); ++j)
-      if (methods[j].method != FrameTarget::Method::physics) results[j] = encode_for_model(results[j], 1.0 / physics_.to_model);
+    decode_model_results(results, methods, physics_.to_model);
   } else {
     stage_ms_["read"] += ms_since(t_read);
   }
@@ -157,7 +156,7 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
     GsResult r;
     r.frame = k;
     r.target = &ts[j];
-    r.rs_input = rs1.image;
+    r.rs_input = rs_input;
     r.reused = reused[j].has_value();
     if (ts[j].gt >= 0) r.ground_truth = source_.decode_ground_truth(ts[j].gt), counters_.ground_truth_decodes++;
     if (r.reused) {

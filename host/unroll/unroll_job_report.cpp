@@ -30,6 +30,23 @@ nlohmann::json tiling_json(const UnrollOptions& o, const TileOptions& tiling, co
   return j;
 }
 
+// The session's counters since the job began: a Python session serves many jobs. The tile
+// shape of the last run (tile_used, tiles_per_target) is the session's as it is.
+SessionStats since(const SessionStats& now, const SessionStats& before) {
+  SessionStats d = now;
+  d.runs_s -= before.runs_s, d.runs_m -= before.runs_m, d.runs_physics -= before.runs_physics;
+  d.physics_on_cpu -= before.physics_on_cpu, d.host_path_targets -= before.host_path_targets;
+  d.frames_unrolled -= before.frames_unrolled, d.image_uploads -= before.image_uploads;
+  d.tiles -= before.tiles, d.tiles_run -= before.tiles_run, d.work_pixels -= before.work_pixels;
+  d.target_active_fraction.erase(d.target_active_fraction.begin(),
+                                 d.target_active_fraction.begin() + long(before.target_active_fraction.size()));
+  for (auto& [name, ms] : d.ms) {
+    const auto b = before.ms.find(name);
+    if (b != before.ms.end()) ms -= b->second;
+  }
+  return d;
+}
+
 std::string joined(const std::vector<std::string>& items) {
   std::string s;
   for (const auto& i : items) s += (s.empty() ? "" : ", ") + i;
@@ -70,16 +87,14 @@ nlohmann::json UnrollJob::events_report(std::vector<std::string>& warnings) cons
 }
 
 nlohmann::json UnrollJob::report(double total_ms) const {
-  const SessionStats& st = session_.stats();
+  const SessionStats st = since(session_.stats(), stats_before_);
   const size_t n = total_targets_;
   nlohmann::json r;
   r["mode"] = unroll_mode_name(mode_);
   r["frames"] = frames_.size();
   r["targets"] = n;
-  r["runs"] = {{"s", st.runs_s - stats_before_.runs_s}, {"m", st.runs_m - stats_before_.runs_m},
-               {"physics", st.runs_physics - stats_before_.runs_physics},
-               {"physics_on_cpu", st.physics_on_cpu - stats_before_.physics_on_cpu},
-               {"host_path", st.host_path_targets - stats_before_.host_path_targets}};
+  r["runs"] = {{"s", st.runs_s}, {"m", st.runs_m}, {"physics", st.runs_physics}, {"physics_on_cpu", st.physics_on_cpu},
+               {"host_path", st.host_path_targets}};
   if (physics_.uses_physics)
     r["physics"] = {{"contrast", physics_.params.contrast}, {"contrast_source", physics_.contrast_source},
                     {"gamma", physics_.params.gamma}, {"role", physics_.variant ? "the model's physics input" : "the unroller"}};
@@ -92,15 +107,10 @@ nlohmann::json UnrollJob::report(double total_ms) const {
   const UnrollJobCounters& c = counters_;
   r["reads"] = {{"frame_decodes", c.frame_decodes}, {"distinct_frames_decoded", c.distinct_frames_decoded},
                 {"ground_truth_decodes", c.ground_truth_decodes},
-                {"image_uploads", st.image_uploads - stats_before_.image_uploads},
-                {"frames_unrolled", st.frames_unrolled - stats_before_.frames_unrolled}};
+                {"image_uploads", st.image_uploads}, {"frames_unrolled", st.frames_unrolled}};
   nlohmann::json ms;
   for (const auto& [name, v] : stage_ms_) ms[name] = n ? v / double(n) : 0.0;
-  for (const auto& [name, v] : st.ms) {
-    const auto before = stats_before_.ms.find(name);
-    const double d = v - (before == stats_before_.ms.end() ? 0.0 : before->second);
-    ms[name] = ms.value(name, 0.0) + (n ? d / double(n) : 0.0);
-  }
+  for (const auto& [name, v] : st.ms) ms[name] = ms.value(name, 0.0) + (n ? v / double(n) : 0.0);
   r["ms_per_gs_frame"] = ms;
   if (total_ms < 0) total_ms = ms_since(start_);
   r["ms_per_gs_frame_total"] = n ? total_ms / double(n) : 0.0;
@@ -112,8 +122,8 @@ nlohmann::json UnrollJob::report(double total_ms) const {
   r["gpu_share_of_frame_time"] = total_ms > 0 ? traffic_.gpu_ms / total_ms : 0.0;
 
   std::map<std::string, int> notes = notes_;
-  if (const size_t host = st.host_path_targets - stats_before_.host_path_targets)
-    notes[std::to_string(host) + " target(s) too large for device-resident event tensors (one binding holds at most " +
+  if (st.host_path_targets)
+    notes[std::to_string(st.host_path_targets) + " target(s) too large for device-resident event tensors (one binding holds at most " +
           std::to_string(session_.binding_limit() >> 20) + " MiB): built, downloaded and tiled on the host"]++;
   if (session_.memory_forced_submits())
     notes["the device's memory forced " + std::to_string(session_.memory_forced_submits()) +

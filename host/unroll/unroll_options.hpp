@@ -113,7 +113,7 @@ void validate_sequence_options(const SequenceOptions& o);
 // Every option as resolved, for summary.json's provenance.
 nlohmann::json unroll_options_json(const UnrollOptions& o);
 
-// A physics contrast estimate (estimate_contrast in unroll.hpp) and what to say of it.
+// A physics contrast estimate (estimate_contrast in unroll_plan.hpp) and what to say of it.
 struct ContrastEstimate {
   double contrast = 0.2;
   std::string source;   // how it was found, for the log and summary.json

@@ -278,4 +278,9 @@ cv::Mat encode_for_model(const cv::Mat& image, double exponent) {
   return out;
 }
 
+void decode_model_results(std::vector<cv::Mat>& results, const std::vector<FrameTarget>& methods, double to_model) {
+  for (size_t j = 0; j < results.size(); ++j)
+    if (methods[j].method != FrameTarget::Method::physics) results[j] = encode_for_model(results[j], 1.0 / to_model);
+}
+
 }  // namespace vkunroll

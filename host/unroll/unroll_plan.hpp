@@ -58,8 +58,15 @@ FrameTarget::Method target_method(UnrollMode mode, bool moa, bool has_next, bool
 std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFrame* f2, const std::vector<UnrollTarget>& ts,
                                        const std::vector<FrameTarget>& methods);
 
-// estimate_contrast (unroll.hpp) on frames from anywhere: `image(k)` frame k as BGR float32 in
-// [0, 1], `events(lo, hi)` the events of [lo, hi] microseconds.
+// The contrast threshold c for the physics unroller, estimated from the frames: for up to
+// three pairs of consecutive frames, both frames are unrolled to the instant halfway between
+// their mid-exposures, and c is the value on a grid (0.05 .. 0.6, step 0.025) that makes the two
+// estimates agree best (least mean |log difference|) — the temporal consistency SelfUnroll
+// trains on. Without a pair of consecutive frames it is no estimate: 0.2, said so in `source` and
+// `warning`. A value on the grid's edge (0.05 or 0.6) comes with a warning: the true threshold may
+// lie outside, or noise dominates the consistency.
+// `image(k)`: frame k as BGR float32 in [0, 1]; `events(lo, hi)`: the events of [lo, hi] microseconds
+// (UnrollJob passes its frame source, through its decode cache).
 ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
                          int height, const std::function<cv::Mat(int)>& image,
                          const std::function<EventStream(double, double)>& events);
@@ -83,5 +90,9 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
 
 // v^exponent (negative values to 0 first): a frame in another gamma encoding; exponent 1: as it is.
 cv::Mat encode_for_model(const cv::Mat& image, double exponent);
+
+// The way back from the model's encoding (v^(1/to_model)) for the results of model targets;
+// physics targets were computed in the frames' own encoding and stay as they are.
+void decode_model_results(std::vector<cv::Mat>& results, const std::vector<FrameTarget>& methods, double to_model);
 
 }  // namespace vkunroll

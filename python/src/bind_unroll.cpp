@@ -5,7 +5,6 @@
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/session.hpp"
-#include "vkunroll/host/unroll/unroll.hpp"
 #include "vkunroll/host/unroll/unroll_plan.hpp"
 
 namespace vkunroll::python {
@@ -62,8 +61,7 @@ std::vector<cv::Mat> unroll_frame(PySession& ps, const F32Array& rs1, const RowT
     in.rs1 = encode_for_model(in.rs1, ps.to_model);
     if (!in.rs2.empty()) in.rs2 = encode_for_model(in.rs2, ps.to_model);
     std::vector<cv::Mat> out = ps.session->unroll(in, ts);
-    for (size_t j = 0; j < out.size(); ++j)
-      if (ts[j].method != FrameTarget::Method::physics) out[j] = encode_for_model(out[j], 1.0 / ps.to_model);
+    decode_model_results(out, ts, ps.to_model);
     return out;
   });
 }
