@@ -129,8 +129,8 @@ double max_abs_diff(const fs::path& a_dir, const fs::path& b_dir) {
 double compute_ms(const nlohmann::json& s) {
   const auto& p = s.at("ms_per_gs_frame");
   double ms = 0;
-  // Everything but reading and writing files: host planning and recording, transfers, waiting for the device.
-  for (const char* k : {"event_tensors", "model", "physics", "transfer"})
+  // Everything but setup and files: host planning, recording and conversions, and the device wait.
+  for (const char* k : {"upload", "event_tensors", "physics", "model", "download", "wait"})
     if (p.contains(k)) ms += p[k].get<double>();
   return ms;
 }

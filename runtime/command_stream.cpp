@@ -1,6 +1,7 @@
 #include "vkunroll/runtime/command_stream.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cstring>
 #include <cstdlib>
 #include <sstream>
@@ -187,6 +188,7 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
   if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
   names_.push_back(info.name);
   infos_.push_back(info);
+  stages_.push_back(stage_);
 }
 
 namespace {
@@ -260,6 +262,7 @@ void CommandStream::fill(const Tensor& t, uint32_t value) {
   if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
   names_.push_back("fill");
   infos_.push_back({"fill", 0, static_cast<double>(r.size)});
+  stages_.push_back(stage_);
 }
 
 void CommandStream::record_copy(const BufferRange& src, const BufferRange& dst, const char* name) {
@@ -273,6 +276,8 @@ void CommandStream::record_copy(const BufferRange& src, const BufferRange& dst, 
   if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
   names_.push_back(name);
   infos_.push_back({name, 0, static_cast<double>(src.size)});
+  const std::string_view n(name);
+  stages_.push_back(n == "upload" || n == "download" ? std::string(n) : stage_);
 }
 
 void CommandStream::upload(const Tensor& dst, size_t byte_offset, const void* data, size_t bytes) {
@@ -320,6 +325,12 @@ std::string CommandStream::in_flight_description() {
 
 void CommandStream::submit_and_wait() {
   if (!recording_) return;
+  const auto wait_start = std::chrono::steady_clock::now();
+  struct WaitClock {  // counts the wait also when the submission throws
+    DeviceTraffic& traffic;
+    std::chrono::steady_clock::time_point t0;
+    ~WaitClock() { traffic.wait_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(); }
+  } wait_clock{ctx_.traffic(), wait_start};
   if (!readbacks_.empty()) {
     // The downloads' copies must be visible to the host reads after the fence.
     VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
@@ -364,6 +375,7 @@ void CommandStream::submit_and_wait() {
     for (size_t i = 0; i < names_.size(); ++i) {
       const double ms = static_cast<double>(ts[2 * i + 1] - ts[2 * i]) * period * 1e-6;
       ctx_.traffic().gpu_ms += ms;
+      ctx_.traffic().gpu_ms_by_stage[stages_[i]] += ms;
       if (profiler_) profiler_->record(infos_[i].name, ms, infos_[i].flop, infos_[i].bytes);
     }
   }
@@ -387,6 +399,7 @@ void CommandStream::reset() {
   readbacks_.clear();
   names_.clear();
   infos_.clear();
+  stages_.clear();
   pending_reads_.clear();
   pending_writes_.clear();
 }

@@ -69,6 +69,11 @@ class CommandStream {
   // Throws on timeout or device loss, naming the dispatch that was in flight.
   void submit_and_wait();
 
+  // The stage the next recorded commands belong to (e.g. "event_tensors"): their timestamps are
+  // summed per stage in the context's traffic. Uploads and downloads are always "upload"/"download".
+  void set_stage(std::string stage) { stage_ = std::move(stage); }
+  const std::string& stage() const { return stage_; }
+
   // Seconds to wait for the fence; default from VKUNROLL_FENCE_TIMEOUT_S or 600.
   void set_timeout_seconds(double s) { timeout_s_ = s; }
 
@@ -97,6 +102,8 @@ class CommandStream {
   double timeout_s_;
   std::vector<std::string> names_;
   std::vector<DispatchInfo> infos_;
+  std::vector<std::string> stages_;  // each recorded command's stage
+  std::string stage_;
   std::vector<Span> pending_reads_, pending_writes_;
   // Buffer views of this submission's texel-buffer arguments (one per buffer, range and format),
   // destroyed once the submission finished (or with the stream): a tensor freed afterwards may

@@ -115,8 +115,17 @@ struct DeviceTraffic {
   uint64_t download_bytes = 0;  // device -> host
   uint64_t submits = 0;         // queue submissions, each waited for
   double gpu_ms = 0;            // sum of the submitted dispatches' device time (timestamps; 0 without)
+  // gpu_ms by the stage each command was recorded in (CommandStream::set_stage; "" when none was set).
+  std::map<std::string, double> gpu_ms_by_stage;
+  // Host wall time spent in submit_and_wait: submitting, waiting for the fence, reading back.
+  double wait_ms = 0;
+  // Host wall time spent creating pipelines (the driver compiles the shader then).
+  double pipeline_build_ms = 0;
   DeviceTraffic operator-(const DeviceTraffic& o) const {
-    return {upload_bytes - o.upload_bytes, download_bytes - o.download_bytes, submits - o.submits, gpu_ms - o.gpu_ms};
+    DeviceTraffic d{upload_bytes - o.upload_bytes, download_bytes - o.download_bytes, submits - o.submits,
+                    gpu_ms - o.gpu_ms, gpu_ms_by_stage, wait_ms - o.wait_ms, pipeline_build_ms - o.pipeline_build_ms};
+    for (const auto& [stage, ms] : o.gpu_ms_by_stage) d.gpu_ms_by_stage[stage] -= ms;
+    return d;
   }
 };
 

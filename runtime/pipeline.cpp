@@ -1,6 +1,7 @@
 #include "vkunroll/runtime/pipeline.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cstring>
 
 #include "vkunroll/runtime/context.hpp"
@@ -75,7 +76,10 @@ Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vect
   pci.stage.pName = "main";
   pci.stage.pSpecializationInfo = spec.empty() ? nullptr : &si;
   pci.layout = layout_;
+  const auto t0 = std::chrono::steady_clock::now();
   VkResult r = vkCreateComputePipelines(ctx.device(), ctx.pipeline_cache(), 1, &pci, nullptr, &pipeline_);
+  // Drivers compile the shader here (lavapipe: LLVM), once per pipeline: a cost of the first frames.
+  ctx.traffic().pipeline_build_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   if (r != VK_SUCCESS) {
     destroy();
     throw_vk_error(r, "vkCreateComputePipelines", __FILE__, __LINE__, "shader " + shader);

@@ -128,6 +128,9 @@ class Backend {
 
   // Runs everything recorded so far and waits (a no-op for eager backends).
   virtual void flush() = 0;
+  // The stage the next recorded ops belong to (the Vulkan backend sums their GPU timestamps per
+  // stage: DeviceTraffic::gpu_ms_by_stage). Ops run at once on the CPU backend: nothing to tag.
+  virtual void set_stage(const std::string& stage) { (void)stage; }
   // The largest tensor one buffer may hold (bytes); the graph splits batches to respect it.
   virtual uint64_t max_buffer_bytes() const = 0;
 

@@ -102,6 +102,8 @@ void VulkanBackend::release_id(int id) noexcept {
 
 Shape VulkanBackend::shape(int id) const { return tensor(id).shape(); }
 
+void VulkanBackend::set_stage(const std::string& stage) { cs_->set_stage(stage); }
+
 void VulkanBackend::flush() {
   if (cs_->recorded()) cs_->submit_and_wait();
   physics_.clear();

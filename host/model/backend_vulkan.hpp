@@ -60,6 +60,7 @@ class VulkanBackend final : public Backend {
   void hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,
                          float forced) override;
   void flush() override;
+  void set_stage(const std::string& stage) override;
   uint64_t max_buffer_bytes() const override;
   // Caps max_buffer_bytes() below the device's limit (0: no cap), e.g. to test tiling.
   void set_max_buffer_bytes(uint64_t b) { max_buffer_cap_ = b; }

@@ -595,6 +595,8 @@ void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::
   ch.warped = chunk_buffer("warped", {ch.n, 3, ch.he, ch.we});
   ch.fused = chunk_buffer("fused", {ch.n, 3, ch.he, ch.we});
   // Stages are recorded back to back; the backend submits only where memory forces it.
+  // GPU time is summed per stage (the paper's E-IC_T, E-IC_S, fusion, MOA); glue ops are "model".
+  b.set_stage("model.eic_t");
   for (int64_t i = 0; i < ch.n; i += sb.synthesis) stage_synthesis(ch, i, std::min<int64_t>(sb.synthesis, ch.n - i));
   // Handed-over inputs go as soon as the last chunk has read them.
   const bool last = c0 + ch.n >= B;
@@ -602,6 +604,7 @@ void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::
     if (chunk_view.buf != given.buf) drop(even_inputs, chunk_view.buf);
     if (last) drop(handed_over, given.buf);
   };
+  b.set_stage("model.eic_s");
   for (int64_t i = 0; i < ch.n; i += sb.flow) stage_flow(ch, i, std::min<int64_t>(sb.flow, ch.n - i));
   // ev2 and phys are read by E-IC_T and flownet, and by the variant's event gate after fusion_net.
   const bool gated = cfg_.physics_gate >= 0;
@@ -610,14 +613,17 @@ void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::
     if (cfg_.physics_input) consumed(ch.phys, in.phys);
   };
   if (!gated) consumed_ev2_phys();
+  b.set_stage("model.fusion");
   for (int64_t i = 0; i < ch.n; i += sb.fusion) stage_fusion(ch, i, std::min<int64_t>(sb.fusion, ch.n - i));
   consumed(ch.ev3, in.ev3);
   if (gated) consumed_ev2_phys();
   if (m_mode) {
     ch.m = chunk_buffer("m", {ch.nt, 1, ch.he, ch.we});
     ch.out = chunk_buffer("out", {ch.nt, 3, ch.he, ch.we});
+    b.set_stage("model.moa");
     for (int64_t t = 0; t < ch.nt; t += sb.moa) stage_moa(ch, t, std::min<int64_t>(sb.moa, ch.nt - t), opt.force_m);
   }
+  b.set_stage("model");
   // The chunk's results, cropped to H x W, into the outputs (the chunk buffers go with the chunk).
   auto keep = [&](const std::string& nme, int buf, int64_t first) {
     if (want.count(nme) && buf != result.at(nme).id())

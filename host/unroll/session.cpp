@@ -25,6 +25,28 @@ RunOptions group_run_options(bool m) {
 
 }  // namespace
 
+UnrollSession::StageClock::StageClock(UnrollSession& s, const char* stage) : s_(s) { next(stage); }
+
+void UnrollSession::StageClock::next(const char* stage) {
+  stop();
+  stage_ = stage;
+  t0_ = Clock::now();
+  before_ = s_.traffic();
+  s_.backend_->set_stage(stage);
+}
+
+// The stage's host time is its wall time less the device waits and the pipeline builds inside
+// it, which count once, as "wait" and "pipeline_builds".
+void UnrollSession::StageClock::stop() {
+  if (!stage_) return;
+  const DeviceTraffic now = s_.traffic();
+  const double wait = now.wait_ms - before_.wait_ms, builds = now.pipeline_build_ms - before_.pipeline_build_ms;
+  s_.stats_.ms[stage_] += std::max(0.0, ms_since(t0_) - wait - builds);
+  s_.stats_.ms["wait"] += wait;
+  s_.stats_.ms["pipeline_builds"] += builds;
+  stage_ = nullptr;
+}
+
 const char* frame_method_name(FrameTarget::Method m) {
   switch (m) {
     case FrameTarget::Method::s: return "s";
@@ -120,7 +142,7 @@ uint64_t UnrollSession::peak_device_bytes() const {
 }
 
 UnrollSession::FramePlanes UnrollSession::upload_frame(const FrameInput& in, bool with_next) {
-  const auto t0 = Clock::now();
+  StageClock clock(*this, "upload");
   FramePlanes fp;
   fp.rgb = model_ ? rgb_ : false;  // physics is per channel: any order serves it
   const int H = in.rs1.rows, W = in.rs1.cols;
@@ -134,7 +156,6 @@ UnrollSession::FramePlanes UnrollSession::upload_frame(const FrameInput& in, boo
     backend_->upload(fp.rs2_buf.whole(), fp.rs2);
     stats_.image_uploads++;
   }
-  stats_.ms["transfer"] += ms_since(t0);
   return fp;
 }
 
@@ -172,7 +193,7 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
                                 const std::vector<size_t>& which, std::vector<cv::Mat>& results) {
   Backend& b = *backend_;
   const int H = in.rs1.rows, W = in.rs1.cols;
-  auto t0 = Clock::now();
+  StageClock clock(*this, "physics");
   const std::vector<float>& rs = fp.rs1;
   const auto starts = in.timing1.start_times_us(), ends = in.timing1.end_times_us();
   const int rs_buf = fp.rs1_buf.id();
@@ -191,8 +212,7 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
     b.physics_unroll(rs_buf, lists, physics_, out.id());
     on_device.emplace_back(j, std::move(out));
   }
-  stats_.ms["physics"] += ms_since(t0);
-  t0 = Clock::now();
+  clock.next("download");
   std::vector<std::vector<float>> planes(on_device.size(), std::vector<float>(size_t(3) * H * W));
   for (size_t q = 0; q < on_device.size(); ++q) b.download(on_device[q].second.whole(), planes[q]);
   b.flush();
@@ -200,7 +220,7 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
     results[on_device[q].first] = planes_image(planes[q].data(), H, W, fp.rgb);
     on_device[q].second.reset();
   }
-  stats_.ms["transfer"] += ms_since(t0);
+  clock.stop();
   stats_.runs_physics += which.size();
 }
 
@@ -243,7 +263,7 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
     return;
   }
   const int64_t B = static_cast<int64_t>(which.size()) * per;
-  auto t0 = Clock::now();
+  StageClock clock(*this, "model");
   // The RS frame(s), uploaded once per frame, repeated on the device for every target of the batch.
   int rs = fp.rs1_buf.id();
   Buffer rs_batch;
@@ -259,30 +279,29 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
   }
   EventTensorSpec spec;
   spec.bins = model_->config().N;
-  stats_.ms["transfer"] += ms_since(t0);
-  t0 = Clock::now();
+  clock.next("event_tensors");
   const Buffer ev = b.event_tensors(*in.events, pairs, spec);
   ModelBuffers inputs{{rs, 0, B, 0, 3}, ev.items(0, B), ev.items(B, B), ev.items(2 * B, B)};
   Buffer phys;
   if (model_->config().physics_input) {
+    clock.next("physics");
     phys = physics_input(in, fp, pairs);
     inputs.phys = phys.whole();
+    clock.next("event_tensors");
   }
   ActivityTables activity;
   if (tiling_.sparse != SparsePolicy::off) activity = activity_tables(selected_event_counts(*in.events, pairs, spec), H, W);
-  stats_.ms["event_tensors"] += ms_since(t0);
-  t0 = Clock::now();
+  clock.next("model");
   const RunOptions ro = group_run_options(m);
   const std::string& name = ro.outputs[0];
   const TiledBuffers run = run_tiled_on_backend(*model_, inputs, ro, tiling_, &activity);
-  stats_.ms["model"] += ms_since(t0);
-  t0 = Clock::now();
+  clock.next("download");
   std::vector<float> planes(static_cast<size_t>(which.size()) * 3 * H * W);
   b.download(run.outputs.at(name).whole(), planes);
   b.flush();
   for (size_t q = 0; q < which.size(); ++q)
     results[which[q]] = planes_image(planes.data() + q * 3 * H * W, H, W, rgb_);
-  stats_.ms["transfer"] += ms_since(t0);
+  clock.stop();
   add_tile_stats(run, which.size(), H, W);
   (m ? stats_.runs_m : stats_.runs_s) += which.size();
 }
@@ -296,7 +315,7 @@ void UnrollSession::run_model_on_host(const FrameInput& in, const FramePlanes& f
   const std::vector<float>& p1 = fp.rs1;
   const std::vector<float>& p2 = fp.rs2;
   for (size_t j : which) {  // one target at a time: the host copies of its tensors are large already
-    auto t0 = Clock::now();
+    StageClock clock(*this, "event_tensors");
     std::vector<EventTensorPair> pairs{{in.timing1, targets[j].t_us, std::nullopt}};
     if (m) pairs.push_back({in.timing2, targets[j].t_us, std::nullopt});
     if (ctx_ && !host_builder_) host_builder_ = std::make_unique<EventTensorBuilder>(*ctx_);
@@ -319,12 +338,11 @@ void UnrollSession::run_model_on_host(const FrameInput& in, const FramePlanes& f
         std::copy(gs.begin(), gs.end(), mi.phys.data.begin() + i * 3 * H * W);
       }
     }
-    stats_.ms["event_tensors"] += ms_since(t0);
-    t0 = Clock::now();
+    clock.next("model");
     const RunOptions ro = group_run_options(m);
     const std::string& name = ro.outputs[0];
     const TiledResult run = run_tiled(*model_, mi, ro, tiling_);
-    stats_.ms["model"] += ms_since(t0);
+    clock.stop();
     results[j] = planes_image(run.outputs.at(name).data.data(), H, W, rgb_);
     add_tile_stats(run, 1, H, W);
     stats_.host_path_targets++;

@@ -10,6 +10,7 @@
 //   auto images = session.unroll(frame_input, {{t_us, FrameTarget::Method::s}});
 #pragma once
 #include <cstdint>
+#include <chrono>
 #include <map>
 #include <memory>
 #include <string>
@@ -63,8 +64,11 @@ struct SessionStats {
   int64_t tiles_per_target = 0;
   double work_pixels = 0;       // sum over targets of the tiled run's work ratio
   std::vector<double> target_active_fraction;
-  // Host wall milliseconds: "event_tensors" (planning, recording), "model" (tiling plan, recording
-  // the network), "physics" (gathering, recording), "transfer" (uploads, downloads, waiting for the device).
+  // Host milliseconds per stage, device waits excluded: "upload" (planes, staging copies),
+  // "event_tensors" (planning, recording), "physics" (gathering, recording), "model" (tiling plan,
+  // recording the network), "download" (planes to images); "wait", the time blocked on the
+  // device (submitting, the fence, reading back); "pipeline_builds" (the driver compiling shaders,
+  // the first frames). They add up to the session's wall time.
   std::map<std::string, double> ms;
 };
 
@@ -117,6 +121,21 @@ class UnrollSession {
     bool rgb = false;
   };
   FramePlanes upload_frame(const FrameInput& in, bool with_next);
+  // Times one host stage into stats_.ms (less the device waits inside it) and tags the ops it
+  // records with the stage; next() ends it and starts another.
+  class StageClock {
+   public:
+    StageClock(UnrollSession& s, const char* stage);
+    ~StageClock() { stop(); }
+    void next(const char* stage);
+    void stop();
+
+   private:
+    UnrollSession& s_;
+    const char* stage_ = nullptr;
+    std::chrono::steady_clock::time_point t0_;
+    DeviceTraffic before_;
+  };
   void run_physics(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
                    const std::vector<size_t>& which, std::vector<cv::Mat>& results);
   void run_model(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,

@@ -147,15 +147,17 @@ nlohmann::json summary_extra(const UnrollOptions& o, const UnrollJob& job, const
 }
 
 void report(const UnrollOptions& o, const nlohmann::json& summary, const UnrollSession& session) {
-  const nlohmann::json& ms = summary["ms_per_gs_frame"];
   const nlohmann::json& traffic = summary["device_traffic_per_gs_frame"];
+  auto stages = [](const nlohmann::json& ms) {
+    std::string s;
+    for (const auto& [name, v] : ms.items()) s += (s.empty() ? "" : ", ") + name + " " + std::to_string(std::lround(v.get<double>()));
+    return s;
+  };
   std::cerr << "unroll: " << summary["frames"] << " frame(s), " << summary["targets"] << " GS frame(s), mode "
             << summary["mode"].get<std::string>() << ", " << summary["ms_per_gs_frame_total"].get<double>()
-            << " ms per GS frame (";
-  bool first = true;
-  for (const auto& [name, v] : ms.items()) std::cerr << (first ? "" : ", ") << name << " " << v.get<double>(), first = false;
-  std::cerr << "; GPU " << summary["gpu_ms_per_gs_frame"].get<double>() << "), per GS frame "
-            << traffic["upload_bytes"].get<double>() / 1e6 << " MB up, " << traffic["download_bytes"].get<double>() / 1e6
+            << " ms per GS frame (by stage, ms: " << stages(summary["ms_per_gs_frame"]) << "; GPU ms "
+            << summary["gpu_ms_per_gs_frame"].get<double>() << " inside the wait: " << stages(summary["gpu_ms_per_gs_frame_by_stage"])
+            << "), per GS frame " << traffic["upload_bytes"].get<double>() / 1e6 << " MB up, " << traffic["download_bytes"].get<double>() / 1e6
             << " MB down, " << traffic["submits"].get<double>() << " submits; peak device memory "
             << (session.peak_device_bytes() >> 20) << " MiB\n";
   if (summary.contains("resume"))
@@ -192,6 +194,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   // The model and the device before the sequence: their errors come first.
   UnrollSession session = in_device_stage("setting up the device and the model", [&] { return UnrollSession(session_options); });
   const auto t_load = Clock::now();
+  const double setup_ms = ms_since(t_start);
   const Sequence seq = load_sequence(o.sequence, o.sequence_options);
   const double load_ms = ms_since(t_load);
   std::vector<std::pair<std::string, std::string>> event_files;  // meta.json may name files outside the folder
@@ -199,6 +202,8 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   check_output_apart(o.out_dir, "--out", event_files);
   SequenceFrameSource source(seq);
   UnrollJob job(o, session, source);
+  job.add_stage_ms("setup", setup_ms);  // the device, the model and the shaders
+  job.add_stage_ms("read", load_ms);    // the sequence's load
 
   const std::string model_sha = session.has_model() ? sha256_file(o.session.model_path) : std::string();
   UnrollOutputOptions out_options = output_options(o, seq, job);
@@ -210,8 +215,6 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   progress.finish();
 
   nlohmann::json extra = summary_extra(o, job, session, seq, model_sha, ms_since(t_start));  // the whole run, as the frames' time
-  const double n = static_cast<double>(std::max<size_t>(job.total_targets(), 1));
-  extra["ms_per_gs_frame"]["read"] = extra["ms_per_gs_frame"].value("read", 0.0) + load_ms / n;  // the sequence's load too
   if (output.replaces_existing())
     extra["notes"].push_back("replaced the earlier output in " + output.dir().string() + " (" +
                              existing_output_name(o.output.existing) + ")");

@@ -76,9 +76,13 @@ class UnrollJob {
   // Every frame, in order, into `sink`.
   void run(ResultSink& sink);
 
+  // Host time the caller spent for the job outside it (e.g. "setup", "read" of the sequence):
+  // it joins the report's per-stage breakdown.
+  void add_stage_ms(const std::string& stage, double ms) { stage_ms_[stage] += ms; }
+
   // What the job did, as summary.json says it: mode, runs, physics, encoding, tiling, events,
-  // reads, notes, warnings, ms per GS frame and device traffic (per GS frame). `total_ms`: the
-  // wall time the frames are charged (< 0: since the job was planned); host time is its rest after the GPU's.
+  // reads, notes, warnings, ms per GS frame by stage and device traffic (per GS frame). `total_ms`:
+  // the wall time the frames are charged (< 0: since the job was planned); what no stage timed is "other".
   nlohmann::json report(double total_ms = -1) const;
 
  private:
@@ -91,6 +95,7 @@ class UnrollJob {
   void run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink& sink);
   std::vector<FrameTarget> methods_for(int k, const std::vector<UnrollTarget>& todo);
   nlohmann::json events_report(std::vector<std::string>& warnings) const;
+  void add_time_breakdown(nlohmann::json& r, const SessionStats& st, double total_ms) const;
 
   const UnrollOptions& options_;
   UnrollSession& session_;
