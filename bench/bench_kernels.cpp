@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -13,6 +14,8 @@
 #include <random>
 #include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include <nlohmann/json.hpp>
 
@@ -135,6 +138,47 @@ double ceiling_gflops(Context& ctx, Profiler* profile, bool half = false) {
   return flop / (t.ms * 1e6);
 }
 
+std::string run_command(const std::string& cmd) {
+  std::string out;
+  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
+  if (!p) return "popen failed";
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
+  const int rc = pclose(p);
+  return rc == 0 ? std::string() : (out.empty() ? "exit status " + std::to_string(rc) : out);
+}
+
+// The same-run peer: PyTorch CPU conv2d / conv_transpose2d (tools/bench_conv_peer.py) per shape key,
+// best of `reps`. Empty (and said) where Debian's PyTorch cannot run.
+std::map<std::string, double> torch_peer_ms(const std::vector<ConvShape>& shapes, int threads, int reps) {
+  const std::string dir = std::filesystem::temp_directory_path().string();
+  const std::string in = dir + "/vkunroll-conv-peer-" + std::to_string(getpid()) + ".json", out = in + ".out";
+  nlohmann::json list = nlohmann::json::array();
+  for (const ConvShape& c : shapes)
+    list.push_back({{"key", c.key()}, {"transposed", c.transposed}, {"k", c.k}, {"s", c.s}, {"cin", c.cin},
+                    {"cout", c.cout}, {"h", c.h}, {"w", c.w}});
+  std::ofstream(in) << list.dump();
+  const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_conv_peer.py " + in + " " + out +
+                          " --threads " + std::to_string(threads) + " --reps " + std::to_string(reps);
+  const std::string failure = run_command(cmd);
+  std::map<std::string, double> ms;
+  try {
+    if (failure.empty()) {
+      const auto j = nlohmann::json::parse(std::ifstream(out));
+      for (const auto& [key, v] : j.at("ms").items()) ms[key] = v.get<double>();
+      std::printf("peer: PyTorch %s conv2d on the CPU, %d thread(s), best of %d, timed before our rows\n",
+                  j.at("torch").get<std::string>().c_str(), threads, reps);
+    }
+  } catch (const std::exception& e) {
+    std::printf("peer: could not read %s: %s\n", out.c_str(), e.what());
+  }
+  if (!failure.empty()) std::printf("peer: PyTorch did not run (%s): %s\n", cmd.c_str(), failure.c_str());
+  std::filesystem::remove(in);
+  std::filesystem::remove(out);
+  return ms;
+}
+
 // ---- --fp16-error-model: CPU emulations behind the fp16 kernels' arithmetic (docs/kernels.md) -------
 // One conv output = sum of n products of fp16 inputs in [-1, 1] and fp16 weights +-1/sqrt(n):
 // accumulated in fp32 (then stored as fp16) or in fp16 (a fused multiply-add rounded to half
@@ -242,6 +286,29 @@ void winograd_rounding_table() {
   }
 }
 
+// Against the same-run peer, per precision (chosen algorithms): the slowest shape, how many are
+// over 2x PyTorch's time, and the model's conv time (shapes weighted by their uses) over PyTorch's.
+void print_peer_summary(const nlohmann::json& rows) {
+  struct Sum {
+    double ours = 0, torch = 0, worst = 0;
+    int over2 = 0, n = 0;
+    std::string worst_name;
+  };
+  std::map<std::string, Sum> by;
+  for (const auto& row : rows) {
+    if (!row["chosen"].get<bool>() || !row.contains("torch_ms")) continue;
+    Sum& s = by[row["precision"].get<std::string>()];
+    const double r = row["ratio_to_torch"].get<double>(), uses = row["uses"].get<double>();
+    s.ours += uses * row["ms"].get<double>(), s.torch += uses * row["torch_ms"].get<double>(), s.n++;
+    if (r > 2) s.over2++;
+    if (r > s.worst) s.worst = r, s.worst_name = row["name"].get<std::string>() + " [" + row["shape"].get<std::string>() + "]";
+  }
+  for (const auto& [pr, s] : by)
+    std::printf("against PyTorch (%s, chosen algorithms): %d of %d shapes over 2x; slowest %.2fx (%s); all convs "
+                "weighted by use %.2fx (%.0f ms against %.0f ms)\n",
+                pr.c_str(), s.over2, s.n, s.worst, s.worst_name.c_str(), s.torch > 0 ? s.ours / s.torch : 0.0, s.ours, s.torch);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -257,7 +324,8 @@ int main(int argc, char** argv) {
   bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false;
   std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
   auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
-  int reps = 2;
+  int reps = 2, torch_threads = 2;
+  bool torch = true;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto value = [&]() -> std::string {
@@ -313,12 +381,21 @@ int main(int argc, char** argv) {
       custom.push_back(c);
     }
     else if (a == "--reps") reps = std::max(1, std::atoi(value().c_str()));
+    else if (a == "--no-torch") torch = false;
+    else if (a == "--torch-threads") {
+      torch_threads = std::atoi(value().c_str());
+      if (torch_threads < 1) {
+        std::cerr << "vkunroll-bench-kernels: --torch-threads: expected a count >= 1\n";
+        return 2;
+      }
+    }
     else if (a == "-h" || a == "--help") {
       std::cout << "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"
                    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
                    "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
                    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
                    "                              [--gemm-tv N] [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
+                   "                              [--no-torch] [--torch-threads N]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
                    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
@@ -331,7 +408,10 @@ int main(int argc, char** argv) {
                    "each shape in both precisions (fp16 rows judged against the better of the fp32 and the fp16\n"
                    "FMA ceiling, the latter from fma_ceiling_half.comp where the device has shaderFloat16).\n"
                    "--fp16-error-model prints the CPU emulations behind the fp16 kernels' fp32 arithmetic\n"
-                   "(fp16 accumulation, Winograd with fp16 operands) and exits.\n";
+                   "(fp16 accumulation, Winograd with fp16 operands) and exits.\n"
+                   "The peer: PyTorch's conv2d on the CPU (--torch-threads, default 2) times every shape first,\n"
+                   "in the same run; `x torch` is our time over its (fp16 rows against its fp32). B/FLOP is the\n"
+                   "bytes the algorithm's dispatches read and write per direct-conv FLOP (--no-torch: no peer).\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
@@ -350,13 +430,15 @@ int main(int argc, char** argv) {
                 ctx.info().name.c_str(), ceiling32);
     if (any16)
       std::printf("fp16 FMA ceiling: %.2f GFLOP/s (fma_ceiling_half, 8 f16vec4 chains; 0: no shaderFloat16)\n", ceiling16);
-    std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "prec",
-                "algo", "ms", "GFLOP/s", "%ceil", "naive ms", "naive GF", "speedup");
+    std::vector<ConvShape> shapes;
+    for (const ConvShape& c : custom.empty() ? model_shapes() : custom)
+      if ((!quick || c.quick) && (only.empty() || c.name.find(only) != std::string::npos)) shapes.push_back(c);
+    const std::map<std::string, double> peer = torch ? torch_peer_ms(shapes, torch_threads, reps) : std::map<std::string, double>{};
+    std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %6s %9s %7s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "prec",
+                "algo", "ms", "GFLOP/s", "%ceil", "B/FLOP", "torch ms", "x torch", "naive ms", "naive GF", "speedup");
     nlohmann::json rows = nlohmann::json::array();
     std::mt19937 rng(42);
-    for (const ConvShape& c : custom.empty() ? model_shapes() : custom) {
-      if (quick && !c.quick) continue;
-      if (!only.empty() && c.name.find(only) == std::string::npos) continue;
+    for (const ConvShape& c : shapes) {
       for (const Precision prec : precisions) {
         ConvOptions options = conv_options;
         options.precision = prec;
@@ -405,9 +487,19 @@ int main(int argc, char** argv) {
               if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
           }
         };
+        double moved_bytes = 0;  // of the last run(): what its dispatches read and write, per run
         auto run = [&](const std::string& algo, int n) {
-          return time_gpu(ctx, n, prof, [&](CommandStream& cs) { record_algo(cs, algo, xd, yd); });
+          Profiler moved;
+          const Timing t = time_gpu(ctx, n, &moved, [&](CommandStream& cs) { record_algo(cs, algo, xd, yd); });
+          moved_bytes = 0;
+          for (const auto& [op, st] : moved.ops()) {
+            moved_bytes += st.bytes / n;
+            if (prof) prof->record(op, st.total_ms, st.flop, st.bytes);
+          }
+          return t;
         };
+        const auto peer_it = peer.find(c.key());
+        const double torch_ms = peer_it == peer.end() ? 0.0 : peer_it->second;
         // The naive shader is 10-50x slower: it runs on the full shape for the target shape
         // (the 3x3 RDB conv 144->48) and on a band of input rows (same width and channels, so the
         // same per-pixel work) elsewhere; its GFLOP/s is that of what it ran.
@@ -428,8 +520,10 @@ int main(int argc, char** argv) {
           const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
           const double nms = naive_t ? naive_t->ms : 0;
           const double ngf = naive_t ? naive_flop / (nms * 1e6) : 0;
-          std::printf("%-34s %-26s %-4s %-9s %9.2f %8.2f %5.1f%% %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(),
-                      c.shape_str().c_str(), precision_name(prec), algos[ai].c_str(), t.ms, gf, 100 * frac, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
+          const double bytes_per_flop = moved_bytes / flop;
+          std::printf("%-34s %-26s %-4s %-9s %9.2f %8.2f %5.1f%% %6.3f %9.2f %6.2fx %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(),
+                      c.shape_str().c_str(), precision_name(prec), algos[ai].c_str(), t.ms, gf, 100 * frac, bytes_per_flop,
+                      torch_ms, torch_ms > 0 ? t.ms / torch_ms : 0.0, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
                       naive_t && naive_rows < c.h ? (" (naive: " + std::to_string(naive_rows) + " rows)").c_str() : "",
                       ai == 0 ? "" : "  (forced)");
           std::fflush(stdout);
@@ -450,7 +544,13 @@ int main(int argc, char** argv) {
                              {"gflop", flop * 1e-9},
                              {"gflops", gf},
                              {"ceiling_gflops", ceiling},
-                             {"fraction_of_ceiling", frac}};
+                             {"fraction_of_ceiling", frac},
+                             {"bytes_moved", moved_bytes},
+                             {"bytes_per_flop", bytes_per_flop}};
+          if (torch_ms > 0) {
+            row["torch_ms"] = torch_ms;
+            row["ratio_to_torch"] = t.ms / torch_ms;
+          }
           if (naive_t) {
             row["naive_ms"] = nms;
             row["naive_rows"] = naive_rows;
@@ -482,6 +582,7 @@ int main(int argc, char** argv) {
                     pr.c_str(), row["algo"].get<std::string>().c_str(), row["gflops"].get<double>(),
                     100 * row["fraction_of_ceiling"].get<double>(), row["speedup_vs_naive"].get<double>());
     }
+    print_peer_summary(rows);
     for (const auto& [pr, w] : worst_by_prec)
       if (w.first < 1e9)
         std::printf("lowest fraction of the ceiling (chosen algorithms, %s): %.1f%% (%s)\n", pr.c_str(), 100 * w.first,

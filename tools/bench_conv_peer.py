@@ -1,0 +1,58 @@
+#!/usr/bin/python3
+"""The same-run peer of vkunroll-bench-kernels: PyTorch's conv2d / conv_transpose2d (CPU) on each
+conv shape of the model, with the fused LeakyReLU(0.1) our kernels apply.
+
+usage: /usr/bin/python3 tools/bench_conv_peer.py SHAPES.json OUT.json [--threads N] [--reps N]
+SHAPES.json: a list of {"key", "transposed", "k", "s", "cin", "cout", "h", "w"}. OUT.json gets
+{"torch": version, "threads": N, "ms": {key: best of --reps after one warm-up}}.
+A transposed conv uses padding 1 (the UNet's 4x4 stride-2 up-sampling); a conv pads k // 2.
+"""
+import argparse
+import json
+import sys
+import time
+
+import torch
+import torch.nn.functional as F
+
+
+def time_shape(s, reps):
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(1, s["cin"], s["h"], s["w"], generator=g) * 2 - 1
+    scale = 1.0 / (s["cin"] * s["k"] * s["k"]) ** 0.5
+    if s["transposed"]:
+        w = (torch.rand(s["cin"], s["cout"], s["k"], s["k"], generator=g) * 2 - 1) * scale
+        run = lambda: F.leaky_relu(F.conv_transpose2d(x, w, None, stride=s["s"], padding=1), 0.1)  # noqa: E731
+    else:
+        w = (torch.rand(s["cout"], s["cin"], s["k"], s["k"], generator=g) * 2 - 1) * scale
+        b = torch.zeros(s["cout"])
+        run = lambda: F.leaky_relu(F.conv2d(x, w, b, stride=s["s"], padding=s["k"] // 2), 0.1)  # noqa: E731
+    best = float("inf")
+    with torch.no_grad():
+        run()  # warm-up: oneDNN picks and caches its kernel
+        for _ in range(max(1, reps)):
+            t0 = time.perf_counter()
+            run()
+            best = min(best, time.perf_counter() - t0)
+    return best * 1e3
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("shapes")
+    ap.add_argument("out")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--reps", type=int, default=2)
+    a = ap.parse_args()
+    if a.threads < 1:
+        sys.exit("bench_conv_peer: --threads must be >= 1")
+    torch.set_num_threads(a.threads)
+    with open(a.shapes) as f:
+        shapes = json.load(f)
+    ms = {s["key"]: time_shape(s, a.reps) for s in shapes}
+    with open(a.out, "w") as f:
+        json.dump({"torch": torch.__version__, "threads": a.threads, "ms": ms}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
