@@ -56,10 +56,16 @@ class FolderSink : public ResultSink {
     } else {
       output_.add(r.frame, t.t_us.to_double(), t.t_us.str(), t.tau, r.image, r.rs_input, r.ground_truth, gt_file, t.name);
     }
-    progress_.update(++done_, "frame " + std::to_string(r.frame) + (r.reused ? " (reused)" : ""));
+    progress_.update(++done_, "frame " + std::to_string(r.frame) + (r.reused ? " (reused)" : frame_times(r)));
   }
 
  private:
+  // The frame's unroll: its wall time, the GPU's (timestamps) and the wait for the device.
+  static std::string frame_times(const GsResult& r) {
+    char buf[96];
+    std::snprintf(buf, sizeof buf, " (%.0f ms: GPU %.0f, wait %.0f)", r.frame_ms, r.frame_gpu_ms, r.frame_wait_ms);
+    return buf;
+  }
   static std::string key(int frame, const UnrollTarget& t) { return std::to_string(frame) + "|" + t.t_us.str(); }
   UnrollOutput& output_;
   Progress& progress_;

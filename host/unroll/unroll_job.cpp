@@ -127,6 +127,9 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
   DecodedFrame& f1 = decoded(k);
   const cv::Mat rs_input = f1.image;  // the header outlives the cache entry erased below (the pixels are shared)
   std::vector<cv::Mat> results;
+  struct {
+    double ms = 0, gpu_ms = 0, wait_ms = 0;
+  } frame_time;
   if (!todo.empty()) {
     FrameInput in;
     in.rs1 = model_encoded(f1);
@@ -142,8 +145,12 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
     counters_.events_in_windows += ev.size();
     counters_.frames_read++;
     if (ev.empty()) counters_.frames_without_events.push_back(k);
+    const DeviceTraffic before = session_.traffic();
+    const auto t_unroll = Clock::now();
     results = in_device_stage("frame " + std::to_string(k) + ", unrolling " + std::to_string(methods.size()) + " target(s)",
                               [&] { return session_.unroll(in, methods); });
+    const DeviceTraffic d = session_.traffic() - before;
+    frame_time = {ms_since(t_unroll), d.gpu_ms, d.wait_ms};
     decode_model_results(results, methods, physics_.to_model);
   } else {
     stage_ms_["read"] += ms_since(t_read);
@@ -158,6 +165,7 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
     r.target = &ts[j];
     r.rs_input = rs_input;
     r.reused = reused[j].has_value();
+    r.frame_ms = frame_time.ms, r.frame_gpu_ms = frame_time.gpu_ms, r.frame_wait_ms = frame_time.wait_ms;
     if (ts[j].gt >= 0) r.ground_truth = source_.decode_ground_truth(ts[j].gt), counters_.ground_truth_decodes++;
     if (r.reused) {
       r.image = *reused[j];
