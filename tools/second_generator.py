@@ -181,8 +181,11 @@ def generate(out: str, photo: str, kind: str, w: int, h: int, frames: int, seed:
         name = f"rs/{f:06d}.png"
         Image.fromarray(encode(rs[f] + 0.005 * rng.standard_normal(rs[f].shape))).save(os.path.join(out, name))
         meta["frames"].append({"file": name, "t0_us": t0})
-        for j, tau in enumerate((0.25, 0.5, 0.75)):
-            t = t0 + tau * ((h - 1) * line_delay + exposure)
+        frame_span = (h - 1) * line_delay + exposure
+        # Inside the frame's span (intra) and, before the next frame, between frames (inter).
+        taus = (0.25, 0.5, 0.75) + ((1.0 + 0.5 * (period / frame_span - 1),) if f + 1 < frames else ())
+        for j, tau in enumerate(taus):
+            t = t0 + tau * frame_span
             gname = f"gs/{f:06d}_{j}.png"
             Image.fromarray(encode(scene.render(t * 1e-6))).save(os.path.join(out, gname))
             meta["ground_truth"].append({"file": gname, "t_us": t})

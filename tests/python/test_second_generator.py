@@ -69,4 +69,4 @@ def test_vkunroll_reads_every_event_and_unrolls_it(tmp_path, photo):
     s = json.load(open(tmp_path / "out" / "summary.json"))
     totals = s["events"]["file_totals"]
     assert totals["valid"] == len(ev["t"]) and totals["dropped"] == 0, totals
-    assert s["metrics"]["count"] == 6  # 3 ground-truth instants per frame
+    assert s["metrics"]["count"] == 7  # 3 ground-truth instants per frame, 1 between the two
