@@ -63,11 +63,16 @@ void parse_size(const std::string& s, const std::string& what, int& w, int& h);
 // Validators with messages that name the range.
 CLI::Validator finite_at_least(double lo, bool open = false);  // x >= lo (x > lo when open), finite
 CLI::Validator int_range(long long lo, long long hi);
+CLI::Validator non_empty();  // refuses "" (an empty value is an error, never "the default")
 
 // An output file that is written under a temporary name and renamed over `path`: refused
 // (UsageError naming `option`) when `path` exists and is not a regular file (a folder, a device
 // such as /dev/full, a FIFO), which the rename would replace.
 void check_output_file(const std::string& path, const std::string& option);
+
+// An output folder: refused (UsageError naming `option`) when `path`, or a folder above it, exists
+// and is not a folder (the run could not create it; the option is at fault, not the disk).
+void check_output_folder(const std::string& path, const std::string& option);
 
 // Numbers in messages: inf, -inf, nan by name; integers without an exponent.
 std::string number_text(double v);

@@ -5,6 +5,7 @@
 
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/events/rosbag_sequence.hpp"
+#include "vkunroll/host/unroll/unroll_options.hpp"
 
 namespace vkunroll::cli {
 
@@ -24,15 +25,37 @@ Rational exact_option(const std::string& text, const std::string& name) {
 }
 
 int run_bag_sequence(const BagSequenceArgs& a) {
+  check_output_folder(a.out, "OUT");
   BagSequenceOptions o;
   o.frames_topic = a.frames_topic;
   o.events_topic = a.events_topic;
   o.line_delay_us = exact_option(a.line_delay, "--line-delay-us");
   o.exposure_us = exact_option(a.exposure, "--exposure-us");
   o.t0_offset_us = exact_option(a.t0_offset, "--t0-offset-us");
+  // The rules (and texts) of unroll's timing overrides; a bag's camera also needs a line delay > 0.
+  SequenceOptions timing;
+  timing.line_delay_us = o.line_delay_us;
+  timing.exposure_us = o.exposure_us;
+  timing.t0s_us = std::vector<Rational>{o.t0_offset_us};
+  try {
+    validate_sequence_options(timing);
+  } catch (const UsageError& e) {
+    throw UsageError(std::string(e.what()).rfind("--t0s-us", 0) == 0 ? "--t0-offset-us " + a.t0_offset + ": not a time vkunroll can hold"
+                                                                     : e.what());
+  }
+  if (!(Rational(0) < o.line_delay_us))
+    throw UsageError("--line-delay-us " + a.line_delay + ": expected > 0 us (a bag does not hold the row timing)");
   o.readout = parse_readout(a.readout);
   o.max_frames = a.max_frames;
-  const BagSequenceReport r = write_bag_sequence(a.bag, a.out, o);
+  BagSequenceReport r;
+  try {
+    r = write_bag_sequence(a.bag, a.out, o);
+  } catch (const Error& e) {  // a topic the bag lacks is the option's fault: name it
+    const std::string m = e.what();
+    for (const auto& [option, topic] : {std::pair<std::string, std::string>{"--frames-topic", a.frames_topic}, {"--events-topic", a.events_topic}})
+      if (!topic.empty() && m.find("has no topic '" + topic + "'") != std::string::npos) throw UsageError(option + ": " + m);
+    throw;
+  }
   std::cout << "sequence     " << a.out << "\n"
             << "frames       " << r.frames << " from " << r.frames_topic << " (" << r.encoding << ", " << r.width << "x"
             << r.height << ")\n"
@@ -52,8 +75,8 @@ Command add_bag_sequence(CLI::App& parent) {
       "row timing: give --line-delay-us and --exposure-us. Then: vkunroll unroll OUT [--events-topic T].");
   c->add_option("BAG", a->bag, "the ROS 1 bag")->required();
   c->add_option("OUT", a->out, "the sequence folder to write")->required();
-  c->add_option("--frames-topic", a->frames_topic, "the sensor_msgs/Image topic (default: the bag's only one)")->type_name("TOPIC");
-  c->add_option("--events-topic", a->events_topic, "the event topic (default: the bag's only one)")->type_name("TOPIC");
+  c->add_option("--frames-topic", a->frames_topic, "the sensor_msgs/Image topic (default: the bag's only one)")->check(non_empty())->type_name("TOPIC");
+  c->add_option("--events-topic", a->events_topic, "the event topic (default: the bag's only one)")->check(non_empty())->type_name("TOPIC");
   c->add_option("--line-delay-us", a->line_delay, "row-to-row start delay of the RS camera (exact: '73000/259')")
       ->required()->type_name("US");
   c->add_option("--exposure-us", a->exposure, "row exposure")->required()->type_name("US");

@@ -40,6 +40,7 @@ struct DemoArgs {
 
 int run_demo(const DemoArgs& a) {
   const fs::path out = a.out;
+  check_output_folder(a.out, "--out");  // it holds sequence/, physics/ and model/
   sim::SimulationConfig cfg = sim::simulation_preset("realistic");
   cfg.seed = static_cast<uint64_t>(a.seed);
   char x = 0, extra = 0;

@@ -2,6 +2,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "vkunroll/base/env.hpp"
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/unroll/provenance.hpp"
 #include "vkunroll/runtime/context.hpp"
@@ -16,6 +17,9 @@ struct DevicesArgs {
 };
 
 int run_devices(const DevicesArgs& a) {
+  // The list makes no device, so nothing else reads these: a value they do not take is refused here too.
+  (void)env::flag("VKUNROLL_VALIDATION");
+  (void)env::flag("VKUNROLL_VALIDATION_FATAL");
   const DeviceList list = Context::enumerate();
   uint32_t chosen = list.policy_choice;
   if (!a.device.empty()) chosen = choose_device(list.devices, a.device, "--device");

@@ -48,6 +48,8 @@ EventReadOptions to_options(const EventsArgs& a) {
                      ": the sensor size needs both");
   o.width = a.width.value_or(0);
   o.height = a.height.value_or(0);
+  if (const std::string problem = text_columns_problem(a.columns); !problem.empty())
+    throw UsageError("--columns '" + a.columns.substr(0, 64) + (a.columns.size() > 64 ? "...'" : "'") + " " + problem);
   o.text_columns = a.columns;
   o.text_time_unit = a.time_unit;
   o.array_time_unit = a.array_time_unit;
@@ -81,7 +83,8 @@ int run_events(const EventsArgs& a) {
   const double span = n ? double(t_max - t_min) : 0.0;
   if (a.json) {
     nlohmann::json j = {{"file", a.file}, {"format", report.format}, {"events", n},
-                        {"sensor", {{"width", report.width}, {"height", report.height}, {"inferred", report.size_inferred}}},
+                        {"sensor", report.width == 0 ? nlohmann::json(nullptr)  // no events, no size given: unknown
+                                             : nlohmann::json{{"width", report.width}, {"height", report.height}, {"inferred", report.size_inferred}}},
                         {"records", report.records}, {"outside_window", report.outside_window},
                         {"dropped", {{"total", report.dropped()}, {"out_of_sensor", report.dropped_out_of_sensor},
                                      {"time_order", report.dropped_time_order}, {"nan_time", report.dropped_nan},
@@ -99,7 +102,8 @@ int run_events(const EventsArgs& a) {
   std::printf("file        %s\n", a.file.c_str());
   std::printf("format      %s\n", report.format.c_str());
   std::printf("events      %llu\n", static_cast<unsigned long long>(n));
-  std::printf("sensor      %dx%d%s\n", report.width, report.height, report.size_inferred ? " (inferred from max x, y)" : "");
+  if (report.width == 0) std::printf("sensor      unknown (no events to infer it from; pass --width and --height)\n");
+  else std::printf("sensor      %dx%d%s\n", report.width, report.height, report.size_inferred ? " (inferred from max x, y)" : "");
   if (n > 0) {
     std::printf("time        %lld .. %lld us (span %.6f s)\n", static_cast<long long>(t_first),
                 static_cast<long long>(t_last), span * 1e-6);

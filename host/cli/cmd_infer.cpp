@@ -1,10 +1,12 @@
 // vkunroll infer: the network on raw input tensors (rs, ev1, ev2, ev3) from a safetensors file,
 // every intermediate written under the reference's names. This is how anyone checks vkunroll
 // against a PyTorch run of the same weights.
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <set>
 #include <sstream>
 
@@ -33,16 +35,26 @@ HostTensor input_array(const SafetensorsFile& f, const std::string& path, const 
   return {Shape{t.shape[0], t.shape[1], t.shape[2], t.shape[3]}, t.to_f32()};
 }
 
-std::vector<std::string> split(const std::string& s) {
+// --outputs: names of Model::output_names(), each once; an empty list or name is refused.
+std::vector<std::string> requested_outputs(const std::optional<std::string>& list) {
+  if (!list) return {};
+  const std::string shown = list->size() > 64 ? list->substr(0, 64) + "..." : *list;
   std::vector<std::string> out;
-  std::stringstream ss(s);
-  for (std::string item; std::getline(ss, item, ',');)
-    if (!item.empty()) out.push_back(item);
+  std::stringstream ss(*list + ",");
+  for (std::string item; std::getline(ss, item, ',');) {
+    if (item.empty()) throw UsageError("--outputs '" + shown + "': an empty name (expected a comma-separated list of sys, E, flow, warped, fused, m, out)");
+    const auto& names = Model::output_names();
+    if (std::find(names.begin(), names.end(), item) == names.end())
+      throw UsageError("--outputs: unknown output '" + item.substr(0, 64) + "' (expected sys, E, flow, warped, fused, m, out)");
+    if (std::find(out.begin(), out.end(), item) != out.end()) throw UsageError("--outputs: '" + item + "' is named twice");
+    out.push_back(item);
+  }
   return out;
 }
 
 struct InferArgs {
-  std::string model, inputs, out, mode, precision = "fp32", backend = "vulkan", outputs;
+  std::string model, inputs, out, mode, precision = "fp32", backend = "vulkan";
+  std::optional<std::string> outputs;
   int max_items = 0;
   DeviceArgs device;
 };
@@ -52,6 +64,7 @@ int run_infer(const InferArgs& a) {
   if (precision == Precision::fp16 && a.backend != "vulkan")
     throw UsageError("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
   check_output_file(a.out, "--out");
+  const std::vector<std::string> outputs = requested_outputs(a.outputs);
   std::error_code ec;
   for (const auto& [opt, path] : {std::pair<const char*, std::string>{"--model", a.model}, {"--inputs", a.inputs}})
     if (!std::filesystem::exists(path, ec)) throw InputMissingError(std::string(opt) + " " + path + ": no such file");
@@ -82,7 +95,12 @@ int run_infer(const InferArgs& a) {
   const std::string mode = a.mode.empty() ? (weights.config.moa && B % 2 == 0 ? "m" : "s") : a.mode;
   if (mode == "m" && B % 2) throw UsageError("--mode m needs an even batch (items 2k and 2k+1 are frames 1 and 2), " + a.inputs + " has " + std::to_string(B));
   opt.mode = mode == "m" ? Mode::m : Mode::s;
-  if (!a.outputs.empty()) opt.outputs = split(a.outputs);
+  opt.outputs = outputs;
+  try {
+    (void)Model::resolve_outputs(outputs, opt.mode);
+  } catch (const Error& e) {
+    throw UsageError("--outputs: " + std::string(e.what()).substr(std::string("model: ").size()));
+  }
   opt.max_items = a.max_items;
 
   std::unique_ptr<Context> ctx;
@@ -144,7 +162,7 @@ Command add_infer(CLI::App& parent) {
       ->check(CLI::IsMember({"vulkan", "cpu"}))->capture_default_str()->type_name("B");
   c->add_option("--precision", a->precision, "fp32 | fp16 (fp16: weights and activations stored in fp16 on the Vulkan backend; outputs are F32)")
       ->check(CLI::IsMember({"fp32", "fp16"}))->capture_default_str()->type_name("P");
-  c->add_option("--outputs", a->outputs, "the tensors to write, e.g. sys,E,flow,warped,fused,m,out (default: all)")->type_name("LIST");
+  c->add_option("--outputs", a->outputs, "the tensors to write, e.g. sys,E,flow,warped,fused,m,out (default: all)")->check(non_empty())->type_name("LIST");
   c->add_option("--max-items", a->max_items, "batch items run together (0: all)")->check(int_range(0, 1 << 20))->type_name("K");
   add_device_options(c, a->device);
   return {c, [a] {

@@ -44,9 +44,10 @@ Formatter::Formatter() {
 }
 
 std::string Formatter::make_usage(const CLI::App* app, std::string name) const {
-  std::string out = "usage: ";
-  for (const CLI::App* p = app->get_parent(); p; p = p->get_parent()) out += p->get_name() + " ";
-  out += name;
+  // CLI11's help passes "vkunroll unroll" (parents included), usage() passes "unroll": name the parents once.
+  std::string parents;
+  for (const CLI::App* p = app->get_parent(); p; p = p->get_parent()) parents = p->get_name() + " " + parents;
+  std::string out = "usage: " + (name.rfind(parents, 0) == 0 ? name : parents + name);
   if (!app->get_subcommands([](const CLI::App* s) { return !s->get_name().empty(); }).empty()) out += " <command>";
   for (const CLI::Option* o : app->get_options([](const CLI::Option* o) { return o->get_positional(); })) {
     const std::string n = o->get_name();
@@ -171,6 +172,29 @@ void check_output_file(const std::string& path, const std::string& option) {
     throw UsageError(option + " " + path + ": exists and is not a regular file (" +
                      (std::filesystem::is_directory(st) ? "a folder" : "a device, FIFO or socket") +
                      "); the output is written under a temporary name and renamed over it: name a file");
+  const std::filesystem::path parent = std::filesystem::absolute(path, ec).parent_path();
+  if (!parent.empty()) check_output_folder(parent.string(), option + " " + path + ": its folder");
+}
+
+CLI::Validator non_empty() {
+  return CLI::Validator(
+      [](std::string& s) -> std::string { return s.empty() ? "an empty value (give one, or leave the option out)" : ""; },
+      "");
+}
+
+void check_output_folder(const std::string& path, const std::string& option) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  for (fs::path p = fs::absolute(path, ec).lexically_normal(); !p.empty(); p = p.parent_path()) {
+    const auto st = fs::status(p, ec);
+    if (fs::exists(st)) {
+      if (!fs::is_directory(st))
+        throw UsageError(option + " " + path + ": " + (p == fs::absolute(path, ec).lexically_normal() ? "exists" : p.string() + " exists") +
+                         " and is not a folder");
+      return;
+    }
+    if (p == p.root_path()) return;
+  }
 }
 
 std::string number_text(double v) {

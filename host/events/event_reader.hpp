@@ -112,6 +112,10 @@ uint64_t scan_events(const std::string& path, const EventReadOptions& options,
                      const std::function<void(const EventStream& chunk)>& on_chunk,
                      EventReadReport* report = nullptr, size_t chunk_events = size_t(1) << 20);
 
+// Why a text column order is refused ("must name each of t, x, y, p exactly once ...", "has 'q'
+// (allowed: ...)"), or "" when it is valid: the one rule of the reader, the CLI and Python.
+std::string text_columns_problem(const std::string& order);
+
 // The format read_events would use for `path` ("txt","h5","npy","npz","evt2","evt21","evt3","dat",
 // "aedat2","aedat3","aedat4","bag").
 std::string detect_event_format(const std::string& path);

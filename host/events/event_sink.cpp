@@ -289,7 +289,10 @@ EventStream EventSink::finish() {
     out_ = std::move(s);
     report_.sorted = true;
   }
-  if (!geometry_known()) {
+  if (!geometry_known() && max_x_ < 0) {
+    // Nothing to infer from: the size stays unknown (0x0) rather than a made-up 1x1.
+    note("no events: the sensor size is unknown (the file does not say; pass width/height to set it)");
+  } else if (!geometry_known()) {
     width_ = std::max(max_x_ + 1, 1);
     height_ = std::max(max_y_ + 1, 1);
     report_.size_inferred = true;

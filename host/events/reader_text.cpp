@@ -294,14 +294,8 @@ struct TextLayout {
 };
 
 void check_columns(const std::string& file, const std::string& c, const std::string& from) {
-  for (char r : std::string("txyp"))
-    if (std::count(c.begin(), c.end(), r) != 1)
-      throw Error(file + ": text column order '" + c + "' from " + from +
-                  " must name each of t, x, y, p exactly once ('_' skips a column)");
-  for (char r : c)
-    if (r != 't' && r != 'x' && r != 'y' && r != 'p' && r != '_')
-      throw Error(file + ": text column order '" + c + "' from " + from + " has '" + std::string(1, r) +
-                  "' (allowed: t, x, y, p, _)");
+  const std::string problem = text_columns_problem(c);
+  if (!problem.empty()) throw Error(file + ": text column order '" + c + "' from " + from + " " + problem);
 }
 
 TextLayout prescan_text(ByteSource& src, const EventReadOptions& o) {
@@ -477,3 +471,17 @@ void read_text(ByteSource& src, EventSink& sink) {
 }
 
 }  // namespace vkunroll::detail
+
+namespace vkunroll {
+
+std::string text_columns_problem(const std::string& c) {
+  for (char r : c)
+    if (r != 't' && r != 'x' && r != 'y' && r != 'p' && r != '_')
+      return "has '" + std::string(1, r) + "' (allowed: t, x, y, p, _)";
+  for (char r : std::string("txyp"))
+    if (std::count(c.begin(), c.end(), r) != 1) return "must name each of t, x, y, p exactly once ('_' skips a column)";
+  if (c.size() > 64) return "has " + std::to_string(c.size()) + " columns (at most 64)";
+  return {};
+}
+
+}  // namespace vkunroll

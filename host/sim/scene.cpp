@@ -660,7 +660,8 @@ SceneSpec build_scene(const SceneOptions& o) {
     SpriteSpec s;
     s.shape = static_cast<SpriteShape>(rng.integer(0, 2));
     const double base = o.height * rng.uniform(0.15, 0.32);
-    s.size = glm::dvec2(base * rng.uniform(0.7, 1.5), base * rng.uniform(0.7, 1.5));
+    // At least one pixel: on a tiny sensor (2x2) a sprite is a pixel, not an error.
+    s.size = glm::max(glm::dvec2(base * rng.uniform(0.7, 1.5), base * rng.uniform(0.7, 1.5)), glm::dvec2(1.0));
     s.position = glm::dvec2(rng.uniform(0.15, 0.85) * o.width, rng.uniform(0.15, 0.85) * o.height);
     const double speed = rng.uniform(100.0, 280.0) * kspr * o.speed_scale, dir = rng.uniform(0, kTwoPi);
     s.velocity = speed * glm::dvec2(std::cos(dir), std::sin(dir));

@@ -138,6 +138,14 @@ OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const Ou
     throw UsageError("--out '" + final_dir.string() + "': name a folder to create (not '.', '..' or '/')");
   staging_ = final_.parent_path() / ("." + name + ".partial");
   std::error_code ec;
+  // A file where a folder of the path must be is the option's fault (exit 2), not an I/O error.
+  for (fs::path p = final_.parent_path(); !p.empty() && p != p.root_path(); p = p.parent_path()) {
+    const auto st = fs::status(p, ec);
+    if (!fs::exists(st)) continue;
+    if (!fs::is_directory(st))
+      throw UsageError("--out " + final_dir.string() + ": " + p.string() + " exists and is not a folder");
+    break;
+  }
   fs::create_directories(final_.parent_path(), ec);
   if (ec) throw IoError(final_.parent_path().string() + ": cannot create the output's parent folder (" + ec.message() + ")");
   lock();

@@ -43,7 +43,11 @@ static EventReadOptions read_options(const py::object& t_begin, const py::object
   o.on_bad = parse_on_bad(on_bad);
   o.width = width;
   o.height = height;
-  if (!columns.empty()) o.text_columns = columns;
+  if (!columns.empty()) {
+    if (const std::string problem = text_columns_problem(columns); !problem.empty())
+      throw UsageError("columns '" + columns.substr(0, 64) + (columns.size() > 64 ? "...'" : "'") + " " + problem);
+    o.text_columns = columns;
+  }
   o.text_time_unit = time_unit;
   o.array_time_unit = array_time_unit;
   return o;
