@@ -309,6 +309,22 @@ def unroll_pair(net: SelfUnroll, seq: Sequence, k: int, t_star: float, texp: flo
     return res
 
 
+def refuse_heldout(paths: List[str], option: str) -> None:
+    """DataError naming the first sequence natural_data.py marked held-out (natural.json "split":
+    "heldout": evaluation only, so neither trained nor tuned on)."""
+    for p in list_sequences(paths):
+        nat = os.path.join(p, "natural.json")
+        if not os.path.isfile(nat):
+            continue
+        try:
+            split = json.load(open(nat)).get("split")
+        except (OSError, ValueError) as e:
+            raise DataError(f"{nat}: cannot be read ({e}): it says whether the sequence is held out")
+        if split == "heldout":
+            raise DataError(f"{option} {p}: the sequence is marked held-out ({nat}: split 'heldout', evaluation only); "
+                            "training and validation must not use it")
+
+
 def seq_kind(seq: Sequence) -> str:
     """The motion kind natural_data.py recorded (natural.json), else ''."""
     p = os.path.join(seq.folder, "natural.json")
@@ -571,6 +587,8 @@ def train(a) -> None:
                       f"{rate:.2f} step/s data {t_data:.2f}s elapsed {(now - t0) / 60:.1f} min", flush=True)
             if a.rescan_every and step % a.rescan_every == 0 and not a.cache:
                 known = {q.folder for q in sampler.seqs}
+                if not a.adapt:
+                    refuse_heldout(paths, "--data")  # one written into the folder since
                 new = [Sequence(p) for p in list_sequences(paths) if p not in known]
                 new = [q for q in new if q.num_frames >= 2]
                 if new:
@@ -733,6 +751,8 @@ def main(argv=None) -> int:
             ap.error("--make-cache draws from --data, not from --cache")
         if a.device.startswith("cuda") and not torch.cuda.is_available():
             ap.error(f"--device {a.device}: this PyTorch has no CUDA device")
+        refuse_heldout(a.data or [], "--data")
+        refuse_heldout(a.val, "--val")
         train(a)
     except DataError as e:
         print(f"train.py: error: {e}", file=sys.stderr)

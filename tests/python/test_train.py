@@ -312,6 +312,23 @@ def test_bad_data_fails_clearly(tmp_path):
     assert r.returncode == 1 and "nothing: not found" in r.stderr
 
 
+def test_heldout_sequences_are_refused_for_data_and_val(tmp_path, seq_dir):
+    """A sequence natural_data.py marked held-out (natural.json split 'heldout') is evaluation only."""
+    import shutil
+    held = tmp_path / "held" / "nat_03001"
+    shutil.copytree(seq_dir, held)
+    (held / "natural.json").write_text(json.dumps({"split": "heldout", "kind": "camera"}))
+    for option in ("--data", "--val"):
+        args = ["--data", held.parent] if option == "--data" else ["--data", seq_dir, "--val", held]
+        r = run_train(*args, "--out", tmp_path / "o", "--steps-s", "1", "--config", "tiny", "--crop", "32x32")
+        assert r.returncode == 1, r.stdout + r.stderr
+        assert f"{option} {held}: the sequence is marked held-out" in r.stderr, r.stderr
+        assert not (tmp_path / "o" / "checkpoint.pt").exists()
+    # a training-split sequence passes the check (the run gets as far as its first step)
+    (held / "natural.json").write_text(json.dumps({"split": "train", "kind": "camera"}))
+    train.refuse_heldout([str(held.parent)], "--data")
+
+
 @needs_cli
 @pytest.mark.parametrize("mode", ["s", "m"])
 def test_exported_model_in_vkunroll_infer_matches_pytorch(trained, seq_dir, tmp_path, mode):
