@@ -211,6 +211,8 @@ TEST(Unroll, ContrastWithoutASuccessorOrOnTheGridEdgeIsSaid) {
   const auto last = run_unroll(o);
   EXPECT_EQ(last["physics"]["contrast"].get<double>(), 0.2f);
   EXPECT_NE(last["physics"]["contrast_source"].get<std::string>().find("not estimated"), std::string::npos) << last["physics"];
+  EXPECT_EQ(last["physics"]["contrast_method"], "default") << last["physics"];
+  EXPECT_FALSE(last["physics"].contains("contrast_pairs")) << last["physics"];
   bool said = false;
   for (const auto& w : last["warnings"]) said = said || w.get<std::string>().find("fixed default") != std::string::npos;
   EXPECT_TRUE(said) << last["warnings"];
@@ -224,6 +226,10 @@ TEST(Unroll, ContrastWithoutASuccessorOrOnTheGridEdgeIsSaid) {
   o.frames = {0, 1};
   const auto edge = run_unroll(o);
   EXPECT_NEAR(edge["physics"]["contrast"].get<double>(), 0.05, 1e-6);
+  // Estimated, and over which frames: each chosen frame with its successor (frame 2 is not unrolled).
+  EXPECT_EQ(edge["physics"]["contrast_method"], "temporal_consistency") << edge["physics"];
+  EXPECT_EQ(edge["physics"]["contrast_pairs"], nlohmann::json::parse("[[0, 1], [1, 2]]")) << edge["physics"];
+  EXPECT_NE(edge["physics"]["contrast_source"].get<std::string>().find("frames 0-1, 1-2"), std::string::npos) << edge["physics"];
   bool warned = false;
   for (const auto& w : edge["warnings"]) warned = warned || w.get<std::string>().find("edge of its search grid") != std::string::npos;
   EXPECT_TRUE(warned) << edge["warnings"];
@@ -232,6 +238,7 @@ TEST(Unroll, ContrastWithoutASuccessorOrOnTheGridEdgeIsSaid) {
   o.contrast = 0.3;
   const auto given = run_unroll(o);
   EXPECT_EQ(given["physics"]["contrast_source"], "given");
+  EXPECT_EQ(given["physics"]["contrast_method"], "given");
   for (const auto& w : given["warnings"]) EXPECT_EQ(w.get<std::string>().find("contrast"), std::string::npos) << w;  // only "no events" ones
   fs::remove_all(dir);
 }

@@ -17,7 +17,9 @@ Details, formulas and the shipped model's command: docs/training.md.
 
 The self-supervised losses read no ground truth. --supervised (L1 to the simulated GS frames at t*)
 trains on simulated sequences only; it is how the shipped photo model was fine-tuned (docs/training.md).
---adapt (a user's recording) is always self-supervised.
+--adapt (a user's recording) is always self-supervised; the recording's last frames are held out of
+its crops and the export is the step with the lowest self-supervised loss on them, the input model if
+none is lower (tools/adapt_holdout.py).
 Validation (--val) uses the ground truth of held-out sequences to print PSNRs, nothing else.
 """
 from __future__ import annotations
@@ -42,6 +44,7 @@ import physics_numpy as pn  # noqa: E402
 import safetensors_io  # noqa: E402
 from selfunroll_torch import SelfUnroll, SelfUnrollConfig, Unet, UnetConfig  # noqa: E402
 from sequence_data import DataError, Sequence, list_sequences  # noqa: E402
+from adapt_holdout import AdaptGuard  # noqa: E402
 from train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop_img, describe_data, find_cli,  # noqa: E402,F401
                         SUPERVISED_PASSES, from_model_encoding, gt_targets, make_data, make_sample, write_cache)
 
@@ -309,6 +312,22 @@ def unroll_pair(net: SelfUnroll, seq: Sequence, k: int, t_star: float, texp: flo
     return res
 
 
+def refuse_heldout(paths: List[str], option: str) -> None:
+    """DataError naming the first sequence natural_data.py marked held-out (natural.json "split":
+    "heldout": evaluation only, so neither trained nor tuned on)."""
+    for p in list_sequences(paths):
+        nat = os.path.join(p, "natural.json")
+        if not os.path.isfile(nat):
+            continue
+        try:
+            split = json.load(open(nat)).get("split")
+        except (OSError, ValueError) as e:
+            raise DataError(f"{nat}: cannot be read ({e}): it says whether the sequence is held out")
+        if split == "heldout":
+            raise DataError(f"{option} {p}: the sequence is marked held-out ({nat}: split 'heldout', evaluation only); "
+                            "training and validation must not use it")
+
+
 def seq_kind(seq: Sequence) -> str:
     """The motion kind natural_data.py recorded (natural.json), else ''."""
     p = os.path.join(seq.folder, "natural.json")
@@ -488,6 +507,8 @@ def train(a) -> None:
         rng.setstate(state["rng"])
     sampler, seqs, data_desc, paths = make_sampler(a, cfg, rng, a.out)
     val_infos = {v.folder: SeqInfo(v, a.data_gamma, os.path.join(a.out, "contrast_cache.json")) for v in val}
+    guard = AdaptGuard(seqs[0], sampler, net, stage_s_losses, a.out, a.ckpt_every, batch=a.batch,
+                       resumed=bool(a.resume), log=lambda m: print(m, flush=True)) if a.adapt else None
     print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}, "
           f"{'physics-informed, ' if cfg.physics_input else ''}gamma {cfg.gamma}; data: {data_desc}; "
           f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, device {dev}, threads {a.threads}", flush=True)
@@ -571,6 +592,8 @@ def train(a) -> None:
                       f"{rate:.2f} step/s data {t_data:.2f}s elapsed {(now - t0) / 60:.1f} min", flush=True)
             if a.rescan_every and step % a.rescan_every == 0 and not a.cache:
                 known = {q.folder for q in sampler.seqs}
+                if not a.adapt:
+                    refuse_heldout(paths, "--data")  # one written into the folder since
                 new = [Sequence(p) for p in list_sequences(paths) if p not in known]
                 new = [q for q in new if q.num_frames >= 2]
                 if new:
@@ -581,6 +604,8 @@ def train(a) -> None:
                 v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop, val_infos)
                 print(f"[{stage}] step {step} validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()),
                       flush=True)
+            if guard:
+                guard.check(net, step)
             if step % a.ckpt_every == 0:
                 save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
             session_steps += 1
@@ -591,6 +616,8 @@ def train(a) -> None:
                 print(f"[{stage}] stopped after {session_steps} steps ({why}); resume with --resume {ckpt_path}",
                       flush=True)
                 return
+        if guard and step % guard.every:
+            guard.check(net, step, last=True)  # the last step, between two evaluations
         if not a.cache:
             info["data"] = describe_data(paths, seqs)
         info[f"steps_{stage}"] = str(step)
@@ -605,6 +632,8 @@ def train(a) -> None:
         v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop, val_infos)
         info["val_psnr"] = " ".join(f"{k}={x:.2f}dB" for k, x in v.items())
         print("final validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()), flush=True)
+    if guard:
+        guard.finish(net, info)
     info["finished_utc"] = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     save_ckpt(ckpt_path, net, None, "done", 0, 0.0, rng, info, cfg)
     out = a.export or os.path.join(a.out, "adapted.safetensors" if a.adapt else "model.safetensors")
@@ -733,6 +762,8 @@ def main(argv=None) -> int:
             ap.error("--make-cache draws from --data, not from --cache")
         if a.device.startswith("cuda") and not torch.cuda.is_available():
             ap.error(f"--device {a.device}: this PyTorch has no CUDA device")
+        refuse_heldout(a.data or [], "--data")
+        refuse_heldout(a.val, "--val")
         train(a)
     except DataError as e:
         print(f"train.py: error: {e}", file=sys.stderr)

@@ -141,6 +141,7 @@ class Sampler:
         self.default_gamma, self.contrast_cache = default_gamma, contrast_cache
         self.event_crops = event_crops
         self.infos: Dict[str, SeqInfo] = {}
+        self.pairs: Dict[str, List[int]] = {}  # folder -> the pairs k (k, k+1) to draw from; absent: all
 
     def info(self, seq: Sequence) -> SeqInfo:
         if seq.folder not in self.infos:
@@ -153,7 +154,7 @@ class Sampler:
     def draw(self) -> Sample:
         r = self.rng
         seq = r.choice(self.seqs)
-        k = r.randrange(seq.num_frames - 1)
+        k = r.choice(self.pairs[seq.folder]) if seq.folder in self.pairs else r.randrange(seq.num_frames - 1)
         x0 = r.randrange(seq.width - self.crop_w + 1)
         y0 = r.randrange(seq.height - self.crop_h + 1)
         texp = self.target_exposure or seq.exposure

@@ -124,9 +124,12 @@ nlohmann::json UnrollJob::report(double total_ms) const {
   r["targets"] = n;
   r["runs"] = {{"s", st.runs_s}, {"m", st.runs_m}, {"physics", st.runs_physics}, {"physics_on_cpu", st.physics_on_cpu},
                {"host_path", st.host_path_targets}};
-  if (physics_.uses_physics)
+  if (physics_.uses_physics) {
     r["physics"] = {{"contrast", physics_.params.contrast}, {"contrast_source", physics_.contrast_source},
+                    {"contrast_method", physics_.contrast_method},
                     {"gamma", physics_.params.gamma}, {"role", physics_.variant ? "the model's physics input" : "the unroller"}};
+    if (physics_.contrast_method == "temporal_consistency") r["physics"]["contrast_pairs"] = physics_.contrast_pairs;
+  }
   if (session_.has_model()) {
     const auto& g = session_.model_config().gamma;
     r["encoding"] = {{"sequence_gamma", physics_.seq_gamma}, {"model_gamma", g ? nlohmann::json(*g) : nlohmann::json()},

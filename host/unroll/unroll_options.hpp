@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -118,6 +119,8 @@ struct ContrastEstimate {
   double contrast = 0.2;
   std::string source;   // how it was found, for the log and summary.json
   std::string warning;  // empty: none
+  bool is_default = false;                  // not estimated: a fixed value (no pair of frames)
+  std::vector<std::pair<int, int>> pairs;   // the frame pairs the estimate compared
 };
 
 }  // namespace vkunroll

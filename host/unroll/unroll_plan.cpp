@@ -199,7 +199,8 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
   if (pairs.empty())
     return {0.2, "a fixed 0.2, not estimated: no pair of consecutive frames",
             "contrast c = 0.2 is a fixed default: the frames unrolled have no successor to estimate it from "
-            "(give --contrast C, or include the next frame)"};
+            "(give --contrast C, or include the next frame)",
+            true, {}};
   struct Pair {
     std::vector<float> rs1, rs2;
     PixelEventLists l1, l2;
@@ -235,7 +236,9 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
     err /= std::max<size_t>(n, 1);
     if (err < best_err) best_err = err, best_c = c, best_point = grid_points;
   }
-  ContrastEstimate r{best_c, "estimated (temporal consistency of consecutive frames)", ""};
+  std::string over;
+  for (auto [a, b] : pairs) over += (over.empty() ? "" : ", ") + std::to_string(a) + "-" + std::to_string(b);
+  ContrastEstimate r{best_c, "estimated (temporal consistency of frames " + over + ")", "", false, pairs};
   if (best_point == 0 || best_point == grid_points - 1) {
     char text[240];
     std::snprintf(text, sizeof text,
@@ -262,11 +265,14 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
   } else if (from_model != "estimate") {
     p.params.contrast = std::stof(from_model);  // validated when the weights were loaded
     p.contrast_source = "the model's metadata";
+    p.contrast_method = "model_metadata";
   } else {
     const ContrastEstimate e = estimate(seq_gamma);
     p.params.contrast = static_cast<float>(e.contrast);
     p.contrast_source = e.source;
     p.contrast_warning = e.warning;
+    p.contrast_method = e.is_default ? "default" : "temporal_consistency";
+    p.contrast_pairs = e.pairs;
   }
   return p;
 }

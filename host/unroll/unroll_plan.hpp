@@ -62,8 +62,8 @@ std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFr
 // three pairs of consecutive frames, both frames are unrolled to the instant halfway between
 // their mid-exposures, and c is the value on a grid (0.05 .. 0.6, step 0.025) that makes the two
 // estimates agree best (least mean |log difference|) — the temporal consistency SelfUnroll
-// trains on. Without a pair of consecutive frames it is no estimate: 0.2, said so in `source` and
-// `warning`. A value on the grid's edge (0.05 or 0.6) comes with a warning: the true threshold may
+// trains on; `source` names the pairs. Without a pair of consecutive frames it is no estimate: 0.2,
+// said so in `source`, `is_default` and `warning`. A value on the grid's edge (0.05 or 0.6) comes with a warning: the true threshold may
 // lie outside, or noise dominates the consistency.
 // `image(k)`: frame k as BGR float32 in [0, 1]; `events(lo, hi)`: the events of [lo, hi] microseconds
 // (UnrollJob passes its frame source, through its decode cache).
@@ -83,6 +83,9 @@ struct PhysicsPlan {
   PhysicsUnrollParams params;
   std::string contrast_source = "given";
   std::string contrast_warning;  // the estimate's (ContrastEstimate::warning); empty: none
+  // How c was obtained, for summary.json: given | model_metadata | temporal_consistency | default.
+  std::string contrast_method = "given";
+  std::vector<std::pair<int, int>> contrast_pairs;  // temporal_consistency: the frame pairs compared
 };
 // `contrast`: the user's (unset: the model's metadata, else `estimate(seq_gamma)`, called only then).
 PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,

@@ -312,6 +312,79 @@ def test_bad_data_fails_clearly(tmp_path):
     assert r.returncode == 1 and "nothing: not found" in r.stderr
 
 
+def test_adaptation_returns_the_input_model_when_no_step_improves(trained, seq_dir, tmp_path):
+    """lr 0.05 (Adam, 3 steps) makes each step worse: the held-out self-supervised loss never improves, so the export is
+    the input model, bit for bit, though the steps changed the weights (checkpoint.pt)."""
+    out, _ = trained
+    model = out / "a" / "model.safetensors"
+    r = run_train("--adapt", seq_dir, "--from", model, "--minutes", "2", "--out", tmp_path / "ad", "--steps-s", "3",
+                  "--lr", "0.05", "--constant-lr", "--ckpt-every", "1", "--crop", "32x32", "--batch", "1",
+                  "--print-every", "0")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "pair 1-2 held out" in r.stdout and "[adapt] step 3: held-out loss" in r.stdout, r.stdout
+    assert "exported the input model" in r.stdout, r.stdout
+    before, _ = safetensors_io.load(str(model))
+    after, md = safetensors_io.load(str(tmp_path / "ad" / "adapted.safetensors"))
+    assert set(before) == set(after) and all(torch.equal(before[k], after[k]) for k in before)
+    assert md["training.adapt_selected"].startswith("the input model")
+    # the steps did change the model: each held-out loss differs from the input model's, none is lower
+    lines = r.stdout.splitlines()
+    held = [float(l.split()[-1]) for l in lines if "held-out loss of the input model" in l]
+    held += [float(l.split("held-out loss ")[1].split()[0]) for l in lines if l.startswith("[adapt] step")]
+    assert len(held) == 4 and all(v != held[0] and not v < held[0] for v in held[1:]), held
+
+
+def test_adapt_guard_keeps_the_best_step_and_splits_frames(tmp_path):
+    """The selection itself: a better step is kept, a worse or NaN one is not; held-out frames."""
+    import random as _random
+    from adapt_holdout import AdaptGuard, split_pairs
+    assert split_pairs(4) == ([0], [2], "frames 2..3 held out (no training crop uses them)")
+    assert split_pairs(10)[:2] == ([0, 1, 2, 3, 4, 5, 6], [8])
+    assert split_pairs(2)[:2] == ([0], [0])
+
+    class FakeSampler:
+        rng, pairs = _random.Random(1), {}
+
+        def draw(self):
+            return self.pairs["s"][0]
+
+    class Seq:
+        folder, num_frames = "s", 12
+
+    net = torch.nn.Linear(1, 1, bias=False)
+    losses = {"now": 5.0}
+    guard = AdaptGuard(Seq(), sampler := FakeSampler(), net, lambda n, part: {"total": torch.tensor(losses["now"])},
+                       str(tmp_path), every=1, count=2, log=lambda m: None)
+    assert sampler.pairs == {"s": list(range(8))} and guard.samples == [9, 9]
+    w0 = net.weight.detach().clone()
+    for step, (value, w) in enumerate([(4.0, 1.0), (6.0, 2.0), (float("nan"), 3.0)], 1):
+        with torch.no_grad():
+            net.weight.fill_(w)
+        losses["now"] = value
+        guard.check(net, step)
+    info = {}
+    guard.finish(net, info)
+    assert float(net.weight) == 1.0 and guard.best_step == 1 and info["adapt_selected"].startswith("step 1")
+    assert float(w0) != 1.0
+
+
+def test_heldout_sequences_are_refused_for_data_and_val(tmp_path, seq_dir):
+    """A sequence natural_data.py marked held-out (natural.json split 'heldout') is evaluation only."""
+    import shutil
+    held = tmp_path / "held" / "nat_03001"
+    shutil.copytree(seq_dir, held)
+    (held / "natural.json").write_text(json.dumps({"split": "heldout", "kind": "camera"}))
+    for option in ("--data", "--val"):
+        args = ["--data", held.parent] if option == "--data" else ["--data", seq_dir, "--val", held]
+        r = run_train(*args, "--out", tmp_path / "o", "--steps-s", "1", "--config", "tiny", "--crop", "32x32")
+        assert r.returncode == 1, r.stdout + r.stderr
+        assert f"{option} {held}: the sequence is marked held-out" in r.stderr, r.stderr
+        assert not (tmp_path / "o" / "checkpoint.pt").exists()
+    # a training-split sequence passes the check (the run gets as far as its first step)
+    (held / "natural.json").write_text(json.dumps({"split": "train", "kind": "camera"}))
+    train.refuse_heldout([str(held.parent)], "--data")
+
+
 @needs_cli
 @pytest.mark.parametrize("mode", ["s", "m"])
 def test_exported_model_in_vkunroll_infer_matches_pytorch(trained, seq_dir, tmp_path, mode):
