@@ -314,7 +314,8 @@ def unroll_pair(net: SelfUnroll, seq: Sequence, k: int, t_star: float, texp: flo
 
 def refuse_heldout(paths: List[str], option: str) -> None:
     """DataError naming the first sequence natural_data.py marked held-out (natural.json "split":
-    "heldout": evaluation only, so neither trained nor tuned on)."""
+    "heldout": evaluation only, so neither trained nor tuned on), or, for --data, validation-only
+    ("split": "validation": the second generator's, for decisions but never for training)."""
     for p in list_sequences(paths):
         nat = os.path.join(p, "natural.json")
         if not os.path.isfile(nat):
@@ -326,6 +327,9 @@ def refuse_heldout(paths: List[str], option: str) -> None:
         if split == "heldout":
             raise DataError(f"{option} {p}: the sequence is marked held-out ({nat}: split 'heldout', evaluation only); "
                             "training and validation must not use it")
+        if split == "validation" and option == "--data":
+            raise DataError(f"{option} {p}: the sequence is marked validation-only ({nat}: split 'validation', e.g. "
+                            "tools/second_generator.py's); it may serve --val, never training")
 
 
 def seq_kind(seq: Sequence) -> str:

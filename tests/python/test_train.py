@@ -383,6 +383,11 @@ def test_heldout_sequences_are_refused_for_data_and_val(tmp_path, seq_dir):
     # a training-split sequence passes the check (the run gets as far as its first step)
     (held / "natural.json").write_text(json.dumps({"split": "train", "kind": "camera"}))
     train.refuse_heldout([str(held.parent)], "--data")
+    # the second generator's sequences (split 'validation') serve --val, never --data
+    (held / "natural.json").write_text(json.dumps({"split": "validation", "kind": "camera"}))
+    train.refuse_heldout([str(held)], "--val")
+    with pytest.raises(train.DataError, match="validation-only"):
+        train.refuse_heldout([str(held.parent)], "--data")
 
 
 @needs_cli
