@@ -161,7 +161,7 @@ def test_contrast_without_a_successor_is_said_as_in_the_cli(seq, tmp_path):
     last = 2  # the fixture has 3 frames
     result = vkunroll.unroll(seq, times=[0.5], mode="physics", frames=[last])
     assert result.stats["contrast"] == pytest.approx(0.2)
-    assert "not estimated" in result.stats["contrast_source"]
+    assert "not estimated" in result.stats["contrast_source"] and result.stats["contrast_method"] == "default"
     assert any("fixed default" in w for w in result.stats["warnings"]), result.stats["warnings"]
     summary = cli_unroll(seq, tmp_path / "cli", "--times", "0.5", "--mode", "physics", "--frames", str(last))[3]
     assert summary["physics"]["contrast_source"] == result.stats["contrast_source"]
