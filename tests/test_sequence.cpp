@@ -82,6 +82,10 @@ TEST(Sequence, ValueAndFrameLists) {
   EXPECT_THROW(parse_value_list("1,,2", "--times"), Error);
   EXPECT_THROW(parse_value_list("0:1:0", "--times"), Error);
   EXPECT_THROW(parse_frame_list("-1", "--frames"), Error);
+  // Each value once (issue 28: a list refuses duplicates), naming the value; a range that overlaps a value too.
+  EXPECT_NE(error_of([] { parse_frame_list("1,0:2", "--frames"); }).find("frame 1 is listed twice"), std::string::npos);
+  EXPECT_NE(error_of([] { parse_value_list("0.5,1/2", "--times"); }).find("--times: value 1/2 is listed twice"), std::string::npos);
+  EXPECT_THROW(parse_frame_list("0:2000000", "--frames"), Error);
 }
 
 TEST(Sequence, GenericLayoutTimingAndOverrides) {

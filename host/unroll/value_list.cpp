@@ -1,5 +1,7 @@
 #include "vkunroll/host/unroll/value_list.hpp"
 
+#include <algorithm>
+
 #include "vkunroll/base/error.hpp"
 
 namespace vkunroll {
@@ -29,6 +31,7 @@ std::vector<Rational> parse_items(const std::string& text, const std::string& wh
       const Rational a = Rational::parse(parts[0], what), b = Rational::parse(parts[1], what);
       if (a.den() != 1 || b.den() != 1 || b < a)
         throw Error(what + ": '" + item + "' must be a:b with integers a <= b");
+      if (b - a > Rational(1000000)) throw Error(what + ": '" + item + "' spans more than 1000000 frames");
       for (int64_t v = a.floor(); v <= b.floor(); ++v) out.push_back(Rational(v));
     } else if (parts.size() == 3) {
       const Rational a = Rational::parse(parts[0], what), b = Rational::parse(parts[1], what);
@@ -42,6 +45,13 @@ std::vector<Rational> parse_items(const std::string& text, const std::string& wh
       throw Error(what + ": '" + item + "' is not a value or start:stop:count" + (frames ? " or a:b" : ""));
     }
   }
+  // A value twice would compute (and write) the same result twice: refused, naming it.
+  std::vector<Rational> sorted = out;
+  std::sort(sorted.begin(), sorted.end(), [](const Rational& x, const Rational& y) { return x < y; });
+  for (size_t i = 1; i < sorted.size(); ++i)
+    if (!(sorted[i - 1] < sorted[i]))
+      throw Error(what + ": " + (frames ? "frame " : "value ") + sorted[i].str() + " is listed twice in '" +
+                  text.substr(0, 64) + (text.size() > 64 ? "...'" : "'") + " (each once)");
   return out;
 }
 

@@ -104,7 +104,7 @@ def base(command, inputs, out):
         "infer": lambda: ["infer", "--model", TINY_MODEL, "--inputs", str(inputs["infer_inputs"]), "--out",
                           str(out) + ".safetensors", "--backend", "cpu"],
         "simulate": lambda: ["simulate", "--out", str(out), "--size", "32x24", "--frames", "2"],
-        "tune": lambda: ["tune", "--model", TINY_MODEL, "--size", "16x16", "--reps", "1", "--no-compare"],
+        "tune": lambda: ["tune", "--model", TINY_MODEL, "--size", "16x16", "--tile", "0", "--reps", "1", "--no-compare"],
         "unroll": lambda: ["unroll", str(seq), "--out", str(out), "--mode", "physics", "--quiet", "--no-video"],
         "voxelize": lambda: ["voxelize", str(seq), "--frames", "0", "--times", "0.5", "--out", str(out) + ".safetensors",
                              "--bins", "2"],
