@@ -8,16 +8,18 @@ Never train on its sequences: they are marked `"split": "validation"` in natural
   second_generator.py --suite DIR [--size 240x180] [--frames 4] [--noise dvs]
                       (three kinds x two training photographs from tools/data/photos.json)
 
-Where it differs from host/sim:
+Where it differs from host/sim (docs/simulator.md, "Events"):
 - Rendering: bilinear resampling of the photograph (scipy map_coordinates) on a fixed 50 us
-  grid; the moving patch is a soft-edged disc cut from another part of the photograph.
-- RS integration: each row's exposure is the trapezoid rule over the 50 us grid (rows start
-  50 us apart, exposures 3 ms: on the grid), then Gaussian read noise and 8-bit gamma 2.2.
-- Events: log intensity through a first-order low-pass whose time constant falls with
-  brightness (a photoreceptor's bandwidth, as v2e models it), crossings timed by linear
-  interpolation in time of the filtered log, per-pixel thresholds with an ON/OFF asymmetry,
-  a refractory period, background activity (Poisson, more in the dark), hot pixels and
-  timestamp jitter. The noise levels of `dvs` sit inside the ranges docs/simulator.md states.
+  grid (host/sim: its own renderer, adaptive steps); the moving object is a soft-edged disc cut
+  from another part of the photograph.
+- RS integration: the trapezoid rule over the grid (rows start 50 us apart and expose 3 ms: on
+  the grid), then Gaussian read noise and 8-bit gamma 2.2.
+- Photoreceptor low-pass: a time constant of 200 + 2000 (1 - I) us (host/sim: v2e's cutoff law).
+- Thresholds: per-pixel ON from N(C, sigma) and OFF = ON x U(0.85, 1.15) (host/sim: two draws).
+- Noise: background activity that does not reset the pixel, more in the dark; hot pixels; and
+  Gaussian timestamp jitter (host/sim: shot noise that resets, leak, no hot pixels, no jitter).
+Alike: events from log intensity, crossings timed linearly in time, a refractory period.
+The thresholds and background rates of `dvs` sit inside the ranges docs/simulator.md cites.
 Writes the generic sequence layout (meta.json, rs/, gs/, events.h5) and natural.json.
 """
 from __future__ import annotations
