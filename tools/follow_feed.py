@@ -5,7 +5,8 @@
   follow_feed.py prepare SEQ LIVE        # LIVE: meta.json (the frames to come), an empty rs/
   follow_feed.py play SEQ LIVE --speed K # each RS frame into LIVE when its last row is read out;
                                          # EVT 3.0 on stdout at K x real time
-  follow_feed.py bench                   # latency and throughput of --follow on a simulated recording
+  follow_feed.py bench --speeds 1,4,0    # latency and throughput of --follow on a simulated recording
+                                         # (speed 0: everything there at once, cat into the pipe)
 
 `play` writes frames by rename (never half-written) and paces the events in 2 ms slices of the
 scaled timeline; SIGPIPE (the reader stopped) ends it quietly.
@@ -105,12 +106,17 @@ def cmd_bench(cli, size, frames, speeds):
         for k in speeds:
             live, out = os.path.join(d, f"live{k}"), os.path.join(d, f"out{k}")
             cmd_prepare(seq, live)
-            feed = subprocess.Popen([sys.executable, __file__, "play", seq, live, "--speed", str(k)], stdout=subprocess.PIPE)
+            if k == 0:  # as fast as it goes: every frame there, the events from a file through cat
+                shutil.copytree(os.path.join(seq, "rs"), os.path.join(live, "rs"), dirs_exist_ok=True)
+                cmd_evt3(seq, os.path.join(d, "events.raw"))
+                feed = subprocess.Popen(["cat", os.path.join(d, "events.raw")], stdout=subprocess.PIPE)
+            else:
+                feed = subprocess.Popen([sys.executable, __file__, "play", seq, live, "--speed", str(k)], stdout=subprocess.PIPE)
             subprocess.run([cli, "unroll", live, "--follow", "--mode", "physics", "--contrast", "0.2", "--no-video",
                             "--quiet", "--out", out, "--follow-idle-s", "5"], stdin=feed.stdout, check=True)
             feed.wait()
             fo = json.load(open(os.path.join(out, "summary.json")))["follow"]
-            print(json.dumps({"speed": k, "size": size, "frames": frames, "status": fo["status"],
+            print(json.dumps({"speed": k if k else "all at once", "size": size, "frames": frames, "status": fo["status"],
                               "latency_ms": fo.get("latency_ms"), "gs_frames_per_s": fo.get("gs_frames_per_s")}))
 
 
@@ -131,7 +137,7 @@ def main():
     b.add_argument("--cli", default=os.environ.get("VKUNROLL_CLI", "build/vkunroll"))
     b.add_argument("--size", default="346x260")
     b.add_argument("--frames", type=int, default=40)
-    b.add_argument("--speeds", default="1,4,1000")
+    b.add_argument("--speeds", default="1,4,0")
     a = ap.parse_args()
     if a.cmd == "evt3":
         cmd_evt3(a.seq, a.out)
