@@ -129,6 +129,7 @@ void FollowFrameSource::reader_loop() {
 void FollowFrameSource::check_stop(const char* waiting_for) const {
   if (InterruptFlag::raised()) throw StreamStopped(std::string(InterruptFlag::signal_name()) + " while waiting for " + waiting_for);
   if (reader_error_) std::rethrow_exception(reader_error_);
+  if (options_.stop_requested && options_.stop_requested()) throw StreamStopped(std::string("stopped by the caller while waiting for ") + waiting_for);
 }
 
 void FollowFrameSource::wait_image(const std::string& path, int k) {

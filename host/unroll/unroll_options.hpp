@@ -3,6 +3,7 @@
 // combinations before any work starts, naming the option.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -73,6 +74,7 @@ struct FollowOptions {
   std::string events = "-";       // EVT 3.0 raw (Prophesee '%' header first); "-": stdin
   double idle_s = 10;             // no new event bytes and no awaited frame file for this long: the stream ended
   size_t max_events = size_t(1) << 24;  // the ring of events still needed (a frame window larger than it is an error)
+  std::function<bool()> stop_requested;  // polled while waiting (Python's stream closed); empty: SIGINT only
 };
 
 struct UnrollOptions {

@@ -95,3 +95,27 @@ def test_follow_refuses_resume_and_a_sorted_stream(recording, tmp_path):
     r = subprocess.run([CLI, "unroll", str(seq), "--follow", "--on-bad", "sort", "--mode", "physics", "--out", str(tmp_path / "o")],
                        stdin=subprocess.DEVNULL, capture_output=True, text=True)
     assert r.returncode == 2 and "sort cannot apply to a live stream" in r.stderr
+
+
+def test_python_stream_yields_the_offline_frames(recording, tmp_path):
+    vkunroll = pytest.importorskip("vkunroll")
+    import numpy as np
+    from vkunroll import _vkunroll
+    seq, offline = recording
+    live, fifo = tmp_path / "live", tmp_path / "events.fifo"
+    subprocess.run([sys.executable, FEED, "prepare", str(seq), str(live)], check=True)
+    os.mkfifo(fifo)
+    feed = subprocess.Popen(f"exec {sys.executable} {FEED} play {seq} {live} --speed 20 > {fifo}", shell=True)
+    summary, _ = gs_files(offline)
+    expected = {(g["frame"], g["t_us"]): _vkunroll._read_image(str(offline / g["file"]), 64, 48) for g in summary["gs_frames"]}
+    got = {}
+    with vkunroll.stream(live, events=fifo, times=[0, 0.5, 1], mode="physics", idle_s=5) as frames:
+        for item in frames:
+            assert item["total"] == 3 * FRAMES and len(item["images"]) == 3
+            for t, im in zip(item["targets"], item["images"]):
+                got[(t["frame"], float(t["t_us"]))] = im
+    feed.wait(timeout=30)
+    assert frames.report["follow"]["status"] == "complete"
+    assert got.keys() == expected.keys()
+    for k, im in got.items():
+        assert np.abs(im - expected[k]).max() <= 0.5 / 255 + 1e-6  # the offline PNGs are the same images in 8 bits
