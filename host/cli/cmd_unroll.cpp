@@ -21,6 +21,7 @@ struct UnrollArgs {
   bool quiet = false, no_video = false, overwrite = false, resume = false;
   SequenceTimingArgs timing;
   DeviceArgs device;
+  FollowOptions follow;
 };
 
 UnrollOptions to_options(const UnrollArgs& a) {
@@ -59,6 +60,7 @@ UnrollOptions to_options(const UnrollArgs& a) {
   if (!a.frame_format.empty()) o.output.frame_format = parse_frame_format(a.frame_format, "--frame-format");
   o.output.existing = a.resume ? ExistingOutput::resume : a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse;
   o.sequence_options = sequence_options(a.timing);
+  o.follow = a.follow;
   o.command_line = command_line();
   return o;
 }
@@ -121,6 +123,20 @@ void add_output_options(CLI::App* c, UnrollArgs& a) {
   c->add_flag("--quiet", a.quiet, "print nothing but warnings and errors")->group(g);
 }
 
+// A live recording (docs/follow.md): events from a pipe, frames as they appear.
+void add_follow_options(CLI::App* c, UnrollArgs& a) {
+  const std::string g = "Live stream";
+  c->add_flag("--follow", a.follow.enabled,
+              "live: meta.json lists the frames to come; each GS frame is written as soon as its image exists and the "
+              "events have passed its window; ends at the stream's end, after --follow-idle-s, or on SIGINT")->group(g);
+  c->add_option("--follow-events", a.follow.events, "EVT 3.0 raw stream: a pipe, a growing file, or - (stdin)")
+      ->capture_default_str()->group(g)->type_name("FILE");
+  c->add_option("--follow-idle-s", a.follow.idle_s, "no new events and no awaited frame for this long: the stream ended (0: never)")
+      ->check(finite_at_least(0))->capture_default_str()->group(g)->type_name("S");
+  c->add_option("--follow-max-events", a.follow.max_events, "events held at most (the ring of events later frames need)")
+      ->check(int_range(1024, int64_t(1) << 34))->capture_default_str()->group(g)->type_name("N");
+}
+
 }  // namespace
 
 Command add_unroll(CLI::App& parent) {
@@ -142,6 +158,7 @@ Command add_unroll(CLI::App& parent) {
   c->add_option("--frames", a->frames, "frames to unroll: 'a:b' (inclusive) or a list (default: all)")->group(gi)->type_name("A:B");
   add_model_options(c, *a);
   add_output_options(c, *a);
+  add_follow_options(c, *a);
   add_device_options(c, a->device);
   add_sequence_timing(c, a->timing);
   return {c, [a] {

@@ -11,6 +11,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
+#include <memory>
 #include <optional>
 
 #include "vkunroll/base/env.hpp"
@@ -22,6 +23,7 @@
 #include "vkunroll/host/unroll/progress.hpp"
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/unroll/device_stage.hpp"
+#include "vkunroll/host/unroll/follow_source.hpp"
 #include "vkunroll/host/unroll/session.hpp"
 #include "vkunroll/host/unroll/unroll_job.hpp"
 #include "vkunroll/host/unroll/unroll_output.hpp"
@@ -188,6 +190,27 @@ UnrollOutputOptions output_options(const UnrollOptions& o, const Sequence& seq, 
   return out;
 }
 
+// --follow: frames are waited for (not checked up front) and the events come from the stream.
+SequenceOptions follow_sequence_options(const UnrollOptions& o) {
+  SequenceOptions so = o.sequence_options;
+  if (!o.follow.enabled) return so;
+  so.check_frame_sizes = false;
+  so.events_file = o.follow.events == "-" ? std::string("/dev/stdin") : o.follow.events;
+  return so;
+}
+
+// summary.json's "follow": complete or stopped (why), the stream's counts, latency and rate.
+nlohmann::json follow_report(const FollowFrameSource& source, const FollowSink& sink, const std::string& stopped, size_t planned) {
+  nlohmann::json j = source.report();
+  j.update(sink.report());
+  j["gs_frames_planned"] = planned;
+  j["status"] = stopped.empty() ? "complete" : "stopped";
+  j["stopped_because"] = stopped.empty() ? nlohmann::json() : nlohmann::json(stopped);
+  if (!stopped.empty()) std::cerr << "unroll: stopped: " << stopped << "; " << sink.report()["gs_frames"] << " of " << planned
+                                  << " GS frame(s) written, all valid\n";
+  return j;
+}
+
 }  // namespace
 
 nlohmann::json run_unroll(const UnrollOptions& o) {
@@ -201,13 +224,24 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   UnrollSession session = in_device_stage("setting up the device and the model", [&] { return UnrollSession(session_options); });
   const auto t_load = Clock::now();
   const double setup_ms = ms_since(t_start);
-  const Sequence seq = load_sequence(o.sequence, o.sequence_options);
+  const Sequence seq = load_sequence(o.sequence, follow_sequence_options(o));
   const double load_ms = ms_since(t_load);
   std::vector<std::pair<std::string, std::string>> event_files;  // meta.json may name files outside the folder
   for (const auto& f : seq.event_files) event_files.emplace_back("event file", f);
   check_output_apart(o.out_dir, "--out", event_files);
-  SequenceFrameSource source(seq);
-  UnrollJob job(o, session, source);
+  std::optional<InterruptFlag> interrupt;  // --follow: SIGINT stops the stream cleanly
+  if (o.follow.enabled) interrupt.emplace();
+  std::unique_ptr<FrameSource> source;
+  FollowFrameSource* follow = nullptr;
+  if (o.follow.enabled) source = std::make_unique<FollowFrameSource>(seq, o.follow), follow = static_cast<FollowFrameSource*>(source.get());
+  else source = std::make_unique<SequenceFrameSource>(seq);
+  std::optional<UnrollJob> planned;
+  try {
+    planned.emplace(o, session, *source);
+  } catch (const StreamStopped& e) {
+    throw DataError(std::string("--follow: the stream stopped before the job was planned (nothing written): ") + e.what());
+  }
+  UnrollJob& job = *planned;
   job.add_stage_ms("setup", setup_ms);  // the device, the model and the shaders
   job.add_stage_ms("read", load_ms);    // the sequence's load
 
@@ -217,13 +251,24 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   UnrollOutput output(o.out_dir, out_options);
   Progress progress("unroll", job.total_targets(), Progress::automatic(o.quiet));
   FolderSink sink(output, progress, seq, o.output.existing == ExistingOutput::resume);
-  job.run(sink);
+  std::optional<FollowSink> follow_sink;
+  if (follow) {
+    follow_sink.emplace(sink, *follow, job);
+    if (!o.quiet) std::cerr << "unroll: following " << o.follow.events << "; GS frames appear in " << output.staging().string() << "\n";
+  }
+  std::string stopped;
+  try {
+    job.run(follow_sink ? static_cast<ResultSink&>(*follow_sink) : sink);
+  } catch (const StreamStopped& e) {
+    stopped = e.what();
+  }
   progress.finish();
 
   nlohmann::json extra = summary_extra(o, job, session, seq, model_sha, ms_since(t_start));  // the whole run, as the frames' time
   if (output.replaces_existing())
     extra["notes"].push_back("replaced the earlier output in " + output.dir().string() + " (" +
                              existing_output_name(o.output.existing) + ")");
+  if (follow) extra["follow"] = follow_report(*follow, *follow_sink, stopped, job.total_targets());
   extra["provenance"]["finished_utc"] = utc_now();
   for (const auto& w : extra["warnings"]) std::cerr << "unroll: warning: " << w.get<std::string>() << "\n";  // even under --quiet
   nlohmann::json summary = output.finish(extra);

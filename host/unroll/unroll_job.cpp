@@ -109,9 +109,14 @@ std::vector<FrameTarget> UnrollJob::methods_for(int k, const std::vector<UnrollT
 void UnrollJob::run(ResultSink& sink) {
   traffic_before_ = session_.traffic();
   stats_before_ = session_.stats();
-  for (int k : frames_) {
-    auto it = targets_.find(k);
-    if (it != targets_.end()) run_frame(k, it->second, sink);
+  try {
+    for (int k : frames_) {
+      auto it = targets_.find(k);
+      if (it != targets_.end()) run_frame(k, it->second, sink);
+    }
+  } catch (...) {
+    traffic_ = session_.traffic() - traffic_before_;  // a stopped stream (--follow) still reports its frames
+    throw;
   }
   traffic_ = session_.traffic() - traffic_before_;
 }

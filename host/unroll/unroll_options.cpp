@@ -133,6 +133,13 @@ void validate_unroll_options(const UnrollOptions& o) {
   for (int k : o.frames)
     if (k < 0) throw UsageError("--frames: frame index " + std::to_string(k) + " is negative");
   validate_sequence_options(o.sequence_options);
+  if (o.follow.enabled) {
+    if (o.output.existing == ExistingOutput::resume) throw UsageError("--follow writes a fresh output; --resume does not apply to it");
+    if (o.sequence_options.events_file) throw UsageError("--follow reads its events from --follow-events (default stdin), not --events");
+    if (!(o.follow.idle_s >= 0) || std::isinf(o.follow.idle_s))
+      throw UsageError("--follow-idle-s " + number_text(o.follow.idle_s) + ": expected seconds >= 0 (0: wait for ever)");
+    if (o.follow.max_events < 1024) throw UsageError("--follow-max-events " + std::to_string(o.follow.max_events) + ": expected at least 1024");
+  }
 }
 
 void check_output_apart(const std::string& out, const std::string& out_option,
@@ -200,6 +207,7 @@ nlohmann::json unroll_options_json(const UnrollOptions& o) {
       {"video", o.output.write_video},
       {"fps", o.output.video_fps ? nlohmann::json(*o.output.video_fps) : nlohmann::json()},
       {"existing_output", existing_output_name(o.output.existing)},
+      {"follow", o.follow.enabled ? nlohmann::json{{"events", o.follow.events}, {"idle_s", o.follow.idle_s}, {"max_events", o.follow.max_events}} : nlohmann::json()},
       {"sequence_options",
        {{"layout", sequence_layout_name(so.layout)},
         {"line_delay_us", opt_rational(so.line_delay_us)},

@@ -3,6 +3,7 @@
 // combinations before any work starts, naming the option.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <utility>
@@ -68,6 +69,15 @@ constexpr double kMaxTimeUs = 9007199254740992.0;
 // The largest normalized target |tau| accepted (a million frame spans).
 constexpr double kMaxTau = 1e6;
 
+// `unroll --follow` (docs/follow.md): events from a pipe or a growing file, frames as they appear.
+struct FollowOptions {
+  bool enabled = false;
+  std::string events = "-";       // EVT 3.0 raw (Prophesee '%' header first); "-": stdin
+  double idle_s = 10;             // no new event bytes and no awaited frame file for this long: the stream ended
+  size_t max_events = size_t(1) << 24;  // the ring of events still needed (a frame window larger than it is an error)
+  std::function<bool()> stop_requested;  // polled while waiting (Python's stream closed); empty: SIGINT only
+};
+
 struct UnrollOptions {
   std::string sequence;           // folder
   SequenceOptions sequence_options;
@@ -91,6 +101,7 @@ struct UnrollOptions {
   int64_t halo = -1;              // multiple of 32; -1: sparse 32, dense tiles 64
   SparsePolicy sparse = SparsePolicy::exact;
   double sparse_threshold = 0.05; // fast: ev1 + ev2 events per pixel of a tile's input rect
+  FollowOptions follow;
 };
 
 // Throws UsageError naming the option when a value or a combination is refused, and

@@ -4,6 +4,7 @@
 
 #include "common.hpp"
 #include "py_session.hpp"
+#include "vkunroll/host/unroll/follow_source.hpp"
 #include "vkunroll/host/unroll/unroll_job.hpp"
 #include "vkunroll/host/unroll/unroll_output.hpp"
 
@@ -112,6 +113,73 @@ py::tuple run_job(PySession& ps, FrameSource& source, const py::dict& args, cons
   return py::make_tuple(images, targets, metrics, report);
 }
 
+// vkunroll.stream's sink: each frame's GS images handed to Python as soon as the frame is done.
+class StreamSink : public ResultSink {
+ public:
+  explicit StreamSink(py::object on_frame) : on_frame_(std::move(on_frame)) {}
+  void add(const GsResult& r) override {
+    images_.push_back(cv::min(cv::max(r.image, 0.0), 1.0));
+    targets_.push_back({r.frame, r.target->t_us, r.target->tau, r.method, r.target->gt});
+  }
+  void frame_finished(int frame, size_t done, size_t total) override {
+    py::gil_scoped_acquire gil;
+    py::list images, targets;
+    for (const cv::Mat& im : images_) images.append(bgr_mat_to_rgb(im));
+    for (const auto& t : targets_)
+      targets.append(py::dict("frame"_a = t.frame, "t_us"_a = to_fraction(t.t_us), "tau"_a = t.tau,
+                              "method"_a = frame_method_name(t.method), "gt"_a = t.gt));
+    images_.clear(), targets_.clear();
+    on_frame_(py::dict("frame"_a = frame, "images"_a = images, "targets"_a = targets, "done"_a = done, "total"_a = total));
+  }
+
+ private:
+  py::object on_frame_;
+  std::vector<cv::Mat> images_;
+  std::vector<ArraySink::Target> targets_;
+};
+
+// The --follow job over a live sequence folder: frames to on_frame as they complete; returns the
+// job's report with "follow" (complete or stopped, latency, the stream's counts) as JSON text.
+std::string run_stream(PySession& ps, const Sequence& seq, const py::dict& args, FollowOptions follow, py::object on_frame,
+                       py::object should_stop) {
+  follow.enabled = true;
+  const UnrollOptions o = guarded({}, [&] {
+    UnrollOptions checked = job_options(ps, args);
+    checked.follow = follow;
+    validate_unroll_options(checked);  // the CLI's texts for idle_s and max_events
+    return checked;
+  });
+  follow.stop_requested = [should_stop] {
+    py::gil_scoped_acquire gil;
+    return should_stop().cast<bool>();
+  };
+  StreamSink inner(std::move(on_frame));
+  return without_gil({}, [&] {
+    std::lock_guard<std::mutex> lock(ps.mutex);
+    FollowFrameSource source(seq, follow);
+    std::optional<UnrollJob> job;
+    try {
+      job.emplace(o, *ps.session, source);
+    } catch (const StreamStopped& e) {
+      throw DataError(std::string("stream: the stream stopped before the job was planned: ") + e.what());
+    }
+    ps.to_model = job->physics().to_model;
+    FollowSink sink(inner, source, *job);
+    std::string stopped;
+    try {
+      job->run(sink);
+    } catch (const StreamStopped& e) {
+      stopped = e.what();
+    }
+    nlohmann::json report = job->report();
+    report["follow"] = source.report();
+    report["follow"].update(sink.report());
+    report["follow"]["status"] = stopped.empty() ? "complete" : "stopped";
+    report["follow"]["stopped_because"] = stopped.empty() ? nlohmann::json() : nlohmann::json(stopped);
+    return report.dump();
+  });
+}
+
 }  // namespace
 
 void bind_unroll_job(py::module_& m) {
@@ -143,6 +211,18 @@ void bind_unroll_job(py::module_& m) {
       },
       py::arg("session"), py::arg("frames"), py::arg("timings"), py::arg("t"), py::arg("x"), py::arg("y"), py::arg("p"),
       py::arg("gt_times"), py::arg("gt_images"), py::arg("args"), py::arg("progress"));
+  m.def(
+      "_stream_sequence",
+      [](PySession& ps, const Sequence& seq, const py::dict& args, const std::string& events, double idle_s, size_t max_events,
+         py::object on_frame, py::object should_stop) {
+        FollowOptions f;
+        f.events = events;
+        f.idle_s = idle_s;
+        f.max_events = max_events;
+        return run_stream(ps, seq, args, f, std::move(on_frame), std::move(should_stop));
+      },
+      py::arg("session"), py::arg("sequence"), py::arg("args"), py::arg("events"), py::arg("idle_s"), py::arg("max_events"),
+      py::arg("on_frame"), py::arg("should_stop"));
 }
 
 }  // namespace vkunroll::python

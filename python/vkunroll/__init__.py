@@ -22,7 +22,7 @@ from ._model import Model
 from ._runtime import Context, default_context, devices
 from ._sequence import Sequence, simulate
 from ._tensors import event_tensors, event_tensors_batch, physics_unroll
-from ._unroll import UnrollResult, UnrollSession, unroll
+from ._unroll import UnrollResult, UnrollSession, stream, unroll
 from ._vkunroll import RowTiming, default_model, psnr, ssim
 
 __version__ = _vkunroll.__version__
@@ -33,5 +33,5 @@ __all__ = [
     "read_events", "write_events", "convert_events", "detect_event_format",
     "Sequence", "simulate", "RowTiming",
     "event_tensors", "event_tensors_batch", "physics_unroll",
-    "Model", "UnrollSession", "UnrollResult", "unroll", "default_model", "psnr", "ssim",
+    "Model", "UnrollSession", "UnrollResult", "unroll", "stream", "default_model", "psnr", "ssim",
 ]

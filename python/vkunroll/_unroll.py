@@ -2,6 +2,8 @@
 import json
 import logging
 import os
+import queue
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -12,7 +14,7 @@ from ._model import Model
 from ._sequence import Sequence
 from ._tensors import image_float
 
-__all__ = ["UnrollSession", "UnrollResult", "unroll"]
+__all__ = ["UnrollSession", "UnrollResult", "unroll", "stream"]
 
 _log = logging.getLogger("vkunroll")
 
@@ -213,3 +215,84 @@ def _run(sess, source, args, progress):
     return _vk._unroll_arrays(sess._s, [_rgb(f, f"frame {k}") for k, f in enumerate(frames)], timings, t, x, y, p,
                               [tt for tt, _ in gt], [_rgb(im, f"ground truth {j}") for j, (_, im) in enumerate(gt)],
                               args, progress)
+
+
+class _Stream:
+    """The iterator :func:`stream` returns; ``report`` is the job's report once it is exhausted."""
+
+    def __init__(self, sess, seq, args, events, idle_s, max_events):
+        self.report, self._q, self._stop, self._error = None, queue.Queue(maxsize=4), threading.Event(), None
+
+        def on_frame(item):
+            while not self._stop.is_set():  # back-pressure: the job waits for a slow consumer
+                try:
+                    return self._q.put(item, timeout=0.05)
+                except queue.Full:
+                    pass
+            raise RuntimeError("stream: closed by the caller")
+
+        def job():
+            try:
+                self.report = json.loads(_vk._stream_sequence(sess._s, seq._seq, args, events, float(idle_s), int(max_events),
+                                                              on_frame, self._stop.is_set))
+            except BaseException as e:  # handed to the consumer
+                self._error = e
+            finally:
+                self._q.put(None)
+
+        self._thread = threading.Thread(target=job, daemon=True)
+        self._thread.start()
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        item = self._q.get()
+        if item is None:
+            self._thread.join()
+            if self._error is not None and not self._stop.is_set():
+                raise self._error
+            raise StopIteration
+        item["images"] = [np.asarray(im) for im in item["images"]]
+        return item
+
+    def close(self):
+        """Stops the job (the frame in work finishes) and waits for it."""
+        self._stop.set()
+        while self._thread.is_alive():
+            try:
+                self._q.get(timeout=0.05)
+            except queue.Empty:
+                pass
+        self._thread.join()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def stream(source, events="-", times=0.5, mode="auto", model=None, *, times_us=None, frames=None, contrast=None,
+           gamma=None, idle_s=10.0, max_events=1 << 24, on_bad="error", session=None, backend="vulkan", device=None,
+           precision="fp32", channel_order="model", tile=0, halo=-1, sparse="exact", sparse_threshold=0.05):
+    """Unrolls a live recording as ``vkunroll unroll --follow`` does (docs/follow.md), yielding
+    each RS frame's GS frames as soon as they are computed.
+
+    ``source``: the live sequence folder (meta.json lists the frames to come; their images appear
+    in it); ``events``: an EVT 3.0 stream (a pipe, a growing file, "-" for stdin). ``idle_s``,
+    ``max_events``: as ``--follow-idle-s``, ``--follow-max-events``; the rest as :func:`unroll`.
+    Yields dicts ``{"frame", "images": [H x W x 3 float32 RGB], "targets", "done", "total"}``.
+    The iterator's ``close()`` (or leaving a ``with`` block) stops the job; ``report`` holds the
+    job's report with ``follow`` (status complete or stopped, latency) after the last frame.
+    """
+    if session is None and model is None:
+        model = _vk._choose_model(mode, "")[0] or None
+    sess = session if session is not None else UnrollSession(model, backend, device, precision)
+    seq = Sequence.open(source, check_frame_sizes=False, on_bad=on_bad,
+                        events_file="/dev/stdin" if events == "-" else os.fspath(events))
+    kind, values = _times(times, times_us)
+    args = dict(mode=mode, kind=kind, values=values, frames=list(frames or []), channel_order=channel_order,
+                contrast=contrast, gamma=gamma, tile=int(tile), halo=int(halo), sparse=sparse,
+                sparse_threshold=float(sparse_threshold))
+    return _Stream(sess, seq, args, "-" if events == "-" else os.fspath(events), idle_s, max_events)

@@ -1,0 +1,121 @@
+#include "vkunroll/host/events/event_stream_follow.hpp"
+
+#include <fcntl.h>
+#include <poll.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+#include <thread>
+
+#include "vkunroll/base/error.hpp"
+#include "vkunroll/host/events/event_reader_detail.hpp"
+#include "vkunroll/host/events/evt3_words_detail.hpp"
+
+namespace vkunroll {
+
+// The EVT 3.0 decoder state and the record rules, kept across reads.
+struct EventStreamFollower::Decoder {
+  Decoder(const std::string& name, const EventReadOptions& o, EventReadReport& report)
+      : sink(name, o, report, [this](const EventStream& c) {
+          for (size_t i = 0; i < c.size(); ++i) out->push(c.t[i], c.x[i], c.y[i], c.p[i]);
+        }, 1) {}
+  EventStream* out = nullptr;  // where this read's events go
+  detail::EventSink sink;
+  detail::Evt3State state;
+  uint64_t record = 0;
+};
+
+EventStreamFollower::EventStreamFollower(const std::string& path, const EventReadOptions& options)
+    : name_(path == "-" ? "stdin" : path), options_(options) {
+  if (options_.on_bad == BadEventPolicy::sort)
+    throw UsageError("--follow: --on-bad sort cannot apply to a live stream (events are used as they come); use error or drop");
+  if (path == "-") {
+    fd_ = 0;
+  } else {
+    fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd_ < 0) {
+      if (errno == ENOENT) throw InputMissingError("--follow-events " + path + ": no such file");
+      throw DataError("--follow-events " + path + ": cannot open (" + std::strerror(errno) + ")");
+    }
+    own_fd_ = true;
+  }
+  struct stat st {};
+  if (::fstat(fd_, &st) == 0) pipe_ = S_ISFIFO(st.st_mode) || S_ISSOCK(st.st_mode) || S_ISCHR(st.st_mode);
+  if (::fstat(fd_, &st) == 0 && S_ISDIR(st.st_mode)) throw DataError("--follow-events " + path + ": is a folder");
+}
+
+EventStreamFollower::~EventStreamFollower() {
+  if (own_fd_ && fd_ >= 0) ::close(fd_);
+}
+
+// '%' lines up to "% end" or the first byte that is not '%' at a line start; needs EVT 3.0.
+void EventStreamFollower::parse_header() {
+  size_t off = 0;
+  bool ended = false;  // "% end" seen, or a byte that starts no '%' line: the data begins at `off`
+  while (!ended && off < pending_.size()) {
+    if (pending_[off] != '%') {
+      ended = true;
+      break;
+    }
+    const auto nl = std::find(pending_.begin() + long(off), pending_.end(), uint8_t('\n'));
+    if (nl == pending_.end()) {
+      if (pending_.size() - off > (1 << 16)) throw DataError(name_ + ": a '%' header line longer than 64 KiB");
+      return;  // the line is not complete yet
+    }
+    const std::string line(pending_.begin() + long(off), nl);
+    off = size_t(nl - pending_.begin()) + 1;
+    ended = line.rfind("% end", 0) == 0;
+  }
+  if (!ended) return;  // only header lines so far
+  detail::MemorySource head(name_, std::vector<uint8_t>(pending_.begin(), pending_.begin() + long(off)));
+  const detail::PropheseeHeader h = detail::parse_prophesee_header(head);
+  if (h.evt != "3.0")
+    throw DataError(name_ + ": the stream's '%' header says " + (h.evt.empty() ? std::string("no encoding") : "EVT " + h.evt) +
+                    "; --follow reads EVT 3.0 ('% evt 3.0' or '% format EVT3;...')");
+  pending_.erase(pending_.begin(), pending_.begin() + long(off));
+  data_offset_ = off;
+  header_done_ = true;
+}
+
+void EventStreamFollower::decode(EventStream& out) {
+  if (!decoder_) decoder_ = std::make_unique<Decoder>(name_, options_, report_);
+  decoder_->out = &out;
+  const size_t whole = pending_.size() / 2 * 2;
+  for (size_t i = 0; i < whole; i += 2) {
+    const uint16_t w = uint16_t(pending_[i] | (pending_[i + 1] << 8));
+    detail::evt3_word(w, data_offset_ + i, decoder_->state, decoder_->record, decoder_->sink);
+  }
+  data_offset_ += whole;
+  pending_.erase(pending_.begin(), pending_.begin() + long(whole));
+}
+
+EventStreamFollower::Status EventStreamFollower::read_some(int timeout_ms, EventStream& out) {
+  pollfd p{fd_, POLLIN, 0};
+  if (pipe_) {
+    const int r = ::poll(&p, 1, timeout_ms);
+    if (r < 0 && errno != EINTR) throw DataError(name_ + ": cannot wait for events (" + std::strerror(errno) + ")");
+    if (r <= 0) return Status::no_data;
+  }
+  uint8_t buf[1 << 16];
+  const ssize_t n = ::read(fd_, buf, sizeof buf);
+  if (n < 0) {
+    if (errno == EINTR || errno == EAGAIN) return Status::no_data;
+    throw DataError(name_ + ": cannot read events (" + std::strerror(errno) + ")");
+  }
+  if (n == 0) {
+    if (pipe_) return Status::end;
+    std::this_thread::sleep_for(std::chrono::milliseconds(timeout_ms));  // a growing file: wait for more
+    return Status::no_data;
+  }
+  bytes_ += uint64_t(n);
+  pending_.insert(pending_.end(), buf, buf + n);
+  if (!header_done_) parse_header();
+  if (header_done_) decode(out);
+  return Status::data;
+}
+
+}  // namespace vkunroll

@@ -1,0 +1,50 @@
+// Events from a pipe or a growing file, decoded as they arrive (`unroll --follow`, docs/follow.md):
+// a Prophesee '%' header, then EVT 3.0 words, the same decoder and record rules as the .raw reader
+// (reader_evt.cpp, EventSink). read_some() never blocks longer than its timeout.
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "vkunroll/base/events.hpp"
+#include "vkunroll/host/events/event_reader.hpp"
+
+namespace vkunroll {
+
+class EventStreamFollower {
+ public:
+  // "-": stdin. `options`: the sensor size and the bad-record policy (sort is refused: a live
+  // stream cannot be sorted). Throws InputMissingError / DataError naming the path.
+  EventStreamFollower(const std::string& path, const EventReadOptions& options);
+  ~EventStreamFollower();
+  EventStreamFollower(const EventStreamFollower&) = delete;
+  EventStreamFollower& operator=(const EventStreamFollower&) = delete;
+
+  enum class Status { data, no_data, end };
+  // Waits up to timeout_ms for bytes, decodes every whole word and appends the kept events to
+  // `out`. `end`: a pipe's writer closed it (a regular file only grows: no_data at its end).
+  // Bad records: Error naming the stream and byte (or dropped and counted, per policy).
+  Status read_some(int timeout_ms, EventStream& out);
+
+  const std::string& name() const { return name_; }
+  bool is_pipe() const { return pipe_; }
+  uint64_t bytes_read() const { return bytes_; }
+  const EventReadReport& report() const { return report_; }
+
+ private:
+  void parse_header();
+  void decode(EventStream& out);
+
+  struct Decoder;
+  std::string name_;
+  int fd_ = -1;
+  bool own_fd_ = false, pipe_ = false, header_done_ = false;
+  EventReadOptions options_;
+  EventReadReport report_;
+  std::vector<uint8_t> pending_;  // bytes not decoded yet (a header line or a partial word)
+  uint64_t bytes_ = 0, data_offset_ = 0;
+  std::unique_ptr<Decoder> decoder_;
+};
+
+}  // namespace vkunroll

@@ -1,0 +1,279 @@
+#include "vkunroll/host/unroll/follow_source.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <filesystem>
+#include <fstream>
+
+#include "vkunroll/host/unroll/unroll_plan.hpp"
+
+namespace vkunroll {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::atomic<int> g_signal{0};
+struct sigaction g_old_int {}, g_old_term {};
+
+extern "C" void on_stop_signal(int sig) {
+  g_signal.store(sig);
+  std::signal(sig, SIG_DFL);  // a second one kills
+}
+
+constexpr int kPollMs = 20;
+
+// A frame file is complete: it exists and, a PNG, ends with its IEND chunk (writers that rename
+// into place are always complete; others are waited for).
+bool frame_file_complete(const std::string& path) {
+  std::error_code ec;
+  const auto st = fs::status(path, ec);
+  if (ec || !fs::is_regular_file(st)) return false;
+  const uint64_t size = fs::file_size(path, ec);
+  if (ec || size < 8) return false;
+  std::ifstream in(path, std::ios::binary);
+  char sig[4] = {};
+  in.read(sig, 4);
+  if (sig[1] != 'P' || sig[2] != 'N' || sig[3] != 'G') return true;
+  const uint64_t tail = std::min<uint64_t>(size, 64);
+  std::string end(tail, '\0');
+  in.seekg(std::streamoff(size - tail));
+  in.read(end.data(), std::streamsize(tail));
+  return end.find("IEND") != std::string::npos;
+}
+
+double seconds_since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+}  // namespace
+
+InterruptFlag::InterruptFlag() {
+  g_signal.store(0);
+  struct sigaction sa {};
+  sa.sa_handler = on_stop_signal;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, &g_old_int);
+  sigaction(SIGTERM, &sa, &g_old_term);
+}
+
+InterruptFlag::~InterruptFlag() {
+  sigaction(SIGINT, &g_old_int, nullptr);
+  sigaction(SIGTERM, &g_old_term, nullptr);
+}
+
+bool InterruptFlag::raised() { return g_signal.load() != 0; }
+const char* InterruptFlag::signal_name() { return g_signal.load() == SIGTERM ? "SIGTERM" : "SIGINT"; }
+
+FollowFrameSource::FollowFrameSource(const Sequence& seq, const FollowOptions& options)
+    : seq_(seq), options_(options), follower_(options.events, seq.event_options) {
+  ring_.width = seq.width;
+  ring_.height = seq.height;
+  reader_ = std::thread([this] { reader_loop(); });
+}
+
+FollowFrameSource::~FollowFrameSource() {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    quit_ = true;
+  }
+  cv_.notify_all();
+  reader_.join();
+}
+
+// The reader thread: bytes -> events into the ring, until the end, an error or quit; it waits
+// while the ring is full (the writer then waits on the pipe).
+void FollowFrameSource::reader_loop() {
+  EventStream batch;
+  try {
+    for (;;) {
+      {
+        std::unique_lock<std::mutex> lock(mu_);
+        reader_full_ = ring_.size() - head_ >= options_.max_events;
+        if (reader_full_) cv_.notify_all();
+        cv_.wait(lock, [&] { return quit_ || ring_.size() - head_ < options_.max_events; });
+        reader_full_ = false;
+        if (quit_) return;
+      }
+      batch.t.clear(), batch.x.clear(), batch.y.clear(), batch.p.clear();
+      const auto status = follower_.read_some(kPollMs, batch);
+      std::lock_guard<std::mutex> lock(mu_);
+      if (status == EventStreamFollower::Status::end) {
+        ended_ = true;
+        end_reason_ = "end of stream (" + follower_.name() + " closed)";
+        cv_.notify_all();
+        return;
+      }
+      if (status == EventStreamFollower::Status::data) last_news_ = Clock::now();
+      for (size_t i = 0; i < batch.size(); ++i) ring_.push(batch.t[i], batch.x[i], batch.y[i], batch.p[i]);
+      peak_ = std::max<uint64_t>(peak_, ring_.size() - head_);
+      if (!batch.empty()) {
+        latest_t_ = std::max(latest_t_, batch.t.back());
+        arrivals_.push_back({latest_t_, Clock::now()});
+      }
+      if (!ended_ && options_.idle_s > 0 && seconds_since(last_news_) > options_.idle_s) {
+        ended_ = true;
+        end_reason_ = "no new events for " + std::to_string(options_.idle_s) + " s (--follow-idle-s)";
+      }
+      cv_.notify_all();
+      if (ended_) return;
+    }
+  } catch (...) {
+    std::lock_guard<std::mutex> lock(mu_);
+    reader_error_ = std::current_exception();
+    ended_ = true;
+    cv_.notify_all();
+  }
+}
+
+void FollowFrameSource::check_stop(const char* waiting_for) const {
+  if (InterruptFlag::raised()) throw StreamStopped(std::string(InterruptFlag::signal_name()) + " while waiting for " + waiting_for);
+  if (reader_error_) std::rethrow_exception(reader_error_);
+  if (options_.stop_requested && options_.stop_requested()) throw StreamStopped(std::string("stopped by the caller while waiting for ") + waiting_for);
+}
+
+void FollowFrameSource::wait_image(const std::string& path, int k) {
+  const auto since = Clock::now();
+  while (!frame_file_complete(path)) {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      check_stop(("frame " + std::to_string(k)).c_str());
+      const double quiet = std::min(seconds_since(since), seconds_since(last_news_));
+      if (options_.idle_s > 0 && (ended_ ? seconds_since(since) : quiet) > options_.idle_s)
+        throw StreamStopped("frame " + std::to_string(k) + "'s image " + path + " did not appear within " +
+                            std::to_string(options_.idle_s) + " s (--follow-idle-s)" + (ended_ ? " after " + end_reason_ : ""));
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(kPollMs));
+  }
+  ready_ = std::max(ready_, Clock::now());
+}
+
+cv::Mat FollowFrameSource::decode_frame(int k) {
+  const std::string& path = seq_.frames.at(size_t(k)).image;
+  wait_image(path, k);
+  return read_frame_image(path, seq_.width, seq_.height);
+}
+
+cv::Mat FollowFrameSource::decode_ground_truth(int j) {
+  const std::string& path = seq_.ground_truth.at(size_t(j)).image;
+  wait_image(path, -1 - j);
+  return read_frame_image(path, seq_.width, seq_.height);
+}
+
+double FollowFrameSource::recorded_gamma() const { return read_meta_gamma(seq_); }
+
+EventStream FollowFrameSource::events(double lo, double hi) {
+  // As a sequence's window: [floor(lo), ceil(hi)] microseconds, complete once a later event came.
+  const int64_t b = static_cast<int64_t>(std::floor(lo)), e = static_cast<int64_t>(std::ceil(hi));
+  std::unique_lock<std::mutex> lock(mu_);
+  for (;;) {
+    check_stop("events");
+    if (latest_t_ > e || ended_) break;
+    if (reader_full_)
+      throw DataError("--follow-max-events " + std::to_string(options_.max_events) + ": the window [" + std::to_string(b) +
+                      ", " + std::to_string(e) + "] us needs more events than the ring holds; raise it");
+    cv_.wait_for(lock, std::chrono::milliseconds(kPollMs));
+  }
+  if (b < released_before_)
+    throw Error("internal: events before " + std::to_string(released_before_) + " us were released, the window starts at " +
+                std::to_string(b) + " us");
+  // When the stream first passed the window's end (the reader logged each read).
+  auto when = std::upper_bound(arrivals_.begin(), arrivals_.end(), e,
+                               [](int64_t t, const std::pair<int64_t, Clock::time_point>& a) { return t < a.first; });
+  ready_ = std::max(ready_, when != arrivals_.end() ? when->second : Clock::now());
+  const auto t0 = ring_.t.begin() + long(head_);
+  const size_t i0 = size_t(std::lower_bound(t0, ring_.t.end(), b) - ring_.t.begin());
+  const size_t i1 = size_t(std::upper_bound(t0, ring_.t.end(), e) - ring_.t.begin());
+  EventStream w;
+  w.width = seq_.width;
+  w.height = seq_.height;
+  w.t.assign(ring_.t.begin() + long(i0), ring_.t.begin() + long(i1));
+  w.x.assign(ring_.x.begin() + long(i0), ring_.x.begin() + long(i1));
+  w.y.assign(ring_.y.begin() + long(i0), ring_.y.begin() + long(i1));
+  w.p.assign(ring_.p.begin() + long(i0), ring_.p.begin() + long(i1));
+  return w;
+}
+
+void FollowFrameSource::release_before(double t_us) {
+  std::lock_guard<std::mutex> lock(mu_);
+  const int64_t t = static_cast<int64_t>(std::floor(t_us));
+  if (t <= released_before_) return;
+  released_before_ = t;
+  const size_t cut = size_t(std::lower_bound(ring_.t.begin() + long(head_), ring_.t.end(), t) - ring_.t.begin());
+  released_ += cut - head_;
+  head_ = cut;
+  if (head_ > (1u << 16) && head_ * 2 > ring_.size()) {  // compact: the ring's memory stays bounded
+    ring_.t.erase(ring_.t.begin(), ring_.t.begin() + long(head_));
+    ring_.x.erase(ring_.x.begin(), ring_.x.begin() + long(head_));
+    ring_.y.erase(ring_.y.begin(), ring_.y.begin() + long(head_));
+    ring_.p.erase(ring_.p.begin(), ring_.p.begin() + long(head_));
+    head_ = 0;
+  }
+  auto keep = std::lower_bound(arrivals_.begin(), arrivals_.end(), t,
+                               [](const std::pair<int64_t, Clock::time_point>& a, int64_t v) { return a.first < v; });
+  arrivals_.erase(arrivals_.begin(), keep);
+  cv_.notify_all();
+}
+
+Clock::time_point FollowFrameSource::take_ready() {
+  const Clock::time_point r = ready_;
+  ready_ = {};
+  return r;
+}
+
+nlohmann::json FollowFrameSource::report() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  const EventReadReport& r = follower_.report();
+  return {{"events_source", follower_.name()},
+          {"pipe", follower_.is_pipe()},
+          {"bytes_read", follower_.bytes_read()},
+          {"records", r.records},
+          {"events_kept", r.kept},
+          {"events_dropped", r.records - r.kept - r.outside_window},
+          {"events_released", released_},
+          {"ring_peak_events", peak_},
+          {"ring_capacity_events", options_.max_events},
+          {"stream_ended", ended_},
+          {"end_reason", end_reason_}};
+}
+
+FollowSink::FollowSink(ResultSink& inner, FollowFrameSource& source, const UnrollJob& job) : inner_(inner), source_(source) {
+  // A frame's window starts at its first row's start or its earliest target (unroll_plan.cpp,
+  // frame_window); the minimum over the frames after it is what must stay.
+  const Sequence& layout = source.layout();
+  double later = INFINITY;
+  const std::vector<int>& frames = job.frames();
+  for (auto it = frames.rbegin(); it != frames.rend(); ++it) {
+    keep_from_[*it] = later;
+    double lo = layout.frames[size_t(*it)].timing.first_start().to_double();
+    if (auto t = job.targets().find(*it); t != job.targets().end())
+      for (const UnrollTarget& u : t->second) lo = std::min(lo, u.t_us.to_double());
+    later = std::min(later, lo);
+  }
+}
+
+void FollowSink::frame_finished(int frame, size_t done, size_t total) {
+  inner_.frame_finished(frame, done, total);
+  const Clock::time_point now = Clock::now(), ready = source_.take_ready();
+  if (ready != Clock::time_point{}) {
+    latency_ms_.push_back(std::chrono::duration<double, std::milli>(now - ready).count());
+    if (first_ready_ == Clock::time_point{}) first_ready_ = ready;
+  }
+  last_written_ = now;
+  gs_frames_ = done;
+  if (auto k = keep_from_.find(frame); k != keep_from_.end() && std::isfinite(k->second)) source_.release_before(k->second);
+}
+
+nlohmann::json FollowSink::report() const {
+  nlohmann::json j = {{"frames", latency_ms_.size()}, {"gs_frames", gs_frames_}};
+  if (latency_ms_.empty()) return j;
+  std::vector<double> l = latency_ms_;
+  std::sort(l.begin(), l.end());
+  auto at = [&](double q) { return l[std::min(l.size() - 1, size_t(q * double(l.size())))]; };
+  j["latency_ms"] = {{"median", at(0.5)}, {"p95", at(0.95)}, {"max", l.back()}};
+  const double span_s = std::chrono::duration<double>(last_written_ - first_ready_).count();
+  if (span_s > 0) j["gs_frames_per_s"] = double(gs_frames_) / span_s;
+  return j;
+}
+
+}  // namespace vkunroll

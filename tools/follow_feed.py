@@ -1,0 +1,153 @@
+#!/usr/bin/python3
+"""Plays a simulated sequence as a live camera for `vkunroll unroll --follow` (docs/follow.md).
+
+  follow_feed.py evt3 SEQ OUT.raw        # the sequence's events.h5 as a Prophesee EVT 3.0 .raw file
+  follow_feed.py prepare SEQ LIVE        # LIVE: meta.json (the frames to come), an empty rs/
+  follow_feed.py play SEQ LIVE --speed K # each RS frame into LIVE when its last row is read out;
+                                         # EVT 3.0 on stdout at K x real time
+  follow_feed.py bench --speeds 1,4,0    # latency and throughput of --follow on a simulated recording
+                                         # (speed 0: everything there at once, cat into the pipe)
+
+`play` writes frames by rename (never half-written) and paces the events in 2 ms slices of the
+scaled timeline; SIGPIPE (the reader stopped) ends it quietly.
+"""
+import argparse
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import h5py
+import numpy as np
+
+
+def evt3_bytes(t, x, y, p, width, height):
+    """EVT 3.0 words: TIME_HIGH, TIME_LOW, ADDR_Y, ADDR_X per event (24-bit time, so t < 2^24 us)."""
+    t = np.asarray(t, np.int64)
+    if len(t) and (t.min() < 0 or t.max() >= 1 << 24):
+        raise SystemExit("follow_feed: event times must lie in [0, 2^24) us for this encoder")
+    w = np.empty((len(t), 4), np.uint16)
+    w[:, 0] = 0x8000 | ((t >> 12) & 0xFFF)
+    w[:, 1] = 0x6000 | (t & 0xFFF)
+    w[:, 2] = np.asarray(y, np.uint16) & 0x7FF
+    w[:, 3] = 0x2000 | (np.asarray(p > 0, np.uint16) << 11) | (np.asarray(x, np.uint16) & 0x7FF)
+    return w.astype("<u2").tobytes()
+
+
+def header(width, height):
+    return f"% evt 3.0\n% format EVT3;height={height};width={width}\n% end\n".encode()
+
+
+def load(seq):
+    meta = json.load(open(os.path.join(seq, "meta.json")))
+    with h5py.File(os.path.join(seq, meta["events"])) as f:
+        ev = {k: f["events/" + k][:] for k in "txyp"}
+    return meta, ev
+
+
+def cmd_evt3(seq, out):
+    meta, ev = load(seq)
+    with open(out, "wb") as f:
+        f.write(header(meta["width"], meta["height"]))
+        f.write(evt3_bytes(ev["t"], ev["x"], ev["y"], ev["p"], meta["width"], meta["height"]))
+
+
+def frame_done_us(meta, fr):
+    return fr["t0_us"] + meta["line_delay_us"] * (meta["height"] - 1) + meta["exposure_us"]
+
+
+def cmd_prepare(seq, live):
+    meta = json.load(open(os.path.join(seq, "meta.json")))
+    os.makedirs(os.path.join(live, "rs"), exist_ok=True)
+    with open(os.path.join(live, "meta.json"), "w") as f:
+        json.dump(meta, f)
+
+
+def cmd_play(seq, live, speed, slice_us=2000):
+    signal.signal(signal.SIGPIPE, signal.SIG_DFL)
+    meta, ev = load(seq)
+    out = sys.stdout.buffer
+    out.write(header(meta["width"], meta["height"]))
+    out.flush()
+    t = ev["t"]
+    frames = sorted(meta["frames"], key=lambda fr: frame_done_us(meta, fr))
+    t_begin = int(t[0]) if len(t) else 0
+    t_end = max(int(t[-1]) if len(t) else 0, int(max(frame_done_us(meta, fr) for fr in frames))) + slice_us
+    start = time.monotonic()
+    i = 0
+    for s in range(t_begin, t_end + slice_us, slice_us):
+        delay = start + (s - t_begin) / 1e6 / speed - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        while frames and frame_done_us(meta, frames[0]) <= s:
+            fr = frames.pop(0)
+            dst = os.path.join(live, fr["file"])
+            shutil.copyfile(os.path.join(seq, fr["file"]), dst + ".tmp")
+            os.rename(dst + ".tmp", dst)
+        j = int(np.searchsorted(t, s, side="left"))
+        if j > i:
+            out.write(evt3_bytes(t[i:j], ev["x"][i:j], ev["y"][i:j], ev["p"][i:j], meta["width"], meta["height"]))
+            out.flush()
+            i = j
+    out.write(evt3_bytes(t[i:], ev["x"][i:], ev["y"][i:], ev["p"][i:], meta["width"], meta["height"]))
+    out.flush()
+
+
+def cmd_bench(cli, size, frames, speeds):
+    """One run per speed; prints summary.json's follow section (latency, GS frames per second)."""
+    with tempfile.TemporaryDirectory() as d:
+        seq = os.path.join(d, "seq")
+        subprocess.run([cli, "simulate", "--out", seq, "--size", size, "--frames", str(frames), "--gt-per-frame", "0",
+                        "--seed", "1", "--motion", "pan", "--quiet"], check=True)
+        for k in speeds:
+            live, out = os.path.join(d, f"live{k}"), os.path.join(d, f"out{k}")
+            cmd_prepare(seq, live)
+            if k == 0:  # as fast as it goes: every frame there, the events from a file through cat
+                shutil.copytree(os.path.join(seq, "rs"), os.path.join(live, "rs"), dirs_exist_ok=True)
+                cmd_evt3(seq, os.path.join(d, "events.raw"))
+                feed = subprocess.Popen(["cat", os.path.join(d, "events.raw")], stdout=subprocess.PIPE)
+            else:
+                feed = subprocess.Popen([sys.executable, __file__, "play", seq, live, "--speed", str(k)], stdout=subprocess.PIPE)
+            subprocess.run([cli, "unroll", live, "--follow", "--mode", "physics", "--contrast", "0.2", "--no-video",
+                            "--quiet", "--out", out, "--follow-idle-s", "5"], stdin=feed.stdout, check=True)
+            feed.wait()
+            fo = json.load(open(os.path.join(out, "summary.json")))["follow"]
+            print(json.dumps({"speed": k if k else "all at once", "size": size, "frames": frames, "status": fo["status"],
+                              "latency_ms": fo.get("latency_ms"), "gs_frames_per_s": fo.get("gs_frames_per_s")}))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    e = sub.add_parser("evt3")
+    e.add_argument("seq")
+    e.add_argument("out")
+    r = sub.add_parser("prepare")
+    r.add_argument("seq")
+    r.add_argument("live")
+    p = sub.add_parser("play")
+    p.add_argument("seq")
+    p.add_argument("live")
+    p.add_argument("--speed", type=float, default=1.0)
+    b = sub.add_parser("bench")
+    b.add_argument("--cli", default=os.environ.get("VKUNROLL_CLI", "build/vkunroll"))
+    b.add_argument("--size", default="346x260")
+    b.add_argument("--frames", type=int, default=40)
+    b.add_argument("--speeds", default="1,4,0")
+    a = ap.parse_args()
+    if a.cmd == "evt3":
+        cmd_evt3(a.seq, a.out)
+    elif a.cmd == "prepare":
+        cmd_prepare(a.seq, a.live)
+    elif a.cmd == "play":
+        cmd_play(a.seq, a.live, a.speed)
+    else:
+        cmd_bench(a.cli, a.size, a.frames, [float(s) for s in a.speeds.split(",")])
+
+
+if __name__ == "__main__":
+    main()
