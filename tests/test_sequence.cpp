@@ -128,7 +128,7 @@ TEST(Sequence, GenericLayoutErrorsNameFileAndField) {
   auto e = error_of([&] { load_sequence(d.string()); });
   EXPECT_NE(e.find("frames[0].t0_us"), std::string::npos) << e;
   text(meta, R"({"width": -3, "height": 12})");
-  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("'width'"), std::string::npos);
+  EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("meta.json:width"), std::string::npos);
   text(meta, R"({"width": 16, "height": 12, "exposure_us": 5, "events": "events.h5", "frames": []})");
   EXPECT_NE(error_of([&] { load_sequence(d.string()); }).find("line_delay_us"), std::string::npos);
   text(meta, R"({"width": 16, "height": 12, "line_delay_us": 10, "exposure_us": 5, "readout": "diagonal",
@@ -384,7 +384,7 @@ TEST(SequenceIssue18, FrameTimesOutOfRangeOrOutOfOrderNameTheFieldAndFrame) {
       R"({"file": "rs/000000.png", "t0_us": 0}, {"file": "rs/000001.png", "t0_us": 9223372036854775000})";
   fs::path d = make_text_sequence("t0_huge", 2, "10 1 1 1\n", frames_huge);
   std::string e = error_of([&] { load_sequence(d.string()); });
-  for (const char* part : {"meta.json: frames[1].t0_us", "frame 1", "2^53"})
+  for (const char* part : {"meta.json:frames[1].t0_us = 9223372036854775000", "2^53"})
     EXPECT_NE(e.find(part), std::string::npos) << "missing '" << part << "' in: " << e;
   const std::string frames_beyond = R"({"file": "rs/000000.png", "t0_us": 18446744073709551615})";
   d = make_text_sequence("t0_beyond", 1, "10 1 1 1\n", frames_beyond);
