@@ -108,10 +108,18 @@ TEST(Sequence, GenericLayoutTimingAndOverrides) {
   o.line_delay_us = R("100");
   o.exposure_us = R("50");
   o.readout = Readout::bottom_up;
-  o.t0s_us = std::vector<Rational>{R("1"), R("2"), R("3")};
+  o.t0s_us = std::vector<Rational>{R("1"), R("2000"), R("4000")};  // 2000 us apart: readout 11 x 100 us fits
   const Sequence s2 = load_sequence(d.string(), o);
-  EXPECT_EQ(s2.frames[1].timing.t0, R("2"));
-  EXPECT_EQ(s2.frames[1].timing.start(11), R("2"));  // bottom-up: the last row is read first
+  EXPECT_EQ(s2.frames[1].timing.t0, R("2000"));
+  EXPECT_EQ(s2.frames[1].timing.start(11), R("2000"));  // bottom-up: the last row is read first
+  o.t0s_us = std::vector<Rational>{R("1"), R("2"), R("3")};  // inside the readout: the options' fault
+  try {
+    load_sequence(d.string(), o);
+    ADD_FAILURE() << "t0s inside the readout were accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.kind(), ErrorKind::usage) << e.what();
+    EXPECT_NE(std::string(e.what()).find("readout-within-frame-period"), std::string::npos) << e.what();
+  }
   EXPECT_EQ(s2.frames[1].timing.exposure, R("50"));
   o.t0s_us = std::vector<Rational>{R("1")};
   EXPECT_NE(error_of([&] { load_sequence(d.string(), o); }).find("3 frames"), std::string::npos);

@@ -166,7 +166,8 @@ struct Validator {
     const std::string name = field.empty() ? key : field + "." + key;
     if (!node.is_object()) return;  // the parent's own entry reported its type
     if (!node.contains(key)) {
-      if (i + 1 == segs.size() && f.required) throw MetaSchemaError(file, name, "(missing)", "a required field");
+      // "frames[]" entries are required within their list; the list's own entry says whether it is.
+      if (i + 1 == segs.size() && f.required && !each) throw MetaSchemaError(file, name, "(missing)", "a required field");
       return;
     }
     const nlohmann::json& v = node[key];

@@ -357,10 +357,17 @@ void check_meta_rules(const Sequence& s, const SequenceOptions& o) {
   const std::string file = s.layout == SequenceLayout::generic ? (fs::path(s.root) / "meta.json").string() : s.root;
   rule_distinct_frame_files(s, file);
   if (s.layout != SequenceLayout::generic) return;
-  rule_readout_within_frame_period(s, [&](size_t k) {
-    return o.t0s_us || o.line_delay_us ? "--t0s-us/--line-delay-us:frame " + std::to_string(k) : t0_source(s, k, o);
-  });
-  rule_ground_truth_inside_recording(s, file);
+  const bool overridden = o.t0s_us || o.line_delay_us;
+  try {
+    rule_readout_within_frame_period(s, [&](size_t k) {
+      return overridden ? "--t0s-us/--line-delay-us:frame " + std::to_string(k) : t0_source(s, k, o);
+    });
+  } catch (const MetaSchemaError& e) {
+    if (overridden) throw UsageError(e.what());  // the options' values, not meta.json's, break the rule
+    throw;
+  }
+  // --t0s-us moves the frames, not meta.json's ground-truth instants: the rule is meta.json's own.
+  if (!o.t0s_us) rule_ground_truth_inside_recording(s, file);
 }
 
 }  // namespace
