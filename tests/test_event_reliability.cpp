@@ -75,7 +75,7 @@ TEST(EventReliability, InfiniteAndHugeTextTimesAreNamedAsSuch) {
   write_file(p, "nan 1 2 1\n");
   expect_error(p, {}, {"time is NaN"});
   write_file(p, "1e400 1 2 1\n");
-  expect_error(p, {}, {"time '1e400' (us) does not fit in int64 microseconds"});
+  expect_error(p, {}, {"time '1e400' (us) is beyond +-2^53 us"});
   EventReadOptions o;
   o.on_bad = BadEventPolicy::drop;
   EventReadReport rep;

@@ -181,6 +181,7 @@ int run_voxelize(const VoxelizeArgs& a) {
   std::error_code ec;
   if (!std::filesystem::exists(a.sequence, ec)) throw InputMissingError("SEQUENCE " + a.sequence + ": no such folder");
   const Sequence seq = load_sequence(a.sequence, so);
+  for (const auto& w : seq.warnings) std::cerr << "voxelize: warning: " << w << "\n";
   for (const auto& f : seq.event_files) check_output_apart(a.out, "--out", {{"event file", f}});
   for (int f : targets.frames) (void)seq.frame(f);
   SensorCrop crop;

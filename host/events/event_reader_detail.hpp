@@ -93,6 +93,12 @@ class HeaderLines {
 };
 
 // Applies the rules to each decoded record, in file order, and collects the kept events.
+// Event times stay where int64 windows and float64 arithmetic are exact, as frame times do
+// (sequence.cpp): |t| <= 2^53 us, about 285 years; Unix-time microseconds today are about 1.7e15.
+constexpr int64_t kMaxEventTimeUs = int64_t(1) << 53;
+constexpr const char* kEventTimeRule =
+    "is beyond +-2^53 us (rule: |t| <= 9007199254740992 us, about 285 years, so that windows and float64 times stay exact)";
+
 class EventSink {
  public:
   EventSink(const std::string& file, const EventReadOptions& options, EventReadReport& report,

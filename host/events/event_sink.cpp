@@ -137,10 +137,11 @@ bool EventSink::add_float_time(double t_us, int64_t x, int64_t y, int64_t p) {
              " (rule: every time must be a finite number)";
     });
   }
-  if (std::fabs(t_us) > 9.0e18) {
+  if (std::fabs(t_us) > double(kMaxEventTimeUs)) {
     return reject(Outcome::nan, [&] {
       std::ostringstream os;
-      os << "time " << t_us << " us does not fit in int64 microseconds (rule: |t| < 9e18 us)";
+      os.precision(17);
+      os << "time " << t_us << " us " << kEventTimeRule;
       return os.str();
     });
   }
@@ -172,6 +173,9 @@ bool EventSink::add(int64_t t, int64_t x, int64_t y, int64_t p) {
   else if (p == 0 || p == -1) pol = -1;
   else return reject(Outcome::bad_polarity,
                      [&] { return "polarity " + std::to_string(p) + " is not one of 0/1, -1/+1, false/true"; });
+  // One time rule for every reader (HDF5 took INT64_MAX, text refused it; INT64_MIN overflowed spans).
+  if (t > kMaxEventTimeUs || t < -kMaxEventTimeUs)
+    return reject(Outcome::nan, [&] { return "time " + std::to_string(t) + " us " + kEventTimeRule; });
   const int64_t w = width_ > 0 ? width_ : 65536, h = height_ > 0 ? height_ : 65536;
   if (x < 0 || y < 0 || x >= w || y >= h) {
     return reject(Outcome::out_of_sensor, [&] {

@@ -146,6 +146,12 @@ Column open_column(hid_t file, const std::string& file_name, const std::string& 
     throw Error(file_name + ": dataset '" + path + "' has rank " + std::to_string(rank) + "; expected " +
                 (col < 0 ? "a 1-D array" : "an N x 4 array"));
   }
+  // A dataset created but never written reads as its fill value (10^9 zeros read as 10^9 events).
+  // Only "not allocated" is refused: chunked datasets fully written can report "partly allocated".
+  H5D_space_status_t status = H5D_SPACE_STATUS_ERROR;
+  if (c.rows > 0 && H5Dget_space_status(c.dset.get(), &status) >= 0 && status == H5D_SPACE_STATUS_NOT_ALLOCATED)
+    throw DataError(file_name + ": dataset '" + path + "' (" + what + ", " + std::to_string(c.rows) +
+                    " rows) was never written: its storage is not allocated, so it would read as fill values, not events");
   Handle type(H5Dget_type(c.dset.get()), H5Tclose);
   c.cls = H5Tget_class(type.get());
   if (c.cls == H5T_ENUM) {

@@ -396,7 +396,7 @@ bool text_record(const TextLayout& L, std::vector<std::string_view>& tok, EventS
   }
   if (tn == Num::overflow)
     return sink.bad_time([&] {
-      return "time '" + shown(tt) + "' (" + L.unit + ") does not fit in int64 microseconds (rule: |t| < 2^62 us)";
+      return "time '" + shown(tt) + "' (" + L.unit + ") " + kEventTimeRule;
     });
   if (!parse_int(tx, x) || !parse_int(ty, y)) {
     sink.unknown_record_lazy(

@@ -11,6 +11,7 @@
 
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
+#include "vkunroll/host/events/meta_schema.hpp"
 
 namespace vkunroll {
 namespace fs = std::filesystem;
@@ -73,31 +74,17 @@ std::optional<fs::path> subdir(const fs::path& root, std::initializer_list<const
 
 Rational json_time(const nlohmann::json& j, const std::string& where) {
   if (j.is_number_unsigned() && j.get<uint64_t>() > uint64_t(INT64_MAX))
-    throw Error(where + " = " + j.dump() + " us is beyond int64 microseconds");
+    throw DataError(where + " = " + j.dump() + " us is beyond int64 microseconds");
   if (j.is_number()) {
     try {
       return j.is_number_integer() ? Rational(j.get<int64_t>()) : Rational::from_double(j.get<double>());
     } catch (const Error&) {
-      throw Error(where + " = " + j.dump() + " us is out of range (not representable as an exact time)");
+      throw DataError(where + " = " + j.dump() + " us is out of range (not representable as an exact time)");
     }
   }
   if (j.is_string()) return Rational::parse(j.get<std::string>(), where);
   throw Error(where + " must be a number (or an exact string like \"73000/259\"), got " + std::string(j.type_name()) +
               " " + j.dump());
-}
-
-int json_int(const nlohmann::json& obj, const char* key, const std::string& file) {
-  if (!obj.contains(key)) throw Error(file + ": missing field '" + key + "'");
-  const auto& v = obj[key];
-  if (!v.is_number_integer() || v.get<int64_t>() <= 0 || v.get<int64_t>() > 32767)
-    throw Error(file + ": field '" + key + "' must be a positive integer <= 32767, got " + v.dump());
-  return v.get<int>();
-}
-
-std::string json_string(const nlohmann::json& obj, const char* key, const std::string& where) {
-  if (!obj.contains(key)) throw Error(where + ": missing field '" + key + "'");
-  if (!obj[key].is_string()) throw Error(where + ": field '" + key + "' must be a string, got " + obj[key].dump());
-  return obj[key].get<std::string>();
 }
 
 std::string resolve(const fs::path& root, const std::string& rel) {
@@ -114,6 +101,7 @@ std::string one_file(const fs::path& root, const std::vector<std::string>& exts,
   return files[0];
 }
 
+// meta.json is validated against the schema (meta_schema.cpp) first; what follows reads it.
 void load_generic(Sequence& s, const fs::path& root) {
   const std::string meta_path = (root / "meta.json").string();
   std::ifstream in(meta_path);
@@ -122,34 +110,20 @@ void load_generic(Sequence& s, const fs::path& root) {
   try {
     m = nlohmann::json::parse(in);
   } catch (const std::exception& e) {
-    throw Error(meta_path + ": not valid JSON: " + e.what());
+    throw DataError(meta_path + ": not valid JSON: " + e.what());
   }
-  if (!m.is_object()) throw Error(meta_path + ": expected a JSON object at the top level");
-  s.width = json_int(m, "width", meta_path);
-  s.height = json_int(m, "height", meta_path);
-  if (!m.contains("line_delay_us")) throw Error(meta_path + ": missing field 'line_delay_us'");
-  if (!m.contains("exposure_us")) throw Error(meta_path + ": missing field 'exposure_us'");
-  const Rational delay = json_time(m["line_delay_us"], meta_path + ": field 'line_delay_us'");
-  const Rational exposure = json_time(m["exposure_us"], meta_path + ": field 'exposure_us'");
-  Readout readout = Readout::top_down;
-  if (m.contains("readout")) {
-    const std::string r = json_string(m, "readout", meta_path);
-    try {
-      readout = parse_readout(r);
-    } catch (const Error& e) {
-      throw Error(meta_path + ": field 'readout': " + e.what());
-    }
-  }
-  if (!m.contains("frames") || !m["frames"].is_array())
-    throw Error(meta_path + ": field 'frames' must be a list of {\"file\", \"t0_us\"}");
+  s.warnings = validate_meta(m, meta_path);
+  s.width = m["width"].get<int>();
+  s.height = m["height"].get<int>();
+  const Rational delay = json_time(m["line_delay_us"], meta_path + ":line_delay_us");
+  const Rational exposure = json_time(m["exposure_us"], meta_path + ":exposure_us");
+  const Readout readout = m.contains("readout") ? parse_readout(m["readout"].get<std::string>()) : Readout::top_down;
   const auto& frames = m["frames"];
   for (size_t i = 0; i < frames.size(); ++i) {
-    const std::string where = meta_path + ": frames[" + std::to_string(i) + "]";
+    const std::string where = meta_path + ":frames[" + std::to_string(i) + "]";
     const auto& f = frames[i];
-    if (!f.is_object()) throw Error(where + " must be an object {\"file\", \"t0_us\"}, got " + f.dump());
     SequenceFrame fr;
-    fr.image = resolve(root, json_string(f, "file", where));
-    if (!f.contains("t0_us")) throw Error(where + ": missing field 't0_us'");
+    fr.image = resolve(root, f["file"].get<std::string>());
     fr.timing.t0 = json_time(f["t0_us"], where + ".t0_us");
     fr.timing.line_delay = delay;
     // Extension: a frame may carry its own exposure (e.g. converted DRE recordings).
@@ -158,19 +132,15 @@ void load_generic(Sequence& s, const fs::path& root) {
     fr.timing.readout = readout;
     s.frames.push_back(fr);
   }
-  s.event_files.push_back(resolve(root, json_string(m, "events", meta_path)));
+  s.event_files.push_back(resolve(root, m["events"].get<std::string>()));
   // Extension: a ROS bag's event topic (vkunroll bag-sequence writes it); an --events-topic wins.
   if (m.contains("events_topic") && s.event_options.events_topic.empty())
-    s.event_options.events_topic = json_string(m, "events_topic", meta_path);
+    s.event_options.events_topic = m["events_topic"].get<std::string>();
   if (m.contains("ground_truth")) {
     const auto& g = m["ground_truth"];
-    if (!g.is_array()) throw Error(meta_path + ": field 'ground_truth' must be a list of {\"file\", \"t_us\"}");
-    for (size_t i = 0; i < g.size(); ++i) {
-      const std::string where = meta_path + ": ground_truth[" + std::to_string(i) + "]";
-      if (!g[i].is_object()) throw Error(where + " must be an object {\"file\", \"t_us\"}");
-      if (!g[i].contains("t_us")) throw Error(where + ": missing field 't_us'");
-      s.ground_truth.push_back({resolve(root, json_string(g[i], "file", where)), json_time(g[i]["t_us"], where + ".t_us")});
-    }
+    for (size_t i = 0; i < g.size(); ++i)
+      s.ground_truth.push_back({resolve(root, g[i]["file"].get<std::string>()),
+                                json_time(g[i]["t_us"], meta_path + ":ground_truth[" + std::to_string(i) + "].t_us")});
   }
   s.notes.push_back("generic layout: timing from meta.json");
 }
@@ -301,22 +271,39 @@ void load_fastec(Sequence& s, const fs::path& root, const SequenceOptions& o) {
                     "k GS periods; override with line delay / exposure / t0s");
 }
 
-// A frame or ground-truth image exists, has the sensor's size and (PNG) is not cut short: its last
-// chunk is IEND. Only the header is decoded here; the pixels are read when the frame is used.
-void check_image(const Sequence& s, const std::string& image, const char* what) {
+// Width, height and channels of a PNG (IHDR: colour type) or any image OpenCV reads.
+ImageHeader image_header(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(path + ": cannot open image");
+  unsigned char h[26] = {};
+  in.read(reinterpret_cast<char*>(h), 26);
+  static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (in.gcount() == 26 && std::equal(sig, sig + 8, h)) {
+    if (std::string(reinterpret_cast<char*>(h + 12), 4) != "IHDR") throw Error(path + ": PNG without IHDR chunk first");
+    auto be32 = [&](int o) { return (uint32_t(h[o]) << 24) | (uint32_t(h[o + 1]) << 16) | (uint32_t(h[o + 2]) << 8) | h[o + 3]; };
+    // Colour types 0 gray, 2 RGB, 3 palette (decoded as RGB), 4 gray + alpha, 6 RGBA.
+    const int channels = h[25] == 0 ? 1 : h[25] == 4 ? 2 : h[25] == 6 ? 4 : 3;
+    return {static_cast<int>(be32(16)), static_cast<int>(be32(20)), channels};
+  }
+  const cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
+  if (m.empty()) throw Error(path + ": not a readable image");
+  return {m.cols, m.rows, m.channels()};
+}
+
+// A frame or ground-truth image exists and (PNG) is not cut short: its last chunk is IEND. Only the
+// header is decoded here; the pixels are read when the frame is used. Sizes and channels:
+// rule_images_agree.
+ImageHeader check_image(const Sequence& s, const std::string& image, const char* what) {
   std::error_code ec;
-  if (!fs::exists(image, ec)) throw Error(s.root + ": " + what + " image '" + image + "' does not exist");
+  if (!fs::exists(image, ec)) throw InputMissingError(s.root + ": " + what + " image '" + image + "' does not exist");
   if (fs::is_directory(image, ec)) throw Error(image + ": " + what + " image is a folder");
   if (const std::string kind = special_file_kind(image); !kind.empty())
     throw Error(image + ": " + what + " image is " + kind + ", expected a regular file");
-  const auto [w, h] = image_size(image);
-  if (w != s.width || h != s.height)
-    throw Error(image + ": " + what + " image is " + std::to_string(w) + "x" + std::to_string(h) + ", the sensor is " +
-                std::to_string(s.width) + "x" + std::to_string(s.height));
+  const ImageHeader header = image_header(image);
   std::ifstream in(image, std::ios::binary);
   unsigned char sig[8] = {};
   in.read(reinterpret_cast<char*>(sig), 8);
-  if (in.gcount() != 8 || sig[0] != 0x89 || sig[1] != 'P' || sig[2] != 'N' || sig[3] != 'G') return;
+  if (in.gcount() != 8 || sig[0] != 0x89 || sig[1] != 'P' || sig[2] != 'N' || sig[3] != 'G') return header;
   const uint64_t size = fs::file_size(image, ec);
   const uint64_t tail = std::min<uint64_t>(size, 4096);
   std::string end(tail, '\0');
@@ -325,6 +312,7 @@ void check_image(const Sequence& s, const std::string& image, const char* what) 
   if (end.find("IEND") == std::string::npos)
     throw Error(image + ": " + what + " image is a truncated PNG (no IEND chunk at its end; " + std::to_string(size) +
                 " bytes)");
+  return header;
 }
 
 // Where frame k's t0 came from, for messages.
@@ -332,7 +320,7 @@ std::string t0_source(const Sequence& s, size_t k, const SequenceOptions& o) {
   const std::string n = std::to_string(k);
   if (o.t0s_us) return "t0s value " + std::to_string(k + 1) + " (the --t0s-us option, SequenceOptions::t0s_us)";
   switch (s.layout) {
-    case SequenceLayout::generic: return (fs::path(s.root) / "meta.json").string() + ": frames[" + n + "].t0_us";
+    case SequenceLayout::generic: return (fs::path(s.root) / "meta.json").string() + ":frames[" + n + "].t0_us";
     case SequenceLayout::dre: return s.event_files.at(0) + ": start_image_ts[" + n + "]";
     default: return std::string(sequence_layout_name(s.layout)) + " frame " + n + "'s t0 (the layout's convention)";
   }
@@ -359,8 +347,27 @@ void check_frame_times(const Sequence& s, const SequenceOptions& o) {
     if (k > 0 && t.t0 <= s.frames[k - 1].timing.t0)
       throw Error(field + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ") starts at t0 " + t.t0.str() +
                   " us, not after frame " + std::to_string(k - 1) + "'s t0 " + s.frames[k - 1].timing.t0.str() +
-                  " us: frames must be in time order (t0s must increase)");
+                  " us: frames must be in time order (t0s must increase; rule frames-in-time-order)");
   }
+}
+
+// The schema's cross-field rules (meta_schema.hpp). A reference dataset's timing is its own
+// convention (Gev-RS rows overlap the next frame), so the timing rules hold for meta.json only.
+void check_meta_rules(const Sequence& s, const SequenceOptions& o) {
+  const std::string file = s.layout == SequenceLayout::generic ? (fs::path(s.root) / "meta.json").string() : s.root;
+  rule_distinct_frame_files(s, file);
+  if (s.layout != SequenceLayout::generic) return;
+  const bool overridden = o.t0s_us || o.line_delay_us;
+  try {
+    rule_readout_within_frame_period(s, [&](size_t k) {
+      return overridden ? "--t0s-us/--line-delay-us:frame " + std::to_string(k) : t0_source(s, k, o);
+    });
+  } catch (const MetaSchemaError& e) {
+    if (overridden) throw UsageError(e.what());  // the options' values, not meta.json's, break the rule
+    throw;
+  }
+  // --t0s-us moves the frames, not meta.json's ground-truth instants: the rule is meta.json's own.
+  if (!o.t0s_us) rule_ground_truth_inside_recording(s, file);
 }
 
 }  // namespace
@@ -385,19 +392,8 @@ SequenceLayout parse_sequence_layout(const std::string& s) {
 }
 
 std::pair<int, int> image_size(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw Error(path + ": cannot open image");
-  unsigned char h[24] = {};
-  in.read(reinterpret_cast<char*>(h), 24);
-  static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  if (in.gcount() == 24 && std::equal(sig, sig + 8, h)) {
-    if (std::string(reinterpret_cast<char*>(h + 12), 4) != "IHDR") throw Error(path + ": PNG without IHDR chunk first");
-    auto be32 = [&](int o) { return (uint32_t(h[o]) << 24) | (uint32_t(h[o + 1]) << 16) | (uint32_t(h[o + 2]) << 8) | h[o + 3]; };
-    return {static_cast<int>(be32(16)), static_cast<int>(be32(20))};
-  }
-  const cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (m.empty()) throw Error(path + ": not a readable image");
-  return {m.cols, m.rows};
+  const ImageHeader h = image_header(path);
+  return {h.width, h.height};
 }
 
 Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
@@ -428,10 +424,13 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
     t.validate(s.root + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ")");
   }
   check_frame_times(s, o);
+  check_meta_rules(s, o);
   if (o.line_delay_us || o.exposure_us || o.readout || o.t0s_us) s.notes.push_back("timing overridden by options");
   if (o.check_frame_sizes) {
-    for (const auto& f : s.frames) check_image(s, f.image, "frame");
-    for (const auto& g : s.ground_truth) check_image(s, g.image, "ground-truth");
+    std::vector<ImageHeader> frames, truth;
+    for (const auto& f : s.frames) frames.push_back(check_image(s, f.image, "frame"));
+    for (const auto& g : s.ground_truth) truth.push_back(check_image(s, g.image, "ground-truth"));
+    rule_images_agree(s, frames, truth);
   }
   if (o.events_file) {
     s.event_files = {*o.events_file};

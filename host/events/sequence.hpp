@@ -58,6 +58,7 @@ struct Sequence {
   std::vector<std::string> event_files;  // one file, or Fastec's per-frame files in order
   EventReadOptions event_options;        // what read_events passes to the reader
   std::vector<std::string> notes;        // how the timing was derived, for the user
+  std::vector<std::string> warnings;     // legal but implausible meta.json values, unknown fields (meta_schema.hpp)
 
   // Events with t in [t_begin_us, t_end_us): exactly what a full scan of the file(s) gives. The
   // first read opens each event file once (EventFileReader) and indexes what it decodes; later

@@ -152,7 +152,7 @@ nlohmann::json UnrollJob::report(double total_ms) const {
           " extra submission(s) inside frames (released buffers held more than the pool limit)"]++;
   r["notes"] = nlohmann::json::array();
   for (const auto& [text, count] : notes) r["notes"].push_back(text + (count > 1 ? " (x" + std::to_string(count) + ")" : ""));
-  std::vector<std::string> warnings;
+  std::vector<std::string> warnings = source_.layout().warnings;  // meta.json: implausible values, unknown fields
   r["events"] = events_report(warnings);
   if (c.frames_read && c.events_in_windows == 0) {
     warnings.push_back("no events: the frame windows of " + std::to_string(c.frames_read) + " frame(s) hold no event (" +
