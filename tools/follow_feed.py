@@ -2,6 +2,7 @@
 """Plays a simulated sequence as a live camera for `vkunroll unroll --follow` (docs/follow.md).
 
   follow_feed.py evt3 SEQ OUT.raw        # the sequence's events.h5 as a Prophesee EVT 3.0 .raw file
+                                         # (--encoding evt2 | evt21: EVT 2.0 / 2.1 words; play takes it too)
   follow_feed.py prepare SEQ LIVE        # LIVE: meta.json (the frames to come), an empty rs/
   follow_feed.py play SEQ LIVE --speed K # each RS frame into LIVE when its last row is read out;
                                          # EVT 3.0 on stdout at K x real time
@@ -38,8 +39,40 @@ def evt3_bytes(t, x, y, p, width, height):
     return w.astype("<u2").tobytes()
 
 
+def evt2_bytes(t, x, y, p, width, height):
+    """EVT 2.0 words: a TIME_HIGH, then a CD_ON/CD_OFF word per event (34-bit time)."""
+    t = np.asarray(t, np.int64)
+    w = np.empty((len(t), 2), np.uint32)
+    w[:, 0] = (0x8 << 28) | ((t >> 6) & 0x0FFFFFFF)
+    w[:, 1] = (np.asarray(p > 0, np.uint32) << 28) | ((t & 0x3F) << 22).astype(np.uint32) \
+        | (np.asarray(x, np.uint32) & 0x7FF) << 11 | (np.asarray(y, np.uint32) & 0x7FF)
+    return w.astype("<u4").tobytes()
+
+
+def evt21_bytes(t, x, y, p, width, height):
+    """EVT 2.1 little-endian 64-bit words: a TIME_HIGH, then one EVT_POS/EVT_NEG word per event
+    (x aligned on 32 in the word, the event's bit in the mask)."""
+    t = np.asarray(t, np.int64)
+    x = np.asarray(x, np.uint64)
+    w = np.empty((len(t), 2), np.uint64)
+    w[:, 0] = np.uint64(0x8 << 28 | 0) << np.uint64(32) | ((t >> 6) & 0x0FFFFFFF).astype(np.uint64) << np.uint64(32)
+    hi = (np.asarray(p > 0, np.uint64) << np.uint64(28)) | ((t & 0x3F).astype(np.uint64) << np.uint64(22)) \
+        | ((x & np.uint64(0x7E0)) << np.uint64(11)) | (np.asarray(y, np.uint64) & np.uint64(0x7FF))
+    w[:, 1] = (hi << np.uint64(32)) | (np.uint64(1) << (x & np.uint64(31)))
+    return w.astype("<u8").tobytes()
+
+
+ENCODERS = {"evt3": (evt3_bytes, "3.0", "EVT3"), "evt2": (evt2_bytes, "2.0", "EVT2"), "evt21": (evt21_bytes, "2.1", "EVT21")}
+ENCODING = "evt3"  # --encoding: what evt3_bytes' callers write
+
+
+def words(t, x, y, p, width, height):
+    return ENCODERS[ENCODING][0](t, x, y, p, width, height)
+
+
 def header(width, height):
-    return f"% evt 3.0\n% format EVT3;height={height};width={width}\n% end\n".encode()
+    _, evt, fmt = ENCODERS[ENCODING]
+    return f"% evt {evt}\n% format {fmt};height={height};width={width}\n% end\n".encode()
 
 
 def load(seq):
@@ -53,7 +86,7 @@ def cmd_evt3(seq, out):
     meta, ev = load(seq)
     with open(out, "wb") as f:
         f.write(header(meta["width"], meta["height"]))
-        f.write(evt3_bytes(ev["t"], ev["x"], ev["y"], ev["p"], meta["width"], meta["height"]))
+        f.write(words(ev["t"], ev["x"], ev["y"], ev["p"], meta["width"], meta["height"]))
 
 
 def frame_done_us(meta, fr):
@@ -90,10 +123,10 @@ def cmd_play(seq, live, speed, slice_us=2000):
             os.rename(dst + ".tmp", dst)
         j = int(np.searchsorted(t, s, side="left"))
         if j > i:
-            out.write(evt3_bytes(t[i:j], ev["x"][i:j], ev["y"][i:j], ev["p"][i:j], meta["width"], meta["height"]))
+            out.write(words(t[i:j], ev["x"][i:j], ev["y"][i:j], ev["p"][i:j], meta["width"], meta["height"]))
             out.flush()
             i = j
-    out.write(evt3_bytes(t[i:], ev["x"][i:], ev["y"][i:], ev["p"][i:], meta["width"], meta["height"]))
+    out.write(words(t[i:], ev["x"][i:], ev["y"][i:], ev["p"][i:], meta["width"], meta["height"]))
     out.flush()
 
 
@@ -138,7 +171,11 @@ def main():
     b.add_argument("--size", default="346x260")
     b.add_argument("--frames", type=int, default=40)
     b.add_argument("--speeds", default="1,4,0")
+    for q in (e, p):
+        q.add_argument("--encoding", choices=sorted(ENCODERS), default="evt3", help="the stream's words (default evt3)")
     a = ap.parse_args()
+    global ENCODING
+    ENCODING = getattr(a, "encoding", "evt3")
     if a.cmd == "evt3":
         cmd_evt3(a.seq, a.out)
     elif a.cmd == "prepare":

@@ -13,11 +13,12 @@
 
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/host/events/event_reader_detail.hpp"
+#include "vkunroll/host/events/evt2_words_detail.hpp"
 #include "vkunroll/host/events/evt3_words_detail.hpp"
 
 namespace vkunroll {
 
-// The EVT 3.0 decoder state and the record rules, kept across reads.
+// The decoder states (EVT 3.0 or EVT 2.0/2.1) and the record rules, kept across reads.
 struct EventStreamFollower::Decoder {
   Decoder(const std::string& name, const EventReadOptions& o, EventReadReport& report)
       : sink(name, o, report, [this](const EventStream& c) {
@@ -26,6 +27,7 @@ struct EventStreamFollower::Decoder {
   EventStream* out = nullptr;  // where this read's events go
   detail::EventSink sink;
   detail::Evt3State state;
+  detail::Evt2State state2;
   uint64_t record = 0;
 };
 
@@ -73,9 +75,11 @@ void EventStreamFollower::parse_header() {
   if (!ended) return;  // only header lines so far
   detail::MemorySource head(name_, std::vector<uint8_t>(pending_.begin(), pending_.begin() + long(off)));
   const detail::PropheseeHeader h = detail::parse_prophesee_header(head);
-  if (h.evt != "3.0")
+  if (h.evt != "3.0" && h.evt != "2.0" && h.evt != "2.1")
     throw DataError(name_ + ": the stream's '%' header says " + (h.evt.empty() ? std::string("no encoding") : "EVT " + h.evt) +
-                    "; --follow reads EVT 3.0 ('% evt 3.0' or '% format EVT3;...')");
+                    "; --follow reads EVT 2.0, 2.1 or 3.0 ('% evt 3.0', '% format EVT21;...')");
+  evt_ = h.evt;
+  evt21_legacy_ = h.evt21_legacy;
   pending_.erase(pending_.begin(), pending_.begin() + long(off));
   data_offset_ = off;
   header_done_ = true;
@@ -84,10 +88,20 @@ void EventStreamFollower::parse_header() {
 void EventStreamFollower::decode(EventStream& out) {
   if (!decoder_) decoder_ = std::make_unique<Decoder>(name_, options_, report_);
   decoder_->out = &out;
-  const size_t whole = pending_.size() / 2 * 2;
-  for (size_t i = 0; i < whole; i += 2) {
-    const uint16_t w = uint16_t(pending_[i] | (pending_[i + 1] << 8));
-    detail::evt3_word(w, data_offset_ + i, decoder_->state, decoder_->record, decoder_->sink);
+  Decoder& d = *decoder_;
+  const size_t unit = evt_ == "3.0" ? 2 : evt_ == "2.0" ? 4 : 8;  // bytes a word
+  const size_t whole = pending_.size() / unit * unit;
+  const uint8_t* b = pending_.data();
+  auto le32 = [&](size_t i) { return uint32_t(b[i]) | uint32_t(b[i + 1]) << 8 | uint32_t(b[i + 2]) << 16 | uint32_t(b[i + 3]) << 24; };
+  for (size_t i = 0; i < whole; i += unit) {
+    if (unit == 2) {
+      detail::evt3_word(uint16_t(b[i] | (b[i + 1] << 8)), data_offset_ + i, d.state, d.record, d.sink);
+    } else if (unit == 4) {
+      detail::evt2_word(le32(i), data_offset_ + i, d.state2, d.record, d.sink);
+    } else {  // EVT 2.1: a little-endian 64-bit word, or (legacy) the high 32-bit half first
+      const uint32_t first = le32(i), second = le32(i + 4);
+      detail::evt21_word(evt21_legacy_ ? first : second, evt21_legacy_ ? second : first, data_offset_ + i, d.state2, d.record, d.sink);
+    }
   }
   data_offset_ += whole;
   pending_.erase(pending_.begin(), pending_.begin() + long(whole));

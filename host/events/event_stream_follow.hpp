@@ -1,5 +1,5 @@
 // Events from a pipe or a growing file, decoded as they arrive (`unroll --follow`, docs/follow.md):
-// a Prophesee '%' header, then EVT 3.0 words, the same decoder and record rules as the .raw reader
+// a Prophesee '%' header, then EVT 2.0, 2.1 or 3.0 words, the same decoders and record rules as the .raw reader
 // (reader_evt.cpp, EventSink). read_some() never blocks longer than its timeout.
 #pragma once
 #include <cstdint>
@@ -40,6 +40,8 @@ class EventStreamFollower {
   std::string name_;
   int fd_ = -1;
   bool own_fd_ = false, pipe_ = false, header_done_ = false;
+  std::string evt_;  // the header's encoding: "2.0", "2.1" or "3.0"
+  bool evt21_legacy_ = false;
   EventReadOptions options_;
   EventReadReport report_;
   std::vector<uint8_t> pending_;  // bytes not decoded yet (a header line or a partial word)

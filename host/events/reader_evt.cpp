@@ -7,6 +7,7 @@
 #include <cstring>
 
 #include "vkunroll/host/events/event_reader_detail.hpp"
+#include "vkunroll/host/events/evt2_words_detail.hpp"
 #include "vkunroll/host/events/evt3_words_detail.hpp"
 
 namespace vkunroll::detail {
@@ -14,13 +15,6 @@ namespace vkunroll::detail {
 namespace {
 
 constexpr size_t kBlock = 1 << 20;
-
-std::string hex(uint64_t v, int digits) {
-  static const char* d = "0123456789abcdef";
-  std::string s(size_t(digits), '0');
-  for (int i = digits - 1; i >= 0; --i, v >>= 4) s[size_t(i)] = d[v & 15];
-  return "0x" + s;
-}
 
 std::string lower(std::string s) {
   for (auto& c : s) c = char(std::tolower(static_cast<unsigned char>(c)));
@@ -205,15 +199,6 @@ void apply_header(const PropheseeHeader& h, EventSink& sink, const char* fmt) {
             std::to_string(h.lines.size()) + " header lines");
 }
 
-// Decoder states, saved in and restored from index checkpoints.
-struct Evt2State {
-  uint64_t time_high = 0, loop = 0;
-  bool have_high = false;
-  void save(Checkpoint& c) const { c.state = {int64_t(time_high), int64_t(loop), have_high}; }
-  void load(const Checkpoint& c) {
-    time_high = uint64_t(c.state[0]), loop = uint64_t(c.state[1]), have_high = c.state[2] != 0;
-  }
-};
 
 // Where a streamed word reader starts: a checkpoint (resumed read) or the data start.
 template <class State>
@@ -253,33 +238,7 @@ void read_evt2(ByteSource& src, EventSink& sink) {
         if (!sink.boundary(checkpoint_at(off + 4 * i, record, st))) return false;
         next = sink.next_checkpoint(off + 4 * i, h.data_offset);
       }
-      const uint32_t w = le32(p + 4 * i);
-      const uint32_t type = w >> 28;
-      switch (type) {
-        case 0x0:
-        case 0x1: {
-          sink.set_record_index(record++);
-          sink.set_byte_offset(int64_t(off + 4 * i));
-          const int64_t t = int64_t(st.loop + (st.time_high << 6) + ((w >> 22) & 0x3F));
-          if (!sink.add(t, (w >> 11) & 0x7FF, w & 0x7FF, type)) return false;
-          break;
-        }
-        case 0x8: {
-          const uint64_t th = w & 0x0FFFFFFF;
-          // 34-bit time: a time-high that falls by more than half its range is the wrap.
-          if (st.have_high && th < st.time_high && st.time_high - th > (uint64_t(1) << 27)) st.loop += uint64_t(1) << 34;
-          st.time_high = th;
-          st.have_high = true;
-          break;
-        }
-        case 0xA: sink.ignored("EXT_TRIGGER"); break;
-        case 0xE: sink.ignored("OTHERS"); break;
-        case 0xF: sink.ignored("CONTINUED"); break;
-        default:
-          sink.set_record_index(record++);
-          sink.set_byte_offset(int64_t(off + 4 * i));
-          sink.unknown_record_lazy([&] { return "unknown EVT 2.0 word type " + hex(type, 1) + " (word " + hex(w, 8) + ")"; });
-      }
+      if (!evt2_word(le32(p + 4 * i), off + 4 * i, st, record, sink)) return false;
     }
     return true;
   });
@@ -287,50 +246,6 @@ void read_evt2(ByteSource& src, EventSink& sink) {
   sink.set_byte_offset(-1);
 }
 
-namespace {
-
-// One EVT 2.1 word (hi: type, time low, x, y or time high; lo: the valid mask); false when the sink
-// says stop.
-inline bool evt21_word(uint32_t hi, uint32_t lo, uint64_t off, Evt2State& st, uint64_t& record, EventSink& sink) {
-  const uint32_t type = hi >> 28;
-  switch (type) {
-    case 0x0:    // EVT_NEG
-    case 0x1: {  // EVT_POS: 32 pixels from x (aligned on 32), one bit each
-      if (lo == 0) {
-        sink.ignored("EVT_NEG/EVT_POS words with an empty mask");
-        break;
-      }
-      const int64_t t = int64_t(st.loop + (st.time_high << 6) + ((hi >> 22) & 0x3F));
-      const int64_t x = (hi >> 11) & 0x7FF, y = hi & 0x7FF;
-      for (uint32_t mask = lo; mask; mask &= mask - 1) {
-        sink.set_record_index(record++);
-        sink.set_byte_offset(int64_t(off));
-        // The word is consumed whole (a resumed read never restarts inside it).
-        if (!sink.add(t, x + __builtin_ctz(mask), y, type)) return false;
-      }
-      break;
-    }
-    case 0x8: {  // EVT_TIME_HIGH: bits 6..33 of the time
-      const uint64_t th = hi & 0x0FFFFFFF;
-      if (st.have_high && th < st.time_high && st.time_high - th > (uint64_t(1) << 27)) st.loop += uint64_t(1) << 34;
-      st.time_high = th;
-      st.have_high = true;
-      break;
-    }
-    case 0xA: sink.ignored("EXT_TRIGGER"); break;
-    case 0xE: sink.ignored("OTHERS"); break;
-    case 0xF: sink.ignored("CONTINUED"); break;
-    default:
-      sink.set_record_index(record++);
-      sink.set_byte_offset(int64_t(off));
-      sink.unknown_record_lazy([&] {
-        return "unknown EVT 2.1 word type " + hex(type, 1) + " (word " + hex((uint64_t(hi) << 32) | lo, 16) + ")";
-      });
-  }
-  return true;
-}
-
-}  // namespace
 
 void read_evt21(ByteSource& src, EventSink& sink) {
   const PropheseeHeader h = parse_prophesee_header(src);
@@ -410,7 +325,7 @@ uint64_t dat_data_start(ByteSource& src, EventSink& sink, const PropheseeHeader&
     throw Error(src.name() + ": .dat event size is " + std::to_string(ts[1]) + " bytes at byte " +
                 std::to_string(data + 1) + "; only 8-byte CD/TD records are supported");
   if (ts[0] != 0x00 && ts[0] != 0x0C)
-    throw Error(src.name() + ": .dat event type " + hex(ts[0], 2) + " at byte " + std::to_string(data) +
+    throw Error(src.name() + ": .dat event type " + evt3_hex(ts[0], 2) + " at byte " + std::to_string(data) +
                 " is not a CD/TD event (0x00 or 0x0c)");
   return data + 2;
 }

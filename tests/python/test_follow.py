@@ -31,9 +31,10 @@ def recording(tmp_path_factory):
     return seq, offline
 
 
-def follow(seq, live, out, speed, **popen):
+def follow(seq, live, out, speed, encoding="evt3", **popen):
     subprocess.run([sys.executable, FEED, "prepare", str(seq), str(live)], check=True)
-    feed = subprocess.Popen([sys.executable, FEED, "play", str(seq), str(live), "--speed", str(speed)], stdout=subprocess.PIPE)
+    feed = subprocess.Popen([sys.executable, FEED, "play", str(seq), str(live), "--speed", str(speed), "--encoding", encoding],
+                            stdout=subprocess.PIPE)
     run = subprocess.Popen([CLI, "unroll", str(live), "--follow", "--mode", "physics", "--times", "0,0.5,1", "--no-video",
                             "--quiet", "--out", str(out), "--follow-idle-s", "5"], stdin=feed.stdout,
                            stderr=subprocess.PIPE, text=True)
@@ -63,6 +64,20 @@ def test_follow_on_a_pipe_equals_the_offline_run(recording, tmp_path):
     assert fo["events_kept"] == fo["records"] > 0
     assert fo["events_released"] > 0  # events no later frame needs left the ring
     assert fo["frames"] == FRAMES and fo["latency_ms"]["max"] >= fo["latency_ms"]["median"] >= 0
+
+
+@pytest.mark.parametrize("encoding", ["evt2", "evt21"])
+def test_follow_reads_evt2_streams_like_evt3(recording, tmp_path, encoding):
+    """EVT 2.0 and 2.1 words through the pipe (the readers' shared decoders) give the offline frames."""
+    seq, offline = recording
+    feed, run = follow(seq, tmp_path / "live", tmp_path / "out", 50, encoding)
+    _, err = run.communicate(timeout=120)
+    feed.wait(timeout=30)
+    assert run.returncode == 0, err
+    summary, frames = gs_files(tmp_path / "out")
+    _, expected = gs_files(offline)
+    assert frames.keys() == expected.keys() and all(frames[f] == expected[f] for f in expected)
+    assert summary["follow"]["events_kept"] == summary["follow"]["records"] > 0
 
 
 def test_sigint_mid_stream_leaves_valid_frames_and_says_stopped(recording, tmp_path):
