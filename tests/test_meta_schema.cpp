@@ -126,6 +126,46 @@ TEST(MetaSchema, ImplausibleValuesAndUnknownFieldsAreWarnings) {
                      "meta.json:frames[1].t0 is not a meta.json field"});
 }
 
+// What vkunroll writes itself gets no warning: the simulator's meta.json (with its ground-truth
+// extensions) and the second generator's. An unknown key in every list item is one warning.
+TEST(MetaSchema, TheSimulatorsOwnOutputGetsNoWarning) {
+  const fs::path d = clitest::temp_dir("meta", "simulated");
+  const clitest::CliRun r = clitest::cli("simulate --out " + (d / "seq").string() + " --size 32x24 --frames 3 --quiet");
+  ASSERT_EQ(r.rc, 0) << r.out;
+  const Sequence s = load_sequence((d / "seq").string());
+  EXPECT_TRUE(s.warnings.empty()) << s.warnings.front();
+  nlohmann::json m = base_meta();
+  for (auto& f : m["frames"]) f["t0"] = 1;
+  const Sequence typo = load_sequence(make_sequence("typo_everywhere", m).string());
+  ASSERT_EQ(typo.warnings.size(), 1u);
+  expect_parts(typo.warnings[0], {"meta.json:frames[0].t0 is not a meta.json field", "(in 3 frames items)"});
+}
+
+// Events on another time base (an offset clock here; ns or ms alike) fall outside every frame
+// window: the run says where they are against the frames' span, with the numbers.
+TEST(MetaSchema, EventsOnAnotherTimeBaseAreSaidWithTheirSpan) {
+  const fs::path d = clitest::temp_dir("meta", "timebase");
+  ASSERT_EQ(clitest::cli("simulate --out " + (d / "seq").string() + " --size 32x24 --frames 3 --events-format txt --quiet").rc, 0);
+  std::ifstream in(d / "seq" / "events.txt");
+  std::ostringstream shifted;
+  for (std::string line; std::getline(in, line);) {
+    if (line.empty() || line[0] == '#') continue;
+    long long t;
+    int x, y, p;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%lld %d %d %d", &t, &x, &y, &p), 4) << line;
+    shifted << t + 1000000000LL << " " << x << " " << y << " " << p << "\n";
+  }
+  in.close();
+  std::ofstream(d / "seq" / "events.txt") << shifted.str();
+  const clitest::CliRun r = clitest::cli("unroll " + (d / "seq").string() + " --out " + (d / "out").string() + " --mode physics --contrast 0.2 --quiet");
+  EXPECT_EQ(r.rc, 0) << r.out;
+  expect_parts(r.out, {"no events: the frame windows of 3 frame(s) hold no event", "outside the frames' span",
+                       "check that the events are in microseconds on the frames' time base"});
+  const auto summary = nlohmann::json::parse(std::ifstream(d / "out" / "summary.json"));
+  EXPECT_NE(summary["warnings"].dump().find("at [10000"), std::string::npos) << summary["warnings"].dump();
+  fs::remove_all(d);
+}
+
 // The rules across fields, each a named error; a missing file named by meta.json is exit 66.
 TEST(MetaSchema, CrossFieldRulesAreNamedErrors) {
   nlohmann::json m = base_meta();

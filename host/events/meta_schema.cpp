@@ -60,6 +60,10 @@ const std::vector<MetaField> kMetaFields = {
     {"ground_truth[]", MetaType::object, "", true, 0, 0, 0, 0, "`{\"file\", \"t_us\"}`"},
     {"ground_truth[].file", MetaType::string, "", true, 0, 0, 0, 0, "image path, relative to the folder"},
     {"ground_truth[].t_us", MetaType::time, "us", true, -kTimeLimit, kTimeLimit, -kInf, kInf, "the instant it shows"},
+    {"ground_truth[].frame", MetaType::integer, "", false, 0, 1e7, 0, 1e6, "the RS frame period it belongs to (simulator)"},
+    {"ground_truth[].index", MetaType::integer, "", false, 0, 1e7, 0, 1e4, "its instant's index in that period (simulator)"},
+    {"ground_truth[].tau", MetaType::number, "", false, -1e6, 1e6, -1, 10,
+     "(t - first row start) / frame span of that frame; > 1: between frames (simulator)"},
     {"source", MetaType::object, "", false, 0, 0, 0, 0, "free-form: simulator settings, camera, notes"},
     {"source.settings", MetaType::object, "", false, 0, 0, 0, 0, "the simulator's settings"},
     {"source.settings.gamma", MetaType::number, "", false, 0.1, 10, 1, 3, "the frames' encoding gamma (simulator)"},
@@ -207,14 +211,18 @@ std::set<std::string> known_keys(const std::string& container) {
   return keys;
 }
 
-void warn_unknown(const nlohmann::json& obj, const std::string& container, const std::string& field,
-                  const std::string& file, std::vector<std::string>& warnings) {
-  if (!obj.is_object()) return;
+std::vector<std::string> unknown_keys(const nlohmann::json& obj, const std::string& container) {
+  std::vector<std::string> out;
+  if (!obj.is_object()) return out;
   const auto keys = known_keys(container);
   for (const auto& item : obj.items())
-    if (!keys.count(item.key()))
-      warnings.push_back(file + ":" + (field.empty() ? "" : field + ".") + item.key() + " is not a meta.json field (ignored; see " +
-                         "docs/reliability.md, \"meta.json schema\")");
+    if (!keys.count(item.key())) out.push_back(item.key());
+  return out;
+}
+
+std::string unknown_warning(const std::string& file, const std::string& field, const std::string& key) {
+  return file + ":" + (field.empty() ? "" : field + ".") + key + " is not a meta.json field (ignored; see " +
+         "docs/reliability.md, \"meta.json schema\")";
 }
 
 std::string seq_file(const Sequence& s) {
@@ -236,13 +244,21 @@ std::vector<std::string> validate_meta(const nlohmann::json& meta, const std::st
   for (const char* c : kClosedContainers) {
     const std::string container = c;
     if (container.empty()) {
-      warn_unknown(meta, "", "", meta_path, v.warnings);
+      for (const auto& key : unknown_keys(meta, "")) v.warnings.push_back(unknown_warning(meta_path, "", key));
       continue;
     }
     const std::string list = container.substr(0, container.size() - 2);
     if (!meta.contains(list) || !meta[list].is_array()) continue;
+    // One warning per unknown key of a list's items, at its first item, with the count.
+    std::map<std::string, std::pair<size_t, std::string>> unknown;  // key -> (items, first item's field)
     for (size_t k = 0; k < meta[list].size(); ++k)
-      warn_unknown(meta[list][k], container, list + "[" + std::to_string(k) + "]", meta_path, v.warnings);
+      for (const auto& key : unknown_keys(meta[list][k], container)) {
+        auto& u = unknown[key];
+        if (u.first++ == 0) u.second = list + "[" + std::to_string(k) + "]";
+      }
+    for (const auto& [key, u] : unknown)
+      v.warnings.push_back(unknown_warning(meta_path, u.second, key) +
+                           (u.first > 1 ? " (in " + std::to_string(u.first) + " " + list + " items)" : ""));
   }
   return v.warnings;
 }

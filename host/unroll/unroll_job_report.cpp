@@ -1,6 +1,8 @@
 // UnrollJob::report(): what the job did, in summary.json's words (the CLI adds the files, the
 // model file and the provenance; Python returns it as the result's stats).
 #include <algorithm>
+#include <cstdio>
+#include <filesystem>
 #include <map>
 #include <string>
 
@@ -46,6 +48,27 @@ SessionStats since(const SessionStats& now, const SessionStats& before) {
     if (b != before.ms.end()) ms -= b->second;
   }
   return d;
+}
+
+// When no frame window holds an event: where the file's events are, if it has any (regular files
+// up to 256 MiB are read whole for this; a pipe or a larger file is not), against the frames' span.
+std::string events_elsewhere(const Sequence& layout) {
+  uint64_t bytes = 0;
+  for (const auto& f : layout.event_files) {
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(f, ec)) return "";
+    bytes += std::filesystem::file_size(f, ec);
+  }
+  if (layout.event_files.empty() || bytes > (uint64_t(256) << 20) || layout.frames.empty()) return "";
+  const EventStream all = layout.read_events(-(int64_t(1) << 53), int64_t(1) << 53);
+  if (all.empty()) return "";
+  char text[320];
+  std::snprintf(text, sizeof text,
+                ", yet the file holds %zu event(s) at [%lld, %lld] us, outside the frames' span [%.0f, %.0f] us: check that "
+                "the events are in microseconds on the frames' time base (ns, ms or an offset clock?)",
+                all.size(), static_cast<long long>(all.t.front()), static_cast<long long>(all.t.back()),
+                layout.frames.front().timing.first_start().to_double(), layout.frames.back().timing.last_end().to_double());
+  return text;
 }
 
 std::string joined(const std::vector<std::string>& items) {
@@ -156,7 +179,8 @@ nlohmann::json UnrollJob::report(double total_ms) const {
   r["events"] = events_report(warnings);
   if (c.frames_read && c.events_in_windows == 0) {
     warnings.push_back("no events: the frame windows of " + std::to_string(c.frames_read) + " frame(s) hold no event (" +
-                       joined(source_.layout().event_files) + "); the GS frames are the RS input, unchanged");
+                       joined(source_.layout().event_files) + ")" + events_elsewhere(source_.layout()) +
+                       "; the GS frames are the RS input, unchanged");
   } else if (!c.frames_without_events.empty()) {
     std::string list;
     for (size_t i = 0; i < c.frames_without_events.size() && i < 20; ++i) list += (i ? ", " : "") + std::to_string(c.frames_without_events[i]);
