@@ -60,6 +60,8 @@ int run_bag_sequence(const BagSequenceArgs& a) {
             << "frames       " << r.frames << " from " << r.frames_topic << " (" << r.encoding << ", " << r.width << "x"
             << r.height << ")\n"
             << "events       " << r.events_topic << " (read from the bag in place)\n";
+  if (!r.camera_info_topic.empty())
+    std::cout << "camera info  " << r.camera_info_topic << " (recorded in meta.json's source.camera_info; not used to unroll)\n";
   for (const auto& n : r.notes) std::cout << "note         " << n << "\n";
   return 0;
 }

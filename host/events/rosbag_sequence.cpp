@@ -3,6 +3,8 @@
 // uint32 step (bytes per row), uint8[] data. Streamed message by message (one frame in memory).
 #include "vkunroll/host/events/rosbag_sequence.hpp"
 
+#include <algorithm>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -21,6 +23,66 @@ using detail::BagInfo;
 
 constexpr const char* kImageType = "sensor_msgs/Image";
 constexpr const char* kImageMd5 = "060021388200f6f0f447d0fcd9c64743";
+constexpr const char* kCameraInfoType = "sensor_msgs/CameraInfo";
+constexpr const char* kCameraInfoMd5 = "c9a58c1b0b154e0e6da7578cb991d214";
+
+// The CameraInfo topic beside the frames: the only one, else the one in the frames topic's
+// namespace (/dvs/camera_info for /dvs/image_raw); none: no calibration to record.
+std::vector<uint32_t> camera_info_connections(const BagInfo& info, const std::string& frames_topic, const std::string& bag,
+                                              std::string& topic, std::vector<std::string>& notes) {
+  std::vector<std::string> topics;
+  for (const auto& [id, c] : info.connections)
+    if (c.type == kCameraInfoType && std::find(topics.begin(), topics.end(), c.topic) == topics.end()) topics.push_back(c.topic);
+  const std::string ns = frames_topic.substr(0, frames_topic.rfind('/') + 1);
+  topic.clear();
+  for (const auto& t : topics)
+    if (topics.size() == 1 || t.substr(0, t.rfind('/') + 1) == ns) topic = topic.empty() ? t : std::string("?");
+  if (topic == "?" || (topic.empty() && !topics.empty())) {
+    notes.push_back(bag + ": " + std::to_string(topics.size()) + " sensor_msgs/CameraInfo topics and none alone in " + ns +
+                    ": no calibration recorded");
+    topic.clear();
+  }
+  std::vector<uint32_t> conns;
+  for (const auto& [id, c] : info.connections) {
+    if (topic.empty() || c.topic != topic) continue;
+    if (c.md5sum != kCameraInfoMd5)
+      throw Error(bag + ": camera info topic '" + topic + "' has md5 " + c.md5sum + ", not sensor_msgs/CameraInfo's " +
+                  kCameraInfoMd5 + " (another version of the message: its fields are unknown)");
+    conns.push_back(id);
+  }
+  return conns;
+}
+
+// CameraInfo: Header, uint32 height, width, string distortion_model, float64[] D, float64[9] K,
+// R[9], P[12], uint32 binning_x, binning_y, RegionOfInterest roi (4 x uint32, bool do_rectify).
+nlohmann::json camera_info_of(const uint8_t* data, size_t size, const std::string& what) {
+  detail::RosCursor c{data, size, 0, &what};
+  c.u32(), c.u32(), c.u32();
+  c.string();
+  nlohmann::json j;
+  j["height"] = c.u32();
+  j["width"] = c.u32();
+  j["distortion_model"] = c.string();
+  auto f64s = [&](uint32_t n) {
+    std::vector<double> v(n);
+    c.need(size_t(n) * 8);
+    for (auto& x : v) {
+      const uint64_t bits = c.u64();
+      std::memcpy(&x, &bits, 8);
+    }
+    return v;
+  };
+  const uint32_t nd = c.u32();
+  if (nd > 64) throw Error(what + ": " + std::to_string(nd) + " distortion coefficients (at most 64 expected)");
+  j["D"] = f64s(nd);
+  j["K"] = f64s(9);
+  j["R"] = f64s(9);
+  j["P"] = f64s(12);
+  j["binning_x"] = c.u32();
+  j["binning_y"] = c.u32();
+  j["roi"] = {{"x_offset", c.u32()}, {"y_offset", c.u32()}, {"height", c.u32()}, {"width", c.u32()}, {"do_rectify", c.u8() != 0}};
+  return j;
+}
 
 std::vector<uint32_t> frame_connections(const BagInfo& info, const std::string& asked, const std::string& bag,
                                         std::string& topic) {
@@ -95,6 +157,9 @@ nlohmann::json exact(const Rational& r) {
 
 struct FrameWriter final : detail::BagVisitor {
   const std::vector<uint32_t>& conns;
+  std::vector<uint32_t> info_conns;  // the CameraInfo topic's (its first message is kept)
+  std::string info_topic;
+  nlohmann::json camera_info;
   const BagSequenceOptions& o;
   fs::path dir;
   std::string bag, topic;
@@ -111,6 +176,12 @@ struct FrameWriter final : detail::BagVisitor {
     rep.notes.push_back(bag + ": " + what + "; the frames before it were written");
   }
   bool message(uint32_t conn, uint64_t, const uint8_t* data, size_t size, uint64_t chunk_offset) override {
+    if (camera_info.is_null() && std::find(info_conns.begin(), info_conns.end(), conn) != info_conns.end()) {
+      camera_info = camera_info_of(data, size, bag + ": camera info of topic " + info_topic + " (chunk at byte " +
+                                                   std::to_string(chunk_offset) + ")");
+      camera_info["topic"] = info_topic;
+      return true;
+    }
     if (std::find(conns.begin(), conns.end(), conn) == conns.end()) return true;
     if (o.max_frames && rep.frames >= o.max_frames) return false;
     const std::string what = bag + ": image " + std::to_string(rep.frames) + " of topic " + topic + " (chunk at byte " +
@@ -151,8 +222,15 @@ BagSequenceReport write_bag_sequence(const std::string& bag, const std::string& 
   fs::create_directories(dir / "rs", ec);
   if (ec) throw Error((dir / "rs").string() + ": cannot create the folder: " + ec.message());
   FrameWriter w(conns, o, dir, bag, rep.frames_topic, rep);
+  w.info_conns = camera_info_connections(info, rep.frames_topic, bag, w.info_topic, rep.notes);
   detail::scan_bag_records(src, info.data_start, w);
   if (rep.frames == 0) throw Error(bag + ": topic " + rep.frames_topic + " holds no image");
+  const nlohmann::json& ci = w.camera_info;
+  if (!ci.is_null() && ci["width"].get<uint32_t>() && (ci["width"] != rep.width || ci["height"] != rep.height))
+    throw Error(bag + ": camera info of topic " + w.info_topic + " is for " + ci["width"].dump() + "x" + ci["height"].dump() +
+                ", the images of " + rep.frames_topic + " are " + std::to_string(rep.width) + "x" + std::to_string(rep.height));
+  if (!w.info_topic.empty() && ci.is_null()) rep.notes.push_back(bag + ": camera info topic " + w.info_topic + " holds no message");
+  rep.camera_info_topic = ci.is_null() ? std::string() : w.info_topic;
   nlohmann::json meta = {{"width", rep.width},
                          {"height", rep.height},
                          {"line_delay_us", exact(o.line_delay_us)},
@@ -165,6 +243,7 @@ BagSequenceReport write_bag_sequence(const std::string& bag, const std::string& 
                                      {"frames_topic", rep.frames_topic},
                                      {"events_topic", rep.events_topic},
                                      {"image_encoding", rep.encoding}}}};
+  if (!ci.is_null()) meta["source"]["camera_info"] = ci;  // calibration, recorded (unrolling does not use it)
   const fs::path tmp = dir / "meta.json.tmp";
   {
     std::ofstream f(tmp, std::ios::binary | std::ios::trunc);

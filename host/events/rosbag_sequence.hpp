@@ -1,7 +1,8 @@
 // A generic sequence (meta.json, sequence-format.md) from a ROS bag alone: the RS frames from a
 // sensor_msgs/Image topic written as PNGs, their t0 from each message's header stamp, the row
 // timing from options (a bag does not hold it), and meta.json's `events` naming the bag itself (its
-// events are read in place, no copy). `vkunroll bag-sequence`; docs/events.md, "ROS bags".
+// events are read in place, no copy), and the frames' sensor_msgs/CameraInfo, when the bag has one,
+// in meta.json's source. `vkunroll bag-sequence`; docs/events.md, "ROS bags".
 #pragma once
 #include <cstdint>
 #include <string>
@@ -22,6 +23,7 @@ struct BagSequenceOptions {
 
 struct BagSequenceReport {
   std::string frames_topic, events_topic, encoding;
+  std::string camera_info_topic;  // the sensor_msgs/CameraInfo recorded in meta.json's source (empty: none)
   uint64_t frames = 0;
   int width = 0, height = 0;
   std::vector<std::string> notes;

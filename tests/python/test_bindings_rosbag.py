@@ -246,6 +246,50 @@ def image_message(seq, t_us, pixels, encoding):
             np.array([len(data) // h, len(data)], "<u4").tobytes() + data)
 
 
+CAMINFO_DEF = ("Header header\nuint32 height\nuint32 width\nstring distortion_model\nfloat64[] D\nfloat64[9] K\n"
+               "float64[9] R\nfloat64[12] P\nuint32 binning_x\nuint32 binning_y\nRegionOfInterest roi\n")
+ROI_DEF = "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n"
+CAMINFO = msg_class("sensor_msgs/CameraInfo", CAMINFO_DEF, [("std_msgs/Header", HEADER_DEF), ("sensor_msgs/RegionOfInterest", ROI_DEF)])
+
+
+def camera_info_message(t_us, w, h, d, k):
+    model = b"plumb_bob"
+    p = list(k[:3]) + [0.0] + list(k[3:6]) + [0.0] + list(k[6:]) + [0.0]
+    return (header_bytes(0, t_us) + np.array([h, w, len(model)], "<u4").tobytes() + model +
+            np.array([len(d)], "<u4").tobytes() + np.array(list(d) + list(k) + [1, 0, 0, 0, 1, 0, 0, 0, 1] + p, "<f8").tobytes() +
+            np.array([0, 0, 0, 0, 0, 0], "<u4").tobytes() + b"\x00")
+
+
+def test_bag_sequence_records_the_frames_camera_info(tmp_path):
+    """sensor_msgs/CameraInfo in the frames' namespace lands in meta.json's source.camera_info, as
+    written; one of another size than the images is a named error."""
+    assert CAMINFO._md5sum == "c9a58c1b0b154e0e6da7578cb991d214"
+    w, h = 20, 16
+    ev = np.zeros(50, vkunroll.EVENT_DTYPE)
+    ev["t"] = 1000 + np.arange(50) * 100
+    d, k = [-0.3, 0.1, 0.001, -0.002, 0.0], [200.5, 0, 10.25, 0, 201.0, 8.5, 0, 0, 1]
+    for size, ok in (((w, h), True), ((w * 2, h), False)):
+        path = str(tmp_path / f"cam{ok}.bag")
+        with rosbag.Bag(path, "w") as bag:
+            write_raw(bag, "/dvs/events", DVS, array_message(0, ev, w, h), 6000)
+            write_raw(bag, "/dvs/camera_info", CAMINFO, camera_info_message(1000, *size, d, k), 1000)
+            for i in range(2):
+                img = np.full((h, w), 40 * i, np.uint8)
+                write_raw(bag, "/dvs/image_raw", IMAGE, image_message(i, 1000 + 2000 * i, img, "mono8"), 1000 + 2000 * i)
+        out = tmp_path / f"seq{ok}"
+        r = subprocess.run([CLI, "bag-sequence", path, str(out), "--line-delay-us", "10", "--exposure-us", "100"],
+                           capture_output=True, text=True)
+        if not ok:
+            assert r.returncode != 0 and "camera info of topic /dvs/camera_info is for 40x16" in r.stderr, r.stderr
+            continue
+        assert r.returncode == 0, r.stderr
+        assert "camera info  /dvs/camera_info" in r.stdout
+        ci = json.loads((out / "meta.json").read_text())["source"]["camera_info"]
+        assert ci["topic"] == "/dvs/camera_info" and ci["distortion_model"] == "plumb_bob"
+        assert (ci["width"], ci["height"]) == (w, h) and ci["D"] == d and ci["K"] == k and ci["P"][0] == 200.5
+        assert vkunroll.Sequence.open(out).width == w  # the schema accepts source.camera_info (source is free-form)
+
+
 def test_bag_sequence_from_a_davis_like_bag(tmp_path):
     """`vkunroll bag-sequence`: frames of an image topic -> rs/*.png + meta.json naming the bag for the
     events; the folder opens as a sequence whose frames and events are the bag's."""
