@@ -26,6 +26,24 @@ struct Evt2State {
   int64_t time(uint32_t word) const { return int64_t(loop + (time_high << 6) + ((word >> 22) & 0x3F)); }
 };
 
+// The word types EVT 2.0 and 2.1 share beside the events: the time high, the ignored ones, and
+// an unknown type (`format` and `word_hex` name it in the message).
+template <class WordHex>
+void evt2_control_word(uint32_t type, uint32_t hi, uint64_t off, Evt2State& st, uint64_t& record, EventSink& sink,
+                       const char* format, WordHex word_hex) {
+  switch (type) {
+    case 0x8: st.time_high_word(hi & 0x0FFFFFFF); break;
+    case 0xA: sink.ignored("EXT_TRIGGER"); break;
+    case 0xE: sink.ignored("OTHERS"); break;
+    case 0xF: sink.ignored("CONTINUED"); break;
+    default:
+      sink.set_record_index(record++);
+      sink.set_byte_offset(int64_t(off));
+      sink.unknown_record_lazy(
+          [&] { return "unknown " + std::string(format) + " word type " + evt3_hex(type, 1) + " (word " + word_hex() + ")"; });
+  }
+}
+
 // One EVT 2.0 word at byte `off` (for messages); false when the sink says stop.
 inline bool evt2_word(uint32_t w, uint64_t off, Evt2State& st, uint64_t& record, EventSink& sink) {
   const uint32_t type = w >> 28;
@@ -37,14 +55,7 @@ inline bool evt2_word(uint32_t w, uint64_t off, Evt2State& st, uint64_t& record,
       if (!sink.add(st.time(w), (w >> 11) & 0x7FF, w & 0x7FF, type)) return false;
       break;
     }
-    case 0x8: st.time_high_word(w & 0x0FFFFFFF); break;
-    case 0xA: sink.ignored("EXT_TRIGGER"); break;
-    case 0xE: sink.ignored("OTHERS"); break;
-    case 0xF: sink.ignored("CONTINUED"); break;
-    default:
-      sink.set_record_index(record++);
-      sink.set_byte_offset(int64_t(off));
-      sink.unknown_record_lazy([&] { return "unknown EVT 2.0 word type " + evt3_hex(type, 1) + " (word " + evt3_hex(w, 8) + ")"; });
+    default: evt2_control_word(type, w, off, st, record, sink, "EVT 2.0", [&] { return evt3_hex(w, 8); });
   }
   return true;
 }
@@ -70,16 +81,8 @@ inline bool evt21_word(uint32_t hi, uint32_t lo, uint64_t off, Evt2State& st, ui
       }
       break;
     }
-    case 0x8: st.time_high_word(hi & 0x0FFFFFFF); break;
-    case 0xA: sink.ignored("EXT_TRIGGER"); break;
-    case 0xE: sink.ignored("OTHERS"); break;
-    case 0xF: sink.ignored("CONTINUED"); break;
     default:
-      sink.set_record_index(record++);
-      sink.set_byte_offset(int64_t(off));
-      sink.unknown_record_lazy([&] {
-        return "unknown EVT 2.1 word type " + evt3_hex(type, 1) + " (word " + evt3_hex((uint64_t(hi) << 32) | lo, 16) + ")";
-      });
+      evt2_control_word(type, hi, off, st, record, sink, "EVT 2.1", [&] { return evt3_hex((uint64_t(hi) << 32) | lo, 16); });
   }
   return true;
 }
