@@ -254,6 +254,44 @@ inline Checkpoint packet_checkpoint(uint64_t offset, uint64_t record) {
   return c;
 }
 
+// Where a streamed word reader starts: a checkpoint (resumed read, its decoder state loaded) or
+// the data start.
+template <class State>
+uint64_t start_words(EventSink& sink, uint64_t data_offset, State& st, uint64_t& record) {
+  const Checkpoint* c = sink.resume_point();
+  if (!c) return data_offset;
+  st.load(*c);
+  record = c->record;
+  sink.resume(*c);
+  return c->offset;
+}
+
+// A checkpoint at `offset` with the decoder state `st` (its save()).
+template <class State>
+Checkpoint checkpoint_at(uint64_t offset, uint64_t record, const State& st) {
+  Checkpoint c;
+  c.offset = offset;
+  c.record = record;
+  st.save(c);
+  return c;
+}
+
+// A 32-bit microsecond clock that wraps after 71.6 minutes (.dat, AEDAT 2.0): a time that falls by
+// more than half the range is the next wrap (jAER reads them as int32: the same unwrapping).
+struct Wrap32Clock {
+  uint64_t loop = 0;
+  uint32_t prev = 0;
+  bool have_prev = false;
+  void save(Checkpoint& c) const { c.state = {int64_t(loop), int64_t(prev), have_prev}; }
+  void load(const Checkpoint& c) { loop = uint64_t(c.state[0]), prev = uint32_t(c.state[1]), have_prev = c.state[2] != 0; }
+  int64_t time(uint32_t ts) {
+    if (have_prev && ts < prev && prev - ts > (1u << 31)) loop += uint64_t(1) << 32;
+    prev = ts;
+    have_prev = true;
+    return int64_t(loop + ts);
+  }
+};
+
 // The sensor size of an iniVation camera named in a header line (jAER's AEChip / HardwareInterface,
 // libcaer's '#Source N: DAVIS346B'): letters and digits, any case; false for a name it does not know.
 bool sensor_size_from_device_name(const std::string& name, int& w, int& h);

@@ -64,28 +64,9 @@ Aedat2Header parse_aedat2_header(ByteSource& src) {
   return h;
 }
 
-struct Aedat2State {
-  uint64_t loop = 0;
-  uint32_t prev = 0;
-  bool have_prev = false;
-  void save(Checkpoint& c) const { c.state = {int64_t(loop), int64_t(prev), have_prev}; }
-  void load(const Checkpoint& c) { loop = uint64_t(c.state[0]), prev = uint32_t(c.state[1]), have_prev = c.state[2] != 0; }
-};
-
-Checkpoint aedat2_checkpoint(uint64_t offset, uint64_t record, const Aedat2State& st) {
-  Checkpoint c;
-  c.offset = offset;
-  c.record = record;
-  st.save(c);
-  return c;
-}
-
 // One record; false when the sink says stop.
-inline bool aedat2_record(uint32_t addr, uint32_t ts, uint64_t off, Aedat2State& st, uint64_t& record, EventSink& sink) {
-  // 32-bit microseconds wrap after 71.6 minutes (jAER reads them as int32: the same unwrapping).
-  if (st.have_prev && ts < st.prev && st.prev - ts > (1u << 31)) st.loop += uint64_t(1) << 32;
-  st.prev = ts;
-  st.have_prev = true;
+inline bool aedat2_record(uint32_t addr, uint32_t ts, uint64_t off, Wrap32Clock& st, uint64_t& record, EventSink& sink) {
+  const int64_t t = st.time(ts);  // every record moves the clock, the skipped ones too
   if (addr & kApsOrImu) {
     if ((addr & kImuType) == kImuType) sink.ignored("IMU sample words (7 per IMU6 sample)");
     else sink.ignored("APS ADC samples (frame pixels, not read)");
@@ -98,7 +79,7 @@ inline bool aedat2_record(uint32_t addr, uint32_t ts, uint64_t off, Aedat2State&
   const int64_t ax = (addr >> 12) & 0x3FF, ay = (addr >> 22) & 0x1FF;
   sink.set_record_index(record++);
   sink.set_byte_offset(int64_t(off));
-  return sink.add(int64_t(st.loop + ts), sink.width() - 1 - ax, sink.height() - 1 - ay, (addr >> 11) & 1);
+  return sink.add(t, sink.width() - 1 - ax, sink.height() - 1 - ay, (addr >> 11) & 1);
 }
 
 }  // namespace
@@ -112,14 +93,9 @@ void read_aedat2(ByteSource& src, EventSink& sink) {
                              "x and y: pass --width and --height (EventReadOptions::width/height)");
   sink.note("AEDAT 2.0 records start at byte " + std::to_string(h.data_offset) +
             "; DAVIS layout, x = width-1 - address x, y = height-1 - address y (jAER's origin is the lower left)");
-  Aedat2State st;
-  uint64_t record = 0, off = h.data_offset;
-  if (const Checkpoint* c = sink.resume_point()) {
-    st.load(*c);
-    record = c->record, off = c->offset;
-    sink.resume(*c);
-  }
-  if (!sink.boundary(aedat2_checkpoint(off, record, st))) return;
+  Wrap32Clock st;
+  uint64_t record = 0, off = start_words(sink, h.data_offset, st, record);
+  if (!sink.boundary(checkpoint_at(off, record, st))) return;
   uint64_t next = sink.next_checkpoint(off, h.data_offset);
   const uint64_t size = src.size();
   sink.expect_records((size - std::min(size, off)) / 8);
@@ -137,14 +113,14 @@ void read_aedat2(ByteSource& src, EventSink& sink) {
     }
     for (size_t i = 0; i < whole; i += 8) {
       if (off + i >= next) {
-        if (!sink.boundary(aedat2_checkpoint(off + i, record, st))) return;
+        if (!sink.boundary(checkpoint_at(off + i, record, st))) return;
         next = sink.next_checkpoint(off + i, h.data_offset);
       }
       if (!aedat2_record(be32(buf.data() + i), be32(buf.data() + i + 4), off + i, st, record, sink)) return;
     }
     off += whole;
   }
-  if (!sink.done()) sink.end_of_data(aedat2_checkpoint(off, record, st));
+  if (!sink.done()) sink.end_of_data(checkpoint_at(off, record, st));
   sink.set_byte_offset(-1);
 }
 

@@ -200,25 +200,6 @@ void apply_header(const PropheseeHeader& h, EventSink& sink, const char* fmt) {
 }
 
 
-// Where a streamed word reader starts: a checkpoint (resumed read) or the data start.
-template <class State>
-uint64_t start_words(EventSink& sink, uint64_t data_offset, State& st, uint64_t& record) {
-  const Checkpoint* c = sink.resume_point();
-  if (!c) return data_offset;
-  st.load(*c);
-  record = c->record;
-  sink.resume(*c);
-  return c->offset;
-}
-
-template <class State>
-Checkpoint checkpoint_at(uint64_t offset, uint64_t record, const State& st) {
-  Checkpoint c;
-  c.offset = offset;
-  c.record = record;
-  st.save(c);
-  return c;
-}
 
 }  // namespace
 
@@ -301,14 +282,6 @@ void read_evt3(ByteSource& src, EventSink& sink) {
 
 namespace {
 
-struct DatState {
-  uint64_t loop = 0;
-  uint32_t prev = 0;
-  bool have_prev = false;
-  void save(Checkpoint& c) const { c.state = {int64_t(loop), int64_t(prev), have_prev}; }
-  void load(const Checkpoint& c) { loop = uint64_t(c.state[0]), prev = uint32_t(c.state[1]), have_prev = c.state[2] != 0; }
-};
-
 // The byte where .dat records start (after the header and the type/size bytes); 0 when the file
 // ends before them (reported to the sink).
 uint64_t dat_data_start(ByteSource& src, EventSink& sink, const PropheseeHeader& h) {
@@ -364,7 +337,7 @@ void read_dat(ByteSource& src, EventSink& sink) {
   if (data == 0 && !h.lines.empty()) return;
   sink.note("DAT records start at byte " + std::to_string(data));
   const uint64_t n = (src.size() - std::min(src.size(), data)) / 8;
-  DatState st;
+  Wrap32Clock st;
   uint64_t record = dat_window_start(src, sink, data, n);
   uint64_t start = data + 8 * record;
   if (sink.resume_point()) start = start_words(sink, data, st, record);
@@ -377,14 +350,11 @@ void read_dat(ByteSource& src, EventSink& sink) {
         if (!sink.boundary(checkpoint_at(off + 8 * i, record, st))) return false;
         next = sink.next_checkpoint(off + 8 * i, data);
       }
-      const uint32_t ts = le32(p + 8 * i), d = le32(p + 8 * i + 4);
-      // 32-bit microseconds wrap after 71.6 minutes.
-      if (st.have_prev && ts < st.prev && st.prev - ts > (1u << 31)) st.loop += uint64_t(1) << 32;
-      st.prev = ts;
-      st.have_prev = true;
+      const uint32_t d = le32(p + 8 * i + 4);
+      const int64_t t = st.time(le32(p + 8 * i));
       sink.set_record_index(record++);
       sink.set_byte_offset(int64_t(off + 8 * i));
-      if (!sink.add(int64_t(st.loop + ts), d & 0x3FFF, (d >> 14) & 0x3FFF, (d >> 28) & 1)) return false;
+      if (!sink.add(t, d & 0x3FFF, (d >> 14) & 0x3FFF, (d >> 28) & 1)) return false;
     }
     return true;
   });
