@@ -93,6 +93,25 @@ void finish_words(EventSink& sink, const BlockEnd& end, uint64_t& record, const 
   sink.end_of_data(last);
 }
 
+// The word loop of every streamed reader here: `unit`-byte words from `start`, a checkpoint of the
+// decoder state `st` wherever the sink asks for one, decode(word, byte offset) per word (false: stop).
+template <class State, class Decode>
+BlockEnd for_each_word(ByteSource& src, EventSink& sink, uint64_t start, size_t unit, uint64_t data_offset,
+                       const uint64_t& record, const State& st, Decode decode) {
+  uint64_t next = sink.next_checkpoint(start, data_offset);
+  return for_each_block(src, sink, start, unit, [&](const uint8_t* p, size_t n, uint64_t off) {
+    for (size_t i = 0; i < n; ++i) {
+      const uint64_t at = off + unit * i;
+      if (at >= next) {
+        if (!sink.boundary(checkpoint_at(at, record, st))) return false;
+        next = sink.next_checkpoint(at, data_offset);
+      }
+      if (!decode(p + unit * i, at)) return false;
+    }
+    return true;
+  });
+}
+
 inline uint16_t le16(const uint8_t* p) { return uint16_t(p[0] | (p[1] << 8)); }
 inline uint32_t le32(const uint8_t* p) { return uint32_t(p[0]) | (uint32_t(p[1]) << 8) | (uint32_t(p[2]) << 16) | (uint32_t(p[3]) << 24); }
 
@@ -211,17 +230,9 @@ void read_evt2(ByteSource& src, EventSink& sink) {
   uint64_t record = 0;
   const uint64_t start = start_words(sink, h.data_offset, st, record);
   if (!sink.boundary(checkpoint_at(start, record, st))) return;
-  uint64_t next = sink.next_checkpoint(start, h.data_offset);
   sink.expect_records((src.size() - std::min(src.size(), h.data_offset)) / 4);
-  const BlockEnd end = for_each_block(src, sink, start, 4, [&](const uint8_t* p, size_t n, uint64_t off) {
-    for (size_t i = 0; i < n; ++i) {
-      if (off + 4 * i >= next) {
-        if (!sink.boundary(checkpoint_at(off + 4 * i, record, st))) return false;
-        next = sink.next_checkpoint(off + 4 * i, h.data_offset);
-      }
-      if (!evt2_word(le32(p + 4 * i), off + 4 * i, st, record, sink)) return false;
-    }
-    return true;
+  const BlockEnd end = for_each_word(src, sink, start, 4, h.data_offset, record, st, [&](const uint8_t* w, uint64_t at) {
+    return evt2_word(le32(w), at, st, record, sink);
   });
   finish_words(sink, end, record, "32-bit EVT 2.0 word", checkpoint_at(end.offset, record, st));
   sink.set_byte_offset(-1);
@@ -239,19 +250,9 @@ void read_evt21(ByteSource& src, EventSink& sink) {
   uint64_t record = 0;
   const uint64_t start = start_words(sink, h.data_offset, st, record);
   if (!sink.boundary(checkpoint_at(start, record, st))) return;
-  uint64_t next = sink.next_checkpoint(start, h.data_offset);
-  const BlockEnd end = for_each_block(src, sink, start, 8, [&](const uint8_t* p, size_t n, uint64_t off) {
-    for (size_t i = 0; i < n; ++i) {
-      const uint64_t at = off + 8 * i;
-      if (at >= next) {
-        if (!sink.boundary(checkpoint_at(at, record, st))) return false;
-        next = sink.next_checkpoint(at, h.data_offset);
-      }
-      const uint32_t first = le32(p + 8 * i), second = le32(p + 8 * i + 4);
-      const uint32_t hi = legacy ? first : second, lo = legacy ? second : first;
-      if (!evt21_word(hi, lo, at, st, record, sink)) return false;
-    }
-    return true;
+  const BlockEnd end = for_each_word(src, sink, start, 8, h.data_offset, record, st, [&](const uint8_t* w, uint64_t at) {
+    const uint32_t first = le32(w), second = le32(w + 4);
+    return evt21_word(legacy ? first : second, legacy ? second : first, at, st, record, sink);
   });
   finish_words(sink, end, record, "64-bit EVT 2.1 word", checkpoint_at(end.offset, record, st));
   sink.set_byte_offset(-1);
@@ -265,16 +266,8 @@ void read_evt3(ByteSource& src, EventSink& sink) {
   uint64_t record = 0;
   const uint64_t start = start_words(sink, h.data_offset, st, record);
   if (!sink.boundary(checkpoint_at(start, record, st))) return;
-  uint64_t next = sink.next_checkpoint(start, h.data_offset);
-  const BlockEnd end = for_each_block(src, sink, start, 2, [&](const uint8_t* p, size_t n, uint64_t off) {
-    for (size_t i = 0; i < n; ++i) {
-      if (off + 2 * i >= next) {
-        if (!sink.boundary(checkpoint_at(off + 2 * i, record, st))) return false;
-        next = sink.next_checkpoint(off + 2 * i, h.data_offset);
-      }
-      if (!evt3_word(le16(p + 2 * i), off + 2 * i, st, record, sink)) return false;
-    }
-    return true;
+  const BlockEnd end = for_each_word(src, sink, start, 2, h.data_offset, record, st, [&](const uint8_t* w, uint64_t at) {
+    return evt3_word(le16(w), at, st, record, sink);
   });
   finish_words(sink, end, record, "16-bit EVT 3.0 word", checkpoint_at(end.offset, record, st));
   sink.set_byte_offset(-1);
@@ -342,21 +335,13 @@ void read_dat(ByteSource& src, EventSink& sink) {
   uint64_t start = data + 8 * record;
   if (sink.resume_point()) start = start_words(sink, data, st, record);
   if (!sink.boundary(checkpoint_at(start, record, st))) return;
-  uint64_t next = sink.next_checkpoint(start, data);
   sink.expect_records(n - std::min(n, record));
-  const BlockEnd end = for_each_block(src, sink, start, 8, [&](const uint8_t* p, size_t cnt, uint64_t off) {
-    for (size_t i = 0; i < cnt; ++i) {
-      if (off + 8 * i >= next) {
-        if (!sink.boundary(checkpoint_at(off + 8 * i, record, st))) return false;
-        next = sink.next_checkpoint(off + 8 * i, data);
-      }
-      const uint32_t d = le32(p + 8 * i + 4);
-      const int64_t t = st.time(le32(p + 8 * i));
-      sink.set_record_index(record++);
-      sink.set_byte_offset(int64_t(off + 8 * i));
-      if (!sink.add(t, d & 0x3FFF, (d >> 14) & 0x3FFF, (d >> 28) & 1)) return false;
-    }
-    return true;
+  const BlockEnd end = for_each_word(src, sink, start, 8, data, record, st, [&](const uint8_t* w, uint64_t at) {
+    const uint32_t d = le32(w + 4);
+    const int64_t t = st.time(le32(w));
+    sink.set_record_index(record++);
+    sink.set_byte_offset(int64_t(at));
+    return sink.add(t, d & 0x3FFF, (d >> 14) & 0x3FFF, (d >> 28) & 1);
   });
   finish_words(sink, end, record, "8-byte .dat record", checkpoint_at(end.offset, record, st));
   sink.set_byte_offset(-1);
