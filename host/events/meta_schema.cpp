@@ -211,10 +211,9 @@ std::set<std::string> known_keys(const std::string& container) {
   return keys;
 }
 
-std::vector<std::string> unknown_keys(const nlohmann::json& obj, const std::string& container) {
+std::vector<std::string> unknown_keys(const nlohmann::json& obj, const std::set<std::string>& keys) {
   std::vector<std::string> out;
   if (!obj.is_object()) return out;
-  const auto keys = known_keys(container);
   for (const auto& item : obj.items())
     if (!keys.count(item.key())) out.push_back(item.key());
   return out;
@@ -244,15 +243,16 @@ std::vector<std::string> validate_meta(const nlohmann::json& meta, const std::st
   for (const char* c : kClosedContainers) {
     const std::string container = c;
     if (container.empty()) {
-      for (const auto& key : unknown_keys(meta, "")) v.warnings.push_back(unknown_warning(meta_path, "", key));
+      for (const auto& key : unknown_keys(meta, known_keys(""))) v.warnings.push_back(unknown_warning(meta_path, "", key));
       continue;
     }
     const std::string list = container.substr(0, container.size() - 2);
     if (!meta.contains(list) || !meta[list].is_array()) continue;
     // One warning per unknown key of a list's items, at its first item, with the count.
     std::map<std::string, std::pair<size_t, std::string>> unknown;  // key -> (items, first item's field)
+    const std::set<std::string> keys = known_keys(container);
     for (size_t k = 0; k < meta[list].size(); ++k)
-      for (const auto& key : unknown_keys(meta[list][k], container)) {
+      for (const auto& key : unknown_keys(meta[list][k], keys)) {
         auto& u = unknown[key];
         if (u.first++ == 0) u.second = list + "[" + std::to_string(k) + "]";
       }
