@@ -5,8 +5,9 @@ Never train on its sequences: they are marked `"split": "validation"` in natural
 
   second_generator.py --out DIR --photo FILE --kind camera|static_movers|camera_occluders
                       [--size 240x180] [--frames 4] [--seed 1] [--noise none|dvs|heavy]
-  second_generator.py --suite DIR [--size 240x180] [--frames 4] [--noise dvs]
-                      (three kinds x two training photographs from tools/data/photos.json)
+  second_generator.py --suite DIR [--size 240x180] [--frames 4] [--noise dvs] [--split train|heldout]
+                      (three kinds x two photographs of that split of tools/data/photos.json;
+                      heldout: an evaluation-only suite, marked split 'heldout')
 
 Where it differs from host/sim (docs/simulator.md, "Events"):
 - Rendering: bilinear resampling of the photograph (scipy map_coordinates) on a fixed 50 us
@@ -217,6 +218,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--noise", choices=sorted(NOISE), default="dvs")
     ap.add_argument("--contrast", type=float, default=0.25)
+    ap.add_argument("--split", choices=("train", "heldout"), default="train",
+                    help="--suite: photographs of this split (heldout: an evaluation-only suite, marked so)")
     a = ap.parse_args()
     try:
         w, h = (int(v) for v in a.size.split("x"))
@@ -231,15 +234,19 @@ def main() -> int:
             sys.exit(f"second_generator: --photo '{a.photo}': no such file")
         print(json.dumps(generate(a.out, a.photo, a.kind, w, h, a.frames, a.seed, a.noise, a.contrast)))
         return 0
-    photos = [p["file"] for p in json.load(open(os.path.join(HERE, "data", "photos.json")))["photos"] if p["split"] == "train"]
+    photos = [p["file"] for p in json.load(open(os.path.join(HERE, "data", "photos.json")))["photos"] if p["split"] == a.split]
     photos = [p for p in photos if os.path.isfile(p)][:2]
     if len(photos) < 2:
-        sys.exit("second_generator: --suite needs two training photographs of tools/data/photos.json installed")
+        sys.exit(f"second_generator: --suite needs two '{a.split}' photographs of tools/data/photos.json installed")
     for i, kind in enumerate(("camera", "static_movers", "camera_occluders")):
         for j, photo in enumerate(photos):
             name = f"{kind}_{j}"
-            print(name, json.dumps(generate(os.path.join(a.suite, name), photo, kind, w, h, a.frames, 100 + 10 * i + j,
-                                            a.noise, a.contrast)))
+            info = generate(os.path.join(a.suite, name), photo, kind, w, h, a.frames, 100 + 10 * i + j, a.noise, a.contrast)
+            if a.split == "heldout":  # held-out photographs: evaluation only (train.py refuses --data and --val)
+                info["split"] = "heldout"
+                with open(os.path.join(a.suite, name, "natural.json"), "w") as f:
+                    json.dump(info, f, indent=1)
+            print(name, json.dumps(info))
     return 0
 
 
