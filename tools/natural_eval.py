@@ -103,6 +103,18 @@ def kind_of(seq: Sequence) -> str:
     return json.load(open(p)).get("kind", "unknown") if os.path.isfile(p) else "unknown"
 
 
+def noise_of(seq: Sequence) -> str:
+    """The event noise the sequence was made with: `vkunroll simulate`'s preset (clean, realistic,
+    noisy) or the second generator's `--noise` (none, dvs), from meta.json's source."""
+    src = json.load(open(os.path.join(seq.folder, "meta.json"))).get("source", {})
+    return str(src.get("preset") or src.get("noise") or "unknown")
+
+
+def noisy(noise: str) -> str:
+    """'yes' when the sequence has sensor noise (any preset or --noise but clean / none)."""
+    return "unknown" if noise == "unknown" else ("no" if noise in ("clean", "none") else "yes")
+
+
 def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(), limit: int = 0,
              threads: int = 2, log=print) -> dict:
     torch.set_num_threads(threads)
@@ -133,8 +145,8 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                 k = pn.frame_for_time(seq, frames, t)
                 tau = float(g.get("tau", (t - seq.frame_span(k)[0]) / (seq.frame_span(k)[1] - seq.frame_span(k)[0])))
                 gt = seq.gt_image(i)
-                row = {"sequence": os.path.basename(seq.folder.rstrip("/")), "kind": kind_of(seq), "t_us": t,
-                       "frame": k, "tau": tau, "intra": 0.0 <= tau <= 1.0, "psnr": {}, "ssim": {}}
+                row = {"sequence": os.path.basename(seq.folder.rstrip("/")), "kind": kind_of(seq), "noise": noise_of(seq),
+                       "t_us": t, "frame": k, "tau": tau, "intra": 0.0 <= tau <= 1.0, "psnr": {}, "ssim": {}}
                 rs = seq.frame(k)
                 row["psnr"]["RS input"], row["ssim"]["RS input"] = psnr(rs, gt), ssim(rs, gt)
                 if phys_cli:
@@ -166,10 +178,14 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
 
 
 def summarize(rows: List[dict]) -> dict:
-    """Mean PSNR/SSIM per (group, intra|inter, method); groups: each sequence, each kind, all."""
+    """Mean PSNR/SSIM per (group, intra|inter, method); groups: each sequence, each kind, each
+    preset, with noise or without (`noisy`), each (kind, with noise or without), all."""
     out: Dict[str, dict] = {}
     for r in rows:
-        for grp in (f"seq:{r['sequence']}", f"kind:{r['kind']}", "all"):
+        noise = r.get("noise", "unknown")
+        grps = (f"seq:{r['sequence']}", f"kind:{r['kind']}", f"preset:{noise}", f"noise:{noisy(noise)}",
+                f"kind:{r['kind']} noise:{noisy(noise)}", "all")
+        for grp in grps:
             d = out.setdefault(grp, {}).setdefault("intra" if r["intra"] else "inter", {})
             for meth in r["psnr"]:
                 e = d.setdefault(meth, {"psnr": [], "ssim": []})
@@ -188,7 +204,7 @@ def markdown(res: dict, groups: Optional[List[str]] = None) -> str:
     for grp in s.values():
         for part in grp.values():
             methods += [m for m in part if m not in methods]
-    groups = groups or sorted(s, key=lambda g: (g != "all", not g.startswith("kind:"), g))
+    groups = groups or sorted(s, key=lambda g: (g != "all", g.startswith("seq:"), g.startswith("preset:"), "noise:" in g, g))
     lines = ["| group | part | " + " | ".join(methods) + " |", "| --- | --- |" + " --- |" * len(methods)]
     for g in groups:
         for part in ("intra", "inter"):
