@@ -119,11 +119,12 @@ std::vector<float> physics_unroll_ref(const std::vector<float>& rs, int channels
       }
       for (int c = 0; c < channels; ++c) {
         const double v = rs[c * plane + pix];
-        const double lin = v > 0 ? std::pow(v, static_cast<double>(params.gamma)) : 0.0;
+        const double offset = params.log_offset;  // events measure log(lin + offset)
+        const double lin = (v > 0 ? std::pow(v, static_cast<double>(params.gamma)) : 0.0) + offset;
         // Capped in the log domain: log_ratio reaches ~c * (event count) (1e5 and more for millions
         // of events), and exp() of that is inf; the GPU does the same so it never relies on inf.
         const double o = lin > 0 ? std::min(std::exp(std::min(std::log(lin) + log_ratio, std::log(double(params.max_value)))),
-                                                   double(params.max_value))
+                                                   double(params.max_value)) - offset
                                 : 0.0;
         out[c * plane + pix] = static_cast<float>(o > 0 ? std::pow(o, 1.0 / params.gamma) : 0.0);
       }
@@ -135,7 +136,7 @@ std::vector<float> physics_unroll_ref(const std::vector<float>& rs, int channels
 namespace {
 struct PhysicsPush {
   int32_t width, height, channels;
-  float contrast, gamma, max_value;
+  float contrast, gamma, max_value, log_offset;
 };
 template <class T>
 Tensor upload_vector(Context& ctx, const std::vector<T>& v, DType dt, CommandStream* cs) {
@@ -183,7 +184,9 @@ void PhysicsUnroll::record(CommandStream& cs, const Tensor& rs, Tensor& result, 
     throw Error("PhysicsUnroll: contrast and gamma must be positive");
   if (!(params.max_value > 0) || !std::isfinite(params.max_value))
     throw Error("PhysicsUnroll: max_value must be positive and finite");
-  PhysicsPush p{width_, height_, static_cast<int32_t>(s.c), params.contrast, params.gamma, params.max_value};
+  if (!(params.log_offset >= 0) || !(params.log_offset < params.max_value))
+    throw Error("PhysicsUnroll: log_offset must be in [0, max_value)");
+  PhysicsPush p{width_, height_, static_cast<int32_t>(s.c), params.contrast, params.gamma, params.max_value, params.log_offset};
   const double pixels = static_cast<double>(width_) * height_;
   cs.dispatch(kernel_pipeline(ctx_, "physics_unroll", {}, sizeof p),
               {in(offsets_), in(tau_), in(polarity_), in(rows_), in(rs), out(result)}, p,

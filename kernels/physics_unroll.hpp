@@ -38,6 +38,9 @@ struct PhysicsUnrollParams {
   float contrast = 0.2f;  // c: log-intensity change per event
   float gamma = 1.0f;     // the image is decoded with x^gamma before and encoded after
   float max_value = 1e4f; // cap on the linear result, so a wildly wrong c cannot produce inf
+  // eps: the events measure log(lin + eps), a sensor's dark offset (v2e's and the simulator's eps);
+  // the ratio then applies to lin + eps and eps comes off after. 0: plain log(lin).
+  float log_offset = 0.0f;
 };
 
 // Throws Error unless `rs` holds C x H x W finite values (names the first bad (channel, y, x)).

@@ -10,7 +10,7 @@ layout(std430, binding = 4) readonly buffer Rs { float rs[]; };
 layout(std430, binding = 5) writeonly buffer Out { float result[]; };
 layout(push_constant) uniform P {
   int width, height, channels;
-  float contrast, gamma, max_value;
+  float contrast, gamma, max_value, log_offset;
 } p;
 
 void main() {
@@ -48,10 +48,11 @@ void main() {
   const int plane = p.width * p.height;
   for (int c = 0; c < p.channels; ++c) {
     const float v = rs[c * plane + pix];
-    float lin = v > 0.0 ? pow(v, p.gamma) : 0.0;
+    // Events measure log(lin + log_offset): the ratio applies to the offset intensity.
+    float lin = (v > 0.0 ? pow(v, p.gamma) : 0.0) + p.log_offset;
     // Cap the exponent, not exp's result: log_ratio can be ~c * millions of events, and exp of
     // that overflows (inf, or whatever a fast exp returns there); log(0) is never taken (lin > 0).
-    float o = lin > 0.0 ? min(exp(min(log(lin) + log_ratio, log(p.max_value))), p.max_value) : 0.0;
+    float o = lin > 0.0 ? min(exp(min(log(lin) + log_ratio, log(p.max_value))), p.max_value) - p.log_offset : 0.0;
     result[c * plane + pix] = o > 0.0 ? pow(o, 1.0 / p.gamma) : 0.0;
   }
 }

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <random>
 
+#include "vkunroll/base/error.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
 #include "vkunroll/runtime/context.hpp"
@@ -71,6 +72,36 @@ TEST(PhysicsUnroll, OneEventAnalytic) {
   }
 }
 
+// With a log offset eps the events measure log(L + eps): after the event, L' = (L + eps) e^c - eps.
+TEST(PhysicsUnroll, OneEventWithALogOffsetAnalytic) {
+  const double c = 0.3, tau = 400, L = 0.05, eps = 0.05;
+  const double after = (L + eps) * std::exp(c) - eps;
+  const double rs = (L * tau + after * (1000 - tau)) / 1000;
+  EventStream es;
+  es.width = 1, es.height = 1;
+  es.push(static_cast<int64_t>(tau), 0, 0, 1);
+  PhysicsUnrollParams prm;
+  prm.contrast = static_cast<float>(c);
+  prm.log_offset = static_cast<float>(eps);
+  for (double t_star : {0.0, 399.0, 401.0, 1200.0}) {
+    auto ev = gather_pixel_events(es, t_star, {0.0}, {1000.0}, 0, 0, 1, 1);
+    const double expect = t_star < tau ? L : after;
+    auto cpu = physics_unroll_ref({static_cast<float>(rs)}, 1, ev, prm);
+    auto gpu = run_gpu({static_cast<float>(rs)}, 1, ev, prm);
+    EXPECT_NEAR(cpu[0], expect, 1e-6) << "t*=" << t_star;
+    EXPECT_NEAR(gpu[0], expect, 1e-5) << "t*=" << t_star;
+  }
+  // Without the offset the same frame unrolls to another value: the offset is not ignored.
+  prm.log_offset = 0.f;
+  auto ev = gather_pixel_events(es, 1200.0, {0.0}, {1000.0}, 0, 0, 1, 1);
+  EXPECT_GT(std::abs(physics_unroll_ref({static_cast<float>(rs)}, 1, ev, prm)[0] - after), 1e-3);
+  prm.log_offset = -0.01f;
+  Context& ctx = vktest::context();
+  Tensor rs_t(ctx, {1, 1, 1, 1}), out_t(ctx, {1, 1, 1, 1});
+  CommandStream cs(ctx);
+  EXPECT_THROW(PhysicsUnroll(ctx, ev).record(cs, rs_t, out_t, prm), Error);
+}
+
 TEST(PhysicsUnroll, ThousandsOfEventsStayFinite) {
   EventStream es;
   es.width = 2, es.height = 1;
@@ -108,14 +139,16 @@ TEST(PhysicsUnroll, GpuMatchesCpuOnRandomStreams) {
   PhysicsUnrollParams prm;
   prm.contrast = 0.2f;
   prm.gamma = 2.2f;
-  for (double t_star : {-1000.0, 0.0, 650.0, 2400.0}) {
-    auto ev = gather_pixel_events(es, t_star, s, plus(s, 1500), 0, 0, W, H);
-    EXPECT_GT(ev.tau.size(), 100u);
-    auto cpu = physics_unroll_ref(rs, C, ev, prm);
-    auto gpu = run_gpu(rs, C, ev, prm);
-    for (size_t i = 0; i < cpu.size(); ++i)
-      ASSERT_NEAR(gpu[i], cpu[i], 1e-4 * std::max(1.f, std::abs(cpu[i]))) << "t*=" << t_star << " i=" << i;
-  }
+  for (float offset : {0.f, 0.05f})
+    for (double t_star : {-1000.0, 0.0, 650.0, 2400.0}) {
+      prm.log_offset = offset;
+      auto ev = gather_pixel_events(es, t_star, s, plus(s, 1500), 0, 0, W, H);
+      EXPECT_GT(ev.tau.size(), 100u);
+      auto cpu = physics_unroll_ref(rs, C, ev, prm);
+      auto gpu = run_gpu(rs, C, ev, prm);
+      for (size_t i = 0; i < cpu.size(); ++i)
+        ASSERT_NEAR(gpu[i], cpu[i], 1e-4 * std::max(1.f, std::abs(cpu[i]))) << "offset " << offset << " t*=" << t_star << " i=" << i;
+    }
 }
 
 TEST(PhysicsUnroll, GatherKeepsOnlyEachRowsWindowAndCrop) {

@@ -200,8 +200,8 @@ TEST(Unroll, UserRecordingWithEvt3OrAedat4EventsEqualsTheHdf5One) {
 }
 
 // The physics contrast is never a silent guess: without a successor frame it is a fixed 0.2, said
-// as such; an estimate on the edge of its search grid (here: no events, every c agrees) is warned.
-TEST(Unroll, ContrastWithoutASuccessorOrOnTheGridEdgeIsSaid) {
+// as such; with successors but no evidence (here: no events at all) it is the default too, warned.
+TEST(Unroll, ContrastWithoutASuccessorOrWithoutEvidenceIsSaid) {
   const fs::path dir = temp_dir("c-said");
   const fs::path seq = make_sequence(dir);
   UnrollOptions o = base(seq, dir / "last");
@@ -216,23 +216,28 @@ TEST(Unroll, ContrastWithoutASuccessorOrOnTheGridEdgeIsSaid) {
   bool said = false;
   for (const auto& w : last["warnings"]) said = said || w.get<std::string>().find("fixed default") != std::string::npos;
   EXPECT_TRUE(said) << last["warnings"];
-  // No events at all: the estimate falls on the grid's lower edge, with a warning.
+  // The same sequence with its events: estimated over each chosen frame and its successor.
+  o.out_dir = (dir / "estimated").string();
+  o.frames = {0, 1};
+  const auto est = run_unroll(o);
+  EXPECT_EQ(est["physics"]["contrast_method"], "event_count_fit") << est["physics"];
+  EXPECT_EQ(est["physics"]["contrast_pairs"], nlohmann::json::parse("[[0, 1], [1, 2]]")) << est["physics"];
+  EXPECT_GE(est["physics"]["contrast_pixels"].get<int>(), 200) << est["physics"];
+  EXPECT_NE(est["physics"]["contrast_source"].get<std::string>().find("frames 0-1, 1-2"), std::string::npos) << est["physics"];
+  // No events at all: no pixel is evidence, so the default, with a warning that says why.
   std::ofstream(seq / "empty.txt") << "";
   std::ifstream meta_in(seq / "meta.json");
   nlohmann::json meta = nlohmann::json::parse(meta_in);
   meta["events"] = "empty.txt";
   std::ofstream(seq / "meta.json") << meta.dump(1);
-  o.out_dir = (dir / "edge").string();
-  o.frames = {0, 1};
-  const auto edge = run_unroll(o);
-  EXPECT_NEAR(edge["physics"]["contrast"].get<double>(), 0.05, 1e-6);
-  // Estimated, and over which frames: each chosen frame with its successor (frame 2 is not unrolled).
-  EXPECT_EQ(edge["physics"]["contrast_method"], "temporal_consistency") << edge["physics"];
-  EXPECT_EQ(edge["physics"]["contrast_pairs"], nlohmann::json::parse("[[0, 1], [1, 2]]")) << edge["physics"];
-  EXPECT_NE(edge["physics"]["contrast_source"].get<std::string>().find("frames 0-1, 1-2"), std::string::npos) << edge["physics"];
+  o.out_dir = (dir / "none").string();
+  const auto none = run_unroll(o);
+  EXPECT_NEAR(none["physics"]["contrast"].get<double>(), 0.2, 1e-6);
+  EXPECT_EQ(none["physics"]["contrast_method"], "default") << none["physics"];
+  EXPECT_NEAR(none["physics"]["log_offset"].get<double>(), 0.0, 1e-12);
   bool warned = false;
-  for (const auto& w : edge["warnings"]) warned = warned || w.get<std::string>().find("edge of its search grid") != std::string::npos;
-  EXPECT_TRUE(warned) << edge["warnings"];
+  for (const auto& w : none["warnings"]) warned = warned || w.get<std::string>().find("too few pixels") != std::string::npos;
+  EXPECT_TRUE(warned) << none["warnings"];
   // A given contrast is neither.
   o.out_dir = (dir / "given").string();
   o.contrast = 0.3;

@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     for folder in list_sequences(a.data):
         seq = Sequence(folder)
         gamma = pn.meta_gamma(seq)
-        c = pn.estimate_contrast(seq, None, gamma)
+        c, eps = pn.estimate_physics(seq, None, gamma)  # the variant's physics input: offset 0
         info = SeqInfo(seq)
         info.gamma = gamma
         info.contrast = lambda c=c: c
@@ -74,7 +74,7 @@ def main(argv=None) -> int:
             kk = min(k, seq.num_frames - 2)
             gt = seq.gt_image(i).astype(np.float64)
             mask = event_mask(seq, k, t)
-            phys = pn.unroll_physics(seq, k, t, c, gamma)
+            phys = pn.unroll_physics(seq, k, t, c, gamma, log_offset=eps)
             imgs = {"RS": seq.frame(k), "physics": phys}
             for n, net in nets.items():
                 r = unroll_pair(net, seq, kk, t, seq.exposure, net.cfg.N, (0, 0, seq.width, seq.height), info)

@@ -127,11 +127,12 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
             ts = time.time()
             gamma = pn.meta_gamma(seq)
             phys_cli = cli_metrics(cli, seq, work, "physics") if cli else None
-            contrast = (float(phys_cli["_summary"]["physics"]["contrast"]) if phys_cli else
-                        pn.estimate_contrast(seq, None, gamma))
+            contrast, log_offset = ((float(phys_cli["_summary"]["physics"]["contrast"]),
+                                     float(phys_cli["_summary"]["physics"].get("log_offset", 0.0))) if phys_cli else
+                                    pn.estimate_physics(seq, None, gamma))
             info = SeqInfo(seq)
             info.gamma = gamma
-            info.contrast = lambda c=contrast: c  # the contrast --mode physics estimated for this sequence
+            info.contrast = lambda c=contrast: c  # the contrast --mode physics estimated (the variant: log offset 0)
             cli_model = {}
             for name, path in models.items():
                 for mode in cli_modes:
@@ -153,7 +154,7 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                     m = [v for tt, v in phys_cli.items() if tt != "_summary" and abs(tt - t) < 0.5][0]
                     row["psnr"]["physics"], row["ssim"]["physics"] = float(m["psnr"]), float(m["ssim"])
                 else:
-                    ph = pn.unroll_physics(seq, k, t, contrast, gamma)
+                    ph = pn.unroll_physics(seq, k, t, contrast, gamma, log_offset=log_offset)
                     row["psnr"]["physics"], row["ssim"]["physics"] = psnr(ph, gt), ssim(ph, gt)
                 full = (0, 0, seq.width, seq.height)
                 for name, net in nets.items():

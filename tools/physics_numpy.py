@@ -11,7 +11,8 @@ to any image (also a network output, differentiably: `apply_log_ratio_torch`).
 
 Rounding follows the C++ reference: times relative to t* are float32 (PixelEventLists), c and
 gamma are float32 (PhysicsUnrollParams), the contrast term c * (F - F0) is a float32 product,
-the rest is double; `estimate_contrast` and `frame_for_time` mirror host/unroll.cpp.
+the rest is double; `estimate_physics` mirrors host/unroll/contrast_estimate.cpp and
+`frame_for_time` host/unroll/unroll_plan.cpp.
 tests/python/test_physics.py compares this with the CLI's output.
 """
 from __future__ import annotations
@@ -101,16 +102,19 @@ def exposure_segments(ev, src_start: np.ndarray, src_end: np.ndarray, target, cr
     return seg_pix[pos], np.log(seg_len[pos]), lvl[pos], rowE - rowS, h, w
 
 
-def apply_log_ratio(img: np.ndarray, log_ratio: np.ndarray, gamma: float, max_value: float = MAX_VALUE) -> np.ndarray:
-    """The C++ output formula: lin = v^gamma, o = min(exp(min(log lin + lr, log max)), max), v' = o^(1/gamma)."""
+def apply_log_ratio(img: np.ndarray, log_ratio: np.ndarray, gamma: float, max_value: float = MAX_VALUE,
+                    log_offset: float = 0.0) -> np.ndarray:
+    """The C++ output formula: lin = v^gamma + eps, o = min(exp(min(log lin + lr, log max)), max) - eps,
+    v' = o^(1/gamma) (eps: PhysicsUnrollParams::log_offset)."""
     g = float(np.float32(gamma))
     mv = float(np.float32(max_value))
     v = np.asarray(img, dtype=np.float64)
     lr = np.broadcast_to(log_ratio, v.shape)
+    eps = float(np.float32(log_offset))
     with np.errstate(divide="ignore"):
-        lin = np.where(v > 0, np.power(np.maximum(v, 0), g), 0.0)
-        o = np.where(lin > 0, np.minimum(np.exp(np.minimum(np.log(np.maximum(lin, 1e-300)) + lr, np.log(mv))), mv), 0.0)
-        out = np.where(o > 0, np.power(o, 1.0 / g), 0.0)
+        lin = np.where(v > 0, np.power(np.maximum(v, 0), g), 0.0) + eps
+        o = np.where(lin > 0, np.minimum(np.exp(np.minimum(np.log(np.maximum(lin, 1e-300)) + lr, np.log(mv))), mv) - eps, 0.0)
+        out = np.where(o > 0, np.power(np.maximum(o, 0), 1.0 / g), 0.0)
     return out.astype(np.float32)
 
 
@@ -143,43 +147,86 @@ def frame_for_time(seq, frames: Seq[int], t: float) -> int:
     return best
 
 
-def contrast_grid() -> List[float]:
-    out, c = [], 0.05
-    while c <= 0.6001:  # the C++ loop, accumulated the same way
-        out.append(c)
-        c += 0.025
-    return out
+# host/unroll/contrast_estimate.cpp's method (summary.json's contrast_method) and constants
+CONTRAST_ESTIMATOR = "event_count_fit"
+_MAX_PAIRS, _MIN_EVENTS, _MIN_SUPPORT, _MIN_PIXELS = 4, 2, 3, 200
+_ENCODED_LOW, _ENCODED_HIGH = 0.02, 0.98
+_OFFSETS = (0.0, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05)
+
+
+def _pair_evidence(seq, a: int, b: int, gamma: float):
+    """Samples (L_a, L_b, N) of the pixels whose events between the rows' mid-exposures are signal,
+    and the log change of in-range pixels with no event in their 3x3 (contrast_estimate.cpp)."""
+    W, H = seq.width, seq.height
+    (sa, ea), (sb, eb) = seq.row_times(a), seq.row_times(b)
+    mid_a, mid_b = 0.5 * (sa + ea), 0.5 * (sb + eb)
+    t, x, y, p = seq.events_in(np.floor(mid_a.min()), np.ceil(mid_b.max()) + 1, (0, 0, W, H))
+    t, x, y = np.asarray(t, np.float64), np.asarray(x, np.int64), np.asarray(y, np.int64)
+    k = (t > mid_a[y]) & (t <= mid_b[y])
+    pix = (y * W + x)[k]
+    net = np.bincount(pix, weights=np.where(np.asarray(p)[k] > 0, 1, -1), minlength=W * H).round().astype(np.int64).reshape(H, W)
+    count = np.bincount(pix, minlength=W * H).reshape(H, W)
+    wl = (0.0722, 0.7152, 0.2126)  # B, G, R as the C++ sums them
+    def lum(img):
+        lin = np.power(np.maximum(np.asarray(img, np.float64), 0.0), gamma)
+        return wl[0] * lin[2] + wl[1] * lin[1] + wl[2] * lin[0]
+    la, lb = lum(seq.frame(a)), lum(seq.frame(b))
+    lo, hi = _ENCODED_LOW ** gamma, _ENCODED_HIGH ** gamma
+    ok = (la > lo) & (la < hi) & (lb > lo) & (lb < hi)
+    sign = np.sign(net)
+    ps, pc = np.pad(sign, 1), np.pad(count, 1)
+    support, around = np.zeros((H, W), np.int64), np.zeros((H, W), np.int64)
+    for dy in range(3):
+        for dx in range(3):
+            around += pc[dy:dy + H, dx:dx + W]
+            if dy != 1 or dx != 1:
+                support += (ps[dy:dy + H, dx:dx + W] == sign) & (sign != 0)
+    quiet = ok & (around == 0)
+    sel = ok & (np.abs(net) >= _MIN_EVENTS) & (support >= _MIN_SUPPORT)
+    return la[sel], lb[sel], net[sel], np.log(lb[quiet] + 0.01) - np.log(la[quiet] + 0.01)
+
+
+def _weighted_median(v: np.ndarray, w: np.ndarray) -> float:
+    o = np.lexsort((w, v))
+    cw = np.cumsum(w[o])
+    return float(v[o][np.searchsorted(cw, 0.5 * cw[-1])])
+
+
+def estimate_physics(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0) -> Tuple[float, float]:
+    """host/unroll/contrast_estimate.cpp estimate_contrast: (c, log offset eps), both float32 as
+    PhysicsUnrollParams; (0.2, 0.0) where it is no estimate. For up to four pairs (k, k+1), the
+    L1 fit of each signal pixel's luminance log change against its net event count."""
+    frames = list(range(seq.num_frames)) if frames is None else list(frames)
+    pairs = [(k, k + 1) for k in frames if k + 1 < seq.num_frames][:_MAX_PAIRS]
+    if not pairs:
+        return 0.2, 0.0
+    parts = [_pair_evidence(seq, a, b, gamma) for a, b in pairs]
+    la, lb, n, quiet = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    sigma = 0.0
+    if len(quiet) >= 100:
+        m = np.partition(quiet, len(quiet) // 2)[len(quiet) // 2]
+        dev = np.abs(quiet - m)
+        sigma = 1.4826 * np.partition(dev, len(dev) // 2)[len(dev) // 2]
+    d0 = np.log(lb + 0.01) - np.log(la + 0.01)
+    keep = (np.abs(d0) > 3 * sigma) & ((d0 > 0) == (n > 0))
+    la, lb, n = la[keep], lb[keep], n[keep]
+    if len(n) < _MIN_PIXELS:
+        return 0.2, 0.0
+    best = (0.2, 0.0, np.inf)
+    for eps in _OFFSETS:
+        d = np.log(lb + eps) - np.log(la + eps)
+        c = _weighted_median(d / n, np.abs(n).astype(np.float64))
+        if not c > 0:
+            continue
+        r = float(np.abs(d / c - n).sum())
+        if r < best[2]:
+            best = (c, eps, r)
+    return float(np.float32(best[0])), float(np.float32(best[1]))
 
 
 def estimate_contrast(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0) -> float:
-    """host/unroll.cpp estimate_contrast: up to three pairs (k, k+1) unrolled to the instant halfway
-    between their mid-exposures; the grid value with the least mean |log(g1+0.01) - log(g2+0.01)|."""
-    frames = list(range(seq.num_frames)) if frames is None else list(frames)
-    pairs = [(k, k + 1) for k in frames if k + 1 < seq.num_frames][:3]
-    if not pairs:
-        return 0.2
-    full = (0, 0, seq.width, seq.height)
-    data = []
-    for a, b in pairs:
-        t = 0.5 * (frame_mid(seq, a) + frame_mid(seq, b))
-        lo = min(seq.frame_span(a)[0], t)
-        hi = max(seq.frame_span(b)[1], t)
-        ev = seq.events_in(np.floor(lo), np.ceil(hi), full)
-        (s1, e1), (s2, e2) = seq.row_times(a), seq.row_times(b)
-        data.append((seq.frame(a), seq.frame(b), exposure_segments(ev, s1, e1, t, full),
-                     exposure_segments(ev, s2, e2, t, full)))
-    best_c, best_err = 0.2, 1e300
-    for c in contrast_grid():
-        err, n = 0.0, 0
-        for rs1, rs2, seg1, seg2 in data:
-            g1 = apply_log_ratio(rs1, log_ratio_from_segments(seg1, c), gamma).astype(np.float64)
-            g2 = apply_log_ratio(rs2, log_ratio_from_segments(seg2, c), gamma).astype(np.float64)
-            err += float(np.abs(np.log(g1 + 0.01) - np.log(g2 + 0.01)).sum())
-            n += g1.size
-        err /= max(n, 1)
-        if err < best_err:
-            best_err, best_c = err, c
-    return float(np.float32(best_c))
+    """The contrast c of estimate_physics (what `--mode physics` and the variant's physics input use)."""
+    return estimate_physics(seq, frames, gamma)[0]
 
 
 def meta_gamma(seq) -> float:
@@ -193,7 +240,7 @@ def meta_gamma(seq) -> float:
 
 
 def unroll_physics(seq, k: int, t_star: float, contrast: float, gamma: float,
-                   crop: Optional[Tuple[int, int, int, int]] = None) -> np.ndarray:
+                   crop: Optional[Tuple[int, int, int, int]] = None, log_offset: float = 0.0) -> np.ndarray:
     """`vkunroll unroll --mode physics` for frame k toward t*: [3, h, w] float32 (not clamped)."""
     crop = crop or (0, 0, seq.width, seq.height)
     s, e = seq.row_times(k)
@@ -201,4 +248,4 @@ def unroll_physics(seq, k: int, t_star: float, contrast: float, gamma: float,
     ev = seq.events_in(np.floor(lo), np.ceil(hi) + 1, crop)
     lr = physics_log_ratio(ev, s, e, t_star, contrast, crop)
     x0, y0, w, h = crop
-    return apply_log_ratio(seq.frame(k)[:, y0:y0 + h, x0:x0 + w], lr, gamma)
+    return apply_log_ratio(seq.frame(k)[:, y0:y0 + h, x0:x0 + w], lr, gamma, log_offset=log_offset)

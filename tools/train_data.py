@@ -78,7 +78,8 @@ class SeqInfo:
         self.cache_file = cache_file
 
     def contrast(self) -> float:
-        key = f"{os.path.abspath(self.seq.folder)}|{self.gamma}"
+        # the estimator's name in the key: a cache written by the earlier (consistency) estimator is not reused
+        key = f"{os.path.abspath(self.seq.folder)}|{self.gamma}|{pn.CONTRAST_ESTIMATOR}"
         if key in SeqInfo._contrast:
             return SeqInfo._contrast[key]
         stored = {}

@@ -67,8 +67,9 @@ UnrollJob::UnrollJob(const UnrollOptions& o, UnrollSession& session, FrameSource
   });
   if (physics_.uses_physics && !o.quiet)
     std::cerr << "unroll: " << (physics_.variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
-              << physics_.params.contrast << " (" << physics_.contrast_source << "), gamma " << physics_.params.gamma << "\n";
-  // A default or an edge-of-grid contrast is a warning, said even with --quiet (summary.json has it too).
+              << physics_.params.contrast << " (" << physics_.contrast_source << "), log offset " << physics_.params.log_offset
+              << ", gamma " << physics_.params.gamma << "\n";
+  // A default or an implausible contrast is a warning, said even with --quiet (summary.json has it too).
   if (!physics_.contrast_warning.empty()) std::cerr << "unroll: warning: " << physics_.contrast_warning << "\n";
   session.set_physics(physics_.params);
   tiling_ = tile_options(o);

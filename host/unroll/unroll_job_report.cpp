@@ -150,8 +150,10 @@ nlohmann::json UnrollJob::report(double total_ms) const {
   if (physics_.uses_physics) {
     r["physics"] = {{"contrast", physics_.params.contrast}, {"contrast_source", physics_.contrast_source},
                     {"contrast_method", physics_.contrast_method},
+                    {"log_offset", physics_.params.log_offset},
                     {"gamma", physics_.params.gamma}, {"role", physics_.variant ? "the model's physics input" : "the unroller"}};
-    if (physics_.contrast_method == "temporal_consistency") r["physics"]["contrast_pairs"] = physics_.contrast_pairs;
+    if (!physics_.contrast_pairs.empty()) r["physics"]["contrast_pairs"] = physics_.contrast_pairs;
+    if (physics_.contrast_method == "event_count_fit") r["physics"]["contrast_pixels"] = physics_.contrast_pixels;
   }
   if (session_.has_model()) {
     const auto& g = session_.model_config().gamma;

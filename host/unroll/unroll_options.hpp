@@ -128,10 +128,12 @@ nlohmann::json unroll_options_json(const UnrollOptions& o);
 // A physics contrast estimate (estimate_contrast in unroll_plan.hpp) and what to say of it.
 struct ContrastEstimate {
   double contrast = 0.2;
+  double log_offset = 0.0;  // eps fitted with c: the events measure log(luminance + eps)
   std::string source;   // how it was found, for the log and summary.json
   std::string warning;  // empty: none
-  bool is_default = false;                  // not estimated: a fixed value (no pair of frames)
+  bool is_default = false;                  // not estimated: a fixed value (no pair of frames, too few pixels)
   std::vector<std::pair<int, int>> pairs;   // the frame pairs the estimate compared
+  size_t pixels = 0;                        // the pixels (over all pairs) the fit used
 };
 
 }  // namespace vkunroll

@@ -190,65 +190,6 @@ std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFr
   return {lo, hi};
 }
 
-ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
-                         int height, const std::function<cv::Mat(int)>& image,
-                         const std::function<EventStream(double, double)>& events) {
-  std::vector<std::pair<int, int>> pairs;
-  for (int k : frames)
-    if (k + 1 < static_cast<int>(timings.size()) && pairs.size() < 3) pairs.push_back({k, k + 1});
-  if (pairs.empty())
-    return {0.2, "a fixed 0.2, not estimated: no pair of consecutive frames",
-            "contrast c = 0.2 is a fixed default: the frames unrolled have no successor to estimate it from "
-            "(give --contrast C, or include the next frame)",
-            true, {}};
-  struct Pair {
-    std::vector<float> rs1, rs2;
-    PixelEventLists l1, l2;
-  };
-  std::vector<Pair> data;
-  for (auto [a, b] : pairs) {
-    const RowTiming& fa = timings[a];
-    const RowTiming& fb = timings[b];
-    const double t = 0.5 * (timing_mid(fa) + timing_mid(fb));
-    Pair p;
-    p.rs1 = image_planes(image(a), false);
-    p.rs2 = image_planes(image(b), false);
-    const EventStream ev = events(std::min(fa.first_start().to_double(), t), std::max(fb.last_end().to_double(), t));
-    p.l1 = gather_pixel_events(ev, t, fa.start_times_us(), fa.end_times_us(), 0, 0, width, height);
-    p.l2 = gather_pixel_events(ev, t, fb.start_times_us(), fb.end_times_us(), 0, 0, width, height);
-    data.push_back(std::move(p));
-  }
-  double best_c = 0.2, best_err = 1e300;
-  int grid_points = 0, best_point = -1;  // which grid point won: the first or the last is an edge
-  for (double c = 0.05; c <= 0.6001; c += 0.025, ++grid_points) {
-    PhysicsUnrollParams prm;
-    prm.contrast = static_cast<float>(c);
-    prm.gamma = static_cast<float>(gamma);
-    double err = 0;
-    size_t n = 0;
-    for (const auto& p : data) {
-      const auto g1 = physics_unroll_ref(p.rs1, 3, p.l1, prm), g2 = physics_unroll_ref(p.rs2, 3, p.l2, prm);
-      for (size_t i = 0; i < g1.size(); ++i) {
-        err += std::abs(std::log(g1[i] + 0.01) - std::log(g2[i] + 0.01));
-        n++;
-      }
-    }
-    err /= std::max<size_t>(n, 1);
-    if (err < best_err) best_err = err, best_c = c, best_point = grid_points;
-  }
-  std::string over;
-  for (auto [a, b] : pairs) over += (over.empty() ? "" : ", ") + std::to_string(a) + "-" + std::to_string(b);
-  ContrastEstimate r{best_c, "estimated (temporal consistency of frames " + over + ")", "", false, pairs};
-  if (best_point == 0 || best_point == grid_points - 1) {
-    char text[240];
-    std::snprintf(text, sizeof text,
-                  "the contrast estimate c = %.3f lies on the edge of its search grid (0.05 to 0.6): the true "
-                  "threshold may lie outside, or event noise dominates; give --contrast C if it is known", best_c);
-    r.warning = text;
-  }
-  return r;
-}
-
 PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,
                          const std::function<ContrastEstimate(double)>& estimate) {
   PhysicsPlan p;
@@ -269,10 +210,13 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
   } else {
     const ContrastEstimate e = estimate(seq_gamma);
     p.params.contrast = static_cast<float>(e.contrast);
+    // The variant's physics input stays plain log (offset 0): the network was trained on that.
+    if (!p.variant) p.params.log_offset = static_cast<float>(e.log_offset);
     p.contrast_source = e.source;
     p.contrast_warning = e.warning;
-    p.contrast_method = e.is_default ? "default" : "temporal_consistency";
+    p.contrast_method = e.is_default ? "default" : "event_count_fit";
     p.contrast_pairs = e.pairs;
+    p.contrast_pixels = e.pixels;
   }
   return p;
 }

@@ -58,13 +58,17 @@ FrameTarget::Method target_method(UnrollMode mode, bool moa, bool has_next, bool
 std::pair<double, double> frame_window(const SequenceFrame& f1, const SequenceFrame* f2, const std::vector<UnrollTarget>& ts,
                                        const std::vector<FrameTarget>& methods);
 
-// The contrast threshold c for the physics unroller, estimated from the frames: for up to
-// three pairs of consecutive frames, both frames are unrolled to the instant halfway between
-// their mid-exposures, and c is the value on a grid (0.05 .. 0.6, step 0.025) that makes the two
-// estimates agree best (least mean |log difference|) — the temporal consistency SelfUnroll
-// trains on; `source` names the pairs. Without a pair of consecutive frames it is no estimate: 0.2,
-// said so in `source`, `is_default` and `warning`. A value on the grid's edge (0.05 or 0.6) comes with a warning: the true threshold may
-// lie outside, or noise dominates the consistency.
+// The contrast threshold c (and the log offset eps) of the physics unroller, estimated from
+// the frames and the events between them. For up to four pairs of consecutive frames (k, k+1),
+// every pixel compares its linear luminance change log((L_b + eps) / (L_a + eps)) with its net
+// event count N between the two rows' mid-exposures: ideally c * N. Noise is left out: a pixel
+// needs |N| >= 2, at least 3 of its 8 neighbours with the same net sign (background activity and
+// hot pixels are isolated), both frames neither black nor saturated, and a change beyond 3x the
+// frames' noise (robust spread where no event fired) with the events' sign. c is the L1 fit
+// through 0 (the |N|-weighted median of change / N); eps is the candidate (0 .. 0.05) whose fit
+// leaves the least residual. Fewer than 200 such pixels, or no pair of consecutive frames: no
+// estimate, a fixed 0.2 said in `source`, `is_default` and `warning`. A c outside 0.05 .. 1 comes
+// with a warning (noise or a slow sensor may dominate).
 // `image(k)`: frame k as BGR float32 in [0, 1]; `events(lo, hi)`: the events of [lo, hi] microseconds
 // (UnrollJob passes its frame source, through its decode cache).
 ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const std::vector<int>& frames, double gamma, int width,
@@ -83,9 +87,10 @@ struct PhysicsPlan {
   PhysicsUnrollParams params;
   std::string contrast_source = "given";
   std::string contrast_warning;  // the estimate's (ContrastEstimate::warning); empty: none
-  // How c was obtained, for summary.json: given | model_metadata | temporal_consistency | default.
+  // How c was obtained, for summary.json: given | model_metadata | event_count_fit | default.
   std::string contrast_method = "given";
-  std::vector<std::pair<int, int>> contrast_pairs;  // temporal_consistency: the frame pairs compared
+  std::vector<std::pair<int, int>> contrast_pairs;  // event_count_fit (and default, if any): the frame pairs compared
+  size_t contrast_pixels = 0;                       // event_count_fit: the pixels the fit used
 };
 // `contrast`: the user's (unset: the model's metadata, else `estimate(seq_gamma)`, called only then).
 PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,

@@ -79,7 +79,7 @@ void bind_tensors(py::module_& m) {
   m.def(
       "_physics_unroll",
       [](const ContextPtr& ctx, const F32Array& rs, const I64Array& t, const U16Array& x, const U16Array& y,
-         const I8Array& p, const RowTiming& timing, const py::object& t_star, float contrast, float gamma) {
+         const I8Array& p, const RowTiming& timing, const py::object& t_star, float contrast, float gamma, float log_offset) {
         PhysicsUnrollParams prm;
         PixelEventLists lists;
         std::vector<float> planes;
@@ -92,8 +92,10 @@ void bind_tensors(py::module_& m) {
             throw Error("physics_unroll: the timing has " + std::to_string(timing.rows) + " rows, the image " + std::to_string(h));
           if (!(contrast > 0)) throw Error("physics_unroll: contrast " + std::to_string(contrast) + " (expected > 0)");
           if (!(gamma > 0)) throw Error("physics_unroll: gamma " + std::to_string(gamma) + " (expected > 0)");
+          if (!(log_offset >= 0)) throw Error("physics_unroll: log_offset " + std::to_string(log_offset) + " (expected >= 0)");
           prm.contrast = contrast;
           prm.gamma = gamma;
+          prm.log_offset = log_offset;
           const Rational ts = to_rational(t_star, "t_us");
           const EventStream ev = to_event_stream(t, x, y, p, w, h);
           lists = gather_pixel_events(ev, ts.to_double(), timing.start_times_us(), timing.end_times_us(), 0, 0, w, h);
@@ -105,7 +107,7 @@ void bind_tensors(py::module_& m) {
         return to_numpy(std::move(out), {channels, lists.height, lists.width});
       },
       py::arg("context"), py::arg("rs"), py::arg("t"), py::arg("x"), py::arg("y"), py::arg("p"), py::arg("timing"),
-      py::arg("t_us"), py::arg("contrast"), py::arg("gamma"));
+      py::arg("t_us"), py::arg("contrast"), py::arg("gamma"), py::arg("log_offset") = 0.0f);
 
   m.def(
       "psnr",

@@ -86,13 +86,14 @@ def image_float(image, what="image"):
     return a.astype(np.float32, copy=False)
 
 
-def physics_unroll(rs, events, timing, t_us, contrast=0.2, gamma=1.0, *, backend="vulkan", context=None):
+def physics_unroll(rs, events, timing, t_us, contrast=0.2, gamma=1.0, *, log_offset=0.0, backend="vulkan", context=None):
     """The weight-free physics unroller: the RS image at instant t* from the events (EDI).
 
     Per pixel, I(t*) = I_rs * T / integral over the row's exposure [S_y, E_y] of
     exp(c * E(t* -> s)) ds, E the pixel's signed event count from t* to s and c the contrast
     threshold; evaluated in the log domain (no overflow with thousands of events; black pixels
-    stay 0). The image is decoded with x ** gamma before and encoded after.
+    stay 0). The image is decoded with x ** gamma before and encoded after. ``log_offset``
+    (eps >= 0): the events measure log(lin + eps); the ratio applies to lin + eps.
 
     ``rs``: H x W or H x W x C image (float in [0, 1], or uint8 / uint16). ``events``: any event
     array; ``timing``: the frame's :class:`RowTiming`; ``t_us``: t* (exact). ``backend``
@@ -106,5 +107,5 @@ def physics_unroll(rs, events, timing, t_us, contrast=0.2, gamma=1.0, *, backend
     t, x, y, p = event_fields(events)
     _sensor(x, y, timing, (planes.shape[2], planes.shape[1]))
     out = _vk._physics_unroll(resolve_context(context, backend), np.ascontiguousarray(planes), t, x, y, p, timing,
-                              t_us, float(contrast), float(gamma))
+                              t_us, float(contrast), float(gamma), float(log_offset))
     return out[0] if img.ndim == 2 else np.ascontiguousarray(np.moveaxis(out, 0, 2))

@@ -83,8 +83,9 @@ def test_physics_numpy_equals_vkunroll_unroll_physics(tmp_path):
         assert r.returncode == 0, r.stderr
         summ = json.load(open(out / "summary.json"))
         gamma = 1.0 if extra else pn.meta_gamma(s)
-        c = 0.31 if extra else pn.estimate_contrast(s, frames, gamma)
+        c, eps = (0.31, 0.0) if extra else pn.estimate_physics(s, frames, gamma)
         assert abs(summ["physics"]["contrast"] - c) < 1e-6 and abs(summ["physics"]["gamma"] - gamma) < 1e-6
+        assert abs(summ["physics"]["log_offset"] - eps) < 1e-9, (summ["physics"], eps)
         rows = [l.split(",") for l in open(out / "metrics.csv").read().splitlines()[1:]]
         assert len(rows) == len(s.gt)
         for row in rows:
@@ -94,7 +95,7 @@ def test_physics_numpy_equals_vkunroll_unroll_physics(tmp_path):
             gt = read_image(row[4])
             assert abs(natural_eval.psnr(s.frame(k), gt) - float(row[7])) < 1e-4
             assert abs(natural_eval.ssim(s.frame(k), gt) - float(row[8])) < 1e-5
-            mine = np.clip(pn.unroll_physics(s, k, t, c, gamma), 0, 1)
+            mine = np.clip(pn.unroll_physics(s, k, t, c, gamma, log_offset=eps), 0, 1)
             cpp = read_image(str(out / row[3]))
             err = float(np.abs(mine - cpp).max())
             assert err <= 2e-5, (backend, extra, t, err)
@@ -358,9 +359,10 @@ def test_variant_in_vkunroll_infer_matches_pytorch(tmp_path, mode, gate):
 @needs_cli
 @pytest.mark.parametrize("gamma", [None, "1"])
 def test_variant_at_init_unrolls_as_the_physics_unroller(tmp_path, gamma):
-    """`unroll --mode s` with the variant at its init (fused = physics) gives `--mode physics`'s images,
-    on the simulator's gamma-2.2 frames (no conversion) and read as linear (--gamma 1: frames go into the
-    gamma-2.2 model as v^(1/2.2) and come back ^2.2)."""
+    """`unroll --mode s` with the variant at its init (fused = physics) gives `--mode physics`'s images
+    at the same physics parameters (the variant's contrast, log offset 0: its physics input is plain
+    log, as it was trained), on the simulator's gamma-2.2 frames (no conversion) and read as linear
+    (--gamma 1: frames go into the gamma-2.2 model as v^(1/2.2) and come back ^2.2)."""
     seq = tmp_path / "sim"
     r = subprocess.run([CLI, "simulate", "--out", seq, "--size", "96x72", "--frames", "2", "--gt-per-frame", "2",
                         "--seed", "8", "--motion", "pan", "--quiet"], capture_output=True, text=True)
@@ -369,14 +371,18 @@ def test_variant_at_init_unrolls_as_the_physics_unroller(tmp_path, gamma):
     model = str(tmp_path / "v.safetensors")
     train.export(net, model, {"data": "test"})
     extra = ["--gamma", gamma] if gamma else []
-    outs = {}
-    for mode in ("physics", "s"):
+    outs, given = {}, []
+    for mode in ("s", "physics"):
         out = tmp_path / f"out_{mode}"
         cmd = [CLI, "unroll", seq, "--out", out, "--mode", mode, "--times", "gt", "--no-video", "--bit-depth", "16",
-               "--quiet"] + extra + (["--model", model] if mode == "s" else [])
+               "--quiet"] + extra + (["--model", model] if mode == "s" else given)
         r = subprocess.run(cmd, capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
         outs[mode] = out
+        if mode == "s":
+            phys = json.load(open(out / "summary.json"))["physics"]
+            assert phys["log_offset"] == 0.0 and phys["contrast_method"] in ("event_count_fit", "default"), phys
+            given = ["--contrast", repr(phys["contrast"])]
     summ = json.load(open(outs["s"] / "summary.json"))
     assert summ["encoding"]["model_gamma"] == 2.2
     assert summ["encoding"]["sequence_gamma"] == (1.0 if gamma else 2.2)
