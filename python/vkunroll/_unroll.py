@@ -161,8 +161,8 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     frames [T, H, W, 3] float32 RGB in [0, 1]; metrics: "psnr", "ssim" per target against the
     ground truth at that instant (NaN where there is none), "rs_psnr", "rs_ssim" of the RS
     input, and "count", "mean_psnr", "mean_ssim", "rs_mean_psnr", "rs_mean_ssim"; targets: per
-    target frame, t_us, tau, method, gt; stats: mode, notes, contrast / gamma / contrast_source /
-    contrast_method (mode physics, or the physics-informed variant's input), encoding (the frames' gamma and the exponent
+    target frame, t_us, tau, method, gt; stats: mode, notes, contrast / log_offset / gamma /
+    contrast_source / contrast_method (mode physics, or the physics-informed variant's input), encoding (the frames' gamma and the exponent
     into the model's encoding), ms per GS frame, and the session's counters.
 
     Raises ValueError (bad option or input, named as the CLI names it), FileNotFoundError,
@@ -182,7 +182,7 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
         bar.close()
     stats = json.loads(report)
     if "physics" in stats:  # the physics parameters (of mode physics or of the variant's input), at the top
-        stats.update({k: stats["physics"][k] for k in ("contrast", "contrast_source", "contrast_method", "gamma")})
+        stats.update({k: stats["physics"][k] for k in ("contrast", "contrast_source", "contrast_method", "log_offset", "gamma")})
     stats["session"] = sess.stats()
     for n in stats["notes"]:
         _log.info("unroll: %s", n)
