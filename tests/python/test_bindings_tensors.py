@@ -118,6 +118,13 @@ def test_physics_unroll_gpu_equals_cpu(recording):
     assert np.abs(cpu - rs).max() > 0.01  # the events changed the image
     gray = vkunroll.physics_unroll(rs[:, :, 1], ev, timings[0], t_star, backend="cpu")
     assert gray.shape == (H, W)
+    # A log offset: GPU == CPU again, and another image (dark pixels change most)
+    gpu_o = vkunroll.physics_unroll(rs, ev, timings[0], t_star, contrast=0.25, gamma=2.2, log_offset=0.05)
+    cpu_o = vkunroll.physics_unroll(rs, ev, timings[0], t_star, contrast=0.25, gamma=2.2, log_offset=0.05, backend="cpu")
+    np.testing.assert_allclose(gpu_o, cpu_o, atol=1e-4, rtol=1e-4)
+    assert np.abs(cpu_o - cpu).max() > 0.01
+    with pytest.raises(ValueError, match="log_offset"):
+        vkunroll.physics_unroll(rs, ev, timings[0], t_star, log_offset=-1.0, backend="cpu")
 
 
 def test_threads_share_a_context(recording):
