@@ -9,6 +9,7 @@
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/tiling.hpp"
 #include "vkunroll/kernels/copy_rect.hpp"
+#include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 
 namespace vkunroll {
@@ -38,9 +39,19 @@ double rect_sum(const std::vector<double>& sat, int64_t W, const Rect& r) {
          sat[size_t(r.y * s + r.x)];
 }
 
+// The rect whose ev1/ev2 events decide tile t: its input rect, or for the gated variant its
+// interior grown by the gate radius (no event there: the gate is 0 on the whole interior, so the
+// S output there is exactly the physics estimate, whatever the network would compute).
+Rect activity_rect(const TilePlan& plan, size_t t, int64_t gate) {
+  if (gate < 0) return plan.tiles[t].input;
+  const Rect& q = plan.tiles[t].interior;
+  const int64_t y0 = std::max<int64_t>(0, q.y - gate), x0 = std::max<int64_t>(0, q.x - gate);
+  return {y0, x0, std::min(plan.height, q.y + q.h + gate) - y0, std::min(plan.width, q.x + q.w + gate) - x0};
+}
+
 // active[t][k]: whether tile t of target k runs (a target runs where any of its frames is active).
 std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOptions& topt, const ActivityTables* activity,
-                                             int64_t B, int64_t per) {
+                                             int64_t B, int64_t per, int64_t gate) {
   const size_t T = plan.tiles.size(), K = size_t(B / per);
   std::vector<std::vector<bool>> active(T, std::vector<bool>(K, true));
   if (topt.sparse == SparsePolicy::off) return active;
@@ -49,7 +60,7 @@ std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOpt
                 std::to_string(activity ? activity->size() : 0));
   for (int64_t i = 0; i < B; ++i)
     for (size_t t = 0; t < T; ++t) {
-      const Rect& r = plan.tiles[t].input;
+      const Rect r = activity_rect(plan, t, gate);
       const double sum = rect_sum((*activity)[size_t(i)], plan.width, r);
       const bool on = topt.sparse == SparsePolicy::exact ? sum > 0 : (sum > 0 && sum / double(r.area()) >= topt.threshold);
       const size_t k = size_t(i / per);
@@ -58,9 +69,10 @@ std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOpt
   return active;
 }
 
-// Inactive (tile, target): nothing moved there; the RS frame stands (E and flow 0, m 1).
-void fill_inactive(Backend& b, const ModelBuffers& in, const TilePlan& plan, const std::vector<std::vector<bool>>& active,
-                   const std::map<std::string, Buffer>& outputs, int64_t per) {
+// Inactive (tile, target): the standing image (`standing`: RS, or the variant's clamped physics
+// estimate) for sys, warped's rs, fused and out; E and flow 0, m 1.
+void fill_inactive(Backend& b, const BufferSlice& rs, const BufferSlice& standing, const TilePlan& plan,
+                   const std::vector<std::vector<bool>>& active, const std::map<std::string, Buffer>& outputs, int64_t per) {
   for (size_t t = 0; t < plan.tiles.size(); ++t)
     for (size_t k = 0; k < active[t].size(); ++k) {
       if (active[t][k]) continue;
@@ -69,9 +81,30 @@ void fill_inactive(Backend& b, const ModelBuffers& in, const TilePlan& plan, con
         const int64_t first = per_target(n) ? int64_t(k) : int64_t(k) * per, count = per_target(n) ? 1 : per;
         for (int64_t i = first; i < first + count; ++i) {
           const BufferSlice dst = item_of(buf, i);
+          const int64_t src = per_target(n) ? int64_t(k) * per : i;
           if (n == "m") b.fill_rect(dst, r, 1.f);
           else if (n == "E" || n == "flow") b.fill_rect(dst, r, 0.f);
-          else b.copy_rect(item_of(in.rs, per_target(n) ? int64_t(k) * per : i), dst, r, r.y, r.x);
+          else b.copy_rect(item_of(n == "warped" ? rs : standing, src), dst, r, r.y, r.x);
+        }
+      }
+    }
+}
+
+// The same into host tensors.
+void fill_inactive_host(const HostTensor& rs, const HostTensor& standing, const TilePlan& plan,
+                        const std::vector<std::vector<bool>>& active, std::map<std::string, HostTensor>& outputs, int64_t per) {
+  for (size_t t = 0; t < plan.tiles.size(); ++t)
+    for (size_t k = 0; k < active[t].size(); ++k) {
+      if (active[t][k]) continue;
+      const Rect& r = plan.tiles[t].interior;
+      for (auto& [n, arr] : outputs) {
+        const int64_t first = per_target(n) ? int64_t(k) : int64_t(k) * per, count = per_target(n) ? 1 : per;
+        for (int64_t i = first; i < first + count; ++i) {
+          HostSliceOut dst(arr, 0, -1, i, 1);
+          const int64_t src = per_target(n) ? int64_t(k) * per : i;
+          if (n == "m") fill_rect_ref(dst, r, 1.f);
+          else if (n == "E" || n == "flow") fill_rect_ref(dst, r, 0.f);
+          else copy_rect_ref(HostSlice(n == "warped" ? rs : standing, 0, -1, src, 1), dst, r, r.y, r.x);
         }
       }
     }
@@ -241,7 +274,8 @@ TiledPlan plan_tiled(Model& model, int64_t B, int64_t rs_channels, int64_t H, in
     st.stage_ms["plan"] = ms_since(t_plan);
     return p;
   }
-  p.active = tile_activity(st.plan, topt, activity, B, p.per);
+  const ModelConfig& cfg = model.config();
+  p.active = tile_activity(st.plan, topt, activity, B, p.per, cfg.physics_input ? cfg.physics_gate : -1);
   const size_t T = st.plan.tiles.size();
   st.tiles = int64_t(T) * p.K;
   std::vector<int64_t> target_runs(size_t(p.K), 0);
@@ -304,7 +338,12 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
     return res;
   }
   for (const auto& n : p.ro.outputs) res.outputs[n] = b.alloc({per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W}, n);
-  fill_inactive(b, in, res.plan, p.active, res.outputs, p.per);
+  Buffer standing;  // the variant: inactive tiles take clamp(phys, 0, 1), what its gate gives away from events
+  if (model.config().physics_input) {
+    standing = b.alloc({in.phys.n, 3, p.H, p.W}, "tile standing phys");
+    b.clamp01(in.phys, standing.whole());
+  }
+  fill_inactive(b, in.rs, standing ? standing.whole() : in.rs, res.plan, p.active, res.outputs, p.per);
   const BufferSlice* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
   const int inputs = model.config().physics_input ? 5 : 4;
   TileIO io;
@@ -349,25 +388,16 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
   }
   for (const auto& n : p.ro.outputs)
     res.outputs[n] = HostTensor(Shape{per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W});
-  // Inactive (tile, target): the RS frame stands (E and flow 0, m 1).
-  for (size_t t = 0; t < res.plan.tiles.size(); ++t)
-    for (int64_t k = 0; k < p.K; ++k) {
-      if (p.active[t][size_t(k)]) continue;
-      const Rect& r = res.plan.tiles[t].interior;
-      for (auto& [n, arr] : res.outputs) {
-        const int64_t first = per_target(n) ? k : k * p.per, count = per_target(n) ? 1 : p.per;
-        for (int64_t i = first; i < first + count; ++i) {
-          HostSliceOut dst(arr, 0, -1, i, 1);
-          if (n == "m") fill_rect_ref(dst, r, 1.f);
-          else if (n == "E" || n == "flow") fill_rect_ref(dst, r, 0.f);
-          else copy_rect_ref(HostSlice(in.rs, 0, -1, per_target(n) ? k * p.per : i, 1), dst, r, r.y, r.x);
-        }
-      }
-    }
   const HostTensor* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
   const int inputs = model.config().physics_input ? 5 : 4;
   if (inputs == 5 && !(in.phys.shape == Shape{in.rs.shape.n, 3, in.rs.shape.h, in.rs.shape.w}))
     throw Error("run_tiled: input 'phys' has shape " + in.phys.shape.str() + ", expected that of 'rs' (the physics-informed variant)");
+  HostTensor standing;  // the variant: inactive tiles take clamp(phys, 0, 1), what its gate gives away from events
+  if (inputs == 5) {
+    standing = HostTensor(in.phys.shape);
+    clamp01_ref(HostSlice(in.phys), HostSliceOut(standing));
+  }
+  fill_inactive_host(in.rs, inputs == 5 ? standing : in.rs, res.plan, p.active, res.outputs, p.per);
   TileIO io;
   io.cut = [&](const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r) {
     const BufferSlice* cut[5] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3, &batch.phys};
