@@ -377,6 +377,29 @@ TEST(TilingVulkan, SparseExactOfTheGatedVariantMatchesDenseInFp32AndFp16) {
   }
 }
 
+// Halo 0 with events only in the 4x6 corner tile of a 100x70 image: the merged region reads at
+// least 32 pixels a side, as the plan's own tile does (it once read 4x6 and the UNets refused it).
+TEST(TilingCpu, SparseHaloZeroCornerRegionReadsAtLeast32Pixels) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  ModelInputs in = random_inputs(1, 70, 100, w.config.N, 9);
+  keep_events_in(in, 66, 97, 4, 3);
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  TileOptions t;
+  t.tile = 32;
+  t.halo = 0;
+  t.sparse = SparsePolicy::exact;
+  const TiledResult merged = run_tiled(model, in, opt, t);
+  EXPECT_EQ(merged.tiles_run, 1);
+  EXPECT_EQ(merged.plan.tiles.back().input, (Rect{32, 64, 38, 36}));  // on the 32-grid
+  t.merge_active = false;
+  const TiledResult apart = run_tiled(model, in, opt, t);
+  EXPECT_EQ(max_abs_diff(merged.outputs.at("fused"), apart.outputs.at("fused")), 0.0);
+  EXPECT_GT(max_abs_diff(merged.outputs.at("fused"), in.rs), 0.0);  // the corner ran
+}
+
 TEST(TilingCpu, BadOptionsAreClearErrors) {
   const Weights w = shallow_weights();
   CpuBackend cpu;
