@@ -30,8 +30,11 @@ namespace {
 
 // A tiny model with shallow UNets (receptive radius 84, so tiles with halo 96 see less than a
 // 320-wide image) whose flownet output is scaled down: flow of a few pixels, not up to 100.
-Weights shallow_weights() {
+// gated: the physics-informed variant with an event gate of radius 1 (as the default model).
+Weights shallow_weights(bool gated = false) {
   ModelConfig cfg;
+  cfg.physics_input = gated;
+  cfg.physics_gate = gated ? 1 : -1;
   cfg.D = 1;
   cfg.C = 1;
   cfg.G = 4;
@@ -277,6 +280,124 @@ TEST(TilingCpu, SparseMergesNeighbouringActiveTilesIntoOneRect) {
   // A cap on the region side below the group's size runs the group tile by tile again.
   t.max_region = 32;
   EXPECT_DOUBLE_EQ(run_tiled(model, in, opt, t).work_ratio, apart.work_ratio);
+}
+
+// The gated variant on a static background with one small moving object (events in rows 40..45,
+// columns 64..69): sparse exact runs only the tiles with an event within the gate radius (1) of
+// their interior, (1,1) and (1,2), though every input rect (halo 96) reaches the object; the
+// others take clamp(phys, 0, 1), what the gate gives where no event is near.
+namespace {
+struct GatedScene {
+  Weights w = shallow_weights(true);
+  ModelInputs in = random_inputs(1, 96, 128, w.config.N, 8);
+  GatedScene() {
+    in.phys = in.rs;
+    for (float& v : in.phys.data) v = 1.5f * v - 0.25f;  // outside [0, 1] too: the clamp matters
+    keep_events_in(in, 40, 64, 6, 6);
+  }
+  static bool active_tile(const Tile& tl) { return tl.interior.y == 32 && (tl.interior.x == 32 || tl.interior.x == 64); }
+};
+
+// Max |a - b| over the interiors of the tiles that are (active) or are not (!active) active.
+double tiles_diff(const TilePlan& plan, const HostTensor& a, const HostTensor& b, bool active) {
+  double m = 0;
+  for (const Tile& tl : plan.tiles) {
+    if (GatedScene::active_tile(tl) != active) continue;
+    for (int64_t c = 0; c < 3; ++c)
+      for (int64_t y = tl.interior.y; y < tl.interior.y + tl.interior.h; ++y)
+        for (int64_t x = tl.interior.x; x < tl.interior.x + tl.interior.w; ++x) {
+          const size_t i = size_t((c * 96 + y) * 128 + x);
+          m = std::max(m, std::isnan(a.data[i] - b.data[i]) ? INFINITY : double(std::fabs(a.data[i] - b.data[i])));
+        }
+  }
+  return m;
+}
+
+HostTensor clamped(const HostTensor& a) {
+  HostTensor r = a;
+  for (float& v : r.data) v = std::clamp(v, 0.f, 1.f);
+  return r;
+}
+}  // namespace
+
+TEST(TilingCpu, SparseExactOfTheGatedVariantEqualsDenseBitForBit) {
+  const GatedScene g;
+  CpuBackend cpu;
+  Model model(cpu, g.w);
+  RunOptions opt;
+  opt.outputs = {"fused", "flow"};
+  const auto full = model.run(g.in, opt);
+  TileOptions t;
+  t.tile = 32;
+  t.halo = exact_halo(g.w.config, Mode::s, max_abs(full.at("flow")));
+  ASSERT_EQ(t.halo, 96);
+  t.sparse = SparsePolicy::exact;
+  opt.outputs = {"fused"};
+  const TiledResult sparse = run_tiled(model, g.in, opt, t);
+  EXPECT_EQ(sparse.tiles, 12);
+  EXPECT_EQ(sparse.tiles_run, 2);
+  for (const Tile& tl : sparse.plan.tiles)  // every input rect reaches the object
+    ASSERT_TRUE(tl.input.y < 46 && tl.input.y + tl.input.h > 40 && tl.input.x < 70 && tl.input.x + tl.input.w > 64);
+  const HostTensor& f = sparse.outputs.at("fused");
+  EXPECT_EQ(max_abs_diff(f, full.at("fused")), 0.0);
+  EXPECT_EQ(tiles_diff(sparse.plan, f, clamped(g.in.phys), false), 0.0);
+  EXPECT_GT(tiles_diff(sparse.plan, f, clamped(g.in.phys), true), 0.01);  // the network ran there
+  // The ungated model keeps the input-rect rule: every tile sees the object within its halo.
+  CpuBackend cpu2;
+  Model plain(cpu2, shallow_weights());
+  ModelInputs no_phys = g.in;
+  no_phys.phys = HostTensor();
+  EXPECT_EQ(run_tiled(plain, no_phys, opt, t).tiles_run, 12);
+}
+
+// The same on lavapipe in fp32 and fp16: sparse exact against the dense tiled run, the inactive
+// tiles equal to it (fp16: to its rounding), the active ones within the precision's tolerance.
+TEST(TilingVulkan, SparseExactOfTheGatedVariantMatchesDenseInFp32AndFp16) {
+  const GatedScene g;
+  for (Precision p : {Precision::fp32, Precision::fp16}) {
+    VulkanBackend vk(vktest::context(), nullptr, kPoolFlushBytes, p);
+    Model model(vk, g.w);
+    RunOptions opt;
+    opt.precision = p;
+    opt.outputs = {"fused"};
+    TileOptions t;
+    t.tile = 32;
+    t.halo = 96;
+    const TiledResult dense = run_tiled(model, g.in, opt, t);
+    t.sparse = SparsePolicy::exact;
+    const TiledResult sparse = run_tiled(model, g.in, opt, t);
+    EXPECT_EQ(sparse.tiles_run, 2) << precision_name(p);
+    const HostTensor& d = dense.outputs.at("fused");
+    const HostTensor& s = sparse.outputs.at("fused");
+    // Inactive tiles: the host's clamp(phys) itself; the dense fp16 run rounds it to fp16 (half an
+    // ulp below 1: 2^-11).
+    EXPECT_EQ(tiles_diff(sparse.plan, s, clamped(g.in.phys), false), 0.0) << precision_name(p);
+    EXPECT_LE(tiles_diff(sparse.plan, s, d, false), p == Precision::fp32 ? 0.0 : 1.0 / 2048) << precision_name(p);
+    EXPECT_LE(tiles_diff(sparse.plan, s, d, true), p == Precision::fp32 ? 1e-4 : 1e-2) << precision_name(p);
+  }
+}
+
+// Halo 0 with events only in the 4x6 corner tile of a 100x70 image: the merged region reads at
+// least 32 pixels a side, as the plan's own tile does (it once read 4x6 and the UNets refused it).
+TEST(TilingCpu, SparseHaloZeroCornerRegionReadsAtLeast32Pixels) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  ModelInputs in = random_inputs(1, 70, 100, w.config.N, 9);
+  keep_events_in(in, 66, 97, 4, 3);
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  TileOptions t;
+  t.tile = 32;
+  t.halo = 0;
+  t.sparse = SparsePolicy::exact;
+  const TiledResult merged = run_tiled(model, in, opt, t);
+  EXPECT_EQ(merged.tiles_run, 1);
+  EXPECT_EQ(merged.plan.tiles.back().input, (Rect{32, 64, 38, 36}));  // on the 32-grid
+  t.merge_active = false;
+  const TiledResult apart = run_tiled(model, in, opt, t);
+  EXPECT_EQ(max_abs_diff(merged.outputs.at("fused"), apart.outputs.at("fused")), 0.0);
+  EXPECT_GT(max_abs_diff(merged.outputs.at("fused"), in.rs), 0.0);  // the corner ran
 }
 
 TEST(TilingCpu, BadOptionsAreClearErrors) {

@@ -87,10 +87,11 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
   c->add_option("--halo", a.halo, "context pixels around each tile (a multiple of 32); -1: 32 when sparse, 64 for dense tiles")
       ->check(int_range(-1, 1 << 20))->capture_default_str()->group(g)->type_name("N");
   c->add_option("--sparse", a.sparse,
-                "off: every tile runs | exact: tiles without an ev1/ev2 event in them or their halo keep the RS pixels | "
+                "off: every tile runs | exact: tiles without an ev1/ev2 event in them or their halo (gated model: within "
+                "its gate radius) keep the RS pixels (gated model: clamp(phys, 0, 1)) | "
                 "fast: also tiles below --sparse-threshold")
       ->check(CLI::IsMember({"off", "exact", "fast"}))->capture_default_str()->group(g)->type_name("P");
-  c->add_option("--sparse-threshold", a.sparse_threshold, "fast: events per pixel (ev1 + ev2 over a tile and its halo)")
+  c->add_option("--sparse-threshold", a.sparse_threshold, "fast: events per pixel (ev1 + ev2 over a tile and its halo, or its gate radius)")
       ->check(finite_at_least(0))->capture_default_str()->group(g)->type_name("X");
   c->add_option("--backend", a.backend, "vulkan | cpu (the CPU reference backend)")
       ->check(CLI::IsMember({"vulkan", "cpu"}))->capture_default_str()->group(g)->type_name("B");

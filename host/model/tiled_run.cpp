@@ -9,6 +9,7 @@
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/tiling.hpp"
 #include "vkunroll/kernels/copy_rect.hpp"
+#include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 
 namespace vkunroll {
@@ -38,9 +39,19 @@ double rect_sum(const std::vector<double>& sat, int64_t W, const Rect& r) {
          sat[size_t(r.y * s + r.x)];
 }
 
+// The rect whose ev1/ev2 events decide tile t: its input rect, or for the gated variant its
+// interior grown by the gate radius (no event there: the gate is 0 on the whole interior, so the
+// S output there is exactly the physics estimate, whatever the network would compute).
+Rect activity_rect(const TilePlan& plan, size_t t, int64_t gate) {
+  if (gate < 0) return plan.tiles[t].input;
+  const Rect& q = plan.tiles[t].interior;
+  const int64_t y0 = std::max<int64_t>(0, q.y - gate), x0 = std::max<int64_t>(0, q.x - gate);
+  return {y0, x0, std::min(plan.height, q.y + q.h + gate) - y0, std::min(plan.width, q.x + q.w + gate) - x0};
+}
+
 // active[t][k]: whether tile t of target k runs (a target runs where any of its frames is active).
 std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOptions& topt, const ActivityTables* activity,
-                                             int64_t B, int64_t per) {
+                                             int64_t B, int64_t per, int64_t gate) {
   const size_t T = plan.tiles.size(), K = size_t(B / per);
   std::vector<std::vector<bool>> active(T, std::vector<bool>(K, true));
   if (topt.sparse == SparsePolicy::off) return active;
@@ -49,7 +60,7 @@ std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOpt
                 std::to_string(activity ? activity->size() : 0));
   for (int64_t i = 0; i < B; ++i)
     for (size_t t = 0; t < T; ++t) {
-      const Rect& r = plan.tiles[t].input;
+      const Rect r = activity_rect(plan, t, gate);
       const double sum = rect_sum((*activity)[size_t(i)], plan.width, r);
       const bool on = topt.sparse == SparsePolicy::exact ? sum > 0 : (sum > 0 && sum / double(r.area()) >= topt.threshold);
       const size_t k = size_t(i / per);
@@ -58,23 +69,45 @@ std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOpt
   return active;
 }
 
-// Inactive (tile, target): nothing moved there; the RS frame stands (E and flow 0, m 1).
-void fill_inactive(Backend& b, const ModelBuffers& in, const TilePlan& plan, const std::vector<std::vector<bool>>& active,
+bool any_inactive(const std::vector<std::vector<bool>>& active) {
+  for (const auto& row : active)
+    for (bool on : row)
+      if (!on) return true;
+  return false;
+}
+
+// Inactive (tile, target): the standing image (`standing`: RS, or the variant's clamped physics
+// estimate) for sys, fused and out, rs for warped; E and flow 0, m 1. Written over the whole frame
+// (a few dispatches, not a few per inactive tile): the active runs' interiors are stitched after.
+void fill_standing(Backend& b, const BufferSlice& rs, const BufferSlice& standing, int64_t H, int64_t W,
                    const std::map<std::string, Buffer>& outputs, int64_t per) {
-  for (size_t t = 0; t < plan.tiles.size(); ++t)
-    for (size_t k = 0; k < active[t].size(); ++k) {
-      if (active[t][k]) continue;
-      const Rect& r = plan.tiles[t].interior;
-      for (const auto& [n, buf] : outputs) {
-        const int64_t first = per_target(n) ? int64_t(k) : int64_t(k) * per, count = per_target(n) ? 1 : per;
-        for (int64_t i = first; i < first + count; ++i) {
-          const BufferSlice dst = item_of(buf, i);
-          if (n == "m") b.fill_rect(dst, r, 1.f);
-          else if (n == "E" || n == "flow") b.fill_rect(dst, r, 0.f);
-          else b.copy_rect(item_of(in.rs, per_target(n) ? int64_t(k) * per : i), dst, r, r.y, r.x);
-        }
-      }
+  const Rect all{0, 0, H, W};
+  for (const auto& [n, buf] : outputs) {
+    const BufferSlice& src = n == "warped" ? rs : standing;
+    if (n != "m" && n != "E" && n != "flow" && (per == 1 || !per_target(n))) {
+      b.copy(src, buf.whole());  // item i from item i
+      continue;
     }
+    for (int64_t i = 0; i < buf.shape().n; ++i) {
+      const BufferSlice dst = item_of(buf, i);
+      if (n == "m") b.fill_rect(dst, all, 1.f);
+      else if (n == "E" || n == "flow") b.fill_rect(dst, all, 0.f);
+      else b.copy(item_of(src, i * per), dst);  // M's out: frame 1 of the pair
+    }
+  }
+}
+
+// The same into host tensors.
+void fill_standing_host(const HostTensor& rs, const HostTensor& standing, std::map<std::string, HostTensor>& outputs, int64_t per) {
+  for (auto& [n, arr] : outputs) {
+    const Rect all{0, 0, arr.shape.h, arr.shape.w};
+    for (int64_t i = 0; i < arr.shape.n; ++i) {
+      HostSliceOut dst(arr, 0, -1, i, 1);
+      if (n == "m") fill_rect_ref(dst, all, 1.f);
+      else if (n == "E" || n == "flow") fill_rect_ref(dst, all, 0.f);
+      else copy_rect_ref(HostSlice(n == "warped" ? rs : standing, 0, -1, per_target(n) ? i * per : i, 1), dst, all, 0, 0);
+    }
+  }
 }
 
 struct RunItem {
@@ -126,9 +159,7 @@ void active_runs(const TilePlan& plan, const std::vector<std::vector<bool>>& act
       if (box.h <= max_side && box.w <= max_side) {
         Tile region;
         region.interior = box;
-        const int64_t y0 = std::max<int64_t>(0, box.y - topt.halo), x0 = std::max<int64_t>(0, box.x - topt.halo);
-        region.input = {y0, x0, std::min(plan.height, box.y + box.h + topt.halo) - y0,
-                        std::min(plan.width, box.x + box.w + topt.halo) - x0};
+        region.input = input_rect(box, plan.halo, plan.height, plan.width);
         runs.push_back(region);
         work.push_back({runs.size() - 1, int64_t(k)});
       } else {
@@ -227,10 +258,11 @@ TiledPlan plan_tiled(Model& model, int64_t B, int64_t rs_channels, int64_t H, in
   p.K = B / p.per;
   p.ro = opt;
   p.ro.outputs = Model::resolve_outputs(opt.outputs, opt.mode);
-  if (!st.plan.untiled()) {
+  if (!st.plan.untiled() && topt.halo > 0) {
     // Every input rect starts on the 32-grid, so placing each tile's UNet input at the untiled run's
     // offset puts it on the untiled run's stride grid, and the border tiles get the untiled run's
-    // reflection at the image border (docs/tiling.md, alignment).
+    // reflection at the image border (docs/tiling.md, alignment). Halo 0 is far from exact anyway:
+    // each rect pads only itself (a 64-row rect to 64, not to 96 with the offset).
     p.ro.unet_pad_top = unet_offset(H);
     p.ro.unet_pad_left = unet_offset(W);
   }
@@ -241,7 +273,8 @@ TiledPlan plan_tiled(Model& model, int64_t B, int64_t rs_channels, int64_t H, in
     st.stage_ms["plan"] = ms_since(t_plan);
     return p;
   }
-  p.active = tile_activity(st.plan, topt, activity, B, p.per);
+  const ModelConfig& cfg = model.config();
+  p.active = tile_activity(st.plan, topt, activity, B, p.per, cfg.physics_input ? cfg.physics_gate : -1);
   const size_t T = st.plan.tiles.size();
   st.tiles = int64_t(T) * p.K;
   std::vector<int64_t> target_runs(size_t(p.K), 0);
@@ -304,7 +337,12 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
     return res;
   }
   for (const auto& n : p.ro.outputs) res.outputs[n] = b.alloc({per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W}, n);
-  fill_inactive(b, in, res.plan, p.active, res.outputs, p.per);
+  Buffer standing;  // the variant: inactive tiles take clamp(phys, 0, 1), what its gate gives away from events
+  if (model.config().physics_input) {
+    standing = b.alloc({in.phys.n, 3, p.H, p.W}, "tile standing phys");
+    b.clamp01(in.phys, standing.whole());
+  }
+  if (any_inactive(p.active)) fill_standing(b, in.rs, standing ? standing.whole() : in.rs, p.H, p.W, res.outputs, p.per);
   const BufferSlice* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
   const int inputs = model.config().physics_input ? 5 : 4;
   TileIO io;
@@ -349,25 +387,16 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
   }
   for (const auto& n : p.ro.outputs)
     res.outputs[n] = HostTensor(Shape{per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W});
-  // Inactive (tile, target): the RS frame stands (E and flow 0, m 1).
-  for (size_t t = 0; t < res.plan.tiles.size(); ++t)
-    for (int64_t k = 0; k < p.K; ++k) {
-      if (p.active[t][size_t(k)]) continue;
-      const Rect& r = res.plan.tiles[t].interior;
-      for (auto& [n, arr] : res.outputs) {
-        const int64_t first = per_target(n) ? k : k * p.per, count = per_target(n) ? 1 : p.per;
-        for (int64_t i = first; i < first + count; ++i) {
-          HostSliceOut dst(arr, 0, -1, i, 1);
-          if (n == "m") fill_rect_ref(dst, r, 1.f);
-          else if (n == "E" || n == "flow") fill_rect_ref(dst, r, 0.f);
-          else copy_rect_ref(HostSlice(in.rs, 0, -1, per_target(n) ? k * p.per : i, 1), dst, r, r.y, r.x);
-        }
-      }
-    }
   const HostTensor* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
   const int inputs = model.config().physics_input ? 5 : 4;
   if (inputs == 5 && !(in.phys.shape == Shape{in.rs.shape.n, 3, in.rs.shape.h, in.rs.shape.w}))
     throw Error("run_tiled: input 'phys' has shape " + in.phys.shape.str() + ", expected that of 'rs' (the physics-informed variant)");
+  HostTensor standing;  // the variant: inactive tiles take clamp(phys, 0, 1), what its gate gives away from events
+  if (inputs == 5) {
+    standing = HostTensor(in.phys.shape);
+    clamp01_ref(HostSlice(in.phys), HostSliceOut(standing));
+  }
+  if (any_inactive(p.active)) fill_standing_host(in.rs, inputs == 5 ? standing : in.rs, res.outputs, p.per);
   TileIO io;
   io.cut = [&](const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r) {
     const BufferSlice* cut[5] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3, &batch.phys};

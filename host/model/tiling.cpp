@@ -21,20 +21,31 @@ void check_aligned(int64_t v, const char* what) {
                 std::to_string(kTileAlign) + " (tile alignment, docs/tiling.md)");
 }
 
+// The input range (start, length) of the interior [a, a + n) along an axis of `size` pixels.
+std::pair<int64_t, int64_t> input_range(int64_t a, int64_t n, int64_t halo, int64_t size) {
+  int64_t lo = std::max<int64_t>(0, a - halo), hi = std::min(size, a + n + halo);
+  // At least 32 pixels (the UNets reflect up to 31), on the 32-grid (only with halo 0).
+  if (hi - lo < kTileAlign) lo = std::max<int64_t>(0, (hi - kTileAlign) / kTileAlign * kTileAlign);
+  return {lo, hi - lo};
+}
+
 // Tile starts and interior lengths along one axis; input ranges grown by the halo, clipped.
 void axis_tiles(int64_t size, int64_t tile, int64_t halo, std::vector<std::pair<int64_t, int64_t>>& interior,
                 std::vector<std::pair<int64_t, int64_t>>& input) {
   for (int64_t a = 0; a < size; a += tile) {
     const int64_t n = std::min(tile, size - a);
-    int64_t lo = std::max<int64_t>(0, a - halo), hi = std::min(size, a + n + halo);
-    // At least 32 pixels (the UNets reflect up to 31), on the 32-grid (only with halo 0).
-    if (hi - lo < kTileAlign) lo = std::max<int64_t>(0, (hi - kTileAlign) / kTileAlign * kTileAlign);
     interior.push_back({a, n});
-    input.push_back({lo, hi - lo});
+    input.push_back(input_range(a, n, halo, size));
   }
 }
 
 }  // namespace
+
+Rect input_rect(const Rect& interior, int64_t halo, int64_t height, int64_t width) {
+  const auto [y, h] = input_range(interior.y, interior.h, halo, height);
+  const auto [x, w] = input_range(interior.x, interior.w, halo, width);
+  return {y, x, h, w};
+}
 
 TilePlan make_tile_plan(int64_t height, int64_t width, int64_t tile_h, int64_t tile_w, int64_t halo) {
   if (height < 2 || width < 2)

@@ -9,7 +9,7 @@
 //   TileOptions t;
 //   t.tile = 0;                       // 0: untiled if it fits the backend, else the largest tile that fits
 //   t.halo = 64;                      // exact when >= exact_halo(cfg, mode, max |flow|)
-//   t.sparse = SparsePolicy::exact;   // tiles with no ev1/ev2 event take the RS pixels
+//   t.sparse = SparsePolicy::exact;   // tiles with no ev1/ev2 event take the RS pixels (gated variant: clamp(phys))
 //   TiledResult r = run_tiled(model, inputs, run_options, t);
 //   r.outputs["fused"], r.active_fraction, r.stage_ms["record"], ...
 //
@@ -49,6 +49,9 @@ struct TilePlan {
 // Tiles of tile_h x tile_w interior (multiples of kTileAlign, or >= the image side) with `halo`
 // (a multiple of kTileAlign) on every side. Throws Error naming the bad value.
 TilePlan make_tile_plan(int64_t height, int64_t width, int64_t tile_h, int64_t tile_w, int64_t halo);
+// The input rect of `interior` (on the 32-grid): grown by `halo`, clipped to the image, and at
+// least 32 pixels a side where the image is (a 4-row last tile with halo 0 reads 32 rows).
+Rect input_rect(const Rect& interior, int64_t halo, int64_t height, int64_t width);
 
 // Receptive-field radii (pixels of the full-resolution image, one side) of each branch, from the
 // layer list: how far an output pixel's value can depend on input pixels.
@@ -70,10 +73,13 @@ int64_t unet_receptive_radius(const UnetConfig& u);
 // fusion_net + max(synthesis, flownet, ceil(max_flow) + 1); rounded up to kTileAlign.
 int64_t exact_halo(const ModelConfig& cfg, Mode mode, double max_flow);
 
+// Which rect's events decide a tile (its "activity rect"): the input rect; for the gated variant
+// (physics_gate r >= 0) the interior grown by r, since with no event there the gate is 0 on the
+// whole interior and the S output is clamp(phys, 0, 1) exactly, whatever the network computes.
 enum class SparsePolicy {
   off,    // every tile runs the network
-  exact,  // tiles whose input rect holds no ev1/ev2 event take the RS pixels (nothing moved there)
-  fast,   // tiles whose ev1+ev2 events per pixel of the input rect are below `threshold` take the RS pixels
+  exact,  // tiles whose activity rect holds no ev1/ev2 event take the standing image (below)
+  fast,   // tiles whose ev1+ev2 events per pixel of the activity rect are below `threshold` take it
 };
 SparsePolicy parse_sparse_policy(const std::string& s, const std::string& what);  // "off" | "exact" | "fast"
 const char* sparse_policy_name(SparsePolicy p);
@@ -82,7 +88,7 @@ struct TileOptions {
   int64_t tile = 0;      // interior side (multiple of 32); 0: untiled if the image fits, else the largest that fits
   int64_t halo = 64;     // multiple of 32; ignored when the run is untiled
   SparsePolicy sparse = SparsePolicy::off;
-  double threshold = 0.01;  // fast: events per pixel (ev1 + ev2 |counts| over the input rect)
+  double threshold = 0.01;  // fast: events per pixel (ev1 + ev2 |counts| over the activity rect)
   // Limit for any one tensor when choosing the tile (0: the backend's max_buffer_bytes()).
   uint64_t max_buffer_bytes = 0;
   // Most tile items (tiles x batch items) per Model::run call (0: as many tiles as hold no more
@@ -133,8 +139,10 @@ int64_t choose_tile(const Model& model, int64_t height, int64_t width, Mode mode
 
 // Runs the model tile by tile (see the top of this file) on inputs in the backend, recorded without
 // waiting: tiles are cut (crop) and stitched (copy_rect) on the device. Inactive tiles (sparse
-// policy) take: sys, warped, fused, out = rs (S: the item's frame; M: frame 1 of the pair), E = 0,
-// flow = 0, m = 1. `activity` (per batch item) is needed unless topt.sparse is off.
+// policy) take the standing image, rs or (gated variant) clamp(phys, 0, 1), for sys, fused and out
+// (S: the item's; M: frame 1 of the pair), rs for warped, E = 0, flow = 0, m = 1 (so with the
+// gate, `exact` S fused equals the dense run's; M's out is frame 1's, not the dense blend).
+// `activity` (per batch item) is needed unless topt.sparse is off.
 TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const RunOptions& opt, const TileOptions& topt,
                                   const ActivityTables* activity);
 // The same from and to the host: tiles cut from the host inputs and uploaded batch by batch, so inputs
