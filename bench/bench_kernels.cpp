@@ -58,6 +58,10 @@ void add(std::vector<ConvShape>& v, ConvShape c) {
   v.push_back(std::move(c));
 }
 
+// Every conv algorithm --all-algos times (and a row's name records).
+constexpr ConvAlgo kConvAlgos[] = {ConvAlgo::naive,  ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm,
+                                   ConvAlgo::direct, ConvAlgo::coopmat, ConvAlgo::pointwise};
+
 // The UNet of section 2.4 at the size-adapter-padded extent h x w.
 void unet_shapes(std::vector<ConvShape>& v, const std::string& net, int64_t in, int64_t out, int depth, int64_t h,
                  int64_t w) {
@@ -320,7 +324,8 @@ int main(int argc, char** argv) {
       {"--blocked-cob", &conv_options.blocked_cob}, {"--blocked-px", &conv_options.blocked_px},
       {"--direct-cob", &conv_options.direct_cob},   {"--direct-px", &conv_options.direct_px},
       {"--direct-py", &conv_options.direct_py},     {"--gemm-cob", &conv_options.gemm_cob},
-      {"--gemm-tv", &conv_options.gemm_tv}};
+      {"--gemm-tv", &conv_options.gemm_tv},         {"--pointwise-cob", &conv_options.pointwise_cob},
+      {"--pointwise-px", &conv_options.pointwise_px}};
   bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false;
   std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
   auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
@@ -394,7 +399,8 @@ int main(int argc, char** argv) {
                    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
                    "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
                    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
-                   "                              [--gemm-tv N] [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
+                   "                              [--gemm-tv N] [--pointwise-cob N] [--pointwise-px N]\n"
+                   "                              [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
                    "                              [--no-torch] [--torch-threads N]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
@@ -472,8 +478,7 @@ int main(int argc, char** argv) {
           const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
           algos.push_back(conv_algo_name(chosen));
           if (all_algos)
-            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
-                            ConvAlgo::coopmat})
+            for (ConvAlgo a : kConvAlgos)
               if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
         }
         Tensor yd(ctx, os, dt);
@@ -482,8 +487,7 @@ int main(int argc, char** argv) {
             for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
               if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
           } else {
-            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
-                            ConvAlgo::coopmat})
+            for (ConvAlgo a : kConvAlgos)
               if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
           }
         };
