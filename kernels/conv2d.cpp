@@ -158,9 +158,10 @@ void Conv2d::choose_blocking(const ConvOptions& options) {
   gemm_cob_ = options.gemm_cob ? options.gemm_cob : (cout_ % 16 == 0 ? 16 : 8);
   gemm_tv_ = static_cast<uint32_t>(options.gemm_tv ? options.gemm_tv : 4);
   gemm_cout_pad_ = (cout_ + gemm_cob_ - 1) / gemm_cob_ * gemm_cob_;
-  // pointwise: PX x COB accumulators within the 16 AVX registers llvmpipe's 8-wide lanes have.
+  // pointwise: 2 pixel pairs x 12 channels led on the LFF conv (bench_kernels on lavapipe; 1 x 12,
+  // 2 x 6 and 2 x 8 within the noise or slower).
   pointwise_cob_ = options.pointwise_cob ? options.pointwise_cob : std::min<int64_t>(cout_, 12);
-  pointwise_px_ = static_cast<uint32_t>(options.pointwise_px ? options.pointwise_px : 1);
+  pointwise_px_ = static_cast<uint32_t>(options.pointwise_px ? options.pointwise_px : 2);
 }
 
 Tensor Conv2d::upload_weights(const std::vector<float>& w) const {

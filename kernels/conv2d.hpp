@@ -103,6 +103,9 @@ class Conv2d {
   // direct and pointwise read their input through a uniform texel buffer (faster on lavapipe) where
   // the bound input fits maxTexelBufferElements; false forces the storage-buffer variant (tests).
   void set_direct_texel_input(bool on) { direct_texel_input_ = on; }
+  // pointwise fetches pixel pairs (an RG texel view) where the plane and offsets are even; false: single
+  // pixels (tests, bench).
+  void set_pointwise_pairs(bool on) { pointwise_pairs_ = on; }
   // Tests: `coopmat` runs the emulated form of its shader (plain GLSL with the same tiling, fragments
   // 16 x n x k; n, k 8 or 16) where the device has no cooperative matrix (supports() then says yes).
   void set_coopmat_emulation(bool on, uint32_t n = 8, uint32_t k = 16);
@@ -194,6 +197,7 @@ class Conv2d {
   mutable Tensor weight_pointwise_;  // [ceil(cout/COB)][cin_pad (+ one chunk of padding)][COB]
   int64_t pointwise_cob_ = 12;   // output channels per invocation of the pointwise path
   uint32_t pointwise_px_ = 1;    // pixels per invocation of the pointwise path
+  bool pointwise_pairs_ = true;
   int64_t pointwise_chunk_limit_ = 0;  // input channels per pointwise dispatch at most (0: no limit)
   mutable std::shared_ptr<ConvWorkspace> workspace_;
 };

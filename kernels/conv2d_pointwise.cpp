@@ -52,13 +52,18 @@ void Conv2d::record_pointwise(CommandStream& cs, const Recording& r) const {
   const int64_t cob = pointwise_cob_, e = static_cast<int64_t>(elem_bytes());
   const UniformSlabChunks ch = pointwise_chunks();
   const int64_t chunk = ch.chunk, blocks = (cout_ + cob - 1) / cob, plane = r.is.h * r.is.w;
-  const int64_t g = (plane + 64 * pointwise_px_ - 1) / (64 * pointwise_px_), gx = std::min<int64_t>(g, 65535);
-  const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(r.os.n)};
   const bool texel_input =
       direct_texel_input_ && r.in.arg.range.size / static_cast<uint64_t>(e) <= ctx_.info().max_texel_buffer_elements;
+  // Pixel pairs (one RG texel each) where no pair straddles two channels or batch items.
+  const bool pairs = texel_input && pointwise_pairs_ && plane % 2 == 0 && r.in.offset % 2 == 0 &&
+                     r.in.batch_stride % 2 == 0 && r.in.arg.range.size % static_cast<uint64_t>(2 * e) == 0;
+  const int64_t units = pairs ? plane / 2 : plane;
+  const int64_t g = (units + 64 * pointwise_px_ - 1) / (64 * pointwise_px_), gx = std::min<int64_t>(g, 65535);
+  const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(r.os.n)};
   Arg input = r.in.arg;
-  if (precision_ == Precision::fp16) input.texel_format = VK_FORMAT_R16_SFLOAT;
-  const char* base = texel_input ? "conv2d_pointwise_texel" : "conv2d_pointwise";
+  if (precision_ == Precision::fp16) input.texel_format = pairs ? VK_FORMAT_R16G16_SFLOAT : VK_FORMAT_R16_SFLOAT;
+  else if (pairs) input.texel_format = VK_FORMAT_R32G32_SFLOAT;
+  const char* base = pairs ? "conv2d_pointwise_pairs" : texel_input ? "conv2d_pointwise_texel" : "conv2d_pointwise";
   struct PointwisePush {
     uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs, plane, cout, co0;
   };
