@@ -232,10 +232,6 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   if (supports(ConvAlgo::direct) && params_.kernel == 3 && params_.stride == 2) return ConvAlgo::direct;
   if (supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride) return ConvAlgo::winograd;
   if (direct_whole && supports(ConvAlgo::gemm) && cin_ <= 64) return ConvAlgo::direct;
-  // pointwise led `direct` on the RDBs' LFF (336 -> 96, 3 chunks) in 8 of 10 same-run comparisons
-  // (0.5-1.05x its time); on GFF.0 (960 inputs, 8 chunks) and the UNets' 1x1 convs (32-256) it did not.
-  if (supports(ConvAlgo::pointwise) && cin_ > 256 && (cin_ + pointwise_chunks().chunk - 1) / pointwise_chunks().chunk <= 3)
-    return ConvAlgo::pointwise;
   // The wide blocks beat the GEMM even in several input-channel chunks (GFF.0, 960 channels: 3).
   if (supports(ConvAlgo::direct) && supports(ConvAlgo::gemm) && direct_cob_ >= 32) return ConvAlgo::direct;
   if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;

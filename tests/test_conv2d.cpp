@@ -317,34 +317,6 @@ TEST(Conv2d, AutomaticAvoidsChunkedDirectOnAnOverlappingResidual) {
   EXPECT_LE(max_abs_diff(to_host(y2), y_ref), kTol);
 }
 
-TEST(Conv2d, AutomaticTakesPointwiseForTheLffShape) {
-  // On lavapipe a 1x1 conv of more than 256 inputs in at most 3 pointwise chunks (the RDBs' LFF,
-  // 336 -> 96) takes `pointwise`; with the output as its residual it takes `gemm` instead.
-  Context& ctx = vktest::context();
-  if (ctx.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU) GTEST_SKIP() << "the rule is lavapipe's";
-  std::mt19937 rng(78);
-  const int64_t cin = 336, cout = 24;
-  const Conv2dParams p{1, 1, 0, leaky_relu(0.1f)};
-  const float wscale = 1.f / std::sqrt(static_cast<float>(cin));
-  HostTensor w = random_tensor({cout, cin, 1, 1}, rng, -wscale, wscale), b = random_tensor({1, 1, 1, cout}, rng);
-  Conv2d conv(ctx, w, b, p);
-  EXPECT_EQ(conv.choose_algorithm(5, 6), ConvAlgo::pointwise);
-  HostTensor x = random_tensor({1, cin, 5, 6}, rng), y = random_tensor({1, cout, 5, 6}, rng), y_ref = y;
-  const HostTensor r = y;
-  conv2d_ref(HostSlice(x), HostSliceOut(y_ref), w, b, p, HostSlice(r));
-  Tensor xd = to_device(ctx, x), yd = to_device(ctx, y), y2(ctx, {1, cout, 5, 6}), rd = to_device(ctx, r);
-  CommandStream cs(ctx);
-  conv.record(cs, Slice(xd), Slice(y2), Slice(rd));
-  EXPECT_EQ(cs.recorded(), 6u);  // pointwise: 2 blocks of 12 channels x 3 chunks of 112 inputs
-  conv.record(cs, Slice(xd), Slice(yd), Slice(yd));
-  EXPECT_EQ(cs.recorded(), 9u);  // gemm: pack, GEMM, epilogue
-  cs.submit_and_wait();
-  EXPECT_LE(max_abs_diff(to_host(y2), y_ref), kTol);
-  EXPECT_LE(max_abs_diff(to_host(yd), y_ref), kTol);
-  // 960 inputs (GFF.0) need 8 chunks: not pointwise.
-  EXPECT_NE(Conv2d(ctx, HostTensor({cout, 960, 1, 1}), b, p).choose_algorithm(5, 6), ConvAlgo::pointwise);
-}
-
 TEST(Conv2d, ReferenceKnownValues) {
   // 1 input channel 3x3 of ones, 3x3 kernel of ones, pad 1: corner 4, edge 6, centre 9, + bias.
   HostTensor x({1, 1, 3, 3}, 1.f), w({1, 1, 3, 3}, 1.f), b({1, 1, 1, 1}, 0.5f), y({1, 1, 3, 3});
