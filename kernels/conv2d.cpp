@@ -158,8 +158,8 @@ void Conv2d::choose_blocking(const ConvOptions& options) {
   gemm_cob_ = options.gemm_cob ? options.gemm_cob : (cout_ % 16 == 0 ? 16 : 8);
   gemm_tv_ = static_cast<uint32_t>(options.gemm_tv ? options.gemm_tv : 4);
   gemm_cout_pad_ = (cout_ + gemm_cob_ - 1) / gemm_cob_ * gemm_cob_;
-  // pointwise: 2 pixel pairs x 12 channels led on the LFF conv (bench_kernels on lavapipe; 1 x 12,
-  // 2 x 6 and 2 x 8 within the noise or slower).
+  // pointwise: 2 units (pixel pairs) x 12 channels, among the fastest of 1-4 units x 4-32 channels
+  // on the LFF conv (bench_kernels on lavapipe; 2 x 6 and 2 x 8 within the noise).
   pointwise_cob_ = options.pointwise_cob ? options.pointwise_cob : std::min<int64_t>(cout_, 12);
   pointwise_px_ = static_cast<uint32_t>(options.pointwise_px ? options.pointwise_px : 2);
 }
