@@ -58,6 +58,10 @@ void add(std::vector<ConvShape>& v, ConvShape c) {
   v.push_back(std::move(c));
 }
 
+// Every conv algorithm --all-algos times (and a row's name records).
+constexpr ConvAlgo kConvAlgos[] = {ConvAlgo::naive,  ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm,
+                                   ConvAlgo::direct, ConvAlgo::coopmat, ConvAlgo::pointwise};
+
 // The UNet of section 2.4 at the size-adapter-padded extent h x w.
 void unet_shapes(std::vector<ConvShape>& v, const std::string& net, int64_t in, int64_t out, int depth, int64_t h,
                  int64_t w) {
@@ -320,8 +324,9 @@ int main(int argc, char** argv) {
       {"--blocked-cob", &conv_options.blocked_cob}, {"--blocked-px", &conv_options.blocked_px},
       {"--direct-cob", &conv_options.direct_cob},   {"--direct-px", &conv_options.direct_px},
       {"--direct-py", &conv_options.direct_py},     {"--gemm-cob", &conv_options.gemm_cob},
-      {"--gemm-tv", &conv_options.gemm_tv}};
-  bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false;
+      {"--gemm-tv", &conv_options.gemm_tv},         {"--pointwise-cob", &conv_options.pointwise_cob},
+      {"--pointwise-px", &conv_options.pointwise_px}};
+  bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false, pointwise_pairs = true;
   std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
   auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
   int reps = 2, torch_threads = 2;
@@ -342,6 +347,7 @@ int main(int argc, char** argv) {
     else if (a == "--quick") quick = true;
     else if (a == "--no-naive") naive = false;
     else if (a == "--naive-full") naive_full = true;
+    else if (a == "--pointwise-single") pointwise_pairs = false;
     else if (a == "--all-algos") all_algos = true;
     else if (a == "--algos") {
       all_algos = true;
@@ -394,7 +400,8 @@ int main(int argc, char** argv) {
                    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
                    "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
                    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
-                   "                              [--gemm-tv N] [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
+                   "                              [--gemm-tv N] [--pointwise-cob N] [--pointwise-px N] [--pointwise-single]\n"
+                   "                              [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
                    "                              [--no-torch] [--torch-threads N]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
@@ -404,7 +411,8 @@ int main(int argc, char** argv) {
                    "everywhere; slow). --all-algos also times every other applicable algorithm, --algos A,B\n"
                    "only the named ones (e.g. direct,gemm). --shape (repeatable) times that conv2d shape\n"
                    "(pad K/2) instead of the model's. The --blocked-cob ... flags set the convs' ConvOptions\n"
-                   "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice). --precision fp32,fp16 times\n"
+                   "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice); --pointwise-single makes the\n"
+                   "pointwise conv fetch single pixels instead of pairs. --precision fp32,fp16 times\n"
                    "each shape in both precisions (fp16 rows judged against the better of the fp32 and the fp16\n"
                    "FMA ceiling, the latter from fma_ceiling_half.comp where the device has shaderFloat16).\n"
                    "--fp16-error-model prints the CPU emulations behind the fp16 kernels' fp32 arithmetic\n"
@@ -467,13 +475,13 @@ int main(int argc, char** argv) {
         } else {
           conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
                        Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name, nullptr, options);
+          conv->set_pointwise_pairs(pointwise_pairs);
           os = conv->output_shape(xd.shape());
           flop = conv->flop(xd.shape());
           const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
           algos.push_back(conv_algo_name(chosen));
           if (all_algos)
-            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
-                            ConvAlgo::coopmat})
+            for (ConvAlgo a : kConvAlgos)
               if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
         }
         Tensor yd(ctx, os, dt);
@@ -482,8 +490,7 @@ int main(int argc, char** argv) {
             for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
               if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
           } else {
-            for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
-                            ConvAlgo::coopmat})
+            for (ConvAlgo a : kConvAlgos)
               if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
           }
         };

@@ -42,6 +42,7 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::gemm: return "gemm";
     case ConvAlgo::direct: return "direct";
     case ConvAlgo::coopmat: return "coopmat";
+    case ConvAlgo::pointwise: return "pointwise";
   }
   return "unknown";
 }
@@ -157,6 +158,10 @@ void Conv2d::choose_blocking(const ConvOptions& options) {
   gemm_cob_ = options.gemm_cob ? options.gemm_cob : (cout_ % 16 == 0 ? 16 : 8);
   gemm_tv_ = static_cast<uint32_t>(options.gemm_tv ? options.gemm_tv : 4);
   gemm_cout_pad_ = (cout_ + gemm_cob_ - 1) / gemm_cob_ * gemm_cob_;
+  // pointwise: 2 units (pixel pairs) x 12 channels, among the fastest of 1-4 units x 4-32 channels
+  // on the LFF conv (bench_kernels on lavapipe; 2 x 6 and 2 x 8 within the noise).
+  pointwise_cob_ = options.pointwise_cob ? options.pointwise_cob : std::min<int64_t>(cout_, 12);
+  pointwise_px_ = static_cast<uint32_t>(options.pointwise_px ? options.pointwise_px : 2);
 }
 
 Tensor Conv2d::upload_weights(const std::vector<float>& w) const {
@@ -198,6 +203,7 @@ bool Conv2d::supports(ConvAlgo algo) const {
     case ConvAlgo::blocked: return true;
     case ConvAlgo::direct: return direct_cob_ % 4 == 0 && direct_chunks().chunk >= 1;
     case ConvAlgo::coopmat: return coopmat_applies();
+    case ConvAlgo::pointwise: return pointwise_applies();
     default: return false;
   }
 }
@@ -238,7 +244,7 @@ std::vector<ConvAlgo> Conv2d::candidates(const Shape& in, bool residual_in_outpu
   for (uint32_t v = static_cast<uint32_t>(ConvAlgo::naive) + 1; v < 32; ++v) {
     const ConvAlgo a = static_cast<ConvAlgo>(v);
     if (std::string(conv_algo_name(a)) == "unknown" || !supports(a) || !supports(a, in)) continue;
-    if (a == ConvAlgo::direct && residual_in_output && direct_chunks().chunk < cin_) continue;
+    if (residual_in_output && accumulates_in_output(a)) continue;
     out.push_back(a);
   }
   return out;
@@ -256,6 +262,12 @@ double Conv2d::flop(const Shape& in) const {
 
 void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual) const {
   record(cs, in, out, residual, ConvAlgo::automatic);
+}
+
+bool Conv2d::accumulates_in_output(ConvAlgo a) const {
+  if (a == ConvAlgo::direct) return direct_chunks().chunk < cin_;
+  if (a == ConvAlgo::pointwise) return pointwise_chunks().chunk < cin_;
+  return false;
 }
 
 bool Conv2d::residual_overlaps_output(const Slice& out, const std::optional<Slice>& residual) const {
@@ -284,16 +296,18 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   }
   if (algo == ConvAlgo::automatic) {
     algo = choose_algorithm(is.h, is.w);
-    // direct in several chunks accumulates in the output, so it cannot add a residual that overlaps it.
-    if (algo == ConvAlgo::direct && direct_chunks().chunk < cin_ && residual_overlaps_output(out, residual))
+    // direct or pointwise in several chunks accumulates in the output, so it cannot add a residual
+    // that overlaps it.
+    if (accumulates_in_output(algo) && residual_overlaps_output(out, residual))
       algo = supports(ConvAlgo::gemm) ? ConvAlgo::gemm : ConvAlgo::winograd;
     if (!supports(algo, is)) algo = ConvAlgo::blocked;
   }
   if (!supports(algo, is))
     throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " does not apply to kernel " +
                 std::to_string(params_.kernel) + " stride " + std::to_string(params_.stride));
-  if (algo == ConvAlgo::direct && direct_chunks().chunk < cin_ && residual_overlaps_output(out, residual))
-    throw Error(name_ + ": the direct algorithm accumulates in the output, which overlaps the residual");
+  if (accumulates_in_output(algo) && residual_overlaps_output(out, residual))
+    throw Error(name_ + ": the " + std::string(conv_algo_name(algo)) +
+                " algorithm accumulates in the output, which overlaps the residual");
 
   Recording r;
   r.is = is;
@@ -319,6 +333,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     case ConvAlgo::winograd: return record_winograd(cs, r);
     case ConvAlgo::gemm: return record_gemm(cs, r);
     case ConvAlgo::coopmat: return record_coopmat(cs, r);
+    case ConvAlgo::pointwise: return record_pointwise(cs, r);
     default: break;
   }
   throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " is not implemented");

@@ -34,6 +34,10 @@ enum class ConvAlgo : uint32_t {
                   // operands, fp32 accumulators): 1x1 stride 1 between the gemm path's pack and epilogue,
                   // 3x3 stride 1 (pad 1) as an implicit GEMM (im2col in shared memory) and the same
                   // epilogue; conv2d_coopmat.cpp. Tests run its emulated form where the device has none.
+  pointwise = 8,  // 1x1 stride 1 (pad 0): one dispatch per block of output channels and chunk of input channels
+                  // reads the input slice in place and writes the output slice (bias, activation, residual
+                  // in the last chunk); the chunk's channel loop unrolled so the weights load as scalars on
+                  // llvmpipe; conv2d_pointwise.cpp
 };
 const char* conv_algo_name(ConvAlgo a);
 
@@ -81,6 +85,9 @@ class Conv2d {
   // (see residual_overlaps_output), which the chunked direct path cannot add.
   std::vector<ConvAlgo> candidates(const Shape& in, bool residual_in_output = false) const;
   bool residual_overlaps_output(const Slice& out, const std::optional<Slice>& residual) const;
+  // Whether `algo` runs in several input-channel chunks that add to the output (direct, pointwise):
+  // it then cannot add a residual that overlaps the output.
+  bool accumulates_in_output(ConvAlgo algo) const;
   bool supports(ConvAlgo algo) const;
   // Whether `algo` can run an input of this shape (Winograd's scratch must fit one binding).
   bool supports(ConvAlgo algo, const Shape& in) const;
@@ -91,9 +98,14 @@ class Conv2d {
   // Caps the input channels per dispatch of the direct path (default: as many as fit one uniform
   // binding); several chunks then accumulate in the output. Tests.
   void set_direct_chunk_limit(int64_t channels) { direct_chunk_limit_ = channels; }  // input channels (x4 for 5x5) per chunk
-  // direct reads its input through a uniform texel buffer (faster on lavapipe) where the bound
-  // input fits maxTexelBufferElements; false forces the storage-buffer variant (tests).
+  // Caps the input channels per dispatch of the pointwise path (default: at most 128, evened out). Tests.
+  void set_pointwise_chunk_limit(int64_t channels) { pointwise_chunk_limit_ = channels; }
+  // direct and pointwise read their input through a uniform texel buffer (faster on lavapipe) where
+  // the bound input fits maxTexelBufferElements; false forces the storage-buffer variant (tests).
   void set_direct_texel_input(bool on) { direct_texel_input_ = on; }
+  // pointwise fetches pixel pairs (an RG texel view) where the plane and offsets are even; false: single
+  // pixels (tests, bench).
+  void set_pointwise_pairs(bool on) { pointwise_pairs_ = on; }
   // Tests: `coopmat` runs the emulated form of its shader (plain GLSL with the same tiling, fragments
   // 16 x n x k; n, k 8 or 16) where the device has no cooperative matrix (supports() then says yes).
   void set_coopmat_emulation(bool on, uint32_t n = 8, uint32_t k = 16);
@@ -126,6 +138,7 @@ class Conv2d {
   void record_winograd(CommandStream& cs, const Recording& r) const;  // conv2d_winograd.cpp
   void record_gemm(CommandStream& cs, const Recording& r) const;      // conv2d_winograd.cpp
   void record_coopmat(CommandStream& cs, const Recording& r) const;   // conv2d_coopmat.cpp
+  void record_pointwise(CommandStream& cs, const Recording& r) const;  // conv2d_pointwise.cpp
   // The 1x1 paths' shared passes (gemm, coopmat; conv2d_winograd.cpp): input channels [c0, c0 + cn)
   // packed into `v` as `rows` (>= cn; the extra rows zero) x pix_pad values, and M [cout_pad][pix_pad]
   // + bias, activation and residual into the output slice. `tag` names the dispatches.
@@ -144,6 +157,9 @@ class Conv2d {
   void pack_winograd();      // conv2d_winograd.cpp
   void pack_gemm();          // conv2d_winograd.cpp
   void pack_coopmat() const;  // conv2d_coopmat.cpp
+  void pack_pointwise() const;  // conv2d_pointwise.cpp
+  bool pointwise_applies() const;  // conv2d_pointwise.cpp: supports(pointwise)
+  UniformSlabChunks pointwise_chunks() const;  // input-channel chunks of its uniform weight slabs
   UniformSlabChunks direct_chunks() const;  // input-channel chunks of the uniform weight slabs
   // A packed weight array on the device in the conv's precision (common.hpp's upload_weights).
   Tensor upload_weights(const std::vector<float>& w) const;
@@ -178,6 +194,11 @@ class Conv2d {
   mutable Tensor weight_coopmat_;  // fp16 [cout_pad][kpad], kk = ci*k*k + tap (zero-padded to 16): coopmat
   bool coopmat_emulated_ = false;
   uint32_t coopmat_emulated_n_ = 8, coopmat_emulated_k_ = 16;
+  mutable Tensor weight_pointwise_;  // [ceil(cout/COB)][cin_pad (+ one chunk of padding)][COB]
+  int64_t pointwise_cob_ = 12;   // output channels per invocation of the pointwise path
+  uint32_t pointwise_px_ = 1;    // pixels per invocation of the pointwise path
+  bool pointwise_pairs_ = true;
+  int64_t pointwise_chunk_limit_ = 0;  // input channels per pointwise dispatch at most (0: no limit)
   mutable std::shared_ptr<ConvWorkspace> workspace_;
 };
 

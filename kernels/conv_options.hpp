@@ -19,6 +19,8 @@ struct ConvOptions {
   int direct_py = 0;    // conv2d direct: output rows per invocation, 1-8
   int gemm_cob = 0;     // conv2d winograd and gemm: output channels per GEMM invocation, 4, 8 or 16 (0: 16 where 16 | cout, else 8)
   int gemm_tv = 0;      // conv2d winograd and gemm: vec4s of tiles (pixels) per GEMM invocation, 1, 2 or 4 (0: 4)
+  int pointwise_cob = 0;  // conv2d pointwise: output channels per invocation, 1-32 (0: the kernel's choice)
+  int pointwise_px = 0;   // conv2d pointwise: pixels per invocation, 1-8 (0: the kernel's choice)
 
   // Throws Error naming the field, its value and the allowed values; `who` (the conv's name) leads.
   void validate(const std::string& who) const;

@@ -195,6 +195,7 @@ namespace {
 uint64_t texel_bytes(VkFormat f) {
   switch (f) {
     case VK_FORMAT_R16_SFLOAT: return 2;  // fp16 inputs of the direct convs
+    case VK_FORMAT_R16G16_SFLOAT: return 4;  // fp16 pixel pairs of the pointwise conv
     case VK_FORMAT_R32_SFLOAT:
     case VK_FORMAT_R32_UINT:
     case VK_FORMAT_R32_SINT: return 4;
@@ -216,7 +217,7 @@ VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const 
   const char* kind_name = descriptor_kind_name(kind);
   if (texel == 0)
     throw Error(what + ": texel format " + std::to_string(a.texel_format) +
-                " is not one of the 32-bit formats R32, R32G32, R32G32B32A32 (float, uint, sint)");
+                " is not one of R16, R16G16 (float), R32, R32G32, R32G32B32A32 (float, uint, sint)");
   if (r.offset % lim.min_texel_buffer_offset_alignment != 0)
     throw Error(what + " (" + kind_name + ") starts at byte offset " + std::to_string(r.offset) +
                 ", not a multiple of minTexelBufferOffsetAlignment (" +

@@ -78,7 +78,14 @@ struct Limits {
   int64_t direct_chunk = 0;
   bool direct_texel_input = true;
   ConvOptions options;  // its precision is the run's
+  int64_t pointwise_chunk = 0;
 };
+// Input channels per pointwise dispatch at most (several chunks accumulate in the output).
+Limits pointwise_chunks_of(int64_t channels) {
+  Limits lim;
+  lim.pointwise_chunk = channels;
+  return lim;
+}
 constexpr auto kFp32 = Precision::fp32;
 constexpr auto kFp16 = Precision::fp16;
 using Precisions = std::vector<Precision>;
@@ -112,6 +119,7 @@ optest::OpCase conv_case(const Case& c, ConvAlgo algo, const Limits& lim, std::m
     auto conv = std::make_shared<Conv2d>(d.ctx, w, b, p, "conv2d", nullptr, options);
     conv->set_winograd_scratch_limit(lim.winograd_scratch);
     conv->set_direct_chunk_limit(lim.direct_chunk);
+    conv->set_pointwise_chunk_limit(lim.pointwise_chunk);
     conv->set_direct_texel_input(lim.direct_texel_input);
     if (!conv->supports(algo)) return false;
     const Slice residual(d.inputs[1], 0, -1, c.in_n0, c.batch);
@@ -128,7 +136,7 @@ optest::OpCase conv_case(const Case& c, ConvAlgo algo, const Limits& lim, std::m
 void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const Limits& lim = {},
                const Precisions& precisions = {kFp32, kFp16}) {
   std::mt19937 rng(1234);
-  const bool chunked = lim.winograd_scratch != ~0ull || lim.direct_chunk > 0;
+  const bool chunked = lim.winograd_scratch != ~0ull || lim.direct_chunk > 0 || lim.pointwise_chunk > 0;
   optest::OpTest test{std::string("conv2d ") + conv_algo_name(algo) + (chunked ? " in chunks" : "") +
                           (lim.direct_texel_input ? "" : " storage input"),
                       {}, {kTol, kTolFp16}, precisions};
@@ -146,6 +154,7 @@ TEST(Conv2d, BlockedMatchesReference) { run_cases(ConvAlgo::blocked); }
 TEST(Conv2d, WinogradMatchesReference) { run_cases(ConvAlgo::winograd); }
 TEST(Conv2d, GemmMatchesReference) { run_cases(ConvAlgo::gemm); }
 TEST(Conv2d, DirectMatchesReference) { run_cases(ConvAlgo::direct); }
+TEST(Conv2d, PointwiseMatchesReference) { run_cases(ConvAlgo::pointwise); }
 TEST(Conv2d, AutomaticMatchesReference) { run_cases(ConvAlgo::automatic); }
 // The chunked variants: fp32 on every case, fp16 on the shorter list.
 // Scratch for 3 input channels' tiles only: several chunks accumulated by the GEMM.
@@ -171,6 +180,24 @@ TEST(Conv2d, DirectStorageInputMatchesReference) {
   run_cases(ConvAlgo::direct, {~0ull, 0, false}, {kFp32});
   run_cases(vktest::context(), ConvAlgo::direct, canary_cases(), {~0ull, 0, false}, {kFp16});
 }
+// pointwise: the 130- and 129-channel cases run in two unrolled chunks (at most 128 each) that
+// accumulate in the output; here they start at 256-byte aligned slabs, and the input comes through
+// a storage buffer.
+TEST(Conv2d, PointwiseOnAStrictUniformAlignment) {
+  run_cases(vktest::strict_uniform_context(), ConvAlgo::pointwise, cases(), {}, {kFp32});
+  run_cases(vktest::strict_uniform_context(), ConvAlgo::pointwise, canary_cases(), {}, {kFp16});
+}
+// 4 input channels per dispatch (1-33 chunks; 13 -> 9 and 13 -> 32 end on a 1-channel chunk): the
+// raw sums accumulate in the output, the last chunk applies activation and residual.
+TEST(Conv2d, PointwiseInChunksMatchesReference) {
+  run_cases(ConvAlgo::pointwise, pointwise_chunks_of(4), {kFp32, kFp16});
+  Limits strict = pointwise_chunks_of(20);  // 16-channel chunks on 256-byte aligned slabs
+  run_cases(vktest::strict_uniform_context(), ConvAlgo::pointwise, cases(), strict, {kFp32, kFp16});
+}
+TEST(Conv2d, PointwiseStorageInputMatchesReference) {
+  run_cases(ConvAlgo::pointwise, {~0ull, 0, false}, {kFp32});
+  run_cases(vktest::context(), ConvAlgo::pointwise, canary_cases(), {~0ull, 0, false}, {kFp16});
+}
 
 // Every algorithm (and the chunked variants) on a context that binds whole tensors: a write
 // outside the output slice lands on a canary inside the binding. The blocked path's dispatch sized
@@ -180,8 +207,10 @@ TEST(Conv2d, DirectStorageInputMatchesReference) {
 TEST(Conv2d, WritesNothingOutsideItsSlice) {
   Context& ctx = vktest::whole_binding_context();
   for (ConvAlgo a : {ConvAlgo::naive, ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm, ConvAlgo::direct,
-                     ConvAlgo::automatic})
+                     ConvAlgo::pointwise, ConvAlgo::automatic})
     run_cases(ctx, a, canary_cases(), {}, {kFp32});
+  run_cases(ctx, ConvAlgo::pointwise, canary_cases(), {}, {kFp16});
+  run_cases(ctx, ConvAlgo::pointwise, canary_cases(), pointwise_chunks_of(5), {kFp32, kFp16});
   run_cases(ctx, ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64}, {kFp32});
   run_cases(ctx, ConvAlgo::gemm, canary_cases(), {2 * 4 * 80}, {kFp32});
   run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 2});
@@ -206,6 +235,10 @@ TEST(Conv2d, OptionsChangeSpeedNotResults) {
   lim.options.gemm_tv = 1;
   run_cases(ctx, ConvAlgo::winograd, few, lim, {kFp32});
   run_cases(ctx, ConvAlgo::gemm, few, lim, {kFp32});
+  lim.options = {};
+  lim.options.pointwise_cob = 5;  // partial last blocks (cout 16, 32, 96); 3 pixels per invocation
+  lim.options.pointwise_px = 3;
+  run_cases(ctx, ConvAlgo::pointwise, all, lim, {kFp32, kFp16});
 }
 
 TEST(Conv2d, OptionsAreValidatedByName) {
@@ -242,6 +275,12 @@ TEST(Conv2d, OptionsAreValidatedByName) {
   o = {};
   o.gemm_tv = 3;
   expect_error(o, "gemm_tv");
+  o = {};
+  o.pointwise_cob = 33;
+  expect_error(o, "pointwise_cob");
+  o = {};
+  o.pointwise_px = 9;
+  expect_error(o, "pointwise_px");
   EXPECT_NO_THROW(Conv2d(ctx, w, b, {3, 1, 1, {}}, "ok", nullptr, ConvOptions{}));  // 0 everywhere: defaults
   ConvOptions t;
   t.direct_cob = 5;
