@@ -10,6 +10,8 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
+#include "vkunroll/base/luminance.hpp"  // kLumB, kLumG, kLumR
+
 namespace vkunroll::sim {
 
 // ---- textures ----------------------------------------------------------------------------------
@@ -126,8 +128,5 @@ struct SceneOptions {
   uint64_t seed = 1;
 };
 SceneSpec build_scene(const SceneOptions& options);
-
-// Rec. 709 luminance of linear BGR.
-inline constexpr double kLumB = 0.0722, kLumG = 0.7152, kLumR = 0.2126;
 
 }  // namespace vkunroll::sim

@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <numeric>
 
+#include "vkunroll/base/luminance.hpp"
 #include "vkunroll/host/unroll/unroll_plan.hpp"
 
 namespace vkunroll {
@@ -27,7 +27,7 @@ std::vector<double> linear_luminance(const cv::Mat& image, double gamma) {
     const float* row = image.ptr<float>(y);
     for (int x = 0; x < image.cols; ++x) {
       auto lin = [&](int c) { return std::pow(std::max(0.0, double(row[x * ch + c])), gamma); };
-      out[size_t(y) * image.cols + x] = ch >= 3 ? 0.0722 * lin(0) + 0.7152 * lin(1) + 0.2126 * lin(2) : lin(0);
+      out[size_t(y) * image.cols + x] = ch >= 3 ? kLumB * lin(0) + kLumG * lin(1) + kLumR * lin(2) : lin(0);
     }
   }
   return out;
@@ -141,13 +141,17 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
   // Per offset: c is the L1 fit of log change against event count; the offset whose fit leaves the
   // least residual (in events) wins.
   double best_c = 0.2, best_eps = 0.0, best_residual = 1e300;
+  std::vector<double> change(kept.size());
   for (double eps : kOffsets) {
     std::vector<std::pair<double, double>> ratio;
-    for (const Sample& s : kept) ratio.push_back({(std::log(s.b + eps) - std::log(s.a + eps)) / s.n, std::abs(s.n)});
+    for (size_t i = 0; i < kept.size(); ++i) {
+      change[i] = std::log(kept[i].b + eps) - std::log(kept[i].a + eps);
+      ratio.push_back({change[i] / kept[i].n, std::abs(kept[i].n)});
+    }
     const double c = weighted_median(ratio);
     if (!(c > 0)) continue;
     double residual = 0;
-    for (const Sample& s : kept) residual += std::abs((std::log(s.b + eps) - std::log(s.a + eps)) / c - s.n);
+    for (size_t i = 0; i < kept.size(); ++i) residual += std::abs(change[i] / c - kept[i].n);
     if (residual < best_residual) best_residual = residual, best_c = c, best_eps = eps;
   }
   char src[200];

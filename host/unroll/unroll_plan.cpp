@@ -10,7 +10,6 @@
 #include <opencv2/imgproc.hpp>
 
 #include "vkunroll/base/error.hpp"
-#include "vkunroll/host/unroll/image_planes.hpp"
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
 
