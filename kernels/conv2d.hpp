@@ -158,6 +158,9 @@ class Conv2d {
   void pack_gemm();          // conv2d_winograd.cpp
   void pack_coopmat() const;  // conv2d_coopmat.cpp
   void pack_pointwise() const;  // conv2d_pointwise.cpp
+  // The direct and pointwise layout [cout/cob][cin_pad + tail][k*k][cob] of the weights, zero-padded
+  // (+ 8 values for fp16's whole 16-byte entries); conv2d_direct.cpp.
+  std::vector<float> pack_channel_blocks(int64_t cob, int64_t cin_pad, int64_t tail_channels) const;
   bool pointwise_applies() const;  // conv2d_pointwise.cpp: supports(pointwise)
   UniformSlabChunks pointwise_chunks() const;  // input-channel chunks of its uniform weight slabs
   UniformSlabChunks direct_chunks() const;  // input-channel chunks of the uniform weight slabs

@@ -14,23 +14,24 @@ UniformSlabChunks Conv2d::direct_chunks() const {
   return uniform_slab_chunks(ctx_.info(), cin_, per_channel * static_cast<int64_t>(elem_bytes()), direct_chunk_limit_);
 }
 
-void Conv2d::pack_direct() const {
-  if (!weight_direct_.empty()) return;
-  // [cout/COB][cin][k*k][COB], zero-padded channels, plus one chunk of zeros at the end so that
-  // every dispatch can bind a whole slab (the uniform block has a fixed size).
-  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, cob = direct_cob_;
-  const int64_t blocks = (cout_ + cob - 1) / cob;
-  // Each block's channels are padded to cin_pad so every chunk's slab starts aligned.
-  const UniformSlabChunks ch = direct_chunks();
-  const int64_t cin_pad = ch.cin_pad;
+std::vector<float> Conv2d::pack_channel_blocks(int64_t cob, int64_t cin_pad, int64_t tail_channels) const {
+  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel, blocks = (cout_ + cob - 1) / cob;
   // + 8 values: an fp16 slab is bound in whole 16-byte entries (8 halves), possibly 8 bytes past its end.
-  std::vector<float> wd(static_cast<size_t>((blocks * cin_pad + ch.max) * kk * cob + 8), 0.f);
+  std::vector<float> w(static_cast<size_t>((blocks * cin_pad + tail_channels) * kk * cob + 8), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
     for (int64_t ci = 0; ci < cin_; ++ci)
       for (int64_t t = 0; t < kk; ++t)
-        wd[static_cast<size_t>((((co / cob) * cin_pad + ci) * kk + t) * cob + co % cob)] =
+        w[static_cast<size_t>((((co / cob) * cin_pad + ci) * kk + t) * cob + co % cob)] =
             weight_host_.data[static_cast<size_t>((co * cin_ + ci) * kk + t)];
-  weight_direct_ = upload_weights(wd);
+  return w;
+}
+
+void Conv2d::pack_direct() const {
+  if (!weight_direct_.empty()) return;
+  // Each block's channels are padded to cin_pad so every chunk's slab starts aligned; one chunk of
+  // zeros at the end so that every dispatch can bind a whole slab (the uniform block has a fixed size).
+  const UniformSlabChunks ch = direct_chunks();
+  weight_direct_ = upload_weights(pack_channel_blocks(direct_cob_, ch.cin_pad, ch.max));
 }
 
 void Conv2d::record_direct(CommandStream& cs, const Recording& r) const {

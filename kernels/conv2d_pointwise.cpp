@@ -33,17 +33,10 @@ UniformSlabChunks Conv2d::pointwise_chunks() const {
 
 void Conv2d::pack_pointwise() const {
   if (!weight_pointwise_.empty()) return;
-  // [cout/COB][cin_pad][COB], zero-padded channels, plus one chunk of zeros at the end so that every
-  // dispatch can bind a whole slab (the uniform block has a fixed size), + 8 values for fp16's
-  // whole 16-byte entries.
+  // [cout/COB][cin_pad][COB] (direct's layout at k = 1), plus one chunk of zeros at the end so that
+  // every dispatch can bind a whole slab (the uniform block has a fixed size).
   const UniformSlabChunks ch = pointwise_chunks();
-  const int64_t cob = pointwise_cob_, blocks = (cout_ + cob - 1) / cob;
-  std::vector<float> wp(static_cast<size_t>((blocks * ch.cin_pad + ch.chunk) * cob + 8), 0.f);
-  for (int64_t co = 0; co < cout_; ++co)
-    for (int64_t ci = 0; ci < cin_; ++ci)
-      wp[static_cast<size_t>(((co / cob) * ch.cin_pad + ci) * cob + co % cob)] =
-          weight_host_.data[static_cast<size_t>(co * cin_ + ci)];
-  weight_pointwise_ = upload_weights(wp);
+  weight_pointwise_ = upload_weights(pack_channel_blocks(pointwise_cob_, ch.cin_pad, ch.chunk));
 }
 
 void Conv2d::record_pointwise(CommandStream& cs, const Recording& r) const {
