@@ -486,6 +486,8 @@ TEST(Simulator, EachNoiseOptionIsSeededAndDeterministic) {
       {"--sigma", [](SimulationConfig& c) { c.events.sigma = 0.05; }, false},
       {"--shot-hz", [](SimulationConfig& c) { c.events.shot_hz = 200; }, false},
       {"--leak-hz", [](SimulationConfig& c) { c.events.leak_hz = 50; }, false},
+      {"--hot-pixels", [](SimulationConfig& c) { c.events.hot_fraction = 0.05, c.events.hot_hz = 500; }, false},
+      {"--jitter-us", [](SimulationConfig& c) { c.events.jitter_us = 300; }, false},
       {"--full-well", [](SimulationConfig& c) { c.frame_noise.full_well_e = 1500; }, true},
       {"--read-noise", [](SimulationConfig& c) { c.frame_noise.read_noise = 0.008; }, true},
   };
@@ -508,4 +510,62 @@ TEST(Simulator, EachNoiseOptionIsSeededAndDeterministic) {
       EXPECT_TRUE(a.events.t != clean.events.t || a.events.x != clean.events.x) << opt.name << " changes no event";
     }
   }
+}
+
+// Hot pixels fire at their rate wherever they are, and jitter moves timestamps by its std without
+// losing, adding or reordering-out-of-interval any event.
+TEST(Simulator, HotPixelsAndJitterHaveTheirRatesAndSpread) {
+  EventSimParams p;
+  p.seed = 11;
+  EventStream signal;
+  signal.width = 100, signal.height = 80;
+  for (int k = 0; k < 20000; ++k) signal.push(1000 + k * 4, static_cast<uint16_t>(k % 100), static_cast<uint16_t>(k % 80), k % 2 ? 1 : -1);
+  const double t0 = 0, t1 = 200000;  // 0.2 s
+  // Hot pixels only: 1% of 8000 pixels at 1 kHz for 0.2 s = 80 pixels x 200 events.
+  p.hot_fraction = 0.01, p.hot_hz = 1000;
+  EventStream hot = signal;
+  EventSimStats stats;
+  add_readout_artifacts(hot, p, t0, t1, stats);
+  ASSERT_EQ(hot.size(), signal.size() + stats.hot);
+  EXPECT_NEAR(double(stats.hot), 80.0 * 200.0, 0.25 * 80 * 200) << "hot-pixel events";
+  for (size_t k = 0; k < hot.size(); ++k) {
+    if (k > 0) {
+      ASSERT_LE(hot.t[k - 1], hot.t[k]) << "sorted";
+    }
+    ASSERT_GE(hot.t[k], t0);
+    ASSERT_LT(hot.t[k], t1);
+  }
+  EventSimStats again_stats;
+  EventStream again = signal;
+  add_readout_artifacts(again, p, t0, t1, again_stats);
+  EXPECT_EQ(again.t, hot.t);
+  EXPECT_EQ(again.x, hot.x);
+  // Jitter only: the same events, each moved by about N(0, 50 us).
+  p.hot_fraction = 0, p.hot_hz = 0, p.jitter_us = 50;
+  EventStream jittered = signal;
+  EventSimStats jstats;
+  add_readout_artifacts(jittered, p, t0, t1, jstats);
+  ASSERT_EQ(jittered.size(), signal.size());
+  EXPECT_EQ(jstats.hot, 0u);
+  // The polarities are kept, and the rms shift of the sorted timestamps is at most the jitter's
+  // std (sorting only shrinks it) but not zero.
+  double sq = 0;
+  for (size_t k = 0; k < signal.size(); ++k) {
+    const double d = double(jittered.t[k] - signal.t[k]);
+    sq += d * d;
+    if (k > 0) {
+      ASSERT_LE(jittered.t[k - 1], jittered.t[k]);
+    }
+  }
+  const double rms = std::sqrt(sq / signal.size());
+  EXPECT_GT(rms, 5.0) << "jitter moved nothing";
+  EXPECT_LT(rms, 60.0);
+  int64_t on_before = 0, on_after = 0;
+  for (size_t k = 0; k < signal.size(); ++k) on_before += signal.p[k] > 0, on_after += jittered.p[k] > 0;
+  EXPECT_EQ(on_before, on_after);
+  EXPECT_THROW({
+    EventSimParams bad;
+    bad.hot_fraction = 2;
+    EventSimulator(4, 4, bad);
+  }, Error);
 }

@@ -149,11 +149,43 @@ def make_heldout(out: str, cli: str, only: Optional[List[str]] = None) -> None:
         print(f"{d}: {kind} ({sec:.1f} s)", flush=True)
 
 
+EVENT_MODELS = ("presets", "wide")  # --event-model: a preset with drawn thresholds, or every option drawn
+
+
+def log_uniform(rng: random.Random, lo: float, hi: float) -> float:
+    return lo * (hi / lo) ** rng.random()
+
+
+def wide_event_args(rng: random.Random) -> (List[str], dict):
+    """Every option of the event and frame noise model drawn on its own, over ranges wider than any
+    one camera's (docs/simulator.md gives the realistic ranges these enclose): the model must not
+    learn one simulator's sensor. Returns the simulate arguments and what was drawn."""
+    c_on = rng.uniform(0.08, 0.6)
+    d = {"c-on": c_on, "c-off": min(0.9, max(0.05, c_on * rng.uniform(0.6, 1.7))),
+         "sigma": rng.uniform(0.0, 0.08),
+         "refractory-us": rng.choice([0.0, log_uniform(rng, 20, 2000)]),
+         "leak-hz": rng.uniform(0.0, 1.0),
+         "shot-hz": 0.0 if rng.random() < 0.2 else log_uniform(rng, 0.01, 20),
+         "cutoff-hz": 0.0 if rng.random() < 0.25 else log_uniform(rng, 20, 1000),
+         "eps": log_uniform(rng, 0.005, 0.2),
+         "hot-pixels": 0.0 if rng.random() < 0.3 else log_uniform(rng, 1e-4, 3e-3),
+         "hot-hz": log_uniform(rng, 20, 2000),
+         "jitter-us": 0.0 if rng.random() < 0.3 else log_uniform(rng, 5, 500),
+         "full-well": log_uniform(rng, 1000, 20000),
+         "read-noise": rng.uniform(0.0, 0.012)}
+    d = {k: round(v, 6) for k, v in d.items()}
+    args = ["--preset", "clean"]
+    for k, v in d.items():
+        args += [f"--{k}", f"{v:g}"]
+    return args, d
+
+
 def train_args(rng: random.Random, force_kind: Optional[str] = None, gt_per_frame: int = 2,
-               force_preset: Optional[str] = None) -> (List[str], str, dict):
+               force_preset: Optional[str] = None, event_model: str = "presets") -> (List[str], str, dict):
     """Random simulator settings for one training sequence (what the issue asks to cover).
     `force_kind` (one of KINDS) and `force_preset` replace the drawn motion kind and event preset;
-    every other draw is unchanged."""
+    every other draw is unchanged. `event_model` 'wide' replaces the preset and its thresholds by
+    wide_event_args (drawn after every other setting, so the rest is the same draw)."""
     vga = rng.random() < 0.25
     if vga:  # Prophesee-size sensor, simulated at 640x480 (training takes crops)
         size, rows = "640x480", 480
@@ -185,11 +217,19 @@ def train_args(rng: random.Random, force_kind: Optional[str] = None, gt_per_fram
             "--c-on", str(c_on), "--c-off", str(c_off), "--sigma", str(sigma), "--motion", motion,
             "--sprites", str(sprites), "--speed", str(speed), "--gamma", gamma, "--step-fraction", "1",
             "--readout", rng.choice(["top-down", "top-down", "bottom-up"])]
+    if event_model == "wide":
+        drawn_flags = {"--preset", "--c-on", "--c-off", "--sigma"}
+        kept = [a for i, a in enumerate(args) if a not in drawn_flags and (i == 0 or args[i - 1] not in drawn_flags)]
+        wide, drawn = wide_event_args(rng)
+        return kept + wide, kind, {"preset": "wide", "gamma": gamma, "event_model": drawn}
+    if event_model != "presets":
+        raise DataError(f"event model '{event_model}': expected one of {', '.join(EVENT_MODELS)}")
     return args, kind, {"preset": preset, "gamma": gamma}
 
 
 def make_train(out: str, cli: str, count: int, seed_base: int, kinds: Optional[List[str]] = None,
-               gt_per_frame: int = 2, presets: Optional[List[str]] = None, split: str = "train") -> None:
+               gt_per_frame: int = 2, presets: Optional[List[str]] = None, split: str = "train",
+               event_model: str = "presets") -> None:
     """`count` sequences nat_<seed>; `kinds`, `presets`: motion kinds and event presets cycled over
     the seeds (else drawn); `split` 'heldout' draws the photographs from the held-out ones and
     scikit-image's (evaluation only)."""
@@ -199,10 +239,11 @@ def make_train(out: str, cli: str, count: int, seed_base: int, kinds: Optional[L
         seed = seed_base + i
         rng = random.Random(1000003 * seed + 7)
         photo = pool[rng.randrange(len(pool))]
-        args, kind, _ = train_args(rng, kinds[i % len(kinds)] if kinds else None, gt_per_frame,
-                                   presets[i % len(presets)] if presets else None)
+        args, kind, info = train_args(rng, kinds[i % len(kinds)] if kinds else None, gt_per_frame,
+                                      presets[i % len(presets)] if presets else None, event_model)
         d = os.path.join(out, f"nat_{seed:05d}")
-        sec = simulate(cli, d, photo, args + ["--seed", str(seed)], kind)
+        extra = {"event_model": info["event_model"]} if event_model == "wide" else None
+        sec = simulate(cli, d, photo, args + ["--seed", str(seed)], kind, extra)
         print(f"{d}: {os.path.basename(photo['file'])} {kind} {' '.join(args[:2])} ({sec:.1f} s)", flush=True)
 
 
@@ -230,6 +271,9 @@ def main(argv=None) -> int:
     ap.add_argument("--presets", help="with --train: comma list of event presets (clean, realistic, noisy) cycled "
                     "over the seeds instead of drawn")
     ap.add_argument("--gt-per-frame", type=int, default=2, help="with --train: ground-truth instants per frame [2]")
+    ap.add_argument("--event-model", choices=EVENT_MODELS, default="presets",
+                    help="with --train: 'presets' (a preset with drawn thresholds) or 'wide' (every event and frame "
+                    "noise option drawn on its own, wider than any camera) [presets]")
     ap.add_argument("--cli")
     a = ap.parse_args(argv)
     try:
@@ -256,9 +300,12 @@ def main(argv=None) -> int:
                 return items
             kinds = cycled("--kinds", a.kinds, KINDS)
             presets = cycled("--presets", a.presets, PRESETS)
+            if presets and a.event_model == "wide":
+                ap.error("--presets and --event-model wide exclude each other (wide draws every option)")
             for out, split in ((a.train, "train"), (a.heldout_draw, "heldout")):
                 if out:
-                    make_train(out, find_cli(a.cli), a.count, a.seed_base, kinds, a.gt_per_frame, presets, split)
+                    make_train(out, find_cli(a.cli), a.count, a.seed_base, kinds, a.gt_per_frame, presets, split,
+                               a.event_model)
         if not (a.heldout or a.train or a.heldout_draw):
             ap.error("nothing to do: --check, --list-heldout, --heldout DIR, --heldout-draw DIR or --train DIR")
     except DataError as e:

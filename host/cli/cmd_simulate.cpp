@@ -19,7 +19,8 @@ struct SimulateArgs {
   // Overrides of the preset's values (unset: the preset's).
   std::optional<int> frames, gt_per_frame, sprites, bit_depth, supersample;
   std::optional<double> fps, line_delay_us, exposure_us, speed, flicker_amp, flicker_hz, gamma, lead_in_us, step_fraction,
-      c_on, c_off, sigma, refractory_us, leak_hz, shot_hz, cutoff_hz, eps, full_well, read_noise;
+      c_on, c_off, sigma, refractory_us, leak_hz, shot_hz, cutoff_hz, eps, hot_pixels, hot_hz, jitter_us, full_well,
+      read_noise;
 };
 
 template <class T>
@@ -64,6 +65,9 @@ sim::SimulationConfig to_config(const SimulateArgs& a) {
   set(c.events.shot_hz, a.shot_hz);
   set(c.events.cutoff_hz, a.cutoff_hz);
   set(c.events.eps, a.eps);
+  set(c.events.hot_fraction, a.hot_pixels);
+  set(c.events.hot_hz, a.hot_hz);
+  set(c.events.jitter_us, a.jitter_us);
   set(c.frame_noise.full_well_e, a.full_well);
   set(c.frame_noise.read_noise, a.read_noise);
   try {
@@ -151,8 +155,11 @@ Command add_simulate(CLI::App& parent) {
   c->add_option("--shot-hz", a->shot_hz, "shot noise rate")->check(finite_at_least(0))->group(g);
   c->add_option("--cutoff-hz", a->cutoff_hz, "photoreceptor cutoff")->check(finite_at_least(0))->group(g);
   c->add_option("--eps", a->eps, "log offset")->check(finite_at_least(0, true))->group(g);
+  c->add_option("--hot-pixels", a->hot_pixels, "fraction of hot pixels, 0..1 (default 0)")->check(finite_at_least(0))->group(g);
+  c->add_option("--hot-hz", a->hot_hz, "each hot pixel's event rate (default 0)")->check(finite_at_least(0))->group(g);
+  c->add_option("--jitter-us", a->jitter_us, "timestamp jitter (std, default 0)")->check(finite_at_least(0))->group(g);
   c->add_option("--full-well", a->full_well, "frame sensor full well (electrons)")->check(finite_at_least(0, true))->group(g);
-  c->add_option("--read-noise", a->read_noise, "frame sensor read noise (electrons)")->check(finite_at_least(0))->group(g);
+  c->add_option("--read-noise", a->read_noise, "frame sensor read noise (std, fraction of full scale)")->check(finite_at_least(0))->group(g);
   c->add_flag("--quiet", a->quiet, "print nothing on success");
   c->add_flag("--overwrite", a->overwrite, "replace an existing sequence in --out (one that vkunroll wrote)");
   return {c, [a] { return run_simulate(*a); }};

@@ -13,7 +13,8 @@ namespace vkunroll::sim {
 namespace {
 constexpr double kTwoPi = 6.283185307179586;
 // Random streams (second hash argument) so that each use of randomness is independent.
-constexpr uint64_t kStreamOn = 0x0A11, kStreamOff = 0x0B22, kStreamLeak = 0x0C33, kStreamShot = 0x0D44;
+constexpr uint64_t kStreamOn = 0x0A11, kStreamOff = 0x0B22, kStreamLeak = 0x0C33, kStreamShot = 0x0D44,
+                   kStreamHot = 0x0E55, kStreamJitter = 0x0F66;
 
 // v2e's intensity-dependent photoreceptor bandwidth and shot-noise rate use the intensity in DN
 // with a 20 DN floor: (I * 255 + 20) / 275, clipped to [0, 1].
@@ -23,11 +24,13 @@ inline double intensity01(float linear) { return std::clamp((static_cast<double>
 nlohmann::json EventSimParams::to_json() const {
   return {{"c_on", c_on},           {"c_off", c_off},         {"sigma", sigma},   {"c_min", c_min},
           {"refractory_us", refractory_us}, {"leak_hz", leak_hz}, {"shot_hz", shot_hz}, {"cutoff_hz", cutoff_hz},
-          {"eps", eps},             {"seed", seed}};
+          {"eps", eps},             {"hot_fraction", hot_fraction}, {"hot_hz", hot_hz}, {"jitter_us", jitter_us},
+          {"seed", seed}};
 }
 
 nlohmann::json EventSimStats::to_json() const {
-  return {{"on", on}, {"off", off}, {"shot", shot}, {"dropped_refractory", dropped_refractory}, {"samples", samples}};
+  return {{"on", on},   {"off", off}, {"shot", shot}, {"hot", hot}, {"dropped_refractory", dropped_refractory},
+          {"samples", samples}};
 }
 
 EventSimParams event_preset(const std::string& name) {
@@ -67,6 +70,8 @@ EventSimulator::EventSimulator(int width, int height, const EventSimParams& para
   if (params.sigma < 0 || params.refractory_us < 0 || params.leak_hz < 0 || params.shot_hz < 0 || params.cutoff_hz < 0)
     throw Error("event simulator: sigma, refractory_us, leak_hz, shot_hz and cutoff_hz must be >= 0");
   if (!(params.eps > 0)) throw Error("event simulator: eps must be > 0 (log(eps + I))");
+  if (!(params.hot_fraction >= 0 && params.hot_fraction <= 1) || !(params.hot_hz >= 0) || !(params.jitter_us >= 0))
+    throw Error("event simulator: hot_fraction must be in [0, 1], hot_hz and jitter_us >= 0");
   events_.width = width;
   events_.height = height;
   c_on_.create(height, width, CV_32FC1);
@@ -334,6 +339,63 @@ EventStream EventSimulator::take_events() {
   events_.width = width_;
   events_.height = height_;
   return out;
+}
+
+namespace {
+struct StreamEvent {
+  int64_t t;
+  uint16_t x, y;
+  int8_t p;
+};
+
+// Hot pixels: about hot_fraction of the pixels, each with its own ON share and Poisson times.
+void append_hot_pixels(std::vector<StreamEvent>& out, const EventStream& shape, const EventSimParams& p, double t0,
+                       double t1, EventSimStats& stats) {
+  if (!(p.hot_fraction > 0 && p.hot_hz > 0) || !(t1 > t0)) return;
+  const uint64_t pixels = static_cast<uint64_t>(shape.width) * shape.height;
+  for (uint64_t i = 0; i < pixels; ++i) {
+    if (!(to_unit(hash3(p.seed, kStreamHot, 4 * i)) < p.hot_fraction)) continue;
+    const double on_share = to_unit(hash3(p.seed, kStreamHot, 4 * i + 1));
+    const uint16_t x = static_cast<uint16_t>(i % shape.width), y = static_cast<uint16_t>(i / shape.width);
+    uint64_t draw = 0;
+    auto next = [&] { return hash3(p.seed ^ (i + 1) * 0x9E3779B97F4A7C15ull, kStreamHot, draw++); };
+    for (double t = t0 - std::log(to_unit_open0(next())) / p.hot_hz * 1e6; t < t1;
+         t -= std::log(to_unit_open0(next())) / p.hot_hz * 1e6) {
+      out.push_back({std::llround(t), x, y, to_unit(next()) < on_share ? int8_t{1} : int8_t{-1}});
+      ++stats.hot;
+      (out.back().p > 0 ? stats.on : stats.off) += 1;
+    }
+  }
+}
+}  // namespace
+
+void add_readout_artifacts(EventStream& events, const EventSimParams& p, double t_begin_us, double t_end_us,
+                           EventSimStats& stats) {
+  const bool hot = p.hot_fraction > 0 && p.hot_hz > 0, jitter = p.jitter_us > 0;
+  if (!hot && !jitter) return;
+  std::vector<StreamEvent> all(events.size());
+  for (size_t k = 0; k < events.size(); ++k) all[k] = {events.t[k], events.x[k], events.y[k], events.p[k]};
+  append_hot_pixels(all, events, p, t_begin_us, t_end_us, stats);
+  if (jitter) {
+    // Clamped into the stream's interval so that every event stays inside the recording.
+    const int64_t lo = static_cast<int64_t>(std::ceil(t_begin_us)), hi = static_cast<int64_t>(std::ceil(t_end_us)) - 1;
+    for (size_t k = 0; k < all.size(); ++k) {
+      const double dt = p.jitter_us * normal_from(hash3(p.seed, kStreamJitter, 2 * k), hash3(p.seed, kStreamJitter, 2 * k + 1));
+      all[k].t = std::clamp<int64_t>(all[k].t + std::llround(dt), lo, std::max(lo, hi));
+    }
+  }
+  std::sort(all.begin(), all.end(), [](const StreamEvent& a, const StreamEvent& b) {
+    if (a.t != b.t) return a.t < b.t;
+    if (a.y != b.y) return a.y < b.y;
+    if (a.x != b.x) return a.x < b.x;
+    return a.p < b.p;
+  });
+  EventStream out;
+  out.width = events.width;
+  out.height = events.height;
+  out.reserve(all.size());
+  for (const StreamEvent& e : all) out.push(e.t, e.x, e.y, e.p);
+  events = std::move(out);
 }
 
 }  // namespace vkunroll::sim

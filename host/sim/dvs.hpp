@@ -24,6 +24,10 @@ struct EventSimParams {
   double shot_hz = 0.0;         // shot-noise events per second per pixel in the dark (ON and OFF halves)
   double cutoff_hz = 0.0;       // photoreceptor 3 dB bandwidth at full intensity; 0 = unlimited
   double eps = 0.05;            // log(eps + I): dark floor of the log response (I linear in [0, 1])
+  // Readout artefacts, applied to the whole stream after simulation (add_readout_artifacts):
+  double hot_fraction = 0.0;    // fraction of pixels that are hot (fire regardless of the signal)
+  double hot_hz = 0.0;          // each hot pixel's event rate (Poisson, its own fixed ON share)
+  double jitter_us = 0.0;       // std of the Gaussian timestamp jitter of every event
   uint64_t seed = 1;            // thresholds, noise and leak phases
 
   nlohmann::json to_json() const;
@@ -35,10 +39,18 @@ EventSimParams event_preset(const std::string& name);
 struct EventSimStats {
   uint64_t on = 0, off = 0;              // emitted events by polarity (all causes)
   uint64_t shot = 0;                     // of which shot noise
+  uint64_t hot = 0;                      // of which hot-pixel events
   uint64_t dropped_refractory = 0;       // threshold crossings suppressed by the refractory period
   uint64_t samples = 0;                  // luminance samples processed (after the first)
   nlohmann::json to_json() const;
 };
+
+// Hot pixels and timestamp jitter on a finished stream covering [t_begin, t_end) us: each hot
+// pixel (drawn by the seed) adds Poisson events at hot_hz, then every timestamp moves by
+// N(0, jitter_us) clamped into the interval, and the stream is re-sorted by (t, y, x, p).
+// Deterministic for a given stream and seed; counts the hot events into `stats`.
+void add_readout_artifacts(EventStream& events, const EventSimParams& params, double t_begin_us, double t_end_us,
+                           EventSimStats& stats);
 
 class EventSimulator {
  public:

@@ -74,6 +74,8 @@ void SimulationConfig::validate() const {
                                         {events.leak_hz, "--leak-hz", 1e4}, {events.refractory_us, "--refractory-us", 1e7},
                                         {events.sigma, "--sigma", 1.0}, {events.c_on, "--c-on", 5.0}, {events.c_off, "--c-off", 5.0},
                                         {events.cutoff_hz, "--cutoff-hz", 1e9}, {events.eps, "--eps", 1.0},
+                                        {events.hot_fraction, "--hot-pixels", 1.0}, {events.hot_hz, "--hot-hz", 1e4},
+                                        {events.jitter_us, "--jitter-us", 1e6},
                                         {flicker_hz, "--flicker-hz", 1e5}})
     if (!(value >= 0 && value <= hi)) fail(std::string(name) + " " + num(value) + " must be in [0, " + num(hi) + "]");
   const double period = frame_period_us(), readout_time = (height - 1) * line_delay_us;
@@ -344,6 +346,7 @@ void Recorder::run() {
   seq_.steps.mean_dt_us = t_end / std::max<uint64_t>(1, seq_.steps.samples);
   seq_.event_stats = events_.stats();
   seq_.events = events_.take_events();
+  add_readout_artifacts(seq_.events, events_.params(), 0.0, t_end, seq_.event_stats);
   for (int k = 0; k < config_.frames; ++k) seq_.rs.push_back(finish_rs_frame(acc_[k], config_, k));
 }
 }  // namespace
