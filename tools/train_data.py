@@ -311,16 +311,19 @@ def describe_data(paths: List[str], seqs: List[Sequence]) -> str:
     presets, motions, seeds, photos = set(), set(), [], set()
     for s in seqs:
         src = s.meta.get("source") or {}
-        if "preset" in src:
+        nat = os.path.join(s.folder, "natural.json")
+        info = json.load(open(nat)) if os.path.isfile(nat) else {}
+        if "event_model" in info:  # natural_data.py --event-model wide: every option drawn, the preset only a base
+            presets.add("wide event model")
+        elif "preset" in src:
             presets.add(str(src["preset"]))
         st = src.get("settings") or {}
         if "motion" in st:
             motions.add(str(st["motion"]))
         if "seed" in src:
             seeds.append(int(src["seed"]))
-        nat = os.path.join(s.folder, "natural.json")
-        if os.path.isfile(nat):
-            photos.add(os.path.basename(json.load(open(nat))["photo"]))
+        if "photo" in info:
+            photos.add(os.path.basename(info["photo"]))
     sizes = sorted({f"{s.width}x{s.height}" for s in seqs})
     d = f"{len(seqs)} sequences ({', '.join(sizes)}; {sum(s.num_frames for s in seqs)} RS frames) from {', '.join(paths)}"
     if presets:
