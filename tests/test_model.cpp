@@ -173,6 +173,97 @@ TEST(ModelVulkan, PhysicsGateMatchesCpuInFp32AndFp16) {
   }
 }
 
+// The learned confidence (metadata physics_confidence): fusion_net's 4th channel gives
+// c = hardsigmoid(score) and fused = c * network + (1 - c) * clamp(phys, 0, 1) per pixel, inside the
+// gate; where no event is near, physics exactly.
+namespace {
+// `w` with a 4th fusion_net.pred channel of random weights (so c spans 0..1) and bias 0.
+Weights with_confidence(Weights w, uint64_t seed) {
+  WeightTensor& pw = w.tensors.at("fusion_net.pred.weight");
+  WeightTensor& pb = w.tensors.at("fusion_net.pred.bias");
+  const size_t row = pw.data.size() / 3;
+  uint64_t state = seed;
+  for (size_t i = 0; i < row; ++i) {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    pw.data.push_back(4.f * (float((state >> 40) & 0xFFFF) / 65535.f - 0.5f));
+  }
+  pw.shape[0] = 4;
+  pb.data.push_back(0.f);
+  pb.shape[0] = 4;
+  w.config.physics_confidence = true;
+  return w;
+}
+// `w` whose 3 fusion_net outputs are all the 4th channel of `confident` (the confidence score).
+Weights score_model(const Weights& confident) {
+  Weights s = confident;
+  WeightTensor& pw = s.tensors.at("fusion_net.pred.weight");
+  const size_t row = pw.data.size() / 4;
+  std::vector<float> score(pw.data.end() - row, pw.data.end());
+  pw.data.clear();
+  for (int k = 0; k < 3; ++k) pw.data.insert(pw.data.end(), score.begin(), score.end());
+  pw.shape[0] = 3;
+  s.tensors.at("fusion_net.pred.bias") = WeightTensor{{3}, {0.f, 0.f, 0.f}};
+  s.config.physics_confidence = false;
+  s.config.physics_gate = -1;
+  return s;
+}
+}  // namespace
+
+TEST(ModelCpu, LearnedConfidenceBlendsPhysicsAndTheNetworkPerPixel) {
+  const GatedCase g = gated_case(1);
+  const Weights confident = with_confidence(g.w, 3);
+  CpuBackend cpu;
+  RunOptions s;
+  s.outputs = {"fused"};
+  const HostTensor fused = Model(cpu, confident).run(g.in, s).at("fused");
+  Weights network = g.w;
+  network.config.physics_gate = -1;
+  const HostTensor net = Model(cpu, network).run(g.in, s).at("fused");
+  const HostTensor score = Model(cpu, score_model(confident)).run(g.in, s).at("fused");
+  const int64_t plane = fused.shape.h * fused.shape.w;
+  int64_t low = 0, high = 0, far = 0;
+  for (int64_t n = 0; n < fused.shape.n; ++n)
+    for (int64_t c = 0; c < 3; ++c)
+      for (int64_t p = 0; p < plane; ++p) {
+        const size_t i = size_t((n * 3 + c) * plane + p);
+        const float phys = std::clamp(g.in.phys.data[i], 0.f, 1.f);
+        if (!g.near[size_t(n * plane + p)]) {
+          ASSERT_EQ(fused.data[i], phys) << "item " << n << " pixel " << p;
+          ++far;
+          continue;
+        }
+        const float m = std::clamp(score.data[i] / 6.f + 0.5f, 0.f, 1.f);
+        low += m < 0.05f, high += m > 0.95f;
+        ASSERT_NEAR(fused.data[i], m * net.data[i] + (1 - m) * phys, 1e-5) << "item " << n << " pixel " << p;
+      }
+  EXPECT_GT(far, 0);
+  EXPECT_GT(low, 0) << "the confidence never trusts physics";
+  EXPECT_GT(high, 0) << "the confidence never trusts the network";
+}
+
+TEST(ModelVulkan, LearnedConfidenceMatchesCpuInFp32AndFp16) {
+  const GatedCase g = gated_case(1);
+  for (int gate : {1, -1}) {
+    Weights w = with_confidence(g.w, 4);
+    w.config.physics_gate = gate;
+    RunOptions opt;
+    opt.mode = Mode::m;
+    CpuBackend cpu;
+    const auto ref = Model(cpu, w).run(g.in, opt);
+    for (Precision p : {Precision::fp32, Precision::fp16}) {
+      VulkanBackend vk(vktest::context(), nullptr, kPoolFlushBytes, p);
+      opt.precision = p;
+      const auto got = Model(vk, w).run(g.in, opt);
+      for (const auto& [name, arr] : ref) {
+        double scale = 1.0;
+        for (float v : arr.data) scale = std::max(scale, double(std::abs(v)));
+        EXPECT_LE(max_abs_diff(got.at(name), arr), (p == Precision::fp32 ? 1e-4 : 1e-2) * scale)
+            << name << " " << precision_name(p) << " gate " << gate;
+      }
+    }
+  }
+}
+
 namespace {
 void m_forced_to_one_is_s(Backend& backend) {
   const Weights w = load_weights(fixture("selfunroll_tiny.safetensors"));

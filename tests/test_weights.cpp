@@ -242,3 +242,31 @@ TEST(Weights, PhysicsGateIsReadAndChecked) {
   c.physics_gate = 1;
   EXPECT_THROW(c.validate(), Error);
 }
+
+// The learned confidence: fusion_net.pred has 4 output channels; shapes and metadata must agree.
+TEST(Weights, LearnedConfidenceFollowsFusionNetsShapeAndIsChecked) {
+  ModelConfig v = tiny();
+  v.physics_input = true;
+  v.physics_confidence = true;
+  const Weights r = random_weights(v, 5);
+  EXPECT_EQ(r.get("fusion_net.pred.weight").shape[0], 4);
+  auto md = v.to_metadata();
+  EXPECT_EQ(md.at("physics_confidence"), "true");
+  const Weights w = weights_from_safetensors(parse_safetensors(serialize(r, md), "c"), "c");
+  EXPECT_TRUE(w.config.physics_confidence);
+  EXPECT_NE(w.config.summary().find("learned confidence"), std::string::npos) << w.config.summary();
+  md.erase("physics_confidence");  // the shapes alone tell it
+  EXPECT_TRUE(weights_from_safetensors(parse_safetensors(serialize(r, md), "c"), "c").config.physics_confidence);
+  md["physics_confidence"] = "false";
+  EXPECT_NE(error_of(serialize(r, md)).find("'physics_confidence' = 'false' but fusion_net.pred.weight has 4"),
+            std::string::npos) << error_of(serialize(r, md));
+  // a 3-channel model claiming a confidence
+  ModelConfig plain_variant = tiny();
+  plain_variant.physics_input = true;
+  auto pmd = plain_variant.to_metadata();
+  pmd["physics_confidence"] = "true";
+  EXPECT_NE(error_of(serialize(random_weights(plain_variant, 5), pmd)).find("physics_confidence"), std::string::npos);
+  ModelConfig c = tiny();
+  c.physics_confidence = true;  // without the physics input
+  EXPECT_THROW(c.validate(), Error);
+}

@@ -59,6 +59,9 @@ class SelfUnrollConfig:
     # Variant only: event gate radius r (-1: none). fused = physics wherever no event of ev1/ev2
     # lies within the (2r+1)^2 square around the pixel (there physics = rs is exact up to noise).
     physics_gate: int = -1
+    # Variant only: a learned confidence. fusion_net predicts a 4th channel and
+    # fused = c * fusion_net + (1 - c) * phys, c = hardsigmoid(channel 3), before the gate.
+    physics_confidence: bool = False
 
     @property
     def ev_channels(self) -> int:
@@ -90,6 +93,8 @@ class SelfUnrollConfig:
             md["physics_contrast"] = str(self.physics_contrast)
             if self.physics_gate >= 0:
                 md["physics_gate"] = str(int(self.physics_gate))
+            if self.physics_confidence:
+                md["physics_confidence"] = "true"
         return md
 
     @staticmethod
@@ -117,6 +122,11 @@ class SelfUnrollConfig:
             if c.physics_gate < 0 or not c.physics_input:
                 raise ValueError(f"metadata 'physics_gate' = '{md['physics_gate']}' (expected an integer >= 0, "
                                  "and only with physics_input=true)")
+        if md.get("physics_confidence", "false") not in ("true", "false") or (
+                md.get("physics_confidence") == "true" and not c.physics_input):
+            raise ValueError(f"metadata 'physics_confidence' = '{md['physics_confidence']}' (expected true or false, "
+                             "and true only with physics_input=true)")
+        c.physics_confidence = md.get("physics_confidence") == "true"
         if "gamma" in md:
             c.gamma = float(md["gamma"])
             if not c.gamma > 0:
@@ -161,6 +171,7 @@ def infer_config(shapes: Mapping[str, tuple]) -> SelfUnrollConfig:
         u.base = shapes[head][0]
         u.depth = len({m.group(1) for k in shapes
                        for m in [re.match(rf"{re.escape(name)}\.down_path\.(\d+)\.down\.0\.weight$", k)] if m})
+    c.physics_confidence = need("fusion_net.pred.weight")[0] == 4
     return c
 
 
@@ -320,7 +331,8 @@ class SelfUnroll(nn.Module):
                                    nn.Conv2d(cfg.upnet_width // 4, 3, 3, 1, 1))
         s = cfg.unet_slope
         self.flownet = Unet(2 * nev + 3, 2, cfg.flownet.base, cfg.flownet.depth, s)
-        self.fusion_net = Unet(3 + 3 + 2 + nev + 3, 3, cfg.fusion_net.base, cfg.fusion_net.depth, s)
+        self.fusion_net = Unet(3 + 3 + 2 + nev + 3, 4 if cfg.physics_confidence else 3, cfg.fusion_net.base,
+                               cfg.fusion_net.depth, s)
         if cfg.moa:
             self.attfusion_net = Unet(3 + 3 + 2 * nev + 2 + 2, 1, cfg.attfusion_net.base, cfg.attfusion_net.depth, s)
 
@@ -360,6 +372,9 @@ class SelfUnroll(nn.Module):
         flow = 100.0 * torch.tanh(self.flownet(torch.cat([ev1, ev2, rs], 1)))
         warped = backward_warp(rs, flow)
         fused = self.fusion_net(torch.cat([sys_, warped, flow, ev3, rs], 1))
+        if phys is not None and self.cfg.physics_confidence:
+            c = F.hardsigmoid(fused[:, 3:4])  # = the C++ blend(hardsigmoid(score), a, b)
+            fused = c * fused[:, :3] + (1 - c) * phys
         if phys is not None and self.cfg.physics_gate >= 0:
             g = event_gate(ev1, ev2, self.cfg.physics_gate)
             fused = g * fused + (1 - g) * phys  # = the C++ blend(m, a, b) op
@@ -434,3 +449,24 @@ def save_model(net: SelfUnroll, path: str, fp16: bool = False) -> None:
     import safetensors_io
     dtype = torch.float16 if fp16 else torch.float32
     safetensors_io.save(path, {k: v.detach().to(dtype) for k, v in net.state_dict().items()}, net.cfg.to_metadata())
+
+
+def add_confidence(net: "SelfUnroll", bias: float = 2.9) -> "SelfUnroll":
+    """The variant `net` with a learned confidence: the same weights, and fusion_net.pred's new 4th
+    output channel zero but for its bias, so c = hardsigmoid(bias) everywhere (2.9: c = 0.983, near
+    the input model's output yet inside hardsigmoid's slope, where c can learn)."""
+    if not net.cfg.physics_input:
+        raise ValueError("a learned confidence needs the physics-informed variant")
+    if net.cfg.physics_confidence:
+        return net
+    import copy
+    cfg = copy.deepcopy(net.cfg)
+    cfg.physics_confidence = True
+    out = SelfUnroll(cfg)
+    sd = net.state_dict()
+    w, b = sd["fusion_net.pred.weight"], sd["fusion_net.pred.bias"]
+    sd["fusion_net.pred.weight"] = torch.cat([w, torch.zeros_like(w[:1])], 0)
+    sd["fusion_net.pred.bias"] = torch.cat([b, torch.full_like(b[:1], bias)], 0)
+    out.load_state_dict(sd)
+    return out.train(net.training)
+

@@ -459,6 +459,8 @@ def build_model(a, state):
             net.cfg.description = a.description
         if a.physics_gate is not None:
             net.cfg.physics_gate = a.physics_gate
+        if a.physics_confidence:
+            net = selfunroll_torch.add_confidence(net)
         if a.reset_moa and net.cfg.moa:
             reset_moa(net, a.seed)
         return net.train()
@@ -723,6 +725,8 @@ def main(argv=None) -> int:
     g.add_argument("--constant-lr", action="store_true", help="no warm-up or cosine decay")
     g.add_argument("--physics-gate", type=int, metavar="R",
                    help="variant: fused = physics wherever no event lies within the (2R+1)^2 square (metadata physics_gate)")
+    g.add_argument("--physics-confidence", action="store_true", help="with a variant --from: add the learned "
+                   "confidence (fused = c * fusion_net + (1 - c) * phys; metadata physics_confidence)")
     g.add_argument("--reset-moa", action="store_true",
                    help="with --from: restart attfusion_net.pred near m = 0.5 (a saturated MOA cannot learn)")
     g.add_argument("--event-crops", type=float, default=0.0, metavar="P",
@@ -760,6 +764,8 @@ def main(argv=None) -> int:
             ap.error("--resume needs the same --data (or --cache) as the run it continues")
         if a.physics_gate is not None and (a.physics_gate < 0 or not (a.physics_variant or a.from_model)):
             ap.error("--physics-gate R needs R >= 0 and the physics variant (--physics-variant or a variant --from)")
+        if a.physics_confidence and not a.from_model:
+            ap.error("--physics-confidence needs a physics-variant --from model")
         if not 0.0 <= a.event_crops <= 1.0:
             ap.error(f"--event-crops {a.event_crops}: expected a probability in [0, 1]")
         if a.make_cache and a.cache:

@@ -128,7 +128,7 @@ Model::Model(Backend& backend, const Weights& w) : backend_(backend), cfg_(w.con
   add_conv(w, "UPNet.0", cfg_.G0, cfg_.upnet_width, 3, 1, 1, false, 0.f);
   add_conv(w, "UPNet.2", cfg_.upnet_width / 4, 3, 3, 1, 1, false, 0.f);
   add_unet(w, "flownet", 2 * ev + 3, 2, cfg_.flownet);
-  add_unet(w, "fusion_net", 3 + 3 + 2 + ev + 3, 3, cfg_.fusion_net);
+  add_unet(w, "fusion_net", 3 + 3 + 2 + ev + 3, cfg_.fusion_channels(), cfg_.fusion_net);
   if (cfg_.moa) add_unet(w, "attfusion_net", 3 + 3 + 2 * ev + 2 + 2, 1, cfg_.attfusion_net);
   if (cfg_.physics_gate >= 0) add_physics_gate();
 }
@@ -366,25 +366,35 @@ void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
 
 void Model::stage_fusion(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
-  const bool gated = cfg_.physics_gate >= 0;
-  Buffer raw = gated ? b.alloc({n, 3, ch.he, ch.we}, "fusion_net output") : Buffer();
+  const bool gated = cfg_.physics_gate >= 0, confident = cfg_.physics_confidence;
+  Buffer raw = gated || confident ? b.alloc({n, cfg_.fusion_channels(), ch.he, ch.we}, "fusion_net output") : Buffer();
   unet("fusion_net", cfg_.fusion_net,
        {items(b, ch.sys, i0, n), items(b, ch.warped, i0, n), items(b, ch.flow, i0, n), sub(ch.ev3, i0, n),
         sub(ch.rs, i0, n)},
-       gated ? raw.whole() : items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
-  if (!gated) return;
-  // fused = g * fusion_net + (1 - g) * clamp(phys, 0, 1), g = 1 where an ev1/ev2 event is near.
+       raw ? raw.whole() : items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
+  if (!raw) return;
   const Shape plane{n, 1, ch.he, ch.we};
+  Buffer phys = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
+  b.clamp01(sub(ch.phys, i0, n), phys.whole());
+  // The learned confidence: trusted = c * fusion_net + (1 - c) * clamp(phys, 0, 1).
+  Buffer trusted;
+  if (confident) {
+    trusted = gated ? b.alloc({n, 3, ch.he, ch.we}, "fusion confidence blend") : Buffer();
+    Buffer c = b.alloc(plane, "fusion confidence");
+    b.hardsigmoid_blend(chans(raw.whole(), 3, 1), chans(raw.whole(), 0, 3), phys.whole(), c.whole(),
+                        gated ? trusted.whole() : items(b, ch.fused, i0, n), -1.f);
+    if (!gated) return;
+  }
+  // fused = g * trusted + (1 - g) * clamp(phys, 0, 1), g = 1 where an ev1/ev2 event is near.
   Buffer part = b.alloc(plane, "physics gate ev1");
   b.conv(conv("physics_gate.ev1").id, sub(ch.ev1, i0, n), part.whole(), nullptr);
   Buffer score = b.alloc(plane, "physics gate");
   const BufferSlice ev1_part = part.whole();
   b.conv(conv("physics_gate.ev2").id, sub(ch.ev2, i0, n), score.whole(), &ev1_part);
   part.reset();
-  Buffer phys = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
-  b.clamp01(sub(ch.phys, i0, n), phys.whole());
   Buffer g = b.alloc(plane, "physics gate m");
-  b.hardsigmoid_blend(score.whole(), raw.whole(), phys.whole(), g.whole(), items(b, ch.fused, i0, n), -1.f);
+  b.hardsigmoid_blend(score.whole(), confident ? trusted.whole() : chans(raw.whole(), 0, 3), phys.whole(), g.whole(),
+                      items(b, ch.fused, i0, n), -1.f);
 }
 
 void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
@@ -606,17 +616,18 @@ void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::
   };
   b.set_stage("model.eic_s");
   for (int64_t i = 0; i < ch.n; i += sb.flow) stage_flow(ch, i, std::min<int64_t>(sb.flow, ch.n - i));
-  // ev2 and phys are read by E-IC_T and flownet, and by the variant's event gate after fusion_net.
-  const bool gated = cfg_.physics_gate >= 0;
+  // ev2 and phys are read by E-IC_T and flownet, and by the variant's event gate and learned
+  // confidence after fusion_net.
+  const bool fusion_reads_phys = cfg_.physics_gate >= 0 || cfg_.physics_confidence;
   auto consumed_ev2_phys = [&] {
     consumed(ch.ev2, in.ev2);
     if (cfg_.physics_input) consumed(ch.phys, in.phys);
   };
-  if (!gated) consumed_ev2_phys();
+  if (!fusion_reads_phys) consumed_ev2_phys();
   b.set_stage("model.fusion");
   for (int64_t i = 0; i < ch.n; i += sb.fusion) stage_fusion(ch, i, std::min<int64_t>(sb.fusion, ch.n - i));
   consumed(ch.ev3, in.ev3);
-  if (gated) consumed_ev2_phys();
+  if (fusion_reads_phys) consumed_ev2_phys();
   if (m_mode) {
     ch.m = chunk_buffer("m", {ch.nt, 1, ch.he, ch.we});
     ch.out = chunk_buffer("out", {ch.nt, 3, ch.he, ch.we});

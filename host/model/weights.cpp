@@ -114,6 +114,7 @@ std::map<std::string, std::string> ModelConfig::to_metadata() const {
     md["physics_input"] = "true";
     md["physics_contrast"] = physics_contrast;
     if (physics_gate >= 0) md["physics_gate"] = std::to_string(physics_gate);
+    if (physics_confidence) md["physics_confidence"] = "true";
   }
   if (gamma) md["gamma"] = f(static_cast<float>(*gamma));
   md["rdb_slope"] = f(rdb_slope);
@@ -137,6 +138,7 @@ std::string ModelConfig::summary() const {
   os << " slopes=" << rdb_slope << "/" << unet_slope << " " << channel_order;
   if (physics_input) os << " physics-informed (contrast " << physics_contrast << ")";
   if (physics_gate >= 0) os << " event gate r=" << physics_gate;
+  if (physics_confidence) os << " learned confidence";
   if (gamma) os << " gamma=" << *gamma;
   return os.str();
 }
@@ -162,6 +164,8 @@ void ModelConfig::validate() const {
   if (physics_gate >= 0 && !physics_input)
     throw Error("model configuration: physics_gate = " + std::to_string(physics_gate) +
                 " needs the physics-informed variant (physics_input)");
+  if (physics_confidence && !physics_input)
+    throw Error("model configuration: physics_confidence needs the physics-informed variant (physics_input)");
   if (physics_input && physics_contrast != "estimate") {
     char* end = nullptr;
     const double c = std::strtod(physics_contrast.c_str(), &end);
@@ -172,7 +176,7 @@ void ModelConfig::validate() const {
 
 bool ModelConfig::same_shapes(const ModelConfig& o) const {
   return D == o.D && C == o.C && G == o.G && G0 == o.G0 && N == o.N && upnet_width == o.upnet_width &&
-         physics_input == o.physics_input &&
+         physics_input == o.physics_input && physics_confidence == o.physics_confidence &&
          flownet == o.flownet && fusion_net == o.fusion_net && moa == o.moa && (!moa || attfusion_net == o.attfusion_net);
 }
 
@@ -191,7 +195,7 @@ std::vector<std::pair<std::string, TensorShape>> expected_tensors(const ModelCon
   add_conv(out, "UPNet.0", c.G0, c.upnet_width, 3);
   add_conv(out, "UPNet.2", c.upnet_width / 4, 3, 3);
   add_unet(out, "flownet", 2 * ev + 3, 2, c.flownet);
-  add_unet(out, "fusion_net", 3 + 3 + 2 + ev + 3, 3, c.fusion_net);
+  add_unet(out, "fusion_net", 3 + 3 + 2 + ev + 3, c.fusion_channels(), c.fusion_net);
   if (c.moa) add_unet(out, "attfusion_net", 3 + 3 + 2 * ev + 2 + 2, 1, c.attfusion_net);
   return out;
 }
@@ -251,6 +255,12 @@ ModelConfig infer_config(const std::map<std::string, TensorShape>& shapes) {
     u->base = static_cast<int>(need(head, 4)[0]);
     u->depth = count(std::regex(std::string(name) + R"(\.down_path\.(\d+)\.down\.0\.weight)"));
   }
+  // fusion_net.pred: 3 output channels, or 4 with the variant's learned confidence.
+  const auto& pred = need("fusion_net.pred.weight", 4);
+  if (pred[0] != 3 && pred[0] != 4)
+    throw Error("cannot infer the model configuration: fusion_net.pred.weight has " + std::to_string(pred[0]) +
+                " output channels, expected 3 (or 4: the physics-informed variant's learned confidence)");
+  c.physics_confidence = pred[0] == 4;
   c.validate();
   return c;
 }
@@ -290,6 +300,10 @@ ModelConfig config_from_metadata(const Metadata& md, const std::map<std::string,
                   std::to_string(shapes.at("SFENet1.weight")[1]) + " input channels (" +
                   (inferred.physics_input ? "the physics-informed variant's" : "the family's") + ")");
   }
+  m.physics_confidence = inferred.physics_confidence;
+  if (md.count("physics_confidence") && md.at("physics_confidence") != (inferred.physics_confidence ? "true" : "false"))
+    throw Error(origin + ": metadata 'physics_confidence' = '" + md.at("physics_confidence") + "' but fusion_net.pred.weight has " +
+                std::to_string(shapes.at("fusion_net.pred.weight")[0]) + " output channels (4: confidence, 3: none)");
   if (md.count("moa") && md.at("moa") != "true" && md.at("moa") != "false")
     throw Error(origin + ": metadata 'moa' = '" + md.at("moa") + "' (expected true or false)");
   if (!m.same_shapes(inferred)) {

@@ -42,12 +42,17 @@ struct ModelConfig {
   // ev1/ev2 lies within the (2r+1)^2 square around the pixel (there physics is exact but for
   // frame noise, and a small network's correction only adds error).
   int physics_gate = -1;
+  // The variant's learned confidence: fusion_net predicts a 4th channel, and inside the gate
+  // fused = c * fusion_net + (1 - c) * clamp(phys, 0, 1), c = hardsigmoid(channel 3), so the model
+  // itself decides where physics is right (metadata physics_confidence; from fusion_net.pred's shape).
+  bool physics_confidence = false;
   // The intensity encoding the model was trained in (PNG value = linear^(1/gamma)); unset: unknown.
   std::optional<double> gamma;
   std::string channel_order = "rgb";  // image channel order the weights expect ("rgb" | "bgr")
   std::string description;
 
   int ev_channels() const { return 2 * N; }
+  int fusion_channels() const { return physics_confidence ? 4 : 3; }  // fusion_net's output
   // E-IC_T's input channels before space_to_depth: rs, ev1, ev2, ev3 (and phys in the variant).
   int synthesis_channels() const { return 3 + 3 * ev_channels() + (physics_input ? 3 : 0); }
   // The published models (fast.pth, gev.pth, gevreal.pth, dre.pth): 33,914,185 parameters.

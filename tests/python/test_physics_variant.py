@@ -206,6 +206,45 @@ def test_event_gate_keeps_physics_where_no_event_is_near():
         SelfUnrollConfig.from_metadata({**SelfUnrollConfig().to_metadata(), "physics_gate": "1"})
 
 
+def test_learned_confidence_starts_near_the_input_model_and_blends_per_pixel():
+    """add_confidence: the same weights plus a 4th fusion_net channel c = hardsigmoid(2.9) = 0.983
+    at the start, fused = c * network + (1 - c) * phys per pixel; the gate still keeps physics
+    exactly where no event is near; metadata and shapes say it."""
+    net = perturbed_variant()
+    net.cfg.physics_gate = 1
+    rs, ev, phys = random_inputs(net.cfg, seed=4)
+    keep = (torch.rand(1, 1, rs.shape[2], rs.shape[3], generator=torch.Generator().manual_seed(2)) < 0.05).float()
+    ev = [ev[0] * keep, ev[1] * keep, ev[2]]
+    with torch.no_grad():
+        base = net(rs, *ev, phys=phys, moa=False)[4]
+        lifted = selfunroll_torch.add_confidence(net)
+        start = lifted(rs, *ev, phys=phys, moa=False)[4]
+        c0 = float(torch.nn.functional.hardsigmoid(torch.tensor(2.9)))
+        physc = phys.clamp(0, 1)
+        assert float((start - (c0 * base + (1 - c0) * physc)).abs().max()) < 1e-5
+        varied = with_varied_confidence(net)
+        varied.cfg.physics_gate = -1
+        sys_, _, flow, warped = varied(rs, *ev, phys=phys, moa=False)[:4]
+        fused4 = varied.fusion_net(torch.cat([sys_, warped, flow, ev[2], rs], 1))
+        c = torch.nn.functional.hardsigmoid(fused4[:, 3:4])
+        assert float(c.min()) < 0.05 and float(c.max()) > 0.95  # the blend really varies
+        want = c * fused4[:, :3] + (1 - c) * physc
+        assert float((varied(rs, *ev, phys=phys, moa=False)[4] - want).abs().max()) < 1e-5
+        varied.cfg.physics_gate = 1
+        gated = varied(rs, *ev, phys=phys, moa=False)[4]
+        g = selfunroll_torch.event_gate(ev[0], ev[1], 1).expand_as(gated) > 0
+        assert torch.equal(gated[~g], physc[~g]) and int((~g).sum()) > 0
+    md = varied.cfg.to_metadata()
+    assert md["physics_confidence"] == "true" and SelfUnrollConfig.from_metadata(md).physics_confidence
+    assert "physics_confidence" not in net.cfg.to_metadata()
+    shapes = {k: tuple(v.shape) for k, v in varied.state_dict().items()}
+    assert selfunroll_torch.infer_config(shapes).physics_confidence
+    with pytest.raises(ValueError, match="physics_confidence"):
+        SelfUnrollConfig.from_metadata({**SelfUnrollConfig().to_metadata(), "physics_confidence": "true"})
+    with pytest.raises(ValueError, match="physics-informed"):
+        selfunroll_torch.add_confidence(SelfUnroll(SelfUnrollConfig(D=1, C=1, G=4, G0=8, N=2, upnet_width=16)))
+
+
 def test_event_crops_land_on_events(seq_dir):
     """--event-crops 1: every crop holds events even where they sit in one small patch of the
     sensor (a static scene's mover); uniform crops mostly miss it."""
@@ -322,12 +361,25 @@ def perturbed_variant(seed=5):
     return net.eval()
 
 
+def with_varied_confidence(net, seed=6):
+    """`net` with a learned confidence whose channel varies across pixels (c from 0 to 1)."""
+    net = selfunroll_torch.add_confidence(net)
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        net.fusion_net.pred.weight[3] = 2.0 * torch.randn(net.fusion_net.pred.weight[3].shape, generator=g)
+        net.fusion_net.pred.bias[3] = 0.0
+    return net.eval()
+
+
 @needs_cli
-@pytest.mark.parametrize("mode,gate", [("s", -1), ("m", -1), ("s", 1), ("m", 2)])
-def test_variant_in_vkunroll_infer_matches_pytorch(tmp_path, mode, gate):
+@pytest.mark.parametrize("mode,gate,confidence", [("s", -1, False), ("m", -1, False), ("s", 1, False), ("m", 2, False),
+                                                  ("s", 1, True), ("m", -1, True)])
+def test_variant_in_vkunroll_infer_matches_pytorch(tmp_path, mode, gate, confidence):
     """The exported variant loaded by `vkunroll infer` (Vulkan) gives the mirror's every output within 1e-4,
-    with and without the event gate (metadata physics_gate)."""
+    with and without the event gate (metadata physics_gate) and the learned confidence."""
     net = perturbed_variant()
+    if confidence:
+        net = with_varied_confidence(net)
     net.cfg.physics_gate = gate
     path = str(tmp_path / "v.safetensors")
     train.export(net, path, {"data": "test"})
