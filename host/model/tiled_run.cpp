@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <set>
 #include <tuple>
 
 #include "vkunroll/base/error.hpp"
@@ -116,6 +117,30 @@ void fill_standing_host(const HostTensor& rs, const HostTensor& standing, std::m
   }
 }
 
+// A group's tiles as rectangles of whole tiles: from its first tile in row-major order, as far
+// right as the row holds group tiles, then as far down as the rows below hold that whole run.
+std::vector<Rect> group_rects(const TilePlan& plan, const std::vector<size_t>& comp, int64_t cols) {
+  std::set<size_t> left(comp.begin(), comp.end());
+  std::vector<Rect> rects;
+  while (!left.empty()) {
+    const int64_t t0 = int64_t(*left.begin()), r0 = t0 / cols, c0 = t0 % cols;
+    int64_t w = 1, h = 1;
+    while (c0 + w < cols && left.count(size_t(t0 + w))) ++w;
+    auto row_held = [&](int64_t r) {
+      for (int64_t c = c0; c < c0 + w; ++c)
+        if (!left.count(size_t(r * cols + c))) return false;
+      return true;
+    };
+    while (row_held(r0 + h)) ++h;
+    const Rect& a = plan.tiles[size_t(t0)].interior;
+    const Rect& b = plan.tiles[size_t((r0 + h - 1) * cols + c0 + w - 1)].interior;
+    rects.push_back({a.y, a.x, b.y + b.h - a.y, b.x + b.w - a.x});
+    for (int64_t r = r0; r < r0 + h; ++r)
+      for (int64_t c = c0; c < c0 + w; ++c) left.erase(size_t(r * cols + c));
+  }
+  return rects;
+}
+
 struct RunItem {
   size_t run = 0;  // index in the run list
   int64_t target = 0;
@@ -163,11 +188,23 @@ void active_runs(const TilePlan& plan, const std::vector<std::vector<bool>>& act
         box.h = y1 - box.y, box.w = x1 - box.x;
       }
       if (box.h <= max_side && box.w <= max_side) {
-        Tile region;
-        region.interior = box;
-        region.input = input_rect(box, plan.halo, plan.height, plan.width);
-        runs.push_back(region);
-        work.push_back({runs.size() - 1, int64_t(k)});
+        // The box runs the group's holes too; split_groups: its tile rectangles run instead where
+        // their input rects hold fewer pixels (each has its own halo: at large halos the box wins).
+        const Rect box_input = input_rect(box, plan.halo, plan.height, plan.width);
+        std::vector<Tile> parts{{box, box_input}};
+        if (topt.split_groups) {
+          std::vector<Tile> rects;
+          int64_t pixels = 0;
+          for (const Rect& q : group_rects(plan, comp, cols)) {
+            rects.push_back({q, input_rect(q, plan.halo, plan.height, plan.width)});
+            pixels += rects.back().input.area();
+          }
+          if (pixels < box_input.area()) parts = std::move(rects);
+        }
+        for (const Tile& q : parts) {
+          runs.push_back(q);
+          work.push_back({runs.size() - 1, int64_t(k)});
+        }
       } else {
         for (size_t t : comp) {
           runs.push_back(plan.tiles[t]);
