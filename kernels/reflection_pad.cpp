@@ -1,6 +1,8 @@
 #include "vkunroll/kernels/shaders.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 
+#include <string>
+
 #include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll {
@@ -19,8 +21,10 @@ void dispatch(CommandStream& cs, const char* shader, Slice in, Slice out, int64_
   Context& ctx = in.t->context();
   const Precision prec = slice_precision(in);
   check_precision(out, prec, shader, "output");
+  // crop.comp copies four pixels of a row per invocation.
+  const int64_t per_row = std::string(shader) == "crop" ? (os.w + 3) / 4 : os.w;
   cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), {}, sizeof p), {bi.arg, bo.arg}, p,
-              Groups{static_cast<uint32_t>((os.h * os.w + 63) / 64), static_cast<uint32_t>(os.c),
+              Groups{static_cast<uint32_t>((os.h * per_row + 63) / 64), static_cast<uint32_t>(os.c),
                      static_cast<uint32_t>(os.n)},
               {shader, 0, 2.0 * static_cast<double>(dtype_size(in.t->dtype())) * static_cast<double>(os.count())});
 }

@@ -377,6 +377,85 @@ TEST(TilingVulkan, SparseExactOfTheGatedVariantMatchesDenseInFp32AndFp16) {
   }
 }
 
+// split_groups: an L of three active tiles (halo 0) runs as its two tile rectangles, 32x64 and
+// 32x32, instead of its 64x64 box; the lone rectangle is tile (1, 0) as run apart, and the box's
+// inactive tile keeps the RS pixels.
+TEST(TilingCpu, SparseSplitRunsAnLShapedGroupAsItsTileRectangles) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  ModelInputs in = random_inputs(1, 128, 128, w.config.N, 11);
+  keep_events_in(in, 0, 0, 64, 64);
+  for (HostTensor* a : {&in.ev1, &in.ev2})
+    for (int64_t c = 0; c < a->shape.c; ++c)
+      for (int64_t y = 32; y < 64; ++y)
+        for (int64_t x = 32; x < 64; ++x) a->data[size_t((c * 128 + y) * 128 + x)] = 0.f;
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  TileOptions t;
+  t.tile = 32;
+  t.halo = 0;
+  t.sparse = SparsePolicy::exact;
+  const TiledResult box = run_tiled(model, in, opt, t);
+  t.split_groups = true;
+  const TiledResult split = run_tiled(model, in, opt, t);
+  t.merge_active = false;
+  const TiledResult apart = run_tiled(model, in, opt, t);
+  EXPECT_EQ(box.tiles_run, 3);
+  EXPECT_EQ(split.tiles_run, 3);
+  EXPECT_DOUBLE_EQ(box.work_ratio, 64.0 * 64 / (128 * 128));
+  EXPECT_DOUBLE_EQ(split.work_ratio, (32.0 * 64 + 32 * 32) / (128 * 128));
+  const HostTensor& b = box.outputs.at("fused");
+  const HostTensor& sp = split.outputs.at("fused");
+  const HostTensor& ap = apart.outputs.at("fused");
+  double lone = 0, hole_rs = 0, hole_box = 0;
+  for (int64_t c = 0; c < 3; ++c)
+    for (int64_t y = 32; y < 64; ++y)
+      for (int64_t x = 0; x < 64; ++x) {
+        const size_t i = size_t((c * 128 + y) * 128 + x);
+        if (x < 32) lone = std::max(lone, double(std::fabs(sp.data[i] - ap.data[i])));
+        else hole_rs = std::max(hole_rs, double(std::fabs(sp.data[i] - in.rs.data[i]))),
+             hole_box = std::max(hole_box, double(std::fabs(b.data[i] - in.rs.data[i])));
+      }
+  EXPECT_EQ(lone, 0.0);
+  EXPECT_EQ(hole_rs, 0.0);
+  EXPECT_GT(hole_box, 0.0);  // the box ran its hole through the network
+}
+
+// At the exact halo a split group is still exact: the gated variant, an L of active tiles along
+// the top and left edges of a 384x384 image, split into two rectangles whose input rects hold
+// fewer pixels than the box's (the whole image), equals the dense run bit for bit.
+TEST(TilingCpu, SparseSplitAtTheExactHaloEqualsDenseBitForBit) {
+  const Weights w = shallow_weights(true);
+  CpuBackend cpu;
+  Model model(cpu, w);
+  ModelInputs in = random_inputs(1, 384, 384, w.config.N, 12);
+  in.phys = in.rs;
+  for (float& v : in.phys.data) v = 1.5f * v - 0.25f;
+  for (HostTensor* a : {&in.ev1, &in.ev2})  // events 2 px inside the L of tiles row 0 and column 0, x, y < 320
+    for (int64_t c = 0; c < a->shape.c; ++c)
+      for (int64_t y = 0; y < 384; ++y)
+        for (int64_t x = 0; x < 384; ++x) {
+          const bool arm = (y >= 2 && y < 30 && x >= 2 && x < 318) || (x >= 2 && x < 30 && y >= 2 && y < 318);
+          if (!arm) a->data[size_t((c * 384 + y) * 384 + x)] = 0.f;
+        }
+  RunOptions opt;
+  opt.outputs = {"fused", "flow"};
+  const auto full = model.run(in, opt);
+  TileOptions t;
+  t.tile = 32;
+  t.halo = exact_halo(w.config, Mode::s, max_abs(full.at("flow")));
+  ASSERT_LE(t.halo, 128);
+  t.sparse = SparsePolicy::exact;
+  t.split_groups = true;
+  opt.outputs = {"fused"};
+  const TiledResult split = run_tiled(model, in, opt, t);
+  EXPECT_EQ(split.tiles_run, 19);
+  const double arm = double(32 + t.halo) * 384;  // each rectangle's input rect: one arm and its halo
+  EXPECT_DOUBLE_EQ(split.work_ratio, 2 * arm / (384.0 * 384));
+  EXPECT_EQ(max_abs_diff(split.outputs.at("fused"), full.at("fused")), 0.0);
+}
+
 // Halo 0 with events only in the 4x6 corner tile of a 100x70 image: the merged region reads at
 // least 32 pixels a side, as the plan's own tile does (it once read 4x6 and the UNets refused it).
 TEST(TilingCpu, SparseHaloZeroCornerRegionReadsAtLeast32Pixels) {

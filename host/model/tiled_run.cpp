@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <set>
 #include <tuple>
 
 #include "vkunroll/base/error.hpp"
@@ -76,23 +77,29 @@ bool any_inactive(const std::vector<std::vector<bool>>& active) {
   return false;
 }
 
-// Inactive (tile, target): the standing image (`standing`: RS, or the variant's clamped physics
-// estimate) for sys, fused and out, rs for warped; E and flow 0, m 1. Written over the whole frame
-// (a few dispatches, not a few per inactive tile): the active runs' interiors are stitched after.
-void fill_standing(Backend& b, const BufferSlice& rs, const BufferSlice& standing, int64_t H, int64_t W,
+// Inactive (tile, target): the standing image (RS, or for the variant clamp(phys, 0, 1), clamped
+// straight into the outputs) for sys, fused and out, rs for warped; E and flow 0, m 1. Written over
+// the whole frame (a few dispatches, not a few per inactive tile): the active runs' interiors are
+// stitched after.
+void fill_standing(Backend& b, const BufferSlice& rs, const BufferSlice* phys, int64_t H, int64_t W,
                    const std::map<std::string, Buffer>& outputs, int64_t per) {
   const Rect all{0, 0, H, W};
+  auto standing = [&](const BufferSlice& src, const BufferSlice& dst, bool from_rs) {
+    if (from_rs || !phys) b.copy(src, dst);
+    else b.clamp01(src, dst);
+  };
   for (const auto& [n, buf] : outputs) {
-    const BufferSlice& src = n == "warped" ? rs : standing;
+    const bool from_rs = n == "warped";
+    const BufferSlice& src = from_rs || !phys ? rs : *phys;
     if (n != "m" && n != "E" && n != "flow" && (per == 1 || !per_target(n))) {
-      b.copy(src, buf.whole());  // item i from item i
+      standing(src, buf.whole(), from_rs);  // item i from item i
       continue;
     }
     for (int64_t i = 0; i < buf.shape().n; ++i) {
       const BufferSlice dst = item_of(buf, i);
       if (n == "m") b.fill_rect(dst, all, 1.f);
       else if (n == "E" || n == "flow") b.fill_rect(dst, all, 0.f);
-      else b.copy(item_of(src, i * per), dst);  // M's out: frame 1 of the pair
+      else standing(item_of(src, i * per), dst, from_rs);  // M's out: frame 1 of the pair
     }
   }
 }
@@ -108,6 +115,30 @@ void fill_standing_host(const HostTensor& rs, const HostTensor& standing, std::m
       else copy_rect_ref(HostSlice(n == "warped" ? rs : standing, 0, -1, per_target(n) ? i * per : i, 1), dst, all, 0, 0);
     }
   }
+}
+
+// A group's tiles as rectangles of whole tiles: from its first tile in row-major order, as far
+// right as the row holds group tiles, then as far down as the rows below hold that whole run.
+std::vector<Rect> group_rects(const TilePlan& plan, const std::vector<size_t>& comp, int64_t cols) {
+  std::set<size_t> left(comp.begin(), comp.end());
+  std::vector<Rect> rects;
+  while (!left.empty()) {
+    const int64_t t0 = int64_t(*left.begin()), r0 = t0 / cols, c0 = t0 % cols;
+    int64_t w = 1, h = 1;
+    while (c0 + w < cols && left.count(size_t(t0 + w))) ++w;
+    auto row_held = [&](int64_t r) {
+      for (int64_t c = c0; c < c0 + w; ++c)
+        if (!left.count(size_t(r * cols + c))) return false;
+      return true;
+    };
+    while (row_held(r0 + h)) ++h;
+    const Rect& a = plan.tiles[size_t(t0)].interior;
+    const Rect& b = plan.tiles[size_t((r0 + h - 1) * cols + c0 + w - 1)].interior;
+    rects.push_back({a.y, a.x, b.y + b.h - a.y, b.x + b.w - a.x});
+    for (int64_t r = r0; r < r0 + h; ++r)
+      for (int64_t c = c0; c < c0 + w; ++c) left.erase(size_t(r * cols + c));
+  }
+  return rects;
 }
 
 struct RunItem {
@@ -157,11 +188,23 @@ void active_runs(const TilePlan& plan, const std::vector<std::vector<bool>>& act
         box.h = y1 - box.y, box.w = x1 - box.x;
       }
       if (box.h <= max_side && box.w <= max_side) {
-        Tile region;
-        region.interior = box;
-        region.input = input_rect(box, plan.halo, plan.height, plan.width);
-        runs.push_back(region);
-        work.push_back({runs.size() - 1, int64_t(k)});
+        // The box runs the group's holes too; split_groups: its tile rectangles run instead where
+        // their input rects hold fewer pixels (each has its own halo: at large halos the box wins).
+        const Rect box_input = input_rect(box, plan.halo, plan.height, plan.width);
+        std::vector<Tile> parts{{box, box_input}};
+        if (topt.split_groups) {
+          std::vector<Tile> rects;
+          int64_t pixels = 0;
+          for (const Rect& q : group_rects(plan, comp, cols)) {
+            rects.push_back({q, input_rect(q, plan.halo, plan.height, plan.width)});
+            pixels += rects.back().input.area();
+          }
+          if (pixels < box_input.area()) parts = std::move(rects);
+        }
+        for (const Tile& q : parts) {
+          runs.push_back(q);
+          work.push_back({runs.size() - 1, int64_t(k)});
+        }
       } else {
         for (size_t t : comp) {
           runs.push_back(plan.tiles[t]);
@@ -184,7 +227,7 @@ struct TileIO {
 
 // The rects of `work`, grouped by input-rect shape, run in batches.
 void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const TileOptions& topt, const std::vector<Tile>& runs,
-                 const std::vector<RunItem>& work, int64_t per, const TileIO& io) {
+                 const std::vector<RunItem>& work, int64_t per, int64_t targets, const TileIO& io) {
   Backend& b = model.backend();
   const int64_t ev = model.config().ev_channels();
   std::map<std::pair<int64_t, int64_t>, std::vector<RunItem>> groups;
@@ -195,14 +238,18 @@ void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const
                    [](const auto& x, const auto& y) { return x.first.first * x.first.second > y.first.first * y.first.second; });
   for (const auto& [shape, items] : ordered) {
     const auto [rh, rw] = shape;
-    // Unless max_batch says otherwise, one batch holds no more pixels than the untiled run of one
-    // target (so device memory stays near the untiled run's, or one tile's when larger), and its
-    // input copies stay under 256 MiB.
+    // Unless max_batch says otherwise, one batch holds no more pixels than the untiled run of the
+    // call's targets (so device memory stays near that run's, or one tile's when larger: Model::run
+    // chunks it as it would the untiled run), and its input copies stay under 256 MiB. Fewer, larger
+    // batches: each Model::run costs some 240 dispatches (~50 us each on lavapipe) whatever its size.
     const int64_t item_bytes = 4 * rh * rw * (3 + 3 * ev);
-    const int64_t by_pixels = std::max<int64_t>(1, (H * W) / (rh * rw)) * per;
+    const int64_t by_pixels = std::max<int64_t>(1, (targets * H * W) / (rh * rw)) * per;
     const int64_t cap_items =
         topt.max_batch > 0 ? topt.max_batch : std::max<int64_t>(per, std::min(by_pixels, (int64_t(256) << 20) / item_bytes));
-    const size_t targets_per_batch = size_t(std::max<int64_t>(1, cap_items / per));
+    const size_t cap_targets = size_t(std::max<int64_t>(1, cap_items / per));
+    // Equal batches (14 items under a cap of 13: 7 + 7, not 13 + 1).
+    const size_t batches = (items.size() + cap_targets - 1) / cap_targets;
+    const size_t targets_per_batch = (items.size() + batches - 1) / batches;
     for (size_t w0 = 0; w0 < items.size(); w0 += targets_per_batch) {
       const size_t nw = std::min(targets_per_batch, items.size() - w0);
       const int64_t nb = int64_t(nw) * per;
@@ -337,12 +384,8 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
     return res;
   }
   for (const auto& n : p.ro.outputs) res.outputs[n] = b.alloc({per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W}, n);
-  Buffer standing;  // the variant: inactive tiles take clamp(phys, 0, 1), what its gate gives away from events
-  if (model.config().physics_input) {
-    standing = b.alloc({in.phys.n, 3, p.H, p.W}, "tile standing phys");
-    b.clamp01(in.phys, standing.whole());
-  }
-  if (any_inactive(p.active)) fill_standing(b, in.rs, standing ? standing.whole() : in.rs, p.H, p.W, res.outputs, p.per);
+  // The variant: inactive tiles take clamp(phys, 0, 1), what its gate gives away from events.
+  if (any_inactive(p.active)) fill_standing(b, in.rs, model.config().physics_input ? &in.phys : nullptr, p.H, p.W, res.outputs, p.per);
   const BufferSlice* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
   const int inputs = model.config().physics_input ? 5 : 4;
   TileIO io;
@@ -362,7 +405,7 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
       }
     }
   };
-  run_batches(model, p.H, p.W, p.ro, topt, p.runs, p.work, p.per, io);
+  run_batches(model, p.H, p.W, p.ro, topt, p.runs, p.work, p.per, p.K, io);
   res.stage_ms["record"] = ms_since(t_record);
   return res;
 }
@@ -424,7 +467,7 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
       }
     }
   };
-  run_batches(model, p.H, p.W, p.ro, topt, p.runs, p.work, p.per, io);
+  run_batches(model, p.H, p.W, p.ro, topt, p.runs, p.work, p.per, p.K, io);
   res.stage_ms["record"] = ms_since(t_run);
   return res;
 }

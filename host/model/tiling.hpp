@@ -100,6 +100,11 @@ struct TileOptions {
   // that fits the device, choose_tile()).
   bool merge_active = true;
   int64_t max_region = 0;
+  // With merge_active: a group whose bounding box holds inactive tiles runs instead as rectangles
+  // of its tiles when their input rects hold fewer pixels than the box's. Fewer pixels, less
+  // context where a rectangle's edge cuts a moving object (docs/tiling.md: -0.2 dB at halo 0 on
+  // nat_03002), so off by default; exact at the exact halo either way.
+  bool split_groups = false;
 };
 
 // Which tiles and targets ran, and how much work that was.

@@ -31,6 +31,7 @@ TileOptions tile_options(const UnrollOptions& o) {
   t.tile = o.tile > 0 ? o.tile : (sparse_on ? kTileAlign : 0);
   t.halo = o.halo >= 0 ? o.halo : (sparse_on ? kTileAlign : 2 * kTileAlign);
   t.threshold = o.sparse_threshold;
+  t.split_groups = o.sparse_split;
   return t;
 }
 

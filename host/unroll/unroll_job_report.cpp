@@ -22,6 +22,7 @@ nlohmann::json traffic_per_target(const DeviceTraffic& t, size_t targets) {
 nlohmann::json tiling_json(const UnrollOptions& o, const TileOptions& tiling, const SessionStats& st) {
   nlohmann::json j{{"tile", tiling.tile}, {"tile_used", st.tile_used}, {"halo", tiling.halo},
                    {"sparse", sparse_policy_name(o.sparse)}, {"sparse_threshold", o.sparse_threshold},
+                   {"sparse_split", o.sparse_split},
                    {"tiles_per_target", st.tiles_per_target}, {"tiles", st.tiles}, {"tiles_run", st.tiles_run},
                    {"active_tile_fraction", st.tiles ? double(st.tiles_run) / double(st.tiles) : 0.0},
                    {"work_ratio", st.target_active_fraction.empty() ? 0.0 : st.work_pixels / double(st.target_active_fraction.size())}};

@@ -203,6 +203,7 @@ nlohmann::json unroll_options_json(const UnrollOptions& o) {
       {"halo", o.halo},
       {"sparse", sparse_policy_name(o.sparse)},
       {"sparse_threshold", o.sparse_threshold},
+      {"sparse_split", o.sparse_split},
       {"frame_format", frame_format_name(o.output.frame_format)},
       {"video", o.output.write_video},
       {"fps", o.output.video_fps ? nlohmann::json(*o.output.video_fps) : nlohmann::json()},

@@ -101,6 +101,7 @@ struct UnrollOptions {
   int64_t halo = -1;              // multiple of 32; -1: sparse 32, dense tiles 64
   SparsePolicy sparse = SparsePolicy::exact;
   double sparse_threshold = 0.05; // fast: ev1 + ev2 events per pixel of a tile's input rect
+  bool sparse_split = false;      // groups of active tiles run as rectangles of tiles where that is fewer pixels than their box
   FollowOptions follow;
 };
 
