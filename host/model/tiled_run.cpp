@@ -84,22 +84,22 @@ bool any_inactive(const std::vector<std::vector<bool>>& active) {
 void fill_standing(Backend& b, const BufferSlice& rs, const BufferSlice* phys, int64_t H, int64_t W,
                    const std::map<std::string, Buffer>& outputs, int64_t per) {
   const Rect all{0, 0, H, W};
-  auto standing = [&](const BufferSlice& src, const BufferSlice& dst, bool from_rs) {
-    if (from_rs || !phys) b.copy(src, dst);
-    else b.clamp01(src, dst);
-  };
   for (const auto& [n, buf] : outputs) {
-    const bool from_rs = n == "warped";
-    const BufferSlice& src = from_rs || !phys ? rs : *phys;
+    const bool clamped = phys && n != "warped";  // the variant's outputs but warped: clamp(phys)
+    const BufferSlice& src = clamped ? *phys : rs;
+    auto standing = [&](const BufferSlice& from, const BufferSlice& to) {
+      if (clamped) b.clamp01(from, to);
+      else b.copy(from, to);
+    };
     if (n != "m" && n != "E" && n != "flow" && (per == 1 || !per_target(n))) {
-      standing(src, buf.whole(), from_rs);  // item i from item i
+      standing(src, buf.whole());  // item i from item i
       continue;
     }
     for (int64_t i = 0; i < buf.shape().n; ++i) {
       const BufferSlice dst = item_of(buf, i);
       if (n == "m") b.fill_rect(dst, all, 1.f);
       else if (n == "E" || n == "flow") b.fill_rect(dst, all, 0.f);
-      else standing(item_of(src, i * per), dst, from_rs);  // M's out: frame 1 of the pair
+      else standing(item_of(src, i * per), dst);  // M's out: frame 1 of the pair
     }
   }
 }

@@ -19,6 +19,15 @@ constexpr uint64_t kStreamOn = 0x0A11, kStreamOff = 0x0B22, kStreamLeak = 0x0C33
 // v2e's intensity-dependent photoreceptor bandwidth and shot-noise rate use the intensity in DN
 // with a 20 DN floor: (I * 255 + 20) / 275, clipped to [0, 1].
 inline double intensity01(float linear) { return std::clamp((static_cast<double>(linear) * 255.0 + 20.0) / 275.0, 0.0, 1.0); }
+
+// The stream's order, (t, y, x, p): the same bytes under any threading and any artefacts.
+template <class Event>
+bool before(const Event& a, const Event& b) {
+  if (a.t != b.t) return a.t < b.t;
+  if (a.y != b.y) return a.y < b.y;
+  if (a.x != b.x) return a.x < b.x;
+  return a.p < b.p;
+}
 }  // namespace
 
 nlohmann::json EventSimParams::to_json() const {
@@ -295,12 +304,7 @@ void EventSimulator::gather_events() {
     stats_.dropped_refractory += row_dropped_[y];
     stats_.shot += row_shot_[y];
   }
-  std::sort(step_events_.begin(), step_events_.end(), [](const RawEvent& a, const RawEvent& b) {
-    if (a.t != b.t) return a.t < b.t;
-    if (a.y != b.y) return a.y < b.y;
-    if (a.x != b.x) return a.x < b.x;
-    return a.p < b.p;
-  });
+  std::sort(step_events_.begin(), step_events_.end(), before<RawEvent>);
   for (const RawEvent& e : step_events_) {
     events_.push(e.t, e.x, e.y, e.p);
     (e.p > 0 ? stats_.on : stats_.off) += 1;
@@ -384,12 +388,7 @@ void add_readout_artifacts(EventStream& events, const EventSimParams& p, double 
       all[k].t = std::clamp<int64_t>(all[k].t + std::llround(dt), lo, std::max(lo, hi));
     }
   }
-  std::sort(all.begin(), all.end(), [](const StreamEvent& a, const StreamEvent& b) {
-    if (a.t != b.t) return a.t < b.t;
-    if (a.y != b.y) return a.y < b.y;
-    if (a.x != b.x) return a.x < b.x;
-    return a.p < b.p;
-  });
+  std::sort(all.begin(), all.end(), before<StreamEvent>);
   EventStream out;
   out.width = events.width;
   out.height = events.height;
