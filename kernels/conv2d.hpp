@@ -100,9 +100,10 @@ class Conv2d {
   void set_direct_chunk_limit(int64_t channels) { direct_chunk_limit_ = channels; }  // input channels (x4 for 5x5) per chunk
   // Caps the input channels per dispatch of the pointwise path (default: at most 128, evened out). Tests.
   void set_pointwise_chunk_limit(int64_t channels) { pointwise_chunk_limit_ = channels; }
-  // direct and pointwise read their input through a uniform texel buffer (faster on lavapipe) where
-  // the bound input fits maxTexelBufferElements; false forces the storage-buffer variant (tests).
-  void set_direct_texel_input(bool on) { direct_texel_input_ = on; }
+  // direct and pointwise read their input, winograd its input, V, U and M, through uniform texel
+  // buffers (a gather on lavapipe, where a storage-buffer load is a per-lane loop) where each bound
+  // range fits maxTexelBufferElements; false forces the storage-buffer variants (tests).
+  void set_texel_fetch(bool on) { texel_fetch_ = on; }
   // pointwise fetches pixel pairs (an RG texel view) where the plane and offsets are even; false: single
   // pixels (tests, bench).
   void set_pointwise_pairs(bool on) { pointwise_pairs_ = on; }
@@ -187,7 +188,7 @@ class Conv2d {
   uint32_t direct_px_ = 8;   // output pixels per row and invocation of the direct path
   uint32_t direct_py_ = 1;   // output rows per invocation of the direct path
   int64_t direct_chunk_limit_ = 0;  // 0: none
-  bool direct_texel_input_ = true;
+  bool texel_fetch_ = true;
   Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
   Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
   int64_t gemm_cob_ = 8;     // output channels per GEMM invocation (winograd and gemm)

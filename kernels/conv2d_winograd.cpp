@@ -121,6 +121,14 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
   const Tensor& mt = workspace_->get(ctx_, 1, m_bytes);
   const BufferRange mr = mt.range(0, m_bytes);
   const std::string& name = r.info.name;
+  // Texel views where every range fits one (the storage forms otherwise): input, V and U, M.
+  const uint64_t max_texels = ctx_.info().max_texel_buffer_elements;
+  const bool texel_in = texel_fetch_ && r.in.arg.range.size / elem_bytes() <= max_texels;
+  const bool texel_gemm = texel_fetch_ && static_cast<uint64_t>(36 * chunk * wz.tiles_pad) / 4 <= max_texels &&
+                          weight_winograd_.bytes() / 16 <= max_texels;
+  const bool texel_m = texel_fetch_ && m_bytes / 16 <= max_texels;
+  Arg in_arg = r.in.arg;
+  if (precision_ == Precision::fp16) in_arg.texel_format = VK_FORMAT_R16_SFLOAT;
   // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
   for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
     const int64_t cn = std::min(chunk, cv - c0);
@@ -132,14 +140,18 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
     } ip{r.in.offset, r.in.batch_stride, u32(cin_), u32(r.is.h), u32(r.is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
          u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
          params_.kernel == 5 ? -1 : 0};
-    cs.dispatch(kernel_pipeline(ctx_, shader("winograd_input"), {}, sizeof ip), {r.in.arg, {vr, Access::write}}, ip,
+    cs.dispatch(kernel_pipeline(ctx_, shader(texel_in ? "winograd_input_texel" : "winograd_input"), {}, sizeof ip),
+                {in_arg, {vr, Access::write}}, ip,
                 Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1}, {name + "_wino_in", 0, v_bytes * (1 + 16.0 / 36)});
     struct GemmPush {
       uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
     } gp{u32(cn), u32(wz.tiles_pad), u32(gemm_cout_pad_), u32(cv), u32(c0)};
     const uint32_t tv = gemm_tv_;
-    cs.dispatch(kernel_pipeline(ctx_, "winograd_gemm", {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
-                {{vr, Access::read}, {weight_winograd_.range(), Access::read},
+    const Arg va{vr, Access::read, VK_FORMAT_R32G32B32A32_SFLOAT};
+    const Arg ua{weight_winograd_.range(), Access::read, VK_FORMAT_R32G32B32A32_SFLOAT};
+    cs.dispatch(kernel_pipeline(ctx_, texel_gemm ? "winograd_gemm_texel" : "winograd_gemm",
+                                {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
+                {va, ua,
                  {mr, c0 > 0 ? Access::read_write : Access::write}},
                 gp, flat_groups(36 * (gemm_cout_pad_ / gemm_cob_) * (wz.tiles_pad / (4 * tv)), 1),
                 {name + "_wino_gemm", r.info.flop * static_cast<double>(cn) / static_cast<double>(cv),
@@ -149,8 +161,9 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
     uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
   } op{r.res.offset, r.res.batch_stride, r.out.offset, r.out.batch_stride, u32(cout_), u32(r.os.h), u32(r.os.w),
        u32(wz.tiles_x_pad), u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(gemm_cout_pad_)};
-  cs.dispatch(kernel_pipeline(ctx_, shader("winograd_output"), {r.spec[2], r.spec[3], r.spec[4]}, sizeof op),
-              {{mr, Access::read}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
+  cs.dispatch(kernel_pipeline(ctx_, shader(texel_m ? "winograd_output_texel" : "winograd_output"), {r.spec[2], r.spec[3], r.spec[4]},
+                              sizeof op),
+              {{mr, Access::read, VK_FORMAT_R32G32B32A32_SFLOAT}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
               Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},
               {name + "_wino_out", 0,
                static_cast<double>(m_bytes) + static_cast<double>(elem_bytes()) * static_cast<double>(r.os.count())});

@@ -55,7 +55,7 @@ class ConvTranspose2d {
   void set_direct_chunk_limit(int64_t channels) { direct_chunk_limit_ = channels; }
   // direct reads its input through a uniform texel buffer (faster on lavapipe) where the bound
   // input fits maxTexelBufferElements; false forces the storage-buffer variant (tests).
-  void set_direct_texel_input(bool on) { direct_texel_input_ = on; }
+  void set_texel_fetch(bool on) { texel_fetch_ = on; }
 
  private:
   Context& ctx_;
@@ -73,7 +73,7 @@ class ConvTranspose2d {
   mutable Tensor weight_direct_;   // [ceil(cout/COB)][cin (+ one chunk)][16][COB]
   int64_t direct_cob_ = 16;
   int64_t direct_chunk_limit_ = 0;
-  bool direct_texel_input_ = true;
+  bool texel_fetch_ = true;
 };
 
 }  // namespace vkunroll

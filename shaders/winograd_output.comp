@@ -1,58 +1,6 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Winograd F(4x4, 3x3), step 3: Y = A^T M A for four horizontally adjacent tiles of one output
-// channel per invocation (vec4 loads of M), then bias, the fused activation and the optional
-// residual, written into the output slice (edges masked).
-layout(local_size_x = 64) in;
-layout(constant_id = 0) const uint ACT = 0;
-layout(constant_id = 1) const float SLOPE = 0.0;
-layout(constant_id = 2) const uint HAS_RES = 0;
-#include "act.glsl"
+#extension GL_EXT_control_flow_attributes : require
+// Winograd F(4x4, 3x3) output transform, M in a storage buffer (see winograd_output.glsl).
 #include "precision.glsl"
-// fp16 variant: M stays fp32, residual and output float16.
-layout(std430, binding = 0) readonly buffer M { vec4 m[]; };
-layout(std430, binding = 1) readonly buffer Bias { float bias[]; };
-layout(std430, binding = 2) readonly buffer Res { SFLOAT res[]; };
-layout(std430, binding = 3) writeonly buffer Out { SFLOAT y[]; };
-layout(push_constant) uniform P {
-  uint res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
-} p;
-
-void main() {
-  uint gi = gl_GlobalInvocationID.x, co = gl_GlobalInvocationID.y;
-  if (gi >= p.ngroups) return;
-  uint gx = p.tiles_x_pad / 4u;
-  uint row = gi / gx, n = row / p.tiles_y, ty = row % p.tiles_y;
-  uint oy0 = ty * 4u, ox0 = (gi % gx) * 16u;
-  uint stride = p.cout_pad * p.tiles_pad / 4u, b = co * p.tiles_pad / 4u + gi;
-  vec4 t4[4][6];  // A^T M
-  for (uint j = 0; j < 6u; ++j) {
-    vec4 m0 = m[b + j * stride], m1 = m[b + (6u + j) * stride], m2 = m[b + (12u + j) * stride];
-    vec4 m3 = m[b + (18u + j) * stride], m4 = m[b + (24u + j) * stride], m5 = m[b + (30u + j) * stride];
-    t4[0][j] = m0 + m1 + m2 + m3 + m4;
-    t4[1][j] = m1 - m2 + 2.0 * (m3 - m4);
-    t4[2][j] = m1 + m2 + 4.0 * (m3 + m4);
-    t4[3][j] = m1 - m2 + 8.0 * (m3 - m4) + m5;
-  }
-  float bv = bias[co];
-  uint ob = p.out_off + n * p.out_bs + co * p.oh * p.ow, rb = p.res_off + n * p.res_bs + co * p.oh * p.ow;
-  for (uint i = 0; i < 4u; ++i) {
-    vec4 r0 = t4[i][0], r1 = t4[i][1], r2 = t4[i][2], r3 = t4[i][3], r4 = t4[i][4], r5 = t4[i][5];
-    vec4 o4[4];
-    o4[0] = r0 + r1 + r2 + r3 + r4;
-    o4[1] = r1 - r2 + 2.0 * (r3 - r4);
-    o4[2] = r1 + r2 + 4.0 * (r3 + r4);
-    o4[3] = r1 - r2 + 8.0 * (r3 - r4) + r5;
-    uint oy = oy0 + i;
-    if (oy >= p.oh) continue;
-    for (uint t = 0; t < 4u; ++t)      // tile within the group
-      for (uint j = 0; j < 4u; ++j) {  // column within the tile
-        uint ox = ox0 + t * 4u + j;
-        if (ox >= p.ow) continue;
-        uint o = oy * p.ow + ox;
-        float val = act(o4[j][t] + bv);
-        if (HAS_RES != 0u) val += float(res[rb + o]);
-        y[ob + o] = to_s(val);
-      }
-  }
-}
+#include "winograd_output.glsl"

@@ -76,7 +76,7 @@ std::vector<Case> canary_cases() {
 struct Limits {
   uint64_t winograd_scratch = ~0ull;
   int64_t direct_chunk = 0;
-  bool direct_texel_input = true;
+  bool texel_fetch = true;
   ConvOptions options;  // its precision is the run's
   int64_t pointwise_chunk = 0;
 };
@@ -120,7 +120,7 @@ optest::OpCase conv_case(const Case& c, ConvAlgo algo, const Limits& lim, std::m
     conv->set_winograd_scratch_limit(lim.winograd_scratch);
     conv->set_direct_chunk_limit(lim.direct_chunk);
     conv->set_pointwise_chunk_limit(lim.pointwise_chunk);
-    conv->set_direct_texel_input(lim.direct_texel_input);
+    conv->set_texel_fetch(lim.texel_fetch);
     if (!conv->supports(algo)) return false;
     const Slice residual(d.inputs[1], 0, -1, c.in_n0, c.batch);
     conv->record(d.stream, Slice(d.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch), d.out(0),
@@ -138,7 +138,7 @@ void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const
   std::mt19937 rng(1234);
   const bool chunked = lim.winograd_scratch != ~0ull || lim.direct_chunk > 0 || lim.pointwise_chunk > 0;
   optest::OpTest test{std::string("conv2d ") + conv_algo_name(algo) + (chunked ? " in chunks" : "") +
-                          (lim.direct_texel_input ? "" : " storage input"),
+                          (lim.texel_fetch ? "" : " storage forms"),
                       {}, {kTol, kTolFp16}, precisions};
   for (const Case& c : list) test.cases.push_back(conv_case(c, algo, lim, rng));
   optest::run_op_test(ctx, test);
@@ -180,6 +180,12 @@ TEST(Conv2d, DirectStorageInputMatchesReference) {
   run_cases(ConvAlgo::direct, {~0ull, 0, false}, {kFp32});
   run_cases(vktest::context(), ConvAlgo::direct, canary_cases(), {~0ull, 0, false}, {kFp16});
 }
+// Winograd's input, V, U and M through storage buffers instead of texel buffers (the fallback for
+// ranges beyond maxTexelBufferElements), whole and in chunks.
+TEST(Conv2d, WinogradStorageFormsMatchReference) {
+  run_cases(ConvAlgo::winograd, {~0ull, 0, false}, {kFp32});
+  run_cases(vktest::context(), ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64, 0, false}, {kFp32, kFp16});
+}
 // pointwise: the 130- and 129-channel cases run in two unrolled chunks (at most 128 each) that
 // accumulate in the output; here they start at 256-byte aligned slabs, and the input comes through
 // a storage buffer.
@@ -212,6 +218,7 @@ TEST(Conv2d, WritesNothingOutsideItsSlice) {
   run_cases(ctx, ConvAlgo::pointwise, canary_cases(), {}, {kFp16});
   run_cases(ctx, ConvAlgo::pointwise, canary_cases(), pointwise_chunks_of(5), {kFp32, kFp16});
   run_cases(ctx, ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64}, {kFp32});
+  run_cases(ctx, ConvAlgo::winograd, canary_cases(), {~0ull, 0, false}, {kFp32});
   run_cases(ctx, ConvAlgo::gemm, canary_cases(), {2 * 4 * 80}, {kFp32});
   run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 2});
   run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 0, false}, {kFp32});

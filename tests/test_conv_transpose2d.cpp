@@ -26,7 +26,7 @@ struct Case {
 struct Variant {
   ConvTransposeAlgo algo = ConvTransposeAlgo::automatic;
   int64_t direct_chunk_limit = 0;
-  bool direct_texel_input = true;
+  bool texel_fetch = true;
   std::vector<Precision> precisions{Precision::fp32, Precision::fp16};
 };
 
@@ -49,7 +49,7 @@ optest::OpCase deconv_case(const Case& c, const Variant& v, std::mt19937& rng) {
     opt.precision = d.precision;
     auto deconv = std::make_shared<ConvTranspose2d>(d.ctx, w, b, p, "conv_transpose2d", opt);
     deconv->set_direct_chunk_limit(v.direct_chunk_limit);
-    deconv->set_direct_texel_input(v.direct_texel_input);
+    deconv->set_texel_fetch(v.texel_fetch);
     if (!deconv->supports(v.algo)) return false;
     deconv->record(d.stream, Slice(d.inputs[0], c.in_c0, c.cin), d.out(0), v.algo);
     d.keep_alive = deconv;
@@ -70,7 +70,7 @@ void run_cases(Context& ctx, const Variant& v) {
       {33, 64, 5, 3, leaky_relu(0.2f), 2, 1, 0, 0, 1},  // direct's 32-channel blocks
   };
   optest::OpTest test{std::string("conv_transpose2d ") + conv_transpose_algo_name(v.algo) +
-                          (v.direct_chunk_limit ? " in chunks" : "") + (v.direct_texel_input ? "" : " storage input"),
+                          (v.direct_chunk_limit ? " in chunks" : "") + (v.texel_fetch ? "" : " storage input"),
                       {}, {kTol, kTolFp16}, v.precisions};
   for (const Case& c : cases) test.cases.push_back(deconv_case(c, v, rng));
   optest::run_op_test(ctx, test);

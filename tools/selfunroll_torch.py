@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import re
 from dataclasses import dataclass, field
-from typing import Dict, Mapping, Optional
+from typing import Dict, List, Mapping, Optional
 
 import torch
 import torch.nn as nn
@@ -469,4 +469,21 @@ def add_confidence(net: "SelfUnroll", bias: float = 2.9) -> "SelfUnroll":
     sd["fusion_net.pred.bias"] = torch.cat([b, torch.full_like(b[:1], bias)], 0)
     out.load_state_dict(sd)
     return out.train(net.training)
+
+
+def confidence_only(net: "SelfUnroll") -> List[torch.nn.Parameter]:
+    """Freeze everything but the learned confidence (fusion_net.pred's 4th output row, weights and
+    bias): gradients of the other rows are masked to zero, so Adam leaves them exactly as loaded.
+    Returns the two trainable tensors."""
+    if not net.cfg.physics_confidence:
+        raise ValueError("confidence-only training needs a model with the learned confidence")
+    for p in net.parameters():
+        p.requires_grad_(False)
+    pred = net.fusion_net.pred
+    for p in (pred.weight, pred.bias):
+        mask = torch.zeros_like(p)
+        mask[3:] = 1.0
+        p.requires_grad_(True)
+        p.register_hook(lambda g, m=mask: g * m.to(g.device))
+    return [pred.weight, pred.bias]
 

@@ -505,6 +505,12 @@ def train(a) -> None:
         state = torch.load(a.resume, map_location="cpu", weights_only=False)
         print(f"resuming {a.resume}: stage {state['stage']}, step {state['step']}", flush=True)
     net = build_model(a, state).to(dev)
+    if a.confidence_only:  # the rest stays as loaded (masked gradients), and stage M has nothing to train
+        import selfunroll_torch
+        try:
+            selfunroll_torch.confidence_only(net)
+        except ValueError as e:
+            raise DataError(f"--confidence-only: {e} (add --physics-confidence)")
     cfg = net.cfg
     n_params = sum(p.numel() for p in net.parameters())
     val = [Sequence(p) for p in list_sequences(a.val)] if a.val else []
@@ -522,7 +528,7 @@ def train(a) -> None:
         write_cache(sampler, a.make_cache, a.cache_samples, log=lambda m: print(m, flush=True))
         return
 
-    steps_m = a.steps_m if cfg.moa and not a.adapt else 0
+    steps_m = a.steps_m if cfg.moa and not a.adapt and not a.confidence_only else 0
     stages = [("s", a.steps_s), ("m", steps_m)]
     budget = a.max_minutes * 60 if a.max_minutes else None
     # share of the time budget per stage: proportional to steps, an M step costing ~1.3 S steps
@@ -538,6 +544,8 @@ def train(a) -> None:
                  "supervised (simulated ground truth): stage s: L1 of sys/warped/fused of g1 and g2 to the GS frame "
                  "at t* + 0.01*Ltv; stage m: L1 of the M result",
                  "target_exposure_us": str(a.target_exposure_us or "rs exposure")})
+    if a.confidence_only:
+        info["trained"] = "the learned confidence alone (fusion_net.pred row 3); every other weight as loaded"
     if a.adapt:
         info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes)})
     start_stage = state["stage"] if state else "s"
@@ -727,6 +735,8 @@ def main(argv=None) -> int:
                    help="variant: fused = physics wherever no event lies within the (2R+1)^2 square (metadata physics_gate)")
     g.add_argument("--physics-confidence", action="store_true", help="with a variant --from: add the learned "
                    "confidence (fused = c * fusion_net + (1 - c) * phys; metadata physics_confidence)")
+    g.add_argument("--confidence-only", action="store_true", help="train the learned confidence alone (stage S; "
+                   "every other weight stays as loaded)")
     g.add_argument("--reset-moa", action="store_true",
                    help="with --from: restart attfusion_net.pred near m = 0.5 (a saturated MOA cannot learn)")
     g.add_argument("--event-crops", type=float, default=0.0, metavar="P",

@@ -351,6 +351,33 @@ def test_tiny_adaptation_lowers_the_self_supervised_loss(tmp_path, seq_dir):
     assert r.returncode != 0 and "--adapt needs --from" in r.stderr
 
 
+def test_confidence_only_training_moves_the_confidence_row_and_nothing_else(tmp_path, seq_dir):
+    """--physics-confidence --confidence-only: fusion_net.pred's 4th row (weights and bias) trains,
+    every other weight, the 3 image rows of the same conv included, is exported bit for bit as
+    loaded, and stage M has nothing to train; a model without the confidence is refused by name."""
+    base = perturbed_variant(seed=7)
+    base_path = tmp_path / "base.safetensors"
+    train.export(base, str(base_path), {"data": "test"})
+    r = run_train("--data", seq_dir, "--from", base_path, "--physics-confidence", "--confidence-only", "--supervised",
+                  "--crop", "32x32", "--batch", "2", "--steps-s", "4", "--steps-m", "3", "--lr", "0.05",
+                  "--out", tmp_path / "c", "--print-every", "0", "--seed", "2")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "[s] step 4/4" in r.stdout and "[m]" not in r.stdout
+    out, md = safetensors_io.load(str(tmp_path / "c" / "model.safetensors"))
+    want = selfunroll_torch.add_confidence(load_model(str(base_path))).state_dict()
+    for k, v in want.items():
+        got = torch.as_tensor(out[k]).float()
+        if k.startswith("fusion_net.pred."):
+            assert torch.equal(got[:3], v[:3]), k
+            assert float((got[3:] - v[3:]).abs().max()) > 1e-4, k  # the confidence row moved
+        else:
+            assert torch.equal(got, v), k
+    assert md["physics_confidence"] == "true" and "confidence alone" in md["training.trained"]
+    r = run_train("--data", seq_dir, "--from", base_path, "--confidence-only", "--supervised", "--crop", "32x32",
+                  "--steps-s", "1", "--out", tmp_path / "d")
+    assert r.returncode == 1 and "--confidence-only" in r.stderr and "--physics-confidence" in r.stderr
+
+
 # ---- the variant in the C++ CLI ------------------------------------------------------------------------
 def perturbed_variant(seed=5):
     net = tiny_variant(seed)
