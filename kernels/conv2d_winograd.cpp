@@ -137,12 +137,13 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
     struct InPush {
       uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
       int32_t off_base;
+      uint32_t ilv;
     } ip{r.in.offset, r.in.batch_stride, u32(cin_), u32(r.is.h), u32(r.is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
          u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
-         params_.kernel == 5 ? -1 : 0};
+         params_.kernel == 5 ? -1 : 0, texel_gemm ? gemm_tv_ : 0u};  // V in the texel GEMM's order
     cs.dispatch(kernel_pipeline(ctx_, shader(texel_in ? "winograd_input_texel" : "winograd_input"), {}, sizeof ip),
                 {in_arg, {vr, Access::write}}, ip,
-                Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1}, {name + "_wino_in", 0, v_bytes * (1 + 16.0 / 36)});
+                texel_gemm ? flat_groups(wz.ngroups * cn, 1) : Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1}, {name + "_wino_in", 0, v_bytes * (1 + 16.0 / 36)});
     struct GemmPush {
       uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
     } gp{u32(cn), u32(wz.tiles_pad), u32(gemm_cout_pad_), u32(cv), u32(c0)};
