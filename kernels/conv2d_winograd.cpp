@@ -143,7 +143,7 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
          params_.kernel == 5 ? -1 : 0, texel_gemm ? gemm_tv_ : 0u};  // V in the texel GEMM's order
     cs.dispatch(kernel_pipeline(ctx_, shader(texel_in ? "winograd_input_texel" : "winograd_input"), {}, sizeof ip),
                 {in_arg, {vr, Access::write}}, ip,
-                texel_gemm ? flat_groups(wz.ngroups * cn, 1) : Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1}, {name + "_wino_in", 0, v_bytes * (1 + 16.0 / 36)});
+                texel_gemm ? flat_groups((wz.tiles_pad / (4 * gemm_tv_)) * cn, 1) : Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1}, {name + "_wino_in", 0, v_bytes * (1 + 16.0 / 36)});
     struct GemmPush {
       uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
     } gp{u32(cn), u32(wz.tiles_pad), u32(gemm_cout_pad_), u32(cv), u32(c0)};

@@ -29,16 +29,8 @@ layout(push_constant) uniform P {
   uint ilv;  // 0: [36][chunk][tiles_pad / 4] vec4s; TV: winograd_gemm_texel's [36][groups][chunk][TV]
 } p;
 
-void main() {
-  uint gi = gl_GlobalInvocationID.x, cl = gl_GlobalInvocationID.y;
-  // ilv: lanes over channels, whose vec4s lie TV apart in that order (stores 2.2x faster than lanes
-  // over tiles there).
-  if (p.ilv != 0u) {
-    uint idx = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
-    cl = idx % p.chunk;
-    gi = idx / p.chunk;
-  }
-  if (gi >= p.ngroups) return;
+// The 4 tiles of group gi (of 4 horizontally adjacent tiles) in channel cl of the chunk.
+void transform(uint gi, uint cl) {
   uint cc = p.c_begin + cl, sh = cc / p.cin, ci = cc % p.cin;
   uint gx = p.tiles_x_pad / 4u;
   uint row = gi / gx, n = row / p.tiles_y, ty = row % p.tiles_y;
@@ -84,4 +76,17 @@ void main() {
     v[b + 4u * stride] = 2.0 * r1 - r2 - 2.0 * r3 + r4;
     v[b + 5u * stride] = 4.0 * r1 - 5.0 * r3 + r5;
   }
+}
+
+void main() {
+  if (p.ilv == 0u) {  // lanes over tile groups, one per invocation
+    if (gl_GlobalInvocationID.x < p.ngroups) transform(gl_GlobalInvocationID.x, gl_GlobalInvocationID.y);
+    return;
+  }
+  // ilv = TV: lanes over channels, each writing the TV adjacent vec4s of one GEMM tile group, so
+  // every cache line of V has one writer (0.5x the time of one group per invocation there).
+  uint idx = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
+  uint cl = idx % p.chunk, g0 = (idx / p.chunk) * p.ilv;
+  for (uint t = 0u; t < p.ilv; ++t)
+    if (g0 + t < p.ngroups) transform(g0 + t, cl);
 }
