@@ -179,17 +179,34 @@ void Conv2d::record_gemm(CommandStream& cs, const Recording& r) const {
   const Tensor& mt = workspace_->get(ctx_, 1, m_bytes);
   const BufferRange mr = mt.range(0, m_bytes);
   const std::string& name = r.info.name;
+  // Texel views (input R32 / R16, V and U RGBA32F / RGBA16F: the packed operands are float16 in
+  // fp16) where every range fits one; V then in winograd_gemm_texel's order.
+  const uint64_t max_texels = ctx_.info().max_texel_buffer_elements;
+  const bool texel = texel_fetch_ && r.in.arg.range.size / e <= max_texels &&
+                     static_cast<uint64_t>(chunk * pix_pad) / 4 <= max_texels && weight_gemm_.bytes() / (4 * e) <= max_texels;
+  const VkFormat f4 = precision_ == Precision::fp16 ? VK_FORMAT_R16G16B16A16_SFLOAT : VK_FORMAT_R32G32B32A32_SFLOAT;
+  Arg in_arg = r.in.arg;
+  if (precision_ == Precision::fp16) in_arg.texel_format = VK_FORMAT_R16_SFLOAT;
   for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
     const int64_t cn = std::min(chunk, cin_ - c0);
     const double v_bytes = static_cast<double>(e) * static_cast<double>(cn * pix_pad);
     const BufferRange vr = vt.range(0, static_cast<size_t>(cn * pix_pad) * e);
-    record_1x1_pack(cs, r, vr, c0, cn, cn, pix_pad, "_gemm");
+    if (texel) {
+      struct PackPush {
+        uint32_t in_off, in_bs, plane, npix, pix_pad, c_begin, chunk;
+      } pp{r.in.offset, r.in.batch_stride, u32(r.is.h * r.is.w), u32(r.is.n * r.is.h * r.is.w), u32(pix_pad), u32(c0), u32(cn)};
+      cs.dispatch(kernel_pipeline(ctx_, shader("conv1x1_pack_texel"), {gemm_tv_}, sizeof pp), {in_arg, {vr, Access::write}}, pp,
+                  flat_groups(pix_pad / (4 * gemm_tv_) * cn, 1), {name + "_gemm_pack", 0, 2.0 * v_bytes});
+    } else {
+      record_1x1_pack(cs, r, vr, c0, cn, cn, pix_pad, "_gemm");
+    }
     struct GemmPush {
       uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
     } gp{u32(cn), u32(pix_pad), u32(gemm_cout_pad_), u32(cin_), u32(c0)};
     const uint32_t tv = gemm_tv_;
-    cs.dispatch(kernel_pipeline(ctx_, shader("winograd_gemm"), {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
-                {{vr, Access::read}, {weight_gemm_.range(), Access::read},
+    const std::string gemm = texel ? "winograd_gemm_texel" : shader("winograd_gemm");
+    cs.dispatch(kernel_pipeline(ctx_, gemm, {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),
+                {{vr, Access::read, f4}, {weight_gemm_.range(), Access::read, f4},
                  {mr, c0 > 0 ? Access::read_write : Access::write}},
                 gp, flat_groups((gemm_cout_pad_ / gemm_cob_) * (pix_pad / (4 * tv)), 1),
                 {name + "_gemm", r.info.flop * static_cast<double>(cn) / static_cast<double>(cin_),

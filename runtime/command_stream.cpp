@@ -199,7 +199,8 @@ uint64_t texel_bytes(VkFormat f) {
     case VK_FORMAT_R32_SFLOAT:
     case VK_FORMAT_R32_UINT:
     case VK_FORMAT_R32_SINT: return 4;
-    case VK_FORMAT_R32G32_SFLOAT: return 8;
+    case VK_FORMAT_R32G32_SFLOAT:
+    case VK_FORMAT_R16G16B16A16_SFLOAT: return 8;  // fp16 operands of the 1x1 GEMM
     case VK_FORMAT_R32G32B32A32_SFLOAT:
     case VK_FORMAT_R32G32B32A32_UINT:
     case VK_FORMAT_R32G32B32A32_SINT: return 16;
@@ -217,7 +218,7 @@ VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const 
   const char* kind_name = descriptor_kind_name(kind);
   if (texel == 0)
     throw Error(what + ": texel format " + std::to_string(a.texel_format) +
-                " is not one of R16, R16G16 (float), R32, R32G32, R32G32B32A32 (float, uint, sint)");
+                " is not one of R16, R16G16, R16G16B16A16 (float), R32, R32G32, R32G32B32A32 (float, uint, sint)");
   if (r.offset % lim.min_texel_buffer_offset_alignment != 0)
     throw Error(what + " (" + kind_name + ") starts at byte offset " + std::to_string(r.offset) +
                 ", not a multiple of minTexelBufferOffsetAlignment (" +

@@ -20,7 +20,8 @@ enum class Access { read, write, read_write };
 // A buffer range bound to one binding. For a texel-buffer binding (samplerBuffer / imageBuffer in
 // the shader) the stream creates a VkBufferView of `texel_format` over the range; the range's
 // offset must be a multiple of minTexelBufferOffsetAlignment and its size a whole number of texels.
-// Formats: R16_SFLOAT, R32_SFLOAT/UINT/SINT, R32G32_SFLOAT, R32G32B32A32_SFLOAT/UINT/SINT.
+// Formats: R16_SFLOAT, R16G16_SFLOAT, R16G16B16A16_SFLOAT, R32_SFLOAT/UINT/SINT, R32G32_SFLOAT,
+// R32G32B32A32_SFLOAT/UINT/SINT.
 struct Arg {
   BufferRange range;
   Access access = Access::read;

@@ -186,6 +186,12 @@ TEST(Conv2d, WinogradStorageFormsMatchReference) {
   run_cases(ConvAlgo::winograd, {~0ull, 0, false}, {kFp32});
   run_cases(vktest::context(), ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64, 0, false}, {kFp32, kFp16});
 }
+// The 1x1 GEMM's input, V and U through storage buffers (its plain pack and GEMM) instead of texel
+// buffers.
+TEST(Conv2d, GemmStorageFormsMatchReference) {
+  run_cases(ConvAlgo::gemm, {~0ull, 0, false}, {kFp32});
+  run_cases(vktest::context(), ConvAlgo::gemm, canary_cases(), {2 * 4 * 80, 0, false}, {kFp32, kFp16});
+}
 // pointwise: the 130- and 129-channel cases run in two unrolled chunks (at most 128 each) that
 // accumulate in the output; here they start at 256-byte aligned slabs, and the input comes through
 // a storage buffer.
@@ -220,6 +226,7 @@ TEST(Conv2d, WritesNothingOutsideItsSlice) {
   run_cases(ctx, ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64}, {kFp32});
   run_cases(ctx, ConvAlgo::winograd, canary_cases(), {~0ull, 0, false}, {kFp32});
   run_cases(ctx, ConvAlgo::gemm, canary_cases(), {2 * 4 * 80}, {kFp32});
+  run_cases(ctx, ConvAlgo::gemm, canary_cases(), {~0ull, 0, false}, {kFp32});
   run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 2});
   run_cases(ctx, ConvAlgo::direct, canary_cases(), {~0ull, 0, false}, {kFp32});
 }
