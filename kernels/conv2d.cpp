@@ -280,7 +280,8 @@ bool Conv2d::residual_overlaps_output(const Slice& out, const std::optional<Slic
   return ob < re && rb < oe;
 }
 
-void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo) const {
+void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo,
+                    WinogradInputCache* shared_v) const {
   check_slice(in, name_, "input");
   check_slice(out, name_, "output");
   check_precision(in, precision_, name_, "input");
@@ -329,6 +330,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   const double bytes = e * (static_cast<double>(is.count()) + static_cast<double>(os.count()) * (residual ? 2 : 1) +
                             static_cast<double>(cin_ * cout_ * params_.kernel * params_.kernel));
   r.info = {conv_label(name_, params_), flop(is), bytes};
+  r.shared_v = shared_v && shared_v->active() ? shared_v : nullptr;
   switch (algo) {
     case ConvAlgo::naive: return record_naive(cs, r);
     case ConvAlgo::blocked: return record_blocked(cs, r);

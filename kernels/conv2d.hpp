@@ -62,6 +62,30 @@ class ConvWorkspace {
   std::vector<Tensor> retired_;
 };
 
+// Winograd's transformed input (V) shared by the 3x3 convs of a dense block, which read growing
+// channel prefixes of one input: each transforms only the channels the earlier ones had not (an
+// RDB: 288 channels instead of 960). begin() at the start of every block (the input may have
+// changed), with the most channels a conv of the block reads; end() after it. Where V of that many
+// channels does not fit one texel view, or for other convs, the convs run as without it.
+class WinogradInputCache {
+ public:
+  void begin(int64_t capacity) { *this = {}; capacity_ = capacity; }
+  void end() { *this = {}; }
+  bool active() const { return capacity_ > 0; }
+
+ private:
+  friend class Conv2d;
+  struct Key {
+    VkBuffer input = VK_NULL_HANDLE, v = VK_NULL_HANDLE;
+    uint64_t range_offset = 0;
+    uint32_t in_off = 0, in_bs = 0;
+    int64_t n = 0, h = 0, w = 0;
+    bool operator==(const Key&) const = default;
+  };
+  Key key_;
+  int64_t capacity_ = 0, channels_ = 0;  // V rows of the buffer; rows [0, channels_) hold their tiles
+};
+
 class Conv2d {
  public:
   // Uploads (and repacks) the weights once. weight [cout, cin, k, k]; bias count cout or empty.
@@ -76,7 +100,8 @@ class Conv2d {
   // in, out and residual the conv's precision (f32 or f16 tensors).
   void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual = {}) const;
   // The same with a forced algorithm (tests and the bench); throws if it does not apply to the shape.
-  void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo) const;
+  void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo,
+              WinogradInputCache* shared_v = nullptr) const;
 
   // The algorithm `automatic` picks for an input of this height and width.
   ConvAlgo choose_algorithm(int64_t h, int64_t w) const;
@@ -132,6 +157,7 @@ class Conv2d {
     Push push;
     std::vector<uint32_t> spec;  // K, STRIDE, ACT, SLOPE, HAS_RES
     DispatchInfo info;
+    WinogradInputCache* shared_v = nullptr;
   };
   void record_naive(CommandStream& cs, const Recording& r) const;
   void record_blocked(CommandStream& cs, const Recording& r) const;

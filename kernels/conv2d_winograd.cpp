@@ -117,46 +117,71 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
   // V, U and M fp32 in both precisions; only the input and output slices are float16 in fp16.
   const uint64_t e = 4, m_bytes = static_cast<uint64_t>(36 * gemm_cout_pad_ * wz.tiles_pad) * 4;
   const bool s2 = params_.stride == 2;
-  const Tensor& vt = workspace_->get(ctx_, 0, static_cast<uint64_t>(36 * chunk * wz.tiles_pad) * e);
   const Tensor& mt = workspace_->get(ctx_, 1, m_bytes);
   const BufferRange mr = mt.range(0, m_bytes);
   const std::string& name = r.info.name;
   // Texel views where every range fits one (the storage forms otherwise): input, V and U, M.
   const uint64_t max_texels = ctx_.info().max_texel_buffer_elements;
+  const auto v_fits = [&](int64_t rows) {
+    const uint64_t bytes = static_cast<uint64_t>(36 * rows * wz.tiles_pad) * e;
+    return bytes / 16 <= max_texels && bytes <= ctx_.info().max_storage_buffer_range;
+  };
   const bool texel_in = texel_fetch_ && r.in.arg.range.size / elem_bytes() <= max_texels;
-  const bool texel_gemm = texel_fetch_ && static_cast<uint64_t>(36 * chunk * wz.tiles_pad) / 4 <= max_texels &&
-                          weight_winograd_.bytes() / 16 <= max_texels;
+  const bool texel_gemm = texel_fetch_ && v_fits(chunk) && weight_winograd_.bytes() / 16 <= max_texels;
   const bool texel_m = texel_fetch_ && m_bytes / 16 <= max_texels;
   Arg in_arg = r.in.arg;
   if (precision_ == Precision::fp16) in_arg.texel_format = VK_FORMAT_R16_SFLOAT;
-  // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
-  for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
-    const int64_t cn = std::min(chunk, cv - c0);
-    const double v_bytes = static_cast<double>(e) * 36.0 * static_cast<double>(cn * wz.tiles_pad);
-    const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cn * wz.tiles_pad) * e);
+  // Virtual channels [c0, c0 + cn) into rows [v0, v0 + cn) of a V of `rows` rows.
+  const auto transform = [&](const BufferRange& vr, int64_t c0, int64_t cn, int64_t v0, int64_t rows, bool ilv) {
     struct InPush {
       uint32_t in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
       int32_t off_base;
-      uint32_t ilv;
+      uint32_t ilv, rows, v0;
     } ip{r.in.offset, r.in.batch_stride, u32(cin_), u32(r.is.h), u32(r.is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
          u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
-         params_.kernel == 5 ? -1 : 0, texel_gemm ? gemm_tv_ : 0u};  // V in the texel GEMM's order
+         params_.kernel == 5 ? -1 : 0, ilv ? gemm_tv_ : 0u, u32(rows), u32(v0)};  // ilv: the texel GEMM's order
+    const Groups g = ilv ? flat_groups((wz.tiles_pad / (4 * gemm_tv_)) * cn, 1) : Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1};
     cs.dispatch(kernel_pipeline(ctx_, shader(texel_in ? "winograd_input_texel" : "winograd_input"), {}, sizeof ip),
-                {in_arg, {vr, Access::write}}, ip,
-                texel_gemm ? flat_groups((wz.tiles_pad / (4 * gemm_tv_)) * cn, 1) : Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1}, {name + "_wino_in", 0, v_bytes * (1 + 16.0 / 36)});
+                {in_arg, {vr, Access::write}}, ip, g,
+                {name + "_wino_in", 0, static_cast<double>(e) * 36.0 * static_cast<double>(cn * wz.tiles_pad) * (1 + 16.0 / 36)});
+  };
+  // M (+)= U V over virtual channels [c0, c0 + cn), held in the first cn rows of a V of `rows` rows.
+  const auto gemm = [&](const BufferRange& vr, int64_t c0, int64_t cn, int64_t rows, bool texel) {
     struct GemmPush {
-      uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
-    } gp{u32(cn), u32(wz.tiles_pad), u32(gemm_cout_pad_), u32(cv), u32(c0)};
+      uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin, rows;
+    } gp{u32(cn), u32(wz.tiles_pad), u32(gemm_cout_pad_), u32(cv), u32(c0), u32(rows)};
     const uint32_t tv = gemm_tv_;
     const Arg va{vr, Access::read, VK_FORMAT_R32G32B32A32_SFLOAT};
     const Arg ua{weight_winograd_.range(), Access::read, VK_FORMAT_R32G32B32A32_SFLOAT};
-    cs.dispatch(kernel_pipeline(ctx_, texel_gemm ? "winograd_gemm_texel" : "winograd_gemm",
-                                {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 36u, tv}, sizeof gp),
-                {va, ua,
-                 {mr, c0 > 0 ? Access::read_write : Access::write}},
-                gp, flat_groups(36 * (gemm_cout_pad_ / gemm_cob_) * (wz.tiles_pad / (4 * tv)), 1),
+    const double v_bytes = static_cast<double>(e) * 36.0 * static_cast<double>(cn * wz.tiles_pad);
+    cs.dispatch(kernel_pipeline(ctx_, texel ? "winograd_gemm_texel" : "winograd_gemm", {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 36u, tv},
+                                sizeof gp),
+                {va, ua, {mr, c0 > 0 ? Access::read_write : Access::write}}, gp,
+                flat_groups(36 * (gemm_cout_pad_ / gemm_cob_) * (wz.tiles_pad / (4 * tv)), 1),
                 {name + "_wino_gemm", r.info.flop * static_cast<double>(cn) / static_cast<double>(cv),
                  v_bytes + 4.0 * 36 * static_cast<double>(gemm_cout_pad_ * (c0 > 0 ? 2 : 1) * wz.tiles_pad)});
+  };
+  WinogradInputCache* shared = r.shared_v;
+  if (shared && texel_gemm && winograd_ks_ == 1 && !s2 && cin_ <= shared->capacity_ && v_fits(shared->capacity_)) {
+    // A dense block's conv: its input's first channels were transformed by the block's earlier convs.
+    const uint64_t bytes = static_cast<uint64_t>(36 * shared->capacity_ * wz.tiles_pad) * e;
+    const Tensor& vt = workspace_->get(ctx_, 2, bytes);
+    const WinogradInputCache::Key key{r.in.arg.range.buffer, vt.range().buffer, r.in.arg.range.offset, r.in.offset,
+                                      r.in.batch_stride, r.is.n, r.is.h, r.is.w};
+    if (!(shared->key_ == key) || cin_ < shared->channels_) shared->key_ = key, shared->channels_ = 0;
+    const BufferRange vr = vt.range(0, bytes);
+    if (cin_ > shared->channels_) transform(vr, shared->channels_, cin_ - shared->channels_, shared->channels_, shared->capacity_, true);
+    shared->channels_ = cin_;
+    gemm(vr, 0, cin_, shared->capacity_, true);
+  } else {
+    const Tensor& vt = workspace_->get(ctx_, 0, static_cast<uint64_t>(36 * chunk * wz.tiles_pad) * e);
+    // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
+    for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
+      const int64_t cn = std::min(chunk, cv - c0);
+      const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cn * wz.tiles_pad) * e);
+      transform(vr, c0, cn, 0, cn, texel_gemm);
+      gemm(vr, c0, cn, cn, texel_gemm);
+    }
   }
   struct OutPush {
     uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
@@ -201,8 +226,8 @@ void Conv2d::record_gemm(CommandStream& cs, const Recording& r) const {
       record_1x1_pack(cs, r, vr, c0, cn, cn, pix_pad, "_gemm");
     }
     struct GemmPush {
-      uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin;
-    } gp{u32(cn), u32(pix_pad), u32(gemm_cout_pad_), u32(cin_), u32(c0)};
+      uint32_t chunk, tiles_pad, cout_pad, cin_total, c_begin, rows;
+    } gp{u32(cn), u32(pix_pad), u32(gemm_cout_pad_), u32(cin_), u32(c0), u32(cn)};
     const uint32_t tv = gemm_tv_;
     const std::string gemm = texel ? "winograd_gemm_texel" : shader("winograd_gemm");
     cs.dispatch(kernel_pipeline(ctx_, gemm, {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 1u, tv}, sizeof gp),

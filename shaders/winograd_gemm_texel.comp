@@ -12,7 +12,8 @@ layout(constant_id = 3) const uint TV = 2;
 layout(binding = 0) uniform samplerBuffer v;
 layout(binding = 1) uniform samplerBuffer u;
 layout(std430, binding = 2) buffer M { vec4 m[]; };
-layout(push_constant) uniform P { uint chunk, tiles_pad, cout_pad, cin_total, c_begin; } p;
+// rows: V's rows (>= chunk; a dense block's shared V holds more channels than this conv reads).
+layout(push_constant) uniform P { uint chunk, tiles_pad, cout_pad, cin_total, c_begin, rows; } p;
 
 void main() {
   uint groups = p.tiles_pad / (4u * TV), cogs = p.cout_pad / COB;
@@ -26,9 +27,9 @@ void main() {
     uint mb = (pos * p.cout_pad + cog * COB + c) * vs + tg * TV;
     [[unroll]] for (uint t = 0; t < TV; ++t) acc[c][t] = ACCUM != 0u ? m[mb + t] : vec4(0.0);
   }
-  // V as winograd_input writes it with ilv = TV: [36][groups][chunk][TV] vec4s, so this lane's loop
+  // V as winograd_input writes it with ilv = TV: [36][groups][rows][TV] vec4s, so this lane's loop
   // over channels walks one contiguous run (the GEMM 1.4x faster than on [36][chunk][tiles]).
-  int vb = int(pos * p.chunk * vs + tg * p.chunk * TV), ub = int((pos * p.cin_total + p.c_begin) * us + cog * (COB / 4u));
+  int vb = int(pos * p.rows * vs + tg * p.rows * TV), ub = int((pos * p.cin_total + p.c_begin) * us + cog * (COB / 4u));
   for (uint ci = 0; ci < p.chunk; ++ci, vb += int(TV), ub += int(us)) {
     vec4 vv[TV];
     [[unroll]] for (uint t = 0; t < TV; ++t) vv[t] = texelFetch(v, vb + int(t));

@@ -9,9 +9,9 @@
 // (s_in = 2): virtual channel s = a * 2 + b. In general the tile row i of virtual channel s reads
 // input row s_in * (4 ty - 1 + i) + off_mul * (s / ks) + off_base (columns likewise with s % ks).
 // Channels [c_begin, c_begin + gridY) of the virtual ones are transformed (a chunk).
-// Layout [36][chunk][tiles_pad], tile index ((n * tiles_y + ty) * tiles_x_pad + tx); with ilv = TV,
-// the texel GEMM's [36][tiles_pad / (4 TV)][chunk][TV] vec4s: each lane of the GEMM then reads one
-// run of memory over its channel loop.
+// Layout [36][rows][tiles_pad] (rows v0 + channel), tile index ((n * tiles_y + ty) * tiles_x_pad + tx);
+// with ilv = TV, the texel GEMM's [36][tiles_pad / (4 TV)][rows][TV] vec4s: each lane of the GEMM
+// then reads one run of memory over its channel loop.
 // fp16 variant: the input as float16; V stays fp32 (F(4,3)'s transforms amplify V's rounding: fp16 V
 // measured 6-8e-3 max abs error against 2.5e-4 for fp16 weights alone, docs/kernels.md "Precision").
 layout(local_size_x = 64) in;
@@ -26,7 +26,8 @@ layout(std430, binding = 1) writeonly buffer V { vec4 v[]; };
 layout(push_constant) uniform P {
   uint in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
   int off_base;
-  uint ilv;  // 0: [36][chunk][tiles_pad / 4] vec4s; TV: winograd_gemm_texel's [36][groups][chunk][TV]
+  uint ilv;  // 0: [36][rows][tiles_pad / 4] vec4s; TV: winograd_gemm_texel's [36][groups][rows][TV]
+  uint rows, v0;  // V's rows and the first one written (a dense block's shared V: its new channels)
 } p;
 
 // The 4 tiles of group gi (of 4 horizontally adjacent tiles) in channel cl of the chunk.
@@ -64,8 +65,8 @@ void transform(uint gi, uint cl) {
     t6[4][j] = 2.0 * d1 - d2 - 2.0 * d3 + d4;
     t6[5][j] = 4.0 * d1 - 5.0 * d3 + d5;
   }
-  uint stride = p.chunk * p.tiles_pad / 4u;
-  uint o = p.ilv == 0u ? cl * p.tiles_pad / 4u + gi : ((gi / p.ilv) * p.chunk + cl) * p.ilv + gi % p.ilv;
+  uint stride = p.rows * p.tiles_pad / 4u, vr = p.v0 + cl;
+  uint o = p.ilv == 0u ? vr * p.tiles_pad / 4u + gi : ((gi / p.ilv) * p.rows + vr) * p.ilv + gi % p.ilv;
   [[unroll]] for (int i = 0; i < 6; ++i) {  // (B^T d) B
     vec4 r0 = t6[i][0], r1 = t6[i][1], r2 = t6[i][2], r3 = t6[i][3], r4 = t6[i][4], r5 = t6[i][5];
     uint b = uint(i * 6) * stride + o;

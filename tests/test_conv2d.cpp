@@ -331,6 +331,64 @@ TEST(Conv2d, AutomaticAvoidsChunkedDirectOnAnOverlappingResidual) {
   EXPECT_LE(max_abs_diff(to_host(y2), y_ref), kTol);
 }
 
+// A dense block's convs with Winograd's transformed input shared (WinogradInputCache): conv c reads
+// the first 8 + 8c channels of X and writes the next 8 into X, so each transforms only its new
+// channels (a conv re-reading the same prefix transforms nothing: 2 dispatches, not 3); begin()
+// after the input changed starts over. Both precisions, batch 2, odd sizes.
+TEST(Conv2d, WinogradSharesTheInputTransformAcrossADenseBlock) {
+  Context& ctx = vktest::context();
+  for (Precision prec : {kFp32, kFp16}) {
+    std::mt19937 rng(91);
+    const Conv2dParams p{3, 1, 1, leaky_relu(0.01f)};
+    const int64_t cins[4] = {8, 16, 24, 24}, couts[4] = {8, 8, 5, 7};
+    auto ws = std::make_shared<ConvWorkspace>();
+    ConvOptions opt;
+    opt.precision = prec;
+    std::vector<std::unique_ptr<Conv2d>> convs;
+    std::vector<HostTensor> wts, bs;
+    for (int c = 0; c < 4; ++c) {
+      const float sc = 1.f / std::sqrt(static_cast<float>(9 * cins[c]));
+      wts.push_back(random_tensor({couts[c], cins[c], 3, 3}, rng, -sc, sc));
+      bs.push_back(random_tensor({1, 1, 1, couts[c]}, rng, -0.5f, 0.5f));
+      convs.push_back(std::make_unique<Conv2d>(ctx, wts[c], bs[c], p, "dense" + std::to_string(c), ws, opt));
+    }
+    const DType dt = prec == kFp16 ? DType::f16 : DType::f32;
+    const double tol = prec == kFp16 ? kTolFp16 : kTol;
+    Tensor xd(ctx, {2, 24, 13, 19}, dt);  // both rounds: new values in the same buffer
+    for (int round = 0; round < 2; ++round) {
+      HostTensor x = random_tensor({2, 24, 13, 19}, rng), x_ref = x;
+      std::vector<HostTensor> y_ref{HostTensor({2, 5, 13, 19}), HostTensor({2, 7, 13, 19})};
+      for (int c = 0; c < 4; ++c) {
+        HostSliceOut o = c < 2 ? HostSliceOut(x_ref, 8 + 8 * c, 8) : HostSliceOut(y_ref[size_t(c - 2)]);
+        conv2d_ref(HostSlice(x_ref, 0, cins[c]), o, wts[size_t(c)], bs[size_t(c)], p, std::nullopt);
+      }
+      upload(x, xd);
+      Tensor y2(ctx, {2, 5, 13, 19}, dt), y3(ctx, {2, 7, 13, 19}, dt);
+      WinogradInputCache cache;
+      CommandStream cs(ctx);
+      cache.begin(24);
+      const size_t want[4] = {3, 3, 3, 2};
+      for (int c = 0; c < 4; ++c) {
+        const size_t before = cs.recorded();
+        const Slice out = c == 0 ? Slice(xd, 8, 8) : c == 1 ? Slice(xd, 16, 8) : c == 2 ? Slice(y2) : Slice(y3);
+        convs[size_t(c)]->record(cs, Slice(xd, 0, cins[c]), out, std::nullopt, ConvAlgo::winograd, &cache);
+        EXPECT_EQ(cs.recorded() - before, want[c]) << "conv " << c << " " << precision_name(prec);
+      }
+      // Another input inside the block (misuse): its key differs, so all of it is transformed again.
+      HostTensor z = random_tensor({2, 16, 13, 19}, rng), z_out({2, 8, 13, 19});
+      conv2d_ref(HostSlice(z), HostSliceOut(z_out), wts[1], bs[1], p, std::nullopt);
+      Tensor zd = to_device(ctx, z, dt), zo(ctx, {2, 8, 13, 19}, dt);
+      convs[1]->record(cs, Slice(zd), Slice(zo), std::nullopt, ConvAlgo::winograd, &cache);
+      cache.end();
+      cs.submit_and_wait();
+      EXPECT_LE(max_abs_diff(to_host(zo), z_out), tol) << precision_name(prec) << " round " << round;
+      EXPECT_LE(max_abs_diff(to_host(xd), x_ref), tol) << precision_name(prec) << " round " << round;
+      EXPECT_LE(max_abs_diff(to_host(y2), y_ref[0]), tol) << precision_name(prec) << " round " << round;
+      EXPECT_LE(max_abs_diff(to_host(y3), y_ref[1]), tol) << precision_name(prec) << " round " << round;
+    }
+  }
+}
+
 TEST(Conv2d, ReferenceKnownValues) {
   // 1 input channel 3x3 of ones, 3x3 kernel of ones, pad 1: corner 4, edge 6, centre 9, + bias.
   HostTensor x({1, 1, 3, 3}, 1.f), w({1, 1, 3, 3}, 1.f), b({1, 1, 1, 1}, 0.5f), y({1, 1, 3, 3});

@@ -97,6 +97,12 @@ class Backend {
   virtual int prepare_conv(const ConvDesc& desc, const WeightTensor& weight, const WeightTensor& bias) = 0;
   // out = act(conv(in)) (+ residual, only for convs without activation). Views of equal batch.
   virtual void conv(int conv, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) = 0;
+  // Between these, convs read growing channel prefixes of one buffer (a dense block) of at most
+  // `channels` channels, unchanged in between: a backend may keep what it derived from the
+  // channels it has seen (Vulkan: Winograd's transformed input). end_dense_block before any write
+  // to the channels read so far.
+  virtual void begin_dense_block(int64_t channels) { (void)channels; }
+  virtual void end_dense_block() {}
 
   virtual void space_to_depth(const BufferSlice& in, const BufferSlice& out) = 0;   // PixelUnshuffle(2)
   virtual void depth_to_space(const BufferSlice& in, const BufferSlice& out) = 0;   // PixelShuffle(2)

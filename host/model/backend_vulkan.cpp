@@ -204,6 +204,15 @@ std::optional<std::string> VulkanBackend::table_algorithm(const std::string& key
   return e->algo;
 }
 
+void VulkanBackend::begin_dense_block(int64_t channels) {
+  if (!dense_v_) dense_v_ = std::make_unique<WinogradInputCache>();
+  dense_v_->begin(channels);
+}
+
+void VulkanBackend::end_dense_block() {
+  if (dense_v_) dense_v_->end();
+}
+
 void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) {
   const int idx = conv_index_.at(static_cast<size_t>(id));
   const Slice si = slice(tensor(in.buf), in), so = slice(tensor(out.buf), out);
@@ -231,7 +240,7 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
       for (ConvAlgo a : c.candidates(is, c.residual_overlaps_output(so, r)))
         if (*name == conv_algo_name(a)) algo = a;
     if (algo != ConvAlgo::automatic) ++convs_from_table_;
-    c.record(*cs_, si, so, r, algo);
+    c.record(*cs_, si, so, r, algo, dense_v_.get());
   }
   if (probe_) {
     const Shape os = tensor(out.buf).shape();

@@ -25,6 +25,7 @@ class ConvTranspose2d;
 class ConvWorkspace;
 class EventTensorBuilder;
 class PhysicsUnroll;
+class WinogradInputCache;
 class Profiler;
 
 class VulkanBackend final : public Backend {
@@ -45,6 +46,8 @@ class VulkanBackend final : public Backend {
   using Backend::download;
   int prepare_conv(const ConvDesc& desc, const WeightTensor& weight, const WeightTensor& bias) override;
   void conv(int conv, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) override;
+  void begin_dense_block(int64_t channels) override;
+  void end_dense_block() override;
   void space_to_depth(const BufferSlice& in, const BufferSlice& out) override;
   void depth_to_space(const BufferSlice& in, const BufferSlice& out) override;
   void reflect_pad(const BufferSlice& in, const BufferSlice& out, int top, int left) override;
@@ -102,6 +105,7 @@ class VulkanBackend final : public Backend {
   LayerProbe* probe_ = nullptr;
   std::deque<Tensor> scratch_;  // f32 conversions recorded since the last flush (stable references)
   std::shared_ptr<ConvWorkspace> workspace_;  // Winograd scratch shared by every conv
+  std::unique_ptr<WinogradInputCache> dense_v_;  // V shared by a dense block's convs (begin_dense_block)
   std::unique_ptr<CommandStream> cs_;
   std::vector<std::unique_ptr<Buf>> bufs_;
   std::vector<std::unique_ptr<Conv2d>> convs_;

@@ -321,9 +321,11 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   b.conv(conv("SFENet2").id, f1.whole(), chans(blk.whole(), 0, cfg_.G0), nullptr);
   for (int d = 0; d < cfg_.D; ++d) {
     const std::string p = "RDBs." + std::to_string(d);
+    b.begin_dense_block(cfg_.G0 + int64_t(cfg_.C - 1) * cfg_.G);  // conv c reads the first G0 + c G channels
     for (int c = 0; c < cfg_.C; ++c)
       b.conv(conv(p + ".convs." + std::to_string(c) + ".conv.0").id, chans(blk.whole(), 0, cfg_.G0 + c * cfg_.G),
              chans(blk.whole(), cfg_.G0 + c * cfg_.G, cfg_.G), nullptr);
+    b.end_dense_block();
     const BufferSlice res = chans(blk.whole(), 0, cfg_.G0);
     b.conv(conv(p + ".LFF").id, blk.whole(), block_out.whole(), &res);
     const BufferSlice prev = acc.whole();
