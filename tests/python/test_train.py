@@ -4,6 +4,7 @@ training run whose loss decreases, the time-limited tool run with resume and exp
 exported weights in `vkunroll infer` against the PyTorch model (needs VKUNROLL_CLI, set by ctest)."""
 import json
 import os
+import re
 import random
 import struct
 import subprocess
@@ -294,7 +295,9 @@ def test_resume_continues_and_time_limit_stops(trained, seq_dir, tmp_path):
     r = run_train("--data", seq_dir, "--out", tmp_path / "c", "--config", "tiny", "--crop", "32x32", "--batch", "1",
                   "--steps-s", "3", "--steps-m", "0", "--print-every", "0", "--ckpt-every", "1", "--max-minutes", "0.001")
     assert r.returncode == 0, r.stderr
-    assert "done after 1 steps (time)" in r.stdout  # the budget ends the stage at once (one step is always taken)
+    # the budget (60 ms) ends the stage before its 3 steps (one step is always taken; a second one
+    # fits when the first took under 60 ms, as on a quiet machine)
+    assert re.search(r"done after [12] steps \(time\)", r.stdout), r.stdout
     # resume a stage-1 checkpoint written at step 1 of 3
     r = run_train("--data", seq_dir, "--out", tmp_path / "d", "--config", "tiny", "--crop", "32x32", "--batch", "1",
                   "--steps-s", "3", "--steps-m", "0", "--print-every", "0", "--ckpt-every", "1", "--stop-after", "1")
