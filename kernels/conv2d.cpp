@@ -272,6 +272,16 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   record(cs, in, out, residual, ConvAlgo::automatic);
 }
 
+bool Conv2d::texel_fits(uint64_t bytes, uint64_t texel_bytes) const {
+  return texel_fetch_ && bytes / texel_bytes <= ctx_.info().max_texel_buffer_elements;
+}
+
+Arg Conv2d::input_texel_arg(const Recording& r) const {
+  Arg a = r.in.arg;
+  if (precision_ == Precision::fp16) a.texel_format = VK_FORMAT_R16_SFLOAT;
+  return a;
+}
+
 bool Conv2d::accumulates_in_output(ConvAlgo a) const {
   if (a == ConvAlgo::direct) return direct_chunks().chunk < cin_;
   if (a == ConvAlgo::pointwise) return pointwise_chunks().chunk < cin_;

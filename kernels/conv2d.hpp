@@ -194,6 +194,11 @@ class Conv2d {
   // A packed weight array on the device in the conv's precision (common.hpp's upload_weights).
   Tensor upload_weights(const std::vector<float>& w) const;
   size_t elem_bytes() const { return dtype_size(precision_dtype(precision_)); }
+  // Whether a texel view of `texel_bytes`-byte texels over `bytes` may be bound: texel fetch on
+  // (set_texel_fetch) and within maxTexelBufferElements; the storage-buffer forms otherwise.
+  bool texel_fits(uint64_t bytes, uint64_t texel_bytes) const;
+  // The bound input as a one-value texel view (R32, R16 in fp16); a storage binding ignores the format.
+  Arg input_texel_arg(const Recording& r) const;
   std::string shader(const char* base) const { return shader_for(ctx_, base, precision_, name_); }
 
   Context& ctx_;

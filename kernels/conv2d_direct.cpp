@@ -55,10 +55,8 @@ void Conv2d::record_direct(CommandStream& cs, const Recording& r) const {
   const int64_t tasks = ((dp.oh + py - 1) / py) * ((dp.ow + px - 1) / px);
   const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
   const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(r.os.n)};
-  const bool texel_input =
-      texel_fetch_ && r.in.arg.range.size / static_cast<uint64_t>(e) <= ctx_.info().max_texel_buffer_elements;
-  Arg input = r.in.arg;
-  if (precision_ == Precision::fp16) input.texel_format = VK_FORMAT_R16_SFLOAT;
+  const bool texel_input = texel_fits(r.in.arg.range.size, static_cast<uint64_t>(e));
+  const Arg input = input_texel_arg(r);
   for (int64_t b = 0; b < blocks; ++b)
     for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
       const bool first = c0 == 0, last = c0 + chunk >= cin_;

@@ -45,8 +45,7 @@ void Conv2d::record_pointwise(CommandStream& cs, const Recording& r) const {
   const int64_t cob = pointwise_cob_, e = static_cast<int64_t>(elem_bytes());
   const UniformSlabChunks ch = pointwise_chunks();
   const int64_t chunk = ch.chunk, blocks = (cout_ + cob - 1) / cob, plane = r.is.h * r.is.w;
-  const bool texel_input =
-      texel_fetch_ && r.in.arg.range.size / static_cast<uint64_t>(e) <= ctx_.info().max_texel_buffer_elements;
+  const bool texel_input = texel_fits(r.in.arg.range.size, static_cast<uint64_t>(e));
   // Pixel pairs (one RG texel each) where no pair straddles two channels or batch items.
   const bool pairs = texel_input && pointwise_pairs_ && plane % 2 == 0 && r.in.offset % 2 == 0 &&
                      r.in.batch_stride % 2 == 0 && r.in.arg.range.size % static_cast<uint64_t>(2 * e) == 0;

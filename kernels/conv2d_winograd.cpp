@@ -121,16 +121,14 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
   const BufferRange mr = mt.range(0, m_bytes);
   const std::string& name = r.info.name;
   // Texel views where every range fits one (the storage forms otherwise): input, V and U, M.
-  const uint64_t max_texels = ctx_.info().max_texel_buffer_elements;
+  const auto v_bytes_of = [&](int64_t rows) { return static_cast<uint64_t>(36 * rows * wz.tiles_pad) * e; };
   const auto v_fits = [&](int64_t rows) {
-    const uint64_t bytes = static_cast<uint64_t>(36 * rows * wz.tiles_pad) * e;
-    return bytes / 16 <= max_texels && bytes <= ctx_.info().max_storage_buffer_range;
+    return texel_fits(v_bytes_of(rows), 16) && v_bytes_of(rows) <= ctx_.info().max_storage_buffer_range;
   };
-  const bool texel_in = texel_fetch_ && r.in.arg.range.size / elem_bytes() <= max_texels;
-  const bool texel_gemm = texel_fetch_ && v_fits(chunk) && weight_winograd_.bytes() / 16 <= max_texels;
-  const bool texel_m = texel_fetch_ && m_bytes / 16 <= max_texels;
-  Arg in_arg = r.in.arg;
-  if (precision_ == Precision::fp16) in_arg.texel_format = VK_FORMAT_R16_SFLOAT;
+  const bool texel_in = texel_fits(r.in.arg.range.size, elem_bytes());
+  const bool texel_gemm = v_fits(chunk) && texel_fits(weight_winograd_.bytes(), 16);
+  const bool texel_m = texel_fits(m_bytes, 16);
+  const Arg in_arg = input_texel_arg(r);
   // Virtual channels [c0, c0 + cn) into rows [v0, v0 + cn) of a V of `rows` rows.
   const auto transform = [&](const BufferRange& vr, int64_t c0, int64_t cn, int64_t v0, int64_t rows, bool ilv) {
     struct InPush {
@@ -164,7 +162,7 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
   WinogradInputCache* shared = r.shared_v;
   if (shared && texel_gemm && winograd_ks_ == 1 && !s2 && cin_ <= shared->capacity_ && v_fits(shared->capacity_)) {
     // A dense block's conv: its input's first channels were transformed by the block's earlier convs.
-    const uint64_t bytes = static_cast<uint64_t>(36 * shared->capacity_ * wz.tiles_pad) * e;
+    const uint64_t bytes = v_bytes_of(shared->capacity_);
     const Tensor& vt = workspace_->get(ctx_, 2, bytes);
     const WinogradInputCache::Key key{r.in.arg.range.buffer, vt.range().buffer, r.in.arg.range.offset, r.in.offset,
                                       r.in.batch_stride, r.is.n, r.is.h, r.is.w};
@@ -206,12 +204,10 @@ void Conv2d::record_gemm(CommandStream& cs, const Recording& r) const {
   const std::string& name = r.info.name;
   // Texel views (input R32 / R16, V and U RGBA32F / RGBA16F: the packed operands are float16 in
   // fp16) where every range fits one; V then in winograd_gemm_texel's order.
-  const uint64_t max_texels = ctx_.info().max_texel_buffer_elements;
-  const bool texel = texel_fetch_ && r.in.arg.range.size / e <= max_texels &&
-                     static_cast<uint64_t>(chunk * pix_pad) / 4 <= max_texels && weight_gemm_.bytes() / (4 * e) <= max_texels;
+  const bool texel = texel_fits(r.in.arg.range.size, e) && texel_fits(static_cast<uint64_t>(chunk * pix_pad) * e, 4 * e) &&
+                     texel_fits(weight_gemm_.bytes(), 4 * e);
   const VkFormat f4 = precision_ == Precision::fp16 ? VK_FORMAT_R16G16B16A16_SFLOAT : VK_FORMAT_R32G32B32A32_SFLOAT;
-  Arg in_arg = r.in.arg;
-  if (precision_ == Precision::fp16) in_arg.texel_format = VK_FORMAT_R16_SFLOAT;
+  const Arg in_arg = input_texel_arg(r);
   for (int64_t c0 = 0; c0 < cin_; c0 += chunk) {
     const int64_t cn = std::min(chunk, cin_ - c0);
     const double v_bytes = static_cast<double>(e) * static_cast<double>(cn * pix_pad);
