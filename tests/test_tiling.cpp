@@ -494,6 +494,36 @@ TEST(TilingCpu, BadOptionsAreClearErrors) {
   EXPECT_THROW(parse_sparse_policy("maybe", "--sparse"), Error);
 }
 
+// RunOptions::unet_pad: spelling out the authors' centered padding reproduces the default bit for
+// bit; a smaller one on the stride runs; a padded size off the UNets' stride, a pad as large as the
+// input, or a bottom pad without a top one is an error naming the rule.
+TEST(TilingCpu, ExplicitUnetPaddingIsCheckedAndTheCenteredOneReproducesTheDefault) {
+  const Weights w = shallow_weights();
+  CpuBackend cpu;
+  Model model(cpu, w);
+  ASSERT_EQ(model.unet_stride(), 4);  // depth-2 UNets
+  const ModelInputs in = random_inputs(1, 40, 52, w.config.N, 3);  // padded to 64 x 64: rows 12 + 12, columns 6 + 6
+  RunOptions opt;
+  opt.outputs = {"fused"};
+  const HostTensor ref = model.run(in, opt).at("fused");
+  opt.unet_pad = {12, 6, 12, 6};  // top, left, bottom, right
+  EXPECT_EQ(model.run(in, opt).at("fused").data, ref.data);
+  opt.unet_pad = {2, 2, 2, 2};  // 44 x 56
+  EXPECT_NE(model.run(in, opt).at("fused").data, ref.data);
+  auto error_of = [&](const UnetPadding& pad) {
+    opt.unet_pad = pad;
+    try {
+      model.run(in, opt);
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_NE(error_of({1, 2, 2, 2}).find("multiple of the UNets' stride 4"), std::string::npos);
+  EXPECT_NE(error_of({40, 2, 0, 2}).find("smaller than the input"), std::string::npos);
+  EXPECT_NE(error_of({2, -1, 2, 2}).find("needs an explicit top / left"), std::string::npos);
+}
+
 // lavapipe, tiled, against the CPU tiled run (golden tiny model; tolerance of the model tests).
 TEST(TilingVulkan, TiledMatchesCpuTiled) {
   const Weights w = load_weights(fixture("selfunroll_tiny.safetensors"));

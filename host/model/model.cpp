@@ -15,6 +15,13 @@ namespace vkunroll {
 
 namespace {
 
+// The padded size of n (even) input rows or columns with `before` / `after` pads (UnetPadding).
+int64_t unet_padded(int64_t n, int before, int after) {
+  if (before < 0) return round_up(n, 32);
+  if (after < 0) return round_up(n + before, 32);
+  return n + before + after;
+}
+
 BufferSlice whole(Backend& b, int buf) {
   const Shape s = b.shape(buf);
   return {buf, 0, s.n, 0, s.c};
@@ -54,7 +61,7 @@ void check_finite(const HostTensor& a, const char* name) {
 struct Model::Chunk {
   int64_t n = 0, nt = 0;  // batch items; targets (M)
   int64_t he = 0, we = 0; // even working size
-  int pad_top = -1, pad_left = -1;  // UNet input offsets (RunOptions::unet_pad_top / left)
+  UnetPadding pad;  // RunOptions::unet_pad
   BufferSlice rs, ev1, ev2, ev3, phys;  // inputs: slices of the caller's buffers, or even-size copies
   int E = -1, sys = -1, flow = -1, warped = -1, fused = -1, m = -1, out = -1;
 };
@@ -176,8 +183,8 @@ int64_t Model::synthesis_item_bytes(int64_t he, int64_t we) const {
                        int64_t(cfg_.upnet_width) * plane});
 }
 
-int64_t Model::unet_item_bytes(const UnetConfig& u, int cin, int64_t he, int64_t we, int top, int left) const {
-  const int64_t plane = round_up(he + top, 32) * round_up(we + left, 32);
+int64_t Model::unet_item_bytes(const UnetConfig& u, int cin, int64_t he, int64_t we, const UnetPadding& pad) const {
+  const int64_t plane = unet_padded(he, pad.top, pad.bottom) * unet_padded(we, pad.left, pad.right);
   return 4 * plane * std::max<int64_t>(cin, 2 * u.base);
 }
 
@@ -204,21 +211,27 @@ int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budg
   if (memory_budget) {
     // A stage's working set is about 3x its largest buffer (see docs/model.md, memory plan).
     const int64_t work = 3 * std::max({synthesis_item_bytes(he, we),
-                                       unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we),
-                                       unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we)});
+                                       unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, UnetPadding{}),
+                                       unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, UnetPadding{})});
     n = std::max<int64_t>(1, std::min<int64_t>(n, (int64_t(memory_budget) - work) / std::max<int64_t>(1, persistent)));
   }
   if (mode == Mode::m) n = std::max<int64_t>(2, n & ~int64_t(1));
   return static_cast<int>(std::min<int64_t>(n, 1 << 20));
 }
 
-int64_t Model::item_buffer_bytes(int64_t h, int64_t w, Mode mode, int top, int left) const {
+int64_t Model::item_buffer_bytes(int64_t h, int64_t w, Mode mode, const UnetPadding& pad) const {
   const int64_t he = round_up(h, 2), we = round_up(w, 2), ev = cfg_.ev_channels();
-  int64_t b = std::max({4 * he * we * ev, synthesis_item_bytes(he, we), unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, top, left),
-                        unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, top, left)});
+  int64_t b = std::max({4 * he * we * ev, synthesis_item_bytes(he, we), unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, pad),
+                        unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, pad)});
   if (mode == Mode::m && cfg_.moa)
-    b = std::max(b, unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, top, left));
+    b = std::max(b, unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, pad));
   return b;
+}
+
+int64_t Model::unet_stride() const {
+  int depth = std::max(cfg_.flownet.depth, cfg_.fusion_net.depth);
+  if (cfg_.moa) depth = std::max(depth, cfg_.attfusion_net.depth);
+  return int64_t(1) << depth;
 }
 
 // ---- stages ----------------------------------------------------------------------------------
@@ -236,16 +249,16 @@ Buffer Model::resblock(const std::string& p, Buffer x) {
   return y;
 }
 
-void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out, int top,
-                 int left) {
+void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out,
+                 const UnetPadding& pad) {
   Backend& b = backend_;
   const Shape s0 = b.shape(pieces.at(0).buf);
   const int64_t n = pieces[0].n, h = s0.h, w = s0.w;
-  // Size adapter: reflection pad to multiples of 32, the odd remainder at the bottom/right (or at
-  // the given offsets: tiles, host/model/tiling.cpp).
-  const int64_t hp = round_up(h + std::max(top, 0), 32), wp = round_up(w + std::max(left, 0), 32);
-  if (top < 0) top = static_cast<int>((hp - h) / 2);
-  if (left < 0) left = static_cast<int>((wp - w) / 2);
+  // Size adapter: reflection pad to multiples of 32, the odd remainder at the bottom/right (or as
+  // RunOptions::unet_pad says: tiles, host/model/tiled_run.cpp).
+  const int64_t hp = unet_padded(h, pad.top, pad.bottom), wp = unet_padded(w, pad.left, pad.right);
+  const int top = pad.top >= 0 ? pad.top : static_cast<int>((hp - h) / 2);
+  const int left = pad.left >= 0 ? pad.left : static_cast<int>((wp - w) / 2);
   int64_t cin = 0;
   for (const auto& v : pieces) cin += v.c;
   Buffer xin = b.alloc({n, cin, hp, wp}, p + ".input");
@@ -360,7 +373,7 @@ void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
   Buffer raw = b.alloc({n, 2, ch.he, ch.we}, "flownet");
   unet("flownet", cfg_.flownet, {sub(ch.ev1, i0, n), sub(ch.ev2, i0, n), sub(ch.rs, i0, n)},
-       raw.whole(), ch.pad_top, ch.pad_left);
+       raw.whole(), ch.pad);
   b.tanh_scale(raw.whole(), items(b, ch.flow, i0, n), 100.f);
   raw.reset();
   b.backward_warp(sub(ch.rs, i0, n), items(b, ch.flow, i0, n), items(b, ch.warped, i0, n));
@@ -373,7 +386,7 @@ void Model::stage_fusion(Chunk& ch, int64_t i0, int64_t n) {
   unet("fusion_net", cfg_.fusion_net,
        {items(b, ch.sys, i0, n), items(b, ch.warped, i0, n), items(b, ch.flow, i0, n), sub(ch.ev3, i0, n),
         sub(ch.rs, i0, n)},
-       raw ? raw.whole() : items(b, ch.fused, i0, n), ch.pad_top, ch.pad_left);
+       raw ? raw.whole() : items(b, ch.fused, i0, n), ch.pad);
   if (!raw) return;
   const Shape plane{n, 1, ch.he, ch.we};
   Buffer phys = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
@@ -416,7 +429,7 @@ void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
     b.copy(items(b, ch.flow, f2, 1), chans(dst, 8 + 2 * ev, 2));
   }
   Buffer score = b.alloc({nt, 1, ch.he, ch.we}, "attfusion_net");
-  unet("attfusion_net", cfg_.attfusion_net, {gathered.whole()}, score.whole(), ch.pad_top, ch.pad_left);
+  unet("attfusion_net", cfg_.attfusion_net, {gathered.whole()}, score.whole(), ch.pad);
   gathered.reset();
   for (int64_t k = 0; k < nt; ++k) {
     const int64_t f1 = 2 * (t0 + k);
@@ -525,14 +538,27 @@ Model::SubBatches Model::sub_batches(int64_t he, int64_t we, const RunOptions& o
   const uint64_t budget = opt.memory_budget;
   SubBatches sb;
   sb.synthesis = sub_items(synthesis_item_bytes(he, we), budget);
-  if (opt.unet_pad_top >= he || opt.unet_pad_left >= we)
-    throw Error("model: UNet input offset (" + std::to_string(opt.unet_pad_top) + ", " + std::to_string(opt.unet_pad_left) +
-                ") must lie inside the " + std::to_string(we) + "x" + std::to_string(he) + " input (reflection padding)");
-  const int ptop = std::max(opt.unet_pad_top, 0), pleft = std::max(opt.unet_pad_left, 0);
-  sb.flow = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, ptop, pleft), budget);
-  sb.fusion = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, ptop, pleft), budget);
-  if (opt.mode == Mode::m) sb.moa = sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, ptop, pleft), budget);
+  check_unet_padding(opt.unet_pad, he, we);
+  const UnetPadding& pad = opt.unet_pad;
+  sb.flow = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, pad), budget);
+  sb.fusion = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, pad), budget);
+  if (opt.mode == Mode::m) sb.moa = sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, pad), budget);
   return sb;
+}
+
+void Model::check_unet_padding(const UnetPadding& pad, int64_t he, int64_t we) const {
+  const std::string what = "model: UNet padding (top " + std::to_string(pad.top) + ", bottom " + std::to_string(pad.bottom) + ", left " +
+                           std::to_string(pad.left) + ", right " + std::to_string(pad.right) + ") of the " + std::to_string(we) + "x" +
+                           std::to_string(he) + " input: ";
+  auto axis = [&](int before, int after, int64_t n) {
+    if (before >= n || after >= n) throw Error(what + "each pad must be smaller than the input (reflection padding)");
+    if (before < 0 && after >= 0) throw Error(what + "an explicit bottom / right pad needs an explicit top / left one");
+    if (after >= 0 && unet_padded(n, before, after) % unet_stride())
+      throw Error(what + "the padded size " + std::to_string(unet_padded(n, before, after)) + " must be a multiple of the UNets' stride " +
+                  std::to_string(unet_stride()));
+  };
+  axis(pad.top, pad.bottom, he);
+  axis(pad.left, pad.right, we);
 }
 
 std::map<std::string, Buffer> Model::run_on_backend(const ModelBuffers& in, const RunOptions& opt, std::vector<Buffer> handed_over) {
@@ -576,8 +602,7 @@ void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::
   ch.nt = m_mode ? ch.n / 2 : 0;
   ch.he = round_up(H, 2);
   ch.we = round_up(W, 2);
-  ch.pad_top = opt.unet_pad_top;
-  ch.pad_left = opt.unet_pad_left;
+  ch.pad = opt.unet_pad;
   // Inputs are read in place; at an odd size they are reflected by one row/column to even size.
   std::vector<Buffer> even_inputs;
   auto input = [&](const BufferSlice& v, const char* nme) {

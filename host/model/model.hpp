@@ -34,6 +34,15 @@ struct ModelInputs {
   HostTensor phys;  // the physics-informed variant only: the physics estimate [B, 3, H, W]
 };
 
+// Reflection padding of each UNet's input, per side, in rows / columns of the even-size input.
+// top / left < 0: centered in the next multiple of 32 (the authors' size adapter; bottom / right
+// must be < 0 too). top / left >= 0 and bottom / right < 0: the input at that offset, padded on to
+// the next multiple of 32. All four >= 0: exactly these; the padded size must then be a multiple of
+// every UNet's stride (Model::unet_stride()), and each pad smaller than the input (reflection).
+struct UnetPadding {
+  int top = -1, left = -1, bottom = -1, right = -1;
+};
+
 struct RunOptions {
   Mode mode = Mode::s;
   // Names to return among sys, E, flow, warped, fused, m, out; empty: all of the mode.
@@ -46,10 +55,9 @@ struct RunOptions {
   // Bytes of intermediates the run should hold at once (0: no limit other than buffer size); it
   // bounds the chunk and sub-batch sizes (a single item may still need more, see docs/model.md).
   uint64_t memory_budget = 0;
-  // >= 0: every UNet's size adapter places its input at this row / column of the padded input
-  // (which then extends to the next multiple of 32) instead of centering it; host/model/tiling.cpp gives
-  // each tile the untiled run's offsets, so a tile sees the untiled run's stride grid.
-  int unet_pad_top = -1, unet_pad_left = -1;
+  // Where every UNet's size adapter puts its input in the reflection-padded input (UnetPadding);
+  // host/model/tiled_run.cpp gives each tile the untiled run's stride grid and border padding.
+  UnetPadding unet_pad;
   // The precision the caller expects; the backend's own (weights are prepared in it when the Model
   // is built) decides, and a run whose expectation differs is refused rather than silently changed.
   std::optional<Precision> precision;
@@ -76,8 +84,11 @@ class Model {
   int items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const;
   // Bytes of the largest single buffer one batch item of this size needs (run() throws when it
   // exceeds the backend's max_buffer_bytes()); host/model/tiling.cpp sizes tiles with it.
-  // (pad_top, pad_left: RunOptions::unet_pad_top / left when set.)
-  int64_t item_buffer_bytes(int64_t h, int64_t w, Mode mode, int pad_top = 0, int pad_left = 0) const;
+  // (pad: RunOptions::unet_pad; top / left with bottom / right < 0 bound any explicit padding whose
+  // top / left are no larger, as tiles' are.)
+  int64_t item_buffer_bytes(int64_t h, int64_t w, Mode mode, const UnetPadding& pad = {}) const;
+  // What every UNet's padded input size must be a multiple of: 2^depth of the deepest UNet.
+  int64_t unet_stride() const;
 
   static const std::vector<std::string>& output_names();  // sys, E, flow, warped, fused, m, out
   // The outputs a run returns: `requested`, or every output of the mode when empty (in
@@ -102,9 +113,9 @@ class Model {
   void add_physics_gate();
   void stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m);
   // The UNet on `pieces` (views with n items, concatenated along channels), output to `out`.
-  // top, left >= 0: the input's offset in the padded input (RunOptions::unet_pad_top / left).
-  void unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out, int top = -1,
-            int left = -1);
+  // pad: RunOptions::unet_pad.
+  void unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out,
+            const UnetPadding& pad);
   Buffer resblock(const std::string& p, Buffer x);  // returns the output buffer; releases x
 
   void check_buffers(const ModelBuffers& in, const RunOptions& opt, const std::vector<Buffer>& handed_over) const;
@@ -115,7 +126,8 @@ class Model {
   void run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::set<std::string>& want, int64_t c0, int64_t n,
                  const SubBatches& sb, std::map<std::string, Buffer>& result, std::vector<Buffer>& handed_over);
   int64_t synthesis_item_bytes(int64_t h, int64_t w) const;
-  int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w, int top = 0, int left = 0) const;
+  int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w, const UnetPadding& pad) const;
+  void check_unet_padding(const UnetPadding& pad, int64_t he, int64_t we) const;  // throws Error naming the rule
   int sub_items(int64_t item_bytes, uint64_t memory_budget) const;
 
   Backend& backend_;

@@ -6,6 +6,7 @@
 #include <set>
 #include <tuple>
 
+#include "vkunroll/base/int_math.hpp"
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/tiling.hpp"
@@ -225,6 +226,40 @@ struct TileIO {
   std::function<void(const std::map<std::string, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed)> stitch;
 };
 
+// The UNet padding along one axis of a batch of input rects n long (of an image `size` long).
+// Aligned: the untiled run's stride grid (its offset modulo the UNets' stride: every rect starts on
+// the 32-grid), and where a rect of the batch reaches the image's start or end, the untiled run's
+// padding on that side; elsewhere just enough for the stride. The other rects of such a batch get
+// more reflection than they need, outside their input rects, which their interiors do not see at
+// the exact halo. Not aligned (halo 0, far from exact anyway): centered, up to the stride.
+std::pair<int, int> axis_padding(bool aligned, bool at_start, bool at_end, int64_t n, int64_t size, int64_t stride) {
+  const int64_t ne = round_up(n, 2);
+  if (!aligned) {
+    const int64_t pad = round_up(ne, stride) - ne;
+    return {int(pad / 2), int(pad - pad / 2)};
+  }
+  const int64_t full = round_up(size, 2), off = unet_offset(size), full_after = round_up(full, 32) - full - off;
+  const int64_t before = at_start ? off : off % stride;
+  const int64_t after = at_end ? full_after : round_up(before + ne, stride) - before - ne;
+  return {int(before), int(after)};
+}
+
+// Aligned unless the halo is 0 (then a whole-image rect still gets the untiled run's padding).
+UnetPadding batch_padding(const std::vector<Tile>& runs, const std::vector<RunItem>& items, int64_t H, int64_t W, int64_t halo,
+                          int64_t stride) {
+  bool top = false, bottom = false, left = false, right = false;
+  for (const RunItem& it : items) {
+    const Rect& r = runs[it.run].input;
+    top |= r.y == 0, bottom |= r.y + r.h == H, left |= r.x == 0, right |= r.x + r.w == W;
+  }
+  const Rect& r = runs[items.at(0).run].input;
+  const bool aligned = halo > 0 || (r.h == H && r.w == W);
+  UnetPadding pad;
+  std::tie(pad.top, pad.bottom) = axis_padding(aligned, top, bottom, r.h, H, stride);
+  std::tie(pad.left, pad.right) = axis_padding(aligned, left, right, r.w, W, stride);
+  return pad;
+}
+
 // The rects of `work`, grouped by input-rect shape, run in batches.
 void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const TileOptions& topt, const std::vector<Tile>& runs,
                  const std::vector<RunItem>& work, int64_t per, int64_t targets, const TileIO& io) {
@@ -238,6 +273,8 @@ void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const
                    [](const auto& x, const auto& y) { return x.first.first * x.first.second > y.first.first * y.first.second; });
   for (const auto& [shape, items] : ordered) {
     const auto [rh, rw] = shape;
+    RunOptions batch_ro = ro;
+    batch_ro.unet_pad = batch_padding(runs, items, H, W, topt.halo, model.unet_stride());
     // Unless max_batch says otherwise, one batch holds no more pixels than the untiled run of the
     // call's targets (so device memory stays near that run's, or one tile's when larger: Model::run
     // chunks it as it would the untiled run), and its input copies stay under 256 MiB. Fewer, larger
@@ -269,7 +306,7 @@ void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const
         for (int64_t j = 0; j < per; ++j) io.cut(tin, int64_t(q) * per + j, it.target * per + j, runs[it.run].input);
         placed.push_back({it.target, &runs[it.run]});
       }
-      const std::map<std::string, Buffer> out = model.run_on_backend(tin, ro);
+      const std::map<std::string, Buffer> out = model.run_on_backend(tin, batch_ro);
       cut_buffers.clear();  // before the stitch: the host path's flush then frees them
       io.stitch(out, placed);
     }
@@ -305,14 +342,6 @@ TiledPlan plan_tiled(Model& model, int64_t B, int64_t rs_channels, int64_t H, in
   p.K = B / p.per;
   p.ro = opt;
   p.ro.outputs = Model::resolve_outputs(opt.outputs, opt.mode);
-  if (!st.plan.untiled() && topt.halo > 0) {
-    // Every input rect starts on the 32-grid, so placing each tile's UNet input at the untiled run's
-    // offset puts it on the untiled run's stride grid, and the border tiles get the untiled run's
-    // reflection at the image border (docs/tiling.md, alignment). Halo 0 is far from exact anyway:
-    // each rect pads only itself (a 64-row rect to 64, not to 96 with the offset).
-    p.ro.unet_pad_top = unet_offset(H);
-    p.ro.unet_pad_left = unet_offset(W);
-  }
   p.direct = st.plan.untiled() && topt.sparse == SparsePolicy::off;
   if (p.direct) {
     st.tiles = st.tiles_run = p.K;

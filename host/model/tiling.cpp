@@ -129,7 +129,7 @@ int64_t choose_tile(const Model& model, int64_t height, int64_t width, Mode mode
   if (model.item_buffer_bytes(height, width, mode) <= limit) return whole;
   for (int64_t t = whole / kTileAlign * kTileAlign; t >= kTileAlign; t -= kTileAlign) {
     const int64_t h = std::min(height, t + 2 * halo), w = std::min(width, t + 2 * halo);
-    if (model.item_buffer_bytes(h, w, mode, unet_offset(height), unet_offset(width)) <= limit) return t;
+    if (model.item_buffer_bytes(h, w, mode, UnetPadding{unet_offset(height), unet_offset(width)}) <= limit) return t;
   }
   throw Error("tiling: even a " + std::to_string(kTileAlign) + "-pixel tile with halo " + std::to_string(halo) +
               " needs a buffer above the " + std::to_string(limit >> 20) + " MiB limit; use a smaller halo");

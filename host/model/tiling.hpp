@@ -14,11 +14,13 @@
 //   r.outputs["fused"], r.active_fraction, r.stage_ms["record"], ...
 //
 // Alignment (why tile and halo are multiples of 32): the model works at even size (space_to_depth)
-// and every UNet pads its input to multiples of 32. Tile origins on the 32-grid see the untiled
-// run's space_to_depth cells, and each tile's UNet places its input at the untiled run's offset
-// (RunOptions::unet_pad_top / left), so it sees the untiled stride grid and border reflection. A
-// tiled run with halo >= exact_halo() then equals the untiled one bit for bit on the CPU backend,
-// for any image size (tests/test_tiling.cpp); smaller halos differ by a measured tolerance.
+// and the untiled run's UNets pad their input to multiples of 32. Tile origins on the 32-grid see
+// the untiled run's space_to_depth cells, and each batch of tiles pads its UNet input
+// (RunOptions::unet_pad) so that it sees the untiled stride grid (the untiled offset modulo the
+// UNets' stride, 8 for depth 3) and, at the image border, the untiled run's border padding;
+// elsewhere only up to the stride, not to 32. A tiled run with halo >= exact_halo() then equals the
+// untiled one bit for bit on the CPU backend, for any image size (tests/test_tiling.cpp); smaller
+// halos differ by a measured tolerance.
 #pragma once
 #include <cstdint>
 #include <map>
@@ -155,7 +157,7 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
 TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt, const TileOptions& topt);
 
 // The untiled run's UNet input offset along one axis (half the padding of the even size to 32):
-// every tile's UNets place their input there (RunOptions::unet_pad_top / left).
+// a border tile's UNets place their input there, the others at it modulo the UNets' stride.
 int unet_offset(int64_t size);
 
 }  // namespace vkunroll
