@@ -12,17 +12,24 @@ struct PadPush {
   uint32_t in_off, in_bs, out_off, out_bs, c, h, w, oh, ow, top, left;
 };
 
-void dispatch(CommandStream& cs, const char* shader, Slice in, Slice out, int64_t top, int64_t left) {
+void dispatch(CommandStream& cs, std::string shader, Slice in, Slice out, int64_t top, int64_t left, bool texel_fetch = false) {
   const Shape is = in.shape(), os = out.shape();
-  const BoundSlice bi = bind_slice(in, Access::read), bo = bind_slice(out, Access::write);
+  BoundSlice bi = bind_slice(in, Access::read);
+  const BoundSlice bo = bind_slice(out, Access::write);
   PadPush p{bi.offset, bi.batch_stride, bo.offset, bo.batch_stride, static_cast<uint32_t>(os.c),
             static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w), static_cast<uint32_t>(os.h),
             static_cast<uint32_t>(os.w), static_cast<uint32_t>(top), static_cast<uint32_t>(left)};
   Context& ctx = in.t->context();
   const Precision prec = slice_precision(in);
   check_precision(out, prec, shader, "output");
-  // crop.comp copies four pixels of a row per invocation.
-  const int64_t per_row = std::string(shader) == "crop" ? (os.w + 3) / 4 : os.w;
+  // The texel form where the bound input fits one texel view (R32, R16 in fp16).
+  const uint64_t element = static_cast<uint64_t>(dtype_size(in.t->dtype()));
+  if (texel_fetch && bi.arg.range.size / element <= ctx.info().max_texel_buffer_elements) {
+    shader += "_texel";
+    if (prec == Precision::fp16) bi.arg.texel_format = VK_FORMAT_R16_SFLOAT;
+  }
+  // crop.comp and reflection_pad_texel.comp copy four pixels of a row per invocation.
+  const int64_t per_row = shader != "reflection_pad" ? (os.w + 3) / 4 : os.w;
   cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), {}, sizeof p), {bi.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((os.h * per_row + 63) / 64), static_cast<uint32_t>(os.c),
                      static_cast<uint32_t>(os.n)},
@@ -66,9 +73,9 @@ int64_t reflect_index(int64_t i, int64_t size) {
   return i >= size ? period - i : i;
 }
 
-void reflection_pad(CommandStream& cs, Slice in, Slice out, const Pads& pads) {
+void reflection_pad(CommandStream& cs, Slice in, Slice out, const Pads& pads, const PadOptions& opt) {
   check_pad("reflection_pad", in, out, pads);
-  dispatch(cs, "reflection_pad", in, out, pads.top, pads.left);
+  dispatch(cs, "reflection_pad", in, out, pads.top, pads.left, opt.texel_fetch);
 }
 
 void reflection_pad_ref(HostSlice in, HostSliceOut out, const Pads& pads) {

@@ -30,10 +30,11 @@ TEST(ReflectionPad, ReflectIndexMatchesPyTorchWherePyTorchWorks) {
 
 namespace {
 // Pure data movement: bit-exact, in fp16 too (against the reference on the inputs as fp16 stores
-// them). Both outputs are slices among canaries.
-optest::OpTest pad_and_crop_test() {
+// them). Both outputs are slices among canaries. texel: the pad's texel-fetch form, else its
+// storage-buffer form.
+optest::OpTest pad_and_crop_test(bool texel) {
   std::mt19937 rng(7);
-  optest::OpTest test{"reflection_pad + crop", {}, {0, 0, false, true}};
+  optest::OpTest test{texel ? "reflection_pad (texel) + crop" : "reflection_pad (storage) + crop", {}, {0, 0, false, true}};
   struct C { int64_t n, c, h, w, extra, c0; };
   for (const C& c : std::vector<C>{{1, 3, 20, 30, 0, 0}, {2, 5, 33, 7, 3, 2}, {1, 2, 1, 13, 0, 0}, {1, 1, 1, 1, 1, 1},
                                    {1, 67, 5, 9, 0, 0}}) {
@@ -47,8 +48,8 @@ optest::OpTest pad_and_crop_test() {
       reflection_pad_ref(HostSlice(r.inputs[0], c.c0, c.c), r.out(0), pads);
       crop_ref(r.written(0), r.out(1), pads.top, pads.left);
     };
-    k.record = [c, pads](optest::DeviceRun& d) {
-      reflection_pad(d.stream, Slice(d.inputs[0], c.c0, c.c), d.out(0), pads);
+    k.record = [c, pads, texel](optest::DeviceRun& d) {
+      reflection_pad(d.stream, Slice(d.inputs[0], c.c0, c.c), d.out(0), pads, PadOptions{texel});
       crop(d.stream, d.out(0), d.out(1), pads.top, pads.left);
       return true;
     };
@@ -67,7 +68,7 @@ optest::OpTest pad_and_crop_test() {
 }  // namespace
 
 TEST(ReflectionPad, PadAndCropMatchReferenceInBothPrecisions) {
-  optest::run_op_test(vktest::context(), pad_and_crop_test());
+  for (bool texel : {true, false}) optest::run_op_test(vktest::context(), pad_and_crop_test(texel));
   Context& ctx = vktest::context();
   Tensor a(ctx, {1, 1, 4, 4}), b(ctx, {1, 1, 3, 3});
   CommandStream cs(ctx);
@@ -77,5 +78,5 @@ TEST(ReflectionPad, PadAndCropMatchReferenceInBothPrecisions) {
 
 // On a context that binds whole tensors a write outside an output slice lands on a canary.
 TEST(ReflectionPad, WritesNothingOutsideItsSlice) {
-  optest::run_op_test(vktest::whole_binding_context(), pad_and_crop_test());
+  for (bool texel : {true, false}) optest::run_op_test(vktest::whole_binding_context(), pad_and_crop_test(texel));
 }

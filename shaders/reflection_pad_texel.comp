@@ -1,0 +1,32 @@
+#version 450
+// reflection_pad.comp reading its input through a uniform texel buffer (R32, R16 in fp16): on
+// llvmpipe a texel fetch is one gather, a storage-buffer load a loop over the lanes. Four pixels
+// of a row per invocation (crop.comp: an invocation's index math is most of a one-value copy).
+#extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_control_flow_attributes : require
+#include "precision.glsl"
+layout(local_size_x = 64) in;
+layout(binding = 0) uniform samplerBuffer xin;
+layout(std430, binding = 1) writeonly buffer Out { SFLOAT y[]; };
+layout(push_constant) uniform P { uint in_off, in_bs, out_off, out_bs, c, h, w, oh, ow, top, left; } p;
+// reflection_pad.comp's folding; one reflection (pad < size, the size adapter's case) without a
+// division, the general fold (pad >= size) with the remainder of |i|.
+uint reflect_index(int i, int n) {
+  if (i >= 0 && i < n) return uint(i);
+  if (n == 1) return 0u;
+  if (i < 0 && -i < n) return uint(-i);
+  if (i >= n && i < 2 * n - 1) return uint(2 * n - 2 - i);
+  uint period = 2u * uint(n - 1);
+  uint r = uint(abs(i)) % period;
+  return r >= uint(n) ? period - r : r;
+}
+void main() {
+  uint i = gl_GlobalInvocationID.x, c = gl_GlobalInvocationID.y, n = gl_GlobalInvocationID.z;
+  uint quads = (p.ow + 3u) / 4u;
+  if (i >= p.oh * quads || c >= p.c) return;
+  uint oy = i / quads, ox = (i % quads) * 4u;
+  uint row = p.in_off + n * p.in_bs + (c * p.h + reflect_index(int(oy) - int(p.top), int(p.h))) * p.w;
+  uint o = p.out_off + n * p.out_bs + (c * p.oh + oy) * p.ow + ox;
+  [[unroll]] for (uint k = 0u; k < 4u; ++k)
+    if (ox + k < p.ow) y[o + k] = SFLOAT(texelFetch(xin, int(row + reflect_index(int(ox + k) - int(p.left), int(p.w)))).r);
+}
