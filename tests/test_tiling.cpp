@@ -88,6 +88,28 @@ TEST(TilingPlan, TilesPartitionTheImageAndHalosAreClipped) {
   EXPECT_THROW(make_tile_plan(1, 70, 32, 32, 32), Error);
 }
 
+// The tiles' UNet padding at 346x260 (the untiled run pads to 288 x 352: 14 rows on top, 14 below,
+// 3 columns left, 3 right), UNet stride 8: an inner rect pads only to the stride on the untiled
+// grid; a rect at the border pads that side as the untiled run; halo 0 centers up to the stride.
+TEST(TilingPlan, UnetPaddingReachesOnlyTheStrideAwayFromTheBorder) {
+  using P = std::pair<int, int>;
+  EXPECT_EQ(unet_axis_padding(true, false, false, 96, 260, 8), (P{6, 2}));    // 96 rows -> 104, not 128
+  EXPECT_EQ(unet_axis_padding(true, true, false, 96, 260, 8), (P{14, 2}));    // top rect: the untiled 14 rows
+  EXPECT_EQ(unet_axis_padding(true, false, true, 100, 260, 8), (P{6, 14}));   // bottom rect: the untiled 14 rows
+  EXPECT_EQ(unet_axis_padding(true, true, true, 260, 260, 8), (P{14, 14}));   // the whole image: the untiled run
+  EXPECT_EQ(unet_axis_padding(true, false, true, 121, 345, 8), (P{3, 3}));    // odd width 345 (even 346 -> 352), from 224
+  EXPECT_EQ(unet_axis_padding(false, false, true, 100, 260, 8), (P{2, 2}));   // halo 0: centered, 100 -> 104
+  EXPECT_EQ(unet_axis_padding(false, false, false, 96, 260, 8), (P{0, 0}));
+  // Any rect length away from the end, and the lengths that end at row 260 from a 32-grid origin.
+  for (bool at_end : {false, true})
+    for (int64_t n : at_end ? std::vector<int64_t>{36, 68, 100, 132} : std::vector<int64_t>{32, 64, 96, 100, 131})
+      for (bool at_start : {false, true}) {
+        const auto [before, after] = unet_axis_padding(true, at_start, at_end, n, 260, 8);
+        EXPECT_EQ((n + n % 2 + before + after) % 8, 0) << n << at_start << at_end;
+        EXPECT_EQ(before % 8, 14 % 8) << "the untiled stride grid";
+      }
+}
+
 TEST(TilingPlan, ReceptiveRadii) {
   const ReceptiveRadius pub = receptive_radius(ModelConfig::published());
   EXPECT_EQ(pub.synthesis, 112);   // 2 (2 + 1 + 50 + 1 + 1) + 2

@@ -226,25 +226,8 @@ struct TileIO {
   std::function<void(const std::map<std::string, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed)> stitch;
 };
 
-// The UNet padding along one axis of a batch of input rects n long (of an image `size` long).
-// Aligned: the untiled run's stride grid (its offset modulo the UNets' stride: every rect starts on
-// the 32-grid), and where a rect of the batch reaches the image's start or end, the untiled run's
-// padding on that side; elsewhere just enough for the stride. The other rects of such a batch get
-// more reflection than they need, outside their input rects, which their interiors do not see at
-// the exact halo. Not aligned (halo 0, far from exact anyway): centered, up to the stride.
-std::pair<int, int> axis_padding(bool aligned, bool at_start, bool at_end, int64_t n, int64_t size, int64_t stride) {
-  const int64_t ne = round_up(n, 2);
-  if (!aligned) {
-    const int64_t pad = round_up(ne, stride) - ne;
-    return {int(pad / 2), int(pad - pad / 2)};
-  }
-  const int64_t full = round_up(size, 2), off = unet_offset(size), full_after = round_up(full, 32) - full - off;
-  const int64_t before = at_start ? off : off % stride;
-  const int64_t after = at_end ? full_after : round_up(before + ne, stride) - before - ne;
-  return {int(before), int(after)};
-}
-
-// Aligned unless the halo is 0 (then a whole-image rect still gets the untiled run's padding).
+// A batch's RunOptions::unet_pad (unet_axis_padding per axis): aligned unless the halo is 0 (then
+// a whole-image rect still gets the untiled run's padding).
 UnetPadding batch_padding(const std::vector<Tile>& runs, const std::vector<RunItem>& items, int64_t H, int64_t W, int64_t halo,
                           int64_t stride) {
   bool top = false, bottom = false, left = false, right = false;
@@ -255,8 +238,8 @@ UnetPadding batch_padding(const std::vector<Tile>& runs, const std::vector<RunIt
   const Rect& r = runs[items.at(0).run].input;
   const bool aligned = halo > 0 || (r.h == H && r.w == W);
   UnetPadding pad;
-  std::tie(pad.top, pad.bottom) = axis_padding(aligned, top, bottom, r.h, H, stride);
-  std::tie(pad.left, pad.right) = axis_padding(aligned, left, right, r.w, W, stride);
+  std::tie(pad.top, pad.bottom) = unet_axis_padding(aligned, top, bottom, r.h, H, stride);
+  std::tie(pad.left, pad.right) = unet_axis_padding(aligned, left, right, r.w, W, stride);
   return pad;
 }
 

@@ -13,6 +13,18 @@ int unet_offset(int64_t size) {
   return static_cast<int>((round_up(even, 32) - even) / 2);
 }
 
+std::pair<int, int> unet_axis_padding(bool aligned, bool at_start, bool at_end, int64_t n, int64_t size, int64_t stride) {
+  const int64_t ne = round_up(n, 2);
+  if (!aligned) {
+    const int64_t pad = round_up(ne, stride) - ne;
+    return {int(pad / 2), int(pad - pad / 2)};
+  }
+  const int64_t full = round_up(size, 2), off = unet_offset(size), full_after = round_up(full, 32) - full - off;
+  const int64_t before = at_start ? off : off % stride;
+  const int64_t after = at_end ? full_after : round_up(before + ne, stride) - before - ne;
+  return {int(before), int(after)};
+}
+
 namespace {
 
 void check_aligned(int64_t v, const char* what) {

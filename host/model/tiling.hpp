@@ -25,6 +25,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "vkunroll/base/shape.hpp"
@@ -159,5 +160,14 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
 // The untiled run's UNet input offset along one axis (half the padding of the even size to 32):
 // a border tile's UNets place their input there, the others at it modulo the UNets' stride.
 int unet_offset(int64_t size);
+
+// The UNet padding (before, after) along one axis of a batch of input rects n long in an image
+// `size` long, for the UNets' `stride` (run_tiled passes it per batch as RunOptions::unet_pad).
+// Aligned (halo > 0): the untiled run's stride grid (its offset modulo the stride: every rect starts
+// on the 32-grid), and where a rect of the batch reaches the image's start or end the untiled run's
+// padding on that side, elsewhere only up to the stride. The batch's other rects then get more
+// reflection than they need, outside their input rects, which their interiors do not see at the
+// exact halo. Not aligned (halo 0, far from exact anyway): centered, up to the stride.
+std::pair<int, int> unet_axis_padding(bool aligned, bool at_start, bool at_end, int64_t n, int64_t size, int64_t stride);
 
 }  // namespace vkunroll
