@@ -152,6 +152,10 @@ BoundSlice bind_slice(const Slice& s, Access access) {
 }
 
 
+bool texel_view_fits(const DeviceInfo& info, uint64_t bytes, uint64_t texel_bytes) {
+  return bytes / texel_bytes <= info.max_texel_buffer_elements;
+}
+
 UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit) {
   UniformSlabChunks c;
   // At least 16 bytes: the fp16 slabs are read as std140 uvec4s (8 weights each) from the slab start.

@@ -68,6 +68,10 @@ struct UniformSlabChunks {
 };
 UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit);
 
+// Whether `bytes` read as texels of `texel_bytes` fit one texel buffer view (maxTexelBufferElements):
+// the texel forms of the convs and pads fall back to storage-buffer reads where they do not.
+bool texel_view_fits(const DeviceInfo& info, uint64_t bytes, uint64_t texel_bytes);
+
 // A packed weight array on the device in `p` (fp16: rounded to nearest even; an Error names `who` and
 // the first value beyond +-65504).
 Tensor upload_weights(Context& ctx, const std::vector<float>& values, Precision p, const std::string& who);

@@ -273,7 +273,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
 }
 
 bool Conv2d::texel_fits(uint64_t bytes, uint64_t texel_bytes) const {
-  return texel_fetch_ && bytes / texel_bytes <= ctx_.info().max_texel_buffer_elements;
+  return texel_fetch_ && texel_view_fits(ctx_.info(), bytes, texel_bytes);
 }
 
 Arg Conv2d::input_texel_arg(const Recording& r) const {

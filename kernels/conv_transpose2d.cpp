@@ -217,7 +217,7 @@ void ConvTranspose2d::record(CommandStream& cs, Slice in, Slice out, ConvTranspo
     const int64_t g = (tasks + 15) / 16, gx = std::min<int64_t>(g, 65535);
     const Groups groups{u32(gx), u32((g + gx - 1) / gx), u32(os.n)};
     const bool texel_input =
-        texel_fetch_ && bi.arg.range.size / static_cast<uint64_t>(e) <= ctx_.info().max_texel_buffer_elements;
+        texel_fetch_ && texel_view_fits(ctx_.info(), bi.arg.range.size, static_cast<uint64_t>(e));
     Arg input = bi.arg;
     if (precision_ == Precision::fp16) input.texel_format = VK_FORMAT_R16_SFLOAT;
     // The slab in whole 16-byte uniform entries (vec4s in fp32, 8 halves each in fp16).

@@ -24,7 +24,7 @@ void dispatch(CommandStream& cs, std::string shader, Slice in, Slice out, int64_
   check_precision(out, prec, shader, "output");
   // The texel form where the bound input fits one texel view (R32, R16 in fp16).
   const uint64_t element = static_cast<uint64_t>(dtype_size(in.t->dtype()));
-  if (texel_fetch && bi.arg.range.size / element <= ctx.info().max_texel_buffer_elements) {
+  if (texel_fetch && texel_view_fits(ctx.info(), bi.arg.range.size, element)) {
     shader += "_texel";
     if (prec == Precision::fp16) bi.arg.texel_format = VK_FORMAT_R16_SFLOAT;
   }

@@ -5,21 +5,11 @@
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
 #include "precision.glsl"
+#include "reflect_index.glsl"
 layout(local_size_x = 64) in;
 layout(binding = 0) uniform samplerBuffer xin;
 layout(std430, binding = 1) writeonly buffer Out { SFLOAT y[]; };
 layout(push_constant) uniform P { uint in_off, in_bs, out_off, out_bs, c, h, w, oh, ow, top, left; } p;
-// reflection_pad.comp's folding; one reflection (pad < size, the size adapter's case) without a
-// division, the general fold (pad >= size) with the remainder of |i|.
-uint reflect_index(int i, int n) {
-  if (i >= 0 && i < n) return uint(i);
-  if (n == 1) return 0u;
-  if (i < 0 && -i < n) return uint(-i);
-  if (i >= n && i < 2 * n - 1) return uint(2 * n - 2 - i);
-  uint period = 2u * uint(n - 1);
-  uint r = uint(abs(i)) % period;
-  return r >= uint(n) ? period - r : r;
-}
 void main() {
   uint i = gl_GlobalInvocationID.x, c = gl_GlobalInvocationID.y, n = gl_GlobalInvocationID.z;
   uint quads = (p.ow + 3u) / 4u;

@@ -1,0 +1,14 @@
+// The source index of padded index i along an axis of n: PyTorch's reflection where the pad is
+// below n, larger pads keep reflecting (period 2(n-1)), and a size-1 axis repeats its one value.
+// One reflection (the size adapter's case) takes no division. The folding is even (index -i maps
+// like i), so the remainder is taken of |i|: Vulkan leaves OpSMod/OpSRem of a negative operand
+// undefined (NVIDIA returned wrong indices; lavapipe did not).
+uint reflect_index(int i, int n) {
+  if (i >= 0 && i < n) return uint(i);
+  if (n == 1) return 0u;
+  if (i < 0 && -i < n) return uint(-i);
+  if (i >= n && i < 2 * n - 1) return uint(2 * n - 2 - i);
+  uint period = 2u * uint(n - 1);
+  uint r = uint(abs(i)) % period;
+  return r >= uint(n) ? period - r : r;
+}
