@@ -9,6 +9,7 @@
 #include <numeric>
 #include <random>
 
+#include "vkunroll/base/error.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 #include "vkunroll/host/unroll/unroll_plan.hpp"
 
@@ -130,4 +131,81 @@ TEST(ContrastEstimate, NoiseAloneIsNoEvidence) {
   EXPECT_TRUE(e.is_default) << e.source;
   EXPECT_EQ(e.contrast, 0.2);
   EXPECT_NE(e.warning.find("too few pixels"), std::string::npos) << e.warning;
+}
+
+// The noise measures behind `--gate-radius auto`: a clean static scene with movers reads clean, the
+// realistic preset (and it with more background activity and hot pixels) noisy; the choice follows.
+TEST(ContrastEstimate, NoiseMeasuresTellACleanRecordingFromANoisyOne) {
+  auto plan_of = [](const ContrastEstimate& e) {
+    PhysicsPlan p;
+    p.frame_noise = e.frame_noise;
+    p.isolated_event_fraction = e.isolated_event_fraction;
+    return p;
+  };
+  sim::SimulationConfig cfg = sim::simulation_preset("clean");
+  cfg.seed = 11;
+  cfg.frames = 4;
+  cfg.motion = sim::MotionKind::Static;
+  Noisy clean;
+  clean.cfg = cfg;
+  clean.seq = sim::simulate(cfg);
+  for (size_t k = 0; k < clean.seq.rs.size(); ++k) {
+    RowTiming t;
+    t.t0 = Rational::from_double(clean.seq.frame_t0_us[k]);
+    t.line_delay = Rational::from_double(cfg.line_delay_us);
+    t.exposure = Rational::from_double(cfg.exposure_us);
+    t.rows = cfg.height;
+    clean.timings.push_back(t);
+    cv::Mat f;
+    sim::encode_image(clean.seq.rs[k], cfg.gamma, 8, true).convertTo(f, CV_32FC3, 1.0 / 255);
+    clean.frames.push_back(f);
+  }
+  ASSERT_GT(clean.seq.events.size(), 1000u) << "the movers fire";
+  const ContrastEstimate c = estimate(clean, clean.seq.events);
+  const Noisy realistic = simulate_noisy(0.25, 7);
+  const ContrastEstimate r = estimate(realistic, realistic.seq.events);
+  const ContrastEstimate more = estimate(realistic, add_noise(realistic.seq.events, 5.0, 50, 99));
+  std::printf("frame noise / isolated events: clean %.4f / %.3f, realistic %.4f / %.3f, more noise %.4f / %.3f\n",
+              c.frame_noise, c.isolated_event_fraction, r.frame_noise, r.isolated_event_fraction, more.frame_noise,
+              more.isolated_event_fraction);
+  EXPECT_GE(c.frame_noise, 0.0);
+  EXPECT_LT(c.frame_noise, kCleanFrameNoise);
+  EXPECT_GE(c.isolated_event_fraction, 0.0);
+  EXPECT_LT(c.isolated_event_fraction, kCleanIsolatedEvents);
+  EXPECT_TRUE(r.frame_noise >= kCleanFrameNoise || r.isolated_event_fraction >= kCleanIsolatedEvents);
+  // Dense background activity is no longer isolated (a neighbour fires too): the frame noise tells.
+  EXPECT_TRUE(more.frame_noise >= kCleanFrameNoise || more.isolated_event_fraction >= kCleanIsolatedEvents);
+  const GateRadiusOption automatic;
+  EXPECT_EQ(choose_gate_radius(automatic, 1, plan_of(c)).radius, 1);
+  EXPECT_EQ(choose_gate_radius(automatic, 1, plan_of(r)).radius, kNoisyGateRadius);
+  EXPECT_EQ(choose_gate_radius(automatic, 3, plan_of(more)).radius, 3) << "never below the model's own";
+  const GateChoice noisy = choose_gate_radius(automatic, 1, plan_of(more));
+  EXPECT_NE(noisy.source.find("noisy recording"), std::string::npos) << noisy.source;
+}
+
+TEST(ContrastEstimate, GateRadiusOptionIsParsedAndApplied) {
+  EXPECT_EQ(parse_gate_radius("auto", "--gate-radius").kind, GateRadiusOption::Kind::automatic);
+  EXPECT_EQ(parse_gate_radius("model", "--gate-radius").kind, GateRadiusOption::Kind::model);
+  const GateRadiusOption three = parse_gate_radius("3", "--gate-radius");
+  EXPECT_EQ(three.kind, GateRadiusOption::Kind::fixed);
+  EXPECT_EQ(three.radius, 3);
+  EXPECT_EQ(gate_radius_text(three), "3");
+  for (const char* bad : {"", "-1", "17", "2x", "one"}) {
+    try {
+      parse_gate_radius(bad, "--gate-radius");
+      ADD_FAILURE() << "accepted '" << bad << "'";
+    } catch (const UsageError& e) {
+      EXPECT_NE(std::string(e.what()).find("--gate-radius '" + std::string(bad) + "'"), std::string::npos) << e.what();
+    }
+  }
+  PhysicsPlan unmeasured;  // a given contrast: no noise measure
+  const GateChoice own = choose_gate_radius(GateRadiusOption{}, 1, unmeasured);
+  EXPECT_EQ(own.radius, 1);
+  EXPECT_NE(own.source.find("not measured"), std::string::npos) << own.source;
+  PhysicsPlan noisy;
+  noisy.frame_noise = 0.05, noisy.isolated_event_fraction = 0.3;
+  EXPECT_EQ(choose_gate_radius({GateRadiusOption::Kind::model, 0}, 1, noisy).radius, 1);
+  EXPECT_EQ(choose_gate_radius(three, 1, noisy).radius, 3);
+  EXPECT_EQ(choose_gate_radius(GateRadiusOption{}, -1, noisy).radius, -1) << "no gate: none chosen";
+  EXPECT_THROW(choose_gate_radius(three, -1, noisy), UsageError);
 }

@@ -83,12 +83,13 @@ def ssim(a: np.ndarray, b: np.ndarray) -> float:
 
 
 # ---- the CLI -----------------------------------------------------------------------------------------
-def cli_metrics(cli: str, seq: Sequence, work: str, mode: str, model: Optional[str] = None) -> Dict[float, dict]:
+def cli_metrics(cli: str, seq: Sequence, work: str, mode: str, model: Optional[str] = None,
+                gate: str = "model") -> Dict[float, dict]:
     """metrics.csv rows of `vkunroll unroll --mode MODE --times gt`, by GT time."""
     out = os.path.join(work, f"{os.path.basename(seq.folder.rstrip('/'))}_{mode}")
     cmd = [cli, "unroll", seq.folder, "--out", out, "--mode", mode, "--times", "gt", "--no-video", "--quiet"]
     if model:
-        cmd += ["--model", model]
+        cmd += ["--model", model, "--gate-radius", gate]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise DataError(f"{' '.join(cmd)} failed: {r.stderr.strip()[-400:]}")
@@ -115,10 +116,28 @@ def noisy(noise: str) -> str:
     return "unknown" if noise == "unknown" else ("no" if noise in ("clean", "none") else "yes")
 
 
+# `vkunroll unroll --gate-radius auto` (host/unroll/unroll_plan.hpp, choose_gate_radius): the same
+# constants, applied to what the contrast estimate measured (--mode physics's summary.json).
+CLEAN_FRAME_NOISE, CLEAN_ISOLATED_EVENTS, NOISY_GATE_RADIUS = 0.01, 0.05, 2
+
+
+def auto_gate_radius(physics: dict, model_radius: int) -> int:
+    noise, iso = physics.get("frame_noise", -1.0), physics.get("isolated_event_fraction", -1.0)
+    if model_radius < 0 or noise < 0 or iso < 0:
+        return model_radius
+    clean = noise < CLEAN_FRAME_NOISE and iso < CLEAN_ISOLATED_EVENTS
+    return model_radius if clean else max(model_radius, NOISY_GATE_RADIUS)
+
+
 def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(), limit: int = 0,
-             threads: int = 2, log=print) -> dict:
+             threads: int = 2, log=print, gate: str = "model") -> dict:
+    """gate "auto": each gated variant runs each sequence at the radius `unroll --gate-radius auto`
+    chooses there (needs `cli`); "model": at its metadata's."""
+    if gate == "auto" and not cli:
+        raise DataError("--gate auto needs --cli (the noise measure is the contrast estimate's)")
     torch.set_num_threads(threads)
     nets = {name: load_model(path) for name, path in models.items()}
+    own_gate = {name: (net.cfg.physics_gate if net.cfg.physics_input else -1) for name, net in nets.items()}
     seqs = [Sequence(p, cache_images=True) for p in list_sequences(data)]
     rows = []
     t0 = time.time()
@@ -130,13 +149,19 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
             contrast, log_offset = ((float(phys_cli["_summary"]["physics"]["contrast"]),
                                      float(phys_cli["_summary"]["physics"].get("log_offset", 0.0))) if phys_cli else
                                     pn.estimate_physics(seq, None, gamma))
+            radii = {}
+            for name, net in nets.items():
+                if own_gate[name] >= 0:
+                    net.cfg.physics_gate = (auto_gate_radius(phys_cli["_summary"]["physics"], own_gate[name])
+                                            if gate == "auto" else own_gate[name])
+                    radii[name] = net.cfg.physics_gate
             info = SeqInfo(seq)
             info.gamma = gamma
             info.contrast = lambda c=contrast: c  # the contrast --mode physics estimated (the variant: log offset 0)
             cli_model = {}
             for name, path in models.items():
                 for mode in cli_modes:
-                    cli_model[(name, mode)] = cli_metrics(cli, seq, work, mode, path)
+                    cli_model[(name, mode)] = cli_metrics(cli, seq, work, mode, path, gate)
             gts = [(i, g) for i, g in enumerate(seq.meta.get("ground_truth") or [])]
             if limit:
                 gts = gts[:limit]
@@ -147,7 +172,8 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                 tau = float(g.get("tau", (t - seq.frame_span(k)[0]) / (seq.frame_span(k)[1] - seq.frame_span(k)[0])))
                 gt = seq.gt_image(i)
                 row = {"sequence": os.path.basename(seq.folder.rstrip("/")), "kind": kind_of(seq), "noise": noise_of(seq),
-                       "t_us": t, "frame": k, "tau": tau, "intra": 0.0 <= tau <= 1.0, "psnr": {}, "ssim": {}}
+                       "t_us": t, "frame": k, "tau": tau, "intra": 0.0 <= tau <= 1.0, "psnr": {}, "ssim": {},
+                       "gate_radius": radii}
                 rs = seq.frame(k)
                 row["psnr"]["RS input"], row["ssim"]["RS input"] = psnr(rs, gt), ssim(rs, gt)
                 if phys_cli:
@@ -172,9 +198,9 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                         tag = f"{name}-{mode.upper()}(cli)"
                         row["psnr"][tag], row["ssim"][tag] = float(c["psnr"]), float(c["ssim"])
                 rows.append(row)
-            log(f"{seq.folder}: {len(gts)} targets, contrast {contrast:.3f}, gamma {gamma:g} "
-                f"({time.time() - ts:.0f} s)")
-    return {"data": data, "models": models, "cli": cli, "cli_modes": list(cli_modes), "rows": rows,
+            log(f"{seq.folder}: {len(gts)} targets, contrast {contrast:.3f}, gamma {gamma:g}"
+                + "".join(f", {n} gate radius {r}" for n, r in radii.items()) + f" ({time.time() - ts:.0f} s)")
+    return {"data": data, "models": models, "cli": cli, "cli_modes": list(cli_modes), "gate": gate, "rows": rows,
             "seconds": round(time.time() - t0, 1), "summary": summarize(rows)}
 
 
@@ -237,6 +263,8 @@ def main(argv=None) -> int:
     ap.add_argument("--limit", type=int, default=0, help="at most this many GT instants per sequence")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json")
+    ap.add_argument("--gate", choices=("model", "auto"), default="model",
+                    help="gated variants: the metadata's radius, or per sequence the one `unroll --gate-radius auto` picks")
     a = ap.parse_args(argv)
     models = {}
     for m in a.model:
@@ -245,7 +273,7 @@ def main(argv=None) -> int:
         name, path = m.split("=", 1)
         models[name] = path
     try:
-        res = evaluate(a.data, models, a.cli, [x for x in a.cli_modes.split(",") if x], a.limit, a.threads)
+        res = evaluate(a.data, models, a.cli, [x for x in a.cli_modes.split(",") if x], a.limit, a.threads, gate=a.gate)
     except DataError as e:
         print(f"natural_eval.py: error: {e}", file=sys.stderr)
         return 1

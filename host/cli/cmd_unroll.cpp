@@ -14,7 +14,8 @@ namespace {
 struct UnrollArgs {
   std::optional<std::string> frames;  // given empty: an error (never "all frames" by accident)
   std::string sequence, out, model, mode = "auto", times = "0.5", times_us, channel_order, backend = "vulkan",
-                           precision = "fp32", sparse = "exact", frame_format, bit_depth, conv_choice = "auto";
+                           precision = "fp32", sparse = "exact", frame_format, bit_depth, conv_choice = "auto",
+                           gate_radius = "auto";
   std::optional<double> contrast, gamma, fps;
   double sparse_threshold = 0.05;
   bool sparse_split = false;
@@ -50,6 +51,7 @@ UnrollOptions to_options(const UnrollArgs& a) {
   o.session.conv_choice = parse_conv_choice(a.conv_choice, "--conv-choice");
   o.contrast = a.contrast;
   o.gamma = a.gamma;
+  o.gate_radius = parse_gate_radius(a.gate_radius, "--gate-radius");
   o.tile = a.tile;
   o.halo = a.halo;
   o.sparse = parse_sparse_policy(a.sparse, "--sparse");
@@ -80,6 +82,10 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
       ->check(CLI::IsMember({"rgb", "bgr"}))->group(g)->type_name("O");
   c->add_option("--contrast", a.contrast, "physics: the contrast threshold c (default: estimated from the sequence)")
       ->check(finite_at_least(0, true))->group(g)->type_name("C");
+  c->add_option("--gate-radius", a.gate_radius,
+                "physics-informed variant: its event gate radius; auto: 2 on a noisy recording (the contrast estimate "
+                "measures its noise), else the model's; model: the weights' metadata; or N (0-16)")
+      ->capture_default_str()->group(g)->type_name("R");
   c->add_option("--gamma", a.gamma, "physics: decode gamma of the frames (default: meta.json source.settings.gamma, else 1)")
       ->check(finite_at_least(0, true))->group(g)->type_name("G");
   c->add_option("--tile", a.tile,

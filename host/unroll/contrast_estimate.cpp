@@ -42,6 +42,7 @@ struct Sample {
 struct PairEvidence {
   std::vector<Sample> samples;
   std::vector<double> quiet_change;  // log change of in-range pixels without an event in their 3x3
+  size_t event_pixels = 0, isolated = 0;  // pixels with events; of them, none in their 8 neighbours
 };
 
 // The pixels of frames (a, b) whose net events between the rows' mid-exposures are signal:
@@ -75,6 +76,7 @@ PairEvidence pair_evidence(const RowTiming& fa, const RowTiming& fb, const cv::M
           around += count[j];
           if ((dy || dx) && net[i] != 0 && (net[j] > 0) == (net[i] > 0) && net[j] != 0) support++;
         }
+      if (count[i] > 0) r.event_pixels++, r.isolated += around == count[i];
       if (around == 0) r.quiet_change.push_back(std::log(lb[i] + 0.01) - std::log(la[i] + 0.01));
       if (std::abs(net[i]) >= kMinEvents && support >= kMinSupport) r.samples.push_back({la[i], lb[i], net[i]});
     }
@@ -112,11 +114,14 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
             true, {}, 0};
   std::vector<Sample> samples;
   std::vector<double> quiet;
+  size_t event_pixels = 0, isolated = 0;
   for (auto [a, b] : pairs) {
     PairEvidence e = pair_evidence(timings[a], timings[b], image(a), image(b), gamma, width, height, events);
     samples.insert(samples.end(), e.samples.begin(), e.samples.end());
     quiet.insert(quiet.end(), e.quiet_change.begin(), e.quiet_change.end());
+    event_pixels += e.event_pixels, isolated += e.isolated;
   }
+  const double isolated_fraction = event_pixels ? double(isolated) / double(event_pixels) : -1.0;
   // Frame noise: the robust spread of the log change where nothing happened; a signal pixel's
   // change must exceed 3 sigma and agree with its events' sign (hot pixels fire without one).
   double sigma = 0;
@@ -125,6 +130,7 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
     for (double& q : quiet) q = std::abs(q - m);
     sigma = 1.4826 * median(quiet);
   }
+  const double frame_noise = quiet.size() >= 100 ? sigma : -1.0;
   std::vector<Sample> kept;
   for (const Sample& s : samples) {
     const double d = std::log(s.b + 0.01) - std::log(s.a + 0.01);
@@ -137,7 +143,7 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
                           " have events explained by a brightness change (" + std::to_string(kMinPixels) + " needed)",
             "contrast c = 0.2 is a fixed default: too few pixels of frames " + over +
                 " have both events and a matching brightness change to estimate it (give --contrast C)",
-            true, pairs, kept.size()};
+            true, pairs, kept.size(), frame_noise, isolated_fraction};
   // Per offset: c is the L1 fit of log change against event count; the offset whose fit leaves the
   // least residual (in events) wins.
   double best_c = 0.2, best_eps = 0.0, best_residual = 1e300;
@@ -157,7 +163,7 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
   char src[200];
   std::snprintf(src, sizeof src, "estimated (brightness change against event count at %zu pixels of frames %s; log offset %g)",
                 kept.size(), over.c_str(), best_eps);
-  ContrastEstimate r{best_c, best_eps, src, "", false, pairs, kept.size()};
+  ContrastEstimate r{best_c, best_eps, src, "", false, pairs, kept.size(), frame_noise, isolated_fraction};
   if (best_c < kPlausibleLow || best_c > kPlausibleHigh) {
     char text[260];
     std::snprintf(text, sizeof text,

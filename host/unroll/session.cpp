@@ -69,6 +69,7 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
   if (!o.model_path.empty()) {
     weights_ = std::make_unique<Weights>(load_weights(o.model_path));
     rgb_ = weights_->config.channel_order != "bgr";
+    if (weights_->config.physics_input) metadata_gate_radius_ = weights_->config.physics_gate;
   }
   if (o.backend == BackendKind::vulkan) {
     ContextOptions co;
@@ -89,6 +90,13 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
     backend_ = std::make_unique<CpuBackend>(o.cpu_threads);
   }
   if (weights_) model_ = std::make_unique<Model>(*backend_, *weights_);
+}
+
+void UnrollSession::set_gate_radius(int r) {
+  if (!weights_ || r == weights_->config.physics_gate) return;
+  if (metadata_gate_radius_ < 0 || r < 0) throw Error("unroll session: this model has no event gate to set");
+  weights_->config.physics_gate = r;
+  model_ = std::make_unique<Model>(*backend_, *weights_);
 }
 
 UnrollSession::~UnrollSession() {

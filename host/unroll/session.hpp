@@ -107,6 +107,10 @@ class UnrollSession {
   // Physics parameters: of --mode physics targets, and of the physics-informed variant's input
   // (whose gamma is the model's encoding; unroll converts the frames to it).
   void set_physics(const PhysicsUnrollParams& p) { physics_ = p; }
+  // The variant's event gate radius as the weights' metadata gave it (-1: no gate, or no model), and
+  // the one the model runs with: set_gate_radius rebuilds the model when it changes (before a run).
+  int metadata_gate_radius() const { return metadata_gate_radius_; }
+  void set_gate_radius(int r);
 
   // The GS images (BGR float32 in [0, 1], the sensor's size) of `targets`, in their order.
   std::vector<cv::Mat> unroll(const FrameInput& in, const std::vector<FrameTarget>& targets);
@@ -153,6 +157,7 @@ class UnrollSession {
   std::unique_ptr<Backend> backend_;
   std::unique_ptr<Weights> weights_;
   std::unique_ptr<Model> model_;
+  int metadata_gate_radius_ = -1;
   std::unique_ptr<EventTensorBuilder> host_builder_;  // the host path's event tensors (Vulkan)
   bool rgb_ = true;
   TileOptions tiling_;

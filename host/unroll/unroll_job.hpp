@@ -108,6 +108,7 @@ class UnrollJob {
   std::map<int, std::vector<UnrollTarget>> targets_;
   size_t total_targets_ = 0;
   PhysicsPlan physics_;
+  GateChoice gate_;  // the variant's event gate radius and why
   TileOptions tiling_;
   std::map<int, DecodedFrame> decoded_;  // frames decoded and still needed (the next frame's f1)
   std::set<int> ever_decoded_;

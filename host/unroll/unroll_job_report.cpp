@@ -155,6 +155,9 @@ nlohmann::json UnrollJob::report(double total_ms) const {
                     {"gamma", physics_.params.gamma}, {"role", physics_.variant ? "the model's physics input" : "the unroller"}};
     if (!physics_.contrast_pairs.empty()) r["physics"]["contrast_pairs"] = physics_.contrast_pairs;
     if (physics_.contrast_method == "event_count_fit") r["physics"]["contrast_pixels"] = physics_.contrast_pixels;
+    if (physics_.frame_noise >= 0) r["physics"]["frame_noise"] = physics_.frame_noise;
+    if (physics_.isolated_event_fraction >= 0) r["physics"]["isolated_event_fraction"] = physics_.isolated_event_fraction;
+    if (gate_.radius >= 0) r["physics"]["gate_radius"] = {{"radius", gate_.radius}, {"source", gate_.source}};
   }
   if (session_.has_model()) {
     const auto& g = session_.model_config().gamma;

@@ -75,6 +75,30 @@ ChannelOrder parse_channel_order(const std::string& s, const std::string& what) 
   throw UsageError(what + " '" + s + "' (expected rgb, bgr or model: the weights' metadata)");
 }
 
+GateRadiusOption parse_gate_radius(const std::string& s, const std::string& what) {
+  if (s == "auto") return {GateRadiusOption::Kind::automatic, 0};
+  if (s == "model") return {GateRadiusOption::Kind::model, 0};
+  size_t used = 0;
+  int r = -1;
+  try {
+    r = std::stoi(s, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used != s.size() || s.empty() || r < 0 || r > kMaxGateRadius)
+    throw UsageError(what + " '" + s + "': expected auto, model or an integer radius 0.." + std::to_string(kMaxGateRadius));
+  return {GateRadiusOption::Kind::fixed, r};
+}
+
+std::string gate_radius_text(const GateRadiusOption& g) {
+  switch (g.kind) {
+    case GateRadiusOption::Kind::automatic: return "auto";
+    case GateRadiusOption::Kind::model: return "model";
+    case GateRadiusOption::Kind::fixed: return std::to_string(g.radius);
+  }
+  return "?";
+}
+
 TargetTimes parse_target_times(const std::string& times, const std::string& times_us) {
   if (!times_us.empty()) return {TargetTimes::Kind::absolute_us, parse_value_list(times_us, "--times-us")};
   if (times == "gt") return {TargetTimes::Kind::ground_truth, {}};
@@ -198,6 +222,7 @@ nlohmann::json unroll_options_json(const UnrollOptions& o) {
       {"cpu_threads", o.session.cpu_threads},
       {"channel_order", o.channel_order == ChannelOrder::model ? "model" : o.channel_order == ChannelOrder::rgb ? "rgb" : "bgr"},
       {"contrast", o.contrast ? nlohmann::json(*o.contrast) : nlohmann::json()},
+      {"gate_radius", gate_radius_text(o.gate_radius)},
       {"gamma", o.gamma ? nlohmann::json(*o.gamma) : nlohmann::json()},
       {"tile", o.tile},
       {"halo", o.halo},

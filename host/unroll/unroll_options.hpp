@@ -35,6 +35,19 @@ const char* backend_kind_name(BackendKind b);
 enum class ChannelOrder { model, rgb, bgr };
 ChannelOrder parse_channel_order(const std::string& s, const std::string& what);
 
+// The physics-informed variant's event gate radius (metadata physics_gate): `automatic` chooses it
+// from the recording's noise (choose_gate_radius, unroll_plan.hpp), `model` keeps the weights' value,
+// `fixed` takes `radius`.
+struct GateRadiusOption {
+  enum class Kind { automatic, model, fixed };
+  Kind kind = Kind::automatic;
+  int radius = 0;
+};
+constexpr int kMaxGateRadius = 16;
+// "auto" | "model" | an integer 0..kMaxGateRadius; UsageError names `what`.
+GateRadiusOption parse_gate_radius(const std::string& s, const std::string& what);
+std::string gate_radius_text(const GateRadiusOption& g);  // "auto", "model" or the number
+
 // Which instants to render.
 struct TargetTimes {
   enum class Kind {
@@ -90,6 +103,7 @@ struct UnrollOptions {
   ChannelOrder channel_order = ChannelOrder::model;
   std::optional<double> contrast;  // physics: c; empty: estimated (see estimate_contrast)
   std::optional<double> gamma;     // physics: decode gamma of the frames; empty: meta.json's source gamma or 1
+  GateRadiusOption gate_radius;    // the variant's event gate: chosen from the recording's noise unless given
   bool quiet = false;             // nothing on stderr but warnings and errors
   UnrollOutputOptions output;     // frame format, video, what to do with an existing folder (--overwrite, --resume)
   // Provenance: the command line that asked for this run (summary.json; empty for library calls).
@@ -135,6 +149,11 @@ struct ContrastEstimate {
   bool is_default = false;                  // not estimated: a fixed value (no pair of frames, too few pixels)
   std::vector<std::pair<int, int>> pairs;   // the frame pairs the estimate compared
   size_t pixels = 0;                        // the pixels (over all pairs) the fit used
+  // What the recording's noise looks like (-1: not measured): the frames' robust spread of log
+  // luminance change where no event fired, and the share of event pixels with no event among
+  // their 8 neighbours (background activity and hot pixels are isolated; motion is not).
+  double frame_noise = -1;
+  double isolated_event_fraction = -1;
 };
 
 }  // namespace vkunroll

@@ -216,8 +216,29 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
     p.contrast_method = e.is_default ? "default" : "event_count_fit";
     p.contrast_pairs = e.pairs;
     p.contrast_pixels = e.pixels;
+    p.frame_noise = e.frame_noise;
+    p.isolated_event_fraction = e.isolated_event_fraction;
   }
   return p;
+}
+
+GateChoice choose_gate_radius(const GateRadiusOption& o, int model_radius, const PhysicsPlan& physics) {
+  if (model_radius < 0) {
+    if (o.kind == GateRadiusOption::Kind::fixed)
+      throw UsageError("--gate-radius " + std::to_string(o.radius) + ": the model has no event gate (metadata physics_gate)");
+    return {-1, "the model has no event gate"};
+  }
+  if (o.kind == GateRadiusOption::Kind::fixed) return {o.radius, "--gate-radius"};
+  const std::string own = "the model's metadata (physics_gate " + std::to_string(model_radius) + ")";
+  if (o.kind == GateRadiusOption::Kind::model) return {model_radius, own};
+  if (physics.frame_noise < 0 || physics.isolated_event_fraction < 0)
+    return {model_radius, own + ": the recording's noise was not measured (no contrast estimate)"};
+  const bool clean = physics.frame_noise < kCleanFrameNoise && physics.isolated_event_fraction < kCleanIsolatedEvents;
+  char text[200];
+  std::snprintf(text, sizeof text, "auto: a %s recording (frame noise %.4f, isolated events %.1f%%; clean below %g and %g%%)",
+                clean ? "clean" : "noisy", physics.frame_noise, 100 * physics.isolated_event_fraction, kCleanFrameNoise,
+                100 * kCleanIsolatedEvents);
+  return {clean ? model_radius : std::max(model_radius, kNoisyGateRadius), text};
 }
 
 cv::Mat encode_for_model(const cv::Mat& image, double exponent) {

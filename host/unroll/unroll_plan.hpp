@@ -91,10 +91,25 @@ struct PhysicsPlan {
   std::string contrast_method = "given";
   std::vector<std::pair<int, int>> contrast_pairs;  // event_count_fit (and default, if any): the frame pairs compared
   size_t contrast_pixels = 0;                       // event_count_fit: the pixels the fit used
+  double frame_noise = -1, isolated_event_fraction = -1;  // the estimate's (ContrastEstimate), -1: none
 };
 // `contrast`: the user's (unset: the model's metadata, else `estimate(seq_gamma)`, called only then).
 PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double seq_gamma, std::optional<double> contrast,
                          const std::function<ContrastEstimate(double)>& estimate);
+
+// The event gate radius the variant runs with, and why (summary.json). `automatic`: where the
+// contrast estimate measured the recording's noise, a noisy recording (frame noise from
+// kCleanFrameNoise or isolated events from kCleanIsolatedEvents) gets kNoisyGateRadius, a clean one
+// (or one not measured) the model's own: on validation (docs/training.md, "The event gate's radius")
+// r = 2 beat r = 1 inside and between frames in every noisy group, and lost in every clean one.
+// `model_radius` -1 (no gate): stays -1, and a fixed radius is refused (UsageError).
+constexpr double kCleanFrameNoise = 0.01, kCleanIsolatedEvents = 0.05;
+constexpr int kNoisyGateRadius = 2;
+struct GateChoice {
+  int radius = -1;
+  std::string source;
+};
+GateChoice choose_gate_radius(const GateRadiusOption& o, int model_radius, const PhysicsPlan& physics);
 
 // v^exponent (negative values to 0 first): a frame in another gamma encoding; exponent 1: as it is.
 cv::Mat encode_for_model(const cv::Mat& image, double exponent);

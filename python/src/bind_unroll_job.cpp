@@ -33,6 +33,7 @@ UnrollOptions job_options(const PySession& ps, const py::dict& a) {
   o.channel_order = parse_channel_order(a["channel_order"].cast<std::string>(), "channel_order");
   if (!a["contrast"].is_none()) o.contrast = a["contrast"].cast<double>();
   if (!a["gamma"].is_none()) o.gamma = a["gamma"].cast<double>();
+  o.gate_radius = parse_gate_radius(py::str(a["gate_radius"]).cast<std::string>(), "gate_radius");
   o.tile = a["tile"].cast<int64_t>();
   o.halo = a["halo"].cast<int64_t>();
   o.sparse = parse_sparse_policy(a["sparse"].cast<std::string>(), "sparse");

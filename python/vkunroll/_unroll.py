@@ -121,7 +121,7 @@ def _times(times, times_us):
 
 def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=None, backend="vulkan", device=None,
            precision="fp32", channel_order="model", contrast=None, gamma=None, tile=0, halo=-1, sparse="exact",
-           sparse_threshold=0.05, session=None, progress=None):
+           sparse_threshold=0.05, gate_radius="auto", session=None, progress=None):
     """Unroll RS frames into sharp global-shutter (GS) frames at chosen instants.
 
     The same job as ``vkunroll unroll``, frame by frame through one :class:`UnrollSession`:
@@ -149,6 +149,9 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
       channel_order: "model" (the weights' metadata), "rgb" or "bgr": the model's input order.
       contrast, gamma: physics contrast threshold (default: estimated from consecutive frames'
         agreement) and the frames' decode gamma (default: the sequence's meta.json, else 1).
+      gate_radius: the physics-informed variant's event gate radius: "auto" (2 on a noisy
+        recording, as the contrast estimate measures its noise, else the model's), "model" (the
+        weights' metadata) or an integer 0..16; as ``--gate-radius``.
       tile, halo, sparse, sparse_threshold: tiled / event-driven sparse execution (docs/tiling.md):
         sparse "exact" (default) skips 32-pixel tiles without events, "fast" also those below
         sparse_threshold events per pixel, "off" runs whole frames (tile 0: untiled if it fits).
@@ -174,7 +177,7 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     kind, values = _times(times, times_us)
     args = dict(mode=mode, kind=kind, values=values, frames=list(frames or []), channel_order=channel_order,
                 contrast=contrast, gamma=gamma, tile=int(tile), halo=int(halo), sparse=sparse,
-                sparse_threshold=float(sparse_threshold))
+                sparse_threshold=float(sparse_threshold), gate_radius=str(gate_radius))
     bar = _Progress(progress)
     try:
         images, targets, metrics, report = _run(sess, source, args, bar.update)
@@ -275,7 +278,8 @@ class _Stream:
 
 def stream(source, events="-", times=0.5, mode="auto", model=None, *, times_us=None, frames=None, contrast=None,
            gamma=None, idle_s=10.0, max_events=1 << 24, on_bad="error", session=None, backend="vulkan", device=None,
-           precision="fp32", channel_order="model", tile=0, halo=-1, sparse="exact", sparse_threshold=0.05):
+           precision="fp32", channel_order="model", tile=0, halo=-1, sparse="exact", sparse_threshold=0.05,
+           gate_radius="auto"):
     """Unrolls a live recording as ``vkunroll unroll --follow`` does (docs/follow.md), yielding
     each RS frame's GS frames as soon as they are computed.
 
@@ -294,5 +298,5 @@ def stream(source, events="-", times=0.5, mode="auto", model=None, *, times_us=N
     kind, values = _times(times, times_us)
     args = dict(mode=mode, kind=kind, values=values, frames=list(frames or []), channel_order=channel_order,
                 contrast=contrast, gamma=gamma, tile=int(tile), halo=int(halo), sparse=sparse,
-                sparse_threshold=float(sparse_threshold))
+                sparse_threshold=float(sparse_threshold), gate_radius=str(gate_radius))
     return _Stream(sess, seq, args, "-" if events == "-" else os.fspath(events), idle_s, max_events)

@@ -148,6 +148,8 @@ def test_targets_sessions_and_errors(seq, tiny):
         vkunroll.UnrollSession(model=TINY, backend="cpu", precision="fp16")
     with pytest.raises(ValueError, match="--tile 5"):
         vkunroll.unroll(seq, tile=5, session=session, mode="s")
+    with pytest.raises(ValueError, match="gate_radius 'wide'"):
+        vkunroll.unroll(seq, gate_radius="wide", session=session, mode="s")
 
     def stop(done, total, info):
         raise KeyboardInterrupt

@@ -473,3 +473,42 @@ def test_variant_at_init_unrolls_as_the_physics_unroller(tmp_path, gamma):
         pa, pb = read_image(str(outs["physics"] / a[3])), read_image(str(outs["s"] / b[3]))
         worst = max(worst, float(np.abs(pa - pb).max()))
     assert worst <= 5e-5, worst  # two 16-bit quantizations (7.6e-6 each) and float32 pow rounding
+
+
+@needs_cli
+def test_gate_radius_is_chosen_said_and_reaches_the_model(tmp_path):
+    """`--gate-radius`: auto keeps a clean recording at the model's radius and says why in
+    summary.json; a given radius is the one the network runs with (the images change with it);
+    a radius for a model without a gate, or a bad value, is refused naming the option."""
+    seq = tmp_path / "sim"
+    r = subprocess.run([CLI, "simulate", "--out", seq, "--size", "96x72", "--frames", "2", "--gt-per-frame", "2",
+                        "--seed", "8", "--motion", "static", "--preset", "clean", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    net = tiny_variant(3)
+    selfunroll_torch.random_init_(net, seed=3)  # not the init's fused = physics: the radius shows
+    net.cfg.physics_gate = 1
+    model = str(tmp_path / "v.safetensors")
+    train.export(net, model, {"data": "test"})
+    images = {}
+    for radius in ("auto", "0", "4"):
+        out = tmp_path / f"out_{radius}"
+        r = subprocess.run([CLI, "unroll", seq, "--out", out, "--mode", "s", "--times", "gt", "--no-video", "--bit-depth",
+                            "16", "--quiet", "--model", model, "--gate-radius", radius], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        phys = json.load(open(out / "summary.json"))["physics"]
+        gate = phys["gate_radius"]
+        if radius == "auto":
+            assert phys["frame_noise"] < 0.01 and phys["isolated_event_fraction"] < 0.05, phys  # the clean preset
+            assert gate["radius"] == 1 and "clean recording" in gate["source"], gate
+        else:
+            assert gate == {"radius": int(radius), "source": "--gate-radius"}, gate
+        first = open(out / "metrics.csv").read().splitlines()[1].split(",")
+        images[radius] = read_image(str(out / first[3]))
+    assert float(np.abs(images["0"] - images["4"]).max()) > 1e-3
+    plain = tiny_variant(3)  # no gate
+    plain_model = str(tmp_path / "p.safetensors")
+    train.export(plain, plain_model, {"data": "test"})
+    for model_file, radius, says in ((plain_model, "2", "no event gate"), (model, "x", "--gate-radius 'x'")):
+        r = subprocess.run([CLI, "unroll", seq, "--out", tmp_path / "bad", "--mode", "s", "--no-video", "--quiet",
+                            "--model", model_file, "--gate-radius", radius], capture_output=True, text=True)
+        assert r.returncode != 0 and says in r.stderr, r.stderr
