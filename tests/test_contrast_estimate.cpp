@@ -190,7 +190,7 @@ TEST(ContrastEstimate, GateRadiusOptionIsParsedAndApplied) {
   EXPECT_EQ(three.kind, GateRadiusOption::Kind::fixed);
   EXPECT_EQ(three.radius, 3);
   EXPECT_EQ(gate_radius_text(three), "3");
-  for (const char* bad : {"", "-1", "17", "2x", "one"}) {
+  for (const char* bad : {"", "-1", "16", "2x", "one"}) {
     try {
       parse_gate_radius(bad, "--gate-radius");
       ADD_FAILURE() << "accepted '" << bad << "'";

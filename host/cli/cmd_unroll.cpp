@@ -84,7 +84,7 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
       ->check(finite_at_least(0, true))->group(g)->type_name("C");
   c->add_option("--gate-radius", a.gate_radius,
                 "physics-informed variant: its event gate radius; auto: 2 on a noisy recording (the contrast estimate "
-                "measures its noise), else the model's; model: the weights' metadata; or N (0-16)")
+                "measures its noise), else the model's; model: the weights' metadata; or N (0-15)")
       ->capture_default_str()->group(g)->type_name("R");
   c->add_option("--gamma", a.gamma, "physics: decode gamma of the frames (default: meta.json source.settings.gamma, else 1)")
       ->check(finite_at_least(0, true))->group(g)->type_name("G");

@@ -43,7 +43,7 @@ struct GateRadiusOption {
   Kind kind = Kind::automatic;
   int radius = 0;
 };
-constexpr int kMaxGateRadius = 16;
+constexpr int kMaxGateRadius = 15;  // as the metadata (docs/model.md)
 // "auto" | "model" | an integer 0..kMaxGateRadius; UsageError names `what`.
 GateRadiusOption parse_gate_radius(const std::string& s, const std::string& what);
 std::string gate_radius_text(const GateRadiusOption& g);  // "auto", "model" or the number

@@ -151,7 +151,7 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
         agreement) and the frames' decode gamma (default: the sequence's meta.json, else 1).
       gate_radius: the physics-informed variant's event gate radius: "auto" (2 on a noisy
         recording, as the contrast estimate measures its noise, else the model's), "model" (the
-        weights' metadata) or an integer 0..16; as ``--gate-radius``.
+        weights' metadata) or an integer 0..15; as ``--gate-radius``.
       tile, halo, sparse, sparse_threshold: tiled / event-driven sparse execution (docs/tiling.md):
         sparse "exact" (default) skips 32-pixel tiles without events, "fast" also those below
         sparse_threshold events per pixel, "off" runs whole frames (tile 0: untiled if it fits).

@@ -31,7 +31,8 @@ def test_worked_example(monkeypatch, capsys):
     ev1, ev2, ev3 = ns["ev1"], ns["ev2"], ns["ev3"]
     assert ev1.shape == (8, 120, 160) and min(ev1.sum(), ev2.sum(), ev3.sum()) > 0
     learned, physics = ns["learned"], ns["physics"]
-    np.testing.assert_array_equal(ns["by_hand"], learned.frames[0])
+    np.testing.assert_array_equal(ns["by_hand"], ns["own"].frames[0])
+    assert ns["own"].stats["physics"]["gate_radius"]["radius"] == 1  # the weights' own
     assert learned.targets[0]["gt"] == 0 and learned.targets[0]["method"] == "s"
     assert learned.metrics["count"] == physics.metrics["count"] == 4
     assert learned.metrics["mean_psnr"] > learned.metrics["rs_mean_psnr"] + 1
