@@ -24,25 +24,31 @@ struct Noisy {
   std::vector<cv::Mat> frames;  // BGR float32 in [0, 1], as the PNGs decode
 };
 
-Noisy simulate_noisy(double c, uint64_t seed) {
+// The simulated sequence of `cfg` with its row timings and its frames as the 8-bit PNGs decode.
+Noisy simulate_sequence(const sim::SimulationConfig& cfg) {
   Noisy n;
-  n.cfg = sim::simulation_preset("realistic");
-  n.cfg.seed = seed;
-  n.cfg.frames = 4;
-  n.cfg.events.c_on = n.cfg.events.c_off = c;
-  n.seq = sim::simulate(n.cfg);
+  n.cfg = cfg;
+  n.seq = sim::simulate(cfg);
   for (size_t k = 0; k < n.seq.rs.size(); ++k) {
     RowTiming t;
     t.t0 = Rational::from_double(n.seq.frame_t0_us[k]);
-    t.line_delay = Rational::from_double(n.cfg.line_delay_us);
-    t.exposure = Rational::from_double(n.cfg.exposure_us);
-    t.rows = n.cfg.height;
+    t.line_delay = Rational::from_double(cfg.line_delay_us);
+    t.exposure = Rational::from_double(cfg.exposure_us);
+    t.rows = cfg.height;
     n.timings.push_back(t);
     cv::Mat f;
-    sim::encode_image(n.seq.rs[k], n.cfg.gamma, 8, true).convertTo(f, CV_32FC3, 1.0 / 255);
+    sim::encode_image(n.seq.rs[k], cfg.gamma, 8, true).convertTo(f, CV_32FC3, 1.0 / 255);
     n.frames.push_back(f);
   }
   return n;
+}
+
+Noisy simulate_noisy(double c, uint64_t seed) {
+  sim::SimulationConfig cfg = sim::simulation_preset("realistic");
+  cfg.seed = seed;
+  cfg.frames = 4;
+  cfg.events.c_on = cfg.events.c_off = c;
+  return simulate_sequence(cfg);
 }
 
 // Background activity (random pixels, times and polarities at `ba_hz` per pixel) and `hot` pixels
@@ -108,20 +114,7 @@ TEST(ContrastEstimate, NoiseAloneIsNoEvidence) {
   cfg.width = 160, cfg.height = 120;
   cfg.motion = sim::MotionKind::Static;
   cfg.sprites = 0;
-  Noisy n;
-  n.cfg = cfg;
-  n.seq = sim::simulate(cfg);
-  for (size_t k = 0; k < n.seq.rs.size(); ++k) {
-    RowTiming t;
-    t.t0 = Rational::from_double(n.seq.frame_t0_us[k]);
-    t.line_delay = Rational::from_double(cfg.line_delay_us);
-    t.exposure = Rational::from_double(cfg.exposure_us);
-    t.rows = cfg.height;
-    n.timings.push_back(t);
-    cv::Mat f;
-    sim::encode_image(n.seq.rs[k], cfg.gamma, 8, true).convertTo(f, CV_32FC3, 1.0 / 255);
-    n.frames.push_back(f);
-  }
+  const Noisy n = simulate_sequence(cfg);
   // A still scene: only background activity and hot pixels fire, and nothing in the frames moves.
   EventStream seed_stream;
   seed_stream.width = cfg.width, seed_stream.height = cfg.height;
@@ -146,20 +139,7 @@ TEST(ContrastEstimate, NoiseMeasuresTellACleanRecordingFromANoisyOne) {
   cfg.seed = 11;
   cfg.frames = 4;
   cfg.motion = sim::MotionKind::Static;
-  Noisy clean;
-  clean.cfg = cfg;
-  clean.seq = sim::simulate(cfg);
-  for (size_t k = 0; k < clean.seq.rs.size(); ++k) {
-    RowTiming t;
-    t.t0 = Rational::from_double(clean.seq.frame_t0_us[k]);
-    t.line_delay = Rational::from_double(cfg.line_delay_us);
-    t.exposure = Rational::from_double(cfg.exposure_us);
-    t.rows = cfg.height;
-    clean.timings.push_back(t);
-    cv::Mat f;
-    sim::encode_image(clean.seq.rs[k], cfg.gamma, 8, true).convertTo(f, CV_32FC3, 1.0 / 255);
-    clean.frames.push_back(f);
-  }
+  const Noisy clean = simulate_sequence(cfg);
   ASSERT_GT(clean.seq.events.size(), 1000u) << "the movers fire";
   const ContrastEstimate c = estimate(clean, clean.seq.events);
   const Noisy realistic = simulate_noisy(0.25, 7);

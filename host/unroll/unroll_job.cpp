@@ -73,14 +73,11 @@ UnrollJob::UnrollJob(const UnrollOptions& o, UnrollSession& session, FrameSource
   // A default or an implausible contrast is a warning, said even with --quiet (summary.json has it too).
   if (!physics_.contrast_warning.empty()) std::cerr << "unroll: warning: " << physics_.contrast_warning << "\n";
   session.set_physics(physics_.params);
-  if (session.has_model() && physics_.variant) {
-    gate_ = choose_gate_radius(o.gate_radius, session.metadata_gate_radius(), physics_);
-    if (gate_.radius >= 0) session.set_gate_radius(gate_.radius);
-    if (gate_.radius >= 0 && !o.quiet) std::cerr << "unroll: event gate radius " << gate_.radius << " (" << gate_.source << ")\n";
-  } else if (o.gate_radius.kind == GateRadiusOption::Kind::fixed) {
-    throw UsageError("--gate-radius " + std::to_string(o.gate_radius.radius) +
-                     ": only the physics-informed variant has an event gate (this run has " +
-                     (session.has_model() ? "another model" : "no model") + ")");
+  // Without a model (or a gate) the radius is -1, and a given one is refused by choose_gate_radius.
+  gate_ = choose_gate_radius(o.gate_radius, session.metadata_gate_radius(), physics_);
+  if (gate_.radius >= 0) {
+    session.set_gate_radius(gate_.radius);
+    if (!o.quiet) std::cerr << "unroll: event gate radius " << gate_.radius << " (" << gate_.source << ")\n";
   }
   tiling_ = tile_options(o);
   session.set_tiling(tiling_);

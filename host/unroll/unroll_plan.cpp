@@ -225,7 +225,8 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
 GateChoice choose_gate_radius(const GateRadiusOption& o, int model_radius, const PhysicsPlan& physics) {
   if (model_radius < 0) {
     if (o.kind == GateRadiusOption::Kind::fixed)
-      throw UsageError("--gate-radius " + std::to_string(o.radius) + ": the model has no event gate (metadata physics_gate)");
+      throw UsageError("--gate-radius " + std::to_string(o.radius) +
+                       ": this run has no model with an event gate (metadata physics_gate: the physics-informed variant)");
     return {-1, "the model has no event gate"};
   }
   if (o.kind == GateRadiusOption::Kind::fixed) return {o.radius, "--gate-radius"};

@@ -508,7 +508,7 @@ def test_gate_radius_is_chosen_said_and_reaches_the_model(tmp_path):
     plain = tiny_variant(3)  # no gate
     plain_model = str(tmp_path / "p.safetensors")
     train.export(plain, plain_model, {"data": "test"})
-    for model_file, radius, says in ((plain_model, "2", "no event gate"), (model, "x", "--gate-radius 'x'")):
+    for model_file, radius, says in ((plain_model, "2", "no model with an event gate"), (model, "x", "--gate-radius 'x'")):
         r = subprocess.run([CLI, "unroll", seq, "--out", tmp_path / "bad", "--mode", "s", "--no-video", "--quiet",
                             "--model", model_file, "--gate-radius", radius], capture_output=True, text=True)
         assert r.returncode != 0 and says in r.stderr, r.stderr
