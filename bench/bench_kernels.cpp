@@ -153,9 +153,11 @@ std::string run_command(const std::string& cmd) {
   return rc == 0 ? std::string() : (out.empty() ? "exit status " + std::to_string(rc) : out);
 }
 
-// The same-run peer: PyTorch CPU conv2d / conv_transpose2d (tools/bench_conv_peer.py) per shape key,
-// best of `reps`. Empty (and said) where Debian's PyTorch cannot run.
-std::map<std::string, double> torch_peer_ms(const std::vector<ConvShape>& shapes, int threads, int reps) {
+// The same-run peer: PyTorch conv2d / conv_transpose2d (tools/bench_conv_peer.py) per shape key, best of
+// `reps`, on the CPU or a CUDA GPU; keys "fp16:KEY" hold CUDA's half-precision times. Empty (and said)
+// where PyTorch cannot run.
+std::map<std::string, double> torch_peer_ms(const std::vector<ConvShape>& shapes, int threads, int reps,
+                                             const std::string& device) {
   const std::string dir = std::filesystem::temp_directory_path().string();
   const std::string in = dir + "/vkunroll-conv-peer-" + std::to_string(getpid()) + ".json", out = in + ".out";
   nlohmann::json list = nlohmann::json::array();
@@ -164,15 +166,22 @@ std::map<std::string, double> torch_peer_ms(const std::vector<ConvShape>& shapes
                     {"cout", c.cout}, {"h", c.h}, {"w", c.w}});
   std::ofstream(in) << list.dump();
   const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_conv_peer.py " + in + " " + out +
-                          " --threads " + std::to_string(threads) + " --reps " + std::to_string(reps);
+                          " --threads " + std::to_string(threads) + " --reps " + std::to_string(reps) + " --device " + device;
   const std::string failure = run_command(cmd);
   std::map<std::string, double> ms;
   try {
     if (failure.empty()) {
       const auto j = nlohmann::json::parse(std::ifstream(out));
       for (const auto& [key, v] : j.at("ms").items()) ms[key] = v.get<double>();
-      std::printf("peer: PyTorch %s conv2d on the CPU, %d thread(s), best of %d, timed before our rows\n",
-                  j.at("torch").get<std::string>().c_str(), threads, reps);
+      if (j.contains("ms_fp16"))
+        for (const auto& [key, v] : j.at("ms_fp16").items()) ms["fp16:" + key] = v.get<double>();
+      if (device == "cuda")
+        std::printf("peer: PyTorch %s conv2d on %s (CUDA, cudnn.benchmark, TF32 off; fp16 rows against its half), "
+                    "best of %d, timed before our rows\n", j.at("torch").get<std::string>().c_str(),
+                    j.value("device", std::string("?")).c_str(), reps);
+      else
+        std::printf("peer: PyTorch %s conv2d on the CPU, %d thread(s), best of %d, timed before our rows\n",
+                    j.at("torch").get<std::string>().c_str(), threads, reps);
     }
   } catch (const std::exception& e) {
     std::printf("peer: could not read %s: %s\n", out.c_str(), e.what());
@@ -331,6 +340,7 @@ int main(int argc, char** argv) {
   auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
   int reps = 2, torch_threads = 2;
   bool torch = true;
+  std::string torch_device = "cpu";
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto value = [&]() -> std::string {
@@ -388,6 +398,13 @@ int main(int argc, char** argv) {
     }
     else if (a == "--reps") reps = std::max(1, std::atoi(value().c_str()));
     else if (a == "--no-torch") torch = false;
+    else if (a == "--torch-device") {
+      torch_device = value();
+      if (torch_device != "cpu" && torch_device != "cuda") {
+        std::cerr << "vkunroll-bench-kernels: --torch-device '" << torch_device << "': expected cpu or cuda\n";
+        return 2;
+      }
+    }
     else if (a == "--torch-threads") {
       torch_threads = std::atoi(value().c_str());
       if (torch_threads < 1) {
@@ -402,7 +419,7 @@ int main(int argc, char** argv) {
                    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
                    "                              [--gemm-tv N] [--pointwise-cob N] [--pointwise-px N] [--pointwise-single]\n"
                    "                              [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
-                   "                              [--no-torch] [--torch-threads N]\n"
+                   "                              [--no-torch] [--torch-threads N] [--torch-device cpu|cuda]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
                    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
                    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
@@ -420,7 +437,8 @@ int main(int argc, char** argv) {
                    "(fp16 accumulation, Winograd with fp16 operands) and exits.\n"
                    "The peer: PyTorch's conv2d on the CPU (--torch-threads, default 2) times every shape first,\n"
                    "in the same run; `x torch` is our time over its (fp16 rows against its fp32). B/FLOP is the\n"
-                   "bytes the algorithm's dispatches read and write per direct-conv FLOP (--no-torch: no peer).\n";
+                   "bytes the algorithm's dispatches read and write per direct-conv FLOP (--no-torch: no peer).\n"
+                   "--torch-device cuda: the peer on the CUDA GPU (the race per shape), fp16 rows against its half.\n";
       return 0;
     } else {
       std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
@@ -442,7 +460,7 @@ int main(int argc, char** argv) {
     std::vector<ConvShape> shapes;
     for (const ConvShape& c : custom.empty() ? model_shapes() : custom)
       if ((!quick || c.quick) && (only.empty() || c.name.find(only) != std::string::npos)) shapes.push_back(c);
-    const std::map<std::string, double> peer = torch ? torch_peer_ms(shapes, torch_threads, reps) : std::map<std::string, double>{};
+    const std::map<std::string, double> peer = torch ? torch_peer_ms(shapes, torch_threads, reps, torch_device) : std::map<std::string, double>{};
     std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %6s %9s %7s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "prec",
                 "algo", "ms", "GFLOP/s", "%ceil", "B/FLOP", "torch ms", "x torch", "naive ms", "naive GF", "speedup");
     nlohmann::json rows = nlohmann::json::array();
@@ -506,7 +524,8 @@ int main(int argc, char** argv) {
           }
           return t;
         };
-        const auto peer_it = peer.find(c.key());
+        auto peer_it = prec == Precision::fp16 ? peer.find("fp16:" + c.key()) : peer.end();
+        if (peer_it == peer.end()) peer_it = peer.find(c.key());
         const double torch_ms = peer_it == peer.end() ? 0.0 : peer_it->second;
         // The naive shader is 10-50x slower: it runs on the full shape for the target shape
         // (the 3x3 RDB conv 144->48) and on a band of input rows (same width and channels, so the

@@ -327,6 +327,8 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   const double torch_s = std::stod(ref.metadata.at("seconds"));
   std::printf("  torch  : %.1f ms per GS frame (PyTorch mirror, %s, %s, %s)\n", 1000 * torch_s / frames, torch_device.c_str(),
               torch_precision.c_str(), ref.metadata.count("device") ? ref.metadata.at("device").c_str() : "?");
+  if (ref.metadata.count("settings"))  // on CUDA: every PyTorch setting tried, the fastest is the peer
+    std::printf("  torch  : settings %s; fastest %s\n", ref.metadata.at("settings").c_str(), ref.metadata.at("setting").c_str());
   std::printf("  ratio  : vulkan / torch = %.2f\n", vk_s / torch_s);
   for (const auto& [name, arr] : out) {
     const std::vector<float> r = ref.get(name).to_f32();

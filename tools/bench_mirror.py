@@ -8,8 +8,13 @@ Writes the intermediates (float32) to OUT with the forward time in its metadata 
 the best of --runs full-size runs after a warm-up at full size on CUDA (cuDNN autotuning, kernels
 loaded) or on a 32x32 crop on the CPU; CUDA runs are timed between torch.cuda.synchronize() calls.
 fp16 is the whole network in half (model.half(), inputs half), PyTorch's usual fp16 inference.
+On CUDA the peer gets PyTorch's best settings, each timed and the fastest reported (all of them in
+the metadata and on stdout): cudnn.benchmark always; fp32 strict, with TF32 and with TF32 in
+channels_last; fp16 as half(), as fp32 weights under autocast, and as half() in channels_last.
+The intermediates written are those of the first (reference) setting of the precision.
 """
 import argparse
+import copy
 import os
 import sys
 import time
@@ -43,24 +48,51 @@ def main():
     tensors, meta = safetensors_io.load(a.weights)
     net = SelfUnroll(SelfUnrollConfig.from_metadata(meta)).eval()
     net.load_state_dict({k: v.float() for k, v in tensors.items()}, strict=True)
-    net = net.to(dev, dt)
-    inputs = {k: v.to(dev, dt) for k, v in safetensors_io.load(a.inputs)[0].items()}
+    inputs32 = safetensors_io.load(a.inputs)[0]
     sync = torch.cuda.synchronize if a.device == "cuda" else (lambda: None)
-    warm = inputs if a.device == "cuda" else {k: v[:, :, :32, :32].contiguous() for k, v in inputs.items()}
-    with torch.no_grad():
-        run_named(net, warm, a.mode)
-        sync()
-        seconds = float("inf")
-        for _ in range(max(1, a.runs)):
-            t0 = time.perf_counter()
-            outs = run_named(net, inputs, a.mode)
+
+    def settings():  # (name, tf32, autocast, channels_last): the first is the reference
+        if a.device != "cuda":
+            return [("plain", False, False, False)]
+        if a.precision == "fp32":
+            return [("strict", False, False, False), ("tf32", True, False, False), ("tf32+channels_last", True, False, True)]
+        return [("half", False, False, False), ("autocast", False, True, False), ("half+channels_last", False, False, True)]
+
+    seconds, timed, outs = float("inf"), {}, None
+    for name, tf32, autocast, channels_last in settings():
+        torch.backends.cuda.matmul.allow_tf32 = tf32
+        torch.backends.cudnn.allow_tf32 = tf32
+        wdt = torch.float32 if autocast else dt  # autocast keeps fp32 weights and casts per op
+        fmt = torch.channels_last if channels_last else torch.contiguous_format
+        m = copy.deepcopy(net).to(dev, wdt).to(memory_format=fmt)  # each setting from the fp32 weights
+        ins = {k: v.to(dev, wdt).contiguous(memory_format=fmt) for k, v in inputs32.items()}
+        warm = ins if a.device == "cuda" else {k: v[:, :, :32, :32].contiguous() for k, v in ins.items()}
+
+        def forward(x):
+            with torch.autocast("cuda", dtype=torch.float16, enabled=autocast):
+                return run_named(m, x, a.mode)
+
+        with torch.no_grad():
+            forward(warm)
             sync()
-            seconds = min(seconds, time.perf_counter() - t0)
+            best = float("inf")
+            for _ in range(max(1, a.runs)):
+                t0 = time.perf_counter()
+                o = forward(ins)
+                sync()
+                best = min(best, time.perf_counter() - t0)
+        timed[name] = best
+        print(f"mirror: {name}: {1000 * best:.2f} ms", flush=True)
+        if outs is None:
+            outs = o
+        seconds = min(seconds, best)
+    fastest = min(timed, key=timed.get)
     outs = {k: v.float().cpu() for k, v in outs.items()}
     where = torch.cuda.get_device_name(0) if a.device == "cuda" else f"{torch.get_num_threads()} threads"
-    safetensors_io.save(a.out, outs, {"seconds": repr(seconds), "threads": str(torch.get_num_threads()), "device": where,
-                                      "precision": a.precision})
-    print(f"mirror: {seconds:.4f} s ({a.device}, {a.precision}, {where})")
+    meta = {"seconds": repr(seconds), "threads": str(torch.get_num_threads()), "device": where, "precision": a.precision,
+            "setting": fastest, "settings": ", ".join(f"{k} {1000 * v:.2f} ms" for k, v in timed.items())}
+    safetensors_io.save(a.out, outs, meta)
+    print(f"mirror: {seconds:.4f} s ({a.device}, {a.precision}, {where}, fastest setting {fastest})")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,11 @@
 #                                          race: vkunroll against PyTorch CUDA, fp32 and fp16 (<= 9 min);
 #                                          all: the essentials of both in one command (<= 7.5 min)
 PHASE=${1:-tests}
-OUT=${OUT:-$PWD/device-out}; mkdir -p "$OUT"
+# The device tool returns at most 8 files from $OUT: every raw output goes to one folder, packed into
+# $OUT/device_outputs.tgz when the script ends (also on an error), beside the console log.
+FINAL_OUT=${OUT:-$PWD/device-out}; mkdir -p "$FINAL_OUT"
+OUT=/tmp/device_outputs; rm -rf "$OUT"; mkdir -p "$OUT"
+trap 'tar czf "$FINAL_OUT/device_outputs.tgz" -C /tmp device_outputs' EXIT
 R=$PWD
 for f in .gl/*.deb; do dpkg -x $f /; done; ls -d /usr/local/nvidia/lib64 /usr/local/nvidia/lib 2>/dev/null > /etc/ld.so.conf.d/zz-nvidia.conf; ldconfig; ldconfig -p | grep -E "libGLX_nvidia|libvulkan" | head -3
 nvidia-smi -L; nvidia-smi --query-gpu=name,driver_version,clocks.sm --format=csv
@@ -41,7 +45,7 @@ coopmat_tests() {
 }
 coopmat_bench() {  # where they passed: coopmat timed beside the fp16 paths it would replace
   [ "$CM_RC" = 0 ] || return 0
-  step "coopmat bench" 45 $OUT/bench_kernels_coopmat.txt $B/vkunroll-bench-kernels --precision fp16 --no-naive --algos coopmat,gemm,winograd,blocked --reps 2
+  step "coopmat bench" 45 $OUT/bench_kernels_coopmat.txt $B/vkunroll-bench-kernels --precision fp16 --no-naive --algos coopmat,gemm,winograd,blocked --reps 2 --torch-device cuda
   grep -E "coopmat|RDB|GFF" $OUT/bench_kernels_coopmat.txt | head -30
 }
 gpu_tests() {  # the full test binary leaves Conv2dCoopmat out: it ran first
@@ -55,10 +59,10 @@ race() {  # race MODE PRECISION SIZE: the same network in PyTorch CUDA on the sa
   grep -E "vulkan :|torch  :|ratio|conv choice" $OUT/race_${1}_${2}_${3}.txt
 }
 per_layer() {
-  step "per-layer" 60 $OUT/fp16_per_layer_small.txt $B/vkunroll-bench-model --mode m --size 346x260 --precision fp16 --per-layer --model $R/.devrun/selfunroll_small_physics.safetensors
+  step "per-layer" 60 $OUT/fp16_per_layer_small.txt $B/vkunroll-bench-model --mode m --size 346x260 --precision fp16 --per-layer --model $R/models/selfunroll_small_physics.safetensors
 }
-kernels() {
-  step "kernels" ${1:-150} $OUT/bench_kernels_h100.txt $B/vkunroll-bench-kernels --reps 3 --json $OUT/bench_kernels_h100.json; tail -8 $OUT/bench_kernels_h100.txt
+kernels() {  # every model conv shape in fp32 and fp16 against PyTorch's conv2d on the same card (cuDNN)
+  step "kernels" ${1:-150} $OUT/bench_kernels_gpu.txt $B/vkunroll-bench-kernels --reps 3 --no-naive --precision fp32,fp16 --torch-device cuda --json $OUT/bench_kernels_gpu.json; tail -8 $OUT/bench_kernels_gpu.txt
 }
 case "$PHASE" in
 tests)
@@ -77,8 +81,8 @@ all)
   # paper's goal (S fp32 at 640x480 against PyTorch), fp16 against PyTorch's fp16, the rest of the
   # tests, M, the per-layer report, the kernel bench with what time is left.
   coopmat_tests; race s fp32 640x480; race s fp16 640x480; gpu_tests 100
-  race s fp32 346x260; race s fp16 346x260; race m fp32 346x260; race m fp16 346x260
-  per_layer; coopmat_bench; kernels 90 ;;
+  race m fp32 640x480; race m fp16 640x480; race s fp32 346x260; race s fp16 346x260
+  kernels 90; per_layer; coopmat_bench ;;
 *) echo "usage: run.sh tests|race|all"; exit 2 ;;
 esac
 exit 0
