@@ -227,7 +227,11 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
     if (!in.phys.data.empty()) small.phys = crop(in.phys);
     RunOptions o;
     o.mode = md;
+    t = std::chrono::steady_clock::now();
     model.run(small, o);
+    // Progress on stderr (unbuffered): a run stopped by a time limit still says how far it got.
+    std::fprintf(stderr, "progress: weights prepared in %.2f s; the 32x32 warm-up (every pipeline built) took %.2f s\n", prep,
+                 seconds_since(t));
   }
   if (conv_choice != ConvChoice::heuristic) {
     const std::string path = conv_choice_path(ctx);
@@ -235,6 +239,9 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
     auto table = std::make_shared<ConvChoiceTable>(path.empty() ? ConvChoiceTable{} : ConvChoiceTable::load(path, &warnings));
     for (const auto& wn : warnings) std::fprintf(stderr, "warning: %s\n", wn.c_str());
     vk.set_conv_choice(table, conv_choice);
+    vk.on_conv_timed([](const std::string& key, const ConvChoiceEntry& e, double s) {
+      std::fprintf(stderr, "progress: timed %s in %.2f s: %s (%s)\n", key.c_str(), s, e.algo.c_str(), e.timings.c_str());
+    });
     if (conv_choice == ConvChoice::measured || conv_choice == ConvChoice::retune) {
       RunOptions o;
       o.mode = md;
@@ -275,6 +282,7 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
     if (r > 0) profiler.clear();  // the table shows the last run
     const uint64_t ft = vk.convs_from_table();
     const double s = timed_run(vk_s, gpu_ms, &out);
+    std::fprintf(stderr, "progress: run %d took %.1f ms\n", r + 1, 1000 * s);
     from_table = vk.convs_from_table() - ft;
     if (r == 0) first_s = s;
     if (!compare) continue;

@@ -123,6 +123,7 @@ void read_coopmat_info(VkPhysicalDevice pd, bool v12, DeviceInfo& info) {
       info.coopmat_shapes.push_back({p.MSize, p.NSize, p.KSize, p.AType, p.BType, p.CType, p.DType, p.scope});
     }
   }
+  info.memory_model_device_scope = has_mm && mm.vulkanMemoryModelDeviceScope;
   info.coopmat_nv = cm.cooperativeMatrix && has_mm && mm.vulkanMemoryModel && info.shader_float16 &&
                     info.storage_buffer_16bit && (stages.cooperativeMatrixSupportedStages & VK_SHADER_STAGE_COMPUTE_BIT);
 }
@@ -496,6 +497,7 @@ void Context::create_device() {
   if (info_.coopmat_nv) {
     coopmat.cooperativeMatrix = VK_TRUE;
     memory_model.vulkanMemoryModel = VK_TRUE;
+    memory_model.vulkanMemoryModelDeviceScope = info_.memory_model_device_scope;
     coopmat.pNext = &memory_model;
     memory_model.pNext = feats.pNext;
     feats.pNext = &coopmat;

@@ -78,6 +78,9 @@ struct DeviceInfo {
   // glslang's cooperative-matrix SPIR-V declares, fp16 arithmetic and 16-bit storage (enabled when all
   // are present, unless ContextOptions::without_coopmat or without_fp16).
   bool coopmat_nv = false;
+  // Enabling the Vulkan memory model (for coopmat) makes every shader's device-scope barrier
+  // (memoryBarrier(), memoryBarrierBuffer()) need this feature too: enabled with it where offered.
+  bool memory_model_device_scope = false;
   bool coopmat_khr_listed = false;           // VK_KHR_cooperative_matrix is listed (information only: unused)
   std::vector<CoopMatShape> coopmat_shapes;  // every shape the device offers (NV query)
   // The shape the conv `coopmat` path uses: fp16 A and B, fp32 C and D, subgroup scope, M 16, N and

@@ -50,8 +50,7 @@ void main() {
       for (uint c = 0; c < 4u; ++c) word[c] = packFloat2x16(f16vec2(tap(kk, t + 2u * c), tap(kk, t + 2u * c + 1u)));
       cols[g] = word;
     }
-    memoryBarrierShared();
-    barrier();
+    barrier();  // with workgroup-memory semantics: the columns are visible (cm_sync in coopmat.glsl says why no memoryBarrierShared)
     for (uint i = 0; i < FM; ++i) CM_LOAD_A(i, wt, (co0 + i * lM) * p.kpad + k0, p.kpad);
     for (uint j = 0; j < FN; ++j) CM_LOAD_B_U4(j, cols, (warp_id() * FN * lN + j * lN) / 8u, WGP / 8u);
     cm_sync();  // emulated: the fragments are complete before any invocation reads them

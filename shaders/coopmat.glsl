@@ -18,7 +18,10 @@ const uint CM_CPER = (lM * lN) / WARP;  // C elements per invocation and fragmen
 float cm_c[FM * FN * CM_CPER];          // element e = lane + q*WARP of fragment (i, j): cm_c[(i*FN + j)*CM_CPER + q]
 uint warp_id() { return gl_LocalInvocationIndex / WARP; }
 uint cm_lane() { return gl_LocalInvocationIndex % WARP; }
-void cm_sync() { memoryBarrierShared(); barrier(); }  // fragments complete (or read) before the next op
+// barrier() in a compute shader is OpControlBarrier with workgroup-memory semantics: it orders the
+// shared fragments. memoryBarrierShared() would add a Device-scope barrier, which under the Vulkan
+// memory model (coopmat) needs vulkanMemoryModelDeviceScope (validation failed on NVIDIA, 2026-12-04).
+void cm_sync() { barrier(); }  // fragments complete (or read) before the next op
 #define CM_LOAD_A(i, BUF, element, stride)                                                  \
   {                                                                                         \
     uint base_ = (warp_id() * FM + (i)) * lM * lK;                                          \

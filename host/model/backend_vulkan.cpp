@@ -1,6 +1,7 @@
 #include "vkunroll/host/model/backend_vulkan.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cstring>
 
 #include "vkunroll/kernels/backward_warp.hpp"
@@ -195,10 +196,13 @@ std::optional<std::string> VulkanBackend::table_algorithm(const std::string& key
   const bool again = choice_ == ConvChoice::retune && !retuned_.count(key);
   if (again || (!e && choice_ == ConvChoice::measured)) {
     // Timed on separate streams: this backend's recording is not submitted yet, so nothing waits on it.
+    const auto t0 = std::chrono::steady_clock::now();
     choice_table_->set(key, time());
     retuned_.insert(key);
     ++convs_timed_;
     e = choice_table_->find(key);
+    if (on_conv_timed_)
+      on_conv_timed_(key, *e, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
   }
   if (!e) return std::nullopt;
   return e->algo;

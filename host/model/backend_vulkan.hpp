@@ -79,6 +79,9 @@ class VulkanBackend final : public Backend {
   const std::shared_ptr<ConvChoiceTable>& conv_choice_table() const { return choice_table_; }
   // Conv shapes this backend timed, and recorded convs that took the table's algorithm.
   uint64_t convs_timed() const { return convs_timed_; }
+  // Called after each shape the measured choice times (key, its entry, seconds spent): benches report
+  // progress with it, so a run stopped by a time limit still says which shapes it reached.
+  void on_conv_timed(std::function<void(const std::string&, const ConvChoiceEntry&, double)> f) { on_conv_timed_ = std::move(f); }
   uint64_t convs_from_table() const { return convs_from_table_; }
 
   Context& context() { return ctx_; }
@@ -127,6 +130,7 @@ class VulkanBackend final : public Backend {
   int choice_reps_ = 3;
   std::set<std::string> retuned_;  // keys timed again under ConvChoice::retune
   uint64_t convs_timed_ = 0, convs_from_table_ = 0;
+  std::function<void(const std::string&, const ConvChoiceEntry&, double)> on_conv_timed_;
   // The table's algorithm for this conv call (timing it first where the choice says so); nullopt: the
   // heuristic. Only called with a table and a choice other than heuristic.
   std::optional<std::string> table_algorithm(const std::string& key, const std::function<ConvChoiceEntry()>& time);

@@ -34,13 +34,14 @@ step() {  # step NAME CAP_S LOG CMD...
   local left=$(( BUDGET - (SECONDS - T0) ))
   if [ $left -lt 15 ]; then echo "$name: skipped (out of the ${BUDGET} s budget)"; return 99; fi
   [ $cap -gt $left ] && cap=$left
-  timeout $cap "$@" > "$log" 2>&1; local rc=$?
+  # line-buffered: a step stopped at its cap keeps what it printed (stdout to a file is block-buffered)
+  timeout $cap stdbuf -oL -eL "$@" > "$log" 2>&1; local rc=$?
   echo "$name rc=$rc ($(( SECONDS - T0 )) s)"; return $rc
 }
 coopmat_tests() {
   # The cooperative-matrix conv first, on its own (issue 15): the real VK_NV_cooperative_matrix path has
   # only run emulated on lavapipe; its log says what the device offers and each case's error.
-  VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 step "coopmat tests" 45 $OUT/gpu_tests_coopmat.log $B/vkunroll_gpu_tests --gtest_filter='Conv2dCoopmat.*'; CM_RC=$?
+  VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 step "coopmat tests" 30 $OUT/gpu_tests_coopmat.log $B/vkunroll_gpu_tests --gtest_filter='Conv2dCoopmat.*'; CM_RC=$?
   grep -E '^\[ (device|measured) |^\[  (PASSED|FAILED|SKIPPED)|Failure|Skipped|error' $OUT/gpu_tests_coopmat.log | head -40
 }
 coopmat_bench() {  # where they passed: coopmat timed beside the fp16 paths it would replace
@@ -49,14 +50,17 @@ coopmat_bench() {  # where they passed: coopmat timed beside the fp16 paths it w
   grep -E "coopmat|RDB|GFF" $OUT/bench_kernels_coopmat.txt | head -30
 }
 gpu_tests() {  # the full test binary leaves Conv2dCoopmat out: it ran first
-  VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 step "tests" ${1:-150} $OUT/gpu_tests.log $B/vkunroll_gpu_tests --gtest_brief=1 ${GTEST_ARGS:---gtest_filter=-Conv2dCoopmat.*}
-  grep -E '^\[  (PASSED|FAILED)|^\[  FAILED|tests ran|device' $OUT/gpu_tests.log | head -60
+  VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 step "tests" ${1:-150} $OUT/gpu_tests.log $B/vkunroll_gpu_tests ${GTEST_ARGS:---gtest_filter=-Conv2dCoopmat.*}
+  grep -E '^\[  (PASSED|FAILED)|^\[  FAILED|tests ran|device' $OUT/gpu_tests.log | head -60; tail -2 $OUT/gpu_tests.log
 }
-race() {  # race MODE PRECISION SIZE: the same network in PyTorch CUDA on the same card
-  # --conv-choice measured: the conv algorithms timed per shape on this GPU first (the table persists
-  # in $VKUNROLL_CACHE_DIR across the runs); the bench also prints the heuristic's time beside it.
-  step "race $1 $2 $3" 50 $OUT/race_${1}_${2}_${3}.txt $B/vkunroll-bench-model --mode $1 --size $3 --precision $2 --torch-device cuda --runs 5 --conv-choice measured
-  grep -E "vulkan :|torch  :|ratio|conv choice" $OUT/race_${1}_${2}_${3}.txt
+race() {  # race MODE PRECISION SIZE [CHOICE=heuristic] [CAP_S=50]: the same network in PyTorch CUDA on the same card
+  # CHOICE measured: the conv algorithms timed per shape on this GPU first (the table persists in
+  # $VKUNROLL_CACHE_DIR across the runs); the bench also prints the heuristic's time beside it.
+  # The first race also builds every pipeline (the driver compiles each) and PyTorch autotunes cuDNN
+  # for each of its settings: on the H200 (2026-12-04) a 50 s cap was too short for that.
+  local f=$OUT/race_${1}_${2}_${3}_${4:-heuristic}.txt
+  step "race $1 $2 $3 ${4:-heuristic}" ${5:-50} $f $B/vkunroll-bench-model --mode $1 --size $3 --precision $2 --torch-device cuda --runs 5 --conv-choice ${4:-heuristic}
+  grep -E "vulkan :|torch  :|ratio|conv choice|progress: (weights|run 1)" $f
 }
 per_layer() {
   step "per-layer" 60 $OUT/fp16_per_layer_small.txt $B/vkunroll-bench-model --mode m --size 346x260 --precision fp16 --per-layer --model $R/models/selfunroll_small_physics.safetensors
@@ -74,14 +78,15 @@ race)
   # S and M, fp32 and fp16, at the DAVIS346 size and at 640x480 (the paper's size); then fp16's
   # per-layer error on the shipped model. Each run prints ms per GS frame for both, the ratio, the
   # device share, the measured conv choice against the heuristic and the output diffs.
-  for p in fp32 fp16; do for m in s m; do for sz in 346x260 640x480; do race $m $p $sz; done; done; done
+  race s fp32 640x480 heuristic 130
+  for p in fp32 fp16; do for m in s m; do for sz in 346x260 640x480; do race $m $p $sz measured 60; done; done; done
   per_layer ;;
 all)
   # ONE command for a single short slot, most important first: the never-run paths' tests, the
   # paper's goal (S fp32 at 640x480 against PyTorch), fp16 against PyTorch's fp16, the rest of the
   # tests, M, the per-layer report, the kernel bench with what time is left.
-  coopmat_tests; race s fp32 640x480; race s fp16 640x480; gpu_tests 100
-  race m fp32 640x480; race m fp16 640x480; race s fp32 346x260; race s fp16 346x260
+  coopmat_tests; race s fp32 640x480 heuristic 130; race s fp16 640x480 heuristic 70; gpu_tests 100
+  race m fp32 640x480; race s fp16 640x480 measured 60; race m fp16 640x480; race s fp32 346x260
   kernels 90; per_layer; coopmat_bench ;;
 *) echo "usage: run.sh tests|race|all"; exit 2 ;;
 esac
