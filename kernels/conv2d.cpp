@@ -208,6 +208,20 @@ bool Conv2d::supports(ConvAlgo algo) const {
   }
 }
 
+ConvAlgo gpu_conv_heuristic(const GpuConvFacts& f) {
+  // H100 (2026-11, docs/gpu_nvidia.md): the uniform-buffer `direct` path, built for llvmpipe, is 3-10x
+  // slower than `blocked` on 3x3 convs; Winograd wins, except for 1-4 output channels; 1x1 convs take
+  // the GEMM (`blocked` led by 20% alone but was 10x slower in the model, on batch-2 channel slices).
+  // H200 (2026-12-04): the 5x5 Winograd was 45% of SelfUnroll-S's frame; direct ran SFENet1 (396->96)
+  // in 15.6 against 110 ms at 240x320 and 15.4 against 24.5 at 130x173. In fp16 the cooperative-matrix
+  // 1x1 conv ran 5x the GEMM (LFF 336->96 0.07 against 0.37 ms, GFF 960->96 0.21 against 1.02).
+  if (f.kernel == 5 && f.direct) return ConvAlgo::direct;
+  if (f.kernel == 1 && f.coopmat && f.h * f.w >= 64) return ConvAlgo::coopmat;
+  if (f.cout > 4 && f.winograd && f.h >= 4 * f.stride && f.w >= 4 * f.stride) return ConvAlgo::winograd;
+  if (f.gemm && f.h * f.w >= 64) return ConvAlgo::gemm;
+  return ConvAlgo::blocked;
+}
+
 ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // Measured on lavapipe (bench_kernels): Winograd F(4,3) wins for every 3x3 stride-1 shape of the
   // model; tiny images (one tile row or column) gain nothing from it.
@@ -215,16 +229,9 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // 1-4 output channels (Winograd pads them to 8; there only where one dispatch per channel block
   // holds all input channels) and the GEMM for 1x1 convs with <= 64 input channels (no pack and
   // epilogue passes) or with the wide blocks (32 or 48 output channels per invocation).
-  // On a GPU (measured on an H100, docs/gpu_nvidia.md) the uniform-buffer `direct` path, built for
-  // llvmpipe, is 3-10x slower than `blocked`. Winograd wins there as here, except for 1-4 output
-  // channels; 1x1 convs take the GEMM (`blocked` led by 20% alone but was 10x slower in the model,
-  // on batch-2 channel slices).
-  if (ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU) {
-    if (cout_ > 4 && supports(ConvAlgo::winograd) && h >= 4 * params_.stride && w >= 4 * params_.stride)
-      return ConvAlgo::winograd;
-    if (supports(ConvAlgo::gemm) && h * w >= 64) return ConvAlgo::gemm;
-    return ConvAlgo::blocked;
-  }
+  if (ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU)
+    return gpu_conv_heuristic({params_.kernel, params_.stride, cout_, h, w, supports(ConvAlgo::winograd),
+                               supports(ConvAlgo::gemm), supports(ConvAlgo::direct), supports(ConvAlgo::coopmat)});
   const bool direct_whole = supports(ConvAlgo::direct) && direct_chunks().chunk >= cin_;
   if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
   // 3x3 stride 2: direct (input through a texel buffer) runs 1.6-2x the speed of Winograd on the

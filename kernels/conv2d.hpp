@@ -41,6 +41,15 @@ enum class ConvAlgo : uint32_t {
 };
 const char* conv_algo_name(ConvAlgo a);
 
+// What the heuristic on a GPU (any device that is not a CPU) looks at: the shape, and which
+// algorithms apply to it (Conv2d::supports). A pure function, so that its rules are tested on lavapipe.
+struct GpuConvFacts {
+  int kernel = 3, stride = 1;
+  int64_t cout = 0, h = 0, w = 0;
+  bool winograd = false, gemm = false, direct = false, coopmat = false;
+};
+ConvAlgo gpu_conv_heuristic(const GpuConvFacts& f);
+
 // Output extent of a convolution along one axis: floor((in + 2 pad - k) / stride) + 1.
 int64_t conv_output_size(int64_t in, int kernel, int stride, int pad);
 
