@@ -119,7 +119,7 @@ struct Timing {
   int reps = 0;
 };
 
-// GPU time of `record` (runtime's best_gpu_ms: the best of `reps` submits after one warm-up). `total`
+// GPU time of `record` (runtime's best_gpu_ms: the best of `reps` submits after a warm-up of at least 25 ms). `total`
 // (for --profile) gets every timed dispatch.
 template <class F>
 Timing time_gpu(Context& ctx, int reps, Profiler* total, F record) {

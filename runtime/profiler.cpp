@@ -46,10 +46,15 @@ void Profiler::print(std::ostream& os) const {
 }
 
 double best_gpu_ms(Context& ctx, int reps, const std::function<void(CommandStream&)>& record, Profiler* total) {
-  {
+  // Warm-up: submissions for at least 25 ms (at most 64 of them), so that a GPU that clocked down
+  // while the host worked is back at speed for the timed runs (an H200's FMA ceiling read 53 and 9.6
+  // TFLOP/s within one bench run, 2026-12-04). On lavapipe one run usually takes that long alone.
+  const auto warm0 = std::chrono::steady_clock::now();
+  for (int w = 0; w < 64; ++w) {
     CommandStream warm(ctx);
     record(warm);
     warm.submit_and_wait();
+    if (std::chrono::steady_clock::now() - warm0 >= std::chrono::milliseconds(25)) break;
   }
   const bool stamps = ctx.info().timestamps;
   double best = 1e300;

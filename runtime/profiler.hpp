@@ -34,7 +34,8 @@ class Profiler {
   std::map<std::string, OpStats> ops_;
 };
 
-// GPU time of what `record` records: the least of `reps` timed submits after one untimed warm-up
+// GPU time of what `record` records: the least of `reps` timed submits after untimed warm-up submits
+// (at least one, and 25 ms of them: a GPU that idled has its clocks back up)
 // (the first run compiles pipelines; on a shared machine the least is the least disturbed run). Where
 // the queue writes no timestamps, the wall time of each submit. `total` (optional) gets every timed
 // dispatch. The benches and the conv algorithm tuner share it.
