@@ -1,9 +1,9 @@
 // conv2d, the `coopmat` path (fp16): a GEMM on cooperative matrices (fp16 operands, fp32
 // accumulators) into M, then conv1x1_output (bias, activation, residual). 1x1 stride 1: conv1x1_pack
 // copies the input into V [cin][pixels], shaders/conv1x1_coopmat.comp multiplies (in input-channel
-// chunks that fit the scratch). 3x3 stride 1 pad 1: shaders/conv3x3_coopmat.comp, an implicit GEMM
-// (the input gathered into shared memory per step, no scratch). Every GEMM dimension is padded to
-// whole fragments: output channels to 16 (W's zero rows), the reduction (cin, or cin x 9) to 16 (W's
+// chunks that fit the scratch). 3x3 and 5x5 stride 1, pad k/2: shaders/conv_kxk_coopmat.comp, an
+// implicit GEMM (the input gathered into shared memory per step, no scratch). Every GEMM dimension is
+// padded to whole fragments: output channels to 16 (W's zero rows), the reduction (cin, or cin x k x k) to 16 (W's
 // zero columns; V's zero rows: conv1x1_pack's c_valid), pixels to the workgroup's NW x 32 (zeros).
 // The real shaders need VK_NV_cooperative_matrix with a 16 x {8,16} x {8,16} fp16 -> fp32 subgroup
 // shape and subgroups of 32 (NVIDIA); their emulated form, the same tiling in plain GLSL, runs
@@ -54,7 +54,8 @@ void Conv2d::set_coopmat_emulation(bool on, uint32_t n, uint32_t k) {
 
 bool Conv2d::coopmat_applies() const {
   const Conv2dParams& q = params_;
-  const bool shape = (q.kernel == 1 && q.stride == 1 && q.pad == 0) || (q.kernel == 3 && q.stride == 1 && q.pad == 1);
+  // 5x5: SFENet1 (396->96) is the largest conv of the model; cuDNN runs it on tensor cores (H200, 2026-12-04).
+  const bool shape = q.stride == 1 && (q.kernel == 1 || q.kernel == 3 || q.kernel == 5) && q.pad == q.kernel / 2;
   if (!shape || precision_ != Precision::fp16) return false;
   if (coopmat_emulated_) return true;
   return ctx_.info().coopmat_fp16_shape().has_value() && ctx_.info().subgroup_size == kWarp;
@@ -71,7 +72,7 @@ int64_t Conv2d::coopmat_chunk(const Shape& in) const {
 bool Conv2d::coopmat_fits(const Shape& in) const {
   const int64_t cout_pad = round_up(cout_, kPad), pix_pad = coopmat_pix_pad(in);
   const uint64_t m_bytes = static_cast<uint64_t>(cout_pad * pix_pad) * 4;  // M: fp32, every output channel
-  const bool chunks = params_.kernel == 3 || coopmat_chunk(in) >= kPad;   // 3x3: no V scratch (im2col in shared)
+  const bool chunks = params_.kernel > 1 || coopmat_chunk(in) >= kPad;   // k x k: no V scratch (im2col in shared)
   return m_bytes <= ctx_.info().max_storage_buffer_range && chunks &&
          static_cast<uint64_t>(pix_pad / (kWarps * kWarpPixels)) <= ctx_.info().max_workgroup_count[0];
 }
@@ -101,7 +102,7 @@ void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {
   }
   t.fm = coopmat_fm(cout_);
   t.fn = kWarpPixels / t.n;
-  const bool k3 = params_.kernel == 3;
+  const bool implicit = params_.kernel > 1;  // the implicit GEMM (3x3 or 5x5); 1x1: pack + GEMM
   const int64_t cout_pad = round_up(cout_, kPad), kpad = round_up(cin_ * params_.kernel * params_.kernel, kPad);
   const int64_t pix_pad = coopmat_pix_pad(r.is), npix = r.is.n * r.is.h * r.is.w;
   const uint64_t m_bytes = static_cast<uint64_t>(cout_pad * pix_pad) * 4;
@@ -111,20 +112,21 @@ void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {
   const std::string suffix = t.emulated ? "_emulated" : "";
   const Groups gemm_groups{u32(pix_pad / (kWarps * kWarpPixels)), u32(cout_pad / (t.fm * t.m)), 1};
   auto spec = [&](bool accum) {
-    return std::vector<uint32_t>{t.m, t.n, t.k, t.fm, t.fn, kWarps, kWarp, accum ? 1u : 0u, kWarps * kWarp};
+    return std::vector<uint32_t>{t.m, t.n, t.k, t.fm, t.fn, kWarps, kWarp, accum ? 1u : 0u, kWarps * kWarp,
+                                 static_cast<uint32_t>(params_.kernel)};
   };
-  if (k3) {  // implicit GEMM: the input is gathered into shared memory, no scratch
+  if (implicit) {  // implicit GEMM: the input is gathered into shared memory, no scratch
     struct GemmPush {
       uint32_t in_off, in_bs, cin, h, w, npix, kpad, pix_pad;
     } gp{r.in.offset, r.in.batch_stride, u32(cin_), u32(r.is.h), u32(r.is.w), u32(npix), u32(kpad), u32(pix_pad)};
-    cs.dispatch(kernel_pipeline(ctx_, "conv3x3_coopmat" + suffix, spec(false), sizeof gp),
+    cs.dispatch(kernel_pipeline(ctx_, "conv_kxk_coopmat" + suffix, spec(false), sizeof gp),
                 {r.in.arg, {weight_coopmat_.range(), Access::read}, {mr, Access::write}}, gp, gemm_groups,
                 {name + "_coopmat", r.info.flop, 2.0 * static_cast<double>(r.is.count() + cout_pad * kpad) +
                                                      4.0 * static_cast<double>(cout_pad * pix_pad)});
   }
-  const int64_t chunk = k3 ? 0 : coopmat_chunk(r.is);
-  const Tensor* vt = k3 ? nullptr : &workspace_->get(ctx_, 0, static_cast<uint64_t>(chunk * pix_pad) * 2);
-  for (int64_t c0 = 0; !k3 && c0 < cin_; c0 += chunk) {
+  const int64_t chunk = implicit ? 0 : coopmat_chunk(r.is);
+  const Tensor* vt = implicit ? nullptr : &workspace_->get(ctx_, 0, static_cast<uint64_t>(chunk * pix_pad) * 2);
+  for (int64_t c0 = 0; !implicit && c0 < cin_; c0 += chunk) {
     const int64_t cn = std::min(chunk, cin_ - c0), cn_pad = round_up(cn, kPad);
     const double v_bytes = 2.0 * static_cast<double>(cn_pad * pix_pad);
     const BufferRange vr = vt->range(0, static_cast<size_t>(cn_pad * pix_pad) * 2);

@@ -20,9 +20,10 @@ core_packages=(
   nlohmann-json3-dev libcli11-dev
   python3-dev pybind11-dev python3-numpy
 )
-# The suite: validation layer, GoogleTest, Debian's PyTorch for the mirror and trainer tests, and
+# The suite: validation layer, GoogleTest, Debian's PyTorch for the mirror and trainer tests, SciPy for the
+# second event generator (tools/second_generator.py), and
 # Debian's rosbag for the tests that write ROS bags.
-test_packages=(vulkan-validationlayers libgtest-dev libgmock-dev python3-pytest python3-torch python3-h5py python3-pil
+test_packages=(vulkan-validationlayers libgtest-dev libgmock-dev python3-pytest python3-torch python3-h5py python3-pil python3-scipy
   python3-rosbag python3-roslz4)
 # workflow/Snakefile (about 650 MB with its dependencies: cloud storage clients and more).
 workflow_packages=(snakemake)

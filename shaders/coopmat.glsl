@@ -1,4 +1,4 @@
-// Cooperative-matrix fragment ops of the coopmat GEMMs (conv1x1_coopmat, conv3x3_coopmat), in two
+// Cooperative-matrix fragment ops of the coopmat GEMMs (conv1x1_coopmat, conv_kxk_coopmat), in two
 // forms: cmake/Shaders.cmake compiles every .comp that includes this file as <stem> (real,
 // GL_NV_cooperative_matrix: a warp is one subgroup, so the device's subgroup size must be WARP) and
 // <stem>_emulated (-DVKU_COOPMAT_EMULATE: a warp is WARP consecutive invocations; the A and B

@@ -1,8 +1,8 @@
 #version 450
-// 3x3 stride-1 pad-1 conv as an implicit GEMM on cooperative matrices (tensor cores), the GEMM step
-// of the coopmat path (conv1x1_output is the epilogue):
-//   M[co][t] = sum over kk < kpad of W[co][kk] * X(kk, t),  kk = ci*9 + ky*3 + kx,
-//   X(kk, t) = input (n, ci, y + ky - 1, x + kx - 1) of output pixel t = (n, y, x), zero outside
+// KS x KS stride-1 conv with pad KS/2 (3x3 and 5x5) as an implicit GEMM on cooperative matrices
+// (tensor cores), the GEMM step of the coopmat path (conv1x1_output is the epilogue):
+//   M[co][t] = sum over kk < kpad of W[co][kk] * X(kk, t),  kk = ci*KS*KS + ky*KS + kx,
+//   X(kk, t) = input (n, ci, y + ky - KS/2, x + kx - KS/2) of output pixel t = (n, y, x), zero outside
 // W [cout_pad][kpad] float16 (zero-padded), M [cout_pad][pix_pad] fp32, row-major. Each step of lK
 // columns of W, the workgroup gathers X's lK rows for its NW*FN*lN pixels into shared memory (im2col,
 // never stored to global memory); warp `wp` of workgroup (x, y) computes FM x FN fragments: output
@@ -19,6 +19,7 @@ layout(constant_id = 4) const uint FN = 4;   // fragments per warp along the pix
 layout(constant_id = 5) const uint NW = 4;   // warps per workgroup
 layout(constant_id = 6) const uint WARP = 32;  // invocations per warp
 layout(local_size_x_id = 8) in;                // NW * WARP (constant 7, ACCUM of the 1x1 GEMM, unused)
+layout(constant_id = 9) const uint KS = 3;     // kernel side (odd; pad KS / 2)
 layout(push_constant) uniform P { uint in_off, in_bs, cin, h, w, npix, kpad, pix_pad; } p;
 
 layout(std430, binding = 0) readonly buffer In { float16_t x[]; };
@@ -30,9 +31,9 @@ const uint WGP = NW * FN * lN;        // pixels per workgroup (a multiple of 8)
 shared uvec4 cols[lK * WGP / 8u];     // the im2col tile [lK][WGP], 8 halves per uvec4 (16-byte aligned rows)
 
 float tap(uint kk, uint t) {
-  if (kk >= 9u * p.cin || t >= p.npix) return 0.0;
-  uint plane = p.h * p.w, ci = kk / 9u, r = kk % 9u, q = t % plane;
-  int y = int(q / p.w) + int(r / 3u) - 1, xx = int(q % p.w) + int(r % 3u) - 1;
+  if (kk >= KS * KS * p.cin || t >= p.npix) return 0.0;
+  uint plane = p.h * p.w, ci = kk / (KS * KS), r = kk % (KS * KS), q = t % plane;
+  int y = int(q / p.w) + int(r / KS) - int(KS / 2u), xx = int(q % p.w) + int(r % KS) - int(KS / 2u);
   if (y < 0 || y >= int(p.h) || xx < 0 || xx >= int(p.w)) return 0.0;
   return float(x[p.in_off + (t / plane) * p.in_bs + ci * plane + uint(y) * p.w + uint(xx)]);
 }
