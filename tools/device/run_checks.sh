@@ -90,11 +90,12 @@ all)
   # ONE command for a single short slot, most important first: the never-run paths' tests, the
   # paper's goal (S fp32 at 640x480 against PyTorch), fp16 against PyTorch's fp16, the rest of the
   # tests, M, the per-layer report, the kernel bench with what time is left.
-  # The races take the measured conv choice, as `unroll` does on a GPU (auto); each also runs the
+  # The S races take the measured conv choice, as `unroll` does on a GPU (auto); each also runs the
   # heuristic, interleaved, and prints both. The first race of a precision times every shape (about
-  # 60-90 s at 640x480 on the H200, 2026-12-04), the later ones only the shapes new to the table.
+  # 60-90 s at 640x480 on the H200, 2026-12-04). M's batch of 2 keys new table rows (n<=2), which
+  # would need the same again: M and the smaller size take the heuristic here (phase race: measured).
   coopmat_tests; race s fp32 640x480 measured 200; race s fp16 640x480 measured 150; gpu_tests 100
-  race m fp32 640x480 measured; race m fp16 640x480 measured; race s fp32 346x260 measured
+  race m fp32 640x480 heuristic 60; race m fp16 640x480 heuristic 50; race s fp32 346x260 heuristic 40
   kernels 90; per_layer; coopmat_bench; direct_tests ;;
 *) echo "usage: run.sh tests|race|all"; exit 2 ;;
 esac
