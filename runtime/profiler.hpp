@@ -35,8 +35,8 @@ class Profiler {
 };
 
 // GPU time of what `record` records: the least of `reps` timed submits after untimed warm-up submits
-// (at least one, and 25 ms of them: a GPU that idled has its clocks back up)
-// (the first run compiles pipelines; on a shared machine the least is the least disturbed run). Where
+// (at least one, and at least 25 ms of them: the first compiles pipelines, and a GPU that idled gets its
+// clocks back up; on a shared machine the least is the least disturbed run). Where
 // the queue writes no timestamps, the wall time of each submit. `total` (optional) gets every timed
 // dispatch. The benches and the conv algorithm tuner share it.
 double best_gpu_ms(Context& ctx, int reps, const std::function<void(CommandStream&)>& record, Profiler* total = nullptr);
