@@ -5,6 +5,7 @@
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/host/unroll/unroll_options.hpp"
 
 namespace vkunroll::python {
 
@@ -50,6 +51,7 @@ py::dict config_dict(const Weights& w) {
   d["moa"] = c.moa;
   d["physics_input"] = c.physics_input;
   d["physics_contrast"] = c.physics_contrast;
+  d["physics_gate"] = c.physics_gate;  // the variant's event gate radius; -1: no gate
   d["gamma"] = c.gamma ? py::object(py::float_(*c.gamma)) : py::object(py::none());
   d["channel_order"] = c.channel_order;
   d["description"] = c.description;
@@ -72,7 +74,7 @@ HostTensor host_tensor(const F32Array& a, const char* name) {
 void bind_model(py::module_& m) {
   py::class_<PyModel, std::shared_ptr<PyModel>>(m, "_Model")
       .def(py::init([](const std::string& path, const ContextPtr& ctx, const std::string& backend, unsigned threads,
-                       const std::string& precision_str) {
+                       const std::string& precision_str, int gate_radius) {
              auto pm = std::make_shared<PyModel>();
              pm->path = path;
              const Precision precision = guarded({{path}}, [&] {
@@ -81,10 +83,18 @@ void bind_model(py::module_& m) {
                const Precision p = parse_precision(precision_str, "precision");
                if (p == Precision::fp16 && backend == "cpu")
                  throw Error("precision fp16 needs backend 'vulkan' (the CPU backend computes the fp32 reference)");
+               if (gate_radius < -1 || gate_radius > kMaxGateRadius)
+                 throw UsageError("gate_radius " + std::to_string(gate_radius) + ": expected None or 0.." +
+                                  std::to_string(kMaxGateRadius));
                return p;
              });
              without_gil({{path}}, [&] {
                pm->weights = std::make_unique<Weights>(load_weights(path));
+               if (gate_radius >= 0) {  // as `unroll --gate-radius N`: the variant's event gate at this radius
+                 if (pm->weights->config.physics_gate < 0)
+                   throw UsageError(path + ": gate_radius " + std::to_string(gate_radius) + " given, but this model has no event gate");
+                 pm->weights->config.physics_gate = gate_radius;
+               }
                if (backend == "vulkan") {
                  pm->ctx = ctx;
                  std::lock_guard<std::mutex> lock(ctx->mutex);
@@ -97,7 +107,8 @@ void bind_model(py::module_& m) {
              });
              return pm;
            }),
-           py::arg("path"), py::arg("context"), py::arg("backend"), py::arg("threads"), py::arg("precision"))
+           py::arg("path"), py::arg("context"), py::arg("backend"), py::arg("threads"), py::arg("precision"),
+           py::arg("gate_radius"))
       .def_readonly("path", &PyModel::path)
       .def_property_readonly("config", [](const PyModel& pm) { return config_dict(*pm.weights); })
       .def_property_readonly("backend", [](const PyModel& pm) { return pm.backend->name(); })

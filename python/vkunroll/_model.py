@@ -29,18 +29,24 @@ class Model:
         self._m = native
 
     @classmethod
-    def load(cls, path, context=None, backend="vulkan", threads=0, precision="fp32"):
+    def load(cls, path, context=None, backend="vulkan", threads=0, precision="fp32", gate_radius=None):
         """Load a safetensors weights file (configuration from its metadata or its shapes).
 
         ``backend``: "vulkan" (the GPU kernels on ``context``, default :func:`default_context`)
         or "cpu" (the CPU reference backend, fp32, ``threads`` convolution threads, 0: the
         machine's, at most 8). ``precision``: "fp32" (the reference) or "fp16" (vulkan only:
         weights and every buffer in float16, needs 16-bit storage; docs/kernels.md "Precision").
+        ``gate_radius``: None (the weights' own) or an integer 0..15, the physics-informed variant's
+        event gate radius, as ``vkunroll unroll --gate-radius N`` (and ``unroll(gate_radius=N)``).
         Raises FileNotFoundError for a missing file, ValueError when a tensor is missing or has the
-        wrong shape (named) or the precision is not available.
+        wrong shape (named), the precision is not available, or a gate radius is out of range or
+        given for a model without an event gate.
         """
         ctx = resolve_context(context, backend)
-        return cls(_vk._Model(os.fspath(path), ctx, backend, int(threads), str(precision)))
+        if gate_radius is not None and (isinstance(gate_radius, bool) or not isinstance(gate_radius, int)):
+            raise ValueError(f"gate_radius {gate_radius!r}: expected None or an integer 0..15")
+        radius = -1 if gate_radius is None else gate_radius
+        return cls(_vk._Model(os.fspath(path), ctx, backend, int(threads), str(precision), radius))
 
     @property
     def path(self):

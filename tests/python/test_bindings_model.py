@@ -191,3 +191,32 @@ def test_library_output_goes_to_logging(caplog, capfd):
         ctx = vkunroll.Context()
     assert any(r.name == "vkunroll" and r.message.startswith("device [") and ctx.name in r.message for r in caplog.records)
     assert "device [" not in capfd.readouterr().err  # not on the process's stderr
+
+
+def test_gate_radius_is_set_at_load_as_the_cli_sets_it():
+    """Model.load(gate_radius=N) runs the variant's event gate at N, as `unroll --gate-radius N`:
+    None and the weights' own radius give the same outputs, a wider gate lets the network change
+    more pixels; a radius for a model without a gate, or out of range, is refused."""
+    shipped = os.path.join(ROOT, "models", "selfunroll_small_physics.safetensors")
+    own = vkunroll.Model.load(shipped, backend="cpu")
+    r = own.config["physics_gate"]
+    assert r >= 0 and vkunroll.Model.load(TINY, backend="cpu").config["physics_gate"] == -1
+    rng = np.random.default_rng(5)
+    h, w, ev = 32, 32, 2 * own.config["N"]
+    rs, phys = rng.random((1, 3, h, w), dtype=np.float32), rng.random((1, 3, h, w), dtype=np.float32)
+    evs = [np.zeros((1, ev, h, w), np.float32) for _ in range(3)]
+    evs[0][0, 0, 16, 16] = evs[1][0, 1, 16, 16] = 3.0  # one pixel with events: the gate decides how far the network reaches
+    def fused(model):
+        return model.run(rs, *evs, mode="s", phys=phys, outputs=["fused"])["fused"]
+    same = vkunroll.Model.load(shipped, backend="cpu", gate_radius=r)
+    assert same.config["physics_gate"] == r
+    np.testing.assert_array_equal(fused(same), fused(own))
+    wide = vkunroll.Model.load(shipped, backend="cpu", gate_radius=r + 3)
+    assert wide.config["physics_gate"] == r + 3
+    changed = lambda m: int((np.abs(fused(m) - np.clip(phys, 0, 1)) > 0).any(axis=1).sum())  # noqa: E731
+    assert changed(wide) > changed(own) > 0
+    with pytest.raises(ValueError, match="no event gate"):
+        vkunroll.Model.load(TINY, backend="cpu", gate_radius=1)
+    for bad in (16, -2, "2", True, 1.0):
+        with pytest.raises(ValueError, match="gate_radius"):
+            vkunroll.Model.load(shipped, backend="cpu", gate_radius=bad)
