@@ -28,7 +28,6 @@
 #include <map>
 #include <random>
 #include <string>
-#include <tuple>
 #include <utility>
 #include <unistd.h>
 
@@ -122,16 +121,8 @@ ResidentTiming time_resident(Context& ctx, Backend& vk, Model& model, const Mode
     std::printf("  vulkan : resident timing skipped: the %lld items need more than one chunk\n", static_cast<long long>(B));
     return {};
   }
-  ModelBuffers bufs;
   std::vector<Buffer> keep;
-  for (auto [a, dst, name] : {std::tuple{&in.rs, &bufs.rs, "rs"}, std::tuple{&in.ev1, &bufs.ev1, "ev1"},
-                              std::tuple{&in.ev2, &bufs.ev2, "ev2"}, std::tuple{&in.ev3, &bufs.ev3, "ev3"},
-                              std::tuple{&in.phys, &bufs.phys, "phys"}}) {
-    if (a->data.empty()) continue;
-    keep.push_back(vk.alloc(a->shape, name));
-    *dst = keep.back().whole();
-    vk.upload(*dst, a->data);
-  }
+  const ModelBuffers bufs = model.upload_inputs(in, 0, B, keep);  // the timed runs checked these inputs
   vk.flush();
   RunOptions o;
   o.mode = md;

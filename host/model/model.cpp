@@ -440,6 +440,21 @@ void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
 
 // ---- run -------------------------------------------------------------------------------------
 
+ModelBuffers Model::upload_inputs(const ModelInputs& in, int64_t c0, int64_t n, std::vector<Buffer>& owned) {
+  const int64_t H = in.rs.shape.h, W = in.rs.shape.w;
+  ModelBuffers buffers;
+  for (const auto& [a, dst, name] : {std::tuple{&in.rs, &buffers.rs, "rs"}, std::tuple{&in.ev1, &buffers.ev1, "ev1"},
+                                     std::tuple{&in.ev2, &buffers.ev2, "ev2"}, std::tuple{&in.ev3, &buffers.ev3, "ev3"},
+                                     std::tuple{&in.phys, &buffers.phys, "phys"}}) {
+    if (a == &in.phys && !cfg_.physics_input) continue;
+    const int64_t item = a->shape.c * H * W;
+    owned.push_back(backend_.alloc({n, a->shape.c, H, W}, name));
+    *dst = owned.back().whole();
+    backend_.upload(*dst, std::span<const float>(a->data.data() + c0 * item, size_t(n * item)));
+  }
+  return buffers;
+}
+
 std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOptions& opt) {
   Backend& b = backend_;
   const int64_t B = in.rs.shape.n, H = in.rs.shape.h, W = in.rs.shape.w, ev = cfg_.ev_channels();
@@ -468,17 +483,8 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
   std::map<std::string, HostTensor> result;
   for (int64_t c0 = 0; c0 < B; c0 += per_chunk) {
     const int64_t n = std::min(per_chunk, B - c0);
-    ModelBuffers buffers;
     std::vector<Buffer> uploaded;  // handed over: the run releases each after its last reader
-    for (const auto& [a, dst, name] : {std::tuple{&in.rs, &buffers.rs, "rs"}, std::tuple{&in.ev1, &buffers.ev1, "ev1"},
-                                       std::tuple{&in.ev2, &buffers.ev2, "ev2"}, std::tuple{&in.ev3, &buffers.ev3, "ev3"},
-                                       std::tuple{&in.phys, &buffers.phys, "phys"}}) {
-      if (a == &in.phys && !cfg_.physics_input) continue;
-      const int64_t item = a->shape.c * H * W;
-      uploaded.push_back(b.alloc({n, a->shape.c, H, W}, name));
-      *dst = uploaded.back().whole();
-      b.upload(*dst, std::span<const float>(a->data.data() + c0 * item, size_t(n * item)));
-    }
+    const ModelBuffers buffers = upload_inputs(in, c0, n, uploaded);
     RunOptions ro = opt;
     ro.max_items = static_cast<int>(n);
     const std::map<std::string, Buffer> outs = run_on_backend(buffers, ro, std::move(uploaded));

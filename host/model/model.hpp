@@ -79,6 +79,10 @@ class Model {
   // after the flow, ev3 after the fusion), which lowers the peak memory.
   std::map<std::string, Buffer> run_on_backend(const ModelBuffers& in, const RunOptions& opt,
                                                std::vector<Buffer> handed_over = {});
+  // Batch items [c0, c0 + n) of the inputs uploaded into new backend buffers (appended to `owned`,
+  // which keeps them; run() hands them over): the ModelBuffers run_on_backend takes. Unchecked: run()
+  // checks the inputs first.
+  ModelBuffers upload_inputs(const ModelInputs& in, int64_t c0, int64_t n, std::vector<Buffer>& owned);
 
   // Batch items one chunk holds for inputs of this size (what run() uses when max_items = 0).
   int items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budget) const;
