@@ -334,7 +334,7 @@ int main(int argc, char** argv) {
       {"--direct-cob", &conv_options.direct_cob},   {"--direct-px", &conv_options.direct_px},
       {"--direct-py", &conv_options.direct_py},     {"--gemm-cob", &conv_options.gemm_cob},
       {"--gemm-tv", &conv_options.gemm_tv},         {"--pointwise-cob", &conv_options.pointwise_cob},
-      {"--pointwise-px", &conv_options.pointwise_px}};
+      {"--pointwise-px", &conv_options.pointwise_px}, {"--winograd-tile", &conv_options.winograd_tile}};
   bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false, pointwise_pairs = true;
   std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
   auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
@@ -418,6 +418,7 @@ int main(int argc, char** argv) {
                    "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
                    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
                    "                              [--gemm-tv N] [--pointwise-cob N] [--pointwise-px N] [--pointwise-single]\n"
+                   "                              [--winograd-tile 6|8]\n"
                    "                              [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
                    "                              [--no-torch] [--torch-threads N] [--torch-device cpu|cuda]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"

@@ -192,6 +192,7 @@ class Conv2d {
   void pack_direct() const;  // conv2d_direct.cpp
   void pack_winograd();      // conv2d_winograd.cpp
   void pack_gemm();          // conv2d_winograd.cpp
+  void pack_winograd45();  // conv2d_winograd.cpp: F(4x4, 5x5)'s U
   void pack_coopmat() const;  // conv2d_coopmat.cpp
   void pack_pointwise() const;  // conv2d_pointwise.cpp
   // The direct and pointwise layout [cout/cob][cin_pad + tail][k*k][cob] of the weights, zero-padded
@@ -229,11 +230,14 @@ class Conv2d {
   uint32_t direct_py_ = 1;   // output rows per invocation of the direct path
   int64_t direct_chunk_limit_ = 0;  // 0: none
   bool texel_fetch_ = true;
-  Tensor weight_winograd_; // U = G g G^T: [36][cin][cout_pad]
+  Tensor weight_winograd_; // U = G g G^T: [36 or 64 positions][virtual cin][cout_pad]
   Tensor weight_gemm_;     // 1x1: [cin][cout_pad] (the transpose), for the gemm path
   int64_t gemm_cob_ = 8;     // output channels per GEMM invocation (winograd and gemm)
   uint32_t gemm_tv_ = 4;     // vec4s of tiles per GEMM invocation
   int64_t gemm_cout_pad_ = 0, winograd_ks_ = 1;
+  // 5x5 stride 1 as F(4x4, 5x5): 8x8 input tiles, 64 positions (ConvOptions::winograd_tile); else F(4x4, 3x3), 36.
+  bool winograd_f45_ = false;
+  int64_t winograd_npos() const { return winograd_f45_ ? 64 : 36; }
   uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
   mutable Tensor weight_coopmat_;  // fp16 [cout_pad][kpad], kk = ci*k*k + tap (zero-padded to 16): coopmat
   bool coopmat_emulated_ = false;

@@ -1,4 +1,5 @@
-// conv2d, Winograd F(4x4, 3x3) (winograd_input, winograd_gemm, winograd_output) and the 1x1 GEMM
+// conv2d, Winograd F(4x4, 3x3) (winograd_input, winograd_gemm, winograd_output), F(4x4, 5x5)
+// (winograd45_input, winograd_gemm with 64 positions, winograd45_output) and the 1x1 GEMM
 // (conv1x1_pack, winograd_gemm with one position, conv1x1_output), with their scratch sizes.
 // fp16: Winograd reads and writes float16 activations but keeps U, V and M fp32 (its transforms
 // amplify their rounding: docs/kernels.md, "Precision"); the 1x1 GEMM's packed input and weights are
@@ -28,7 +29,41 @@ WinogradSizes winograd_sizes(const Shape& in) {
 int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 15) / 16 * 16; }
 }  // namespace
 
+// F(4x4, 5x5) on the points 0, +-1, +-2, +-1/2, inf: G (8x5), exact (B^T and A^T are in the shaders).
+const double kG45[8][5] = {{1, 0, 0, 0, 0},
+                           {-2.0 / 9, -2.0 / 9, -2.0 / 9, -2.0 / 9, -2.0 / 9},
+                           {-2.0 / 9, 2.0 / 9, -2.0 / 9, 2.0 / 9, -2.0 / 9},
+                           {1.0 / 90, 1.0 / 45, 2.0 / 45, 4.0 / 45, 8.0 / 45},
+                           {1.0 / 90, -1.0 / 45, 2.0 / 45, -4.0 / 45, 8.0 / 45},
+                           {32.0 / 45, 16.0 / 45, 8.0 / 45, 4.0 / 45, 2.0 / 45},
+                           {32.0 / 45, -16.0 / 45, 8.0 / 45, -4.0 / 45, 2.0 / 45},
+                           {0, 0, 0, 0, 1}};
+
+void Conv2d::pack_winograd45() {
+  // U = G g G^T in double: [64][cin][cout_pad], fp32 in both precisions.
+  std::vector<float> u(static_cast<size_t>(64 * cin_ * gemm_cout_pad_), 0.f);
+  for (int64_t co = 0; co < cout_; ++co)
+    for (int64_t ci = 0; ci < cin_; ++ci) {
+      double gg[8][5];
+      for (int i = 0; i < 8; ++i)
+        for (int j = 0; j < 5; ++j) {
+          double acc = 0;
+          for (int t = 0; t < 5; ++t) acc += kG45[i][t] * weight_host_.at(co, ci, t, j);
+          gg[i][j] = acc;
+        }
+      for (int i = 0; i < 8; ++i)
+        for (int j = 0; j < 8; ++j) {
+          double acc = 0;
+          for (int t = 0; t < 5; ++t) acc += gg[i][t] * kG45[j][t];
+          u[static_cast<size_t>(((i * 8 + j) * cin_ + ci) * gemm_cout_pad_ + co)] = static_cast<float>(acc);
+        }
+    }
+  winograd_ks_ = 1;
+  weight_winograd_ = vkunroll::upload_weights(ctx_, u, Precision::fp32, name_);
+}
+
 void Conv2d::pack_winograd() {
+  if (winograd_f45_) return pack_winograd45();
   const int k = params_.kernel;
   const bool wino_s2 = k == 3 && params_.stride == 2 && params_.pad == 1;
   // Winograd F(4x4, 3x3): U = G g G^T in double, [36][KS*KS*cin][cout_pad]. A 5x5 kernel is split
@@ -91,7 +126,7 @@ int64_t Conv2d::winograd_chunk(const Shape& in) const {
     return std::min<int64_t>(cin_, static_cast<int64_t>(limit / per_channel));
   }
   const WinogradSizes ws = winograd_sizes(output_shape(in));
-  const uint64_t per_channel = 36ull * static_cast<uint64_t>(ws.tiles_pad) * 4;  // V is fp32
+  const uint64_t per_channel = static_cast<uint64_t>(winograd_npos() * ws.tiles_pad) * 4;  // V is fp32
   const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
   return std::min<int64_t>(cv, static_cast<int64_t>(limit / per_channel));
 }
@@ -105,7 +140,7 @@ bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
            winograd_chunk(in) >= 1;
   if (algo != ConvAlgo::winograd) return true;
   const WinogradSizes ws = winograd_sizes(output_shape(in));
-  const uint64_t m_bytes = 36ull * static_cast<uint64_t>(gemm_cout_pad_ * ws.tiles_pad) * 4;
+  const uint64_t m_bytes = static_cast<uint64_t>(winograd_npos() * gemm_cout_pad_ * ws.tiles_pad) * 4;
   return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
 }
 
@@ -115,13 +150,14 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
   const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
   const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, chunk = winograd_chunk(r.is);
   // V, U and M fp32 in both precisions; only the input and output slices are float16 in fp16.
-  const uint64_t e = 4, m_bytes = static_cast<uint64_t>(36 * gemm_cout_pad_ * wz.tiles_pad) * 4;
+  const int64_t npos = winograd_npos();
+  const uint64_t e = 4, m_bytes = static_cast<uint64_t>(npos * gemm_cout_pad_ * wz.tiles_pad) * 4;
   const bool s2 = params_.stride == 2;
   const Tensor& mt = workspace_->get(ctx_, 1, m_bytes);
   const BufferRange mr = mt.range(0, m_bytes);
   const std::string& name = r.info.name;
   // Texel views where every range fits one (the storage forms otherwise): input, V and U, M.
-  const auto v_bytes_of = [&](int64_t rows) { return static_cast<uint64_t>(36 * rows * wz.tiles_pad) * e; };
+  const auto v_bytes_of = [&](int64_t rows) { return static_cast<uint64_t>(npos * rows * wz.tiles_pad) * e; };
   const auto v_fits = [&](int64_t rows) {
     return texel_fits(v_bytes_of(rows), 16) && v_bytes_of(rows) <= ctx_.info().max_storage_buffer_range;
   };
@@ -137,11 +173,13 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
       uint32_t ilv, rows, v0;
     } ip{r.in.offset, r.in.batch_stride, u32(cin_), u32(r.is.h), u32(r.is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
          u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
-         params_.kernel == 5 ? -1 : 0, ilv ? gemm_tv_ : 0u, u32(rows), u32(v0)};  // ilv: the texel GEMM's order
+         params_.kernel == 5 ? (winograd_f45_ ? -2 : -1) : 0, ilv ? gemm_tv_ : 0u, u32(rows), u32(v0)};  // ilv: the texel GEMM's order
     const Groups g = ilv ? flat_groups((wz.tiles_pad / (4 * gemm_tv_)) * cn, 1) : Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1};
-    cs.dispatch(kernel_pipeline(ctx_, shader(texel_in ? "winograd_input_texel" : "winograd_input"), {}, sizeof ip),
-                {in_arg, {vr, Access::write}}, ip, g,
-                {name + "_wino_in", 0, static_cast<double>(e) * 36.0 * static_cast<double>(cn * wz.tiles_pad) * (1 + 16.0 / 36)});
+    const char* in_shader = winograd_f45_ ? (texel_in ? "winograd45_input_texel" : "winograd45_input")
+                                          : (texel_in ? "winograd_input_texel" : "winograd_input");
+    const double tile_in = winograd_f45_ ? 8.0 * 20 / 4 : 6.0 * 18 / 4;  // input values loaded per tile
+    cs.dispatch(kernel_pipeline(ctx_, shader(in_shader), {}, sizeof ip), {in_arg, {vr, Access::write}}, ip, g,
+                {name + "_wino_in", 0, static_cast<double>(e) * static_cast<double>(npos + tile_in) * static_cast<double>(cn * wz.tiles_pad)});
   };
   // M (+)= U V over virtual channels [c0, c0 + cn), held in the first cn rows of a V of `rows` rows.
   const auto gemm = [&](const BufferRange& vr, int64_t c0, int64_t cn, int64_t rows, bool texel) {
@@ -151,16 +189,16 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
     const uint32_t tv = gemm_tv_;
     const Arg va{vr, Access::read, VK_FORMAT_R32G32B32A32_SFLOAT};
     const Arg ua{weight_winograd_.range(), Access::read, VK_FORMAT_R32G32B32A32_SFLOAT};
-    const double v_bytes = static_cast<double>(e) * 36.0 * static_cast<double>(cn * wz.tiles_pad);
-    cs.dispatch(kernel_pipeline(ctx_, texel ? "winograd_gemm_texel" : "winograd_gemm", {u32(gemm_cob_), c0 > 0 ? 1u : 0u, 36u, tv},
+    const double v_bytes = static_cast<double>(e) * static_cast<double>(npos * cn * wz.tiles_pad);
+    cs.dispatch(kernel_pipeline(ctx_, texel ? "winograd_gemm_texel" : "winograd_gemm", {u32(gemm_cob_), c0 > 0 ? 1u : 0u, u32(npos), tv},
                                 sizeof gp),
                 {va, ua, {mr, c0 > 0 ? Access::read_write : Access::write}}, gp,
-                flat_groups(36 * (gemm_cout_pad_ / gemm_cob_) * (wz.tiles_pad / (4 * tv)), 1),
+                flat_groups(npos * (gemm_cout_pad_ / gemm_cob_) * (wz.tiles_pad / (4 * tv)), 1),
                 {name + "_wino_gemm", r.info.flop * static_cast<double>(cn) / static_cast<double>(cv),
-                 v_bytes + 4.0 * 36 * static_cast<double>(gemm_cout_pad_ * (c0 > 0 ? 2 : 1) * wz.tiles_pad)});
+                 v_bytes + 4.0 * static_cast<double>(npos * gemm_cout_pad_ * (c0 > 0 ? 2 : 1) * wz.tiles_pad)});
   };
   WinogradInputCache* shared = r.shared_v;
-  if (shared && texel_gemm && winograd_ks_ == 1 && !s2 && cin_ <= shared->capacity_ && v_fits(shared->capacity_)) {
+  if (shared && texel_gemm && params_.kernel == 3 && !s2 && cin_ <= shared->capacity_ && v_fits(shared->capacity_)) {
     // A dense block's conv: its input's first channels were transformed by the block's earlier convs.
     const uint64_t bytes = v_bytes_of(shared->capacity_);
     const Tensor& vt = workspace_->get(ctx_, 2, bytes);
@@ -172,11 +210,11 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
     shared->channels_ = cin_;
     gemm(vr, 0, cin_, shared->capacity_, true);
   } else {
-    const Tensor& vt = workspace_->get(ctx_, 0, static_cast<uint64_t>(36 * chunk * wz.tiles_pad) * e);
+    const Tensor& vt = workspace_->get(ctx_, 0, static_cast<uint64_t>(npos * chunk * wz.tiles_pad) * e);
     // Input channels in chunks whose transformed tiles fit the scratch; the GEMM accumulates.
     for (int64_t c0 = 0; c0 < cv; c0 += chunk) {
       const int64_t cn = std::min(chunk, cv - c0);
-      const BufferRange vr = vt.range(0, static_cast<size_t>(36 * cn * wz.tiles_pad) * e);
+      const BufferRange vr = vt.range(0, static_cast<size_t>(npos * cn * wz.tiles_pad) * e);
       transform(vr, c0, cn, 0, cn, texel_gemm);
       gemm(vr, c0, cn, cn, texel_gemm);
     }
@@ -185,7 +223,9 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
     uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
   } op{r.res.offset, r.res.batch_stride, r.out.offset, r.out.batch_stride, u32(cout_), u32(r.os.h), u32(r.os.w),
        u32(wz.tiles_x_pad), u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(gemm_cout_pad_)};
-  cs.dispatch(kernel_pipeline(ctx_, shader(texel_m ? "winograd_output_texel" : "winograd_output"), {r.spec[2], r.spec[3], r.spec[4]},
+  const char* out_shader = winograd_f45_ ? (texel_m ? "winograd45_output_texel" : "winograd45_output")
+                                         : (texel_m ? "winograd_output_texel" : "winograd_output");
+  cs.dispatch(kernel_pipeline(ctx_, shader(out_shader), {r.spec[2], r.spec[3], r.spec[4]},
                               sizeof op),
               {{mr, Access::read, VK_FORMAT_R32G32B32A32_SFLOAT}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
               Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},

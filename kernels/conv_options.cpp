@@ -37,6 +37,7 @@ void ConvOptions::validate(const std::string& who) const {
   check_range(who, "direct_py", direct_py, 1, 8);
   check_one_of(who, "gemm_cob", gemm_cob, {4, 8, 16});
   check_one_of(who, "gemm_tv", gemm_tv, {1, 2, 4});
+  check_one_of(who, "winograd_tile", winograd_tile, {6, 8});
   check_range(who, "pointwise_cob", pointwise_cob, 1, 32);
   check_range(who, "pointwise_px", pointwise_px, 1, 8);
 }

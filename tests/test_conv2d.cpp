@@ -186,6 +186,23 @@ TEST(Conv2d, WinogradStorageFormsMatchReference) {
   run_cases(ConvAlgo::winograd, {~0ull, 0, false}, {kFp32});
   run_cases(vktest::context(), ConvAlgo::winograd, canary_cases(), {3 * 36 * 4 * 64, 0, false}, {kFp32, kFp16});
 }
+// 5x5 stride 1 in both Winograd forms: F(4x4, 5x5) on 8x8 tiles (the default) and the kernel split
+// into four F(4x4, 3x3) convs (winograd_tile 6), with a long reduction (SFENet1-like 120 -> 24),
+// texel and storage forms, whole and in chunks.
+TEST(Conv2d, Winograd5x5BothFormsMatchReference) {
+  const Act lrelu01 = leaky_relu(0.1f);
+  const std::vector<Case> k5 = {{5, 1, 3, 9, 1, 13, Act{Activation::tanh}, false},
+                                {5, 1, 11, 6, 12, 9, Act{}, false, 0, 0, 3, 1, 2},
+                                {5, 1, 120, 24, 21, 30, lrelu01, true, 0, 0, 0, 0, 2},
+                                {5, 1, 7, 16, 33, 18, lrelu01, false, 2, 1}};
+  for (int tile : {8, 6}) {
+    Limits whole, chunks{6 * 64 * 4 * 64}, storage{~0ull, 0, false};
+    for (Limits* l : {&whole, &chunks, &storage}) l->options.winograd_tile = tile;
+    run_cases(vktest::context(), ConvAlgo::winograd, k5, whole, {kFp32, kFp16});
+    run_cases(vktest::context(), ConvAlgo::winograd, k5, chunks, {kFp32});
+    run_cases(vktest::context(), ConvAlgo::winograd, k5, storage, {kFp32});
+  }
+}
 // The 1x1 GEMM's input, V and U through storage buffers (its plain pack and GEMM) instead of texel
 // buffers.
 TEST(Conv2d, GemmStorageFormsMatchReference) {
@@ -289,6 +306,9 @@ TEST(Conv2d, OptionsAreValidatedByName) {
   o = {};
   o.gemm_tv = 3;
   expect_error(o, "gemm_tv");
+  o = {};
+  o.winograd_tile = 7;
+  expect_error(o, "winograd_tile");
   o = {};
   o.pointwise_cob = 33;
   expect_error(o, "pointwise_cob");

@@ -1,0 +1,66 @@
+// The body of winograd45_output.comp (M in a storage buffer) and winograd45_output_texel.comp (M
+// through an RGBA32F uniform texel buffer, WINOGRAD_TEXEL_M; the .comp includes precision.glsl first).
+// Winograd F(4x4, 5x5), step 3: Y = A^T M A of the 64 positions for four horizontally adjacent tiles
+// of one output channel per invocation, then bias, the fused activation and the optional residual,
+// written into the output slice (edges masked). As winograd_output.glsl, with 8x8 tiles.
+layout(local_size_x = 64) in;
+layout(constant_id = 0) const uint ACT = 0;
+layout(constant_id = 1) const float SLOPE = 0.0;
+layout(constant_id = 2) const uint HAS_RES = 0;
+#include "act.glsl"
+// fp16 variant: M stays fp32, residual and output float16.
+#ifdef WINOGRAD_TEXEL_M
+layout(binding = 0) uniform samplerBuffer mt;
+vec4 load_m(uint i) { return texelFetch(mt, int(i)); }
+#else
+layout(std430, binding = 0) readonly buffer M { vec4 m[]; };
+vec4 load_m(uint i) { return m[i]; }
+#endif
+layout(std430, binding = 1) readonly buffer Bias { float bias[]; };
+layout(std430, binding = 2) readonly buffer Res { SFLOAT res[]; };
+layout(std430, binding = 3) writeonly buffer Out { SFLOAT y[]; };
+layout(push_constant) uniform P {
+  uint res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
+} p;
+
+// A^T x for 8 values (4 tiles side by side): the 4 outputs.
+void at8(vec4 m0, vec4 m1, vec4 m2, vec4 m3, vec4 m4, vec4 m5, vec4 m6, vec4 m7, out vec4 o[4]) {
+  o[0] = m0 + m1 + m2 + m3 + m4 + m5 + m6;
+  o[1] = m1 - m2 + 2.0 * (m3 - m4) + 0.5 * (m5 - m6);
+  o[2] = m1 + m2 + 4.0 * (m3 + m4) + 0.25 * (m5 + m6);
+  o[3] = m1 - m2 + 8.0 * (m3 - m4) + 0.125 * (m5 - m6) + m7;
+}
+
+void main() {
+  uint gi = gl_GlobalInvocationID.x, co = gl_GlobalInvocationID.y;
+  if (gi >= p.ngroups) return;
+  uint gx = p.tiles_x_pad / 4u;
+  uint row = gi / gx, n = row / p.tiles_y, ty = row % p.tiles_y;
+  uint oy0 = ty * 4u, ox0 = (gi % gx) * 16u;
+  uint stride = p.cout_pad * p.tiles_pad / 4u, b = co * p.tiles_pad / 4u + gi;
+  vec4 t4[4][8];  // A^T M
+  [[unroll]] for (uint j = 0; j < 8u; ++j) {
+    vec4 o[4];
+    at8(load_m(b + j * stride), load_m(b + (8u + j) * stride), load_m(b + (16u + j) * stride), load_m(b + (24u + j) * stride),
+        load_m(b + (32u + j) * stride), load_m(b + (40u + j) * stride), load_m(b + (48u + j) * stride),
+        load_m(b + (56u + j) * stride), o);
+    [[unroll]] for (uint i = 0; i < 4u; ++i) t4[i][j] = o[i];
+  }
+  float bv = bias[co];
+  uint ob = p.out_off + n * p.out_bs + co * p.oh * p.ow, rb = p.res_off + n * p.res_bs + co * p.oh * p.ow;
+  [[unroll]] for (uint i = 0; i < 4u; ++i) {
+    vec4 o4[4];
+    at8(t4[i][0], t4[i][1], t4[i][2], t4[i][3], t4[i][4], t4[i][5], t4[i][6], t4[i][7], o4);
+    uint oy = oy0 + i;
+    if (oy >= p.oh) continue;
+    [[unroll]] for (uint t = 0; t < 4u; ++t)      // tile within the group
+      [[unroll]] for (uint j = 0; j < 4u; ++j) {  // column within the tile
+        uint ox = ox0 + t * 4u + j;
+        if (ox >= p.ow) continue;
+        uint o = oy * p.ow + ox;
+        float val = act(o4[j][t] + bv);
+        if (HAS_RES != 0u) val += float(res[rb + o]);
+        y[ob + o] = to_s(val);
+      }
+  }
+}
