@@ -255,6 +255,35 @@ TEST(Session, PhysicsTimeBreakdownAddsUp) {
   fs::remove_all(dir);
 }
 
+// --profile: each kernel's GPU time per GS frame; the ops add up to the GPU time, as the stages do,
+// and name what ran (the physics kernel, the transfers). Without it the table is absent.
+TEST(Session, ProfileOpsAddUpToTheGpuTime) {
+  const fs::path dir = temp_dir("profile");
+  UnrollOptions o;
+  o.sequence = make_sequence(dir, 64, 48, 2).string();
+  o.quiet = true;
+  o.session.device = "llvmpipe";
+  o.mode = UnrollMode::physics;
+  o.times = parse_target_times("0.25,0.75");
+  o.output.write_video = false;
+  o.out_dir = (dir / "plain").string();
+  EXPECT_FALSE(run_unroll(o).contains("gpu_ms_per_gs_frame_by_op"));
+  o.out_dir = (dir / "profiled").string();
+  o.session.profile_ops = true;
+  const auto s = run_unroll(o);
+  const auto& ops = s.at("gpu_ms_per_gs_frame_by_op");
+  double sum = 0;
+  for (const auto& [name, v] : ops.items()) {
+    EXPECT_GT(v.at("calls").get<double>(), 0.0) << name;
+    sum += v.at("ms").get<double>();
+  }
+  const double gpu = s.at("gpu_ms_per_gs_frame").get<double>();
+  EXPECT_NEAR(sum, gpu, 1e-6 * gpu + 1e-9) << ops.dump();
+  for (const char* k : {"physics_unroll", "upload", "download"}) EXPECT_TRUE(ops.contains(k)) << k << " " << ops.dump();
+  EXPECT_DOUBLE_EQ(ops.at("physics_unroll").at("calls").get<double>(), 1.0) << "one physics dispatch per GS frame";
+  fs::remove_all(dir);
+}
+
 // The physics-informed variant: its physics input is computed on the device per (frame, target)
 // and equals the CPU reference's, so the whole frame equals the host path's.
 TEST(Session, PhysicsVariantFrameEqualsTheHostPath) {

@@ -18,7 +18,7 @@ struct UnrollArgs {
                            gate_radius = "auto";
   std::optional<double> contrast, gamma, fps;
   double sparse_threshold = 0.05;
-  bool sparse_split = false;
+  bool sparse_split = false, profile = false;
   int64_t tile = 0, halo = -1;
   bool quiet = false, no_video = false, overwrite = false, resume = false;
   SequenceTimingArgs timing;
@@ -49,6 +49,7 @@ UnrollOptions to_options(const UnrollArgs& a) {
   o.session.backend = parse_backend_kind(a.backend, "--backend");
   o.session.precision = parse_precision(a.precision, "--precision");
   o.session.conv_choice = parse_conv_choice(a.conv_choice, "--conv-choice");
+  o.session.profile_ops = a.profile;
   o.contrast = a.contrast;
   o.gamma = a.gamma;
   o.gate_radius = parse_gate_radius(a.gate_radius, "--gate-radius");
@@ -113,6 +114,9 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
                 "conv algorithm per shape: auto (the device's measured table from `vkunroll tune`; a missing shape is "
                 "timed on first use on a GPU) | heuristic | cached | measured (time missing shapes on any device) | retune")
       ->check(CLI::IsMember({"auto", "heuristic", "cached", "measured", "retune"}))->capture_default_str()->group(g)->type_name("C");
+  c->add_flag("--profile", a.profile,
+              "Vulkan: every kernel's GPU time and calls per GS frame in summary.json (gpu_ms_per_gs_frame_by_op)")
+      ->group(g);
 }
 
 void add_output_options(CLI::App* c, UnrollArgs& a) {

@@ -76,7 +76,8 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
     co.device = o.device;
     co.announce = o.announce;
     ctx_ = std::make_unique<Context>(co);
-    auto vb = std::make_unique<VulkanBackend>(*ctx_, nullptr, kPoolFlushBytes, o.precision);
+    if (o.profile_ops) profiler_ = std::make_unique<Profiler>();
+    auto vb = std::make_unique<VulkanBackend>(*ctx_, profiler_.get(), kPoolFlushBytes, o.precision);
     auto table = std::make_shared<ConvChoiceTable>();
     if (o.conv_choice != ConvChoice::heuristic) {
       conv_choice_path_ = conv_choice_path(*ctx_);

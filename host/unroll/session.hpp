@@ -25,6 +25,7 @@
 #include "vkunroll/host/unroll/unroll_options.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
 #include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/profiler.hpp"
 
 namespace vkunroll {
 
@@ -86,6 +87,9 @@ class UnrollSession {
   Backend& backend() { return *backend_; }
   const Backend& backend() const { return *backend_; }
   const Context* context() const { return ctx_.get(); }  // null on the CPU backend
+  // GPU ms per op (kernel) summed over the session's dispatches: SessionOptions::profile_ops on
+  // the Vulkan backend, else null.
+  const Profiler* profiler() const { return profiler_.get(); }
   // Host <-> device traffic and submissions since the session started (zeros on the CPU backend).
   DeviceTraffic traffic() const;
   // The most bytes one tensor may hold: the device's binding limit, or the tiling's lower one.
@@ -153,6 +157,7 @@ class UnrollSession {
 
   SessionOptions options_;
   std::unique_ptr<Context> ctx_;
+  std::unique_ptr<Profiler> profiler_;  // SessionOptions::profile_ops (declared before the backend that records into it)
   std::string conv_choice_path_;  // the table's file (empty: none)
   std::unique_ptr<Backend> backend_;
   std::unique_ptr<Weights> weights_;

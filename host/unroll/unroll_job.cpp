@@ -117,6 +117,7 @@ std::vector<FrameTarget> UnrollJob::methods_for(int k, const std::vector<UnrollT
 void UnrollJob::run(ResultSink& sink) {
   traffic_before_ = session_.traffic();
   stats_before_ = session_.stats();
+  if (const Profiler* p = session_.profiler()) ops_before_ = p->ops();
   try {
     for (int k : frames_) {
       auto it = targets_.find(k);

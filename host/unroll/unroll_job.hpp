@@ -117,6 +117,7 @@ class UnrollJob {
   UnrollJobCounters counters_;
   DeviceTraffic traffic_before_, traffic_;
   SessionStats stats_before_;
+  std::map<std::string, OpStats> ops_before_;  // the session's per-op profile when the run started (profile_ops)
   size_t done_ = 0;
 };
 

@@ -100,6 +100,16 @@ void UnrollJob::add_time_breakdown(nlohmann::json& r, const SessionStats& st, do
     if (v > 0) gpu[stage.empty() ? "other" : stage] = gpu.value(stage.empty() ? "other" : stage, 0.0) + v / n;
   r["gpu_ms_per_gs_frame_by_stage"] = gpu;
   r["gpu_ms_per_gs_frame"] = traffic_.gpu_ms / n;
+  if (const Profiler* p = session_.profiler()) {  // --profile: each kernel's GPU time and calls, this run's
+    nlohmann::json ops = nlohmann::json::object();
+    for (const auto& [op, s] : p->ops()) {
+      const auto b = ops_before_.find(op);
+      const double ms = s.total_ms - (b != ops_before_.end() ? b->second.total_ms : 0.0);
+      const double calls = static_cast<double>(s.calls - (b != ops_before_.end() ? b->second.calls : 0));
+      if (calls > 0) ops[op] = {{"ms", ms / n}, {"calls", calls / n}};
+    }
+    r["gpu_ms_per_gs_frame_by_op"] = ops;
+  }
   const double wait = host.count("wait") ? host["wait"] : 0.0;
   // Inside the wait but not GPU work: submission, gaps between commands, the fence's latency.
   r["wait_not_gpu_ms_per_gs_frame"] = std::max(0.0, wait - traffic_.gpu_ms) / n;

@@ -74,6 +74,8 @@ struct SessionOptions {
   // Vulkan: the conv algorithm per shape (host/model/conv_choice.hpp): the device's measured table
   // in the cache directory; auto times a missing shape on first use on a GPU only.
   ConvChoice conv_choice = ConvChoice::automatic;
+  // Vulkan: sum every dispatch's GPU time per op (kernel) too, for summary.json's per-op table.
+  bool profile_ops = false;
 };
 
 // The largest time a target or a timing override may name: +-2^53 us (285 years), where a double
