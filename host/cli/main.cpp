@@ -3,6 +3,9 @@
 #include <cstring>
 #include <exception>
 #include <iostream>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/cli/exit_codes.hpp"
@@ -33,6 +36,13 @@ int main(int argc, char** argv) {
   using namespace vkunroll::cli;
   // A file-size limit (ulimit -f) fails the write (EFBIG, exit 74) instead of killing the process.
   std::signal(SIGXFSZ, SIG_IGN);
+#if defined(__GLIBC__)
+  // Keep freed host blocks up to 32 MB in the heap instead of handing them back to the kernel: each
+  // GS frame allocates and frees its planes, PNG buffers and event windows again, and on this
+  // project's 2-core VMs a fresh page costs ~11 us to fault in (3 ms per MB; docs/measurements.md).
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);
+  mallopt(M_TRIM_THRESHOLD, 1 << 30);
+#endif
   set_command_line(argc, argv);
   CLI::App app{"vkunroll " + vkunroll::build_info_line() +
                    ": rolling-shutter images + events -> global-shutter video (SelfUnroll on Vulkan)",
