@@ -6,6 +6,7 @@
 // usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]
 //                             [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]
 //                             [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune]
+//                             [--winograd-tile 6|8]
 //
 // --conv-choice (default heuristic): the conv algorithm per shape (host/model/conv_choice.hpp), from
 // the device's table in the cache directory; measured / retune first time the missing / every shape
@@ -143,7 +144,7 @@ ResidentTiming time_resident(Context& ctx, Backend& vk, Model& model, const Mode
 
 int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
               const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device,
-              ConvChoice conv_choice);
+              ConvChoice conv_choice, const ConvOptions& conv_options);
 
 int main(int argc, char** argv) {
   int W = 346, H = 260, torch_threads = 0, runs = 1;
@@ -151,6 +152,7 @@ int main(int argc, char** argv) {
   std::string mode = "m", model_path, inputs_path, torch_device = "cpu";
   ConvChoice conv_choice = ConvChoice::heuristic;
   Precision precision = Precision::fp32;
+  ConvOptions conv_options;  // --winograd-tile: 5x5 convs as F(4x4, 5x5) (8) or four F(4x4, 3x3) (6)
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--size" && i + 1 < argc) {
@@ -182,6 +184,8 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "%s\n", e.what());
         return 2;
       }
+    } else if (a == "--winograd-tile" && i + 1 < argc) {
+      conv_options.winograd_tile = std::atoi(argv[++i]);  // validated by the convs
     } else if (a == "--per-layer") {
       per_layer = true;
     } else if (a == "--model" && i + 1 < argc) {
@@ -197,7 +201,8 @@ int main(int argc, char** argv) {
     } else {
       std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]\n"
                            "                            [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]\n"
-                           "                            [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune]\n");
+                           "                            [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune]\n"
+                           "                            [--winograd-tile 6|8]\n");
       return 2;
     }
   }
@@ -207,7 +212,7 @@ int main(int argc, char** argv) {
   }
   try {
     return run_bench(W, H, torch_threads, runs, torch, profile, per_layer, mode, model_path, inputs_path, precision, torch_device,
-                     conv_choice);
+                     conv_choice, conv_options);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "vkunroll-bench-model: %s\n", e.what());
     return 1;
@@ -216,7 +221,7 @@ int main(int argc, char** argv) {
 
 int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
               const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device,
-              ConvChoice conv_choice) {
+              ConvChoice conv_choice, const ConvOptions& conv_options) {
   const Mode md = mode == "s" ? Mode::s : Mode::m;
   const int64_t B = md == Mode::m ? 2 : 1;
   const Weights w = model_path.empty() ? random_weights(ModelConfig::published(), 2024) : load_weights(model_path);
@@ -242,6 +247,7 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   if (per_layer) return per_layer_report(ctx, w, in, md);
   Profiler profiler;
   VulkanBackend vk(ctx, profile ? &profiler : nullptr, kPoolFlushBytes, precision);
+  vk.set_conv_options(conv_options);
   auto t = std::chrono::steady_clock::now();
   Model model(vk, w);
   const double prep = seconds_since(t);

@@ -165,7 +165,7 @@ int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const 
   const HostTensor wt(Shape{w.shape.at(0), w.shape.at(1), w.shape.at(2), w.shape.at(3)}, w.data);
   const HostTensor bt(Shape{1, 1, 1, static_cast<int64_t>(b.data.size())}, b.data);
   const Act act = d.leaky ? leaky_relu(d.slope) : Act{};
-  ConvOptions options;
+  ConvOptions options = conv_options_;
   options.precision = precision_;
   if (d.transposed) {
     deconvs_.push_back(

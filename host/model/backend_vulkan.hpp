@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "vkunroll/host/model/backend.hpp"
+#include "vkunroll/kernels/conv_options.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
 
@@ -76,6 +77,9 @@ class VulkanBackend final : public Backend {
   // The conv algorithm per shape: `table` (shared; timed shapes are added to it) under `choice`
   // (conv_choice.hpp). Without a call the kernels' heuristic decides. `reps`: timed runs per candidate.
   void set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, int reps = 3);
+  // The kernels' tuning knobs (ConvOptions; their precision is the backend's) for the convs prepared
+  // after the call; validated by each conv.
+  void set_conv_options(const ConvOptions& o) { conv_options_ = o; }
   const std::shared_ptr<ConvChoiceTable>& conv_choice_table() const { return choice_table_; }
   // Conv shapes this backend timed, and recorded convs that took the table's algorithm.
   uint64_t convs_timed() const { return convs_timed_; }
@@ -128,6 +132,7 @@ class VulkanBackend final : public Backend {
   std::shared_ptr<ConvChoiceTable> choice_table_;
   ConvChoice choice_ = ConvChoice::heuristic;
   int choice_reps_ = 3;
+  ConvOptions conv_options_;
   std::set<std::string> retuned_;  // keys timed again under ConvChoice::retune
   uint64_t convs_timed_ = 0, convs_from_table_ = 0;
   std::function<void(const std::string&, const ConvChoiceEntry&, double)> on_conv_timed_;
