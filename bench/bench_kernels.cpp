@@ -418,7 +418,7 @@ int main(int argc, char** argv) {
                    "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
                    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
                    "                              [--gemm-tv N] [--pointwise-cob N] [--pointwise-px N] [--pointwise-single]\n"
-                   "                              [--winograd-tile 6|8]\n"
+                   "                              [--winograd-tile 6|8] (5x5: 8 = F(4x4, 5x5), 6 = four F(4x4, 3x3); 3x3: 6 = F(4x4, 3x3), 8 = F(6x6, 3x3))\n"
                    "                              [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
                    "                              [--no-torch] [--torch-threads N] [--torch-device cpu|cuda]\n"
                    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"

@@ -157,7 +157,8 @@ void Conv2d::choose_blocking(const ConvOptions& options) {
   if (options.direct_py) direct_py_ = static_cast<uint32_t>(options.direct_py);
   gemm_cob_ = options.gemm_cob ? options.gemm_cob : (cout_ % 16 == 0 ? 16 : 8);
   gemm_tv_ = static_cast<uint32_t>(options.gemm_tv ? options.gemm_tv : 4);
-  winograd_f45_ = k == 5 && params_.stride == 1 && options.winograd_tile != 6;
+  if (k == 5 && params_.stride == 1 && options.winograd_tile != 6) winograd_form_ = WinogradForm::f4x4_5x5;
+  if (k == 3 && params_.stride == 1 && options.winograd_tile == 8) winograd_form_ = WinogradForm::f6x6_3x3;
   gemm_cout_pad_ = (cout_ + gemm_cob_ - 1) / gemm_cob_ * gemm_cob_;
   // pointwise: 2 units (pixel pairs) x 12 channels, among the fastest of 1-4 units x 4-32 channels
   // on the LFF conv (bench_kernels on lavapipe; 2 x 6 and 2 x 8 within the noise).

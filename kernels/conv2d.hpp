@@ -192,7 +192,7 @@ class Conv2d {
   void pack_direct() const;  // conv2d_direct.cpp
   void pack_winograd();      // conv2d_winograd.cpp
   void pack_gemm();          // conv2d_winograd.cpp
-  void pack_winograd45();  // conv2d_winograd.cpp: F(4x4, 5x5)'s U
+  void pack_winograd8();  // conv2d_winograd.cpp: U of the 8x8-tile forms
   void pack_coopmat() const;  // conv2d_coopmat.cpp
   void pack_pointwise() const;  // conv2d_pointwise.cpp
   // The direct and pointwise layout [cout/cob][cin_pad + tail][k*k][cob] of the weights, zero-padded
@@ -235,9 +235,17 @@ class Conv2d {
   int64_t gemm_cob_ = 8;     // output channels per GEMM invocation (winograd and gemm)
   uint32_t gemm_tv_ = 4;     // vec4s of tiles per GEMM invocation
   int64_t gemm_cout_pad_ = 0, winograd_ks_ = 1;
-  // 5x5 stride 1 as F(4x4, 5x5): 8x8 input tiles, 64 positions (ConvOptions::winograd_tile); else F(4x4, 3x3), 36.
-  bool winograd_f45_ = false;
-  int64_t winograd_npos() const { return winograd_f45_ ? 64 : 36; }
+  // The Winograd form (ConvOptions::winograd_tile): F(4x4, 3x3) on 6x6 tiles, 36 positions (3x3; a 5x5
+  // kernel split into four; 3x3 stride 2 as four phases), or on 8x8 tiles, 64 positions: F(4x4, 5x5)
+  // and F(6x6, 3x3) (stride 1).
+  enum class WinogradForm { f4x4_3x3, f4x4_5x5, f6x6_3x3 };
+  WinogradForm winograd_form_ = WinogradForm::f4x4_3x3;
+  bool winograd_tile8() const { return winograd_form_ != WinogradForm::f4x4_3x3; }
+  int64_t winograd_npos() const { return winograd_tile8() ? 64 : 36; }
+  int64_t winograd_tile_out() const { return winograd_form_ == WinogradForm::f6x6_3x3 ? 6 : 4; }
+  const char* winograd_shader_stem() const {
+    return winograd_form_ == WinogradForm::f4x4_5x5 ? "winograd45" : (winograd_form_ == WinogradForm::f6x6_3x3 ? "winograd63" : "winograd");
+  }
   uint64_t winograd_scratch_limit_ = 64ull << 20;  // bytes of transformed input tiles per chunk
   mutable Tensor weight_coopmat_;  // fp16 [cout_pad][kpad], kk = ci*k*k + tap (zero-padded to 16): coopmat
   bool coopmat_emulated_ = false;

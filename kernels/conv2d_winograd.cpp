@@ -17,10 +17,11 @@ namespace {
 struct WinogradSizes {
   int64_t tiles_x_pad, tiles_y, ngroups, tiles_pad;  // groups of 4 horizontally adjacent tiles
 };
-WinogradSizes winograd_sizes(const Shape& in) {
+// Output tiles of `to` x `to` pixels (4 or 6) over the output `in`.
+WinogradSizes winograd_sizes(const Shape& in, int64_t to) {
   WinogradSizes s{};
-  s.tiles_x_pad = ((in.w + 3) / 4 + 3) / 4 * 4;
-  s.tiles_y = (in.h + 3) / 4;
+  s.tiles_x_pad = ((in.w + to - 1) / to + 3) / 4 * 4;
+  s.tiles_y = (in.h + to - 1) / to;
   s.ngroups = in.n * s.tiles_y * s.tiles_x_pad / 4;
   s.tiles_pad = (s.ngroups * 4 + 15) / 16 * 16;  // whole GEMM blocks of up to 16 tiles
   return s;
@@ -29,32 +30,35 @@ WinogradSizes winograd_sizes(const Shape& in) {
 int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 15) / 16 * 16; }
 }  // namespace
 
-// F(4x4, 5x5) on the points 0, +-1, +-2, +-1/2, inf: G (8x5), exact (B^T and A^T are in the shaders).
-const double kG45[8][5] = {{1, 0, 0, 0, 0},
+// G of the 8-point forms (points 0, +-1, +-2, +-1/2, inf; B^T and A^T are in the shaders): row i < 7,
+// column t is a_i^t / prod_{l != i} (a_i - a_l); the last row picks the kernel's last tap. F(4x4, 5x5)
+// uses all 5 columns, F(6x6, 3x3) the first 3.
+const double kG8[7][5] = {{1, 0, 0, 0, 0},
                            {-2.0 / 9, -2.0 / 9, -2.0 / 9, -2.0 / 9, -2.0 / 9},
                            {-2.0 / 9, 2.0 / 9, -2.0 / 9, 2.0 / 9, -2.0 / 9},
                            {1.0 / 90, 1.0 / 45, 2.0 / 45, 4.0 / 45, 8.0 / 45},
                            {1.0 / 90, -1.0 / 45, 2.0 / 45, -4.0 / 45, 8.0 / 45},
                            {32.0 / 45, 16.0 / 45, 8.0 / 45, 4.0 / 45, 2.0 / 45},
-                           {32.0 / 45, -16.0 / 45, 8.0 / 45, -4.0 / 45, 2.0 / 45},
-                           {0, 0, 0, 0, 1}};
+                           {32.0 / 45, -16.0 / 45, 8.0 / 45, -4.0 / 45, 2.0 / 45}};
 
-void Conv2d::pack_winograd45() {
+void Conv2d::pack_winograd8() {
   // U = G g G^T in double: [64][cin][cout_pad], fp32 in both precisions.
+  const int k = params_.kernel;
+  const auto G = [k](int i, int t) { return i < 7 ? kG8[i][t] : (t == k - 1 ? 1.0 : 0.0); };
   std::vector<float> u(static_cast<size_t>(64 * cin_ * gemm_cout_pad_), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
     for (int64_t ci = 0; ci < cin_; ++ci) {
       double gg[8][5];
       for (int i = 0; i < 8; ++i)
-        for (int j = 0; j < 5; ++j) {
+        for (int j = 0; j < k; ++j) {
           double acc = 0;
-          for (int t = 0; t < 5; ++t) acc += kG45[i][t] * weight_host_.at(co, ci, t, j);
+          for (int t = 0; t < k; ++t) acc += G(i, t) * weight_host_.at(co, ci, t, j);
           gg[i][j] = acc;
         }
       for (int i = 0; i < 8; ++i)
         for (int j = 0; j < 8; ++j) {
           double acc = 0;
-          for (int t = 0; t < 5; ++t) acc += gg[i][t] * kG45[j][t];
+          for (int t = 0; t < k; ++t) acc += gg[i][t] * G(j, t);
           u[static_cast<size_t>(((i * 8 + j) * cin_ + ci) * gemm_cout_pad_ + co)] = static_cast<float>(acc);
         }
     }
@@ -63,7 +67,7 @@ void Conv2d::pack_winograd45() {
 }
 
 void Conv2d::pack_winograd() {
-  if (winograd_f45_) return pack_winograd45();
+  if (winograd_tile8()) return pack_winograd8();
   const int k = params_.kernel;
   const bool wino_s2 = k == 3 && params_.stride == 2 && params_.pad == 1;
   // Winograd F(4x4, 3x3): U = G g G^T in double, [36][KS*KS*cin][cout_pad]. A 5x5 kernel is split
@@ -125,7 +129,7 @@ int64_t Conv2d::winograd_chunk(const Shape& in) const {
     const uint64_t per_channel = static_cast<uint64_t>(gemm_pix_pad(in)) * elem_bytes();
     return std::min<int64_t>(cin_, static_cast<int64_t>(limit / per_channel));
   }
-  const WinogradSizes ws = winograd_sizes(output_shape(in));
+  const WinogradSizes ws = winograd_sizes(output_shape(in), winograd_tile_out());
   const uint64_t per_channel = static_cast<uint64_t>(winograd_npos() * ws.tiles_pad) * 4;  // V is fp32
   const int64_t cv = winograd_ks_ * winograd_ks_ * cin_;
   return std::min<int64_t>(cv, static_cast<int64_t>(limit / per_channel));
@@ -139,14 +143,14 @@ bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
     return static_cast<uint64_t>(gemm_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
            winograd_chunk(in) >= 1;
   if (algo != ConvAlgo::winograd) return true;
-  const WinogradSizes ws = winograd_sizes(output_shape(in));
+  const WinogradSizes ws = winograd_sizes(output_shape(in), winograd_tile_out());
   const uint64_t m_bytes = static_cast<uint64_t>(winograd_npos() * gemm_cout_pad_ * ws.tiles_pad) * 4;
   return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
 }
 
 void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
   if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
-  const WinogradSizes wz = winograd_sizes(r.os);  // tiles of the output
+  const WinogradSizes wz = winograd_sizes(r.os, winograd_tile_out());  // tiles of the output
   const auto u32 = [](int64_t v) { return static_cast<uint32_t>(v); };
   const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, chunk = winograd_chunk(r.is);
   // V, U and M fp32 in both precisions; only the input and output slices are float16 in fp16.
@@ -173,12 +177,11 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
       uint32_t ilv, rows, v0;
     } ip{r.in.offset, r.in.batch_stride, u32(cin_), u32(r.is.h), u32(r.is.w), u32(wz.tiles_x_pad), u32(wz.tiles_y),
          u32(wz.ngroups), u32(wz.tiles_pad), u32(winograd_ks_), u32(c0), u32(cn), s2 ? 2u : 1u, s2 ? 1u : 3u,
-         params_.kernel == 5 ? (winograd_f45_ ? -2 : -1) : 0, ilv ? gemm_tv_ : 0u, u32(rows), u32(v0)};  // ilv: the texel GEMM's order
+         winograd_tile8() ? -params_.pad : (params_.kernel == 5 ? -1 : 0), ilv ? gemm_tv_ : 0u, u32(rows), u32(v0)};  // ilv: the texel GEMM's order
     const Groups g = ilv ? flat_groups((wz.tiles_pad / (4 * gemm_tv_)) * cn, 1) : Groups{u32((wz.ngroups + 63) / 64), u32(cn), 1};
-    const char* in_shader = winograd_f45_ ? (texel_in ? "winograd45_input_texel" : "winograd45_input")
-                                          : (texel_in ? "winograd_input_texel" : "winograd_input");
-    const double tile_in = winograd_f45_ ? 8.0 * 20 / 4 : 6.0 * 18 / 4;  // input values loaded per tile
-    cs.dispatch(kernel_pipeline(ctx_, shader(in_shader), {}, sizeof ip), {in_arg, {vr, Access::write}}, ip, g,
+    const std::string in_shader = std::string(winograd_shader_stem()) + "_input" + (texel_in ? "_texel" : "");
+    const double tile_in = winograd_tile8() ? 8.0 * (3 * winograd_tile_out() + 8) / 4 : 6.0 * 18 / 4;  // input values loaded per tile
+    cs.dispatch(kernel_pipeline(ctx_, shader(in_shader.c_str()), {}, sizeof ip), {in_arg, {vr, Access::write}}, ip, g,
                 {name + "_wino_in", 0, static_cast<double>(e) * static_cast<double>(npos + tile_in) * static_cast<double>(cn * wz.tiles_pad)});
   };
   // M (+)= U V over virtual channels [c0, c0 + cn), held in the first cn rows of a V of `rows` rows.
@@ -223,9 +226,8 @@ void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
     uint32_t res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
   } op{r.res.offset, r.res.batch_stride, r.out.offset, r.out.batch_stride, u32(cout_), u32(r.os.h), u32(r.os.w),
        u32(wz.tiles_x_pad), u32(wz.tiles_y), u32(wz.ngroups), u32(wz.tiles_pad), u32(gemm_cout_pad_)};
-  const char* out_shader = winograd_f45_ ? (texel_m ? "winograd45_output_texel" : "winograd45_output")
-                                         : (texel_m ? "winograd_output_texel" : "winograd_output");
-  cs.dispatch(kernel_pipeline(ctx_, shader(out_shader), {r.spec[2], r.spec[3], r.spec[4]},
+  const std::string out_shader = std::string(winograd_shader_stem()) + "_output" + (texel_m ? "_texel" : "");
+  cs.dispatch(kernel_pipeline(ctx_, shader(out_shader.c_str()), {r.spec[2], r.spec[3], r.spec[4]},
                               sizeof op),
               {{mr, Access::read, VK_FORMAT_R32G32B32A32_SFLOAT}, {bias_.range(), Access::read}, r.res.arg, r.out.arg}, op,
               Groups{u32((wz.ngroups + 63) / 64), u32(cout_), 1},

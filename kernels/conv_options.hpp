@@ -19,8 +19,10 @@ struct ConvOptions {
   int direct_py = 0;    // conv2d direct: output rows per invocation, 1-8
   int gemm_cob = 0;     // conv2d winograd and gemm: output channels per GEMM invocation, 4, 8 or 16 (0: 16 where 16 | cout, else 8)
   int gemm_tv = 0;      // conv2d winograd and gemm: vec4s of tiles (pixels) per GEMM invocation, 1, 2 or 4 (0: 4)
-  // conv2d winograd, 5x5 stride-1 kernels: the input tile, 8 = F(4x4, 5x5) (64 positions), or 6 = the
-  // kernel split into four F(4x4, 3x3) convs on shifted inputs (4 x 36 positions: 2.25x the GEMM). 0: 8.
+  // conv2d winograd, stride-1 kernels: the input tile. 5x5: 8 = F(4x4, 5x5) (64 positions; the
+  // default), 6 = the kernel split into four F(4x4, 3x3) convs on shifted inputs (4 x 36 positions:
+  // 2.25x the GEMM). 3x3: 6 = F(4x4, 3x3) (the default), 8 = F(6x6, 3x3) (0.79x the GEMM's multiplies,
+  // but on lavapipe its transforms cost more than that saves: docs/kernels.md). 0: the default.
   int winograd_tile = 0;
   int pointwise_cob = 0;  // conv2d pointwise: output channels per invocation, 1-32 (0: the kernel's choice)
   int pointwise_px = 0;   // conv2d pointwise: pixels per invocation, 1-8 (0: the kernel's choice)

@@ -1,7 +1,7 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
-// Winograd F(4x4, 5x5) output transform, M through a uniform texel buffer (see winograd45_output.glsl).
+// Winograd F(4x4, 5x5) output transform, M through a uniform texel buffer (see winograd8_output.glsl).
 #define WINOGRAD_TEXEL_M
 #include "precision.glsl"
-#include "winograd45_output.glsl"
+#include "winograd8_output.glsl"

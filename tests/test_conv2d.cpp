@@ -203,6 +203,19 @@ TEST(Conv2d, Winograd5x5BothFormsMatchReference) {
     run_cases(vktest::context(), ConvAlgo::winograd, k5, storage, {kFp32});
   }
 }
+// 3x3 stride 1 as F(6x6, 3x3) on 8x8 tiles (winograd_tile 8): every 3x3 stride-1 case, in both
+// precisions, in chunks and through storage buffers; stride 2 keeps F(4x4, 3x3) (its phases).
+TEST(Conv2d, Winograd6x6MatchesReference) {
+  std::vector<Case> k3;
+  for (const Case& c : cases())
+    if (c.k == 3) k3.push_back(c);
+  k3.push_back({3, 1, 144, 48, 26, 37, leaky_relu(0.1f), true, 0, 0, 0, 0, 2});  // an RDB conv's reduction
+  Limits whole, chunks{6 * 64 * 4 * 64}, storage{~0ull, 0, false};
+  for (Limits* l : {&whole, &chunks, &storage}) l->options.winograd_tile = 8;
+  run_cases(vktest::context(), ConvAlgo::winograd, k3, whole, {kFp32, kFp16});
+  run_cases(vktest::context(), ConvAlgo::winograd, k3, chunks, {kFp32});
+  run_cases(vktest::context(), ConvAlgo::winograd, k3, storage, {kFp32});
+}
 // The 1x1 GEMM's input, V and U through storage buffers (its plain pack and GEMM) instead of texel
 // buffers.
 TEST(Conv2d, GemmStorageFormsMatchReference) {

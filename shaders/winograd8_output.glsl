@@ -1,8 +1,13 @@
-// The body of winograd45_output.comp (M in a storage buffer) and winograd45_output_texel.comp (M
-// through an RGBA32F uniform texel buffer, WINOGRAD_TEXEL_M; the .comp includes precision.glsl first).
-// Winograd F(4x4, 5x5), step 3: Y = A^T M A of the 64 positions for four horizontally adjacent tiles
-// of one output channel per invocation, then bias, the fused activation and the optional residual,
-// written into the output slice (edges masked). As winograd_output.glsl, with 8x8 tiles.
+// The body of winograd45_output.comp / winograd63_output.comp (M in a storage buffer) and their _texel
+// forms (M through an RGBA32F uniform texel buffer, WINOGRAD_TEXEL_M; the .comp includes
+// precision.glsl first). Step 3 of Winograd on 8x8 tiles, F(4x4, 5x5) (TILE_OUT 4) or F(6x6, 3x3)
+// (TILE_OUT 6): Y = A^T M A of the 64 positions for four horizontally adjacent tiles of one output
+// channel per invocation, then bias, the fused activation and the optional residual, written into
+// the output slice (edges masked). As winograd_output.glsl, with 8x8 tiles.
+#ifndef TILE_OUT
+#define TILE_OUT 4
+#endif
+const uint TO = TILE_OUT;
 layout(local_size_x = 64) in;
 layout(constant_id = 0) const uint ACT = 0;
 layout(constant_id = 1) const float SLOPE = 0.0;
@@ -23,12 +28,22 @@ layout(push_constant) uniform P {
   uint res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
 } p;
 
-// A^T x for 8 values (4 tiles side by side): the 4 outputs.
-void at8(vec4 m0, vec4 m1, vec4 m2, vec4 m3, vec4 m4, vec4 m5, vec4 m6, vec4 m7, out vec4 o[4]) {
-  o[0] = m0 + m1 + m2 + m3 + m4 + m5 + m6;
-  o[1] = m1 - m2 + 2.0 * (m3 - m4) + 0.5 * (m5 - m6);
-  o[2] = m1 + m2 + 4.0 * (m3 + m4) + 0.25 * (m5 + m6);
-  o[3] = m1 - m2 + 8.0 * (m3 - m4) + 0.125 * (m5 - m6) + m7;
+// A^T x for 8 values (4 tiles side by side): the TILE_OUT outputs (row i: the points to the power i).
+void at8(vec4 m0, vec4 m1, vec4 m2, vec4 m3, vec4 m4, vec4 m5, vec4 m6, vec4 m7, out vec4 o[TILE_OUT]) {
+  vec4 sp = m1 + m2, sm = m1 - m2, tp = m3 + m4, tm = m3 - m4, hp = m5 + m6, hm = m5 - m6;
+#if TILE_OUT == 4
+  o[0] = m0 + sp + tp + hp;
+  o[1] = sm + 2.0 * tm + 0.5 * hm;
+  o[2] = sp + 4.0 * tp + 0.25 * hp;
+  o[3] = sm + 8.0 * tm + 0.125 * hm + m7;
+#else
+  o[0] = m0 + sp + tp + hp;
+  o[1] = sm + 2.0 * tm + 0.5 * hm;
+  o[2] = sp + 4.0 * tp + 0.25 * hp;
+  o[3] = sm + 8.0 * tm + 0.125 * hm;
+  o[4] = sp + 16.0 * tp + 0.0625 * hp;
+  o[5] = sm + 32.0 * tm + 0.03125 * hm + m7;
+#endif
 }
 
 void main() {
@@ -36,26 +51,26 @@ void main() {
   if (gi >= p.ngroups) return;
   uint gx = p.tiles_x_pad / 4u;
   uint row = gi / gx, n = row / p.tiles_y, ty = row % p.tiles_y;
-  uint oy0 = ty * 4u, ox0 = (gi % gx) * 16u;
+  uint oy0 = ty * TO, ox0 = (gi % gx) * 4u * TO;
   uint stride = p.cout_pad * p.tiles_pad / 4u, b = co * p.tiles_pad / 4u + gi;
-  vec4 t4[4][8];  // A^T M
+  vec4 t4[TILE_OUT][8];  // A^T M
   [[unroll]] for (uint j = 0; j < 8u; ++j) {
-    vec4 o[4];
+    vec4 o[TILE_OUT];
     at8(load_m(b + j * stride), load_m(b + (8u + j) * stride), load_m(b + (16u + j) * stride), load_m(b + (24u + j) * stride),
         load_m(b + (32u + j) * stride), load_m(b + (40u + j) * stride), load_m(b + (48u + j) * stride),
         load_m(b + (56u + j) * stride), o);
-    [[unroll]] for (uint i = 0; i < 4u; ++i) t4[i][j] = o[i];
+    [[unroll]] for (uint i = 0; i < TO; ++i) t4[i][j] = o[i];
   }
   float bv = bias[co];
   uint ob = p.out_off + n * p.out_bs + co * p.oh * p.ow, rb = p.res_off + n * p.res_bs + co * p.oh * p.ow;
-  [[unroll]] for (uint i = 0; i < 4u; ++i) {
-    vec4 o4[4];
+  [[unroll]] for (uint i = 0; i < TO; ++i) {
+    vec4 o4[TILE_OUT];
     at8(t4[i][0], t4[i][1], t4[i][2], t4[i][3], t4[i][4], t4[i][5], t4[i][6], t4[i][7], o4);
     uint oy = oy0 + i;
     if (oy >= p.oh) continue;
     [[unroll]] for (uint t = 0; t < 4u; ++t)      // tile within the group
-      [[unroll]] for (uint j = 0; j < 4u; ++j) {  // column within the tile
-        uint ox = ox0 + t * 4u + j;
+      [[unroll]] for (uint j = 0; j < TO; ++j) {  // column within the tile
+        uint ox = ox0 + t * TO + j;
         if (ox >= p.ow) continue;
         uint o = oy * p.ow + ox;
         float val = act(o4[j][t] + bv);

@@ -1,10 +1,15 @@
-// The body of winograd45_input.comp (input in a storage buffer) and winograd45_input_texel.comp
-// (through a uniform texel buffer, WINOGRAD_TEXEL_INPUT; the .comp includes precision.glsl first).
-// Winograd F(4x4, 5x5), step 1: V = B^T d B of the 8x8 input tiles (stride 4) on the points 0, +-1,
-// +-2, +-1/2, inf, four horizontally adjacent tiles per invocation: their 8x20 input window is
-// loaded once and each of the 64 transformed positions is stored as one vec4 (4 tiles). Layouts,
-// push constants and chunks as winograd_input.glsl (stride 1, no virtual channels: ks = 1); the
-// window starts at (4 ty + off_base, 16 gx + off_base), off_base = -pad.
+// The body of winograd45_input.comp / winograd63_input.comp (input in a storage buffer) and their
+// _texel forms (through a uniform texel buffer, WINOGRAD_TEXEL_INPUT; the .comp includes
+// precision.glsl first). Winograd on 8x8 input tiles with the points 0, +-1, +-2, +-1/2, inf (one B^T
+// for both forms): F(4x4, 5x5) (TILE_OUT 4: tiles at stride 4) or F(6x6, 3x3) (TILE_OUT 6: stride 6).
+// Step 1, V = B^T d B, four horizontally adjacent tiles per invocation: their 8 x (3 TILE_OUT + 8)
+// input window is loaded once and each of the 64 transformed positions is stored as one vec4 (4
+// tiles). Layouts, push constants and chunks as winograd_input.glsl (stride 1, no virtual channels:
+// ks = 1); the window starts at (TILE_OUT ty + off_base, 4 TILE_OUT gx + off_base), off_base = -pad.
+#ifndef TILE_OUT
+#define TILE_OUT 4
+#endif
+const int TO = TILE_OUT, WIN = 3 * TILE_OUT + 8;
 // fp16 variant: the input as float16; V stays fp32.
 layout(local_size_x = 64) in;
 #ifdef WINOGRAD_TEXEL_INPUT
@@ -38,14 +43,14 @@ void transform(uint gi, uint cl) {
   uint ci = p.c_begin + cl;
   uint gx = p.tiles_x_pad / 4u;
   uint row = gi / gx, n = row / p.tiles_y, ty = row % p.tiles_y;
-  int y0 = int(ty) * 4 + p.off_base, x0 = int(gi % gx) * 16 + p.off_base;
+  int y0 = int(ty) * TO + p.off_base, x0 = int(gi % gx) * 4 * TO + p.off_base;
   uint base = p.in_off + n * p.in_bs + ci * p.h * p.w;
-  float d[8][20];
+  float d[8][WIN];
   [[unroll]] for (int i = 0; i < 8; ++i) {
     int yy = y0 + i;
     bool rowok = yy >= 0 && yy < int(p.h);
     uint rb = base + uint(clamp(yy, 0, int(p.h) - 1)) * p.w;
-    [[unroll]] for (int j = 0; j < 20; ++j) {
+    [[unroll]] for (int j = 0; j < WIN; ++j) {
       int xx = x0 + j;
       float val = load_input(rb + uint(clamp(xx, 0, int(p.w) - 1)));
       d[i][j] = (rowok && xx >= 0 && xx < int(p.w)) ? val : 0.0;
@@ -54,10 +59,9 @@ void transform(uint gi, uint cl) {
   vec4 t8[8][8];  // B^T d, the 4 tiles side by side in the vec4 components
   [[unroll]] for (int j = 0; j < 8; ++j) {
     vec4 r[8];
-    bt8(vec4(d[0][j], d[0][j + 4], d[0][j + 8], d[0][j + 12]), vec4(d[1][j], d[1][j + 4], d[1][j + 8], d[1][j + 12]),
-        vec4(d[2][j], d[2][j + 4], d[2][j + 8], d[2][j + 12]), vec4(d[3][j], d[3][j + 4], d[3][j + 8], d[3][j + 12]),
-        vec4(d[4][j], d[4][j + 4], d[4][j + 8], d[4][j + 12]), vec4(d[5][j], d[5][j + 4], d[5][j + 8], d[5][j + 12]),
-        vec4(d[6][j], d[6][j + 4], d[6][j + 8], d[6][j + 12]), vec4(d[7][j], d[7][j + 4], d[7][j + 8], d[7][j + 12]), r);
+    vec4 c[8];  // column j of each of the 4 tiles
+    [[unroll]] for (int i = 0; i < 8; ++i) c[i] = vec4(d[i][j], d[i][j + TO], d[i][j + 2 * TO], d[i][j + 3 * TO]);
+    bt8(c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], r);
     [[unroll]] for (int i = 0; i < 8; ++i) t8[i][j] = r[i];
   }
   uint stride = p.rows * p.tiles_pad / 4u, vr = p.v0 + cl;
