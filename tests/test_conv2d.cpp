@@ -422,6 +422,50 @@ TEST(Conv2d, WinogradSharesTheInputTransformAcrossADenseBlock) {
   }
 }
 
+// A batch whose transformed input needs channel chunks while one item's does not runs item group
+// by item group, each with all its channels in one GEMM (3 dispatches per group): batch items at an
+// offset inside a larger batch, input and output channel slices and a residual; both 8x8-tile and
+// 6x6-tile forms, fp32 and fp16. Against the reference, and against the chunked run's dispatch count.
+TEST(Conv2d, WinogradRunsABatchByItemGroupsWhenOneGroupFitsTheScratch) {
+  Context& ctx = vktest::context();
+  for (Precision prec : {kFp32, kFp16})
+    for (int k : {3, 5}) {
+      std::mt19937 rng(7 + k);
+      const int64_t cin = 17, cout = 19, h = 16, w = 12, nb = 3, n_total = 5, n0 = 1;
+      const Conv2dParams p{k, 1, k / 2, leaky_relu(0.1f)};
+      const float sc = 1.f / std::sqrt(static_cast<float>(cin * k * k));
+      const HostTensor wt = random_tensor({cout, cin, k, k}, rng, -sc, sc), b = random_tensor({1, 1, 1, cout}, rng, -0.5f, 0.5f);
+      const HostTensor x = random_tensor({n_total, cin + 3, h, w}, rng), res = random_tensor({n_total, cout, h, w}, rng);
+      HostTensor y_ref({nb, cout + 2, h, w});
+      conv2d_ref(HostSlice(x, 2, cin, n0, nb), HostSliceOut(y_ref, 1, cout), wt, b, p, HostSlice(res, 0, -1, n0, nb));
+      const DType dt = prec == kFp16 ? DType::f16 : DType::f32;
+      const Tensor xd = to_device(ctx, x, dt), rd = to_device(ctx, res, dt);
+      // One item's 4x4 tiles: 16 per item (tiles_pad), 3 items: 48. The scratch holds every channel
+      // of one item's V (and of a group of two), not of three.
+      const int64_t npos = k == 5 ? 64 : 36;
+      ConvOptions o;
+      o.precision = prec;
+      Conv2d conv(ctx, wt, b, p, "batch", nullptr, o);
+      conv.set_winograd_scratch_limit(static_cast<uint64_t>(npos * 32 * 4 * cin));
+      size_t dispatches[2] = {0, 0};
+      for (int run = 0; run < 2; ++run) {
+        if (run == 1) conv.set_winograd_scratch_limit(static_cast<uint64_t>(npos * 16 * 4 * 6));  // chunks even for one item
+        Tensor yd = to_device(ctx, HostTensor({nb, cout + 2, h, w}, 0.f), dt);
+        CommandStream cs(ctx);
+        conv.record(cs, Slice(xd, 2, cin, n0, nb), Slice(yd, 1, cout), Slice(rd, 0, -1, n0, nb), ConvAlgo::winograd);
+        dispatches[run] = cs.recorded();
+        cs.submit_and_wait();
+        HostTensor y = to_host(yd);
+        for (int64_t i = 0; i < nb; ++i)
+          for (int64_t c : {int64_t(0), cout + 1})  // the channels around the slice stay 0
+            for (int64_t q = 0; q < h * w; ++q) ASSERT_EQ(y.data[size_t(((i * (cout + 2)) + c) * h * w + q)], 0.f);
+        EXPECT_LE(max_abs_diff(y, y_ref), prec == kFp16 ? kTolFp16 : kTol) << "k " << k << " run " << run << " " << precision_name(prec);
+      }
+      EXPECT_EQ(dispatches[0], 2u * 3u) << "k " << k << ": groups of two items, then one, each in one GEMM";
+      EXPECT_GT(dispatches[1], dispatches[0]) << "k " << k << ": channel chunks";
+    }
+}
+
 TEST(Conv2d, ReferenceKnownValues) {
   // 1 input channel 3x3 of ones, 3x3 kernel of ones, pad 1: corner 4, edge 6, centre 9, + bias.
   HostTensor x({1, 1, 3, 3}, 1.f), w({1, 1, 3, 3}, 1.f), b({1, 1, 1, 1}, 0.5f), y({1, 1, 3, 3});
