@@ -130,7 +130,7 @@ def auto_gate_radius(physics: dict, model_radius: int) -> int:
 
 
 def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(), limit: int = 0,
-             threads: int = 2, log=print, gate: str = "model") -> dict:
+             threads: int = 2, log=print, gate: str = "model", bands=()) -> dict:
     """gate "auto": each gated variant runs each sequence at the radius `unroll --gate-radius auto`
     chooses there (needs `cli`); "model": at its metadata's."""
     if gate == "auto" and not cli:
@@ -191,7 +191,12 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                     else:  # the last frame: S only (as unroll --mode m); unroll_pair needs frame k+1
                         r = unroll_pair(net, seq, k - 1, t, seq.exposure, net.cfg.N, full, info)
                         s_img = m_img = r["s2"][0].numpy()
-                    for tag, img in ((f"{name}-S", s_img), (f"{name}-M", m_img)):
+                    imgs = [(f"{name}-S", s_img), (f"{name}-M", m_img)]
+                    if bands:  # the band around frame k's physics (pn.event_band), post hoc
+                        ph = pn.unroll_physics(seq, k, t, contrast, gamma, log_offset=log_offset)
+                        imgs += [(f"{tag} band{w:g}", pn.event_band(img, ph, contrast, gamma, log_offset, w))
+                                 for tag, img in list(imgs) for w in bands]
+                    for tag, img in imgs:
                         row["psnr"][tag], row["ssim"][tag] = psnr(img, gt), ssim(img, gt)
                     for mode in cli_modes:
                         c = [v for tt, v in cli_model[(name, mode)].items() if tt != "_summary" and abs(tt - t) < 0.5][0]
@@ -265,6 +270,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json")
     ap.add_argument("--gate", choices=("model", "auto"), default="model",
                     help="gated variants: the metadata's radius, or per sequence the one `unroll --gate-radius auto` picks")
+    ap.add_argument("--bands", default="", help="comma list of widths w: also score each model's output clamped "
+                    "to its event band around physics, lin(phys) * exp(+-w c) (physics_numpy.event_band)")
     a = ap.parse_args(argv)
     models = {}
     for m in a.model:
@@ -273,7 +280,8 @@ def main(argv=None) -> int:
         name, path = m.split("=", 1)
         models[name] = path
     try:
-        res = evaluate(a.data, models, a.cli, [x for x in a.cli_modes.split(",") if x], a.limit, a.threads, gate=a.gate)
+        res = evaluate(a.data, models, a.cli, [x for x in a.cli_modes.split(",") if x], a.limit, a.threads, gate=a.gate,
+                       bands=[float(x) for x in a.bands.split(",") if x])
     except DataError as e:
         print(f"natural_eval.py: error: {e}", file=sys.stderr)
         return 1

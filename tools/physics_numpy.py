@@ -118,6 +118,18 @@ def apply_log_ratio(img: np.ndarray, log_ratio: np.ndarray, gamma: float, max_va
     return out.astype(np.float32)
 
 
+def event_band(img: np.ndarray, phys: np.ndarray, contrast: float, gamma: float, log_offset: float,
+               width: float) -> np.ndarray:
+    """img clamped per pixel to the physics estimate's event band: lin(v) = v^gamma + eps within
+    lin(phys) * exp(+-width * c). A pixel's log intensity moves by one threshold per event, so its
+    events bound how far the truth can be from physics (2c for an ideal sensor, whatever happened
+    between them); the network's output is kept inside that bound."""
+    g, eps, wc = float(gamma), float(log_offset), float(width) * float(contrast)
+    lin = np.power(np.maximum(np.asarray(phys, np.float64), 0.0), g) + eps
+    inv = lambda l: np.power(np.maximum(l - eps, 0.0), 1.0 / g)  # noqa: E731
+    return np.clip(np.asarray(img, np.float64), inv(lin * np.exp(-wc)), inv(lin * np.exp(wc))).astype(np.float32)
+
+
 def apply_log_ratio_torch(img, log_ratio, gamma: float, max_value: float = MAX_VALUE):
     """apply_log_ratio in torch, differentiable in img: v * exp(lr / gamma), capped at
     max_value^(1/gamma), 0 where v <= 0. img [B, C, H, W], log_ratio [B, 1, H, W]."""
