@@ -24,18 +24,21 @@ class UnrollSession:
     and physics unroller (the library's UnrollSession). Reuse one across :func:`unroll` calls
     (``session=``) to pay the model's set-up once, or call :meth:`unroll_frame` directly.
 
-    ``UnrollSession(model=None, backend="vulkan", device=None, precision="fp32", threads=0)``:
+    ``UnrollSession(model=None, backend="vulkan", device=None, precision="fp32", threads=0, profile=False)``:
     ``model`` a weights file or a :class:`Model` (its file is loaded again: the session owns its
     device); None: physics only. ``backend`` "vulkan" or "cpu"; ``device`` an index or name
     substring (None: VKUNROLL_DEVICE, then the best device); ``precision`` "fp32" or "fp16"
-    (vulkan only: the network's weights and buffers in float16); ``threads``: CPU backend threads.
+    (vulkan only: the network's weights and buffers in float16); ``threads``: CPU backend threads;
+    ``profile``: every kernel's GPU time per GS frame in each :func:`unroll` result's ``stats``
+    (``gpu_ms_per_gs_frame_by_op``, as ``vkunroll unroll --profile``; Vulkan).
     """
 
-    def __init__(self, model=None, backend="vulkan", device=None, precision="fp32", threads=0):
+    def __init__(self, model=None, backend="vulkan", device=None, precision="fp32", threads=0, profile=False):
         if isinstance(model, Model):
             model = model.path
         self.model_path = "" if model is None else os.fspath(model)
-        self._s = _vk._Session(self.model_path, backend, "" if device is None else str(device), precision, int(threads))
+        self._s = _vk._Session(self.model_path, backend, "" if device is None else str(device), precision, int(threads),
+                               bool(profile))
 
     has_model = property(lambda self: self._s.has_model, doc="True when a model was loaded.")
     moa = property(lambda self: self._s.moa, doc="True when the model has MOA weights (SelfUnroll-M).")

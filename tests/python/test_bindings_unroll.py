@@ -176,3 +176,18 @@ def test_option_ranges_are_the_clis(seq):
         vkunroll.unroll(seq, times=[0.5], mode="physics", gamma=1e300)
     with pytest.raises(ValueError, match=r"expected a log-intensity threshold in \(0, 5\]"):
         vkunroll.unroll(seq, times=[0.5], mode="physics", contrast=1e9)
+
+
+def test_a_profiling_session_reports_each_kernel_per_run(seq):
+    """UnrollSession(profile=True): each unroll's stats hold every kernel's GPU time per GS frame of
+    that run only (a second run on the warm session is not the sum of both), adding up to its GPU
+    time; a plain session's stats have no such table."""
+    plain = vkunroll.unroll(seq, times=[0.5], mode="s", frames=[1], session=vkunroll.UnrollSession(model=TINY))
+    assert "gpu_ms_per_gs_frame_by_op" not in plain.stats
+    session = vkunroll.UnrollSession(model=TINY, profile=True)
+    for _ in range(2):
+        r = vkunroll.unroll(seq, times=[0.25, 0.75], mode="s", frames=[1], session=session)
+        ops = r.stats["gpu_ms_per_gs_frame_by_op"]
+        assert ops, "profiled run without kernels"
+        assert sum(v["ms"] for v in ops.values()) == pytest.approx(r.stats["gpu_ms_per_gs_frame"], rel=1e-6)
+        assert ops["event_tensor_rows_sparse"]["calls"] == pytest.approx(0.5)  # one build for the frame's 2 targets
