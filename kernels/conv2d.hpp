@@ -173,6 +173,7 @@ class Conv2d {
   void record_direct(CommandStream& cs, const Recording& r) const;    // conv2d_direct.cpp
   void record_winograd(CommandStream& cs, const Recording& r) const;  // conv2d_winograd.cpp
   void record_winograd_items(CommandStream& cs, const Recording& r) const;  // one group of batch items
+  bool winograd_m_fits(const Shape& in) const;  // M of all of `in`'s items in one binding
   void record_gemm(CommandStream& cs, const Recording& r) const;      // conv2d_winograd.cpp
   void record_coopmat(CommandStream& cs, const Recording& r) const;   // conv2d_coopmat.cpp
   void record_pointwise(CommandStream& cs, const Recording& r) const;  // conv2d_pointwise.cpp

@@ -5,6 +5,7 @@
 // amplify their rounding: docs/kernels.md, "Precision"); the 1x1 GEMM's packed input and weights are
 // float16, M fp32.
 #include <algorithm>
+#include <functional>
 
 #include "vkunroll/kernels/shaders.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
@@ -143,21 +144,35 @@ bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
     return static_cast<uint64_t>(gemm_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&
            winograd_chunk(in) >= 1;
   if (algo != ConvAlgo::winograd) return true;
+  // A batch runs in groups of items (record_winograd): one item's M must fit.
+  Shape one = in;
+  one.n = 1;
+  return winograd_m_fits(one) && winograd_chunk(one) >= 1;
+}
+
+bool Conv2d::winograd_m_fits(const Shape& in) const {
   const WinogradSizes ws = winograd_sizes(output_shape(in), winograd_tile_out());
   const uint64_t m_bytes = static_cast<uint64_t>(winograd_npos() * gemm_cout_pad_ * ws.tiles_pad) * 4;
-  return m_bytes <= ctx_.info().max_storage_buffer_range && winograd_chunk(in) >= 1;
+  return m_bytes <= ctx_.info().max_storage_buffer_range;
 }
 
 void Conv2d::record_winograd(CommandStream& cs, const Recording& r) const {
-  // A batch whose transformed input needs channel chunks, while a group of its items' would not,
-  // runs group by group: each group's GEMM then takes every channel at once and writes M once,
-  // where chunks read and write the whole batch's M again per chunk (a batch of 8 GS targets'
-  // SFENet1 ran in 6 chunks over a 94 MB M).
+  // A batch runs in groups of items where its M does not fit one binding, or where its transformed
+  // input needs channel chunks while a group's would not: each group's GEMM then takes every
+  // channel at once and writes M once, where chunks read and write the whole batch's M again per
+  // chunk (a batch of 8 GS targets' SFENet1 ran in 6 chunks over a 94 MB M).
   const int64_t cv = winograd_ks_ * winograd_ks_ * cin_, n = r.os.n;
-  if (n > 1 && winograd_chunk(r.is) < cv) {
-    Shape part = r.is;
-    for (part.n = n - 1; part.n >= 1 && winograd_chunk(part) < cv; --part.n) {
-    }
+  if (n > 1 && (!winograd_m_fits(r.is) || winograd_chunk(r.is) < cv)) {
+    // The largest group whose GEMM takes every channel; else, where the whole M does not fit, the
+    // largest group whose M does (channel chunks inside it).
+    const auto largest = [&](const std::function<bool(const Shape&)>& ok) {
+      Shape s = r.is;
+      for (s.n = n - 1; s.n >= 1 && !ok(s); --s.n) {
+      }
+      return s;
+    };
+    Shape part = largest([&](const Shape& s) { return winograd_m_fits(s) && winograd_chunk(s) >= cv; });
+    if (part.n < 1 && !winograd_m_fits(r.is)) part = largest([&](const Shape& s) { return winograd_m_fits(s); });
     if (part.n >= 1) {
       for (int64_t n0 = 0; n0 < n; n0 += part.n) {
         Recording g = r;

@@ -466,6 +466,32 @@ TEST(Conv2d, WinogradRunsABatchByItemGroupsWhenOneGroupFitsTheScratch) {
     }
 }
 
+// A batch whose Winograd M (all items, all output channels) exceeds one binding still runs Winograd,
+// item group by item group: the published SFENet1's 96 output channels at 240x320 take 118 MB of M
+// per item as F(4x4, 5x5), so M mode's two items exceed lavapipe's 128 MiB (before, Winograd was
+// refused and the conv fell back to blocked).
+TEST(Conv2d, WinogradSplitsABatchWhoseMDoesNotFitOneBinding) {
+  Context& ctx = vktest::context();
+  std::mt19937 rng(5);
+  const int64_t cin = 2, cout = 96, h = 240, w = 320, n = 2;
+  const Conv2dParams p{5, 1, 2, leaky_relu(0.1f)};
+  const HostTensor wt = random_tensor({cout, cin, 5, 5}, rng, -0.2f, 0.2f), b = random_tensor({1, 1, 1, cout}, rng, -0.5f, 0.5f);
+  const HostTensor x = random_tensor({n, cin, h, w}, rng);
+  HostTensor y_ref({n, cout, h, w});
+  conv2d_ref(HostSlice(x), HostSliceOut(y_ref), wt, b, p, std::nullopt);
+  Conv2d conv(ctx, wt, b, p, "sfenet1", nullptr, ConvOptions{});
+  ASSERT_TRUE(conv.supports(ConvAlgo::winograd, x.shape));
+  const uint64_t m_item = 64ull * 96 * 4800 * 4;  // positions x cout x tiles (80 x 60) x fp32
+  const bool split = n * m_item > ctx.info().max_storage_buffer_range;
+  const Tensor xd = to_device(ctx, x);
+  Tensor yd(ctx, {n, cout, h, w});
+  CommandStream cs(ctx);
+  conv.record(cs, Slice(xd), Slice(yd), std::nullopt, ConvAlgo::winograd);
+  EXPECT_EQ(cs.recorded(), split ? 6u : 3u) << "one group per item where M of both does not fit";
+  cs.submit_and_wait();
+  EXPECT_LE(max_abs_diff(to_host(yd), y_ref), kTol);
+}
+
 TEST(Conv2d, ReferenceKnownValues) {
   // 1 input channel 3x3 of ones, 3x3 kernel of ones, pad 1: corner 4, edge 6, centre 9, + bias.
   HostTensor x({1, 1, 3, 3}, 1.f), w({1, 1, 3, 3}, 1.f), b({1, 1, 1, 1}, 0.5f), y({1, 1, 3, 3});
