@@ -11,20 +11,7 @@
 #endif
 const int TO = TILE_OUT, WIN = 3 * TILE_OUT + 8;
 // fp16 variant: the input as float16; V stays fp32.
-layout(local_size_x = 64) in;
-#ifdef WINOGRAD_TEXEL_INPUT
-layout(binding = 0) uniform samplerBuffer xin;  // an R32 view (R16 in fp16): one gather on llvmpipe
-float load_input(uint i) { return texelFetch(xin, int(i)).r; }
-#else
-layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
-float load_input(uint i) { return float(x[i]); }
-#endif
-layout(std430, binding = 1) writeonly buffer V { vec4 v[]; };
-layout(push_constant) uniform P {
-  uint in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
-  int off_base;
-  uint ilv, rows, v0;
-} p;
+#include "winograd_input_io.glsl"
 
 // B^T x for one column (or row) of 8 values, 4 tiles side by side.
 void bt8(vec4 d0, vec4 d1, vec4 d2, vec4 d3, vec4 d4, vec4 d5, vec4 d6, vec4 d7, out vec4 r[8]) {
@@ -72,16 +59,4 @@ void transform(uint gi, uint cl) {
     uint b = uint(i * 8) * stride + o;
     [[unroll]] for (int j = 0; j < 8; ++j) v[b + uint(j) * stride] = r[j];
   }
-}
-
-void main() {
-  if (p.ilv == 0u) {  // lanes over tile groups, one per invocation
-    if (gl_GlobalInvocationID.x < p.ngroups) transform(gl_GlobalInvocationID.x, gl_GlobalInvocationID.y);
-    return;
-  }
-  // ilv = TV: lanes over channels, each writing the TV adjacent vec4s of one GEMM tile group.
-  uint idx = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
-  uint cl = idx % p.chunk, g0 = (idx / p.chunk) * p.ilv;
-  for (uint t = 0u; t < p.ilv; ++t)
-    if (g0 + t < p.ngroups) transform(g0 + t, cl);
 }

@@ -8,25 +8,7 @@
 #define TILE_OUT 4
 #endif
 const uint TO = TILE_OUT;
-layout(local_size_x = 64) in;
-layout(constant_id = 0) const uint ACT = 0;
-layout(constant_id = 1) const float SLOPE = 0.0;
-layout(constant_id = 2) const uint HAS_RES = 0;
-#include "act.glsl"
-// fp16 variant: M stays fp32, residual and output float16.
-#ifdef WINOGRAD_TEXEL_M
-layout(binding = 0) uniform samplerBuffer mt;
-vec4 load_m(uint i) { return texelFetch(mt, int(i)); }
-#else
-layout(std430, binding = 0) readonly buffer M { vec4 m[]; };
-vec4 load_m(uint i) { return m[i]; }
-#endif
-layout(std430, binding = 1) readonly buffer Bias { float bias[]; };
-layout(std430, binding = 2) readonly buffer Res { SFLOAT res[]; };
-layout(std430, binding = 3) writeonly buffer Out { SFLOAT y[]; };
-layout(push_constant) uniform P {
-  uint res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
-} p;
+#include "winograd_output_io.glsl"
 
 // A^T x for 8 values (4 tiles side by side): the TILE_OUT outputs (row i: the points to the power i).
 void at8(vec4 m0, vec4 m1, vec4 m2, vec4 m3, vec4 m4, vec4 m5, vec4 m6, vec4 m7, out vec4 o[TILE_OUT]) {
@@ -66,16 +48,9 @@ void main() {
   [[unroll]] for (uint i = 0; i < TO; ++i) {
     vec4 o4[TILE_OUT];
     at8(t4[i][0], t4[i][1], t4[i][2], t4[i][3], t4[i][4], t4[i][5], t4[i][6], t4[i][7], o4);
-    uint oy = oy0 + i;
-    if (oy >= p.oh) continue;
-    [[unroll]] for (uint t = 0; t < 4u; ++t)      // tile within the group
-      [[unroll]] for (uint j = 0; j < TO; ++j) {  // column within the tile
-        uint ox = ox0 + t * TO + j;
-        if (ox >= p.ow) continue;
-        uint o = oy * p.ow + ox;
-        float val = act(o4[j][t] + bv);
-        if (HAS_RES != 0u) val += float(res[rb + o]);
-        y[ob + o] = to_s(val);
-      }
+    if (oy0 + i >= p.oh) continue;  // a whole row past the bottom edge
+    [[unroll]] for (uint t = 0; t < 4u; ++t)  // tile within the group
+      [[unroll]] for (uint j = 0; j < TO; ++j)  // column within the tile
+        store_output(ob, rb, oy0 + i, ox0 + t * TO + j, o4[j][t] + bv);
   }
 }

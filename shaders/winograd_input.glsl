@@ -14,21 +14,7 @@
 // then reads one run of memory over its channel loop.
 // fp16 variant: the input as float16; V stays fp32 (F(4,3)'s transforms amplify V's rounding: fp16 V
 // measured 6-8e-3 max abs error against 2.5e-4 for fp16 weights alone, docs/kernels.md "Precision").
-layout(local_size_x = 64) in;
-#ifdef WINOGRAD_TEXEL_INPUT
-layout(binding = 0) uniform samplerBuffer xin;  // an R32 view (R16 in fp16): one gather on llvmpipe
-float load_input(uint i) { return texelFetch(xin, int(i)).r; }
-#else
-layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
-float load_input(uint i) { return float(x[i]); }
-#endif
-layout(std430, binding = 1) writeonly buffer V { vec4 v[]; };
-layout(push_constant) uniform P {
-  uint in_off, in_bs, cin, h, w, tiles_x_pad, tiles_y, ngroups, tiles_pad, ks, c_begin, chunk, s_in, off_mul;
-  int off_base;
-  uint ilv;  // 0: [36][rows][tiles_pad / 4] vec4s; TV: winograd_gemm_texel's [36][groups][rows][TV]
-  uint rows, v0;  // V's rows and the first one written (a dense block's shared V: its new channels)
-} p;
+#include "winograd_input_io.glsl"
 
 // The 4 tiles of group gi (of 4 horizontally adjacent tiles) in channel cl of the chunk.
 void transform(uint gi, uint cl) {
@@ -77,17 +63,4 @@ void transform(uint gi, uint cl) {
     v[b + 4u * stride] = 2.0 * r1 - r2 - 2.0 * r3 + r4;
     v[b + 5u * stride] = 4.0 * r1 - 5.0 * r3 + r5;
   }
-}
-
-void main() {
-  if (p.ilv == 0u) {  // lanes over tile groups, one per invocation
-    if (gl_GlobalInvocationID.x < p.ngroups) transform(gl_GlobalInvocationID.x, gl_GlobalInvocationID.y);
-    return;
-  }
-  // ilv = TV: lanes over channels, each writing the TV adjacent vec4s of one GEMM tile group, so
-  // every cache line of V has one writer (0.5x the time of one group per invocation there).
-  uint idx = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
-  uint cl = idx % p.chunk, g0 = (idx / p.chunk) * p.ilv;
-  for (uint t = 0u; t < p.ilv; ++t)
-    if (g0 + t < p.ngroups) transform(g0 + t, cl);
 }

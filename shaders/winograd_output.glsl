@@ -3,25 +3,7 @@
 // Winograd F(4x4, 3x3), step 3: Y = A^T M A for four horizontally adjacent tiles of one output
 // channel per invocation (vec4 loads of M), then bias, the fused activation and the optional
 // residual, written into the output slice (edges masked).
-layout(local_size_x = 64) in;
-layout(constant_id = 0) const uint ACT = 0;
-layout(constant_id = 1) const float SLOPE = 0.0;
-layout(constant_id = 2) const uint HAS_RES = 0;
-#include "act.glsl"
-// fp16 variant: M stays fp32, residual and output float16.
-#ifdef WINOGRAD_TEXEL_M
-layout(binding = 0) uniform samplerBuffer mt;
-vec4 load_m(uint i) { return texelFetch(mt, int(i)); }
-#else
-layout(std430, binding = 0) readonly buffer M { vec4 m[]; };
-vec4 load_m(uint i) { return m[i]; }
-#endif
-layout(std430, binding = 1) readonly buffer Bias { float bias[]; };
-layout(std430, binding = 2) readonly buffer Res { SFLOAT res[]; };
-layout(std430, binding = 3) writeonly buffer Out { SFLOAT y[]; };
-layout(push_constant) uniform P {
-  uint res_off, res_bs, out_off, out_bs, cout, oh, ow, tiles_x_pad, tiles_y, ngroups, tiles_pad, cout_pad;
-} p;
+#include "winograd_output_io.glsl"
 
 void main() {
   uint gi = gl_GlobalInvocationID.x, co = gl_GlobalInvocationID.y;
@@ -48,16 +30,9 @@ void main() {
     o4[1] = r1 - r2 + 2.0 * (r3 - r4);
     o4[2] = r1 + r2 + 4.0 * (r3 + r4);
     o4[3] = r1 - r2 + 8.0 * (r3 - r4) + r5;
-    uint oy = oy0 + i;
-    if (oy >= p.oh) continue;
-    [[unroll]] for (uint t = 0; t < 4u; ++t)      // tile within the group
-      [[unroll]] for (uint j = 0; j < 4u; ++j) {  // column within the tile
-        uint ox = ox0 + t * 4u + j;
-        if (ox >= p.ow) continue;
-        uint o = oy * p.ow + ox;
-        float val = act(o4[j][t] + bv);
-        if (HAS_RES != 0u) val += float(res[rb + o]);
-        y[ob + o] = to_s(val);
-      }
+    if (oy0 + i >= p.oh) continue;  // a whole row past the bottom edge
+    [[unroll]] for (uint t = 0; t < 4u; ++t)    // tile within the group
+      [[unroll]] for (uint j = 0; j < 4u; ++j)  // column within the tile
+        store_output(ob, rb, oy0 + i, ox0 + t * 4u + j, o4[j][t] + bv);
   }
 }
