@@ -29,6 +29,25 @@ WinogradSizes winograd_sizes(const Shape& in, int64_t to) {
 }
 
 int64_t gemm_pix_pad(const Shape& in) { return (in.n * in.h * in.w + 15) / 16 * 16; }
+
+// U = G g G^T of one k x k kernel (k <= 5) for an n-position form (n <= 8), in double: store(i, j, u)
+// receives position (i, j). G(i, t) and g(y, x) are the transform's and the kernel's entries.
+template <class GF, class KF, class Store>
+void transform_kernel(int n, int k, GF G, KF g, Store store) {
+  double gg[8][5];
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < k; ++j) {
+      double acc = 0;
+      for (int t = 0; t < k; ++t) acc += G(i, t) * g(t, j);
+      gg[i][j] = acc;
+    }
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) {
+      double acc = 0;
+      for (int t = 0; t < k; ++t) acc += gg[i][t] * G(j, t);
+      store(i, j, acc);
+    }
+}
 }  // namespace
 
 // G of the 8-point forms (points 0, +-1, +-2, +-1/2, inf; B^T and A^T are in the shaders): row i < 7,
@@ -48,21 +67,11 @@ void Conv2d::pack_winograd8() {
   const auto G = [k](int i, int t) { return i < 7 ? kG8[i][t] : (t == k - 1 ? 1.0 : 0.0); };
   std::vector<float> u(static_cast<size_t>(64 * cin_ * gemm_cout_pad_), 0.f);
   for (int64_t co = 0; co < cout_; ++co)
-    for (int64_t ci = 0; ci < cin_; ++ci) {
-      double gg[8][5];
-      for (int i = 0; i < 8; ++i)
-        for (int j = 0; j < k; ++j) {
-          double acc = 0;
-          for (int t = 0; t < k; ++t) acc += G(i, t) * weight_host_.at(co, ci, t, j);
-          gg[i][j] = acc;
-        }
-      for (int i = 0; i < 8; ++i)
-        for (int j = 0; j < 8; ++j) {
-          double acc = 0;
-          for (int t = 0; t < k; ++t) acc += gg[i][t] * G(j, t);
-          u[static_cast<size_t>(((i * 8 + j) * cin_ + ci) * gemm_cout_pad_ + co)] = static_cast<float>(acc);
-        }
-    }
+    for (int64_t ci = 0; ci < cin_; ++ci)
+      transform_kernel(8, k, G, [&](int y, int x) -> double { return weight_host_.at(co, ci, y, x); },
+                       [&](int i, int j, double v) {
+                         u[static_cast<size_t>(((i * 8 + j) * cin_ + ci) * gemm_cout_pad_ + co)] = static_cast<float>(v);
+                       });
   winograd_ks_ = 1;
   weight_winograd_ = vkunroll::upload_weights(ctx_, u, Precision::fp32, name_);
 }
@@ -97,20 +106,10 @@ void Conv2d::pack_winograd() {
           }
           return (oy + y < k && ox + x < k) ? weight_host_.at(co, ci, oy + y, ox + x) : 0.0;
         };
-        double gg[6][3];
-        for (int i = 0; i < 6; ++i)
-          for (int j = 0; j < 3; ++j) {
-            double acc = 0;
-            for (int t = 0; t < 3; ++t) acc += Gm[i][t] * g(t, j);
-            gg[i][j] = acc;
-          }
         const int64_t vc = sblk * cin_ + ci;
-        for (int i = 0; i < 6; ++i)
-          for (int j = 0; j < 6; ++j) {
-            double acc = 0;
-            for (int t = 0; t < 3; ++t) acc += gg[i][t] * Gm[j][t];
-            u[static_cast<size_t>(((i * 6 + j) * cv + vc) * gemm_cout_pad_ + co)] = static_cast<float>(acc);
-          }
+        transform_kernel(6, 3, [](int i, int t) { return Gm[i][t]; }, g, [&](int i, int j, double v) {
+          u[static_cast<size_t>(((i * 6 + j) * cv + vc) * gemm_cout_pad_ + co)] = static_cast<float>(v);
+        });
       }
   }
   weight_winograd_ = vkunroll::upload_weights(ctx_, u, Precision::fp32, name_);  // fp32 in both precisions
