@@ -146,6 +146,15 @@ void run_cases(Context& ctx, ConvAlgo algo, const std::vector<Case>& list, const
 void run_cases(ConvAlgo algo, const Limits& lim = {}, const Precisions& precisions = {kFp32, kFp16}) {
   run_cases(vktest::context(), algo, cases(), lim, precisions);
 }
+// One Winograd form (ConvOptions::winograd_tile) on `list`: whole in fp32 and fp16, in input-channel
+// chunks and through storage buffers in fp32.
+void run_winograd_form(const std::vector<Case>& list, int tile) {
+  Limits whole, chunks{6 * 64 * 4 * 64}, storage{~0ull, 0, false};
+  for (Limits* l : {&whole, &chunks, &storage}) l->options.winograd_tile = tile;
+  run_cases(vktest::context(), ConvAlgo::winograd, list, whole, {kFp32, kFp16});
+  run_cases(vktest::context(), ConvAlgo::winograd, list, chunks, {kFp32});
+  run_cases(vktest::context(), ConvAlgo::winograd, list, storage, {kFp32});
+}
 }  // namespace
 
 // Every algorithm in both precisions; fp16 against the same fp32 reference.
@@ -195,13 +204,7 @@ TEST(Conv2d, Winograd5x5BothFormsMatchReference) {
                                 {5, 1, 11, 6, 12, 9, Act{}, false, 0, 0, 3, 1, 2},
                                 {5, 1, 120, 24, 21, 30, lrelu01, true, 0, 0, 0, 0, 2},
                                 {5, 1, 7, 16, 33, 18, lrelu01, false, 2, 1}};
-  for (int tile : {8, 6}) {
-    Limits whole, chunks{6 * 64 * 4 * 64}, storage{~0ull, 0, false};
-    for (Limits* l : {&whole, &chunks, &storage}) l->options.winograd_tile = tile;
-    run_cases(vktest::context(), ConvAlgo::winograd, k5, whole, {kFp32, kFp16});
-    run_cases(vktest::context(), ConvAlgo::winograd, k5, chunks, {kFp32});
-    run_cases(vktest::context(), ConvAlgo::winograd, k5, storage, {kFp32});
-  }
+  for (int tile : {8, 6}) run_winograd_form(k5, tile);
 }
 // 3x3 stride 1 as F(6x6, 3x3) on 8x8 tiles (winograd_tile 8): every 3x3 stride-1 case, in both
 // precisions, in chunks and through storage buffers; stride 2 keeps F(4x4, 3x3) (its phases).
@@ -210,11 +213,7 @@ TEST(Conv2d, Winograd6x6MatchesReference) {
   for (const Case& c : cases())
     if (c.k == 3) k3.push_back(c);
   k3.push_back({3, 1, 144, 48, 26, 37, leaky_relu(0.1f), true, 0, 0, 0, 0, 2});  // an RDB conv's reduction
-  Limits whole, chunks{6 * 64 * 4 * 64}, storage{~0ull, 0, false};
-  for (Limits* l : {&whole, &chunks, &storage}) l->options.winograd_tile = 8;
-  run_cases(vktest::context(), ConvAlgo::winograd, k3, whole, {kFp32, kFp16});
-  run_cases(vktest::context(), ConvAlgo::winograd, k3, chunks, {kFp32});
-  run_cases(vktest::context(), ConvAlgo::winograd, k3, storage, {kFp32});
+  run_winograd_form(k3, 8);
 }
 // The 1x1 GEMM's input, V and U through storage buffers (its plain pack and GEMM) instead of texel
 // buffers.
