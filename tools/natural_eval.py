@@ -176,11 +176,12 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                        "gate_radius": radii}
                 rs = seq.frame(k)
                 row["psnr"]["RS input"], row["ssim"]["RS input"] = psnr(rs, gt), ssim(rs, gt)
+                # Frame k's physics image, computed once: the method's score (without the CLI) and the bands' centre.
+                ph = pn.unroll_physics(seq, k, t, contrast, gamma, log_offset=log_offset) if bands or not phys_cli else None
                 if phys_cli:
                     m = [v for tt, v in phys_cli.items() if tt != "_summary" and abs(tt - t) < 0.5][0]
                     row["psnr"]["physics"], row["ssim"]["physics"] = float(m["psnr"]), float(m["ssim"])
                 else:
-                    ph = pn.unroll_physics(seq, k, t, contrast, gamma, log_offset=log_offset)
                     row["psnr"]["physics"], row["ssim"]["physics"] = psnr(ph, gt), ssim(ph, gt)
                 full = (0, 0, seq.width, seq.height)
                 for name, net in nets.items():
@@ -193,7 +194,6 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                         s_img = m_img = r["s2"][0].numpy()
                     imgs = [(f"{name}-S", s_img), (f"{name}-M", m_img)]
                     if bands:  # the band around frame k's physics (pn.event_band), post hoc
-                        ph = pn.unroll_physics(seq, k, t, contrast, gamma, log_offset=log_offset)
                         imgs += [(f"{tag} band{w:g}", pn.event_band(img, ph, contrast, gamma, log_offset, w))
                                  for tag, img in list(imgs) for w in bands]
                     for tag, img in imgs:
