@@ -104,9 +104,9 @@ void UnrollJob::add_time_breakdown(nlohmann::json& r, const SessionStats& st, do
     nlohmann::json ops = nlohmann::json::object();
     for (const auto& [op, s] : p->ops()) {
       const auto b = ops_before_.find(op);
-      const double ms = s.total_ms - (b != ops_before_.end() ? b->second.total_ms : 0.0);
+      const double op_ms = s.total_ms - (b != ops_before_.end() ? b->second.total_ms : 0.0);
       const double calls = static_cast<double>(s.calls - (b != ops_before_.end() ? b->second.calls : 0));
-      if (calls > 0) ops[op] = {{"ms", ms / n}, {"calls", calls / n}};
+      if (calls > 0) ops[op] = {{"ms", op_ms / n}, {"calls", calls / n}};
     }
     r["gpu_ms_per_gs_frame_by_op"] = ops;
   }
