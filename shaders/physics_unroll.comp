@@ -27,7 +27,7 @@ void main() {
     if (tau[i] <= S) fs += pol[i];
   }
   float log_ratio = 0.0;  // log(T / integral); 0 when the exposure is empty
-  if (T > 0.0) {
+  if (T > 0.0 && e > b) {  // no event: one segment, T itself, so the ratio is 0 exactly
     float m = -1e30, acc = 0.0, prev = S;
     int f = fs;
     for (uint i = b; i <= e; ++i) {
@@ -46,8 +46,16 @@ void main() {
     log_ratio = log(T) - (m + log(acc));
   }
   const int plane = p.width * p.height;
+  // Ratio 1 and a value the cap cannot reach (v <= 1 < (max_value - log_offset)^(1/gamma)): the
+  // formula's round trip returns v, so skip its four transcendentals and their rounding (most
+  // pixels of a static scene).
+  const bool keeps_rs = log_ratio == 0.0 && p.max_value >= 1.0 + p.log_offset;
   for (int c = 0; c < p.channels; ++c) {
     const float v = rs[c * plane + pix];
+    if (keeps_rs && v >= 0.0 && v <= 1.0) {
+      result[c * plane + pix] = v;
+      continue;
+    }
     // Events measure log(lin + log_offset): the ratio applies to the offset intensity.
     float lin = (v > 0.0 ? pow(v, p.gamma) : 0.0) + p.log_offset;
     // Cap the exponent, not exp's result: log_ratio can be ~c * millions of events, and exp of

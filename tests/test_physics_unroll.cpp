@@ -51,6 +51,21 @@ TEST(PhysicsUnroll, NoEventsReturnsTheInput) {
     EXPECT_NEAR(cpu[i], rs[i], 1e-6);
     EXPECT_NEAR(gpu[i], rs[i], 1e-5);
   }
+  // The GPU keeps an event-free pixel's value bit for bit in [0, 1], also where the formula's
+  // round trip (x^2.2 + offset, exp(log), - offset, ^(1/2.2)) loses bits on dark pixels in fp32;
+  // above 1 the formula runs (the cap could apply) and still returns the value.
+  prm.gamma = 2.2f;
+  prm.log_offset = 0.05f;
+  rs = {0.f, 1e-4f, 0.003f, 0.01f, 0.25f, 0.5f, 0.999f, 1.f, 1.5f, 3.f, 0.02f, 0.7f, 0.0625f, 0.9f, 0.1f};
+  gpu = run_gpu(rs, 1, ev, prm);
+  cpu = physics_unroll_ref(rs, 1, ev, prm);
+  for (int i = 0; i < 15; ++i) {
+    if (rs[i] <= 1.f) {
+      EXPECT_EQ(gpu[i], rs[i]) << "pixel " << i;
+    }
+    EXPECT_NEAR(gpu[i], rs[i], 1e-5 * std::max(1.f, rs[i])) << "pixel " << i;
+    EXPECT_NEAR(cpu[i], rs[i], 1e-6 * std::max(1.f, rs[i])) << "pixel " << i;
+  }
 }
 
 TEST(PhysicsUnroll, OneEventAnalytic) {
