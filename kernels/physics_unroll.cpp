@@ -137,6 +137,7 @@ namespace {
 struct PhysicsPush {
   int32_t width, height, channels;
   float contrast, gamma, max_value, log_offset;
+  uint32_t rs_off, out_off;
 };
 template <class T>
 Tensor upload_vector(Context& ctx, const std::vector<T>& v, DType dt, CommandStream* cs) {
@@ -171,25 +172,30 @@ PhysicsUnroll::PhysicsUnroll(Context& ctx, const PixelEventLists& ev, CommandStr
   rows_ = upload_vector(ctx, rows, DType::f32, cs);
 }
 
-void PhysicsUnroll::record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const {
-  const Shape& s = rs.shape();
-  if (s.n != 1 || s.h != height_ || s.w != width_ || !(result.shape() == s))
-    throw Error("PhysicsUnroll: image " + s.str() + " / output " + result.shape().str() + " do not match the event lists (" +
-                std::to_string(height_) + "x" + std::to_string(width_) + ")");
+void PhysicsUnroll::record(CommandStream& cs, Slice rs, Slice result, const PhysicsUnrollParams& params) const {
+  const Shape s = rs.shape();
+  // Whole items: the shader addresses channel c of the item at offset + c * H * W.
+  if (s.n != 1 || s.h != height_ || s.w != width_ || !(result.shape() == s) || s.c != rs.tensor_shape().c ||
+      s.c != result.tensor_shape().c)
+    throw Error("PhysicsUnroll: image " + s.str() + " / output " + result.shape().str() + " (items of " +
+                rs.tensor_shape().str() + " / " + result.tensor_shape().str() + ") do not match the event lists (" +
+                std::to_string(height_) + "x" + std::to_string(width_) + ") as one whole item each");
   // fp32 only: the exponentials and the log-sum-exp run in fp32 and an fp16 image would cap them.
-  if (rs.dtype() != DType::f32 || result.dtype() != DType::f32)
-    throw Error(std::string("PhysicsUnroll: image and output must be f32 tensors (got ") + dtype_name(rs.dtype()) +
-                " / " + dtype_name(result.dtype()) + "); convert fp16 images with copy()");
+  if (rs.t->dtype() != DType::f32 || result.t->dtype() != DType::f32)
+    throw Error(std::string("PhysicsUnroll: image and output must be f32 tensors (got ") + dtype_name(rs.t->dtype()) +
+                " / " + dtype_name(result.t->dtype()) + "); convert fp16 images with copy()");
   if (!(params.contrast > 0) || !(params.gamma > 0))
     throw Error("PhysicsUnroll: contrast and gamma must be positive");
   if (!(params.max_value > 0) || !std::isfinite(params.max_value))
     throw Error("PhysicsUnroll: max_value must be positive and finite");
   if (!(params.log_offset >= 0) || !(params.log_offset < params.max_value))
     throw Error("PhysicsUnroll: log_offset must be in [0, max_value)");
-  PhysicsPush p{width_, height_, static_cast<int32_t>(s.c), params.contrast, params.gamma, params.max_value, params.log_offset};
+  const BoundSlice bi = bind_slice(rs, Access::read), bo = bind_slice(result, Access::write);
+  PhysicsPush p{width_,          height_,          static_cast<int32_t>(s.c), params.contrast, params.gamma,
+                params.max_value, params.log_offset, bi.offset,                bo.offset};
   const double pixels = static_cast<double>(width_) * height_;
   cs.dispatch(kernel_pipeline(ctx_, "physics_unroll", {}, sizeof p),
-              {in(offsets_), in(tau_), in(polarity_), in(rows_), in(rs), out(result)}, p,
+              {in(offsets_), in(tau_), in(polarity_), in(rows_), bi.arg, bo.arg}, p,
               {static_cast<uint32_t>((width_ + 7) / 8), static_cast<uint32_t>((height_ + 7) / 8)},
               {"physics_unroll", 10.0 * (pixels + 2.0 * events_), 4.0 * (2 * events_ + pixels * (1 + 2 * s.c))});
 }

@@ -13,6 +13,7 @@
 #include "vkunroll/base/events.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
 #include "vkunroll/runtime/tensor.hpp"
+#include "vkunroll/kernels/common.hpp"
 
 namespace vkunroll {
 
@@ -64,8 +65,9 @@ class PhysicsUnroll {
   // Throws Error naming the first pixel over the limit when !fits(ev). With `cs`, the lists' uploads
   // are recorded into it (ordered with its work, no wait); the op must then outlive that submission.
   PhysicsUnroll(Context& ctx, const PixelEventLists& ev, CommandStream* cs = nullptr);
-  // rs and out: [1, C, H, W] f32 tensors of the lists' size (fp32 only: an f16 tensor is an Error).
-  void record(CommandStream& cs, const Tensor& rs, Tensor& result, const PhysicsUnrollParams& params) const;
+  // rs and result: one item [1, C, H, W] of the lists' size each, f32 (an f16 tensor is an Error);
+  // result may be an item of a batch, written in place.
+  void record(CommandStream& cs, Slice rs, Slice result, const PhysicsUnrollParams& params) const;
 
  private:
   Context& ctx_;

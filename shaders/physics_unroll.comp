@@ -11,6 +11,7 @@ layout(std430, binding = 5) writeonly buffer Out { float result[]; };
 layout(push_constant) uniform P {
   int width, height, channels;
   float contrast, gamma, max_value, log_offset;
+  uint rs_off, out_off;  // element offsets of the image and of the output item (a batch's item)
 } p;
 
 void main() {
@@ -51,9 +52,9 @@ void main() {
   // pixels of a static scene).
   const bool keeps_rs = log_ratio == 0.0 && p.max_value >= 1.0 + p.log_offset;
   for (int c = 0; c < p.channels; ++c) {
-    const float v = rs[c * plane + pix];
+    const float v = rs[p.rs_off + c * plane + pix];
     if (keeps_rs && v >= 0.0 && v <= 1.0) {
-      result[c * plane + pix] = v;
+      result[p.out_off + c * plane + pix] = v;
       continue;
     }
     // Events measure log(lin + log_offset): the ratio applies to the offset intensity.
@@ -61,6 +62,6 @@ void main() {
     // Cap the exponent, not exp's result: log_ratio can be ~c * millions of events, and exp of
     // that overflows (inf, or whatever a fast exp returns there); log(0) is never taken (lin > 0).
     float o = lin > 0.0 ? min(exp(min(log(lin) + log_ratio, log(p.max_value))), p.max_value) - p.log_offset : 0.0;
-    result[c * plane + pix] = o > 0.0 ? pow(o, 1.0 / p.gamma) : 0.0;
+    result[p.out_off + c * plane + pix] = o > 0.0 ? pow(o, 1.0 / p.gamma) : 0.0;
   }
 }

@@ -135,9 +135,9 @@ TEST(PhysicsUnroll, ThousandsOfEventsStayFinite) {
   }
 }
 
-TEST(PhysicsUnroll, GpuMatchesCpuOnRandomStreams) {
-  std::mt19937 rng(7);
-  const int W = 23, H = 17, C = 3;
+namespace {
+// 20,000 events at random pixels from t = -3000 us, 0-3 us apart.
+EventStream random_stream(std::mt19937& rng, int W, int H) {
   EventStream es;
   es.width = W, es.height = H;
   int64_t t = -3000;
@@ -146,6 +146,14 @@ TEST(PhysicsUnroll, GpuMatchesCpuOnRandomStreams) {
     t += dt(rng);
     es.push(t, static_cast<uint16_t>(dx(rng)), static_cast<uint16_t>(dy(rng)), dp(rng) ? 1 : -1);
   }
+  return es;
+}
+}  // namespace
+
+TEST(PhysicsUnroll, GpuMatchesCpuOnRandomStreams) {
+  std::mt19937 rng(7);
+  const int W = 23, H = 17, C = 3;
+  const EventStream es = random_stream(rng, W, H);
   auto s = starts(H, 0, 37.5);  // fractional line delay
   std::vector<float> rs(C * W * H);
   std::uniform_real_distribution<float> u(0.f, 1.f);
@@ -164,6 +172,42 @@ TEST(PhysicsUnroll, GpuMatchesCpuOnRandomStreams) {
       for (size_t i = 0; i < cpu.size(); ++i)
         ASSERT_NEAR(gpu[i], cpu[i], 1e-4 * std::max(1.f, std::abs(cpu[i]))) << "offset " << offset << " t*=" << t_star << " i=" << i;
     }
+}
+
+// The session writes each target's physics straight into its item of the batch: item 2 of an image
+// batch into item 1 of an output batch, the other items (canaries) untouched; a channel slice is refused.
+TEST(PhysicsUnroll, WritesOneItemOfABatchInPlace) {
+  std::mt19937 rng(11);
+  const int W = 19, H = 13, C = 3;
+  const EventStream es = random_stream(rng, W, H);
+  const auto s = starts(H, 0, 50);
+  const PixelEventLists ev = gather_pixel_events(es, 400, s, plus(s, 1500), 0, 0, W, H);
+  ASSERT_GT(ev.tau.size(), 100u);
+  const size_t item = size_t(C) * W * H;
+  std::vector<float> images(3 * item);
+  std::uniform_real_distribution<float> u(0.f, 1.f);
+  for (auto& v : images) v = u(rng);
+  PhysicsUnrollParams prm;
+  prm.contrast = 0.25f;
+  prm.gamma = 2.2f;
+  prm.log_offset = 0.05f;
+  const auto cpu = physics_unroll_ref(std::vector<float>(images.begin() + 2 * item, images.end()), C, ev, prm);
+
+  Context& ctx = vktest::context();
+  Tensor rs_t(ctx, {3, C, H, W}), out_t(ctx, {3, C, H, W});
+  rs_t.upload(images);
+  out_t.upload(std::vector<float>(3 * item, -7.f));
+  PhysicsUnroll op(ctx, ev);
+  CommandStream cs(ctx);
+  op.record(cs, Slice(rs_t, 0, -1, 2, 1), Slice(out_t, 0, -1, 1, 1), prm);
+  cs.submit_and_wait();
+  const auto out = out_t.download<float>();
+  for (size_t i = 0; i < item; ++i) {
+    ASSERT_EQ(out[i], -7.f) << "item 0, element " << i;
+    ASSERT_NEAR(out[item + i], cpu[i], 1e-4 * std::max(1.f, std::abs(cpu[i]))) << "item 1, element " << i;
+    ASSERT_EQ(out[2 * item + i], -7.f) << "item 2, element " << i;
+  }
+  EXPECT_THROW(op.record(cs, Slice(rs_t, 0, 2, 0, 1), Slice(out_t, 0, 2, 0, 1), prm), Error);
 }
 
 TEST(PhysicsUnroll, GatherKeepsOnlyEachRowsWindowAndCrop) {

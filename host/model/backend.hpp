@@ -126,8 +126,10 @@ class Backend {
   Buffer event_tensors(const EventStream& events, const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec) {
     return Buffer(this, event_tensors_id(events, pairs, spec));
   }
-  // The weight-free physics unroller for one target: out [1, C, H, W] from rs [1, C, H, W] (whole buffers).
-  virtual void physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) = 0;
+  // The weight-free physics unroller for one target: out from rs, one whole item [1, C, H, W] each
+  // (out may be an item of a batch, written in place).
+  virtual void physics_unroll(const BufferSlice& rs, const PixelEventLists& lists, const PhysicsUnrollParams& params,
+                              const BufferSlice& out) = 0;
   // m = hardsigmoid(score) (or `forced` when >= 0); out = m * a + (1 - m) * b.
   virtual void hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m,
                                  const BufferSlice& out, float forced) = 0;
@@ -203,7 +205,7 @@ class PlanningBackend final : public Backend {
   void backward_warp(const BufferSlice&, const BufferSlice&, const BufferSlice&) override {}
   void copy_rect(const BufferSlice&, const BufferSlice&, const Rect&, int64_t, int64_t) override {}
   void fill_rect(const BufferSlice&, const Rect&, float) override {}
-  void physics_unroll(int, const PixelEventLists&, const PhysicsUnrollParams&, int) override {}
+  void physics_unroll(const BufferSlice&, const PixelEventLists&, const PhysicsUnrollParams&, const BufferSlice&) override {}
   void hardsigmoid_blend(const BufferSlice&, const BufferSlice&, const BufferSlice&, const BufferSlice&, const BufferSlice&, float) override {}
   void flush() override;
   uint64_t max_buffer_bytes() const override { return max_buffer_bytes_; }

@@ -191,12 +191,20 @@ int CpuBackend::event_tensors_id(const EventStream& events, const std::vector<Ev
   return buf;
 }
 
-void CpuBackend::physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) {
-  HostTensor& src = impl_->buf(rs);
-  HostTensor& dst = impl_->buf(out);
-  if (src.shape.n != 1 || !(dst.shape == src.shape))
-    throw Error("cpu backend: physics_unroll takes [1, C, H, W] buffers, got " + src.shape.str() + " -> " + dst.shape.str());
-  dst.data = physics_unroll_ref(src.data, static_cast<int>(src.shape.c), lists, params);
+void CpuBackend::physics_unroll(const BufferSlice& rs, const PixelEventLists& lists, const PhysicsUnrollParams& params,
+                                const BufferSlice& out) {
+  const HostTensor& src = impl_->buf(rs.buf);
+  HostTensor& dst = impl_->buf(out.buf);
+  const Shape item{1, src.shape.c, src.shape.h, src.shape.w};
+  if (rs.n != 1 || out.n != 1 || rs.c != src.shape.c || out.c != dst.shape.c ||
+      !(Shape{1, dst.shape.c, dst.shape.h, dst.shape.w} == item))
+    throw Error("cpu backend: physics_unroll takes one whole item [1, C, H, W] each, got " + src.shape.str() + " item " +
+                std::to_string(rs.n0) + " -> " + dst.shape.str() + " item " + std::to_string(out.n0));
+  const size_t n = static_cast<size_t>(item.count());
+  const std::vector<float> image(src.data.begin() + static_cast<std::ptrdiff_t>(rs.n0 * n),
+                                 src.data.begin() + static_cast<std::ptrdiff_t>((rs.n0 + 1) * n));
+  const std::vector<float> r = physics_unroll_ref(image, static_cast<int>(item.c), lists, params);
+  std::copy(r.begin(), r.end(), dst.data.begin() + static_cast<std::ptrdiff_t>(out.n0 * n));
 }
 
 void CpuBackend::hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,

@@ -323,19 +323,21 @@ int VulkanBackend::event_tensors_id(const EventStream& events, const std::vector
   return events_buf_;
 }
 
-void VulkanBackend::physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) {
+void VulkanBackend::physics_unroll(const BufferSlice& rs, const PixelEventLists& lists, const PhysicsUnrollParams& params,
+                                   const BufferSlice& out) {
   // The caller checked the image (check_physics_image); the lists' uploads are recorded in order.
   physics_.push_back(std::make_unique<PhysicsUnroll>(ctx_, lists, cs_.get()));
+  const Slice si = slice(tensor(rs.buf), rs), so = slice(tensor(out.buf), out);
   if (dtype_ == DType::f32) {
-    physics_.back()->record(*cs_, tensor(rs), const_cast<Tensor&>(tensor(out)), params);
+    physics_.back()->record(*cs_, si, so, params);
     return;
   }
   // fp16 buffers: the unroller's exponentials run in f32 between two conversions.
-  Tensor& rs32 = scratch_f32(tensor(rs).shape());
-  Tensor& out32 = scratch_f32(tensor(out).shape());
-  vkunroll::copy(*cs_, Slice(tensor(rs)), Slice(rs32));
+  Tensor& rs32 = scratch_f32(si.shape());
+  Tensor& out32 = scratch_f32(so.shape());
+  vkunroll::copy(*cs_, si, Slice(rs32));
   physics_.back()->record(*cs_, rs32, out32, params);
-  vkunroll::copy(*cs_, Slice(out32), Slice(tensor(out)));
+  vkunroll::copy(*cs_, Slice(out32), so);
 }
 
 void VulkanBackend::hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,

@@ -60,7 +60,8 @@ class VulkanBackend final : public Backend {
   void backward_warp(const BufferSlice& img, const BufferSlice& flow, const BufferSlice& out) override;
   void copy_rect(const BufferSlice& in, const BufferSlice& out, const Rect& src, int64_t dst_y, int64_t dst_x) override;
   void fill_rect(const BufferSlice& out, const Rect& rect, float value) override;
-  void physics_unroll(int rs, const PixelEventLists& lists, const PhysicsUnrollParams& params, int out) override;
+  void physics_unroll(const BufferSlice& rs, const PixelEventLists& lists, const PhysicsUnrollParams& params,
+                      const BufferSlice& out) override;
   void hardsigmoid_blend(const BufferSlice& score, const BufferSlice& a, const BufferSlice& b, const BufferSlice& m, const BufferSlice& out,
                          float forced) override;
   void flush() override;

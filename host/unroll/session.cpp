@@ -205,7 +205,6 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
   StageClock clock(*this, "physics");
   const std::vector<float>& rs = fp.rs1;
   const auto starts = in.timing1.start_times_us(), ends = in.timing1.end_times_us();
-  const int rs_buf = fp.rs1_buf.id();
   std::vector<std::pair<size_t, Buffer>> on_device;  // (target, output buffer)
   for (size_t j : which) {
     const PixelEventLists lists = gather_pixel_events(*in.events, targets[j].t_us.to_double(), starts, ends, 0, 0, W, H);
@@ -218,7 +217,7 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
       continue;
     }
     Buffer out = b.alloc({1, 3, H, W}, "physics");
-    b.physics_unroll(rs_buf, lists, physics_, out.id());
+    b.physics_unroll(fp.rs1_buf.whole(), lists, physics_, out.whole());
     on_device.emplace_back(j, std::move(out));
   }
   clock.next("download");
@@ -234,13 +233,12 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
 }
 
 Buffer UnrollSession::physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs) {
-  const int rs1 = fp.rs1_buf.id(), rs2 = fp.rs2_buf.id();  // rs2 -1: none
   Backend& b = *backend_;
   const int H = in.rs1.rows, W = in.rs1.cols;
   const int64_t B = static_cast<int64_t>(pairs.size());
   Buffer phys = b.alloc({B, 3, H, W}, "phys");
   for (int64_t i = 0; i < B; ++i) {
-    const bool second = rs2 >= 0 && i % 2 == 1;  // M: items 2k + 1 are the next frame
+    const bool second = fp.rs2_buf.id() >= 0 && i % 2 == 1;  // M: items 2k + 1 are the next frame
     const RowTiming& t = second ? in.timing2 : in.timing1;
     const PixelEventLists lists = gather_pixel_events(*in.events, pairs[size_t(i)].target_us.to_double(), t.start_times_us(),
                                                       t.end_times_us(), 0, 0, W, H);
@@ -250,9 +248,7 @@ Buffer UnrollSession::physics_input(const FrameInput& in, const FramePlanes& fp,
       stats_.physics_on_cpu++;
       continue;
     }
-    const Buffer out = b.alloc({1, 3, H, W}, "phys item");
-    b.physics_unroll(second ? rs2 : rs1, lists, physics_, out.id());
-    b.copy(out.whole(), dst);
+    b.physics_unroll((second ? fp.rs2_buf : fp.rs1_buf).whole(), lists, physics_, dst);  // into the batch, in place
   }
   return phys;
 }

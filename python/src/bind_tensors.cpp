@@ -21,7 +21,7 @@ std::vector<float> physics_planes(SharedContext* ctx, const std::vector<float>& 
   const Shape shape{1, channels, lists.height, lists.width};
   const Buffer in = b.alloc(shape, "physics rs"), out = b.alloc(shape, "physics out");
   b.upload(in.whole(), rs);
-  b.physics_unroll(in.id(), lists, prm, out.id());
+  b.physics_unroll(in.whole(), lists, prm, out.whole());
   std::vector<float> result(rs.size());
   b.download(out.whole(), result);
   b.flush();
