@@ -54,7 +54,8 @@ void check_physics_image(const std::vector<float>& rs, int channels, const Pixel
 std::vector<float> physics_unroll_ref(const std::vector<float>& rs, int channels, const PixelEventLists& ev,
                                       const PhysicsUnrollParams& params);
 
-// GPU version: uploads the lists and records one dispatch (one thread per pixel).
+// GPU version: uploads the lists and records two dispatches: every pixel keeps its value (what the
+// formula gives without events), then the pixels with events get the formula.
 class PhysicsUnroll {
  public:
   // Most events one pixel may have: the shader loops twice over them, and lavapipe silently ends
@@ -73,7 +74,8 @@ class PhysicsUnroll {
   Context& ctx_;
   int width_, height_;
   size_t events_;
-  Tensor offsets_, tau_, polarity_, rows_;
+  Tensor offsets_, tau_, polarity_, rows_, listed_;  // listed_: the pixels with events
+  size_t listed_count_ = 0;
 };
 
 }  // namespace vkunroll
