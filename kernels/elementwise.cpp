@@ -35,7 +35,7 @@ void convert(CommandStream& cs, Slice in, Slice out) {
   const bool to_f16 = out.t->dtype() == DType::f16;
   const double n = static_cast<double>(s.count());
   cs.dispatch(kernel_pipeline(ctx, to_f16 ? "convert_f32_to_f16" : "convert_f16_to_f32", {}, sizeof p), {bi.arg, bo.arg}, p,
-              Groups{static_cast<uint32_t>((s.plane() + 63) / 64), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},
+              Groups{static_cast<uint32_t>((s.plane() + 255) / 256), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},  // 4 an invocation
               {"convert", 0, 6.0 * n});
 }
 
@@ -62,7 +62,7 @@ void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slic
   cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, "elementwise", prec, name), {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)},
                            sizeof p),
               {ba.arg, bb.arg, bm.arg, bo.arg}, p,
-              Groups{static_cast<uint32_t>((s.plane() + 63) / 64), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},
+              Groups{static_cast<uint32_t>((s.plane() + 255) / 256), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},  // 4 an invocation
               {name, (op == kCopy || op == kClamp01) ? 0 : (op == kBlend ? 3 : 1) * n,
                eb * n * (2 + (b ? 1 : 0)) + (m ? eb * static_cast<double>(s.n * s.plane()) : 0)});
 }

@@ -18,17 +18,21 @@ layout(push_constant) uniform P {
   float scale;
 } p;
 void main() {
-  uint i = gl_GlobalInvocationID.x, c = gl_GlobalInvocationID.y, n = gl_GlobalInvocationID.z;
-  if (i >= p.plane || c >= p.c) return;
-  uint e = c * p.plane + i;
-  float va = float(a[p.a_off + n * p.a_bs + e]);
-  float v;
-  if (OP == 1u) v = va + float(b[p.b_off + n * p.b_bs + e]);
-  else if (OP == 2u) v = p.scale * act(va);
-  else if (OP == 3u) {
-    float mm = float(m[p.m_off + n * p.m_bs + i]);
-    v = mm * va + (1.0 - mm) * float(b[p.b_off + n * p.b_bs + e]);
-  } else if (OP == 4u) v = clamp(va, 0.0, 1.0);
-  else v = va;
-  y[p.out_off + n * p.out_bs + e] = to_s(v);
+  // Four elements an invocation, a grid's width apart (so that neighbouring lanes read neighbouring
+  // elements): llvmpipe's per-invocation cost outweighs one element's.
+  uint c = gl_GlobalInvocationID.y, n = gl_GlobalInvocationID.z, stride = gl_NumWorkGroups.x * 64u;
+  if (c >= p.c) return;
+  for (uint i = gl_GlobalInvocationID.x; i < p.plane; i += stride) {
+    uint e = c * p.plane + i;
+    float va = float(a[p.a_off + n * p.a_bs + e]);
+    float v;
+    if (OP == 1u) v = va + float(b[p.b_off + n * p.b_bs + e]);
+    else if (OP == 2u) v = p.scale * act(va);
+    else if (OP == 3u) {
+      float mm = float(m[p.m_off + n * p.m_bs + i]);
+      v = mm * va + (1.0 - mm) * float(b[p.b_off + n * p.b_bs + e]);
+    } else if (OP == 4u) v = clamp(va, 0.0, 1.0);
+    else v = va;
+    y[p.out_off + n * p.out_bs + e] = to_s(v);
+  }
 }

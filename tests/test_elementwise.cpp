@@ -27,7 +27,7 @@ constexpr Activation kActivations[] = {Activation::none, Activation::leaky_relu,
 optest::OpTest elementwise_test() {
   std::mt19937 rng(17);
   optest::OpTest test{"elementwise", {}, {kTol, kRelTolFp16, true}};
-  for (Shape s : {Shape{2, 5, 7, 9}, Shape{2, 3, 1, 1}, Shape{2, 6, 1, 13}}) {
+  for (Shape s : {Shape{2, 5, 7, 9}, Shape{2, 3, 1, 1}, Shape{2, 6, 1, 13}, Shape{2, 3, 37, 29}}) {
     optest::OpCase k;
     k.what = s.str();
     // One tensor holding two batch items and extra channels; ops read channel slices of it.
