@@ -28,7 +28,7 @@ void dispatch(CommandStream& cs, std::string shader, Slice in, Slice out, int64_
     shader += "_texel";
     if (prec == Precision::fp16) bi.arg.texel_format = VK_FORMAT_R16_SFLOAT;
   }
-  // crop.comp and reflection_pad_texel.comp copy four pixels of a row per invocation.
+  // crop, crop_texel and reflection_pad_texel copy four pixels of a row per invocation.
   const int64_t per_row = shader != "reflection_pad" ? (os.w + 3) / 4 : os.w;
   cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), {}, sizeof p), {bi.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((os.h * per_row + 63) / 64), static_cast<uint32_t>(os.c),
@@ -88,9 +88,9 @@ void reflection_pad_ref(HostSlice in, HostSliceOut out, const Pads& pads) {
               in.at(n, c, reflect_index(y - pads.top, in.height()), reflect_index(x - pads.left, in.width()));
 }
 
-void crop(CommandStream& cs, Slice in, Slice out, int64_t top, int64_t left) {
+void crop(CommandStream& cs, Slice in, Slice out, int64_t top, int64_t left, const PadOptions& opt) {
   check_crop("crop", in, out, top, left);
-  dispatch(cs, "crop", in, out, top, left);
+  dispatch(cs, "crop", in, out, top, left, opt.texel_fetch);
 }
 
 void crop_ref(HostSlice in, HostSliceOut out, int64_t top, int64_t left) {

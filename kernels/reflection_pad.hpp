@@ -22,7 +22,7 @@ int64_t reflect_index(int64_t i, int64_t size);
 
 struct PadOptions {
   // Read the input through a texel buffer (reflection_pad_texel.comp: 1.4x the storage-buffer
-  // form on lavapipe) where it fits one texel view; false: the storage-buffer form always.
+  // form on lavapipe; crop_texel.comp) where it fits one texel view; false: the storage-buffer form always.
   bool texel_fetch = true;
 };
 
@@ -31,7 +31,7 @@ void reflection_pad(CommandStream& cs, Slice in, Slice out, const Pads& pads, co
 void reflection_pad_ref(HostSlice in, HostSliceOut out, const Pads& pads);
 
 // out = in[top : top + out.h, left : left + out.w]; the window must lie inside in.
-void crop(CommandStream& cs, Slice in, Slice out, int64_t top, int64_t left);
+void crop(CommandStream& cs, Slice in, Slice out, int64_t top, int64_t left, const PadOptions& opt = {});
 void crop_ref(HostSlice in, HostSliceOut out, int64_t top, int64_t left);
 
 }  // namespace vkunroll

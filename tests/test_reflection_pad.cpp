@@ -30,8 +30,8 @@ TEST(ReflectionPad, ReflectIndexMatchesPyTorchWherePyTorchWorks) {
 
 namespace {
 // Pure data movement: bit-exact, in fp16 too (against the reference on the inputs as fp16 stores
-// them). Both outputs are slices among canaries. texel: the pad's texel-fetch form, else its
-// storage-buffer form.
+// them). Both outputs are slices among canaries. texel: the pad's and the crop's texel-fetch forms,
+// else their storage-buffer forms.
 optest::OpTest pad_and_crop_test(bool texel) {
   std::mt19937 rng(7);
   optest::OpTest test{texel ? "reflection_pad (texel) + crop" : "reflection_pad (storage) + crop", {}, {0, 0, false, true}};
@@ -50,7 +50,7 @@ optest::OpTest pad_and_crop_test(bool texel) {
     };
     k.record = [c, pads, texel](optest::DeviceRun& d) {
       reflection_pad(d.stream, Slice(d.inputs[0], c.c0, c.c), d.out(0), pads, PadOptions{texel});
-      crop(d.stream, d.out(0), d.out(1), pads.top, pads.left);
+      crop(d.stream, d.out(0), d.out(1), pads.top, pads.left, PadOptions{texel});
       return true;
     };
     // The crop undoes the pad.
