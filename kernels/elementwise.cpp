@@ -35,7 +35,7 @@ void convert(CommandStream& cs, Slice in, Slice out) {
   const bool to_f16 = out.t->dtype() == DType::f16;
   const double n = static_cast<double>(s.count());
   cs.dispatch(kernel_pipeline(ctx, to_f16 ? "convert_f32_to_f16" : "convert_f16_to_f32", {}, sizeof p), {bi.arg, bo.arg}, p,
-              Groups{static_cast<uint32_t>((s.plane() + 255) / 256), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},  // 4 an invocation
+              Groups{static_cast<uint32_t>((s.plane() + 63) / 64), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},
               {"convert", 0, 6.0 * n});
 }
 

@@ -68,7 +68,7 @@ TEST(Elementwise, EveryOpMatchesReferenceInBothPrecisions) { optest::run_op_test
 TEST(Elementwise, CopyConvertsBetweenFp32AndFp16Slices) {
   Context& ctx = vktest::context();
   std::mt19937 rng(23);
-  HostTensor a = random_tensor({2, 3, 5, 7}, rng, -3.f, 3.f);
+  HostTensor a = random_tensor({2, 3, 11, 13}, rng, -3.f, 3.f);  // 143-pixel planes: three workgroups
   a.at(0, 0, 0, 0) = 1e6f;    // beyond fp16: saturates, never Inf
   a.at(1, 2, 4, 6) = -7e4f;
   a.at(0, 1, 2, 3) = NAN;      // stays NaN
@@ -83,8 +83,8 @@ TEST(Elementwise, CopyConvertsBetweenFp32AndFp16Slices) {
   EXPECT_EQ(canary_damage(ff, fs), "");
   for (int64_t n = 0; n < 2; ++n)
     for (int64_t c = 0; c < 3; ++c)
-      for (int64_t y = 0; y < 5; ++y)
-        for (int64_t x = 0; x < 7; ++x) {
+      for (int64_t y = 0; y < 11; ++y)
+        for (int64_t x = 0; x < 13; ++x) {
           const float v = a.at(n, c, y, x), got = ff.at(fs.n0 + n, fs.c0 + c, y, x);
           if (std::isnan(v)) {
             EXPECT_TRUE(std::isnan(got));
