@@ -138,16 +138,8 @@ struct PhysicsPush {
   int32_t width, height, channels;
   float contrast, gamma, max_value, log_offset, keep_max;
   uint32_t rs_off, out_off;
-  uint32_t count, row_stride;
+  uint32_t count;
 };
-
-// Invocation grid of 64-wide workgroups for `count` items: (x groups, y rows), x * 64 per row
-// (one dimension would stop at 65535 groups, 4.2M pixels).
-std::pair<uint32_t, uint32_t> grid_of(size_t count) {
-  const size_t groups = std::max<size_t>(1, (count + 63) / 64);
-  const size_t x = std::min<size_t>(groups, 4096);
-  return {static_cast<uint32_t>(x), static_cast<uint32_t>((groups + x - 1) / x)};
-}
 template <class T>
 Tensor upload_vector(Context& ctx, const std::vector<T>& v, DType dt, CommandStream* cs) {
   Tensor t(ctx, {1, 1, 1, std::max<int64_t>(1, static_cast<int64_t>(v.size()))}, dt);
@@ -210,17 +202,15 @@ void PhysicsUnroll::record(CommandStream& cs, Slice rs, Slice result, const Phys
       static_cast<float>(std::pow(double(params.max_value) - double(params.log_offset), 1.0 / double(params.gamma)));
   const size_t pixels = static_cast<size_t>(width_) * height_;
   PhysicsPush p{width_,   height_,   static_cast<int32_t>(s.c), params.contrast, params.gamma, params.max_value,
-                params.log_offset, keep_max, bi.offset, bo.offset, 0, 0};
+                params.log_offset, keep_max, bi.offset, bo.offset, 0};
   const std::vector<Arg> args{in(offsets_), in(tau_), in(polarity_), in(rows_), bi.arg, bo.arg, in(listed_)};
   // Pass 0 over every pixel, then pass 1 over the listed ones (after it: the runtime orders the writes).
   for (uint32_t pass : {0u, 1u}) {
     const size_t count = pass == 0 ? (pixels + 3) / 4 : listed_count_;  // pass 0: four pixels an invocation
     if (count == 0) continue;
-    const auto [gx, gy] = grid_of(count);
     p.count = static_cast<uint32_t>(count);
-    p.row_stride = gx * 64;
     const double n = static_cast<double>(count);
-    cs.dispatch(kernel_pipeline(ctx_, "physics_unroll", {pass}, sizeof p), args, p, {gx, gy},
+    cs.dispatch(kernel_pipeline(ctx_, "physics_unroll", {pass}, sizeof p), args, p, flat_groups(static_cast<int64_t>(count), 1),
                 pass == 0 ? DispatchInfo{"physics_unroll_keep", 0, 8.0 * static_cast<double>(pixels * s.c)}
                           : DispatchInfo{"physics_unroll", 10.0 * (n + 2.0 * events_), 4.0 * (2 * events_ + n * (2 + 2 * s.c))});
   }

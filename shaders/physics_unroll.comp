@@ -18,11 +18,11 @@ layout(push_constant) uniform P {
   int width, height, channels;
   float contrast, gamma, max_value, log_offset, keep_max;
   uint rs_off, out_off;  // element offsets of the image and of the output item (a batch's item)
-  uint count, row_stride;  // invocations (pass 0: a quarter of the pixels; pass 1: the listed); per grid row
+  uint count;  // invocations (pass 0: a quarter of the pixels; pass 1: the listed pixels)
 } p;
 
 void main() {
-  const uint k = gl_GlobalInvocationID.y * p.row_stride + gl_GlobalInvocationID.x;
+  const uint k = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;  // flat_groups
   if (k >= p.count) return;
   const int plane = p.width * p.height;
   if (PASS == 0) {  // four pixels an invocation: llvmpipe's per-invocation cost outweighs one copy

@@ -210,8 +210,8 @@ TEST(PhysicsUnroll, WritesOneItemOfABatchInPlace) {
   EXPECT_THROW(op.record(cs, Slice(rs_t, 0, 2, 0, 1), Slice(out_t, 0, 2, 0, 1), prm), Error);
 }
 
-// More than 4096 x 64 invocations in each pass (1.1M pixels: pass 0 runs four an invocation; some
-// 350k pixels with events): both passes span two rows of their grid and still cover every pixel once.
+// A large image (1.1M pixels: pass 0 runs four an invocation; some 350k pixels with events, over
+// 4096 x 64): both passes cover every pixel, against the reference.
 TEST(PhysicsUnroll, LargeImagesSpanSeveralGridRows) {
   std::mt19937 rng(5);
   const int W = 1100, H = 1000;
