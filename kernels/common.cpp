@@ -156,6 +156,14 @@ bool texel_view_fits(const DeviceInfo& info, uint64_t bytes, uint64_t texel_byte
   return bytes / texel_bytes <= info.max_texel_buffer_elements;
 }
 
+std::string texel_read_shader(const Context& ctx, const std::string& shader, BoundSlice& in, Precision prec,
+                              const TexelReadOptions& opt) {
+  const uint64_t element = static_cast<uint64_t>(dtype_size(precision_dtype(prec)));
+  if (!opt.texel_fetch || !texel_view_fits(ctx.info(), in.arg.range.size, element)) return shader;
+  if (prec == Precision::fp16) in.arg.texel_format = VK_FORMAT_R16_SFLOAT;
+  return shader + "_texel";
+}
+
 UniformSlabChunks uniform_slab_chunks(const DeviceInfo& info, int64_t cin, int64_t bytes_per_channel, int64_t limit) {
   UniformSlabChunks c;
   // At least 16 bytes: the fp16 slabs are read as std140 uvec4s (8 weights each) from the slab start.

@@ -135,4 +135,16 @@ struct BoundSlice {
 };
 BoundSlice bind_slice(const Slice& s, Access access);
 
+// How a data-movement op (reflection_pad, crop, space_to_depth, depth_to_space) reads its input:
+// through a uniform texel buffer (its "<shader>_texel" form; on llvmpipe a texel fetch is one
+// gather, a storage-buffer load a loop over the lanes) where the bound input fits one texel view,
+// or always as a storage buffer (texel_fetch = false).
+struct TexelReadOptions {
+  bool texel_fetch = true;
+};
+// `shader`, or its texel form with `in` bound as R32 (R16 in fp16) texels where `opt` asks for it
+// and the bound input fits one texel view.
+std::string texel_read_shader(const Context& ctx, const std::string& shader, BoundSlice& in, Precision prec,
+                              const TexelReadOptions& opt);
+
 }  // namespace vkunroll

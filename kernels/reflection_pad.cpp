@@ -2,6 +2,7 @@
 #include "vkunroll/kernels/reflection_pad.hpp"
 
 #include <string>
+#include <vector>
 
 #include "vkunroll/runtime/context.hpp"
 
@@ -12,7 +13,9 @@ struct PadPush {
   uint32_t in_off, in_bs, out_off, out_bs, c, h, w, oh, ow, top, left;
 };
 
-void dispatch(CommandStream& cs, std::string shader, Slice in, Slice out, int64_t top, int64_t left, bool texel_fetch = false) {
+// `spec`: the shader's specialization constants (reflection_pad: REFLECT_ONCE).
+void dispatch(CommandStream& cs, const std::string& op, Slice in, Slice out, int64_t top, int64_t left,
+              const TexelReadOptions& opt, const std::vector<uint32_t>& spec = {}) {
   const Shape is = in.shape(), os = out.shape();
   BoundSlice bi = bind_slice(in, Access::read);
   const BoundSlice bo = bind_slice(out, Access::write);
@@ -21,16 +24,11 @@ void dispatch(CommandStream& cs, std::string shader, Slice in, Slice out, int64_
             static_cast<uint32_t>(os.w), static_cast<uint32_t>(top), static_cast<uint32_t>(left)};
   Context& ctx = in.t->context();
   const Precision prec = slice_precision(in);
-  check_precision(out, prec, shader, "output");
-  // The texel form where the bound input fits one texel view (R32, R16 in fp16).
-  const uint64_t element = static_cast<uint64_t>(dtype_size(in.t->dtype()));
-  if (texel_fetch && texel_view_fits(ctx.info(), bi.arg.range.size, element)) {
-    shader += "_texel";
-    if (prec == Precision::fp16) bi.arg.texel_format = VK_FORMAT_R16_SFLOAT;
-  }
+  check_precision(out, prec, op, "output");
+  const std::string shader = texel_read_shader(ctx, op, bi, prec, opt);
   // crop, crop_texel and reflection_pad_texel copy four pixels of a row per invocation.
   const int64_t per_row = shader != "reflection_pad" ? (os.w + 3) / 4 : os.w;
-  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), {}, sizeof p), {bi.arg, bo.arg}, p,
+  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), spec, sizeof p), {bi.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((os.h * per_row + 63) / 64), static_cast<uint32_t>(os.c),
                      static_cast<uint32_t>(os.n)},
               {shader, 0, 2.0 * static_cast<double>(dtype_size(in.t->dtype())) * static_cast<double>(os.count())});
@@ -73,9 +71,12 @@ int64_t reflect_index(int64_t i, int64_t size) {
   return i >= size ? period - i : i;
 }
 
-void reflection_pad(CommandStream& cs, Slice in, Slice out, const Pads& pads, const PadOptions& opt) {
+void reflection_pad(CommandStream& cs, Slice in, Slice out, const Pads& pads, const TexelReadOptions& opt) {
   check_pad("reflection_pad", in, out, pads);
-  dispatch(cs, "reflection_pad", in, out, pads.top, pads.left, opt.texel_fetch);
+  // One reflection per axis (reflect_index.glsl's REFLECT_ONCE) where every pad is below its axis.
+  const Shape is = in.shape();
+  const bool once = is.h > 1 && is.w > 1 && pads.top < is.h && pads.bottom < is.h && pads.left < is.w && pads.right < is.w;
+  dispatch(cs, "reflection_pad", in, out, pads.top, pads.left, opt, {once ? 1u : 0u});
 }
 
 void reflection_pad_ref(HostSlice in, HostSliceOut out, const Pads& pads) {
@@ -88,9 +89,9 @@ void reflection_pad_ref(HostSlice in, HostSliceOut out, const Pads& pads) {
               in.at(n, c, reflect_index(y - pads.top, in.height()), reflect_index(x - pads.left, in.width()));
 }
 
-void crop(CommandStream& cs, Slice in, Slice out, int64_t top, int64_t left, const PadOptions& opt) {
+void crop(CommandStream& cs, Slice in, Slice out, int64_t top, int64_t left, const TexelReadOptions& opt) {
   check_crop("crop", in, out, top, left);
-  dispatch(cs, "crop", in, out, top, left, opt.texel_fetch);
+  dispatch(cs, "crop", in, out, top, left, opt);
 }
 
 void crop_ref(HostSlice in, HostSliceOut out, int64_t top, int64_t left) {

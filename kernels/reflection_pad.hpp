@@ -20,18 +20,12 @@ Pads size_adapter_pads(int64_t h, int64_t w, int64_t multiple = 32);
 // The source index a padded index maps to (the rule above), for an axis of `size` values.
 int64_t reflect_index(int64_t i, int64_t size);
 
-struct PadOptions {
-  // Read the input through a texel buffer (reflection_pad_texel.comp: 1.4x the storage-buffer
-  // form on lavapipe; crop_texel.comp) where it fits one texel view; false: the storage-buffer form always.
-  bool texel_fetch = true;
-};
-
 // out (h + top + bottom, w + left + right) = reflection padding of in.
-void reflection_pad(CommandStream& cs, Slice in, Slice out, const Pads& pads, const PadOptions& opt = {});
+void reflection_pad(CommandStream& cs, Slice in, Slice out, const Pads& pads, const TexelReadOptions& opt = {});
 void reflection_pad_ref(HostSlice in, HostSliceOut out, const Pads& pads);
 
 // out = in[top : top + out.h, left : left + out.w]; the window must lie inside in.
-void crop(CommandStream& cs, Slice in, Slice out, int64_t top, int64_t left, const PadOptions& opt = {});
+void crop(CommandStream& cs, Slice in, Slice out, int64_t top, int64_t left, const TexelReadOptions& opt = {});
 void crop_ref(HostSlice in, HostSliceOut out, int64_t top, int64_t left);
 
 }  // namespace vkunroll

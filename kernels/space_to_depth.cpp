@@ -16,17 +16,21 @@ void check_shapes(const std::string& op, const S& in, const Shape& out, const Sh
   if (out != expect) throw Error(op + ": output " + out.str() + ", expected " + expect.str() + " for input " + in.shape().str());
 }
 
-void dispatch(CommandStream& cs, const char* shader, Slice in, Slice out) {
+void dispatch(CommandStream& cs, const std::string& op, Slice in, Slice out, const TexelReadOptions& opt) {
   const Shape is = in.shape(), os = out.shape();
-  const BoundSlice bi = bind_slice(in, Access::read), bo = bind_slice(out, Access::write);
+  BoundSlice bi = bind_slice(in, Access::read);
+  const BoundSlice bo = bind_slice(out, Access::write);
   S2DPush p{bi.offset, bi.batch_stride, bo.offset, bo.batch_stride, static_cast<uint32_t>(os.c),
             static_cast<uint32_t>(is.h), static_cast<uint32_t>(is.w), static_cast<uint32_t>(os.h),
             static_cast<uint32_t>(os.w)};
   Context& ctx = in.t->context();
   const Precision prec = slice_precision(in);
-  check_precision(out, prec, shader, "output");
+  check_precision(out, prec, op, "output");
+  const std::string shader = texel_read_shader(ctx, op, bi, prec, opt);
+  // The texel forms write four values of an output row per invocation.
+  const int64_t per_row = shader != op ? (os.w + 3) / 4 : os.w;
   cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), {}, sizeof p), {bi.arg, bo.arg}, p,
-              Groups{static_cast<uint32_t>((os.h * os.w + 63) / 64), static_cast<uint32_t>(os.c),
+              Groups{static_cast<uint32_t>((os.h * per_row + 63) / 64), static_cast<uint32_t>(os.c),
                      static_cast<uint32_t>(os.n)},
               {shader, 0, 2.0 * static_cast<double>(dtype_size(in.t->dtype())) * static_cast<double>(os.count())});
 }
@@ -39,16 +43,16 @@ Shape depth_to_space_shape(const Shape& in) {
   return {in.n, in.c / 4, in.h * 2, in.w * 2};
 }
 
-void space_to_depth(CommandStream& cs, Slice in, Slice out) {
+void space_to_depth(CommandStream& cs, Slice in, Slice out, const TexelReadOptions& opt) {
   check_slice(out, "space_to_depth", "output");
   check_shapes("space_to_depth", in, out.shape(), space_to_depth_shape(in.shape()));
-  dispatch(cs, "space_to_depth", in, out);
+  dispatch(cs, "space_to_depth", in, out, opt);
 }
 
-void depth_to_space(CommandStream& cs, Slice in, Slice out) {
+void depth_to_space(CommandStream& cs, Slice in, Slice out, const TexelReadOptions& opt) {
   check_slice(out, "depth_to_space", "output");
   check_shapes("depth_to_space", in, out.shape(), depth_to_space_shape(in.shape()));
-  dispatch(cs, "depth_to_space", in, out);
+  dispatch(cs, "depth_to_space", in, out, opt);
 }
 
 void space_to_depth_ref(HostSlice in, HostSliceOut out) {

@@ -11,8 +11,8 @@ namespace vkunroll {
 Shape space_to_depth_shape(const Shape& in);  // {n, 4c, ceil(h/2), ceil(w/2)}
 Shape depth_to_space_shape(const Shape& in);  // {n, c/4, 2h, 2w}; c must be a multiple of 4
 
-void space_to_depth(CommandStream& cs, Slice in, Slice out);
-void depth_to_space(CommandStream& cs, Slice in, Slice out);
+void space_to_depth(CommandStream& cs, Slice in, Slice out, const TexelReadOptions& opt = {});
+void depth_to_space(CommandStream& cs, Slice in, Slice out, const TexelReadOptions& opt = {});
 
 void space_to_depth_ref(HostSlice in, HostSliceOut out);
 void depth_to_space_ref(HostSlice in, HostSliceOut out);

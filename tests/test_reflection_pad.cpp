@@ -31,13 +31,15 @@ TEST(ReflectionPad, ReflectIndexMatchesPyTorchWherePyTorchWorks) {
 namespace {
 // Pure data movement: bit-exact, in fp16 too (against the reference on the inputs as fp16 stores
 // them). Both outputs are slices among canaries. texel: the pad's and the crop's texel-fetch forms,
-// else their storage-buffer forms.
+// else their storage-buffer forms. 20x30 and 12x21 reflect once (REFLECT_ONCE, no pad reaches its
+// axis); 11x12 does not (its bottom pad, 11, reaches its height), nor do the rest.
 optest::OpTest pad_and_crop_test(bool texel) {
   std::mt19937 rng(7);
   optest::OpTest test{texel ? "reflection_pad (texel) + crop" : "reflection_pad (storage) + crop", {}, {0, 0, false, true}};
   struct C { int64_t n, c, h, w, extra, c0; };
   for (const C& c : std::vector<C>{{1, 3, 20, 30, 0, 0}, {2, 5, 33, 7, 3, 2}, {1, 2, 1, 13, 0, 0}, {1, 1, 1, 1, 1, 1},
-                                   {1, 67, 5, 9, 0, 0}}) {
+                                   {1, 67, 5, 9, 0, 0}, {1, 2, 11, 12, 0, 0},
+                                   {1, 2, 12, 21, 1, 1}}) {
     const Pads pads = size_adapter_pads(c.h, c.w);
     optest::OpCase k;
     k.what = Shape{c.n, c.c, c.h, c.w}.str();
@@ -49,8 +51,8 @@ optest::OpTest pad_and_crop_test(bool texel) {
       crop_ref(r.written(0), r.out(1), pads.top, pads.left);
     };
     k.record = [c, pads, texel](optest::DeviceRun& d) {
-      reflection_pad(d.stream, Slice(d.inputs[0], c.c0, c.c), d.out(0), pads, PadOptions{texel});
-      crop(d.stream, d.out(0), d.out(1), pads.top, pads.left, PadOptions{texel});
+      reflection_pad(d.stream, Slice(d.inputs[0], c.c0, c.c), d.out(0), pads, TexelReadOptions{texel});
+      crop(d.stream, d.out(0), d.out(1), pads.top, pads.left, TexelReadOptions{texel});
       return true;
     };
     // The crop undoes the pad.

@@ -12,13 +12,16 @@ using namespace vkunroll::ktest;
 
 namespace {
 // Pure data movement: the GPU result must be bit-exact (tolerance 0), in fp16 too (against the
-// reference on the inputs as fp16 stores them). Both outputs are slices among canaries.
-optest::OpTest space_to_depth_test() {
+// reference on the inputs as fp16 stores them). Both outputs are slices among canaries. texel: the
+// texel-fetch forms (four values of a row per invocation: widths of 1-19 cover partial and several
+// quads), else the storage-buffer forms.
+optest::OpTest space_to_depth_test(bool texel) {
   std::mt19937 rng(5);
-  optest::OpTest test{"space_to_depth + depth_to_space", {}, {0, 0, false, true}};
+  optest::OpTest test{texel ? "space_to_depth + depth_to_space (texel)" : "space_to_depth + depth_to_space (storage)",
+                      {}, {0, 0, false, true}};
   struct C { int64_t n, c, h, w, extra_in, c0_in, extra_out, c0_out; };
   for (const C& c : std::vector<C>{{1, 3, 8, 6, 0, 0, 0, 0}, {2, 5, 7, 9, 2, 1, 4, 4}, {1, 1, 1, 1, 0, 0, 0, 0},
-                                   {1, 2, 1, 13, 1, 1, 0, 0}, {1, 99, 12, 10, 0, 0, 0, 0}}) {
+                                   {1, 2, 1, 13, 1, 1, 0, 0}, {1, 99, 12, 10, 0, 0, 0, 0}, {2, 3, 5, 37, 1, 0, 2, 1}}) {
     const Shape os = space_to_depth_shape({c.n, c.c, c.h, c.w});
     optest::OpCase k;
     k.what = Shape{c.n, c.c, c.h, c.w}.str();
@@ -29,9 +32,9 @@ optest::OpTest space_to_depth_test() {
       space_to_depth_ref(HostSlice(r.inputs[0], c.c0_in, c.c), r.out(0));
       depth_to_space_ref(r.written(0), r.out(1));
     };
-    k.record = [c](optest::DeviceRun& d) {
-      space_to_depth(d.stream, Slice(d.inputs[0], c.c0_in, c.c), d.out(0));
-      depth_to_space(d.stream, d.out(0), d.out(1));
+    k.record = [c, texel](optest::DeviceRun& d) {
+      space_to_depth(d.stream, Slice(d.inputs[0], c.c0_in, c.c), d.out(0), TexelReadOptions{texel});
+      depth_to_space(d.stream, d.out(0), d.out(1), TexelReadOptions{texel});
       return true;
     };
     k.check = [c, os](const optest::HostRun& r, const std::vector<HostTensor>& got) {
@@ -48,11 +51,11 @@ optest::OpTest space_to_depth_test() {
 }  // namespace
 
 TEST(SpaceToDepth, MatchesReferenceOnOddSizesAndSlicesInBothPrecisions) {
-  optest::run_op_test(vktest::context(), space_to_depth_test());
+  for (bool texel : {true, false}) optest::run_op_test(vktest::context(), space_to_depth_test(texel));
 }
 // On a context that binds whole tensors a write outside an output slice lands on a canary.
 TEST(SpaceToDepth, WritesNothingOutsideItsSlice) {
-  optest::run_op_test(vktest::whole_binding_context(), space_to_depth_test());
+  for (bool texel : {true, false}) optest::run_op_test(vktest::whole_binding_context(), space_to_depth_test(texel));
 }
 
 TEST(SpaceToDepth, PixelUnshuffleChannelOrder) {
