@@ -156,11 +156,14 @@ bool texel_view_fits(const DeviceInfo& info, uint64_t bytes, uint64_t texel_byte
   return bytes / texel_bytes <= info.max_texel_buffer_elements;
 }
 
-std::string texel_read_shader(const Context& ctx, const std::string& shader, BoundSlice& in, Precision prec,
-                              const TexelReadOptions& opt) {
+std::string texel_read_shader(const Context& ctx, const std::string& shader, std::initializer_list<BoundSlice*> ins,
+                              Precision prec, const TexelReadOptions& opt) {
   const uint64_t element = static_cast<uint64_t>(dtype_size(precision_dtype(prec)));
-  if (!opt.texel_fetch || !texel_view_fits(ctx.info(), in.arg.range.size, element)) return shader;
-  if (prec == Precision::fp16) in.arg.texel_format = VK_FORMAT_R16_SFLOAT;
+  if (!opt.texel_fetch) return shader;
+  for (const BoundSlice* in : ins)
+    if (!texel_view_fits(ctx.info(), in->arg.range.size, element)) return shader;
+  if (prec == Precision::fp16)
+    for (BoundSlice* in : ins) in->arg.texel_format = VK_FORMAT_R16_SFLOAT;
   return shader + "_texel";
 }
 

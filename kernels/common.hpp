@@ -3,6 +3,7 @@
 // of a larger tensor: dense concatenations cost no copy.
 #pragma once
 #include <cstdint>
+#include <initializer_list>
 #include <string>
 #include <vector>
 
@@ -135,16 +136,16 @@ struct BoundSlice {
 };
 BoundSlice bind_slice(const Slice& s, Access access);
 
-// How a data-movement op (reflection_pad, crop, space_to_depth, depth_to_space) reads its input:
-// through a uniform texel buffer (its "<shader>_texel" form; on llvmpipe a texel fetch is one
-// gather, a storage-buffer load a loop over the lanes) where the bound input fits one texel view,
-// or always as a storage buffer (texel_fetch = false).
+// How a memory-bound op (reflection_pad, crop, space_to_depth, depth_to_space, the elementwise ops)
+// reads its inputs: through uniform texel buffers (its "<shader>_texel" form; on llvmpipe a texel
+// fetch is one gather, a storage-buffer load a loop over the lanes) where every bound input fits
+// one texel view, or always as storage buffers (texel_fetch = false).
 struct TexelReadOptions {
   bool texel_fetch = true;
 };
-// `shader`, or its texel form with `in` bound as R32 (R16 in fp16) texels where `opt` asks for it
-// and the bound input fits one texel view.
-std::string texel_read_shader(const Context& ctx, const std::string& shader, BoundSlice& in, Precision prec,
-                              const TexelReadOptions& opt);
+// `shader`, or its texel form with `ins` bound as R32 (R16 in fp16) texels where `opt` asks for it
+// and each bound input fits one texel view.
+std::string texel_read_shader(const Context& ctx, const std::string& shader, std::initializer_list<BoundSlice*> ins,
+                              Precision prec, const TexelReadOptions& opt);
 
 }  // namespace vkunroll

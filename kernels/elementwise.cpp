@@ -39,7 +39,8 @@ void convert(CommandStream& cs, Slice in, Slice out) {
               {"convert", 0, 6.0 * n});
 }
 
-void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slice out, Act act, float scale) {
+void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slice out, Act act, float scale,
+         const TexelReadOptions& opt) {
   const std::string name = kOpNames[op];
   check_slice(a, name, "input");
   const Shape s = a.shape();
@@ -52,15 +53,20 @@ void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slic
   check_precision(out, prec, name, "output");
   if (b) check_precision(*b, prec, name, "second input");
   if (m) check_precision(*m, prec, name, "mask");
+  // The shader covers four elements an invocation in four steps, no loop: one grid row must hold a plane.
+  if ((s.plane() + 255) / 256 > 65535)
+    throw Error(name + ": a plane of " + std::to_string(s.plane()) + " values exceeds one dispatch's 65535 x 256");
   const double eb = static_cast<double>(dtype_size(precision_dtype(prec)));
-  const BoundSlice ba = bind_slice(a, Access::read), bo = bind_slice(out, Access::write);
-  const BoundSlice bb = b ? bind_slice(*b, Access::read) : ba, bm = m ? bind_slice(*m, Access::read) : ba;
+  BoundSlice ba = bind_slice(a, Access::read);
+  const BoundSlice bo = bind_slice(out, Access::write);
+  BoundSlice bb = b ? bind_slice(*b, Access::read) : ba, bm = m ? bind_slice(*m, Access::read) : ba;
   EwPush p{ba.offset, ba.batch_stride, bb.offset, bb.batch_stride, bm.offset, bm.batch_stride, bo.offset,
            bo.batch_stride, static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.plane()), scale};
   Context& ctx = a.t->context();
   const double n = static_cast<double>(s.count());
-  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, "elementwise", prec, name), {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)},
-                           sizeof p),
+  const std::string shader = texel_read_shader(ctx, "elementwise", {&ba, &bb, &bm}, prec, opt);
+  cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, name), {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)},
+                              sizeof p),
               {ba.arg, bb.arg, bm.arg, bo.arg}, p,
               Groups{static_cast<uint32_t>((s.plane() + 255) / 256), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},  // 4 an invocation
               {name, (op == kCopy || op == kClamp01) ? 0 : (op == kBlend ? 3 : 1) * n,
@@ -78,13 +84,21 @@ void host_map(const std::string& op, HostSlice a, HostSliceOut out, F f) {
 }
 }  // namespace
 
-void copy(CommandStream& cs, Slice in, Slice out) { run(cs, kCopy, in, nullptr, nullptr, out, {}, 1.f); }
-void add(CommandStream& cs, Slice a, Slice b, Slice out) { run(cs, kAdd, a, &b, nullptr, out, {}, 1.f); }
-void scale_act(CommandStream& cs, Slice in, Slice out, Act act, float scale) {
-  run(cs, kScaleAct, in, nullptr, nullptr, out, act, scale);
+void copy(CommandStream& cs, Slice in, Slice out, const TexelReadOptions& opt) {
+  run(cs, kCopy, in, nullptr, nullptr, out, {}, 1.f, opt);
 }
-void blend(CommandStream& cs, Slice m, Slice a, Slice b, Slice out) { run(cs, kBlend, a, &b, &m, out, {}, 1.f); }
-void clamp01(CommandStream& cs, Slice in, Slice out) { run(cs, kClamp01, in, nullptr, nullptr, out, {}, 1.f); }
+void add(CommandStream& cs, Slice a, Slice b, Slice out, const TexelReadOptions& opt) {
+  run(cs, kAdd, a, &b, nullptr, out, {}, 1.f, opt);
+}
+void scale_act(CommandStream& cs, Slice in, Slice out, Act act, float scale, const TexelReadOptions& opt) {
+  run(cs, kScaleAct, in, nullptr, nullptr, out, act, scale, opt);
+}
+void blend(CommandStream& cs, Slice m, Slice a, Slice b, Slice out, const TexelReadOptions& opt) {
+  run(cs, kBlend, a, &b, &m, out, {}, 1.f, opt);
+}
+void clamp01(CommandStream& cs, Slice in, Slice out, const TexelReadOptions& opt) {
+  run(cs, kClamp01, in, nullptr, nullptr, out, {}, 1.f, opt);
+}
 
 void copy_ref(HostSlice in, HostSliceOut out) {
   host_map("copy_ref", in, out, [&](int64_t n, int64_t c, int64_t y, int64_t x) { return in.at(n, c, y, x); });

@@ -25,7 +25,7 @@ void dispatch(CommandStream& cs, const std::string& op, Slice in, Slice out, int
   Context& ctx = in.t->context();
   const Precision prec = slice_precision(in);
   check_precision(out, prec, op, "output");
-  const std::string shader = texel_read_shader(ctx, op, bi, prec, opt);
+  const std::string shader = texel_read_shader(ctx, op, {&bi}, prec, opt);
   // crop, crop_texel and reflection_pad_texel copy four pixels of a row per invocation.
   const int64_t per_row = shader != "reflection_pad" ? (os.w + 3) / 4 : os.w;
   cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), spec, sizeof p), {bi.arg, bo.arg}, p,

@@ -26,7 +26,7 @@ void dispatch(CommandStream& cs, const std::string& op, Slice in, Slice out, con
   Context& ctx = in.t->context();
   const Precision prec = slice_precision(in);
   check_precision(out, prec, op, "output");
-  const std::string shader = texel_read_shader(ctx, op, bi, prec, opt);
+  const std::string shader = texel_read_shader(ctx, op, {&bi}, prec, opt);
   // The texel forms write four values of an output row per invocation.
   const int64_t per_row = shader != op ? (os.w + 3) / 4 : os.w;
   cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, shader), {}, sizeof p), {bi.arg, bo.arg}, p,

@@ -23,10 +23,11 @@ constexpr Activation kActivations[] = {Activation::none, Activation::leaky_relu,
                                        Activation::sigmoid, Activation::hardsigmoid};
 
 // Every op into its own slice among canaries, one case a shape: add, copy, clamp01, scale_act with
-// each activation (x100: its fp32 tolerance scales with it) and blend across batch items.
-optest::OpTest elementwise_test() {
+// each activation (x100: its fp32 tolerance scales with it) and blend across batch items. texel: the
+// inputs through texel buffers (elementwise_texel.comp), else as storage buffers.
+optest::OpTest elementwise_test(bool texel) {
   std::mt19937 rng(17);
-  optest::OpTest test{"elementwise", {}, {kTol, kRelTolFp16, true}};
+  optest::OpTest test{texel ? "elementwise (texel)" : "elementwise (storage)", {}, {kTol, kRelTolFp16, true}};
   for (Shape s : {Shape{2, 5, 7, 9}, Shape{2, 3, 1, 1}, Shape{2, 6, 1, 13}, Shape{2, 3, 37, 29}}) {
     optest::OpCase k;
     k.what = s.str();
@@ -45,14 +46,16 @@ optest::OpTest elementwise_test() {
       blend_ref(HostSlice(r.inputs[1], 0, 1, 0, 1), HostSlice(r.inputs[0], 0, s.c, 0, 1),
                 HostSlice(r.inputs[0], 0, s.c, 1, 1), r.out(8));
     };
-    k.record = [s](optest::DeviceRun& d) {
+    k.record = [s, texel](optest::DeviceRun& d) {
       const Slice a(d.inputs[0], 0, s.c), b(d.inputs[0], s.c, s.c);
-      add(d.stream, a, b, d.out(0));
-      copy(d.stream, b, d.out(1));
-      clamp01(d.stream, a, d.out(2));
-      for (size_t i = 0; i < std::size(kActivations); ++i) scale_act(d.stream, a, d.out(3 + i), {kActivations[i], 0.2f}, 100.f);
+      const TexelReadOptions o{texel};
+      add(d.stream, a, b, d.out(0), o);
+      copy(d.stream, b, d.out(1), o);
+      clamp01(d.stream, a, d.out(2), o);
+      for (size_t i = 0; i < std::size(kActivations); ++i)
+        scale_act(d.stream, a, d.out(3 + i), {kActivations[i], 0.2f}, 100.f, o);
       blend(d.stream, Slice(d.inputs[1], 0, 1, 0, 1), Slice(d.inputs[0], 0, s.c, 0, 1), Slice(d.inputs[0], 0, s.c, 1, 1),
-            d.out(8));
+            d.out(8), o);
       return true;
     };
     test.cases.push_back(std::move(k));
@@ -61,7 +64,9 @@ optest::OpTest elementwise_test() {
 }
 }  // namespace
 
-TEST(Elementwise, EveryOpMatchesReferenceInBothPrecisions) { optest::run_op_test(vktest::context(), elementwise_test()); }
+TEST(Elementwise, EveryOpMatchesReferenceInBothPrecisions) {
+  for (bool texel : {true, false}) optest::run_op_test(vktest::context(), elementwise_test(texel));
+}
 
 // copy converts between an f32 and an f16 slice (the model's fp32 inputs and outputs), rounding to
 // nearest even and saturating at +-65504.
@@ -100,25 +105,33 @@ TEST(Elementwise, CopyConvertsBetweenFp32AndFp16Slices) {
 }
 // On a context that binds whole tensors a write outside an output slice lands on a canary.
 TEST(Elementwise, WritesNothingOutsideItsSlice) {
-  optest::run_op_test(vktest::whole_binding_context(), elementwise_test());
+  for (bool texel : {true, false}) optest::run_op_test(vktest::whole_binding_context(), elementwise_test(texel));
 }
 
+// In place, both input forms: a texel read of the buffer the same dispatch writes is safe because
+// each element is read only by the invocation that writes it, before it writes it. 37x29: several
+// elements an invocation.
 TEST(Elementwise, InPlaceAddAndCopyIntoAConcatenation) {
   Context& ctx = vktest::context();
   std::mt19937 rng(2);
-  HostTensor a = random_tensor({1, 3, 4, 5}, rng), b = random_tensor({1, 2, 4, 5}, rng);
-  Tensor ad = to_device(ctx, a), bd = to_device(ctx, b), cat(ctx, {1, 5, 4, 5});
+  const int64_t h = 37, w = 29;
+  HostTensor a = random_tensor({1, 3, h, w}, rng), b = random_tensor({1, 2, h, w}, rng);
+  Tensor ad = to_device(ctx, a), bd = to_device(ctx, b), cat(ctx, {1, 5, h, w});
   CommandStream cs(ctx);
-  copy(cs, Slice(ad), Slice(cat, 0, 3));
-  copy(cs, Slice(bd), Slice(cat, 3, 2));
-  add(cs, Slice(cat, 0, 2), Slice(bd), Slice(cat, 0, 2));  // in place on a slice
-  cs.submit_and_wait();
-  HostTensor c = to_host(cat);
-  for (int64_t y = 0; y < 4; ++y)
-    for (int64_t x = 0; x < 5; ++x) {
-      EXPECT_EQ(c.at(0, 0, y, x), a.at(0, 0, y, x) + b.at(0, 0, y, x));
-      EXPECT_EQ(c.at(0, 2, y, x), a.at(0, 2, y, x));
-      EXPECT_EQ(c.at(0, 4, y, x), b.at(0, 1, y, x));
-    }
+  for (bool texel : {true, false}) {
+    const TexelReadOptions o{texel};
+    copy(cs, Slice(ad), Slice(cat, 0, 3), o);
+    copy(cs, Slice(bd), Slice(cat, 3, 2), o);
+    add(cs, Slice(cat, 0, 2), Slice(bd), Slice(cat, 0, 2), o);  // in place on a slice
+    cs.submit_and_wait();
+    HostTensor c = to_host(cat);
+    for (int64_t y = 0; y < h; ++y)
+      for (int64_t x = 0; x < w; ++x) {
+        ASSERT_EQ(c.at(0, 0, y, x), a.at(0, 0, y, x) + b.at(0, 0, y, x)) << texel;
+        ASSERT_EQ(c.at(0, 1, y, x), a.at(0, 1, y, x) + b.at(0, 1, y, x)) << texel;
+        ASSERT_EQ(c.at(0, 2, y, x), a.at(0, 2, y, x)) << texel;
+        ASSERT_EQ(c.at(0, 4, y, x), b.at(0, 1, y, x)) << texel;
+      }
+  }
   EXPECT_THROW(add(cs, Slice(ad), Slice(bd), Slice(ad)), Error);  // 3 vs 2 channels
 }
