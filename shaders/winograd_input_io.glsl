@@ -21,14 +21,21 @@ layout(push_constant) uniform P {
 void transform(uint gi, uint cl);
 
 void main() {
+  // transform() is called in one place: llvmpipe runs both sides of a branch under a mask, so a call
+  // in each branch of the two layouts below cost the whole transform twice.
+  uint g0, cl, count;
   if (p.ilv == 0u) {  // lanes over tile groups, one per invocation
-    if (gl_GlobalInvocationID.x < p.ngroups) transform(gl_GlobalInvocationID.x, gl_GlobalInvocationID.y);
-    return;
+    g0 = gl_GlobalInvocationID.x;
+    cl = gl_GlobalInvocationID.y;
+    count = 1u;
+  } else {
+    // ilv = TV: lanes over channels, each writing the TV adjacent vec4s of one GEMM tile group, so
+    // every cache line of V has one writer (0.5x the time of one group per invocation there).
+    uint idx = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
+    cl = idx % p.chunk;
+    g0 = (idx / p.chunk) * p.ilv;
+    count = p.ilv;
   }
-  // ilv = TV: lanes over channels, each writing the TV adjacent vec4s of one GEMM tile group, so
-  // every cache line of V has one writer (0.5x the time of one group per invocation there).
-  uint idx = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
-  uint cl = idx % p.chunk, g0 = (idx / p.chunk) * p.ilv;
-  for (uint t = 0u; t < p.ilv; ++t)
+  for (uint t = 0u; t < count; ++t)
     if (g0 + t < p.ngroups) transform(g0 + t, cl);
 }
