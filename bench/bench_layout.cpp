@@ -74,7 +74,7 @@ void run_precision(Context& ctx, const Args& a, Precision prec) {
       copy_ms = std::min(copy_ms, time_chain(ctx, a.dispatches, [&](CommandStream& cs) { copy(cs, Slice(src), Slice(dst)); }));
     }
     const double mb = static_cast<double>(k.out.count() * static_cast<int64_t>(dtype_size(dt))) / 1e6;
-    std::printf("  %-32s %-18s -> %-18s %8.2f ms  copy %8.2f ms  ratio %5.2f  (%.0f MB written, copy %.2f GB/s)\n",
+    std::printf("  %-32s %-18s -> %-18s %8.2f ms  copy %8.2f ms  ratio %5.2f  (%.1f MB written, copy %.2f GB/s)\n",
                 k.name.c_str(), k.in.str().c_str(), k.out.str().c_str(), op_ms, copy_ms, op_ms / copy_ms, mb,
                 mb / copy_ms);
   }
