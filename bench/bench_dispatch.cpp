@@ -12,6 +12,7 @@
 #include <memory>
 #include <string>
 
+#include "bench_args.hpp"
 #include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
 #include "vkunroll/runtime/context.hpp"
@@ -39,14 +40,16 @@ void run(Context& ctx, int dispatches, int64_t elements, Times& best) {
 }
 }  // namespace
 
+constexpr const char* kBench = "vkunroll-bench-dispatch";
+
 int main(int argc, char** argv) {
   int dispatches = 2000, reps = 5;
   int64_t elements = 4096;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
-    if (a == "--dispatches" && i + 1 < argc) dispatches = std::max(1, std::atoi(argv[++i]));
-    else if (a == "--elements" && i + 1 < argc) elements = std::max(1, std::atoi(argv[++i]));
-    else if (a == "--reps" && i + 1 < argc) reps = std::max(1, std::atoi(argv[++i]));
+    if (a == "--dispatches" && i + 1 < argc) dispatches = static_cast<int>(bench_int_arg(kBench, a, argv[++i], 1, 1000000));
+    else if (a == "--elements" && i + 1 < argc) elements = bench_int_arg(kBench, a, argv[++i], 1, 1LL << 30);
+    else if (a == "--reps" && i + 1 < argc) reps = static_cast<int>(bench_int_arg(kBench, a, argv[++i], 1, 1000));
     else {
       std::fprintf(stderr, "usage: vkunroll-bench-dispatch [--dispatches N] [--elements N] [--reps N]\n");
       return 2;

@@ -20,6 +20,7 @@
 #include <unistd.h>
 #include <vector>
 
+#include "bench_args.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #if __has_include("vkunroll/host/events/event_file_reader.hpp")
 #include "vkunroll/host/events/event_file_reader.hpp"
@@ -166,8 +167,9 @@ int run_windows(size_t n, int frames) {
 
 int main(int argc, char** argv) {
   if (argc > 1 && std::string(argv[1]) == "windows")
-    return run_windows(argc > 2 ? size_t(std::stoull(argv[2])) : 1000000, argc > 3 ? std::stoi(argv[3]) : 200);
-  const size_t n = argc > 1 ? size_t(std::stoull(argv[1])) : 2000000;
+    return run_windows(argc > 2 ? size_t(bench_int_arg("vkunroll-bench-event-readers", "events", argv[2], 1, 1LL << 34)) : 1000000,
+                       argc > 3 ? static_cast<int>(bench_int_arg("vkunroll-bench-event-readers", "windows", argv[3], 1, 1000000)) : 200);
+  const size_t n = argc > 1 ? size_t(bench_int_arg("vkunroll-bench-event-readers", "events", argv[1], 1, 1LL << 34)) : 2000000;
   const std::string shared = argc > 2 ? argv[2] : std::string(VKUNROLL_SOURCE_DIR) + "/../shared";
   const fs::path dir = fs::temp_directory_path() / ("vkunroll_bench_readers_" + std::to_string(::getpid()));
   fs::create_directories(dir);

@@ -14,6 +14,7 @@
 #include <random>
 #include <string>
 
+#include "bench_args.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/runtime/context.hpp"
@@ -60,9 +61,17 @@ int main(int argc, char** argv) {
   int repeat = 5, batch = 8;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string k = argv[i];
-    if (k == "--events") n_events = std::stoul(argv[i + 1]);
-    else if (k == "--repeat") repeat = std::stoi(argv[i + 1]);
-    else if (k == "--batch") batch = std::stoi(argv[i + 1]);
+    if (k == "--events") n_events = static_cast<size_t>(bench_int_arg("vkunroll-bench-event-tensor", k, argv[i + 1], 1, 1LL << 34));
+    else if (k == "--repeat") repeat = static_cast<int>(bench_int_arg("vkunroll-bench-event-tensor", k, argv[i + 1], 1, 100000));
+    else if (k == "--batch") batch = static_cast<int>(bench_int_arg("vkunroll-bench-event-tensor", k, argv[i + 1], 1, 4096));
+    else {
+      std::fprintf(stderr, "vkunroll-bench-event-tensor: unknown option %s (--events N, --repeat N, --batch N)\n", k.c_str());
+      return 2;
+    }
+  }
+  if (argc % 2 == 0) {
+    std::fprintf(stderr, "vkunroll-bench-event-tensor: %s needs a value\n", argv[argc - 1]);
+    return 2;
   }
   const int W = 346, H = 260, N = 16;
   // DAVIS346-like frame: line delay 70 us (DRE), exposure 10 ms; t* at tau = 0.5.

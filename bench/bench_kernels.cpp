@@ -19,6 +19,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "bench_args.hpp"
 #include "vkunroll/kernels/shaders.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
@@ -351,7 +352,7 @@ int main(int argc, char** argv) {
       return argv[++i];
     };
     const auto flag = std::find_if(option_flags.begin(), option_flags.end(), [&](const auto& f) { return f.first == a; });
-    if (flag != option_flags.end()) *flag->second = std::atoi(value().c_str());
+    if (flag != option_flags.end()) *flag->second = static_cast<int>(bench_int_arg("vkunroll-bench-kernels", a, value(), 0, 4096));
     else if (a == "--json") json_path = value();
     else if (a == "--profile") profile = true;
     else if (a == "--quick") quick = true;
@@ -396,7 +397,7 @@ int main(int argc, char** argv) {
       c.k = static_cast<int>(k), c.s = static_cast<int>(st), c.cin = ci, c.cout = co, c.h = h, c.w = w;
       custom.push_back(c);
     }
-    else if (a == "--reps") reps = std::max(1, std::atoi(value().c_str()));
+    else if (a == "--reps") reps = static_cast<int>(bench_int_arg("vkunroll-bench-kernels", a, value(), 1, 1000));
     else if (a == "--no-torch") torch = false;
     else if (a == "--torch-device") {
       torch_device = value();
@@ -406,11 +407,7 @@ int main(int argc, char** argv) {
       }
     }
     else if (a == "--torch-threads") {
-      torch_threads = std::atoi(value().c_str());
-      if (torch_threads < 1) {
-        std::cerr << "vkunroll-bench-kernels: --torch-threads: expected a count >= 1\n";
-        return 2;
-      }
+      torch_threads = static_cast<int>(bench_int_arg("vkunroll-bench-kernels", a, value(), 1, 1024));
     }
     else if (a == "-h" || a == "--help") {
       std::cout << "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"

@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_args.hpp"
 #include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 #include "vkunroll/kernels/space_to_depth.hpp"
@@ -91,12 +92,12 @@ int main(int argc, char** argv) {
         const std::string v = argv[++i];
         const size_t x = v.find('x');
         if (x == std::string::npos) throw std::invalid_argument(v);
-        a.w = std::stoll(v.substr(0, x));
-        a.h = std::stoll(v.substr(x + 1));
-      } else if (s == "--channels" && has_value) a.c = std::stoll(argv[++i]);
-      else if (s == "--batch" && has_value) a.n = std::stoll(argv[++i]);
-      else if (s == "--dispatches" && has_value) a.dispatches = std::stoi(argv[++i]);
-      else if (s == "--reps" && has_value) a.reps = std::stoi(argv[++i]);
+        a.w = bench_int_arg("vkunroll-bench-layout", "--size (width)", v.substr(0, x), 2, 16384);
+        a.h = bench_int_arg("vkunroll-bench-layout", "--size (height)", v.substr(x + 1), 2, 16384);
+      } else if (s == "--channels" && has_value) a.c = bench_int_arg("vkunroll-bench-layout", s, argv[++i], 1, 4096);
+      else if (s == "--batch" && has_value) a.n = bench_int_arg("vkunroll-bench-layout", s, argv[++i], 1, 4096);
+      else if (s == "--dispatches" && has_value) a.dispatches = static_cast<int>(bench_int_arg("vkunroll-bench-layout", s, argv[++i], 1, 100000));
+      else if (s == "--reps" && has_value) a.reps = static_cast<int>(bench_int_arg("vkunroll-bench-layout", s, argv[++i], 1, 1000));
       else if (s == "--precision" && has_value) a.precision = argv[++i];
       else throw std::invalid_argument(s);
     } catch (const std::exception&) {
@@ -105,9 +106,8 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  if (a.w < 2 || a.h < 2 || a.c < 1 || a.n < 1 || a.dispatches < 1 || a.reps < 1 ||
-      (a.precision != "fp32" && a.precision != "fp16" && a.precision != "both")) {
-    std::fprintf(stderr, "vkunroll-bench-layout: sizes, counts and --precision (fp32, fp16, both) out of range\n");
+  if (a.precision != "fp32" && a.precision != "fp16" && a.precision != "both") {
+    std::fprintf(stderr, "vkunroll-bench-layout: --precision '%s': expected fp32, fp16 or both\n", a.precision.c_str());
     return 2;
   }
   try {

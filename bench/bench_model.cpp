@@ -32,6 +32,7 @@
 #include <utility>
 #include <unistd.h>
 
+#include "bench_args.hpp"
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
@@ -167,9 +168,9 @@ int main(int argc, char** argv) {
     } else if (a == "--no-torch") {
       torch = false;
     } else if (a == "--runs" && i + 1 < argc) {
-      runs = std::max(1, std::atoi(argv[++i]));
+      runs = static_cast<int>(bench_int_arg("vkunroll-bench-model", a, argv[++i], 1, 1000));
     } else if (a == "--torch-threads" && i + 1 < argc) {
-      torch_threads = std::atoi(argv[++i]);
+      torch_threads = static_cast<int>(bench_int_arg("vkunroll-bench-model", a, argv[++i], 1, 1024));
     } else if (a == "--precision" && i + 1 < argc) {
       try {
         precision = parse_precision(argv[++i], "--precision");
@@ -185,7 +186,7 @@ int main(int argc, char** argv) {
         return 2;
       }
     } else if (a == "--winograd-tile" && i + 1 < argc) {
-      conv_options.winograd_tile = std::atoi(argv[++i]);  // validated by the convs
+      conv_options.winograd_tile = static_cast<int>(bench_int_arg("vkunroll-bench-model", a, argv[++i], 0, 64));  // the convs check the tile
     } else if (a == "--per-layer") {
       per_layer = true;
     } else if (a == "--model" && i + 1 < argc) {

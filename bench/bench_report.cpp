@@ -29,6 +29,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_args.hpp"
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 #include "vkunroll/host/unroll/default_model.hpp"
@@ -49,7 +50,8 @@ struct Size {
 Size parse_size(const std::string& s) {
   const auto x = s.find('x');
   if (x == std::string::npos) throw Error("size '" + s + "': expected WxH, e.g. 346x260");
-  return {std::stoi(s.substr(0, x)), std::stoi(s.substr(x + 1))};
+  return {static_cast<int>(bench_int_arg("vkunroll-bench-report", "size width", s.substr(0, x), 1, 16384)),
+          static_cast<int>(bench_int_arg("vkunroll-bench-report", "size height", s.substr(x + 1), 1, 16384))};
 }
 
 std::vector<std::string> split(const std::string& s, char sep = ',') {
@@ -238,8 +240,8 @@ int main(int argc, char** argv) try {
     else if (k == "--sizes") sizes_arg = next();
     else if (k == "--scenes") scenes_arg = next();
     else if (k == "--model") model = next();
-    else if (k == "--frames") frames = std::stoi(next());
-    else if (k == "--gt-per-frame") gt_per_frame = std::stoi(next());
+    else if (k == "--frames") frames = static_cast<int>(bench_int_arg("vkunroll-bench-report", k, next(), 1, 100000));
+    else if (k == "--gt-per-frame") gt_per_frame = static_cast<int>(bench_int_arg("vkunroll-bench-report", k, next(), 1, 1000));
     else if (k == "--published-size") published_size = next();
     else if (k == "--thresholds") thresholds_arg = next();
     else if (k == "--no-sparse") sparse_rows = false;
@@ -268,8 +270,8 @@ int main(int argc, char** argv) try {
       std::cout << "wrote " << png << "\n";
       return 0;
     }
-    else if (k == "--sparse-tile") sparse_tile = std::stoll(next());
-    else if (k == "--sparse-halo") sparse_halo = std::stoll(next());
+    else if (k == "--sparse-tile") sparse_tile = bench_int_arg("vkunroll-bench-report", k, next(), 1, 4096);
+    else if (k == "--sparse-halo") sparse_halo = bench_int_arg("vkunroll-bench-report", k, next(), 0, 4096);
     else if (k == "--help" || k == "-h") {
       std::cout << "usage: vkunroll-bench-report [--out DIR] [--sizes 346x260,640x480] [--scenes static,camera,noisy]\n"
                    "         [--frames 3] [--gt-per-frame 2] [--model FILE] [--published-size WxH|none]\n"

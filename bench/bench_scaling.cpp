@@ -22,6 +22,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
+#include "bench_args.hpp"
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/unroll/default_model.hpp"
@@ -145,7 +146,7 @@ int main(int argc, char** argv) try {
     else if (a == "--modes") modes = next();
     else if (a == "--model") model = next();
     else if (a == "--json") json_path = next();
-    else if (a == "--reps") reps = std::max(1, std::atoi(next().c_str()));
+    else if (a == "--reps") reps = static_cast<int>(bench_int_arg("vkunroll-bench-scaling", a, next(), 1, 1000));
     else if (a == "-h" || a == "--help") {
       std::cout << "usage: vkunroll-bench-scaling [--sizes 346x260,640x480,1280x720] [--events 1e4,1e5,1e6,1e7]\n"
                    "         [--pixel-rows-events 1e5] [--events-size 346x260] [--modes physics,s] [--model FILE]\n"

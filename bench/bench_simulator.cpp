@@ -8,6 +8,7 @@
 #include <cstring>
 #include <string>
 
+#include "bench_args.hpp"
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 
@@ -25,10 +26,14 @@ int main(int argc, char** argv) {
   int w = 346, h = 260, frames = 3, reps = 200;
   std::string preset = "realistic";
   for (int i = 1; i + 1 < argc; i += 2) {
-    if (!std::strcmp(argv[i], "--size")) std::sscanf(argv[i + 1], "%dx%d", &w, &h);
-    else if (!std::strcmp(argv[i], "--frames")) frames = std::atoi(argv[i + 1]);
+    if (!std::strcmp(argv[i], "--size")) {
+      const std::string v = argv[i + 1];
+      const size_t x = v.find('x');
+      w = static_cast<int>(bench_int_arg("vkunroll-bench-simulator", "--size (width)", v.substr(0, x), 1, 16384));
+      h = static_cast<int>(bench_int_arg("vkunroll-bench-simulator", "--size (height)", x == std::string::npos ? "" : v.substr(x + 1), 1, 16384));
+    } else if (!std::strcmp(argv[i], "--frames")) frames = static_cast<int>(bench_int_arg("vkunroll-bench-simulator", "--frames", argv[i + 1], 1, 100000));
     else if (!std::strcmp(argv[i], "--preset")) preset = argv[i + 1];
-    else if (!std::strcmp(argv[i], "--reps")) reps = std::atoi(argv[i + 1]);
+    else if (!std::strcmp(argv[i], "--reps")) reps = static_cast<int>(bench_int_arg("vkunroll-bench-simulator", "--reps", argv[i + 1], 1, 1000000));
     else {
       std::fprintf(stderr, "unknown option %s\n", argv[i]);
       return 2;
