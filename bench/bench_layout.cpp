@@ -84,25 +84,22 @@ void run_precision(Context& ctx, const Args& a, Precision prec) {
 
 int main(int argc, char** argv) {
   Args a;
+  constexpr const char* kBench = "vkunroll-bench-layout";
   for (int i = 1; i < argc; ++i) {
     const std::string s = argv[i];
     const bool has_value = i + 1 < argc;
-    try {
-      if (s == "--size" && has_value) {
-        const std::string v = argv[++i];
-        const size_t x = v.find('x');
-        if (x == std::string::npos) throw std::invalid_argument(v);
-        a.w = bench_int_arg("vkunroll-bench-layout", "--size (width)", v.substr(0, x), 2, 16384);
-        a.h = bench_int_arg("vkunroll-bench-layout", "--size (height)", v.substr(x + 1), 2, 16384);
-      } else if (s == "--channels" && has_value) a.c = bench_int_arg("vkunroll-bench-layout", s, argv[++i], 1, 4096);
-      else if (s == "--batch" && has_value) a.n = bench_int_arg("vkunroll-bench-layout", s, argv[++i], 1, 4096);
-      else if (s == "--dispatches" && has_value) a.dispatches = static_cast<int>(bench_int_arg("vkunroll-bench-layout", s, argv[++i], 1, 100000));
-      else if (s == "--reps" && has_value) a.reps = static_cast<int>(bench_int_arg("vkunroll-bench-layout", s, argv[++i], 1, 1000));
-      else if (s == "--precision" && has_value) a.precision = argv[++i];
-      else throw std::invalid_argument(s);
-    } catch (const std::exception&) {
-      std::fprintf(stderr, "vkunroll-bench-layout: bad argument '%s'\nusage: vkunroll-bench-layout [--size WxH] "
-                   "[--channels C] [--batch N] [--dispatches N] [--reps N] [--precision fp32|fp16|both]\n", s.c_str());
+    if (s == "--size" && has_value) {
+      const BenchSize z = bench_size_arg(kBench, s, argv[++i], 2, 16384);
+      a.w = z.w;
+      a.h = z.h;
+    } else if (s == "--channels" && has_value) a.c = bench_int_arg(kBench, s, argv[++i], 1, 4096);
+    else if (s == "--batch" && has_value) a.n = bench_int_arg(kBench, s, argv[++i], 1, 4096);
+    else if (s == "--dispatches" && has_value) a.dispatches = static_cast<int>(bench_int_arg(kBench, s, argv[++i], 1, 100000));
+    else if (s == "--reps" && has_value) a.reps = static_cast<int>(bench_int_arg(kBench, s, argv[++i], 1, 1000));
+    else if (s == "--precision" && has_value) a.precision = argv[++i];
+    else {
+      std::fprintf(stderr, "%s: bad argument '%s'\nusage: %s [--size WxH] [--channels C] [--batch N] [--dispatches N] "
+                   "[--reps N] [--precision fp32|fp16|both]\n", kBench, s.c_str(), kBench);
       return 2;
     }
   }

@@ -157,10 +157,9 @@ int main(int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--size" && i + 1 < argc) {
-      if (std::sscanf(argv[++i], "%dx%d", &W, &H) != 2 || W < 2 || H < 2) {
-        std::fprintf(stderr, "--size expects WxH, e.g. 346x260\n");
-        return 2;
-      }
+      const BenchSize z = bench_size_arg("vkunroll-bench-model", a, argv[++i], 2, 16384);
+      W = static_cast<int>(z.w);
+      H = static_cast<int>(z.h);
     } else if (a == "--mode" && i + 1 < argc) {
       mode = argv[++i];
     } else if (a == "--profile") {

@@ -48,10 +48,8 @@ struct Size {
 };
 
 Size parse_size(const std::string& s) {
-  const auto x = s.find('x');
-  if (x == std::string::npos) throw Error("size '" + s + "': expected WxH, e.g. 346x260");
-  return {static_cast<int>(bench_int_arg("vkunroll-bench-report", "size width", s.substr(0, x), 1, 16384)),
-          static_cast<int>(bench_int_arg("vkunroll-bench-report", "size height", s.substr(x + 1), 1, 16384))};
+  const BenchSize z = bench_size_arg("vkunroll-bench-report", "size", s, 1, 16384);
+  return {static_cast<int>(z.w), static_cast<int>(z.h)};
 }
 
 std::vector<std::string> split(const std::string& s, char sep = ',') {

@@ -27,10 +27,9 @@ int main(int argc, char** argv) {
   std::string preset = "realistic";
   for (int i = 1; i + 1 < argc; i += 2) {
     if (!std::strcmp(argv[i], "--size")) {
-      const std::string v = argv[i + 1];
-      const size_t x = v.find('x');
-      w = static_cast<int>(bench_int_arg("vkunroll-bench-simulator", "--size (width)", v.substr(0, x), 1, 16384));
-      h = static_cast<int>(bench_int_arg("vkunroll-bench-simulator", "--size (height)", x == std::string::npos ? "" : v.substr(x + 1), 1, 16384));
+      const BenchSize z = bench_size_arg("vkunroll-bench-simulator", "--size", argv[i + 1], 1, 16384);
+      w = static_cast<int>(z.w);
+      h = static_cast<int>(z.h);
     } else if (!std::strcmp(argv[i], "--frames")) frames = static_cast<int>(bench_int_arg("vkunroll-bench-simulator", "--frames", argv[i + 1], 1, 100000));
     else if (!std::strcmp(argv[i], "--preset")) preset = argv[i + 1];
     else if (!std::strcmp(argv[i], "--reps")) reps = static_cast<int>(bench_int_arg("vkunroll-bench-simulator", "--reps", argv[i + 1], 1, 1000000));
