@@ -54,7 +54,8 @@ void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slic
   if (b) check_precision(*b, prec, name, "second input");
   if (m) check_precision(*m, prec, name, "mask");
   // The shader covers four elements an invocation in four steps, no loop: one grid row must hold a plane.
-  if ((s.plane() + 255) / 256 > 65535)
+  const int64_t groups_x = (s.plane() + 255) / 256;
+  if (groups_x > 65535)
     throw Error(name + ": a plane of " + std::to_string(s.plane()) + " values exceeds one dispatch's 65535 x 256");
   const double eb = static_cast<double>(dtype_size(precision_dtype(prec)));
   BoundSlice ba = bind_slice(a, Access::read);
@@ -68,7 +69,7 @@ void run(CommandStream& cs, Op op, Slice a, const Slice* b, const Slice* m, Slic
   cs.dispatch(kernel_pipeline(ctx, shader_for(ctx, shader, prec, name), {op, static_cast<uint32_t>(act.kind), spec_float(act.slope)},
                               sizeof p),
               {ba.arg, bb.arg, bm.arg, bo.arg}, p,
-              Groups{static_cast<uint32_t>((s.plane() + 255) / 256), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},  // 4 an invocation
+              Groups{static_cast<uint32_t>(groups_x), static_cast<uint32_t>(s.c), static_cast<uint32_t>(s.n)},
               {name, (op == kCopy || op == kClamp01) ? 0 : (op == kBlend ? 3 : 1) * n,
                eb * n * (2 + (b ? 1 : 0)) + (m ? eb * static_cast<double>(s.n * s.plane()) : 0)});
 }
