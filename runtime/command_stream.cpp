@@ -49,21 +49,11 @@ CommandStream::CommandStream(Context& ctx, Profiler* profiler)
 
 CommandStream::~CommandStream() {
   VkDevice d = ctx_.device();
-  if (recording_) vkEndCommandBuffer(cb_);  // abandoned recording: never submitted
   if (queries_) vkDestroyQueryPool(d, queries_, nullptr);
   for (const auto& v : views_) vkDestroyBufferView(d, v.view, nullptr);
   for (auto p : desc_pools_) vkDestroyDescriptorPool(d, p, nullptr);
   if (fence_) vkDestroyFence(d, fence_, nullptr);
   if (pool_) vkDestroyCommandPool(d, pool_, nullptr);
-}
-
-void CommandStream::begin_if_needed() {
-  if (recording_) return;
-  VkCommandBufferBeginInfo bi{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
-  bi.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-  VK_CHECK(vkBeginCommandBuffer(cb_, &bi));
-  if (queries_) vkCmdResetQueryPool(cb_, queries_, 0, query_capacity_);
-  recording_ = true;
 }
 
 VkDescriptorSet CommandStream::allocate_set(VkDescriptorSetLayout layout, uint32_t bindings) {
@@ -92,7 +82,7 @@ VkDescriptorSet CommandStream::allocate_set(VkDescriptorSetLayout layout, uint32
   return set;
 }
 
-void CommandStream::hazard_barrier(const std::vector<Span>& reads, const std::vector<Span>& writes) {
+bool CommandStream::hazard_barrier(const std::vector<Span>& reads, const std::vector<Span>& writes) {
   auto hit = [](const Span& s, const std::vector<Span>& list) {
     return std::any_of(list.begin(), list.end(), [&](const Span& o) {
       return o.buffer == s.buffer && s.begin < o.end && o.begin < s.end;
@@ -102,17 +92,12 @@ void CommandStream::hazard_barrier(const std::vector<Span>& reads, const std::ve
   for (const auto& r : reads) need = need || hit(r, pending_writes_);                           // RAW
   for (const auto& w : writes) need = need || hit(w, pending_writes_) || hit(w, pending_reads_);  // WAW, WAR
   if (need) {
-    VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
-    mb.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
-    mb.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_UNIFORM_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT |
-                       VK_ACCESS_TRANSFER_READ_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
-    const VkPipelineStageFlags stages = VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT;
-    vkCmdPipelineBarrier(cb_, stages, stages, 0, 1, &mb, 0, nullptr, 0, nullptr);
     pending_reads_.clear();
     pending_writes_.clear();
   }
   pending_reads_.insert(pending_reads_.end(), reads.begin(), reads.end());
   pending_writes_.insert(pending_writes_.end(), writes.begin(), writes.end());
+  return need;
 }
 
 void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& args, const void* push,
@@ -130,7 +115,6 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
     throw Error("dispatch '" + info.name + "': workgroup count " + std::to_string(groups.x) + "x" +
                 std::to_string(groups.y) + "x" + std::to_string(groups.z) + " exceeds the device limit");
   if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();  // keep submits bounded
-  begin_if_needed();
 
   std::vector<Span> reads, writes;
   std::vector<VkDescriptorBufferInfo> bufs(args.size());
@@ -171,21 +155,24 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
     if (args[i].access != Access::write) reads.push_back(s);
     if (args[i].access != Access::read) writes.push_back(s);
   }
-  if (!push_descriptors) vkUpdateDescriptorSets(ctx_.device(), static_cast<uint32_t>(w.size()), w.data(), 0, nullptr);
-  hazard_barrier(reads, writes);
-
-  const uint32_t q = static_cast<uint32_t>(names_.size()) * 2;
-  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
-  vkCmdBindPipeline(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.handle());
+  Recorded c;
+  c.kind = Recorded::Kind::dispatch;
+  c.pipeline = &pipeline;
+  c.set = set;
+  c.groups = groups;
   if (push_descriptors) {
-    if (!w.empty())
-      vkCmdPushDescriptorSetKHR(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.layout(), 0, static_cast<uint32_t>(w.size()), w.data());
+    c.first_write = static_cast<uint32_t>(pushed_.size());
+    c.write_count = static_cast<uint32_t>(w.size());
+    for (size_t i = 0; i < w.size(); ++i) pushed_.push_back({w[i].descriptorType, bufs[i], views[i]});
   } else {
-    vkCmdBindDescriptorSets(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.layout(), 0, 1, &set, 0, nullptr);
+    vkUpdateDescriptorSets(ctx_.device(), static_cast<uint32_t>(w.size()), w.data(), 0, nullptr);
   }
-  if (push_bytes) vkCmdPushConstants(cb_, pipeline.layout(), VK_SHADER_STAGE_COMPUTE_BIT, 0, push_bytes, push);
-  vkCmdDispatch(cb_, groups.x, groups.y, groups.z);
-  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
+  c.push_offset = static_cast<uint32_t>(push_data_.size());
+  c.push_bytes = push_bytes;
+  const auto* push_begin = static_cast<const uint8_t*>(push);
+  if (push_bytes) push_data_.insert(push_data_.end(), push_begin, push_begin + push_bytes);
+  c.barrier = hazard_barrier(reads, writes);
+  recorded_.push_back(c);
   names_.push_back(info.name);
   infos_.push_back(info);
   stages_.push_back(stage_);
@@ -255,13 +242,15 @@ VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const 
 
 void CommandStream::fill(const Tensor& t, uint32_t value) {
   if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
-  begin_if_needed();
   const BufferRange r = t.range();
-  hazard_barrier({}, {Span{r.buffer, r.offset, r.offset + r.size}});
-  const uint32_t q = static_cast<uint32_t>(names_.size()) * 2;
-  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
-  vkCmdFillBuffer(cb_, r.buffer, r.offset, (r.size + 3) / 4 * 4, value);
-  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
+  Recorded c;
+  c.kind = Recorded::Kind::fill;
+  c.dst = r.buffer;
+  c.dst_offset = r.offset;
+  c.size = (r.size + 3) / 4 * 4;
+  c.value = value;
+  c.barrier = hazard_barrier({}, {Span{r.buffer, r.offset, r.offset + r.size}});
+  recorded_.push_back(c);
   names_.push_back("fill");
   infos_.push_back({"fill", 0, static_cast<double>(r.size)});
   stages_.push_back(stage_);
@@ -269,13 +258,16 @@ void CommandStream::fill(const Tensor& t, uint32_t value) {
 
 void CommandStream::record_copy(const BufferRange& src, const BufferRange& dst, const char* name) {
   if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
-  begin_if_needed();
-  hazard_barrier({Span{src.buffer, src.offset, src.offset + src.size}}, {Span{dst.buffer, dst.offset, dst.offset + dst.size}});
-  const uint32_t q = static_cast<uint32_t>(names_.size()) * 2;
-  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
-  const VkBufferCopy region{src.offset, dst.offset, src.size};
-  vkCmdCopyBuffer(cb_, src.buffer, dst.buffer, 1, &region);
-  if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
+  Recorded c;
+  c.kind = Recorded::Kind::copy;
+  c.src = src.buffer;
+  c.src_offset = src.offset;
+  c.dst = dst.buffer;
+  c.dst_offset = dst.offset;
+  c.size = src.size;
+  c.barrier = hazard_barrier({Span{src.buffer, src.offset, src.offset + src.size}},
+                             {Span{dst.buffer, dst.offset, dst.offset + dst.size}});
+  recorded_.push_back(c);
   names_.push_back(name);
   infos_.push_back({name, 0, static_cast<double>(src.size)});
   const std::string_view n(name);
@@ -325,14 +317,50 @@ std::string CommandStream::in_flight_description() {
   return os.str();
 }
 
-void CommandStream::submit_and_wait() {
-  if (!recording_) return;
-  const auto wait_start = std::chrono::steady_clock::now();
-  struct WaitClock {  // counts the wait also when the submission throws
-    DeviceTraffic& traffic;
-    std::chrono::steady_clock::time_point t0;
-    ~WaitClock() { traffic.wait_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(); }
-  } wait_clock{ctx_.traffic(), wait_start};
+void CommandStream::replay() {
+  VkCommandBufferBeginInfo bi{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+  bi.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+  VK_CHECK(vkBeginCommandBuffer(cb_, &bi));
+  if (queries_) vkCmdResetQueryPool(cb_, queries_, 0, query_capacity_);
+  VkMemoryBarrier hazard{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
+  hazard.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
+  hazard.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_UNIFORM_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT |
+                         VK_ACCESS_TRANSFER_READ_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
+  const VkPipelineStageFlags stages = VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT;
+  std::vector<VkWriteDescriptorSet> w;
+  for (size_t i = 0; i < recorded_.size(); ++i) {
+    const Recorded& c = recorded_[i];
+    if (c.barrier) vkCmdPipelineBarrier(cb_, stages, stages, 0, 1, &hazard, 0, nullptr, 0, nullptr);
+    const uint32_t q = static_cast<uint32_t>(i) * 2;
+    if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
+    if (c.kind == Recorded::Kind::fill) {
+      vkCmdFillBuffer(cb_, c.dst, c.dst_offset, c.size, c.value);
+    } else if (c.kind == Recorded::Kind::copy) {
+      const VkBufferCopy region{c.src_offset, c.dst_offset, c.size};
+      vkCmdCopyBuffer(cb_, c.src, c.dst, 1, &region);
+    } else {
+      const Pipeline& p = *c.pipeline;
+      vkCmdBindPipeline(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, p.handle());  // waits for its build
+      if (c.set) {
+        vkCmdBindDescriptorSets(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, p.layout(), 0, 1, &c.set, 0, nullptr);
+      } else if (c.write_count) {
+        w.assign(c.write_count, VkWriteDescriptorSet{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET});
+        for (uint32_t b = 0; b < c.write_count; ++b) {
+          const PushedDescriptor& d = pushed_[c.first_write + b];
+          w[b].dstBinding = b;
+          w[b].descriptorCount = 1;
+          w[b].descriptorType = d.type;
+          if (d.view) w[b].pTexelBufferView = &d.view;
+          else w[b].pBufferInfo = &d.buffer;
+        }
+        vkCmdPushDescriptorSetKHR(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, p.layout(), 0, c.write_count, w.data());
+      }
+      if (c.push_bytes)
+        vkCmdPushConstants(cb_, p.layout(), VK_SHADER_STAGE_COMPUTE_BIT, 0, c.push_bytes, push_data_.data() + c.push_offset);
+      vkCmdDispatch(cb_, c.groups.x, c.groups.y, c.groups.z);
+    }
+    if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
+  }
   if (!readbacks_.empty()) {
     // The downloads' copies must be visible to the host reads after the fence.
     VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
@@ -341,7 +369,22 @@ void CommandStream::submit_and_wait() {
     vkCmdPipelineBarrier(cb_, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &mb, 0, nullptr, 0, nullptr);
   }
   VK_CHECK(vkEndCommandBuffer(cb_));
-  recording_ = false;
+}
+
+void CommandStream::submit_and_wait() {
+  if (recorded_.empty()) return;
+  try {
+    replay();  // before the wait's clock: the pipeline builds it waits for count as builds
+  } catch (...) {
+    reset();
+    throw;
+  }
+  const auto wait_start = std::chrono::steady_clock::now();
+  struct WaitClock {  // counts the wait also when the submission throws
+    DeviceTraffic& traffic;
+    std::chrono::steady_clock::time_point t0;
+    ~WaitClock() { traffic.wait_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(); }
+  } wait_clock{ctx_.traffic(), wait_start};
   VkSubmitInfo si{VK_STRUCTURE_TYPE_SUBMIT_INFO};
   si.commandBufferCount = 1;
   si.pCommandBuffers = &cb_;
@@ -399,6 +442,9 @@ void CommandStream::reset() {
   for (const Allocation& a : staging_) ctx_.allocator().free(a);
   staging_.clear();
   readbacks_.clear();
+  recorded_.clear();
+  pushed_.clear();
+  push_data_.clear();
   names_.clear();
   infos_.clear();
   stages_.clear();

@@ -1,6 +1,8 @@
 // CommandStream: records many dispatches into one command buffer with the barriers their
 // buffer accesses need (read-after-write, write-after-read, write-after-write), submits once,
-// and waits on a fence with a timeout.
+// and waits on a fence with a timeout. Commands are checked and their descriptors written when
+// they are recorded, and written into the command buffer at submit: binding a pipeline waits for
+// its build, so the context's compiler builds the submission's pipelines while it is recorded.
 #pragma once
 #include <cstdint>
 #include <string>
@@ -83,8 +85,10 @@ class CommandStream {
     VkBuffer buffer;
     VkDeviceSize begin, end;
   };
-  void begin_if_needed();
-  void hazard_barrier(const std::vector<Span>& reads, const std::vector<Span>& writes);
+  // Whether a command with these accesses needs a barrier before it (then the pending lists restart).
+  bool hazard_barrier(const std::vector<Span>& reads, const std::vector<Span>& writes);
+  // Writes the recorded commands into the command buffer (waiting for their pipelines) and ends it.
+  void replay();
   VkDescriptorSet allocate_set(VkDescriptorSetLayout layout, uint32_t bindings);
   void reset();
   std::string in_flight_description();
@@ -99,8 +103,28 @@ class CommandStream {
   uint32_t desc_pool_used_ = 0;  // sets taken from desc_pools_.back()
   VkQueryPool queries_ = VK_NULL_HANDLE;
   uint32_t query_capacity_ = 0;
-  bool recording_ = false;
   double timeout_s_;
+  // The commands of this submission, in order (names_[i] is command i's), until replay().
+  struct Recorded {
+    enum class Kind : uint8_t { dispatch, fill, copy } kind = Kind::dispatch;
+    bool barrier = false;  // a hazard barrier before it
+    const Pipeline* pipeline = nullptr;
+    VkDescriptorSet set = VK_NULL_HANDLE;           // without push descriptors
+    uint32_t first_write = 0, write_count = 0;      // push descriptors: into pushed_
+    uint32_t push_offset = 0, push_bytes = 0;       // push constants: into push_data_
+    Groups groups;
+    VkBuffer src = VK_NULL_HANDLE, dst = VK_NULL_HANDLE;  // copy: src -> dst; fill: dst
+    VkDeviceSize src_offset = 0, dst_offset = 0, size = 0;
+    uint32_t value = 0;  // fill
+  };
+  struct PushedDescriptor {
+    VkDescriptorType type;
+    VkDescriptorBufferInfo buffer;
+    VkBufferView view;
+  };
+  std::vector<Recorded> recorded_;
+  std::vector<PushedDescriptor> pushed_;
+  std::vector<uint8_t> push_data_;
   std::vector<std::string> names_;
   std::vector<DispatchInfo> infos_;
   std::vector<std::string> stages_;  // each recorded command's stage

@@ -16,6 +16,7 @@ namespace vkunroll {
 
 class Allocator;
 class Pipeline;
+class PipelineCompiler;
 struct ShaderModuleBlob;
 
 struct ContextOptions {
@@ -51,6 +52,10 @@ struct ContextOptions {
   // the command buffer: no descriptor set allocated or updated per dispatch); false: descriptor sets
   // from pools, the portable path (tests run both).
   bool push_descriptors = true;
+  // Threads that compile pipelines while commands are recorded (runtime/pipeline_compiler.hpp).
+  // Unset: one fewer than the machine's hardware threads (the recording thread compiles too), 1 to 8;
+  // 0: each pipeline compiles when it is first asked for, on the asking thread. At most 64.
+  std::optional<uint32_t> pipeline_compile_threads;
 };
 
 // One entry of vkGetPhysicalDeviceCooperativeMatrixPropertiesNV: D (MxN) = A (MxK) B (KxN) + C.
@@ -122,7 +127,8 @@ struct DeviceTraffic {
   std::map<std::string, double> gpu_ms_by_stage;
   // Host wall time spent in submit_and_wait: submitting, waiting for the fence, reading back.
   double wait_ms = 0;
-  // Host wall time spent creating pipelines (the driver compiles the shader then).
+  // Host wall time the recording thread spent on pipelines: making their modules and layouts, and
+  // waiting for (or running) their compilation when it bound them (Pipeline::handle).
   double pipeline_build_ms = 0;
   DeviceTraffic operator-(const DeviceTraffic& o) const {
     DeviceTraffic d{upload_bytes - o.upload_bytes, download_bytes - o.download_bytes, submits - o.submits,
@@ -171,6 +177,7 @@ class Context {
   // ~/.cache/vkunroll; empty without any): the pipeline cache and the measured conv algorithm choices.
   static std::string cache_directory();
   Allocator& allocator() { return *allocator_; }
+  PipelineCompiler& pipeline_compiler() { return *compiler_; }
   bool validation_enabled() const { return validation_; }
   DeviceTraffic& traffic() { return traffic_; }
   // The test-only fault plan's counter: submissions, allocations and maps ask it before the call.
@@ -214,6 +221,7 @@ class Context {
   DeviceTraffic traffic_;
   FaultInjector faults_;
   std::unique_ptr<Allocator> allocator_;
+  std::unique_ptr<PipelineCompiler> compiler_;  // declared before pipelines_: their builds it may run
   std::map<std::string, std::unique_ptr<Pipeline>> pipelines_;
   mutable std::mutex messages_mutex_;
   std::vector<std::string> messages_;

@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline_compiler.hpp"
 #include "vkunroll/runtime/shader_registry.hpp"
 
 namespace vkunroll {
@@ -19,6 +20,12 @@ VkDescriptorType descriptor_type(DescriptorKind k) {
   return VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
 }
 
+namespace {
+double ms_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+}  // namespace
+
 uint32_t spec_float(float f) {
   uint32_t u;
   std::memcpy(&u, &f, 4);
@@ -28,6 +35,7 @@ uint32_t spec_float(float f) {
 Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vector<uint32_t>& spec,
                    uint32_t push_constant_bytes)
     : ctx_(ctx), name_(module.name), push_bytes_(push_constant_bytes) {
+  const auto t0 = std::chrono::steady_clock::now();
   const std::string& shader = name_;
   if (push_constant_bytes > 128 || push_constant_bytes > ctx.info().max_push_constants)
     throw Error("pipeline '" + shader + "': " + std::to_string(push_constant_bytes) +
@@ -66,35 +74,37 @@ Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vect
   lci.pPushConstantRanges = push_bytes_ ? &pcr : nullptr;
   VK_CHECK(vkCreatePipelineLayout(ctx.device(), &lci, nullptr, &layout_));
 
-  std::vector<VkSpecializationMapEntry> entries(spec.size());
-  for (uint32_t i = 0; i < spec.size(); ++i) entries[i] = {i, i * 4u, 4};
-  VkSpecializationInfo si{static_cast<uint32_t>(entries.size()), entries.data(), spec.size() * 4, spec.data()};
-  VkComputePipelineCreateInfo pci{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
-  pci.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO};
-  pci.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
-  pci.stage.module = module_;
-  pci.stage.pName = "main";
-  pci.stage.pSpecializationInfo = spec.empty() ? nullptr : &si;
-  pci.layout = layout_;
-  const auto t0 = std::chrono::steady_clock::now();
-  VkResult r = vkCreateComputePipelines(ctx.device(), ctx.pipeline_cache(), 1, &pci, nullptr, &pipeline_);
-  // Drivers compile the shader here (lavapipe: LLVM), once per pipeline: a cost of the first frames.
-  ctx.traffic().pipeline_build_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  if (r != VK_SUCCESS) {
-    destroy();
-    throw_vk_error(r, "vkCreateComputePipelines", __FILE__, __LINE__, "shader " + shader);
+  build_ = std::make_shared<PipelineBuild>(ctx.device(), ctx.pipeline_cache(), module_, layout_, spec);
+  ctx.pipeline_compiler().enqueue(build_);  // with no worker threads it compiles here
+  ctx.traffic().pipeline_build_ms += ms_since(t0);
+}
+
+// Drivers compile the shader (lavapipe: LLVM) once per pipeline, a cost of the first frames; it counts
+// as the time the recording thread spent waiting for it, so builds on workers never count twice.
+VkPipeline Pipeline::handle() const {
+  if (!ready_) {
+    const auto t0 = std::chrono::steady_clock::now();
+    ctx_.pipeline_compiler().finish(*build_);
+    ctx_.traffic().pipeline_build_ms += ms_since(t0);
+    if (build_->result() != VK_SUCCESS)
+      throw_vk_error(build_->result(), "vkCreateComputePipelines", __FILE__, __LINE__, "shader " + name_);
+    ready_ = true;
   }
+  return build_->pipeline();
 }
 
 Pipeline::~Pipeline() { destroy(); }
 
 void Pipeline::destroy() {
   VkDevice d = ctx_.device();
-  if (pipeline_) vkDestroyPipeline(d, pipeline_, nullptr);
+  if (build_) {
+    build_->cancel();  // a build running on a worker is waited for: it uses the module and layout
+    if (build_->pipeline()) vkDestroyPipeline(d, build_->pipeline(), nullptr);
+    build_.reset();
+  }
   if (layout_) vkDestroyPipelineLayout(d, layout_, nullptr);
   if (set_layout_) vkDestroyDescriptorSetLayout(d, set_layout_, nullptr);
   if (module_) vkDestroyShaderModule(d, module_, nullptr);
-  pipeline_ = VK_NULL_HANDLE;
   layout_ = VK_NULL_HANDLE;
   set_layout_ = VK_NULL_HANDLE;
   module_ = VK_NULL_HANDLE;

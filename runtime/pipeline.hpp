@@ -1,7 +1,10 @@
 // Pipeline: one SPIR-V module (embedded by the layer that owns it) with its specialization constants and push-constant
-// size; the descriptor layout (storage, uniform and texel buffers at set 0) is derived from the module once.
+// size; the descriptor layout (storage, uniform and texel buffers at set 0) is derived from the module once. The
+// module and layouts are made at construction; the VkPipeline is compiled by the context's PipelineCompiler, and
+// handle() waits for it.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -11,6 +14,7 @@
 namespace vkunroll {
 
 class Context;
+class PipelineBuild;
 
 class Pipeline {
  public:
@@ -24,7 +28,9 @@ class Pipeline {
   Pipeline& operator=(const Pipeline&) = delete;
 
   const std::string& name() const { return name_; }
-  VkPipeline handle() const { return pipeline_; }
+  // The compiled pipeline: waits for its build (or runs it, if no worker has started it) and counts
+  // the time this thread spent in DeviceTraffic::pipeline_build_ms. Throws if the driver failed.
+  VkPipeline handle() const;
   VkPipelineLayout layout() const { return layout_; }
   VkDescriptorSetLayout set_layout() const { return set_layout_; }
   uint32_t binding_count() const { return binding_count_; }
@@ -43,7 +49,8 @@ class Pipeline {
   VkShaderModule module_ = VK_NULL_HANDLE;
   VkDescriptorSetLayout set_layout_ = VK_NULL_HANDLE;
   VkPipelineLayout layout_ = VK_NULL_HANDLE;
-  VkPipeline pipeline_ = VK_NULL_HANDLE;
+  std::shared_ptr<PipelineBuild> build_;
+  mutable bool ready_ = false;  // handle() found the build done (the recording thread's own flag)
 };
 
 uint32_t spec_float(float f);
