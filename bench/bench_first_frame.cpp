@@ -13,11 +13,11 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
-#include <random>
 #include <string>
 #include <vector>
 
 #include "bench_args.hpp"
+#include "bench_model_inputs.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/weights.hpp"
@@ -30,13 +30,6 @@ namespace {
 
 double ms_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
-}
-
-HostTensor random_array(std::mt19937& rng, int64_t b, int64_t c, int64_t h, int64_t w, bool events) {
-  std::uniform_real_distribution<float> u(0.f, 1.f);
-  HostTensor a{{b, c, h, w}, std::vector<float>(size_t(b * c * h * w))};
-  for (auto& v : a.data) v = events ? (u(rng) < 0.25f ? float(int(u(rng) * 4)) : 0.f) : u(rng);
-  return a;
 }
 
 struct FirstFrame {
@@ -107,11 +100,7 @@ int main(int argc, char** argv) {
   try {
     const Weights w = model_path.empty() ? random_weights(ModelConfig::published(), 2024) : load_weights(model_path);
     const Mode md = mode == "m" ? Mode::m : Mode::s;
-    const int64_t B = md == Mode::m ? 2 : 1, ev = w.config.ev_channels();
-    std::mt19937 rng(7);
-    ModelInputs in{random_array(rng, B, 3, H, W, false), random_array(rng, B, ev, H, W, true),
-                   random_array(rng, B, ev, H, W, true), random_array(rng, B, ev, H, W, true)};
-    if (w.config.physics_input) in.phys = random_array(rng, B, 3, H, W, false);
+    const ModelInputs in = random_model_inputs(w.config, md == Mode::m ? 2 : 1, H, W);
     std::printf("first model frame, %s %lldx%lld, %s; fresh context each, no persistent pipeline cache\n",
                 model_path.empty() ? "published S/M (random weights)" : model_path.c_str(), W, H, mode.c_str());
     std::printf("%-6s %-8s %10s %10s %12s %14s %8s\n", "round", "threads", "first ms", "warm ms", "first-warm", "build wait ms",

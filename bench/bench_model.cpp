@@ -33,6 +33,7 @@
 #include <unistd.h>
 
 #include "bench_args.hpp"
+#include "bench_model_inputs.hpp"
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
@@ -48,13 +49,6 @@
 using namespace vkunroll;
 
 namespace {
-
-HostTensor random_array(std::mt19937& rng, int64_t b, int64_t c, int64_t h, int64_t w, bool events) {
-  std::uniform_real_distribution<float> u(0.f, 1.f);
-  HostTensor a{{b, c, h, w}, std::vector<float>(size_t(b * c * h * w))};
-  for (auto& v : a.data) v = events ? (u(rng) < 0.25f ? float(int(u(rng) * 4)) : 0.f) : u(rng);
-  return a;
-}
 
 double seconds_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
@@ -226,7 +220,6 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   const int64_t B = md == Mode::m ? 2 : 1;
   const Weights w = model_path.empty() ? random_weights(ModelConfig::published(), 2024) : load_weights(model_path);
   const ModelConfig& cfg = w.config;
-  std::mt19937 rng(7);
   ModelInputs in;
   if (!inputs_path.empty()) {
     const SafetensorsFile f = read_safetensors(inputs_path);
@@ -236,11 +229,7 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
     H = static_cast<int>(in.rs.shape.h);
     W = static_cast<int>(in.rs.shape.w);
   } else {
-    in.rs = random_array(rng, B, 3, H, W, false);
-    in.ev1 = random_array(rng, B, cfg.ev_channels(), H, W, true);
-    in.ev2 = random_array(rng, B, cfg.ev_channels(), H, W, true);
-    in.ev3 = random_array(rng, B, cfg.ev_channels(), H, W, true);
-    if (cfg.physics_input) in.phys = random_array(rng, B, 3, H, W, false);
+    in = random_model_inputs(cfg, B, H, W);
   }
 
   Context ctx;

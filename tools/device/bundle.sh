@@ -11,11 +11,11 @@ B=${1:-build}
 R=$(cd "$(dirname "$0")/../.." && pwd)
 cd "$R"
 cmake --build "$B" --target vkunroll_tests vkunroll-bench-kernels vkunroll-bench-event-tensor vkunroll-bench-model vkunroll-bench-dispatch \
-  vkunroll-bench-layout
+  vkunroll-bench-layout vkunroll-bench-first-frame
 mkdir -p .devrun/bin .devrun/layers .gl
 LIBS=$(ninja -C "$B" -t commands bench/vkunroll-bench-kernels | tail -1 | grep -oE ' (lib[^ ]+\.a|/usr/lib[^ ]+\.(so[.0-9]*|a)|-l[a-z]+)' | tr '\n' ' ')
 (cd "$B"
- for b in kernels event-tensor model dispatch layout; do
+ for b in kernels event-tensor model dispatch layout first-frame; do
    c++ -O3 -Wl,--as-needed bench/CMakeFiles/vkunroll-bench-$b.dir/bench_*.cpp.o -o "$R/.devrun/bin/vkunroll-bench-$b" $LIBS
  done
  T=tests/CMakeFiles/vkunroll_tests.dir

@@ -78,6 +78,7 @@ tests)
   coopmat_tests; coopmat_bench; gpu_tests 150; direct_tests 120; kernels 150
   step dispatch 30 $OUT/bench_dispatch.txt $B/vkunroll-bench-dispatch; tail -3 $OUT/bench_dispatch.txt
   step layout 30 $OUT/bench_layout.txt $B/vkunroll-bench-layout; cat $OUT/bench_layout.txt
+  step first-frame 40 $OUT/bench_first_frame.txt $B/vkunroll-bench-first-frame --model $R/models/selfunroll_small_physics.safetensors --rounds 3; cat $OUT/bench_first_frame.txt
   step events 100 $OUT/bench_event_tensor_h100.txt $B/vkunroll-bench-event-tensor; cat $OUT/bench_event_tensor_h100.txt
   step model 120 $OUT/bench_model_h100.txt $B/vkunroll-bench-model --torch-threads 16 --runs 3 --profile; head -30 $OUT/bench_model_h100.txt ;;
 race)
