@@ -15,6 +15,7 @@
 #include <string>
 
 #include "bench_args.hpp"
+#include "bench_process.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/runtime/context.hpp"
@@ -41,17 +42,6 @@ double check(const std::vector<float>& v) {
   double s = 0;
   for (size_t i = 0; i < v.size(); ++i) s += static_cast<double>(v[i]) * static_cast<double>(i % 9973);
   return s;
-}
-
-std::string run(const std::string& cmd) {
-  std::string out;
-  FILE* p = popen(cmd.c_str(), "r");
-  if (!p) return out;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
-  pclose(p);
-  return out;
 }
 
 }  // namespace
@@ -108,10 +98,12 @@ int main(int argc, char** argv) {
                      {"t0", "0"}, {"delay", "70"}, {"exposure", "10000"}, {"target", t_star.str()}});
   const std::string py = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) +
                          "/tools/event_tensors_numpy.py --bench " + in + " --repeat " + std::to_string(repeat);
-  const std::string py_out = run(py);
+  const CommandOutput np_run = run_command(py, /*with_stderr=*/false);
+  const std::string& py_out = np_run.text;
   double np_s = 0;
   std::vector<double> np_checks;
   try {
+    if (np_run.status != 0) throw Error("exit status " + std::to_string(np_run.status));
     const auto j = nlohmann::json::parse(py_out);
     np_s = j["seconds"].get<double>();
     np_checks = j["checks"].get<std::vector<double>>();

@@ -20,6 +20,7 @@
 #include <nlohmann/json.hpp>
 
 #include "bench_args.hpp"
+#include "bench_process.hpp"
 #include "vkunroll/kernels/shaders.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
@@ -143,17 +144,6 @@ double ceiling_gflops(Context& ctx, Profiler* profile, bool half = false) {
   return flop / (t.ms * 1e6);
 }
 
-std::string run_command(const std::string& cmd) {
-  std::string out;
-  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return "popen failed";
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
-  const int rc = pclose(p);
-  return rc == 0 ? std::string() : (out.empty() ? "exit status " + std::to_string(rc) : out);
-}
-
 // The same-run peer: PyTorch conv2d / conv_transpose2d (tools/bench_conv_peer.py) per shape key, best of
 // `reps`, on the CPU or a CUDA GPU; keys "fp16:KEY" hold CUDA's half-precision times. Empty (and said)
 // where PyTorch cannot run.
@@ -168,7 +158,11 @@ std::map<std::string, double> torch_peer_ms(const std::vector<ConvShape>& shapes
   std::ofstream(in) << list.dump();
   const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_conv_peer.py " + in + " " + out +
                           " --threads " + std::to_string(threads) + " --reps " + std::to_string(reps) + " --device " + device;
-  const std::string failure = run_command(cmd);
+  const CommandOutput run = run_command(cmd, /*with_stderr=*/true);
+  const std::string failure = run.status == 0      ? std::string()
+                              : !run.text.empty()  ? run.text
+                              : run.status < 0     ? "could not be started"
+                                                   : "exit status " + std::to_string(run.status);
   std::map<std::string, double> ms;
   try {
     if (failure.empty()) {
