@@ -17,10 +17,11 @@ for r in $(seq 1 "$rounds"); do
     "$CLI" unroll "$seq" --out "$out" --overwrite --mode "$mode" --times gt --no-video --quiet --sparse $policy
     /usr/bin/python3 - "$out/summary.json" "$policy" "$r" "$OUT/off_compute_ms" <<'PY'
 import json, sys
+sys.path.insert(0, "tools")
+from sparse_rounds import compute_ms
 path, policy, rnd, off_file = sys.argv[1:]
 s = json.load(open(path))
-ms = s["ms_per_gs_frame"]
-c = s["ms_per_gs_frame_total"] - sum(ms.get(k, 0.0) for k in ("read", "write", "pipeline_builds", "contrast_estimate", "setup"))
+c = compute_ms(s)
 if policy == "off":
     open(off_file, "w").write(str(c))
 off = float(open(off_file).read())

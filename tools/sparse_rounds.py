@@ -16,9 +16,8 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "build", "python"))
-import vkunroll as vk  # noqa: E402
 
+# The summary's host stages that are not the frames' compute (tools/sparse_cold.sh reads it too).
 NOT_COMPUTE = ("read", "write", "pipeline_builds", "contrast_estimate", "setup")
 POLICIES = (("off", -1), ("fast", 0), ("exact", 0))
 
@@ -38,6 +37,8 @@ def main(argv=None) -> int:
     if a.rounds < 1:
         ap.error("--rounds must be at least 1")
     frames = [int(f) for f in a.frames.split(",")]
+    sys.path.insert(0, os.path.join(HERE, "..", "build", "python"))
+    import vkunroll as vk  # here, not at the top: sparse_cold.sh imports compute_ms without the module
     session = vk.UnrollSession(model=a.model)
     for rnd in range(a.rounds):
         off = None
