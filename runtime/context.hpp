@@ -221,7 +221,7 @@ class Context {
   DeviceTraffic traffic_;
   FaultInjector faults_;
   std::unique_ptr<Allocator> allocator_;
-  std::unique_ptr<PipelineCompiler> compiler_;  // declared before pipelines_: their builds it may run
+  std::unique_ptr<PipelineCompiler> compiler_;  // outlives pipelines_: each cancels or waits for its build first
   std::map<std::string, std::unique_ptr<Pipeline>> pipelines_;
   mutable std::mutex messages_mutex_;
   std::vector<std::string> messages_;
