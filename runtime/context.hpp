@@ -45,7 +45,7 @@ struct ContextOptions {
   // Create the device without VK_NV_cooperative_matrix even where it has it (the conv `coopmat`
   // path then reports itself unsupported), as on a device that lacks it.
   bool without_coopmat = false;
-  // Tests: make the Nth submission, allocation or map fail (runtime/fault_injection.hpp). Unset
+  // Tests: make the Nth submission, allocation, map or pipeline compile fail (runtime/fault_injection.hpp). Unset
   // (site none): VKUNROLL_INJECT_FAULT, e.g. "submit:3:device-lost".
   FaultInjection fault;
   // Bind each dispatch's buffers with VK_KHR_push_descriptor where the device has it (recorded into

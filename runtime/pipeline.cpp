@@ -74,7 +74,9 @@ Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vect
   lci.pPushConstantRanges = push_bytes_ ? &pcr : nullptr;
   VK_CHECK(vkCreatePipelineLayout(ctx.device(), &lci, nullptr, &layout_));
 
-  build_ = std::make_shared<PipelineBuild>(ctx.device(), ctx.pipeline_cache(), module_, layout_, spec);
+  // The fault injector is asked here, on the recording thread, in request order: workers never touch it.
+  const VkResult injected = ctx.faults().next(FaultInjection::Site::pipeline);
+  build_ = std::make_shared<PipelineBuild>(ctx.device(), ctx.pipeline_cache(), module_, layout_, spec, injected);
   ctx.pipeline_compiler().enqueue(build_);  // with no worker threads it compiles here
   ctx.traffic().pipeline_build_ms += ms_since(t0);
 }

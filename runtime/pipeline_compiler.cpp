@@ -3,8 +3,8 @@
 namespace vkunroll {
 
 PipelineBuild::PipelineBuild(VkDevice device, VkPipelineCache cache, VkShaderModule module, VkPipelineLayout layout,
-                             std::vector<uint32_t> spec)
-    : device_(device), cache_(cache), module_(module), layout_(layout), spec_(std::move(spec)) {}
+                             std::vector<uint32_t> spec, VkResult injected)
+    : device_(device), cache_(cache), module_(module), layout_(layout), spec_(std::move(spec)), injected_(injected) {}
 
 bool PipelineBuild::try_run() {
   int expected = kQueued;
@@ -29,6 +29,10 @@ void PipelineBuild::cancel() {
 }
 
 void PipelineBuild::compile() noexcept try {
+  if (injected_ != VK_SUCCESS) {
+    result_ = injected_;
+    return;
+  }
   std::vector<VkSpecializationMapEntry> entries(spec_.size());
   for (uint32_t i = 0; i < spec_.size(); ++i) entries[i] = {i, i * 4u, 4};
   VkSpecializationInfo si{static_cast<uint32_t>(entries.size()), entries.data(), spec_.size() * 4, spec_.data()};

@@ -20,8 +20,9 @@ namespace vkunroll {
 // on a worker, or on a thread that needs it, or never (cancelled before it started).
 class PipelineBuild {
  public:
+  // `injected` (a test fault, runtime/fault_injection.hpp): the result to report instead of compiling.
   PipelineBuild(VkDevice device, VkPipelineCache cache, VkShaderModule module, VkPipelineLayout layout,
-                std::vector<uint32_t> spec);
+                std::vector<uint32_t> spec, VkResult injected = VK_SUCCESS);
   // Compiles it here if no thread has started it; false if one has (or it is done).
   bool try_run();
   bool done() const { return state_.load() == kDone; }
@@ -42,6 +43,7 @@ class PipelineBuild {
   VkShaderModule module_;
   VkPipelineLayout layout_;
   std::vector<uint32_t> spec_;
+  VkResult injected_;
   VkPipeline pipeline_ = VK_NULL_HANDLE;
   VkResult result_ = VK_NOT_READY;
 };

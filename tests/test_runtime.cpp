@@ -540,3 +540,41 @@ TEST(Runtime, PipelineCompileThreadsAreChecked) {
     EXPECT_NE(std::string(e.what()).find("pipeline_compile_threads 65: expected 0 to 64"), std::string::npos) << e.what();
   }
 }
+
+// A pipeline whose compile fails (the injected fault at the 2nd pipeline request) is reported when
+// the submission that binds it is written, naming the shader and the VkResult; the stream is then
+// empty and usable, and the other pipelines still run.
+TEST(Runtime, FailedPipelineCompileIsReportedAtSubmitNamingTheShader) {
+  ContextOptions o;
+  o.validation = true;
+  o.validation_fatal = true;
+  o.announce = false;
+  o.persistent_pipeline_cache = false;
+  o.pipeline_compile_threads = 1;
+  o.fault = {FaultInjection::Site::pipeline, 2, VK_ERROR_OUT_OF_DEVICE_MEMORY};
+  Context ctx(o);
+  const size_t n = 64;
+  Tensor x(ctx, {1, 1, 1, static_cast<int64_t>(n)}), y(ctx, {1, 1, 1, static_cast<int64_t>(n)});
+  x.upload(std::vector<float>(n, 1.f));
+  y.upload(std::vector<float>(n, 0.f));
+  CommandStream cs(ctx);
+  axpy(cs, ctx, x, y, 1.f);  // pipeline request 1: compiles
+  const AxpyPush p{0.f, static_cast<uint32_t>(n)};
+  cs.dispatch(ctx.pipeline(vktest::test_shader("runtime_spec_axpy"), {spec_float(5.f)}, sizeof p), {in(x), inout(y)}, p,
+              {1}, {"spec_axpy"});  // request 2: fails
+  try {
+    cs.submit_and_wait();
+    FAIL() << "the failed compile was not reported";
+  } catch (const VulkanError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("vkCreateComputePipelines"), std::string::npos) << what;
+    EXPECT_NE(what.find("runtime_spec_axpy"), std::string::npos) << what;
+    EXPECT_NE(what.find("VK_ERROR_OUT_OF_DEVICE_MEMORY"), std::string::npos) << what;
+  }
+  EXPECT_EQ(cs.recorded(), 0u);
+  axpy(cs, ctx, x, y, 2.f);
+  cs.submit_and_wait();
+  EXPECT_EQ(y.download<float>(), std::vector<float>(n, 2.f));  // the failed submission never ran
+  EXPECT_EQ(ctx.faults().calls(FaultInjection::Site::pipeline), 2u);
+  EXPECT_TRUE(ctx.validation_messages().empty());
+}

@@ -131,7 +131,8 @@ nlohmann::json summary_extra(const UnrollOptions& o, const UnrollJob& job, const
     // What a fault sweep iterates over (runtime/fault_injection.hpp): the run's device calls.
     using Site = FaultInjection::Site;
     extra["device_calls"] = {{"submits", ctx->faults().calls(Site::submit)},
-                             {"allocations", ctx->faults().calls(Site::allocation)}, {"maps", ctx->faults().calls(Site::map)}};
+                             {"allocations", ctx->faults().calls(Site::allocation)}, {"maps", ctx->faults().calls(Site::map)},
+                             {"pipelines", ctx->faults().calls(Site::pipeline)}};
   }
   extra["conv_algorithms"] = session.conv_choice_report();
   extra["memory_forced_submits"] = session.memory_forced_submits();
