@@ -462,6 +462,18 @@ TEST(Runtime, PushDescriptorsAndDescriptorSetsBindTheSame) {
 }
 
 namespace {
+// A validated context of its own (a message aborts), without the persistent cache, whose pipelines
+// compile on `threads` workers.
+ContextOptions compiler_test_options(uint32_t threads) {
+  ContextOptions o;
+  o.validation = true;
+  o.validation_fatal = true;
+  o.announce = false;
+  o.persistent_pipeline_cache = false;
+  o.pipeline_compile_threads = threads;
+  return o;
+}
+
 // 12 pipelines (one per B) asked for and dispatched in one submission, each with its own push
 // constant, alternating with the plain axpy; returns y. Pipelines compile on the context's workers
 // (or, with none, when asked for) while later dispatches are recorded.
@@ -492,13 +504,8 @@ TEST(Runtime, PipelinesCompiledOnWorkersBindTheSame) {
   for (int k = 0; k < 12; ++k) sum_b += 1.5f * static_cast<float>(k) + 1.f;
   for (uint32_t threads : {0u, 1u, 3u}) {
     for (bool push : {true, false}) {
-      ContextOptions o;
-      o.validation = true;
-      o.validation_fatal = true;
-      o.announce = false;
-      o.persistent_pipeline_cache = false;
+      ContextOptions o = compiler_test_options(threads);
       o.push_descriptors = push;
-      o.pipeline_compile_threads = threads;
       Context ctx(o);
       EXPECT_EQ(ctx.pipeline_compiler().threads(), threads);
       const std::vector<float> y = chain_of_specialized_axpys(ctx);
@@ -515,14 +522,8 @@ TEST(Runtime, PipelinesCompiledOnWorkersBindTheSame) {
 // each build is cancelled or waited for before its module is destroyed (no hang, no crash, and the
 // validation layer sees no object destroyed in use).
 TEST(Runtime, ContextWithQueuedPipelineBuildsClosesCleanly) {
-  ContextOptions o;
-  o.validation = true;
-  o.validation_fatal = true;
-  o.announce = false;
-  o.persistent_pipeline_cache = false;
-  o.pipeline_compile_threads = 1;
   for (int round = 0; round < 3; ++round) {
-    Context ctx(o);
+    Context ctx(compiler_test_options(1));
     for (int k = 0; k < 24; ++k)
       ctx.pipeline(vktest::test_shader("runtime_spec_axpy"), {spec_float(100.f + static_cast<float>(k))}, sizeof(AxpyPush));
     EXPECT_TRUE(ctx.validation_messages().empty());
@@ -545,12 +546,7 @@ TEST(Runtime, PipelineCompileThreadsAreChecked) {
 // the submission that binds it is written, naming the shader and the VkResult; the stream is then
 // empty and usable, and the other pipelines still run.
 TEST(Runtime, FailedPipelineCompileIsReportedAtSubmitNamingTheShader) {
-  ContextOptions o;
-  o.validation = true;
-  o.validation_fatal = true;
-  o.announce = false;
-  o.persistent_pipeline_cache = false;
-  o.pipeline_compile_threads = 1;
+  ContextOptions o = compiler_test_options(1);
   o.fault = {FaultInjection::Site::pipeline, 2, VK_ERROR_OUT_OF_DEVICE_MEMORY};
   Context ctx(o);
   const size_t n = 64;
