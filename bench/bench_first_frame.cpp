@@ -9,7 +9,6 @@
 //                                   [--model W.safetensors]
 // Without --model: the published configuration with random weights (fixed seed).
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -19,6 +18,7 @@
 
 #include "bench_args.hpp"
 #include "bench_model_inputs.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/weights.hpp"
@@ -28,10 +28,6 @@
 using namespace vkunroll;
 
 namespace {
-
-double ms_since(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
-}
 
 struct FirstFrame {
   double first_ms = 0, warm_ms = 0, build_ms = 0;
@@ -52,12 +48,12 @@ FirstFrame run_once(const Weights& w, const ModelInputs& in, Mode mode, std::opt
   o.mode = mode;
   FirstFrame f;
   f.threads = ctx.pipeline_compiler().threads();
-  auto t = std::chrono::steady_clock::now();
+  auto t = Clock::now();
   f.out = model.run(in, o);
   f.first_ms = ms_since(t);
   f.build_ms = ctx.traffic().pipeline_build_ms;
   f.submits = ctx.traffic().submits;
-  t = std::chrono::steady_clock::now();
+  t = Clock::now();
   model.run(in, o);
   f.warm_ms = ms_since(t);
   return f;

@@ -1,9 +1,9 @@
 #include "vkunroll/runtime/pipeline.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cstring>
 
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/pipeline_compiler.hpp"
 #include "vkunroll/runtime/shader_registry.hpp"
@@ -20,12 +20,6 @@ VkDescriptorType descriptor_type(DescriptorKind k) {
   return VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
 }
 
-namespace {
-double ms_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
-}  // namespace
-
 uint32_t spec_float(float f) {
   uint32_t u;
   std::memcpy(&u, &f, 4);
@@ -35,7 +29,7 @@ uint32_t spec_float(float f) {
 Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vector<uint32_t>& spec,
                    uint32_t push_constant_bytes)
     : ctx_(ctx), name_(module.name), push_bytes_(push_constant_bytes) {
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = Clock::now();
   const std::string& shader = name_;
   if (push_constant_bytes > 128 || push_constant_bytes > ctx.info().max_push_constants)
     throw Error("pipeline '" + shader + "': " + std::to_string(push_constant_bytes) +
@@ -85,7 +79,7 @@ Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vect
 // as the time the recording thread spent waiting for it, so builds on workers never count twice.
 VkPipeline Pipeline::handle() const {
   if (!ready_) {
-    const auto t0 = std::chrono::steady_clock::now();
+    const auto t0 = Clock::now();
     ctx_.pipeline_compiler().finish(*build_);
     ctx_.traffic().pipeline_build_ms += ms_since(t0);
     if (build_->result() != VK_SUCCESS)
