@@ -83,12 +83,11 @@ void PipelineCompiler::enqueue(std::shared_ptr<PipelineBuild> build) {
   wake_.notify_one();
 }
 
-std::shared_ptr<PipelineBuild> PipelineCompiler::take(bool newest) {
+std::shared_ptr<PipelineBuild> PipelineCompiler::take_newest() {
   std::lock_guard<std::mutex> lock(mutex_);
   while (!queue_.empty()) {
-    std::shared_ptr<PipelineBuild> b = newest ? std::move(queue_.back()) : std::move(queue_.front());
-    if (newest) queue_.pop_back();
-    else queue_.pop_front();
+    std::shared_ptr<PipelineBuild> b = std::move(queue_.back());
+    queue_.pop_back();
     if (!b->done()) return b;
   }
   return nullptr;
@@ -98,7 +97,7 @@ void PipelineCompiler::finish(PipelineBuild& build) {
   while (!build.done()) {
     if (build.try_run()) return;
     // A worker compiles it: help with what is needed latest rather than wait idle.
-    std::shared_ptr<PipelineBuild> other = take(/*newest=*/true);
+    std::shared_ptr<PipelineBuild> other = take_newest();
     if (!other) {
       build.wait();
       return;

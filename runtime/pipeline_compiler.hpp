@@ -65,7 +65,7 @@ class PipelineCompiler {
  private:
   void work();
   void stop();
-  std::shared_ptr<PipelineBuild> take(bool newest);  // a queued build, or null
+  std::shared_ptr<PipelineBuild> take_newest();  // the build queued last that is not done, or null
   std::mutex mutex_;
   std::condition_variable wake_;
   std::deque<std::shared_ptr<PipelineBuild>> queue_;
