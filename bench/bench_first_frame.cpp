@@ -1,6 +1,6 @@
 // vkunroll-bench-first-frame: what the first model frame of a run costs, with the pipelines compiled
-// on the context's worker threads while the frame is recorded (ContextOptions::pipeline_compile_threads,
-// default: the hardware threads) against each one compiled when it is first asked for (0 threads),
+// on the context's worker threads while the frame is recorded (ContextOptions::pipeline_compile_threads;
+// default, or --threads N) against each one compiled when it is first asked for (0 threads),
 // in alternating rounds of one run. Each round makes a fresh context without the persistent pipeline
 // cache (as a first run, or any run on lavapipe, whose cache stores nothing), runs one frame (the
 // first: builds and all) and a second (warm), and checks that both settings give the same outputs.

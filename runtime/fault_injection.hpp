@@ -1,7 +1,8 @@
 // Test-only device faults: the Nth queue submission, memory allocation, memory map or pipeline
-// compile of a context fails with a chosen VkResult, as a lost or exhausted device would make it fail, so that tests can
-// sweep N over a whole run and check that every failure is named, classified and leaves nothing
-// that claims success (tests/python/test_device_faults.py). Off unless asked for.
+// compile of a context fails with a chosen VkResult, as a lost or exhausted device would make it
+// fail, so that tests can sweep N over a whole run and check that every failure is named,
+// classified and leaves nothing that claims success (tests/python/test_device_faults.py). Off
+// unless asked for.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -19,7 +20,8 @@ struct FaultInjection {
 };
 
 // "submit:3:device-lost", "allocation:1:out-of-device-memory", "map:2:device-lost",
-// "pipeline:4:out-of-device-memory" (what VKUNROLL_INJECT_FAULT takes); a UsageError naming `what` otherwise.
+// "pipeline:4:out-of-device-memory" (what VKUNROLL_INJECT_FAULT takes); a UsageError naming `what`
+// otherwise.
 FaultInjection parse_fault_injection(const std::string& text, const std::string& what);
 
 // Counts the calls at each site; the one asked for fails.
