@@ -1,12 +1,12 @@
 #include "vkunroll/runtime/command_stream.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cstring>
 #include <cstdlib>
 #include <sstream>
 
 #include "vkunroll/base/env.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
 #include "vkunroll/runtime/profiler.hpp"
@@ -379,12 +379,11 @@ void CommandStream::submit_and_wait() {
     reset();
     throw;
   }
-  const auto wait_start = std::chrono::steady_clock::now();
   struct WaitClock {  // counts the wait also when the submission throws
     DeviceTraffic& traffic;
-    std::chrono::steady_clock::time_point t0;
-    ~WaitClock() { traffic.wait_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(); }
-  } wait_clock{ctx_.traffic(), wait_start};
+    Clock::time_point t0;
+    ~WaitClock() { traffic.wait_ms += ms_since(t0); }
+  } wait_clock{ctx_.traffic(), Clock::now()};
   VkSubmitInfo si{VK_STRUCTURE_TYPE_SUBMIT_INFO};
   si.commandBufferCount = 1;
   si.pCommandBuffers = &cb_;
