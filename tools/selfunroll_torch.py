@@ -317,6 +317,12 @@ def event_gate(ev1: torch.Tensor, ev2: torch.Tensor, radius: int) -> torch.Tenso
     return F.conv2d(x, w, padding=radius).clamp(0.0, 1.0)
 
 
+def event_gate_items(ev1: torch.Tensor, ev2: torch.Tensor, radii) -> torch.Tensor:
+    """event_gate with batch item i at radii[i] (training at the radius `--gate-radius auto` picks
+    for each item's recording)."""
+    return torch.cat([event_gate(ev1[i:i + 1], ev2[i:i + 1], int(r)) for i, r in enumerate(radii)])
+
+
 class SelfUnroll(nn.Module):
     def __init__(self, cfg: Optional[SelfUnrollConfig] = None):
         super().__init__()
@@ -336,9 +342,11 @@ class SelfUnroll(nn.Module):
         if cfg.moa:
             self.attfusion_net = Unet(3 + 3 + 2 * nev + 2 + 2, 1, cfg.attfusion_net.base, cfg.attfusion_net.depth, s)
 
-    def forward(self, rs, ev1, ev2, ev3, moa: Optional[bool] = None, force_m: Optional[float] = None, phys=None):
+    def forward(self, rs, ev1, ev2, ev3, moa: Optional[bool] = None, force_m: Optional[float] = None, phys=None,
+                gate_radii=None):
         """Returns (sys, E, flow, warped, fused, m, out); m and out are None for SelfUnroll-S.
         `phys` (physics-informed variant only, [B,3,H,W]): the physics unroller's estimate.
+        `gate_radii` (a gated variant): each item's event gate radius instead of cfg.physics_gate.
         `force_m` replaces the blend map by a constant (tests: m = 1 gives S of frame 1).
         An odd height or width (space_to_depth needs even sizes) is handled by padding every
         input by one row/column at the bottom/right (reflection; replication for size 1),
@@ -354,7 +362,8 @@ class SelfUnroll(nn.Module):
             def even(t):
                 mode = "reflect" if (h > 1 or h % 2 == 0) and (w > 1 or w % 2 == 0) else "replicate"
                 return None if t is None else F.pad(t, pads, mode=mode)
-            res = self.forward(even(rs), even(ev1), even(ev2), even(ev3), moa=moa, force_m=force_m, phys=even(phys))
+            res = self.forward(even(rs), even(ev1), even(ev2), even(ev3), moa=moa, force_m=force_m, phys=even(phys),
+                               gate_radii=gate_radii)
             return tuple(None if t is None else t[:, :, :h, :w] for t in res)
         if phys is not None:
             phys = phys.clamp(0.0, 1.0)  # the physics output is capped at 1e4, not at 1
@@ -376,7 +385,8 @@ class SelfUnroll(nn.Module):
             c = F.hardsigmoid(fused[:, 3:4])  # = the C++ blend(hardsigmoid(score), a, b)
             fused = c * fused[:, :3] + (1 - c) * phys
         if phys is not None and self.cfg.physics_gate >= 0:
-            g = event_gate(ev1, ev2, self.cfg.physics_gate)
+            g = (event_gate(ev1, ev2, self.cfg.physics_gate) if gate_radii is None
+                 else event_gate_items(ev1, ev2, gate_radii))
             fused = g * fused + (1 - g) * phys  # = the C++ blend(m, a, b) op
         if not moa:
             return sys_, E, flow, warped, fused, None, None

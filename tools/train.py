@@ -46,7 +46,8 @@ from selfunroll_torch import SelfUnroll, SelfUnrollConfig, Unet, UnetConfig  # n
 from sequence_data import DataError, Sequence, list_sequences  # noqa: E402
 from adapt_holdout import AdaptGuard  # noqa: E402
 from train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop_img, describe_data, find_cli,  # noqa: E402,F401
-                        SUPERVISED_PASSES, from_model_encoding, gt_targets, make_data, make_sample, write_cache)
+                        SUPERVISED_PASSES, from_model_encoding, gt_targets, images, make_data, make_sample, stack,
+                        stack_lr, write_cache)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSS_WEIGHTS = {"lc": 1.0, "cc": 1.0, "tc": 1.0, "tv": 0.01}
@@ -163,22 +164,6 @@ def reset_moa(net: SelfUnroll, seed: int) -> None:
 
 
 # ---- sampling (tools/train_data.py) ------------------------------------------------------------------
-def stack(samples: List[Sample], key: str, device="cpu"):
-    """Batched (ev1, ev2, ev3) tensors of pass `key` over the samples."""
-    return [torch.from_numpy(np.stack([s.ev[key][i] for s in samples])).to(device) for i in range(3)]
-
-
-def stack_lr(samples: List[Sample], keys, device="cpu"):
-    """Batched physics log ratios of the passes `keys` (concatenated in that order), or None."""
-    if samples[0].lr is None:
-        return None
-    return torch.cat([torch.from_numpy(np.stack([s.lr[k] for s in samples])) for k in keys]).to(device)
-
-
-def images(samples: List[Sample], key: str, device="cpu"):
-    return torch.from_numpy(np.stack([getattr(s, key) for s in samples])).to(device)
-
-
 # ---- losses -----------------------------------------------------------------------------------------
 def l1(a, b):
     return (a - b).abs().mean()
@@ -188,15 +173,16 @@ def tv(flow):
     return (flow[:, :, 1:, :] - flow[:, :, :-1, :]).abs().mean() + (flow[:, :, :, 1:] - flow[:, :, :, :-1]).abs().mean()
 
 
-def run_s(net: SelfUnroll, img, ev, lr=None):
+def run_s(net: SelfUnroll, img, ev, lr=None, gate_radii=None):
     """SelfUnroll-S on a batch; `lr` (physics variant): the passes' physics log ratios [B,1,H,W],
-    applied to `img` itself (also a network output: the cycle passes), so phys follows the input."""
+    applied to `img` itself (also a network output: the cycle passes), so phys follows the input;
+    `gate_radii`: each item's event gate radius (None: the model's)."""
     phys = None
     if net.cfg.physics_input:
         if lr is None:
             raise DataError("the physics-informed variant needs samples with physics log ratios")
         phys = pn.apply_log_ratio_torch(img, lr, net.cfg.gamma or 1.0)
-    sys_, E, flow, warped, fused, _, _ = net(img, ev[0], ev[1], ev[2], moa=False, phys=phys)
+    sys_, E, flow, warped, fused, _, _ = net(img, ev[0], ev[1], ev[2], moa=False, phys=phys, gate_radii=gate_radii)
     return {"sys": sys_, "E": E, "flow": flow, "warped": warped, "fused": fused, "ev1": ev[0]}
 
 
@@ -204,7 +190,8 @@ def run_passes(net: SelfUnroll, img, samples: List[Sample], passes, device):
     """run_s on the event tensors of `passes` batched pass after pass (B items each); `img` is the
     input batch in the same order."""
     ev = [torch.cat(t) for t in zip(*(stack(samples, p, device) for p in passes))]
-    return run_s(net, img, ev, stack_lr(samples, passes, device))
+    radii = None if all(s.gate_radius < 0 for s in samples) else [s.gate_radius for s in samples] * len(passes)
+    return run_s(net, img, ev, stack_lr(samples, passes, device), radii)
 
 
 def split(o: dict, n: int):
@@ -482,6 +469,8 @@ def build_model(a, state):
 
 def make_sampler(a, cfg, rng, out):
     """Samples from a cache (--cache), else drawn from the sequences of --data (or --adapt)."""
+    if a.gate_radii and cfg.physics_gate < 0:
+        raise DataError(f"--gate-radii {a.gate_radii}: the model has no event gate (--physics-gate)")
     if a.cache:
         cs = CacheSampler(a.cache, rng, cfg.N, cfg.physics_input, a.supervised)
         return cs, [], f"cache {a.cache}: {len(cs)} samples of {len(cs.seqs)} sequences", [a.cache]
@@ -491,7 +480,7 @@ def make_sampler(a, cfg, rng, out):
     if a.adapt:  # one recording: crops as large as asked, at most the sensor
         cw, ch = min(cw, seqs[0].width), min(ch, seqs[0].height)
     sampler = Sampler(seqs, cw, ch, cfg.N, a.target_exposure_us, rng, a.supervised, cfg.physics_input, cfg.gamma,
-                      a.data_gamma, os.path.join(out, "contrast_cache.json"), a.event_crops)
+                      a.data_gamma, os.path.join(out, "contrast_cache.json"), a.event_crops, a.gate_radii)
     return sampler, seqs, describe_data(paths, seqs), paths
 
 
@@ -749,6 +738,8 @@ def main(argv=None) -> int:
     g.add_argument("--make-cache", metavar="DIR", help="draw --cache-samples samples from --data into DIR and exit")
     g.add_argument("--cache-samples", type=int, default=2048)
     g.add_argument("--cache", metavar="DIR", help="train on the samples of a cache instead of --data")
+    g.add_argument("--gate-radii", metavar="FILE", help="gated variant: each --data sequence's event gate radius "
+                   "(tools/gate_radii.py: what `unroll --gate-radius auto` picks there) instead of the model's")
     g = ap.add_argument_group("export only")
     g.add_argument("--export-checkpoint", nargs=2, metavar=("CKPT", "OUT"))
     a = ap.parse_args(argv)
@@ -780,6 +771,8 @@ def main(argv=None) -> int:
             ap.error(f"--event-crops {a.event_crops}: expected a probability in [0, 1]")
         if a.make_cache and a.cache:
             ap.error("--make-cache draws from --data, not from --cache")
+        if a.gate_radii and (a.cache or a.make_cache):
+            ap.error("--gate-radii applies to samples drawn from --data, not to a cache")
         if a.device.startswith("cuda") and not torch.cuda.is_available():
             ap.error(f"--device {a.device}: this PyTorch has no CUDA device")
         refuse_heldout(a.data or [], "--data")

@@ -43,6 +43,34 @@ class Sample:
     ev: Dict[str, Tuple[np.ndarray, np.ndarray, np.ndarray]]
     gt: Optional[np.ndarray] = None  # only in --supervised mode
     lr: Optional[Dict[str, np.ndarray]] = None
+    gate_radius: int = -1  # the event gate radius for this sample's recording; -1: the model's
+
+
+def stack(samples: List[Sample], key: str, device="cpu"):
+    """Batched (ev1, ev2, ev3) tensors of pass `key` over the samples."""
+    return [torch.from_numpy(np.stack([s.ev[key][i] for s in samples])).to(device) for i in range(3)]
+
+
+def stack_lr(samples: List[Sample], keys, device="cpu"):
+    """Batched physics log ratios of the passes `keys` (concatenated in that order), or None."""
+    if samples[0].lr is None:
+        return None
+    return torch.cat([torch.from_numpy(np.stack([s.lr[k] for s in samples])) for k in keys]).to(device)
+
+
+def images(samples: List[Sample], key: str, device="cpu"):
+    return torch.from_numpy(np.stack([getattr(s, key) for s in samples])).to(device)
+
+
+def load_gate_radii(path: Optional[str]) -> Dict[str, int]:
+    """{absolute sequence folder: radius} from tools/gate_radii.py's file ({} without one)."""
+    if not path:
+        return {}
+    try:
+        got = json.load(open(path))
+        return {os.path.abspath(k): int(v["radius"]) for k, v in got.items()}
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise DataError(f"{path}: expected tools/gate_radii.py's JSON ({{folder: {{\"radius\": R, ...}}}}): {e}")
 
 
 def crop_img(img: np.ndarray, crop) -> np.ndarray:
@@ -127,7 +155,7 @@ class Sampler:
     def __init__(self, seqs: List[Sequence], crop_w: int, crop_h: int, bins: int, target_exposure: Optional[float],
                  rng: random.Random, supervised: bool = False, physics: bool = False,
                  model_gamma: Optional[float] = None, default_gamma: float = 1.0, contrast_cache: Optional[str] = None,
-                 event_crops: float = 0.0):
+                 event_crops: float = 0.0, gate_radii: Optional[str] = None):
         self.seqs = [s for s in seqs if s.num_frames >= 2]
         if not self.seqs:
             raise DataError("training needs sequences with at least 2 RS frames")
@@ -141,6 +169,8 @@ class Sampler:
         self.physics, self.model_gamma = physics, model_gamma
         self.default_gamma, self.contrast_cache = default_gamma, contrast_cache
         self.event_crops = event_crops
+        self.gate_radii_file, self.gate_radii = gate_radii, load_gate_radii(gate_radii)
+        self.check_gate_radii(self.seqs)
         self.infos: Dict[str, SeqInfo] = {}
         self.pairs: Dict[str, List[int]] = {}  # folder -> the pairs k (k, k+1) to draw from; absent: all
 
@@ -149,7 +179,14 @@ class Sampler:
             self.infos[seq.folder] = SeqInfo(seq, self.default_gamma, self.contrast_cache)
         return self.infos[seq.folder]
 
+    def check_gate_radii(self, seqs: List[Sequence]) -> None:
+        missing = [s.folder for s in seqs if self.gate_radii and os.path.abspath(s.folder) not in self.gate_radii]
+        if missing:
+            raise DataError(f"{self.gate_radii_file}: no gate radius for {len(missing)} training sequences, "
+                            f"e.g. {missing[0]}")
+
     def add(self, seqs: List[Sequence]) -> None:
+        self.check_gate_radii(seqs)
         self.seqs += [s for s in seqs if s.num_frames >= 2]
 
     def draw(self) -> Sample:
@@ -177,9 +214,11 @@ class Sampler:
             t_star = seq.gt[gt_index][1]
         else:
             t_star = r.uniform(lo, hi)
-        return make_sample(seq, k, (x0, y0, self.crop_w, self.crop_h), t_star, texp, self.bins, gt_index,
-                           self.info(seq), self.model_gamma, self.physics,
-                           SUPERVISED_PASSES if self.supervised else PASSES)
+        smp = make_sample(seq, k, (x0, y0, self.crop_w, self.crop_h), t_star, texp, self.bins, gt_index,
+                          self.info(seq), self.model_gamma, self.physics,
+                          SUPERVISED_PASSES if self.supervised else PASSES)
+        smp.gate_radius = self.gate_radii.get(os.path.abspath(seq.folder), -1)
+        return smp
 
 
 # ---- cache of pre-drawn samples -------------------------------------------------------------------------

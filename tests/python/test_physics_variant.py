@@ -206,6 +206,33 @@ def test_event_gate_keeps_physics_where_no_event_is_near():
         SelfUnrollConfig.from_metadata({**SelfUnrollConfig().to_metadata(), "physics_gate": "1"})
 
 
+def test_gate_radii_give_each_item_its_own_radius(tmp_path):
+    """forward(gate_radii=[r0, r1, ...]): item i is gated as a model with physics_gate = r_i gates
+    it (training at the radius `--gate-radius auto` picks per recording); the radii file's errors."""
+    net = tiny_variant()
+    with torch.no_grad():
+        for prm in net.parameters():
+            prm.add_(0.05 * torch.randn_like(prm))
+    rs, ev, phys = random_inputs(net.cfg, seed=5)
+    for e in ev[:2]:
+        e.zero_()
+    for b in range(rs.shape[0]):
+        ev[0][b, 1, 10, 20] = 2.0  # one event per item: radius 1 and 2 gate different rings
+    with torch.no_grad():
+        alone = {}
+        for r in (1, 2):
+            net.cfg.physics_gate = r
+            alone[r] = net(rs, *ev, phys=phys, moa=False)[4]
+        mixed = net(rs, *ev, phys=phys, moa=False, gate_radii=[2, 1])[4]
+    assert not torch.equal(alone[1][0], alone[2][0])
+    assert torch.equal(mixed[0], alone[2][0]) and torch.equal(mixed[1], alone[1][1])
+    assert train_data.load_gate_radii(None) == {}
+    bad = tmp_path / "radii.json"
+    bad.write_text('{"/x": {"frame_noise": 0.1}}')
+    with pytest.raises(train.DataError, match="radii.json.*radius"):
+        train_data.load_gate_radii(str(bad))
+
+
 def test_learned_confidence_starts_near_the_input_model_and_blends_per_pixel():
     """add_confidence: the same weights plus a 4th fusion_net channel c = hardsigmoid(2.9) = 0.983
     at the start, fused = c * network + (1 - c) * phys per pixel; the gate still keeps physics
@@ -505,6 +532,11 @@ def test_gate_radius_is_chosen_said_and_reaches_the_model(tmp_path):
         first = open(out / "metrics.csv").read().splitlines()[1].split(",")
         images[radius] = read_image(str(out / first[3]))
     assert float(np.abs(images["0"] - images["4"]).max()) > 1e-3
+    radii = tmp_path / "radii.json"  # tools/gate_radii.py (train.py --gate-radii) picks as auto did
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "gate_radii.py"), "--cli", CLI, "--out", radii,
+                        "--model-radius", "1", str(seq)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert train_data.load_gate_radii(str(radii)) == {os.path.abspath(seq): 1}
     plain = tiny_variant(3)  # no gate
     plain_model = str(tmp_path / "p.safetensors")
     train.export(plain, plain_model, {"data": "test"})
