@@ -163,7 +163,6 @@ def reset_moa(net: SelfUnroll, seed: int) -> None:
         net.attfusion_net.pred.bias.zero_()
 
 
-# ---- sampling (tools/train_data.py) ------------------------------------------------------------------
 # ---- losses -----------------------------------------------------------------------------------------
 def l1(a, b):
     return (a - b).abs().mean()
@@ -190,7 +189,8 @@ def run_passes(net: SelfUnroll, img, samples: List[Sample], passes, device):
     """run_s on the event tensors of `passes` batched pass after pass (B items each); `img` is the
     input batch in the same order."""
     ev = [torch.cat(t) for t in zip(*(stack(samples, p, device) for p in passes))]
-    radii = None if all(s.gate_radius < 0 for s in samples) else [s.gate_radius for s in samples] * len(passes)
+    radii = (None if all(s.gate_radius < 0 for s in samples) else  # -1: the model's own radius
+             [s.gate_radius if s.gate_radius >= 0 else net.cfg.physics_gate for s in samples] * len(passes))
     return run_s(net, img, ev, stack_lr(samples, passes, device), radii)
 
 

@@ -405,6 +405,30 @@ def test_confidence_only_training_moves_the_confidence_row_and_nothing_else(tmp_
     assert r.returncode == 1 and "--confidence-only" in r.stderr and "--physics-confidence" in r.stderr
 
 
+def test_gate_radii_file_trains_and_is_checked(tmp_path, seq_dir):
+    """--gate-radii FILE: a gated variant trains with each sequence's radius from the file; a file
+    without the training sequence, or a model without a gate, is refused naming the file."""
+    base = perturbed_variant(seed=8)
+    base.cfg.physics_gate = 1
+    base_path = tmp_path / "base.safetensors"
+    train.export(base, str(base_path), {"data": "test"})
+    radii = tmp_path / "radii.json"
+    radii.write_text(json.dumps({os.path.abspath(seq_dir): {"radius": 2}}))
+    args = ["--data", seq_dir, "--supervised", "--crop", "32x32", "--batch", "2", "--steps-s", "2", "--steps-m", "1",
+            "--print-every", "0", "--seed", "2", "--gate-radii", radii]
+    r = run_train("--from", base_path, "--out", tmp_path / "g", *args)
+    assert r.returncode == 0 and "[s] step 2/2" in r.stdout and "[m] step 1/1" in r.stdout, r.stdout + r.stderr
+    assert "--gate-radii" in safetensors_io.load(str(tmp_path / "g" / "model.safetensors"))[1]["training.command"]
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"/elsewhere": {"radius": 1}}))
+    r = run_train("--from", base_path, "--out", tmp_path / "h", *args[:-1], other)
+    assert r.returncode == 1 and "other.json: no gate radius for 1 training sequences" in r.stderr, r.stderr
+    plain = tmp_path / "plain.safetensors"
+    train.export(perturbed_variant(seed=8), str(plain), {"data": "test"})
+    r = run_train("--from", plain, "--out", tmp_path / "p", *args)
+    assert r.returncode == 1 and "the model has no event gate" in r.stderr, r.stderr
+
+
 # ---- the variant in the C++ CLI ------------------------------------------------------------------------
 def perturbed_variant(seed=5):
     net = tiny_variant(seed)
