@@ -471,6 +471,8 @@ def make_sampler(a, cfg, rng, out):
     """Samples from a cache (--cache), else drawn from the sequences of --data (or --adapt)."""
     if a.gate_radii and cfg.physics_gate < 0:
         raise DataError(f"--gate-radii {a.gate_radii}: the model has no event gate (--physics-gate)")
+    if a.contrast_jitter > 1.0 and not cfg.physics_input:
+        raise DataError(f"--contrast-jitter {a.contrast_jitter:g}: the model has no physics input (--physics-variant)")
     if a.cache:
         cs = CacheSampler(a.cache, rng, cfg.N, cfg.physics_input, a.supervised)
         return cs, [], f"cache {a.cache}: {len(cs)} samples of {len(cs.seqs)} sequences", [a.cache]
@@ -480,7 +482,8 @@ def make_sampler(a, cfg, rng, out):
     if a.adapt:  # one recording: crops as large as asked, at most the sensor
         cw, ch = min(cw, seqs[0].width), min(ch, seqs[0].height)
     sampler = Sampler(seqs, cw, ch, cfg.N, a.target_exposure_us, rng, a.supervised, cfg.physics_input, cfg.gamma,
-                      a.data_gamma, os.path.join(out, "contrast_cache.json"), a.event_crops, a.gate_radii)
+                      a.data_gamma, os.path.join(out, "contrast_cache.json"), a.event_crops, a.gate_radii,
+                      a.contrast_jitter)
     return sampler, seqs, describe_data(paths, seqs), paths
 
 
@@ -512,7 +515,9 @@ def train(a) -> None:
                        resumed=bool(a.resume), log=lambda m: print(m, flush=True)) if a.adapt else None
     print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}, "
           f"{'physics-informed, ' if cfg.physics_input else ''}gamma {cfg.gamma}; data: {data_desc}; "
-          f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, device {dev}, threads {a.threads}", flush=True)
+          f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, device {dev}, threads {a.threads}"
+          + (f"; physics contrast x [1/{a.contrast_jitter:g}, {a.contrast_jitter:g}]" if a.contrast_jitter > 1 else ""),
+          flush=True)
     if a.make_cache:
         write_cache(sampler, a.make_cache, a.cache_samples, log=lambda m: print(m, flush=True))
         return
@@ -730,6 +735,9 @@ def main(argv=None) -> int:
                    help="with --from: restart attfusion_net.pred near m = 0.5 (a saturated MOA cannot learn)")
     g.add_argument("--event-crops", type=float, default=0.0, metavar="P",
                    help="with probability P a crop is centred on a random event of its frame pair (else uniform) [0]")
+    g.add_argument("--contrast-jitter", type=float, default=1.0, metavar="J",
+                   help="physics variant: each sample's physics input at its recording's contrast times a factor "
+                   "drawn log-uniformly in [1/J, J] (a model that tolerates a misestimated contrast) [1: none]")
     g = ap.add_argument_group("adaptation to one recording (self-supervised; ground truth is never read)")
     g.add_argument("--adapt", metavar="SEQUENCE", help="fine-tune --from on this recording alone (stage S), "
                    "for --minutes; writes OUT/adapted.safetensors (or --export)")
@@ -771,6 +779,10 @@ def main(argv=None) -> int:
             ap.error(f"--event-crops {a.event_crops}: expected a probability in [0, 1]")
         if a.make_cache and a.cache:
             ap.error("--make-cache draws from --data, not from --cache")
+        if not a.contrast_jitter >= 1.0:
+            ap.error(f"--contrast-jitter {a.contrast_jitter}: expected a factor >= 1")
+        if a.contrast_jitter > 1.0 and (a.cache or a.make_cache):
+            ap.error("--contrast-jitter applies to samples drawn from --data, not to a cache")
         if a.gate_radii and (a.cache or a.make_cache):
             ap.error("--gate-radii applies to samples drawn from --data, not to a cache")
         if a.device.startswith("cuda") and not torch.cuda.is_available():

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import glob
 import json
+import math
 import os
 import random
 import shlex
@@ -125,8 +126,9 @@ class SeqInfo:
 
 def make_sample(seq: Sequence, k: int, crop, t_star: float, texp: float, bins: int, gt_index: Optional[int] = None,
                 info: Optional[SeqInfo] = None, model_gamma: Optional[float] = None, physics: bool = False,
-                passes=PASSES) -> Sample:
-    """`passes`: the E-IC passes to bin (the supervised loss needs only g1 and g2)."""
+                passes=PASSES, contrast_scale: float = 1.0) -> Sample:
+    """`passes`: the E-IC passes to bin (the supervised loss needs only g1 and g2); `contrast_scale`:
+    the physics input at that multiple of the sequence's estimated contrast."""
     s1, e1 = seq.row_times(k)
     s2, e2 = seq.row_times(k + 1)
     H = seq.height
@@ -142,7 +144,7 @@ def make_sample(seq: Sequence, k: int, crop, t_star: float, texp: float, bins: i
     tens = {p: eic_tensors(ev, a, b, tg, te, bins, crop) for p, (a, b, tg, te) in windows.items()}
     lr = None
     if physics:
-        c = info.contrast()
+        c = info.contrast() * contrast_scale
         lr = {p: pn.physics_log_ratio(ev, a, b, tg, c, crop)[None].astype(np.float32)
               for p, (a, b, tg, _) in windows.items()}
     fg = info.gamma if info else 1.0
@@ -155,7 +157,7 @@ class Sampler:
     def __init__(self, seqs: List[Sequence], crop_w: int, crop_h: int, bins: int, target_exposure: Optional[float],
                  rng: random.Random, supervised: bool = False, physics: bool = False,
                  model_gamma: Optional[float] = None, default_gamma: float = 1.0, contrast_cache: Optional[str] = None,
-                 event_crops: float = 0.0, gate_radii: Optional[str] = None):
+                 event_crops: float = 0.0, gate_radii: Optional[str] = None, contrast_jitter: float = 1.0):
         self.seqs = [s for s in seqs if s.num_frames >= 2]
         if not self.seqs:
             raise DataError("training needs sequences with at least 2 RS frames")
@@ -169,6 +171,9 @@ class Sampler:
         self.physics, self.model_gamma = physics, model_gamma
         self.default_gamma, self.contrast_cache = default_gamma, contrast_cache
         self.event_crops = event_crops
+        if not contrast_jitter >= 1.0:
+            raise DataError(f"contrast jitter {contrast_jitter}: expected a factor >= 1")
+        self.contrast_jitter = contrast_jitter
         self.gate_radii_file, self.gate_radii = gate_radii, load_gate_radii(gate_radii)
         self.check_gate_radii(self.seqs)
         self.infos: Dict[str, SeqInfo] = {}
@@ -214,9 +219,11 @@ class Sampler:
             t_star = seq.gt[gt_index][1]
         else:
             t_star = r.uniform(lo, hi)
+        # log-uniform in [1/J, J]; no draw at J = 1, so runs without jitter keep their samples
+        scale = math.exp(r.uniform(-1.0, 1.0) * math.log(self.contrast_jitter)) if self.contrast_jitter > 1.0 else 1.0
         smp = make_sample(seq, k, (x0, y0, self.crop_w, self.crop_h), t_star, texp, self.bins, gt_index,
                           self.info(seq), self.model_gamma, self.physics,
-                          SUPERVISED_PASSES if self.supervised else PASSES)
+                          SUPERVISED_PASSES if self.supervised else PASSES, scale)
         smp.gate_radius = self.gate_radii.get(os.path.abspath(seq.folder), -1)
         return smp
 

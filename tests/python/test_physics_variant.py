@@ -286,6 +286,51 @@ def test_event_crops_land_on_events(seq_dir):
     assert counts[1.0] == 12 and counts[0.0] < 8, counts
 
 
+def test_contrast_jitter_scales_each_samples_physics_input(seq_dir, tmp_path, monkeypatch):
+    """--contrast-jitter J: each sample's physics input is the log ratio at its recording's contrast
+    times a factor in [1/J, J], drawn per sample; J = 1 draws nothing, so the samples stay as before."""
+    s = Sequence(seq_dir)
+    cache = str(tmp_path / "contrast.json")
+    c = train_data.SeqInfo(s, 1.0, cache).contrast()
+    scales, make = [], train_data.make_sample
+
+    def recording(*args):
+        scales.append(args[11] if len(args) > 11 else 1.0)
+        return make(*args)
+    monkeypatch.setattr(train_data, "make_sample", recording)
+    drawn = {}
+    for jitter in (1.0, 1.5):
+        sampler = train_data.Sampler([s], 24, 24, 2, None, random.Random(4), supervised=True, physics=True,
+                                     contrast_cache=cache, contrast_jitter=jitter)
+        drawn[jitter] = [sampler.draw() for _ in range(6)]
+    assert scales[:6] == [1.0] * 6
+    assert all(1 / 1.5 <= m <= 1.5 for m in scales[6:]) and max(scales[6:]) - min(scales[6:]) > 0.1, scales
+    monkeypatch.setattr(train_data, "make_sample", make)
+    plain = train_data.Sampler([s], 24, 24, 2, None, random.Random(4), supervised=True, physics=True, contrast_cache=cache)
+    assert all(np.array_equal(a.lr["g1"], plain.draw().lr["g1"]) for a in drawn[1.0])
+    # a drawn factor reaches the physics input: the log ratio at c * m
+    k, crop, t = 0, (4, 6, 24, 24), float(s.gt[1][1])
+    info = train_data.SeqInfo(s, 1.0, cache)
+    smp = make(s, k, crop, t, s.exposure, 2, 1, info, None, True, train_data.SUPERVISED_PASSES, 1.3)
+    s1, e1 = s.row_times(k)
+    ev = s.events_in(min(s1.min(), t) - 1.0, max(s.row_times(k + 1)[1].max(), t + s.exposure) + 1.0, crop)
+    want = pn.physics_log_ratio(ev, s1, e1, np.full(s.height, t), 1.3 * c, crop)
+    assert np.allclose(smp.lr["g1"][0], want, atol=1e-6) and not np.allclose(smp.lr["g1"][0], want / 1.3, atol=1e-3)
+    with pytest.raises(train_data.DataError, match="expected a factor >= 1"):
+        train_data.Sampler([s], 24, 24, 2, None, random.Random(4), physics=True, contrast_jitter=0.5)
+
+
+def test_contrast_jitter_is_refused_without_physics_input_or_with_a_cache(tmp_path, seq_dir):
+    r = run_train("--data", seq_dir, "--out", tmp_path / "o", "--config", "tiny", "--crop", "32x32", "--steps-s", "1",
+                  "--steps-m", "0", "--contrast-jitter", "1.5")
+    assert r.returncode == 1 and "--contrast-jitter 1.5: the model has no physics input" in r.stderr, r.stderr
+    r = run_train("--cache", tmp_path / "nowhere", "--out", tmp_path / "o", "--config", "tiny", "--physics-variant",
+                  "--contrast-jitter", "1.5")
+    assert r.returncode == 2 and "--contrast-jitter applies to samples drawn from --data" in r.stderr, r.stderr
+    r = run_train("--data", seq_dir, "--out", tmp_path / "o", "--config", "tiny", "--contrast-jitter", "0.8")
+    assert r.returncode == 2 and "--contrast-jitter 0.8: expected a factor >= 1" in r.stderr, r.stderr
+
+
 def test_converter_knows_the_variant(tmp_path, capsys):
     net = tiny_variant()
     torch.save({"state_dict": {"module." + k: v for k, v in net.state_dict().items()}}, tmp_path / "v.pth")
