@@ -17,7 +17,7 @@ tests/python/test_physics.py compares this with the CLI's output.
 """
 from __future__ import annotations
 
-from typing import List, Optional, Sequence as Seq, Tuple
+from typing import Optional, Sequence as Seq, Tuple
 
 import numpy as np
 
@@ -130,11 +130,19 @@ def event_band(img: np.ndarray, phys: np.ndarray, contrast: float, gamma: float,
     return np.clip(np.asarray(img, np.float64), inv(lin * np.exp(-wc)), inv(lin * np.exp(wc))).astype(np.float32)
 
 
-def apply_log_ratio_torch(img, log_ratio, gamma: float, max_value: float = MAX_VALUE):
-    """apply_log_ratio in torch, differentiable in img: v * exp(lr / gamma), capped at
-    max_value^(1/gamma), 0 where v <= 0. img [B, C, H, W], log_ratio [B, 1, H, W]."""
+def apply_log_ratio_torch(img, log_ratio, gamma: float, max_value: float = MAX_VALUE, log_offset: float = 0.0):
+    """apply_log_ratio in torch, differentiable in img. At log offset 0 (the variant's input):
+    v * exp(lr / gamma), capped at max_value^(1/gamma), 0 where v <= 0. img [B, C, H, W],
+    log_ratio [B, 1, H, W]."""
     import torch
     g = float(np.float32(gamma))
+    eps = float(np.float32(log_offset))
+    if eps != 0.0:  # the offset form of apply_log_ratio, term by term
+        lin = torch.where(img > 0, img.clamp(min=0) ** g, torch.zeros_like(img)) + eps
+        o = torch.clamp(torch.exp(torch.clamp(torch.log(lin.clamp(min=1e-300)) + log_ratio,
+                                              max=float(np.log(np.float32(max_value))))),
+                        max=float(np.float32(max_value))) - eps
+        return torch.where(o > 0, o.clamp(min=0) ** (1.0 / g), torch.zeros_like(o))
     cap = float(np.log(np.float32(max_value))) / g
     pos = img > 0
     safe = torch.where(pos, img, torch.ones_like(img))

@@ -66,6 +66,21 @@ def test_log_ratio_matches_the_cpp_formula_for_rs_targets(seq_dir):
         assert checked >= 3
 
 
+@pytest.mark.parametrize("log_offset", [0.0, 0.001, 0.05])
+def test_torch_log_ratio_applies_as_the_numpy_formula(log_offset):
+    """apply_log_ratio_torch (the variant's physics input, differentiable) against apply_log_ratio (the
+    C++ formula), at offset 0 and at fitted offsets, with dark, zero and capped pixels."""
+    rng = np.random.default_rng(3)
+    img = rng.uniform(0, 1, (1, 3, 9, 11)).astype(np.float32)
+    img[0, :, 0, :3] = 0.0
+    lr = rng.normal(0, 1.5, (1, 1, 9, 11)).astype(np.float32)
+    lr[0, 0, 1, :2] = 30.0  # past max_value: capped
+    want = pn.apply_log_ratio(img[0], lr[0, 0], 2.2, log_offset=log_offset)
+    got = pn.apply_log_ratio_torch(torch.from_numpy(img).double(), torch.from_numpy(lr).double(), 2.2,
+                                   log_offset=log_offset)[0].numpy()
+    np.testing.assert_allclose(got, want, rtol=2e-6, atol=2e-6)
+
+
 @needs_cli
 def test_physics_numpy_equals_vkunroll_unroll_physics(tmp_path):
     """Same contrast estimate and the same images as the CLI (CPU reference and Vulkan kernel):

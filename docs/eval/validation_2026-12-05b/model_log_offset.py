@@ -6,9 +6,6 @@ physics summary; every other step is tools/natural_eval.py's. Arguments: natural
 import os
 import sys
 
-import numpy as np
-import torch
-
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
 sys.path.insert(0, os.path.join(ROOT, "tools"))
 import natural_eval  # noqa: E402
@@ -26,13 +23,12 @@ def cli_metrics_noting_offset(cli, seq, work, mode, model=None, gate="model"):
     return res
 
 
+apply_log_ratio_torch = pn.apply_log_ratio_torch
+
+
 def apply_log_ratio_offset(img, log_ratio, gamma, max_value=pn.MAX_VALUE):
-    """apply_log_ratio (the C++ formula, offset eps) in torch."""
-    g, eps = float(np.float32(gamma)), float(np.float32(EPS["value"]))
-    lin = torch.where(img > 0, img.clamp(min=0) ** g, torch.zeros_like(img)) + eps
-    o = torch.clamp(torch.exp(torch.clamp(torch.log(lin.clamp(min=1e-30)) + log_ratio, max=float(np.log(max_value)))),
-                    max=max_value) - eps
-    return torch.where(o > 0, o.clamp(min=0) ** (1.0 / g), torch.zeros_like(o))
+    """The mirror's physics input at the sequence's fitted offset instead of 0."""
+    return apply_log_ratio_torch(img, log_ratio, gamma, max_value, log_offset=EPS["value"])
 
 
 natural_eval.cli_metrics = cli_metrics_noting_offset
