@@ -107,6 +107,30 @@ TEST(ContrastEstimate, WithinTwoHundredthsOnNoisySensors) {
   }
 }
 
+// The log offset is fitted on a grid; where its largest candidate binds (a sensor whose dark offset
+// is larger), the run says that the contrast is the grid's, not the data's. Where it does not, silence.
+TEST(ContrastEstimate, WarnsWhenTheLargestLogOffsetBindsTheFit) {
+  for (double eps : {0.01, 0.3}) {
+    sim::SimulationConfig cfg = sim::simulation_preset("clean");
+    cfg.seed = 5;
+    cfg.frames = 4;
+    cfg.events.eps = eps;
+    const Noisy n = simulate_sequence(cfg);
+    const ContrastEstimate e = estimate(n, n.seq.events);
+    ASSERT_FALSE(e.is_default) << e.source;
+    const bool warned = e.warning.find("largest candidate (0.05)") != std::string::npos;
+    std::printf("true log offset %g: fitted %g, c %.4f; %s\n", eps, e.log_offset, e.contrast, e.warning.c_str());
+    if (eps > 0.05) {
+      EXPECT_EQ(e.log_offset, 0.05);
+      EXPECT_TRUE(warned) << e.warning;
+      EXPECT_NE(e.warning.find("bounded by the offset grid"), std::string::npos) << e.warning;
+    } else {
+      EXPECT_LT(e.log_offset, 0.05);
+      EXPECT_FALSE(warned) << e.warning;
+    }
+  }
+}
+
 TEST(ContrastEstimate, NoiseAloneIsNoEvidence) {
   sim::SimulationConfig cfg = sim::simulation_preset("clean");
   cfg.seed = 3;
