@@ -212,14 +212,13 @@ def _weighted_median(v: np.ndarray, w: np.ndarray) -> float:
     return float(v[o][np.searchsorted(cw, 0.5 * cw[-1])])
 
 
-def estimate_physics(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0) -> Tuple[float, float]:
-    """host/unroll/contrast_estimate.cpp estimate_contrast: (c, log offset eps), both float32 as
-    PhysicsUnrollParams; (0.2, 0.0) where it is no estimate. For up to four pairs (k, k+1), the
-    L1 fit of each signal pixel's luminance log change against its net event count."""
+def signal_samples(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0):
+    """The estimate's evidence: (L_a, L_b, N) of the signal pixels of up to four pairs (k, k + 1),
+    those whose change beyond 3x the frames' own noise agrees with their events' sign."""
     frames = list(range(seq.num_frames)) if frames is None else list(frames)
     pairs = [(k, k + 1) for k in frames if k + 1 < seq.num_frames][:_MAX_PAIRS]
     if not pairs:
-        return 0.2, 0.0
+        return np.zeros(0), np.zeros(0), np.zeros(0, np.int64)
     parts = [_pair_evidence(seq, a, b, gamma) for a, b in pairs]
     la, lb, n, quiet = (np.concatenate([p[i] for p in parts]) for i in range(4))
     sigma = 0.0
@@ -229,7 +228,14 @@ def estimate_physics(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0)
         sigma = 1.4826 * np.partition(dev, len(dev) // 2)[len(dev) // 2]
     d0 = np.log(lb + 0.01) - np.log(la + 0.01)
     keep = (np.abs(d0) > 3 * sigma) & ((d0 > 0) == (n > 0))
-    la, lb, n = la[keep], lb[keep], n[keep]
+    return la[keep], lb[keep], n[keep]
+
+
+def estimate_physics(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0) -> Tuple[float, float]:
+    """host/unroll/contrast_estimate.cpp estimate_contrast: (c, log offset eps), both float32 as
+    PhysicsUnrollParams; (0.2, 0.0) where it is no estimate. For up to four pairs (k, k+1), the
+    L1 fit of each signal pixel's luminance log change against its net event count."""
+    la, lb, n = signal_samples(seq, frames, gamma)
     if len(n) < _MIN_PIXELS:
         return 0.2, 0.0
     best = (0.2, 0.0, np.inf)

@@ -10,24 +10,14 @@ from sequence_data import Sequence, list_sequences
 from natural_eval import psnr, kind_of, noise_of
 
 def fit(seq, gamma):
-    nf = seq.num_frames; pairs = [(k, k+1) for k in range(nf) if k+1 < nf][:4]
-    parts = [pn._pair_evidence(seq, a, b, gamma) for a, b in pairs]
-    la, lb, n, quiet = (np.concatenate([p[i] for p in parts]) for i in range(4))
-    m = np.median(quiet); sigma = 1.4826*np.median(np.abs(quiet-m)) if len(quiet) >= 100 else 0
-    d0 = np.log(lb+0.01)-np.log(la+0.01); keep = (np.abs(d0) > 3*sigma) & ((d0 > 0) == (n > 0))
-    la, lb, n = la[keep], lb[keep], n[keep]
-    best = None
-    for eps in pn._OFFSETS:
-        d = np.log(lb+eps)-np.log(la+eps)
-        c = pn._weighted_median(d/n, np.abs(n).astype(float))
-        r = float(np.abs(d/c-n).sum())
-        if best is None or r < best[2]: best = (c, eps, r)
-    c, eps, _ = best
-    d = np.log(lb+eps)-np.log(la+eps)
+    """The CLI's (c, eps) and, at that eps, the L1 fit of each polarity's pixels alone."""
+    c, eps = pn.estimate_physics(seq, None, gamma)
+    la, lb, n = pn.signal_samples(seq, None, gamma)
+    d = np.log(lb + eps) - np.log(la + eps)
     on, off = n > 0, n < 0
     c_on = pn._weighted_median((d/n)[on], np.abs(n[on]).astype(float)) if on.sum() > 50 else c
     c_off = pn._weighted_median((d/n)[off], np.abs(n[off]).astype(float)) if off.sum() > 50 else c
-    return float(np.float32(c)), float(np.float32(eps)), c_on, c_off, int(on.sum()), int(off.sum())
+    return c, eps, c_on, c_off, int(on.sum()), int(off.sum())
 
 def segs2(ev, s, e, t_star, crop):
     """exposure_segments twice: levels of ON and OFF events separately (same segment boundaries)."""
@@ -40,14 +30,9 @@ def segs2(ev, s, e, t_star, crop):
     return sp, lvl_on, lvl_off
 
 def lr_from(segs, lvl_on, lvl_off, c_on, c_off):
-    seg_pix, log_len, lvl, T, h, w = segs
-    npx = h*w
-    term = log_len + c_on*lvl_on - c_off*lvl_off
-    m = np.full(npx, -np.inf); np.maximum.at(m, seg_pix, term)
-    acc = np.bincount(seg_pix, weights=np.exp(term - m[seg_pix]), minlength=npx)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        lr = np.where(T > 0, np.log(T) - (m + np.log(acc)), 0.0)
-    return lr.reshape(h, w)
+    """log_ratio_from_segments with the level c_on F_on - c_off F_off (contrast 1)."""
+    seg_pix, log_len, _, T, h, w = segs
+    return pn.log_ratio_from_segments((seg_pix, log_len, c_on * lvl_on - c_off * lvl_off, T, h, w), 1.0)
 
 rows = []
 for p in list_sequences(sys.argv[1:]):
