@@ -13,7 +13,7 @@ Rounding follows the C++ reference: times relative to t* are float32 (PixelEvent
 gamma are float32 (PhysicsUnrollParams), the contrast term c * (F - F0) is a float32 product,
 the rest is double; `estimate_physics` mirrors host/unroll/contrast_estimate.cpp and
 `frame_for_time` host/unroll/unroll_plan.cpp.
-tests/python/test_physics.py compares this with the CLI's output.
+tests/python/test_physics_variant.py compares this with the CLI's output.
 """
 from __future__ import annotations
 

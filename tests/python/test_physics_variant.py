@@ -306,7 +306,7 @@ def test_contrast_jitter_scales_each_samples_physics_input(seq_dir, tmp_path, mo
     times a factor in [1/J, J], drawn per sample; J = 1 draws nothing, so the samples stay as before."""
     s = Sequence(seq_dir)
     cache = str(tmp_path / "contrast.json")
-    c = train_data.SeqInfo(s, 1.0, cache).contrast()
+    info = train_data.SeqInfo(s, 1.0, cache)
     scales, make = [], train_data.make_sample
 
     def recording(*args):
@@ -325,11 +325,10 @@ def test_contrast_jitter_scales_each_samples_physics_input(seq_dir, tmp_path, mo
     assert all(np.array_equal(a.lr["g1"], plain.draw().lr["g1"]) for a in drawn[1.0])
     # a drawn factor reaches the physics input: the log ratio at c * m
     k, crop, t = 0, (4, 6, 24, 24), float(s.gt[1][1])
-    info = train_data.SeqInfo(s, 1.0, cache)
     smp = make(s, k, crop, t, s.exposure, 2, 1, info, None, True, train_data.SUPERVISED_PASSES, 1.3)
     s1, e1 = s.row_times(k)
     ev = s.events_in(min(s1.min(), t) - 1.0, max(s.row_times(k + 1)[1].max(), t + s.exposure) + 1.0, crop)
-    want = pn.physics_log_ratio(ev, s1, e1, np.full(s.height, t), 1.3 * c, crop)
+    want = pn.physics_log_ratio(ev, s1, e1, np.full(s.height, t), 1.3 * info.contrast(), crop)
     assert np.allclose(smp.lr["g1"][0], want, atol=1e-6) and not np.allclose(smp.lr["g1"][0], want / 1.3, atol=1e-3)
     with pytest.raises(train_data.DataError, match="expected a factor >= 1"):
         train_data.Sampler([s], 24, 24, 2, None, random.Random(4), physics=True, contrast_jitter=0.5)
