@@ -90,3 +90,31 @@ class AdaptGuard:
         torch.save({"model": {k: v.detach().cpu().clone() for k, v in net.state_dict().items()},
                     "loss": self.best_loss, "step": self.best_step, "input_loss": self.input_loss}, tmp)
         os.replace(tmp, self.path)
+
+
+class IntraAnchor:
+    """`--adapt-anchor W`: adaptation's pull toward the input model inside frames. For each sample
+    whose t* lies inside an exposure span (Sample.intra), W x the mean |output - input model's output|
+    of the g1 and g2 passes (sys, warped, fused) joins the stage S loss; samples between frames are
+    free. Why: on the second generator's validation suite the self-supervised losses gained between
+    frames and lost inside them (docs/training.md). `reference` is the input model, never trained."""
+
+    def __init__(self, reference: torch.nn.Module, weight: float, run_passes: Callable, branches):
+        if not weight > 0:
+            raise ValueError(f"--adapt-anchor {weight}: expected a weight > 0")
+        self.ref, self.weight, self.run_passes, self.branches = reference.eval(), weight, run_passes, branches
+        for p in self.ref.parameters():
+            p.requires_grad_(False)
+
+    def __call__(self, samples, rs1: torch.Tensor, rs2: torch.Tensor, g1: dict, g2: dict) -> torch.Tensor:
+        mask = torch.tensor([1.0 if s.intra else 0.0 for s in samples], device=rs1.device).view(-1, 1, 1, 1)
+        if not float(mask.sum()):
+            return torch.zeros((), device=rs1.device)
+        B = len(samples)
+        with torch.no_grad():
+            ref = self.run_passes(self.ref, torch.cat([rs1, rs2]), samples, ("g1", "g2"), rs1.device)
+        total = torch.zeros((), device=rs1.device)
+        for b in self.branches:
+            for out, r in ((g1[b], ref[b][:B]), (g2[b], ref[b][B:])):
+                total = total + ((out - r).abs() * mask).sum() / (float(mask.sum()) * out[0].numel())
+        return total

@@ -44,7 +44,8 @@ import physics_numpy as pn  # noqa: E402
 import safetensors_io  # noqa: E402
 from selfunroll_torch import SelfUnroll, SelfUnrollConfig, Unet, UnetConfig  # noqa: E402
 from sequence_data import DataError, Sequence, list_sequences  # noqa: E402
-from adapt_holdout import AdaptGuard  # noqa: E402
+from adapt_holdout import AdaptGuard, IntraAnchor  # noqa: E402
+from train_schedule import ThreadChooser, cosine_lr  # noqa: E402
 from train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop_img, describe_data, find_cli,  # noqa: E402,F401
                         SUPERVISED_PASSES, from_model_encoding, gt_targets, images, make_data, make_sample, stack,
                         stack_lr, write_cache)
@@ -198,12 +199,13 @@ def split(o: dict, n: int):
     return {k: v[:n] for k, v in o.items()}, {k: v[n:] for k, v in o.items()}
 
 
-def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = False):
+def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = False, anchor=None):
     """Stage 1 (SelfUnroll-S). B = len(samples); one batched pass for g1, g2, r12, r21 (4B) and one
     for the cycle's second half c1, c2 (2B), whose input images are the fused GS results of g1, g2.
       Llc = sum_b |b(g1) - b(g2)|,  Ltc = sum_b |b(r12) - rs2| + |b(r21) - rs1|,
       Lcc = sum_b |b(c1) - rs1| + |b(c2) - rs2|,  Ltv = mean TV of the flow of all 6B passes,
-    b over the E-IC outputs sys (E-IC_T), warped (E-IC_S), fused (E-IC_S+T); |.| = mean abs."""
+    b over the E-IC outputs sys (E-IC_T), warped (E-IC_S), fused (E-IC_S+T); |.| = mean abs.
+    `anchor` (adaptation, adapt_holdout.IntraAnchor): adds its pull toward the input model, weighted."""
     B = len(samples)
     dv = next(net.parameters()).device
     rs1, rs2 = images(samples, "rs1", dv), images(samples, "rs2", dv)
@@ -227,6 +229,9 @@ def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
     L["tc"] = sum(l1(r12[b], rs2) + l1(r21[b], rs1) for b in BRANCHES)
     L["tv"] = (tv(first["flow"]) * 4 + tv(second["flow"]) * 2) / 6
     L["total"] = sum(LOSS_WEIGHTS[k] * L[k] for k in ("lc", "cc", "tc", "tv"))
+    if anchor:
+        L["anchor"] = anchor(samples, rs1, rs2, g1, g2)
+        L["total"] = L["total"] + anchor.weight * L["anchor"]
     return L
 
 
@@ -385,49 +390,6 @@ def config_from_dict(d: dict) -> SelfUnrollConfig:
 
 
 # ---- training -------------------------------------------------------------------------------------------
-class ThreadChooser:
-    """Fixed torch thread count, or 'auto': every `period` steps, time `probe` steps with 1 thread
-    and up to `probe` with 2 (cut short when the first is clearly slower) and keep the faster:
-    the machine's load changes during a long run, and 2 OpenMP threads on an oversubscribed
-    machine can be many times slower than 1."""
-
-    def __init__(self, spec: str, period: int = 300, probe: int = 3):
-        self.auto = spec == "auto"
-        self.n = 2 if self.auto else int(spec)
-        self.period, self.probe = period, probe
-        self.times = {1: [], 2: []}
-        self.trial = None
-        self.next_probe = 0
-        torch.set_num_threads(self.n)
-
-    def before_step(self, step: int) -> None:
-        if not self.auto:
-            return
-        if self.trial is None and step >= self.next_probe:
-            self.trial, self.times = 1, {1: [], 2: []}
-        if self.trial == 1 and len(self.times[1]) >= self.probe:
-            self.trial = 2
-        if self.trial == 2:
-            t1 = float(np.median(self.times[1]))
-            t2 = self.times[2]
-            if len(t2) >= self.probe or (t2 and t2[0] > 1.5 * t1):
-                t2m = float(np.median(t2))
-                self.n = 1 if t1 < t2m else 2
-                print(f"threads: 1 -> {t1:.2f} s/step, 2 -> {t2m:.2f} s/step: using {self.n}", flush=True)
-                self.trial, self.next_probe = None, step + self.period
-        torch.set_num_threads(self.trial or self.n)
-
-    def after_step(self, seconds: float) -> None:
-        if self.trial is not None:
-            self.times[self.trial].append(seconds)
-
-
-def cosine_lr(lr0: float, progress: float, warmup: float = 0.02) -> float:
-    if progress < warmup:
-        return lr0 * max(progress / warmup, 0.05)
-    return lr0 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
-
-
 def build_model(a, state):
     """The network to train: from a checkpoint (--resume), a weights file (--from; lifted to the
     physics variant with --physics-variant), a checkpoint's weights (--init), or a fresh init."""
@@ -513,6 +475,8 @@ def train(a) -> None:
     val_infos = {v.folder: SeqInfo(v, a.data_gamma, os.path.join(a.out, "contrast_cache.json")) for v in val}
     guard = AdaptGuard(seqs[0], sampler, net, stage_s_losses, a.out, a.ckpt_every, batch=a.batch,
                        resumed=bool(a.resume), log=lambda m: print(m, flush=True)) if a.adapt else None
+    # the input model as --from gives it, also on --resume (the anchor never moves)
+    anchor = IntraAnchor(build_model(a, None).to(dev), a.adapt_anchor, run_passes, BRANCHES) if a.adapt_anchor else None
     print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}, "
           f"{'physics-informed, ' if cfg.physics_input else ''}gamma {cfg.gamma}; data: {data_desc}; "
           f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, device {dev}, threads {a.threads}"
@@ -541,7 +505,8 @@ def train(a) -> None:
     if a.confidence_only:
         info["trained"] = "the learned confidence alone (fusion_net.pred row 3); every other weight as loaded"
     if a.adapt:
-        info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes)})
+        info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes),
+                     "adapt_anchor": str(a.adapt_anchor)})
     start_stage = state["stage"] if state else "s"
     step = state["step"] if state else 0
     elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
@@ -582,7 +547,8 @@ def train(a) -> None:
             t_step = t_data = time.time()
             samples = [sampler.draw() for _ in range(a.batch)]
             t_data = time.time() - t_data
-            L = (stage_s_losses if stage == "s" else stage_m_losses)(net, samples, a.supervised)
+            L = stage_s_losses(net, samples, a.supervised, anchor) if stage == "s" else \
+                stage_m_losses(net, samples, a.supervised)
             opt.zero_grad(set_to_none=True)
             L["total"].backward()
             torch.nn.utils.clip_grad_norm_(params, 1.0)
@@ -742,6 +708,8 @@ def main(argv=None) -> int:
     g.add_argument("--adapt", metavar="SEQUENCE", help="fine-tune --from on this recording alone (stage S), "
                    "for --minutes; writes OUT/adapted.safetensors (or --export)")
     g.add_argument("--minutes", type=float, help="with --adapt: the time budget (= --max-minutes)")
+    g.add_argument("--adapt-anchor", type=float, default=0.0, metavar="W", help="with --adapt: W x the mean |output - "
+                   "the input model's| for targets inside an exposure span joins the loss (between frames: free) [0: off]")
     g = ap.add_argument_group("sample cache (data prepared in advance, e.g. for a short GPU slot)")
     g.add_argument("--make-cache", metavar="DIR", help="draw --cache-samples samples from --data into DIR and exit")
     g.add_argument("--cache-samples", type=int, default=2048)
@@ -767,6 +735,10 @@ def main(argv=None) -> int:
             a.max_minutes = a.minutes if a.minutes is not None else a.max_minutes
             if a.supervised:
                 ap.error("--adapt uses the self-supervised losses only")
+            if a.adapt_anchor < 0 or (a.adapt_anchor and not a.from_model):
+                ap.error(f"--adapt-anchor {a.adapt_anchor:g}: expected a weight >= 0, and --from (the input model)")
+        elif a.adapt_anchor:
+            ap.error("--adapt-anchor applies to --adapt only")
         elif not a.data and not a.resume and not a.cache:
             ap.error("--data is required (or --cache / --adapt / --make-data / --export-checkpoint)")
         elif a.resume and not a.data and not a.cache:

@@ -45,6 +45,7 @@ class Sample:
     gt: Optional[np.ndarray] = None  # only in --supervised mode
     lr: Optional[Dict[str, np.ndarray]] = None
     gate_radius: int = -1  # the event gate radius for this sample's recording; -1: the model's
+    intra: bool = False  # t* inside frame k's or frame k+1's exposure span (natural_eval's "intra")
 
 
 def stack(samples: List[Sample], key: str, device="cpu"):
@@ -225,6 +226,7 @@ class Sampler:
                           self.info(seq), self.model_gamma, self.physics,
                           SUPERVISED_PASSES if self.supervised else PASSES, scale)
         smp.gate_radius = self.gate_radii.get(os.path.abspath(seq.folder), -1)
+        smp.intra = any(a <= t_star <= b for a, b in (seq.frame_span(k), seq.frame_span(k + 1)))
         return smp
 
 

@@ -322,14 +322,15 @@ def test_adaptation_returns_the_input_model_when_no_step_improves(trained, seq_d
     model = out / "a" / "model.safetensors"
     r = run_train("--adapt", seq_dir, "--from", model, "--minutes", "2", "--out", tmp_path / "ad", "--steps-s", "3",
                   "--lr", "0.05", "--constant-lr", "--ckpt-every", "1", "--crop", "32x32", "--batch", "1",
-                  "--print-every", "0")
+                  "--print-every", "0", "--adapt-anchor", "0.5")
     assert r.returncode == 0, r.stdout + r.stderr
+    assert " anchor " in r.stdout  # the anchor's term on the progress line (the guard's measure stays stage S's)
     assert "pair 1-2 held out" in r.stdout and "[adapt] step 3: held-out loss" in r.stdout, r.stdout
     assert "exported the input model" in r.stdout, r.stdout
     before, _ = safetensors_io.load(str(model))
     after, md = safetensors_io.load(str(tmp_path / "ad" / "adapted.safetensors"))
     assert set(before) == set(after) and all(torch.equal(before[k], after[k]) for k in before)
-    assert md["training.adapt_selected"].startswith("the input model")
+    assert md["training.adapt_selected"].startswith("the input model") and md["training.adapt_anchor"] == "0.5"
     # the steps did change the model: each held-out loss differs from the input model's, none is lower
     lines = r.stdout.splitlines()
     held = [float(l.split()[-1]) for l in lines if "held-out loss of the input model" in l]
@@ -369,6 +370,45 @@ def test_adapt_guard_keeps_the_best_step_and_splits_frames(tmp_path):
     guard.finish(net, info)
     assert float(net.weight) == 1.0 and guard.best_step == 1 and info["adapt_selected"].startswith("step 1")
     assert float(w0) != 1.0
+
+
+def test_adapt_anchor_pulls_only_targets_inside_frames(seq_dir):
+    """--adapt-anchor: the sampler marks t* inside an exposure span as intra; the anchor is 0 for the
+    input model itself, positive once the weights move, and 0 for a batch between frames."""
+    import copy
+    from adapt_holdout import IntraAnchor
+
+    class FixedT(random.Random):  # t* at a chosen point of the pair's span
+        def uniform(self, a, b):
+            return self.at(a, b)
+
+    torch.manual_seed(0)
+    net = SelfUnroll(tiny_cfg())
+    train.init_model(net, 3, fusion_passthrough=False)
+    s = Sequence(seq_dir)
+    (a0, a1), (b0, _) = s.frame_span(0), s.frame_span(1)
+    assert a1 < b0  # the fixture has a gap between frames
+    rng = FixedT(3)
+    sampler = train.Sampler([s], 32, 32, net.cfg.N, None, rng)
+    sampler.pairs = {s.folder: [0]}
+    rng.at = lambda lo, hi: 0.5 * (a0 + a1)
+    inside = [sampler.draw() for _ in range(2)]
+    rng.at = lambda lo, hi: 0.5 * (a1 + b0)
+    between = [sampler.draw() for _ in range(2)]
+    assert all(x.intra for x in inside) and not any(x.intra for x in between)
+
+    anchor = IntraAnchor(copy.deepcopy(net), 2.0, train.run_passes, train.BRANCHES)
+    L = train.stage_s_losses(net, inside, anchor=anchor)
+    assert float(L["anchor"]) == 0.0
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    for batch, moved in ((inside, True), (between, False), (inside[:1] + between[:1], True)):
+        L = train.stage_s_losses(net, batch, anchor=anchor)
+        plain = train.stage_s_losses(net, batch)
+        assert (float(L["anchor"]) > 1e-4) == moved, float(L["anchor"])
+        assert abs(float(L["total"]) - float(plain["total"] + 2.0 * L["anchor"])) < 1e-5
+    assert all(not p.requires_grad for p in anchor.ref.parameters())
 
 
 def test_heldout_sequences_are_refused_for_data_and_val(tmp_path, seq_dir):
