@@ -52,6 +52,9 @@ from train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop_img, descri
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LOSS_WEIGHTS = {"lc": 1.0, "cc": 1.0, "tc": 1.0, "tv": 0.01}
+# --adapt's pull toward the input model inside frames: chosen on the second generator's validation suite
+# (weight 1 still lost 0.59 dB inside frames, 10 gained 0.16; docs/training.md, "The intra-frame anchor")
+ADAPT_ANCHOR = 10.0
 BRANCHES = ("sys", "warped", "fused")  # E-IC_T, E-IC_S, E-IC_S+T: every consistency applies to all three
 
 # ---- configurations ---------------------------------------------------------------------------------
@@ -708,8 +711,8 @@ def main(argv=None) -> int:
     g.add_argument("--adapt", metavar="SEQUENCE", help="fine-tune --from on this recording alone (stage S), "
                    "for --minutes; writes OUT/adapted.safetensors (or --export)")
     g.add_argument("--minutes", type=float, help="with --adapt: the time budget (= --max-minutes)")
-    g.add_argument("--adapt-anchor", type=float, default=0.0, metavar="W", help="with --adapt: W x the mean |output - "
-                   "the input model's| for targets inside an exposure span joins the loss (between frames: free) [0: off]")
+    g.add_argument("--adapt-anchor", type=float, metavar="W", help="with --adapt: W x the mean |output - the input "
+                   f"model's| for targets inside an exposure span joins the loss (between frames: free) [{ADAPT_ANCHOR}; 0: off]")
     g = ap.add_argument_group("sample cache (data prepared in advance, e.g. for a short GPU slot)")
     g.add_argument("--make-cache", metavar="DIR", help="draw --cache-samples samples from --data into DIR and exit")
     g.add_argument("--cache-samples", type=int, default=2048)
@@ -735,9 +738,11 @@ def main(argv=None) -> int:
             a.max_minutes = a.minutes if a.minutes is not None else a.max_minutes
             if a.supervised:
                 ap.error("--adapt uses the self-supervised losses only")
+            a.adapt_anchor = ADAPT_ANCHOR if a.adapt_anchor is None else a.adapt_anchor
             if a.adapt_anchor < 0 or (a.adapt_anchor and not a.from_model):
-                ap.error(f"--adapt-anchor {a.adapt_anchor:g}: expected a weight >= 0, and --from (the input model)")
-        elif a.adapt_anchor:
+                ap.error(f"--adapt-anchor {a.adapt_anchor:g}: expected a weight >= 0 and --from (the input model it "
+                         "pulls toward; --adapt-anchor 0 adapts without it)")
+        elif a.adapt_anchor is not None:
             ap.error("--adapt-anchor applies to --adapt only")
         elif not a.data and not a.resume and not a.cache:
             ap.error("--data is required (or --cache / --adapt / --make-data / --export-checkpoint)")

@@ -322,7 +322,7 @@ def test_adaptation_returns_the_input_model_when_no_step_improves(trained, seq_d
     model = out / "a" / "model.safetensors"
     r = run_train("--adapt", seq_dir, "--from", model, "--minutes", "2", "--out", tmp_path / "ad", "--steps-s", "3",
                   "--lr", "0.05", "--constant-lr", "--ckpt-every", "1", "--crop", "32x32", "--batch", "1",
-                  "--print-every", "0", "--adapt-anchor", "0.5")
+                  "--print-every", "0")  # the default anchor (train.ADAPT_ANCHOR)
     assert r.returncode == 0, r.stdout + r.stderr
     assert " anchor " in r.stdout  # the anchor's term on the progress line (the guard's measure stays stage S's)
     assert "pair 1-2 held out" in r.stdout and "[adapt] step 3: held-out loss" in r.stdout, r.stdout
@@ -330,7 +330,7 @@ def test_adaptation_returns_the_input_model_when_no_step_improves(trained, seq_d
     before, _ = safetensors_io.load(str(model))
     after, md = safetensors_io.load(str(tmp_path / "ad" / "adapted.safetensors"))
     assert set(before) == set(after) and all(torch.equal(before[k], after[k]) for k in before)
-    assert md["training.adapt_selected"].startswith("the input model") and md["training.adapt_anchor"] == "0.5"
+    assert md["training.adapt_selected"].startswith("the input model") and md["training.adapt_anchor"] == str(train.ADAPT_ANCHOR)
     # the steps did change the model: each held-out loss differs from the input model's, none is lower
     lines = r.stdout.splitlines()
     held = [float(l.split()[-1]) for l in lines if "held-out loss of the input model" in l]
@@ -409,6 +409,16 @@ def test_adapt_anchor_pulls_only_targets_inside_frames(seq_dir):
         assert (float(L["anchor"]) > 1e-4) == moved, float(L["anchor"])
         assert abs(float(L["total"]) - float(plain["total"] + 2.0 * L["anchor"])) < 1e-5
     assert all(not p.requires_grad for p in anchor.ref.parameters())
+
+
+def test_adapt_anchor_options_are_checked(capsys):
+    for args, says in ((["--data", "x", "--adapt-anchor", "1"], "--adapt-anchor applies to --adapt only"),
+                       (["--adapt", "x", "--from", "m.safetensors", "--minutes", "1", "--adapt-anchor", "-1"],
+                        "expected a weight >= 0"),
+                       (["--adapt", "x", "--resume", "c.pt", "--minutes", "1"], "--adapt-anchor 0 adapts without it")):
+        with pytest.raises(SystemExit):
+            train.main(args)
+        assert says in capsys.readouterr().err, args
 
 
 def test_heldout_sequences_are_refused_for_data_and_val(tmp_path, seq_dir):
