@@ -19,7 +19,8 @@ The self-supervised losses read no ground truth. --supervised (L1 to the simulat
 trains on simulated sequences only; it is how the shipped photo model was fine-tuned (docs/training.md).
 --adapt (a user's recording) is always self-supervised; the recording's last frames are held out of
 its crops and the export is the step with the lowest self-supervised loss on them, the input model if
-none is lower (tools/adapt_holdout.py).
+none is lower (tools/adapt_holdout.py); inside exposure spans its outputs are pulled toward the input
+model's (--adapt-anchor, default ADAPT_ANCHOR).
 Validation (--val) uses the ground truth of held-out sequences to print PSNRs, nothing else.
 """
 from __future__ import annotations
