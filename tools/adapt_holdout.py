@@ -107,14 +107,15 @@ class IntraAnchor:
             p.requires_grad_(False)
 
     def __call__(self, samples, rs1: torch.Tensor, rs2: torch.Tensor, g1: dict, g2: dict) -> torch.Tensor:
-        mask = torch.tensor([1.0 if s.intra else 0.0 for s in samples], device=rs1.device).view(-1, 1, 1, 1)
-        if not float(mask.sum()):
+        idx = [i for i, s in enumerate(samples) if s.intra]  # the input model runs on these alone
+        if not idx:
             return torch.zeros((), device=rs1.device)
-        B = len(samples)
+        n = len(idx)
         with torch.no_grad():
-            ref = self.run_passes(self.ref, torch.cat([rs1, rs2]), samples, ("g1", "g2"), rs1.device)
+            ref = self.run_passes(self.ref, torch.cat([rs1[idx], rs2[idx]]), [samples[i] for i in idx], ("g1", "g2"),
+                                  rs1.device)
         total = torch.zeros((), device=rs1.device)
         for b in self.branches:
-            for out, r in ((g1[b], ref[b][:B]), (g2[b], ref[b][B:])):
-                total = total + ((out - r).abs() * mask).sum() / (float(mask.sum()) * out[0].numel())
+            for out, r in ((g1[b][idx], ref[b][:n]), (g2[b][idx], ref[b][n:])):
+                total = total + (out - r).abs().mean()
         return total
