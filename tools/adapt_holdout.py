@@ -76,12 +76,8 @@ class AdaptGuard:
 
     def finish(self, net: torch.nn.Module, info: dict) -> None:
         """Loads the best weights into `net` and says in `info` which they are."""
-        best = torch.load(self.path, map_location="cpu", weights_only=False)
-        net.load_state_dict(best["model"])
-        if self.best_step == 0:
-            what = f"the input model: no step lowered the held-out loss {self.input_loss:.5f}"
-        else:
-            what = f"step {self.best_step}: held-out loss {self.best_loss:.5f} (input model {self.input_loss:.5f})"
+        weights, what = selected_so_far(os.path.dirname(self.path))
+        net.load_state_dict(weights)
         info.update({"adapt_selected": what, "adapt_holdout": self.how})
         self.log(f"[adapt] exported {what}")
 
@@ -90,6 +86,18 @@ class AdaptGuard:
         torch.save({"model": {k: v.detach().cpu().clone() for k, v in net.state_dict().items()},
                     "loss": self.best_loss, "step": self.best_step, "input_loss": self.input_loss}, tmp)
         os.replace(tmp, self.path)
+
+
+def selected_so_far(out: str) -> Optional[Tuple[dict, str]]:
+    """(weights, what they are) of the guard's choice in OUT/adapt_best.pt, also of a run still under way
+    (train.py --export-checkpoint of an adaptation checkpoint exports these); None without the file."""
+    path = os.path.join(out, "adapt_best.pt")
+    if not os.path.isfile(path):
+        return None
+    best = torch.load(path, map_location="cpu", weights_only=False)
+    if best["step"] == 0:
+        return best["model"], f"the input model: no step lowered the held-out loss {best['input_loss']:.5f}"
+    return best["model"], f"step {best['step']}: held-out loss {best['loss']:.5f} (input model {best['input_loss']:.5f})"
 
 
 class IntraAnchor:
@@ -119,3 +127,13 @@ class IntraAnchor:
             for out, r in ((g1[b][idx], ref[b][:n]), (g2[b][idx], ref[b][n:])):
                 total = total + (out - r).abs().mean()
         return total
+
+
+def one_way_pair(samples, g1: torch.Tensor, g2: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    """`--adapt-lc-one-way`: the latent consistency |g1 - g2| of a sample whose t* lies inside an exposure
+    span teaches one way. The pass from the frame exposing t* integrates events over at most one readout
+    and is the teacher (no gradient from this term); the pass from the other frame is pulled toward it.
+    Between frames both move, as in the paper. The loss value is unchanged, so the guard's measure is too."""
+    def mask(frame):
+        return torch.tensor([s.exposing == frame for s in samples], device=g1.device).view(-1, 1, 1, 1)
+    return torch.where(mask(0), g1.detach(), g1), torch.where(mask(1), g2.detach(), g2)

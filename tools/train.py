@@ -45,7 +45,7 @@ import physics_numpy as pn  # noqa: E402
 import safetensors_io  # noqa: E402
 from selfunroll_torch import SelfUnroll, SelfUnrollConfig, Unet, UnetConfig  # noqa: E402
 from sequence_data import DataError, Sequence, list_sequences  # noqa: E402
-from adapt_holdout import AdaptGuard, IntraAnchor  # noqa: E402
+from adapt_holdout import AdaptGuard, IntraAnchor, one_way_pair, selected_so_far  # noqa: E402
 from train_schedule import ThreadChooser, cosine_lr  # noqa: E402
 from train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop_img, describe_data, find_cli,  # noqa: E402,F401
                         SUPERVISED_PASSES, from_model_encoding, gt_targets, images, make_data, make_sample, stack,
@@ -203,13 +203,15 @@ def split(o: dict, n: int):
     return {k: v[:n] for k, v in o.items()}, {k: v[n:] for k, v in o.items()}
 
 
-def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = False, anchor=None):
+def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = False, anchor=None,
+                   lc_one_way: bool = False):
     """Stage 1 (SelfUnroll-S). B = len(samples); one batched pass for g1, g2, r12, r21 (4B) and one
     for the cycle's second half c1, c2 (2B), whose input images are the fused GS results of g1, g2.
       Llc = sum_b |b(g1) - b(g2)|,  Ltc = sum_b |b(r12) - rs2| + |b(r21) - rs1|,
       Lcc = sum_b |b(c1) - rs1| + |b(c2) - rs2|,  Ltv = mean TV of the flow of all 6B passes,
     b over the E-IC outputs sys (E-IC_T), warped (E-IC_S), fused (E-IC_S+T); |.| = mean abs.
-    `anchor` (adaptation, adapt_holdout.IntraAnchor): adds its pull toward the input model, weighted."""
+    `anchor` (adaptation, adapt_holdout.IntraAnchor): adds its pull toward the input model, weighted;
+    `lc_one_way` (adaptation): Llc inside exposure spans teaches one way (adapt_holdout.one_way_pair)."""
     B = len(samples)
     dv = next(net.parameters()).device
     rs1, rs2 = images(samples, "rs1", dv), images(samples, "rs2", dv)
@@ -228,7 +230,7 @@ def stage_s_losses(net: SelfUnroll, samples: List[Sample], supervised: bool = Fa
     r12, r21 = split(r, B)
     second = run_passes(net, torch.cat([g1["fused"], g2["fused"]]), samples, ("c1", "c2"), dv)
     c1, c2 = split(second, B)
-    L["lc"] = sum(l1(g1[b], g2[b]) for b in BRANCHES)
+    L["lc"] = sum(l1(*(one_way_pair(samples, g1[b], g2[b]) if lc_one_way else (g1[b], g2[b]))) for b in BRANCHES)
     L["cc"] = sum(l1(c1[b], rs1) + l1(c2[b], rs2) for b in BRANCHES)
     L["tc"] = sum(l1(r12[b], rs2) + l1(r21[b], rs1) for b in BRANCHES)
     L["tv"] = (tv(first["flow"]) * 4 + tv(second["flow"]) * 2) / 6
@@ -378,11 +380,13 @@ def export(net: SelfUnroll, path: str, info: Dict[str, str]) -> int:
 
 
 def export_checkpoint(ckpt_path: str, out: str) -> None:
+    """An adaptation's checkpoint exports the guard's choice so far (never worse by its measure), not the running weights."""
     ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
     cfg = config_from_dict(ck["config"])
     net = SelfUnroll(cfg)
-    net.load_state_dict(ck["model"])
-    size = export(net, out, ck["info"])
+    chosen = selected_so_far(os.path.dirname(os.path.abspath(ckpt_path))) if ck["info"].get("adapt") else None
+    net.load_state_dict(chosen[0] if chosen else ck["model"])
+    size = export(net, out, dict(ck["info"], **({"adapt_selected": chosen[1]} if chosen else {})))
     print(f"wrote {out}: {size / 1e6:.2f} MB, {sum(p.numel() for p in net.parameters())} parameters")
 
 
@@ -510,7 +514,7 @@ def train(a) -> None:
         info["trained"] = "the learned confidence alone (fusion_net.pred row 3); every other weight as loaded"
     if a.adapt:
         info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes),
-                     "adapt_anchor": str(a.adapt_anchor)})
+                     "adapt_anchor": str(a.adapt_anchor), "adapt_lc_one_way": str(a.adapt_lc_one_way).lower()})
     start_stage = state["stage"] if state else "s"
     step = state["step"] if state else 0
     elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
@@ -551,7 +555,7 @@ def train(a) -> None:
             t_step = t_data = time.time()
             samples = [sampler.draw() for _ in range(a.batch)]
             t_data = time.time() - t_data
-            L = stage_s_losses(net, samples, a.supervised, anchor) if stage == "s" else \
+            L = stage_s_losses(net, samples, a.supervised, anchor, a.adapt_lc_one_way) if stage == "s" else \
                 stage_m_losses(net, samples, a.supervised)
             opt.zero_grad(set_to_none=True)
             L["total"].backward()
@@ -714,6 +718,8 @@ def main(argv=None) -> int:
     g.add_argument("--minutes", type=float, help="with --adapt: the time budget (= --max-minutes)")
     g.add_argument("--adapt-anchor", type=float, metavar="W", help="with --adapt: W x the mean |output - the input "
                    f"model's| for targets inside an exposure span joins the loss (between frames: free) [{ADAPT_ANCHOR}; 0: off]")
+    g.add_argument("--adapt-lc-one-way", action="store_true", help="with --adapt: inside an exposure span, "
+                   "the latent consistency pulls the other frame's pass toward the exposing frame's, not both ways")
     g = ap.add_argument_group("sample cache (data prepared in advance, e.g. for a short GPU slot)")
     g.add_argument("--make-cache", metavar="DIR", help="draw --cache-samples samples from --data into DIR and exit")
     g.add_argument("--cache-samples", type=int, default=2048)
@@ -743,8 +749,8 @@ def main(argv=None) -> int:
             if a.adapt_anchor < 0 or (a.adapt_anchor and not a.from_model):
                 ap.error(f"--adapt-anchor {a.adapt_anchor:g}: expected a weight >= 0 and --from (the input model it "
                          "pulls toward; --adapt-anchor 0 adapts without it)")
-        elif a.adapt_anchor is not None:
-            ap.error("--adapt-anchor applies to --adapt only")
+        elif a.adapt_anchor is not None or a.adapt_lc_one_way:
+            ap.error(f"--adapt-{'anchor' if a.adapt_anchor is not None else 'lc-one-way'} applies to --adapt only")
         elif not a.data and not a.resume and not a.cache:
             ap.error("--data is required (or --cache / --adapt / --make-data / --export-checkpoint)")
         elif a.resume and not a.data and not a.cache:

@@ -46,6 +46,7 @@ class Sample:
     lr: Optional[Dict[str, np.ndarray]] = None
     gate_radius: int = -1  # the event gate radius for this sample's recording; -1: the model's
     intra: bool = False  # t* inside frame k's or frame k+1's exposure span (natural_eval's "intra")
+    exposing: int = -1  # the frame whose exposure span holds t*: 0 (frame k), 1 (frame k+1), -1 (neither)
 
 
 def stack(samples: List[Sample], key: str, device="cpu"):
@@ -226,7 +227,8 @@ class Sampler:
                           self.info(seq), self.model_gamma, self.physics,
                           SUPERVISED_PASSES if self.supervised else PASSES, scale)
         smp.gate_radius = self.gate_radii.get(os.path.abspath(seq.folder), -1)
-        smp.intra = any(a <= t_star <= b for a, b in (seq.frame_span(k), seq.frame_span(k + 1)))
+        inside = [i for i, (a, b) in enumerate((seq.frame_span(k), seq.frame_span(k + 1))) if a <= t_star <= b]
+        smp.intra, smp.exposing = bool(inside), (inside[0] if inside else -1)  # spans that overlap: frame k
         return smp
 
 

@@ -331,6 +331,10 @@ def test_adaptation_returns_the_input_model_when_no_step_improves(trained, seq_d
     after, md = safetensors_io.load(str(tmp_path / "ad" / "adapted.safetensors"))
     assert set(before) == set(after) and all(torch.equal(before[k], after[k]) for k in before)
     assert md["training.adapt_selected"].startswith("the input model") and md["training.adapt_anchor"] == str(train.ADAPT_ANCHOR)
+    # a checkpoint of the run exports the guard's choice (here the input model), not its running weights
+    assert train.main(["--export-checkpoint", str(tmp_path / "ad" / "checkpoint.pt"), str(tmp_path / "mid.safetensors")]) == 0
+    mid, md = safetensors_io.load(str(tmp_path / "mid.safetensors"))
+    assert all(torch.equal(before[k], mid[k]) for k in before) and md["training.adapt_selected"].startswith("the input")
     # the steps did change the model: each held-out loss differs from the input model's, none is lower
     lines = r.stdout.splitlines()
     held = [float(l.split()[-1]) for l in lines if "held-out loss of the input model" in l]
@@ -396,6 +400,7 @@ def test_adapt_anchor_pulls_only_targets_inside_frames(seq_dir):
     rng.at = lambda lo, hi: 0.5 * (a1 + b0)
     between = [sampler.draw() for _ in range(2)]
     assert all(x.intra for x in inside) and not any(x.intra for x in between)
+    assert [x.exposing for x in inside + between] == [0, 0, -1, -1]
 
     anchor = IntraAnchor(copy.deepcopy(net), 2.0, train.run_passes, train.BRANCHES)
     L = train.stage_s_losses(net, inside, anchor=anchor)
@@ -411,11 +416,28 @@ def test_adapt_anchor_pulls_only_targets_inside_frames(seq_dir):
     assert all(not p.requires_grad for p in anchor.ref.parameters())
 
 
+def test_one_way_latent_consistency_moves_only_the_other_frames_pass():
+    """--adapt-lc-one-way: inside an exposure span the exposing frame's pass gets no gradient from Llc,
+    the other frame's does; between frames both do; the value is the plain |g1 - g2|."""
+    from types import SimpleNamespace
+    from adapt_holdout import one_way_pair
+    samples = [SimpleNamespace(exposing=e) for e in (0, 1, -1)]
+    g1 = torch.randn(3, 1, 4, 4, requires_grad=True)
+    g2 = torch.randn(3, 1, 4, 4, requires_grad=True)
+    a, b = one_way_pair(samples, g1, g2)
+    loss = (a - b).abs().mean()
+    assert abs(float(loss) - float((g1 - g2).abs().mean())) < 1e-7
+    loss.backward()
+    moved1, moved2 = [[bool(g.grad[i].abs().sum() > 0) for i in range(3)] for g in (g1, g2)]
+    assert moved1 == [False, True, True] and moved2 == [True, False, True], (moved1, moved2)
+
+
 def test_adapt_anchor_options_are_checked(capsys):
     for args, says in ((["--data", "x", "--adapt-anchor", "1"], "--adapt-anchor applies to --adapt only"),
                        (["--adapt", "x", "--from", "m.safetensors", "--minutes", "1", "--adapt-anchor", "-1"],
                         "expected a weight >= 0"),
-                       (["--adapt", "x", "--resume", "c.pt", "--minutes", "1"], "--adapt-anchor 0 adapts without it")):
+                       (["--adapt", "x", "--resume", "c.pt", "--minutes", "1"], "--adapt-anchor 0 adapts without it"),
+                       (["--data", "x", "--adapt-lc-one-way"], "--adapt-lc-one-way applies to --adapt only")):
         with pytest.raises(SystemExit):
             train.main(args)
         assert says in capsys.readouterr().err, args
