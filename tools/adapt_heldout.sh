@@ -2,7 +2,7 @@
 # usage: tools/adapt_heldout.sh MODEL NAME SEQ...   adaptation of MODEL to each held-out SEQ: 4 + 4 minutes,
 # lr 1e-4 constant, crops 96x96, batch 2 (fixed before looking at any result), then scoring.
 # Environment: HELDOUT (default data/natural/heldout), RUNS (default runs), CLI (default build/vkunroll),
-# MINUTES (default 8: a checkpoint exported at half of it, then resumed to the end), LR (default 1e-4),
+# MINUTES (default 8: the guard's choice exported at half of it, then resumed to the end), LR (default 1e-4),
 # ADAPT_ARGS (more train.py options for both halves, e.g. "--adapt-anchor 1").
 set -euo pipefail
 cd "$(dirname "$0")/.."
