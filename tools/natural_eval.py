@@ -35,7 +35,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Optional
 
 import numpy as np
 import torch
@@ -118,21 +118,15 @@ def noisy(noise: str) -> str:
 
 # `vkunroll unroll --gate-radius auto` (host/unroll/unroll_plan.hpp, choose_gate_radius): the same
 # constants, applied to what the contrast estimate measured (--mode physics's summary.json).
-CLEAN_FRAME_NOISE, CLEAN_ISOLATED_EVENTS, NOISY_GATE_RADIUS, CLEAN_INSIDE_GATE_RADIUS = 0.01, 0.05, 2, 0
-
-
-def auto_gate_radii(physics: dict, model_radius: int) -> Tuple[int, int]:
-    """(radius, inside radius): the inside one (-1: none) for targets inside the frame's exposure span."""
-    noise, iso = physics.get("frame_noise", -1.0), physics.get("isolated_event_fraction", -1.0)
-    if model_radius < 0 or noise < 0 or iso < 0:
-        return model_radius, -1
-    if not (noise < CLEAN_FRAME_NOISE and iso < CLEAN_ISOLATED_EVENTS):
-        return max(model_radius, NOISY_GATE_RADIUS), -1
-    return model_radius, (CLEAN_INSIDE_GATE_RADIUS if model_radius > CLEAN_INSIDE_GATE_RADIUS else -1)
+CLEAN_FRAME_NOISE, CLEAN_ISOLATED_EVENTS, NOISY_GATE_RADIUS = 0.01, 0.05, 2
 
 
 def auto_gate_radius(physics: dict, model_radius: int) -> int:
-    return auto_gate_radii(physics, model_radius)[0]
+    noise, iso = physics.get("frame_noise", -1.0), physics.get("isolated_event_fraction", -1.0)
+    if model_radius < 0 or noise < 0 or iso < 0:
+        return model_radius
+    clean = noise < CLEAN_FRAME_NOISE and iso < CLEAN_ISOLATED_EVENTS
+    return model_radius if clean else max(model_radius, NOISY_GATE_RADIUS)
 
 
 def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(), limit: int = 0,
@@ -155,11 +149,12 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
             contrast, log_offset = ((float(phys_cli["_summary"]["physics"]["contrast"]),
                                      float(phys_cli["_summary"]["physics"].get("log_offset", 0.0))) if phys_cli else
                                     pn.estimate_physics(seq, None, gamma))
-            radii = {}  # name: (radius, the radius inside the frame's exposure span, -1: the same)
+            radii = {}
             for name, net in nets.items():
                 if own_gate[name] >= 0:
-                    radii[name] = (auto_gate_radii(phys_cli["_summary"]["physics"], own_gate[name])
-                                   if gate == "auto" else (own_gate[name], -1))
+                    net.cfg.physics_gate = (auto_gate_radius(phys_cli["_summary"]["physics"], own_gate[name])
+                                            if gate == "auto" else own_gate[name])
+                    radii[name] = net.cfg.physics_gate
             info = SeqInfo(seq)
             info.gamma = gamma
             info.contrast = lambda c=contrast: c  # the contrast --mode physics estimated (the variant: log offset 0)
@@ -176,12 +171,9 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                 k = pn.frame_for_time(seq, frames, t)
                 tau = float(g.get("tau", (t - seq.frame_span(k)[0]) / (seq.frame_span(k)[1] - seq.frame_span(k)[0])))
                 gt = seq.gt_image(i)
-                intra = 0.0 <= tau <= 1.0
-                for name, (radius, inside) in radii.items():
-                    nets[name].cfg.physics_gate = inside if intra and inside >= 0 else radius
                 row = {"sequence": os.path.basename(seq.folder.rstrip("/")), "kind": kind_of(seq), "noise": noise_of(seq),
-                       "t_us": t, "frame": k, "tau": tau, "intra": intra, "psnr": {}, "ssim": {},
-                       "gate_radius": {name: nets[name].cfg.physics_gate for name in radii}}
+                       "t_us": t, "frame": k, "tau": tau, "intra": 0.0 <= tau <= 1.0, "psnr": {}, "ssim": {},
+                       "gate_radius": radii}
                 rs = seq.frame(k)
                 row["psnr"]["RS input"], row["ssim"]["RS input"] = psnr(rs, gt), ssim(rs, gt)
                 # Frame k's physics image, computed once: the method's score (without the CLI) and the bands' centre.
@@ -212,8 +204,7 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
                         row["psnr"][tag], row["ssim"][tag] = float(c["psnr"]), float(c["ssim"])
                 rows.append(row)
             log(f"{seq.folder}: {len(gts)} targets, contrast {contrast:.3f}, gamma {gamma:g}"
-                + "".join(f", {n} gate radius {r}" + (f" ({i} inside frames)" if i >= 0 else "") for n, (r, i) in radii.items())
-                + f" ({time.time() - ts:.0f} s)")
+                + "".join(f", {n} gate radius {r}" for n, r in radii.items()) + f" ({time.time() - ts:.0f} s)")
     return {"data": data, "models": models, "cli": cli, "cli_modes": list(cli_modes), "gate": gate, "rows": rows,
             "seconds": round(time.time() - t0, 1), "summary": summarize(rows)}
 

@@ -93,16 +93,9 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
   if (weights_) model_ = std::make_unique<Model>(*backend_, *weights_);
 }
 
-void UnrollSession::set_gate_radius(int r, int inside_radius) {
-  if (inside_radius == r) inside_radius = -1;
-  if (!weights_ || (r == weights_->config.physics_gate && inside_radius == inside_gate_radius_)) return;
+void UnrollSession::set_gate_radius(int r) {
+  if (!weights_ || r == weights_->config.physics_gate) return;
   if (metadata_gate_radius_ < 0 || r < 0) throw Error("unroll session: this model has no event gate to set");
-  inside_model_.reset();
-  if (inside_radius >= 0) {
-    weights_->config.physics_gate = inside_radius;
-    inside_model_ = std::make_unique<Model>(*backend_, *weights_);  // the Model keeps its own copy of the config
-  }
-  inside_gate_radius_ = inside_radius;
   weights_->config.physics_gate = r;
   model_ = std::make_unique<Model>(*backend_, *weights_);
 }
@@ -200,16 +193,8 @@ std::vector<cv::Mat> UnrollSession::unroll(const FrameInput& in, const std::vect
   if (targets.empty()) return results;
   const FramePlanes fp = upload_frame(in, !groups[1].empty());  // its buffers go with it, also on an error
   if (!groups[2].empty()) run_physics(in, fp, targets, groups[2], results);
-  for (const bool m : {false, true}) {
-    // With an inside radius, the targets inside frame 1's exposure span run on its model.
-    std::vector<size_t> inside, rest;
-    for (size_t j : groups[m ? 1 : 0])
-      (inside_model_ && targets[j].t_us >= in.timing1.first_start() && targets[j].t_us <= in.timing1.last_end() ? inside
-                                                                                                                   : rest)
-          .push_back(j);
-    if (!rest.empty()) run_model(*model_, in, fp, targets, rest, m, results);
-    if (!inside.empty()) run_model(*inside_model_, in, fp, targets, inside, m, results);
-  }
+  if (!groups[0].empty()) run_model(in, fp, targets, groups[0], false, results);
+  if (!groups[1].empty()) run_model(in, fp, targets, groups[1], true, results);
   return results;
 }
 
@@ -268,20 +253,18 @@ Buffer UnrollSession::physics_input(const FrameInput& in, const FramePlanes& fp,
   return phys;
 }
 
-void UnrollSession::run_model(Model& model, const FrameInput& in, const FramePlanes& fp,
-                              const std::vector<FrameTarget>& targets, const std::vector<size_t>& which, bool m,
-                              std::vector<cv::Mat>& results) {
+void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
+                              const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results) {
   Backend& b = *backend_;
   const int H = in.rs1.rows, W = in.rs1.cols;
   const int64_t per = m ? 2 : 1;
   // The event tensors of a build ([3B, 2N, H, W]) live in one binding: as many targets per build as fit.
-  const uint64_t per_target = uint64_t(3 * per) * 2 * model.config().N * H * W * 4;
+  const uint64_t per_target = uint64_t(3 * per) * 2 * model_->config().N * H * W * 4;
   const size_t fit = static_cast<size_t>(binding_limit() / per_target);
-  if (fit == 0) return run_model_on_host(model, in, fp, targets, which, m, results);
+  if (fit == 0) return run_model_on_host(in, fp, targets, which, m, results);
   if (which.size() > fit) {
     for (size_t i = 0; i < which.size(); i += fit)
-      run_model(model, in, fp, targets,
-                std::vector<size_t>(which.begin() + i, which.begin() + std::min(which.size(), i + fit)), m, results);
+      run_model(in, fp, targets, std::vector<size_t>(which.begin() + i, which.begin() + std::min(which.size(), i + fit)), m, results);
     return;
   }
   const int64_t B = static_cast<int64_t>(which.size()) * per;
@@ -300,12 +283,12 @@ void UnrollSession::run_model(Model& model, const FrameInput& in, const FramePla
     if (m) pairs.push_back({in.timing2, targets[j].t_us, std::nullopt});
   }
   EventTensorSpec spec;
-  spec.bins = model.config().N;
+  spec.bins = model_->config().N;
   clock.next("event_tensors");
   const Buffer ev = b.event_tensors(*in.events, pairs, spec);
   ModelBuffers inputs{{rs, 0, B, 0, 3}, ev.items(0, B), ev.items(B, B), ev.items(2 * B, B)};
   Buffer phys;
-  if (model.config().physics_input) {
+  if (model_->config().physics_input) {
     clock.next("physics");
     phys = physics_input(in, fp, pairs);
     inputs.phys = phys.whole();
@@ -316,7 +299,7 @@ void UnrollSession::run_model(Model& model, const FrameInput& in, const FramePla
   clock.next("model");
   const RunOptions ro = group_run_options(m);
   const std::string& name = ro.outputs[0];
-  const TiledBuffers run = run_tiled_on_backend(model, inputs, ro, tiling_, &activity);
+  const TiledBuffers run = run_tiled_on_backend(*model_, inputs, ro, tiling_, &activity);
   clock.next("download");
   std::vector<float> planes(static_cast<size_t>(which.size()) * 3 * H * W);
   b.download(run.outputs.at(name).whole(), planes);
@@ -328,13 +311,12 @@ void UnrollSession::run_model(Model& model, const FrameInput& in, const FramePla
   (m ? stats_.runs_m : stats_.runs_s) += which.size();
 }
 
-void UnrollSession::run_model_on_host(Model& model, const FrameInput& in, const FramePlanes& fp,
-                                      const std::vector<FrameTarget>& targets, const std::vector<size_t>& which, bool m,
-                                      std::vector<cv::Mat>& results) {
+void UnrollSession::run_model_on_host(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
+                                      const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results) {
   const int H = in.rs1.rows, W = in.rs1.cols;
   const int64_t per = m ? 2 : 1;
   EventTensorSpec spec;
-  spec.bins = model.config().N;
+  spec.bins = model_->config().N;
   const std::vector<float>& p1 = fp.rs1;
   const std::vector<float>& p2 = fp.rs2;
   for (size_t j : which) {  // one target at a time: the host copies of its tensors are large already
@@ -351,7 +333,7 @@ void UnrollSession::run_model_on_host(Model& model, const FrameInput& in, const 
     mi.ev1 = HostTensor(es, std::move(et.ev1));
     mi.ev2 = HostTensor(es, std::move(et.ev2));
     mi.ev3 = HostTensor(es, std::move(et.ev3));
-    if (model.config().physics_input) {
+    if (model_->config().physics_input) {
       mi.phys = HostTensor(Shape{per, 3, H, W});
       for (int64_t i = 0; i < per; ++i) {
         const RowTiming& t = i ? in.timing2 : in.timing1;
@@ -364,7 +346,7 @@ void UnrollSession::run_model_on_host(Model& model, const FrameInput& in, const 
     clock.next("model");
     const RunOptions ro = group_run_options(m);
     const std::string& name = ro.outputs[0];
-    const TiledResult run = run_tiled(model, mi, ro, tiling_);
+    const TiledResult run = run_tiled(*model_, mi, ro, tiling_);
     clock.stop();
     results[j] = planes_image(run.outputs.at(name).data.data(), H, W, rgb_);
     add_tile_stats(run, 1, H, W);

@@ -113,10 +113,8 @@ class UnrollSession {
   void set_physics(const PhysicsUnrollParams& p) { physics_ = p; }
   // The variant's event gate radius as the weights' metadata gave it (-1: no gate, or no model), and
   // the one the model runs with: set_gate_radius rebuilds the model when it changes (before a run).
-  // `inside_radius` >= 0 and not r: targets inside the unrolled frame's exposure span run at that
-  // radius instead (a second model on the same weights); -1: every target at r.
   int metadata_gate_radius() const { return metadata_gate_radius_; }
-  void set_gate_radius(int r, int inside_radius = -1);
+  void set_gate_radius(int r);
 
   // The GS images (BGR float32 in [0, 1], the sensor's size) of `targets`, in their order.
   std::vector<cv::Mat> unroll(const FrameInput& in, const std::vector<FrameTarget>& targets);
@@ -148,11 +146,10 @@ class UnrollSession {
   };
   void run_physics(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
                    const std::vector<size_t>& which, std::vector<cv::Mat>& results);
-  void run_model(Model& model, const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
+  void run_model(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
                  const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results);
-  void run_model_on_host(Model& model, const FrameInput& in, const FramePlanes& fp,
-                         const std::vector<FrameTarget>& targets, const std::vector<size_t>& which, bool m,
-                         std::vector<cv::Mat>& results);
+  void run_model_on_host(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
+                         const std::vector<size_t>& which, bool m, std::vector<cv::Mat>& results);
   void add_tile_stats(const TileStats& run, size_t targets, int H, int W);
   // The physics-informed variant's input: [B, 3, H, W] physics estimates of the batch's (frame,
   // target) pairs, computed on the device from the uploaded frames (model order).
@@ -165,8 +162,7 @@ class UnrollSession {
   std::unique_ptr<Backend> backend_;
   std::unique_ptr<Weights> weights_;
   std::unique_ptr<Model> model_;
-  std::unique_ptr<Model> inside_model_;  // set_gate_radius's inside_radius, when it differs: the same weights
-  int metadata_gate_radius_ = -1, inside_gate_radius_ = -1;
+  int metadata_gate_radius_ = -1;
   std::unique_ptr<EventTensorBuilder> host_builder_;  // the host path's event tensors (Vulkan)
   bool rgb_ = true;
   TileOptions tiling_;

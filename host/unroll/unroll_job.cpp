@@ -76,7 +76,7 @@ UnrollJob::UnrollJob(const UnrollOptions& o, UnrollSession& session, FrameSource
   // Without a model (or a gate) the radius is -1, and a given one is refused by choose_gate_radius.
   gate_ = choose_gate_radius(o.gate_radius, session.metadata_gate_radius(), physics_);
   if (gate_.radius >= 0) {
-    session.set_gate_radius(gate_.radius, gate_.inside_radius);
+    session.set_gate_radius(gate_.radius);
     if (!o.quiet) std::cerr << "unroll: event gate radius " << gate_.radius << " (" << gate_.source << ")\n";
   }
   tiling_ = tile_options(o);

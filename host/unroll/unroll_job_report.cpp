@@ -168,7 +168,6 @@ nlohmann::json UnrollJob::report(double total_ms) const {
     if (physics_.frame_noise >= 0) r["physics"]["frame_noise"] = physics_.frame_noise;
     if (physics_.isolated_event_fraction >= 0) r["physics"]["isolated_event_fraction"] = physics_.isolated_event_fraction;
     if (gate_.radius >= 0) r["physics"]["gate_radius"] = {{"radius", gate_.radius}, {"source", gate_.source}};
-    if (gate_.inside_radius >= 0) r["physics"]["gate_radius"]["inside_exposure_radius"] = gate_.inside_radius;
   }
   if (session_.has_model()) {
     const auto& g = session_.model_config().gamma;

@@ -235,12 +235,11 @@ GateChoice choose_gate_radius(const GateRadiusOption& o, int model_radius, const
   if (physics.frame_noise < 0 || physics.isolated_event_fraction < 0)
     return {model_radius, own + ": the recording's noise was not measured (no contrast estimate)"};
   const bool clean = physics.frame_noise < kCleanFrameNoise && physics.isolated_event_fraction < kCleanIsolatedEvents;
-  const int inside = clean && model_radius > kCleanInsideGateRadius ? kCleanInsideGateRadius : -1;
-  char text[260];
-  std::snprintf(text, sizeof text, "auto: a %s recording (frame noise %.4f, isolated events %.1f%%; clean below %g and %g%%)%s",
+  char text[200];
+  std::snprintf(text, sizeof text, "auto: a %s recording (frame noise %.4f, isolated events %.1f%%; clean below %g and %g%%)",
                 clean ? "clean" : "noisy", physics.frame_noise, 100 * physics.isolated_event_fraction, kCleanFrameNoise,
-                100 * kCleanIsolatedEvents, inside >= 0 ? "; radius 0 for targets inside the frame's exposure span" : "");
-  return {clean ? model_radius : std::max(model_radius, kNoisyGateRadius), text, inside};
+                100 * kCleanIsolatedEvents);
+  return {clean ? model_radius : std::max(model_radius, kNoisyGateRadius), text};
 }
 
 cv::Mat encode_for_model(const cv::Mat& image, double exponent) {

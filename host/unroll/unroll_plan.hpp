@@ -102,16 +102,12 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
 // kCleanFrameNoise or isolated events from kCleanIsolatedEvents) gets kNoisyGateRadius, a clean one
 // (or one not measured) the model's own: on validation (docs/training.md, "The event gate's radius")
 // r = 2 beat r = 1 inside and between frames in every noisy group, and lost in every clean one.
-// On a clean recording, targets inside the unrolled frame's exposure span run at kCleanInsideGateRadius
-// (`inside_radius`): there r = 0 beat r = 1 on validation, while between frames it lost
-// (docs/training.md, "Radius 0 inside frames on clean recordings").
 // `model_radius` -1 (no gate): stays -1, and a fixed radius is refused (UsageError).
 constexpr double kCleanFrameNoise = 0.01, kCleanIsolatedEvents = 0.05;
-constexpr int kNoisyGateRadius = 2, kCleanInsideGateRadius = 0;
+constexpr int kNoisyGateRadius = 2;
 struct GateChoice {
   int radius = -1;
   std::string source;
-  int inside_radius = -1;  // targets inside the frame's exposure span; -1: `radius` for every target
 };
 GateChoice choose_gate_radius(const GateRadiusOption& o, int model_radius, const PhysicsPlan& physics);
 

@@ -13,30 +13,19 @@ import natural_eval  # noqa: E402
 def header_constants():
     text = open(os.path.join(ROOT, "host", "unroll", "unroll_plan.hpp")).read()
     doubles = re.search(r"constexpr double kCleanFrameNoise = ([0-9.e-]+), kCleanIsolatedEvents = ([0-9.e-]+);", text)
-    radius = re.search(r"constexpr int kNoisyGateRadius = (\d+), kCleanInsideGateRadius = (\d+);", text)
+    radius = re.search(r"constexpr int kNoisyGateRadius = (\d+);", text)
     assert doubles and radius, "unroll_plan.hpp no longer declares the gate rule's constants as this test reads them"
-    return float(doubles.group(1)), float(doubles.group(2)), int(radius.group(1)), int(radius.group(2))
+    return float(doubles.group(1)), float(doubles.group(2)), int(radius.group(1))
 
 
 def test_the_evaluation_tool_uses_the_clis_constants():
-    frame_noise, isolated, radius, inside = header_constants()
-    assert (natural_eval.CLEAN_FRAME_NOISE, natural_eval.CLEAN_ISOLATED_EVENTS, natural_eval.NOISY_GATE_RADIUS,
-            natural_eval.CLEAN_INSIDE_GATE_RADIUS) == (frame_noise, isolated, radius, inside)
-
-
-def test_the_inside_radius_is_for_clean_recordings_only():
-    """As choose_gate_radius: a clean recording's targets inside the exposure span at the inside radius,
-    a noisy or unmeasured one's at one radius (-1), a model already at the inside radius too."""
-    frame_noise, isolated, radius, inside = header_constants()
-    clean = {"frame_noise": frame_noise / 2, "isolated_event_fraction": isolated / 2}
-    assert natural_eval.auto_gate_radii(clean, 1) == (1, inside)
-    assert natural_eval.auto_gate_radii(clean, inside) == (inside, -1)
-    assert natural_eval.auto_gate_radii(dict(clean, frame_noise=frame_noise), 1) == (radius, -1)
-    assert natural_eval.auto_gate_radii({"frame_noise": -1.0, "isolated_event_fraction": 0.0}, 1) == (1, -1)
+    frame_noise, isolated, radius = header_constants()
+    assert (natural_eval.CLEAN_FRAME_NOISE, natural_eval.CLEAN_ISOLATED_EVENTS, natural_eval.NOISY_GATE_RADIUS) == \
+        (frame_noise, isolated, radius)
 
 
 def test_the_rule_picks_on_each_side_of_the_thresholds():
-    frame_noise, isolated, radius, _ = header_constants()
+    frame_noise, isolated, radius = header_constants()
     clean = {"frame_noise": frame_noise / 2, "isolated_event_fraction": isolated / 2}
     assert natural_eval.auto_gate_radius(clean, 1) == 1
     assert natural_eval.auto_gate_radius(dict(clean, frame_noise=frame_noise), 1) == radius

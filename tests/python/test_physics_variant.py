@@ -613,26 +613,11 @@ def test_gate_radius_is_chosen_said_and_reaches_the_model(tmp_path):
         if radius == "auto":
             assert phys["frame_noise"] < 0.01 and phys["isolated_event_fraction"] < 0.05, phys  # the clean preset
             assert gate["radius"] == 1 and "clean recording" in gate["source"], gate
-            assert gate["inside_exposure_radius"] == 0 and "inside the frame's exposure span" in gate["source"], gate
         else:
             assert gate == {"radius": int(radius), "source": "--gate-radius"}, gate
         first = open(out / "metrics.csv").read().splitlines()[1].split(",")
         images[radius] = read_image(str(out / first[3]))
     assert float(np.abs(images["0"] - images["4"]).max()) > 1e-3
-    # auto on a clean recording: a target inside the frame's exposure span (tau 0.3) runs at radius 0,
-    # one between frames (tau 1.2) at the model's 1, in one run (M too: both items of the pair)
-    by_tau = {}
-    for radius in ("auto", "0", "1"):
-        out = tmp_path / f"inside_{radius}"
-        r = subprocess.run([CLI, "unroll", seq, "--out", out, "--mode", "m", "--frames", "0", "--times", "0.3,1.2",
-                            "--no-video", "--bit-depth", "16", "--quiet", "--model", model, "--gate-radius", radius],
-                           capture_output=True, text=True)
-        assert r.returncode == 0, r.stderr
-        rows = [line.split(",") for line in open(out / "metrics.csv").read().splitlines()[1:]]
-        by_tau[radius] = {float(row[2]): read_image(str(out / row[3])) for row in rows}
-    assert sorted(by_tau["auto"]) == [0.3, 1.2], by_tau["auto"].keys()
-    assert np.array_equal(by_tau["auto"][0.3], by_tau["0"][0.3]) and np.array_equal(by_tau["auto"][1.2], by_tau["1"][1.2])
-    assert float(np.abs(by_tau["0"][0.3] - by_tau["1"][0.3]).max()) > 1e-3  # the radius shows there
     radii = tmp_path / "radii.json"  # tools/gate_radii.py (train.py --gate-radii) picks as auto did
     r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "gate_radii.py"), "--cli", CLI, "--out", radii,
                         "--model-radius", "1", str(seq)], capture_output=True, text=True)
