@@ -107,12 +107,10 @@ class IntraAnchor:
     free. Why: on the second generator's validation suite the self-supervised losses gained between
     frames and lost inside them (docs/training.md). `reference` is the input model, never trained."""
 
-    def __init__(self, reference: torch.nn.Module, weight: float, run_passes: Callable, branches,
-                 exposing_only: bool = False):
+    def __init__(self, reference: torch.nn.Module, weight: float, run_passes: Callable, branches):
         if not weight > 0:
             raise ValueError(f"--adapt-anchor {weight}: expected a weight > 0")
         self.ref, self.weight, self.run_passes, self.branches = reference.eval(), weight, run_passes, branches
-        self.exposing_only = exposing_only  # --adapt-anchor-passes exposing: only the pass from the frame exposing t*
         for p in self.ref.parameters():
             p.requires_grad_(False)
 
@@ -126,12 +124,8 @@ class IntraAnchor:
                                   rs1.device)
         total = torch.zeros((), device=rs1.device)
         for b in self.branches:
-            for frame, (out, r) in enumerate(((g1[b][idx], ref[b][:n]), (g2[b][idx], ref[b][n:]))):
-                diff = (out - r).abs()
-                if self.exposing_only:  # still a mean over the n samples: each counts its exposing pass once
-                    diff = diff * torch.tensor([samples[i].exposing == frame for i in idx], device=diff.device,
-                                               dtype=diff.dtype).view(-1, 1, 1, 1)
-                total = total + diff.mean()
+            for out, r in ((g1[b][idx], ref[b][:n]), (g2[b][idx], ref[b][n:])):
+                total = total + (out - r).abs().mean()
         return total
 
 

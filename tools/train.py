@@ -484,8 +484,7 @@ def train(a) -> None:
     guard = AdaptGuard(seqs[0], sampler, net, stage_s_losses, a.out, a.ckpt_every, batch=a.batch,
                        resumed=bool(a.resume), log=lambda m: print(m, flush=True)) if a.adapt else None
     # the input model as --from gives it, also on --resume (the anchor never moves)
-    anchor = IntraAnchor(build_model(a, None).to(dev), a.adapt_anchor, run_passes, BRANCHES,
-                         a.adapt_anchor_passes == "exposing") if a.adapt_anchor else None
+    anchor = IntraAnchor(build_model(a, None).to(dev), a.adapt_anchor, run_passes, BRANCHES) if a.adapt_anchor else None
     print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}, "
           f"{'physics-informed, ' if cfg.physics_input else ''}gamma {cfg.gamma}; data: {data_desc}; "
           f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, device {dev}, threads {a.threads}"
@@ -515,8 +514,7 @@ def train(a) -> None:
         info["trained"] = "the learned confidence alone (fusion_net.pred row 3); every other weight as loaded"
     if a.adapt:
         info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes),
-                     "adapt_anchor": str(a.adapt_anchor), "adapt_lc_one_way": str(a.adapt_lc_one_way).lower(),
-                     "adapt_anchor_passes": a.adapt_anchor_passes or "both"})
+                     "adapt_anchor": str(a.adapt_anchor), "adapt_lc_one_way": str(a.adapt_lc_one_way).lower()})
     start_stage = state["stage"] if state else "s"
     step = state["step"] if state else 0
     elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
@@ -720,8 +718,6 @@ def main(argv=None) -> int:
     g.add_argument("--minutes", type=float, help="with --adapt: the time budget (= --max-minutes)")
     g.add_argument("--adapt-anchor", type=float, metavar="W", help="with --adapt: W x the mean |output - the input "
                    f"model's| for targets inside an exposure span joins the loss (between frames: free) [{ADAPT_ANCHOR}; 0: off]")
-    g.add_argument("--adapt-anchor-passes", choices=("both", "exposing"), help="with --adapt: the anchor pulls both "
-                   "passes of a sample inside an exposure span, or only the exposing frame's [both]")
     g.add_argument("--adapt-lc-one-way", action="store_true", help="with --adapt: inside an exposure span, "
                    "the latent consistency pulls the other frame's pass toward the exposing frame's, not both ways")
     g = ap.add_argument_group("sample cache (data prepared in advance, e.g. for a short GPU slot)")
@@ -753,9 +749,8 @@ def main(argv=None) -> int:
             if a.adapt_anchor < 0 or (a.adapt_anchor and not a.from_model):
                 ap.error(f"--adapt-anchor {a.adapt_anchor:g}: expected a weight >= 0 and --from (the input model it "
                          "pulls toward; --adapt-anchor 0 adapts without it)")
-        elif a.adapt_anchor is not None or a.adapt_lc_one_way or a.adapt_anchor_passes:
-            which = "anchor" if a.adapt_anchor is not None else "lc-one-way" if a.adapt_lc_one_way else "anchor-passes"
-            ap.error(f"--adapt-{which} applies to --adapt only")
+        elif a.adapt_anchor is not None or a.adapt_lc_one_way:
+            ap.error(f"--adapt-{'anchor' if a.adapt_anchor is not None else 'lc-one-way'} applies to --adapt only")
         elif not a.data and not a.resume and not a.cache:
             ap.error("--data is required (or --cache / --adapt / --make-data / --export-checkpoint)")
         elif a.resume and not a.data and not a.cache:

@@ -432,33 +432,12 @@ def test_one_way_latent_consistency_moves_only_the_other_frames_pass():
     assert moved1 == [False, True, True] and moved2 == [True, False, True], (moved1, moved2)
 
 
-def test_anchor_on_the_exposing_pass_only():
-    """--adapt-anchor-passes exposing: a sample inside frame j's span anchors only frame j's pass
-    (the mean over the intra samples, one pass each); one between frames anchors nothing."""
-    from types import SimpleNamespace
-    from adapt_holdout import IntraAnchor
-    samples = [SimpleNamespace(intra=True, exposing=0), SimpleNamespace(intra=True, exposing=1),
-               SimpleNamespace(intra=False, exposing=-1)]
-    ref = {"fused": torch.zeros(4, 1, 2, 2)}  # the input model's g1 of the two intra samples, then their g2
-    g1 = {"fused": torch.ones(3, 1, 2, 2, requires_grad=True)}
-    g2 = {"fused": torch.ones(3, 1, 2, 2, requires_grad=True)}
-    rs = torch.zeros(3, 3, 2, 2)
-    passes = lambda net, img, smp, names, dv: ref  # noqa: E731
-    both = IntraAnchor(torch.nn.Linear(1, 1), 1.0, passes, ("fused",))(samples, rs, rs, g1, g2)
-    one = IntraAnchor(torch.nn.Linear(1, 1), 1.0, passes, ("fused",), exposing_only=True)(samples, rs, rs, g1, g2)
-    assert float(both) == 2.0 and float(one) == 1.0, (float(both), float(one))
-    one.backward()
-    assert [bool(g1["fused"].grad[i].abs().sum() > 0) for i in range(3)] == [True, False, False]
-    assert [bool(g2["fused"].grad[i].abs().sum() > 0) for i in range(3)] == [False, True, False]
-
-
 def test_adapt_anchor_options_are_checked(capsys):
     for args, says in ((["--data", "x", "--adapt-anchor", "1"], "--adapt-anchor applies to --adapt only"),
                        (["--adapt", "x", "--from", "m.safetensors", "--minutes", "1", "--adapt-anchor", "-1"],
                         "expected a weight >= 0"),
                        (["--adapt", "x", "--resume", "c.pt", "--minutes", "1"], "--adapt-anchor 0 adapts without it"),
-                       (["--data", "x", "--adapt-lc-one-way"], "--adapt-lc-one-way applies to --adapt only"),
-                       (["--data", "x", "--adapt-anchor-passes", "exposing"], "--adapt-anchor-passes applies to --adapt only")):
+                       (["--data", "x", "--adapt-lc-one-way"], "--adapt-lc-one-way applies to --adapt only")):
         with pytest.raises(SystemExit):
             train.main(args)
         assert says in capsys.readouterr().err, args
