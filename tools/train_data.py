@@ -45,8 +45,11 @@ class Sample:
     gt: Optional[np.ndarray] = None  # only in --supervised mode
     lr: Optional[Dict[str, np.ndarray]] = None
     gate_radius: int = -1  # the event gate radius for this sample's recording; -1: the model's
-    intra: bool = False  # t* inside frame k's or frame k+1's exposure span (natural_eval's "intra")
     exposing: int = -1  # the frame whose exposure span holds t*: 0 (frame k), 1 (frame k+1), -1 (neither)
+
+    @property
+    def intra(self) -> bool:  # t* inside frame k's or frame k+1's exposure span (natural_eval's "intra")
+        return self.exposing >= 0
 
 
 def stack(samples: List[Sample], key: str, device="cpu"):
@@ -228,7 +231,7 @@ class Sampler:
                           SUPERVISED_PASSES if self.supervised else PASSES, scale)
         smp.gate_radius = self.gate_radii.get(os.path.abspath(seq.folder), -1)
         inside = [i for i, (a, b) in enumerate((seq.frame_span(k), seq.frame_span(k + 1))) if a <= t_star <= b]
-        smp.intra, smp.exposing = bool(inside), (inside[0] if inside else -1)  # spans that overlap: frame k
+        smp.exposing = inside[0] if inside else -1  # spans that overlap: frame k
         return smp
 
 
