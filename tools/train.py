@@ -483,7 +483,6 @@ def train(a) -> None:
     val_infos = {v.folder: SeqInfo(v, a.data_gamma, os.path.join(a.out, "contrast_cache.json")) for v in val}
     guard = AdaptGuard(seqs[0], sampler, net, stage_s_losses, a.out, a.ckpt_every, batch=a.batch,
                        resumed=bool(a.resume), log=lambda m: print(m, flush=True)) if a.adapt else None
-    sampler.between_only = bool(a.adapt_between_only)  # after the guard drew its crops: its measure keeps every t*
     # the input model as --from gives it, also on --resume (the anchor never moves)
     anchor = IntraAnchor(build_model(a, None).to(dev), a.adapt_anchor, run_passes, BRANCHES) if a.adapt_anchor else None
     print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}, "
@@ -515,8 +514,7 @@ def train(a) -> None:
         info["trained"] = "the learned confidence alone (fusion_net.pred row 3); every other weight as loaded"
     if a.adapt:
         info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes),
-                     "adapt_anchor": str(a.adapt_anchor), "adapt_lc_one_way": str(a.adapt_lc_one_way).lower(),
-                     "adapt_between_only": str(a.adapt_between_only).lower()})
+                     "adapt_anchor": str(a.adapt_anchor), "adapt_lc_one_way": str(a.adapt_lc_one_way).lower()})
     start_stage = state["stage"] if state else "s"
     step = state["step"] if state else 0
     elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
@@ -722,8 +720,6 @@ def main(argv=None) -> int:
                    f"model's| for targets inside an exposure span joins the loss (between frames: free) [{ADAPT_ANCHOR}; 0: off]")
     g.add_argument("--adapt-lc-one-way", action="store_true", help="with --adapt: inside an exposure span, "
                    "the latent consistency pulls the other frame's pass toward the exposing frame's, not both ways")
-    g.add_argument("--adapt-between-only", action="store_true", help="with --adapt: train on targets between frames "
-                   "only (the held-out measure still draws every t*)")
     g = ap.add_argument_group("sample cache (data prepared in advance, e.g. for a short GPU slot)")
     g.add_argument("--make-cache", metavar="DIR", help="draw --cache-samples samples from --data into DIR and exit")
     g.add_argument("--cache-samples", type=int, default=2048)
@@ -753,9 +749,8 @@ def main(argv=None) -> int:
             if a.adapt_anchor < 0 or (a.adapt_anchor and not a.from_model):
                 ap.error(f"--adapt-anchor {a.adapt_anchor:g}: expected a weight >= 0 and --from (the input model it "
                          "pulls toward; --adapt-anchor 0 adapts without it)")
-        elif a.adapt_anchor is not None or a.adapt_lc_one_way or a.adapt_between_only:
-            opt = "anchor" if a.adapt_anchor is not None else "lc-one-way" if a.adapt_lc_one_way else "between-only"
-            ap.error(f"--adapt-{opt} applies to --adapt only")
+        elif a.adapt_anchor is not None or a.adapt_lc_one_way:
+            ap.error(f"--adapt-{'anchor' if a.adapt_anchor is not None else 'lc-one-way'} applies to --adapt only")
         elif not a.data and not a.resume and not a.cache:
             ap.error("--data is required (or --cache / --adapt / --make-data / --export-checkpoint)")
         elif a.resume and not a.data and not a.cache:

@@ -183,7 +183,6 @@ class Sampler:
         self.check_gate_radii(self.seqs)
         self.infos: Dict[str, SeqInfo] = {}
         self.pairs: Dict[str, List[int]] = {}  # folder -> the pairs k (k, k+1) to draw from; absent: all
-        self.between_only = False  # t* only between frame k's last row and frame k+1's first (adaptation's option)
 
     def info(self, seq: Sequence) -> SeqInfo:
         if seq.folder not in self.infos:
@@ -223,12 +222,6 @@ class Sampler:
                 raise DataError(f"{seq.folder}: --supervised needs ground truth between frames {k} and {k + 1}")
             gt_index = r.choice(cands)
             t_star = seq.gt[gt_index][1]
-        elif self.between_only:
-            gap = (seq.frame_span(k)[1], seq.frame_span(k + 1)[0])
-            if not gap[1] > gap[0]:
-                raise DataError(f"{seq.folder}: frames {k} and {k + 1} have no time between their exposure spans "
-                                f"({gap[0]:.0f} to {gap[1]:.0f} us): nothing to draw t* from between frames")
-            t_star = r.uniform(*gap)
         else:
             t_star = r.uniform(lo, hi)
         # log-uniform in [1/J, J]; no draw at J = 1, so runs without jitter keep their samples

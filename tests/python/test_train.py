@@ -416,29 +416,6 @@ def test_adapt_anchor_pulls_only_targets_inside_frames(seq_dir):
     assert all(not p.requires_grad for p in anchor.ref.parameters())
 
 
-def test_adapt_between_only_draws_every_target_between_frames(seq_dir):
-    """--adapt-between-only: the sampler draws t* only in the gap between frame k's last row and frame
-    k+1's first (recorded by the draw itself); a recording whose spans leave no gap is refused."""
-    class Recording(random.Random):
-        def uniform(self, a, b):
-            self.calls.append((a, b))
-            return super().uniform(a, b)
-
-    s = Sequence(seq_dir)
-    (_, a1), (b0, _) = s.frame_span(0), s.frame_span(1)
-    rng = Recording(5)
-    rng.calls = []
-    sampler = train.Sampler([s], 32, 32, 4, None, rng)
-    sampler.pairs = {s.folder: [0]}
-    sampler.between_only = True
-    drawn = [sampler.draw() for _ in range(6)]
-    assert not any(x.intra for x in drawn)
-    assert rng.calls == [(a1, b0)] * 6
-    s.line_delay = (b0 - s.frame_t0[0] - s.exposure) / (s.height - 1) + 1.0  # the last row now ends after b0
-    with pytest.raises(train.DataError, match="no time between their exposure spans"):
-        sampler.draw()
-
-
 def test_one_way_latent_consistency_moves_only_the_other_frames_pass():
     """--adapt-lc-one-way: inside an exposure span the exposing frame's pass gets no gradient from Llc,
     the other frame's does; between frames both do; the value is the plain |g1 - g2|."""
@@ -460,8 +437,7 @@ def test_adapt_anchor_options_are_checked(capsys):
                        (["--adapt", "x", "--from", "m.safetensors", "--minutes", "1", "--adapt-anchor", "-1"],
                         "expected a weight >= 0"),
                        (["--adapt", "x", "--resume", "c.pt", "--minutes", "1"], "--adapt-anchor 0 adapts without it"),
-                       (["--data", "x", "--adapt-lc-one-way"], "--adapt-lc-one-way applies to --adapt only"),
-                       (["--data", "x", "--adapt-between-only"], "--adapt-between-only applies to --adapt only")):
+                       (["--data", "x", "--adapt-lc-one-way"], "--adapt-lc-one-way applies to --adapt only")):
         with pytest.raises(SystemExit):
             train.main(args)
         assert says in capsys.readouterr().err, args
