@@ -12,36 +12,17 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.a
 sys.path.insert(0, os.path.join(ROOT, "tools"))
 import natural_eval  # noqa: E402
 
-SCALE = {}  # id(net) -> s
-load_model = natural_eval.load_model
 unroll_pair = natural_eval.unroll_pair
 
 
 def unroll_pair_scaled(net, seq, k, t, texp, bins, crop, info):
-    s = SCALE[id(net)]
+    s = float(net.eval_name.lstrip("x"))  # natural_eval names each net by its --model NAME
     scaled = copy.copy(info)
     c = info.contrast() * s
     scaled.contrast = lambda: c
     return unroll_pair(net, seq, k, t, texp, bins, crop, scaled)
 
 
-evaluate = natural_eval.evaluate
-
-
-def evaluate_scaled(data, models, *args, **kwargs):
-    # natural_eval loads the nets in the models dict's order; give each its name's scale.
-    order = list(models)
-
-    def load_in_order(path, _it=iter(order)):
-        name = next(_it)
-        net = load_model(path)
-        SCALE[id(net)] = float(name.lstrip("x"))
-        return net
-    natural_eval.load_model = load_in_order
-    return evaluate(data, models, *args, **kwargs)
-
-
 natural_eval.unroll_pair = unroll_pair_scaled
-natural_eval.evaluate = evaluate_scaled
 if __name__ == "__main__":
     sys.exit(natural_eval.main())

@@ -14,14 +14,11 @@ sys.path.insert(0, os.path.join(ROOT, "tools"))
 import natural_eval  # noqa: E402
 import train  # noqa: E402
 
-FLIP = set()  # id(net) of the nets that run the ensemble
 unroll_pair = natural_eval.unroll_pair
-evaluate = natural_eval.evaluate
-load_model = natural_eval.load_model
 
 
 def ensemble_pair(net, seq, k, t_star, texp, bins, crop, info):
-    if id(net) not in FLIP:
+    if not net.eval_name.startswith("flip"):  # natural_eval names each net by its --model NAME
         return unroll_pair(net, seq, k, t_star, texp, bins, crop, info)
     dv = next(net.parameters()).device
     smp = train.make_sample(seq, k, crop, t_star, texp, bins, None, info, net.cfg.gamma, net.cfg.physics_input)
@@ -43,19 +40,6 @@ def ensemble_pair(net, seq, k, t_star, texp, bins, crop, info):
     return res
 
 
-def evaluate_marking(data, models, *args, **kwargs):
-    order = iter(list(models))
-
-    def load_marking(path):
-        net = load_model(path)
-        if next(order).startswith("flip"):
-            FLIP.add(id(net))
-        return net
-    natural_eval.load_model = load_marking
-    return evaluate(data, models, *args, **kwargs)
-
-
 natural_eval.unroll_pair = ensemble_pair
-natural_eval.evaluate = evaluate_marking
 if __name__ == "__main__":
     sys.exit(natural_eval.main())
