@@ -240,14 +240,18 @@ def estimate_physics(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0)
         return 0.2, 0.0
     best = (0.2, 0.0, np.inf)
     for eps in _OFFSETS:
-        d = np.log(lb + eps) - np.log(la + eps)
-        c = _weighted_median(d / n, np.abs(n).astype(np.float64))
-        if not c > 0:
-            continue
-        r = float(np.abs(d / c - n).sum())
+        c, r = offset_fit(la, lb, n, eps)
         if r < best[2]:
             best = (c, eps, r)
     return float(np.float32(best[0])), float(np.float32(best[1]))
+
+
+def offset_fit(la: np.ndarray, lb: np.ndarray, n: np.ndarray, eps: float) -> Tuple[float, float]:
+    """(c, residual in events) of the signal samples at log offset eps: c is the L1 fit of log change
+    against net event count; residual = sum |change / c - N|, inf where c <= 0 (contrast_estimate.cpp fit_at)."""
+    d = np.log(lb + eps) - np.log(la + eps)
+    c = _weighted_median(d / n, np.abs(n).astype(np.float64))
+    return (c, float(np.abs(d / c - n).sum())) if c > 0 else (c, np.inf)
 
 
 def estimate_contrast(seq, frames: Optional[Seq[int]] = None, gamma: float = 1.0) -> float:

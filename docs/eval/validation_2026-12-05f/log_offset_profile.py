@@ -5,8 +5,6 @@ not pin the offset. Arguments: sequence folders or folders of sequences."""
 import os
 import sys
 
-import numpy as np
-
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "..", "tools"))
 import physics_numpy as pn  # noqa: E402
 from sequence_data import Sequence, list_sequences  # noqa: E402
@@ -18,10 +16,6 @@ for p in list_sequences(sys.argv[1:]):
     if len(n) < pn._MIN_PIXELS:
         print(name, "too few signal pixels: no estimate")
         continue
-    fits = []
-    for eps in pn._OFFSETS + (0.1,):
-        d = np.log(lb + eps) - np.log(la + eps)
-        c = pn._weighted_median(d / n, np.abs(n).astype(np.float64))
-        fits.append((eps, c, float(np.abs(d / c - n).sum())))
+    fits = [(eps, *pn.offset_fit(la, lb, n, eps)) for eps in pn._OFFSETS + (0.1,)]
     best = min(r for _, _, r in fits)
     print(name, " ".join(f"{e:g}:{c:.3f}:{r / best:.3f}" for e, c, r in fits), flush=True)

@@ -9,7 +9,9 @@ for s in "$@"; do
   "$cli" unroll "$s" --out "$work/zero" --mode physics --times gt --no-video --quiet --contrast "$c" 2>/dev/null
   /usr/bin/python3 - "$s" "$work/est" "$work/zero" <<'PY'
 import csv, json, sys
-mean = lambda d: sum(float(r["psnr"]) for r in csv.DictReader(open(d + "/metrics.csv"))) / sum(1 for _ in csv.DictReader(open(d + "/metrics.csv")))
+def mean(d):
+    psnr = [float(r["psnr"]) for r in csv.DictReader(open(d + "/metrics.csv"))]
+    return sum(psnr) / len(psnr)
 p = json.load(open(sys.argv[2] + "/summary.json"))["physics"]
 print(f"{sys.argv[1]}: c {p['contrast']:.3f}, fitted offset {p.get('log_offset', 0):g}: {mean(sys.argv[2]):.2f} dB; offset 0: {mean(sys.argv[3]):.2f} dB")
 PY
