@@ -1,5 +1,5 @@
 // Event tensors: events per second of the GPU builder and of the exact CPU reference against the
-// NumPy binning (float64 + np.add.at, tools/event_tensors_numpy.py), on the same 300,000 random
+// NumPy binning (float64 + np.add.at, tools/data/event_tensors_numpy.py), on the same 300,000 random
 // events at 346x260, N = 16, three tensors (ev1, ev2, ev3) of one (frame, target) pair, in one run.
 //
 //   vkunroll-bench-event-tensor [--events 300000] [--repeat 5] [--batch 8]
@@ -97,7 +97,7 @@ int main(int argc, char** argv) {
                     {{"width", std::to_string(W)}, {"height", std::to_string(H)}, {"bins", std::to_string(N)},
                      {"t0", "0"}, {"delay", "70"}, {"exposure", "10000"}, {"target", t_star.str()}});
   const std::string py = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) +
-                         "/tools/event_tensors_numpy.py --bench " + in + " --repeat " + std::to_string(repeat);
+                         "/tools/data/event_tensors_numpy.py --bench " + in + " --repeat " + std::to_string(repeat);
   const CommandOutput np_run = run_command(py, /*with_stderr=*/false);
   const std::string& py_out = np_run.text;
   double np_s = 0;

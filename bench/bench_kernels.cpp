@@ -144,7 +144,7 @@ double ceiling_gflops(Context& ctx, Profiler* profile, bool half = false) {
   return flop / (t.ms * 1e6);
 }
 
-// The same-run peer: PyTorch conv2d / conv_transpose2d (tools/bench_conv_peer.py) per shape key, best of
+// The same-run peer: PyTorch conv2d / conv_transpose2d (tools/bench/bench_conv_peer.py) per shape key, best of
 // `reps`, on the CPU or a CUDA GPU; keys "fp16:KEY" hold CUDA's half-precision times. Empty (and said)
 // where PyTorch cannot run.
 std::map<std::string, double> torch_peer_ms(const std::vector<ConvShape>& shapes, int threads, int reps,
@@ -156,7 +156,7 @@ std::map<std::string, double> torch_peer_ms(const std::vector<ConvShape>& shapes
     list.push_back({{"key", c.key()}, {"transposed", c.transposed}, {"k", c.k}, {"s", c.s}, {"cin", c.cin},
                     {"cout", c.cout}, {"h", c.h}, {"w", c.w}});
   std::ofstream(in) << list.dump();
-  const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_conv_peer.py " + in + " " + out +
+  const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench/bench_conv_peer.py " + in + " " + out +
                           " --threads " + std::to_string(threads) + " --reps " + std::to_string(reps) + " --device " + device;
   const CommandOutput run = run_command(cmd, /*with_stderr=*/true);
   const std::string failure = run.status == 0      ? std::string()

@@ -17,7 +17,7 @@
 // --per-layer (with --precision fp16) runs fp32 and fp16 on the same input and prints, for every conv
 // in call order, the largest |value| in fp32 and fp16's max abs and relative error against it.
 // --model uses those weights instead of random ones; --inputs reads rs, ev1, ev2, ev3 [, phys]
-// (vkunroll infer's layout; tools/make_model_inputs.py makes it from a sequence) instead of random ones.
+// (vkunroll infer's layout; tools/data/make_model_inputs.py makes it from a sequence) instead of random ones.
 //
 // --runs N times N full-size runs and reports the best (the first run also grows the workspaces and
 // allocates device memory, which on a discrete GPU costs more than the run) and the first.
@@ -360,7 +360,8 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   write_safetensors((dir / "in.safetensors").string(), views);
   // CPU PyTorch has no fp16 convs: there the peer stays fp32 and the diffs are fp16's error.
   const std::string torch_precision = torch_device == "cuda" ? precision_name(precision) : "fp32";
-  const std::string cmd = "/usr/bin/python3 " + std::string(VKUNROLL_SOURCE_DIR) + "/tools/bench_mirror.py " +
+  // tools/ is a package run from the source root (the mirror imports tools.model); the paths below are absolute.
+  const std::string cmd = "cd " + std::string(VKUNROLL_SOURCE_DIR) + " && /usr/bin/python3 -m tools.bench.bench_mirror " +
                           (dir / "w.safetensors").string() + " " + (dir / "in.safetensors").string() + " " +
                           (dir / "out.safetensors").string() + " --mode " + mode +
                           (torch_threads ? " --threads " + std::to_string(torch_threads) : "") + " --device " + torch_device +

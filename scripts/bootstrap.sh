@@ -21,7 +21,7 @@ core_packages=(
   python3-dev pybind11-dev python3-numpy
 )
 # The suite: validation layer, GoogleTest, Debian's PyTorch for the mirror and trainer tests, SciPy for the
-# second event generator (tools/second_generator.py), and
+# second event generator (tools/data/second_generator.py), and
 # Debian's rosbag for the tests that write ROS bags.
 test_packages=(vulkan-validationlayers libgtest-dev libgmock-dev python3-pytest python3-torch python3-h5py python3-pil python3-scipy
   python3-rosbag python3-roslz4)

@@ -1,5 +1,5 @@
 // Row timing, exact rationals and the row-aware event tensors: hand-made boundary cases, GPU ==
-// CPU on random streams, and the NumPy golden fixture (tools/event_tensors_numpy.py).
+// CPU on random streams, and the NumPy golden fixture (tools/data/event_tensors_numpy.py).
 #include <gtest/gtest.h>
 
 #include <cmath>

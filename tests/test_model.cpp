@@ -1,4 +1,4 @@
-// SelfUnroll graph: golden parity with the PyTorch mirror (tools/make_golden.py fixtures) on the
+// SelfUnroll graph: golden parity with the PyTorch mirror (tools/model/make_golden.py fixtures) on the
 // CPU and Vulkan backends, Vulkan vs CPU with the published configuration, M with m = 1 equals
 // S of frame 1, odd sizes, batches of targets equal the targets one by one, memory plan.
 #include <gtest/gtest.h>

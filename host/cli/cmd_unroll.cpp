@@ -72,7 +72,7 @@ UnrollOptions to_options(const UnrollArgs& a) {
 
 void add_model_options(CLI::App* c, UnrollArgs& a) {
   const std::string g = "Model";
-  c->add_option("--model", a.model, "SelfUnroll weights (safetensors; tools/convert_checkpoint.py converts checkpoints); default: the "
+  c->add_option("--model", a.model, "SelfUnroll weights (safetensors; tools/model/convert_checkpoint.py converts checkpoints); default: the "
                 "shipped model (VKUNROLL_MODEL, else share/vkunroll/models/" + std::string(kDefaultModelFile) + ")")
       ->group(g)->type_name("FILE");
   c->add_option("--mode", a.mode,

@@ -6,7 +6,7 @@ Vulkan GPU, from Python. numpy in, numpy out.
     ev = vkunroll.read_events("recording.raw")               # t, x, y, p structured array
     timing = vkunroll.RowTiming(260, 0, 100, 3000)           # height, t0, line delay, exposure (us)
     ev1, ev2, ev3 = vkunroll.event_tensors(ev, timing, t_us=15000, bins=16)
-    model = vkunroll.Model.load("checkpoint.safetensors")    # e.g. tools/convert_checkpoint.py's output
+    model = vkunroll.Model.load("checkpoint.safetensors")    # e.g. tools/model/convert_checkpoint.py's output
     out = model.run(rs, ev1, ev2, ev3, mode="s")             # dict of float32 arrays
     frames, metrics, targets, stats = vkunroll.unroll(vkunroll.Sequence.open("seq"), times="gt")
     # ... with the shipped default model (vkunroll.default_model()); model="FILE" for another

@@ -67,7 +67,7 @@ def event_tensors(events, timing, t_us, bins=16, target_exposure_us=None, *, cro
       backend: "vulkan" (the GPU builder, on ``context`` or the default one) or "cpu" (the exact
         CPU reference). Both give the same counts.
 
-    Returns (ev1, ev2, ev3). Equal to ``vkunroll voxelize`` and tools/event_tensors_numpy.py.
+    Returns (ev1, ev2, ev3). Equal to ``vkunroll voxelize`` and tools/data/event_tensors_numpy.py.
     """
     ev1, ev2, ev3 = event_tensors_batch(events, timing, [t_us], bins, target_exposure_us, crop=crop,
                                         sensor_size=sensor_size, backend=backend, context=context)

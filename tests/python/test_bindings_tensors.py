@@ -1,21 +1,20 @@
 """vkunroll (Python): Sequence.create writes the generic layout the CLI reads; event tensors from
-Python (GPU and CPU) equal `vkunroll voxelize` and tools/event_tensors_numpy.py exactly, on a
+Python (GPU and CPU) equal `vkunroll voxelize` and tools/data/event_tensors_numpy.py exactly, on a
 real recording's events; physics_unroll on the GPU equals the CPU reference."""
 import fractions
 import os
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 import vkunroll
 
+from tools.data import event_tensors_numpy as etn
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 REAL = os.path.join(ROOT, "..", "shared", "data", "real-events", "sample.aedat4")
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
-import event_tensors_numpy as etn  # noqa: E402
 
 W, H = 320, 240
 

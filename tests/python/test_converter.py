@@ -1,4 +1,4 @@
-"""tools/convert_checkpoint.py on checkpoints saved by the PyTorch mirror, and `vkunroll infer`
+"""tools/model/convert_checkpoint.py on checkpoints saved by the PyTorch mirror, and `vkunroll infer`
 against the mirror on a converted checkpoint (needs VKUNROLL_CLI, set by ctest)."""
 import os
 import subprocess
@@ -7,19 +7,18 @@ import sys
 import pytest
 import torch
 
+from tools.model import safetensors_io
+from tools.model.convert_checkpoint import convert
+from tools.model.make_golden import make_inputs, tiny_model
+from tools.model.selfunroll_torch import SelfUnroll, SelfUnrollConfig, run_named
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
 
-import safetensors_io  # noqa: E402
-from convert_checkpoint import convert  # noqa: E402
-from make_golden import make_inputs, tiny_model  # noqa: E402
-from selfunroll_torch import SelfUnroll, SelfUnrollConfig, run_named  # noqa: E402
-
-CONVERTER = os.path.join(ROOT, "tools", "convert_checkpoint.py")
+CONVERTER = [sys.executable, "-m", "tools.model.convert_checkpoint"]  # run from ROOT: tools/ is a package
 
 
 def run_converter(*args):
-    return subprocess.run([sys.executable, CONVERTER, *map(str, args)], capture_output=True, text=True)
+    return subprocess.run([*CONVERTER, *map(str, args)], capture_output=True, text=True, cwd=ROOT)
 
 
 @pytest.fixture(scope="module")
@@ -174,7 +173,7 @@ def test_vkunroll_infer_bad_inputs_fail_clearly(tmp_path):
 
 
 def test_mirror_save_and_load_round_trip(tmp_path, net):
-    from selfunroll_torch import load_model, save_model
+    from tools.model.selfunroll_torch import load_model, save_model
     save_model(net, str(tmp_path / "w.safetensors"))
     back = load_model(str(tmp_path / "w.safetensors"))
     assert back.cfg.to_metadata() == net.cfg.to_metadata()

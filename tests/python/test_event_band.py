@@ -3,13 +3,12 @@ validation on 2026-12-04 and not adopted, docs/training.md): each pixel is kept 
 lin(phys) * exp(+-w c) in linear intensity + offset, values inside pass unchanged, and the band
 widens with w and with the log offset for dark pixels."""
 import os
-import sys
 
 import numpy as np
 
+from tools.model import physics_numpy as pn
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
-import physics_numpy as pn  # noqa: E402
 
 
 def lin(v, g, eps):

@@ -1,13 +1,12 @@
-"""tools/event_tensors_numpy.py: the committed golden fixture is what the tool writes, and the
+"""tools/data/event_tensors_numpy.py: the committed golden fixture is what the tool writes, and the
 NumPy float64 binning agrees with the exact Fraction implementation on integer timing."""
 import os
-import sys
 
 import numpy as np
 
+from tools.data import event_tensors_numpy as etn
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
-import event_tensors_numpy as etn  # noqa: E402
 
 
 def test_golden_fixture_is_reproducible(tmp_path):

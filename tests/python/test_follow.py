@@ -13,7 +13,7 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
-FEED = os.path.join(ROOT, "tools", "follow_feed.py")
+FEED = os.path.join(ROOT, "tools", "data", "follow_feed.py")
 FRAMES = 8
 
 

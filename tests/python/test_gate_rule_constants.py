@@ -1,13 +1,12 @@
-"""`vkunroll unroll --gate-radius auto` and tools/natural_eval.py --gate auto apply one rule: the
+"""`vkunroll unroll --gate-radius auto` and tools/eval/natural_eval.py --gate auto apply one rule: the
 evaluation tool's copy of the constants equals the CLI's (host/unroll/unroll_plan.hpp), and its rule
 picks as the CLI's does on both sides of each threshold."""
 import os
 import re
-import sys
+
+from tools.eval import natural_eval
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
-import natural_eval  # noqa: E402
 
 
 def header_constants():

@@ -1,17 +1,16 @@
-"""tools/natural_data.py's training draws: the 'wide' event model draws every noise option on its
+"""tools/data/natural_data.py's training draws: the 'wide' event model draws every noise option on its
 own within its stated range, replaces the preset's flags, leaves the 'presets' draws as they were,
 and every draw is a command `vkunroll simulate` accepts."""
 import json
 import os
 import random
 import subprocess
-import sys
 
 import pytest
 
+from tools.data import natural_data
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
-import natural_data  # noqa: E402
 
 CLI = os.environ.get("VKUNROLL_CLI")
 RANGES = {"c-on": (0.08, 0.6), "c-off": (0.05, 0.9), "sigma": (0, 0.08), "refractory-us": (0, 2000),

@@ -8,7 +8,6 @@ a folder (an existing file, or a path under one) is exit 2 naming --out for ever
 import os
 import re
 import subprocess
-import sys
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
@@ -56,10 +55,9 @@ def inputs(tmp_path_factory):
     assert r.returncode == 0, r.stderr
     made = {"seq": root / "seq", "cache": root / "cache"}
     # infer: the tiny model's inputs (batch 1, 32x32), written by the PyTorch mirror's tools.
-    sys.path.insert(0, os.path.join(ROOT, "tools"))
     try:
-        import safetensors_io
-        from make_golden import make_inputs
+        from tools.model import safetensors_io
+        from tools.model.make_golden import make_inputs
         safetensors_io.save(str(root / "in.safetensors"), make_inputs(1, 32, 32, 4, seed=5))
         made["infer_inputs"] = root / "in.safetensors"
     except ImportError:  # no torch: infer is skipped
@@ -75,7 +73,6 @@ def inputs(tmp_path_factory):
 def write_tiny_bag(path):
     import numpy as np
     import rosbag
-    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from test_bindings_rosbag import DVS, IMAGE, array_message, image_message, write_raw
     w, h = 16, 12
     ev = np.zeros(200, [("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")])

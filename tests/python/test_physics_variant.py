@@ -1,4 +1,4 @@
-"""The physics unroller in NumPy (tools/physics_numpy.py) against `vkunroll unroll --mode physics`,
+"""The physics unroller in NumPy (tools/model/physics_numpy.py) against `vkunroll unroll --mode physics`,
 the physics-informed variant of the mirror (starts exactly at the physics estimate, export,
 metadata, converter), the sample cache, and a CI-sized adaptation to one recording whose
 self-supervised loss falls without ground truth being read."""
@@ -13,24 +13,22 @@ import numpy as np
 import pytest
 import torch
 
+from tools.model import convert_checkpoint
+from tools.eval import natural_eval
+from tools.model import physics_numpy as pn
+from tools.model import safetensors_io
+from tools.train import train
+from tools.train import train_data
+from tools.model import selfunroll_torch
+from tools.model.selfunroll_torch import SelfUnroll, SelfUnrollConfig, infer_config, load_model
+from tools.data.sequence_data import Sequence, read_image
+from test_train import edi_pixel, write_sequence  # tests/python is on sys.path under pytest
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
-sys.path.insert(0, HERE)
-
-import convert_checkpoint  # noqa: E402
-import natural_eval  # noqa: E402
-import physics_numpy as pn  # noqa: E402
-import safetensors_io  # noqa: E402
-import train  # noqa: E402
-import train_data  # noqa: E402
-import selfunroll_torch  # noqa: E402
-from selfunroll_torch import SelfUnroll, SelfUnrollConfig, infer_config, load_model  # noqa: E402
-from sequence_data import Sequence, read_image  # noqa: E402
-from test_train import edi_pixel, write_sequence  # noqa: E402
 
 CLI = os.environ.get("VKUNROLL_CLI")
-TRAIN = os.path.join(ROOT, "tools", "train.py")
+TRAIN = [sys.executable, "-m", "tools.train.train"]  # run from ROOT: tools/ is a package
 needs_cli = pytest.mark.skipif(not CLI or not os.path.exists(CLI or ""), reason="VKUNROLL_CLI not set (run through ctest)")
 
 
@@ -106,7 +104,7 @@ def test_physics_numpy_equals_vkunroll_unroll_physics(tmp_path):
         for row in rows:
             k, t = int(row[0]), float(row[1])
             assert pn.frame_for_time(s, frames, t) == k
-            # tools/natural_eval.py's metrics are host/metrics.cpp's (RS input vs ground truth: both PNGs)
+            # tools/eval/natural_eval.py's metrics are host/metrics.cpp's (RS input vs ground truth: both PNGs)
             gt = read_image(row[4])
             assert abs(natural_eval.psnr(s.frame(k), gt) - float(row[7])) < 1e-4
             assert abs(natural_eval.ssim(s.frame(k), gt) - float(row[8])) < 1e-5
@@ -359,8 +357,8 @@ def test_converter_knows_the_variant(tmp_path, capsys):
 
 # ---- trainer: cache, device, adaptation -----------------------------------------------------------------
 def run_train(*args, timeout=600):
-    return subprocess.run([sys.executable, TRAIN, "--threads", "1", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout)
+    return subprocess.run([*TRAIN, "--threads", "1", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, cwd=ROOT)
 
 
 def test_cache_of_prepared_samples_trains(tmp_path, seq_dir):
@@ -618,9 +616,9 @@ def test_gate_radius_is_chosen_said_and_reaches_the_model(tmp_path):
         first = open(out / "metrics.csv").read().splitlines()[1].split(",")
         images[radius] = read_image(str(out / first[3]))
     assert float(np.abs(images["0"] - images["4"]).max()) > 1e-3
-    radii = tmp_path / "radii.json"  # tools/gate_radii.py (train.py --gate-radii) picks as auto did
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "gate_radii.py"), "--cli", CLI, "--out", radii,
-                        "--model-radius", "1", str(seq)], capture_output=True, text=True)
+    radii = tmp_path / "radii.json"  # tools/train/gate_radii.py (train.py --gate-radii) picks as auto did
+    r = subprocess.run([sys.executable, "-m", "tools.train.gate_radii", "--cli", CLI, "--out", radii,
+                        "--model-radius", "1", str(seq)], capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     assert train_data.load_gate_radii(str(radii)) == {os.path.abspath(seq): 1}
     plain = tiny_variant(3)  # no gate

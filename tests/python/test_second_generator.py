@@ -1,4 +1,4 @@
-"""tools/second_generator.py, the validation-only event generator: seeded and deterministic,
+"""tools/data/second_generator.py, the validation-only event generator: seeded and deterministic,
 its noise options change what they say, and `vkunroll unroll` reads every event it writes."""
 import json
 import os
@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-GEN = os.path.join(ROOT, "tools", "second_generator.py")
+GEN = os.path.join(ROOT, "tools", "data", "second_generator.py")
 CLI = os.environ.get("VKUNROLL_CLI")
 
 

@@ -15,14 +15,12 @@ import re
 import shutil
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 
 import pytest
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from slurm_cluster import LocalSlurm, SlurmError, die_with_parent  # noqa: E402
+from slurm_cluster import LocalSlurm, SlurmError, die_with_parent  # tests/python is on sys.path under pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 CLI = os.environ.get("VKUNROLL_CLI", str(ROOT / "build" / "vkunroll"))

@@ -1,4 +1,4 @@
-"""tools/train.py and tools/sequence_data.py: the generic-layout reader (PNG 8/16-bit, events h5/txt,
+"""tools/train/train.py and tools/data/sequence_data.py: the generic-layout reader (PNG 8/16-bit, events h5/txt,
 clear errors), the fast event binning against the reference NumPy one, a CI-sized self-supervised
 training run whose loss decreases, the time-limited tool run with resume and export, and the
 exported weights in `vkunroll infer` against the PyTorch model (needs VKUNROLL_CLI, set by ctest)."""
@@ -15,17 +15,16 @@ import numpy as np
 import pytest
 import torch
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
+from tools.data import event_tensors_numpy as etn
+from tools.model import safetensors_io
+from tools.train import train
+from tools.model.selfunroll_torch import SelfUnroll, SelfUnrollConfig, run_named
+from tools.data.sequence_data import DataError, Sequence, read_events, read_image
 
-import event_tensors_numpy as etn  # noqa: E402
-import safetensors_io  # noqa: E402
-import train  # noqa: E402
-from selfunroll_torch import SelfUnroll, SelfUnrollConfig, run_named  # noqa: E402
-from sequence_data import DataError, Sequence, read_events, read_image  # noqa: E402
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 CLI = os.environ.get("VKUNROLL_CLI")
-TRAIN = os.path.join(ROOT, "tools", "train.py")
+TRAIN = [sys.executable, "-m", "tools.train.train"]  # run from ROOT: tools/ is a package
 needs_cli = pytest.mark.skipif(not CLI or not os.path.exists(CLI or ""), reason="VKUNROLL_CLI not set (run through ctest)")
 
 
@@ -195,7 +194,7 @@ def tiny_cfg():
 
 
 def test_fusion_passthrough_init_starts_at_sys():
-    """A fresh model's fusion_net is the identity on its sys input (tools/train.py), so S starts at
+    """A fresh model's fusion_net is the identity on its sys input (tools/train/train.py), so S starts at
     E-IC_T's result instead of a random UNet; without the option it is not."""
     torch.manual_seed(0)
     cfg = train.make_config("small")
@@ -260,8 +259,8 @@ def test_self_supervised_losses_decrease_on_a_tiny_crop(seq_dir):
 
 def run_train(*args):
     # one thread: two OpenMP threads on a busy 2-core CI machine are many times slower
-    return subprocess.run([sys.executable, TRAIN, "--threads", "1", *map(str, args)], capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run([*TRAIN, "--threads", "1", *map(str, args)], capture_output=True, text=True,
+                          timeout=300, cwd=ROOT)
 
 
 @pytest.fixture(scope="module")
@@ -345,7 +344,7 @@ def test_adaptation_returns_the_input_model_when_no_step_improves(trained, seq_d
 def test_adapt_guard_keeps_the_best_step_and_splits_frames(tmp_path):
     """The selection itself: a better step is kept, a worse or NaN one is not; held-out frames."""
     import random as _random
-    from adapt_holdout import AdaptGuard, split_pairs
+    from tools.train.adapt_guard import AdaptGuard, split_pairs
     assert split_pairs(4) == ([0], [2], "frames 2..3 held out (no training crop uses them)")
     assert split_pairs(10)[:2] == ([0, 1, 2, 3, 4, 5, 6], [8])
     assert split_pairs(2)[:2] == ([0], [0])
@@ -380,7 +379,7 @@ def test_adapt_anchor_pulls_only_targets_inside_frames(seq_dir):
     """--adapt-anchor: the sampler marks t* inside an exposure span as intra; the anchor is 0 for the
     input model itself, positive once the weights move, and 0 for a batch between frames."""
     import copy
-    from adapt_holdout import IntraAnchor
+    from tools.train.adapt_guard import IntraAnchor
 
     class FixedT(random.Random):  # t* at a chosen point of the pair's span
         def uniform(self, a, b):
@@ -420,7 +419,7 @@ def test_one_way_latent_consistency_moves_only_the_other_frames_pass():
     """--adapt-lc-one-way: inside an exposure span the exposing frame's pass gets no gradient from Llc,
     the other frame's does; between frames both do; the value is the plain |g1 - g2|."""
     from types import SimpleNamespace
-    from adapt_holdout import one_way_pair
+    from tools.train.adapt_guard import one_way_pair
     samples = [SimpleNamespace(exposing=e) for e in (0, 1, -1)]
     g1 = torch.randn(3, 1, 4, 4, requires_grad=True)
     g2 = torch.randn(3, 1, 4, 4, requires_grad=True)
@@ -527,7 +526,7 @@ def edi_pixel(ts, ps, S, E, c):
 
 
 def test_python_physics_fallback_matches_the_cpp_reference_formula(seq_dir):
-    import evaluate
+    from tools.eval import evaluate
     s = Sequence(seq_dir)
     k, t_star, c, g = 1, s.gt[3][1], 0.2, 2.2
     got = evaluate.physics_edi(s, k, t_star, c, g)

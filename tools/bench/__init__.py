@@ -1,0 +1,1 @@
+"""The PyTorch peers the C++ benches (bench/) call in the same run."""

@@ -1,0 +1,1 @@
+"""One-off experiments, kept because a doc cites their numbers; not maintained (README.md)."""
