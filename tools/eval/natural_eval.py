@@ -137,7 +137,7 @@ def evaluate(data: List[str], models: Dict[str, str], cli: str = "", cli_modes=(
     torch.set_num_threads(threads)
     nets = {name: load_model(path) for name, path in models.items()}
     for name, net in nets.items():
-        net.eval_name = name  # the --model NAME, for post hoc variants that patch unroll_pair (docs/eval/*)
+        net.eval_name = name  # the --model NAME, for post hoc variants that patch unroll_pair (results/eval/*)
     own_gate = {name: (net.cfg.physics_gate if net.cfg.physics_input else -1) for name, net in nets.items()}
     seqs = [Sequence(p, cache_images=True) for p in list_sequences(data)]
     rows = []
