@@ -1,5 +1,5 @@
 // The shipped default model: what `unroll`, `demo`, Python's `unroll` and the benches run when no
-// model file is named. One rule finds it everywhere (docs/model.md, "The default model").
+// model file is named. One rule finds it everywhere (docs/usage.md, "The default model").
 #pragma once
 #include <string>
 #include <vector>

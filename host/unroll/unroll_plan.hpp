@@ -100,7 +100,7 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
 // The event gate radius the variant runs with, and why (summary.json). `automatic`: where the
 // contrast estimate measured the recording's noise, a noisy recording (frame noise from
 // kCleanFrameNoise or isolated events from kCleanIsolatedEvents) gets kNoisyGateRadius, a clean one
-// (or one not measured) the model's own: on validation (docs/training.md, "The event gate's radius")
+// (or one not measured) the model's own: on validation (docs/journal/training.md, "The event gate's radius")
 // r = 2 beat r = 1 inside and between frames in every noisy group, and lost in every clean one.
 // `model_radius` -1 (no gate): stays -1, and a fixed radius is refused (UsageError).
 constexpr double kCleanFrameNoise = 0.01, kCleanIsolatedEvents = 0.05;

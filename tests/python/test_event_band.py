@@ -1,5 +1,5 @@
 """tools/physics_numpy.event_band, the post-hoc clamp `natural_eval.py --bands` scores (tried on
-validation on 2026-12-04 and not adopted, docs/training.md): each pixel is kept within
+validation on 2026-12-04 and not adopted, docs/journal/training.md): each pixel is kept within
 lin(phys) * exp(+-w c) in linear intensity + offset, values inside pass unchanged, and the band
 widens with w and with the log offset for dark pixels."""
 import os

@@ -105,7 +105,7 @@ class IntraAnchor:
     whose t* lies inside an exposure span (Sample.intra), W x the mean |output - input model's output|
     of the g1 and g2 passes (sys, warped, fused) joins the stage S loss; samples between frames are
     free. Why: on the second generator's validation suite the self-supervised losses gained between
-    frames and lost inside them (docs/training.md). `reference` is the input model, never trained."""
+    frames and lost inside them (docs/journal/training.md). `reference` is the input model, never trained."""
 
     def __init__(self, reference: torch.nn.Module, weight: float, run_passes: Callable, branches):
         if not weight > 0:

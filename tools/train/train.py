@@ -53,7 +53,7 @@ from tools.train.train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 LOSS_WEIGHTS = {"lc": 1.0, "cc": 1.0, "tc": 1.0, "tv": 0.01}
 # --adapt's pull toward the input model inside frames: chosen on the second generator's validation suite
-# (weight 1 still lost 0.59 dB inside frames, 10 gained 0.16; docs/training.md, "The intra-frame anchor")
+# (weight 1 still lost 0.59 dB inside frames, 10 gained 0.16; docs/journal/training.md, "The intra-frame anchor")
 ADAPT_ANCHOR = 10.0
 BRANCHES = ("sys", "warped", "fused")  # E-IC_T, E-IC_S, E-IC_S+T: every consistency applies to all three
 
