@@ -1,6 +1,7 @@
 # ctest: install vkunroll into a temporary prefix, then build and run two consumers with
-# find_package(vkunroll): the whole package, and the runtime layer alone with OpenCV, HDF5 and the
-# compression libraries made unfindable.
+# find_package(vkunroll): the whole package (examples/cpp, an UnrollJob over a sequence folder with
+# the installed default model), and the runtime layer alone with OpenCV, HDF5 and the compression
+# libraries made unfindable.
 file(REMOVE_RECURSE ${WORK})
 execute_process(COMMAND ${CMAKE_COMMAND} --install ${BUILD} --prefix ${WORK}/prefix RESULT_VARIABLE r OUTPUT_QUIET)
 if(r)
@@ -15,8 +16,10 @@ if(NOT EXISTS ${WORK}/prefix/include/vkunroll/runtime/context.hpp)
   message(FATAL_ERROR "include/vkunroll/runtime/context.hpp was not installed")
 endif()
 
-function(consumer name src expect)
-  execute_process(COMMAND ${CMAKE_COMMAND} -S ${src} -B ${WORK}/${name} -G Ninja -DCMAKE_PREFIX_PATH=${WORK}/prefix ${ARGN}
+# consumer(NAME SOURCE_DIR EXECUTABLE EXPECTED_OUTPUT_REGEX [CMAKE_ARGS ...] [RUN_ARGS ...])
+function(consumer name src exe expect)
+  cmake_parse_arguments(C "" "" "CMAKE_ARGS;RUN_ARGS" ${ARGN})
+  execute_process(COMMAND ${CMAKE_COMMAND} -S ${src} -B ${WORK}/${name} -G Ninja -DCMAKE_PREFIX_PATH=${WORK}/prefix ${C_CMAKE_ARGS}
                   RESULT_VARIABLE r)
   if(r)
     message(FATAL_ERROR "configuring the ${name} consumer failed: ${r}")
@@ -25,10 +28,10 @@ function(consumer name src expect)
   if(r)
     message(FATAL_ERROR "building the ${name} consumer failed: ${r}")
   endif()
-  file(GLOB exe ${WORK}/${name}/*consumer)
-  execute_process(COMMAND ${exe} RESULT_VARIABLE r OUTPUT_VARIABLE out)
+  execute_process(COMMAND ${WORK}/${name}/${exe} ${C_RUN_ARGS} WORKING_DIRECTORY ${WORK} RESULT_VARIABLE r
+                  OUTPUT_VARIABLE out ERROR_VARIABLE err)
   if(r OR NOT out MATCHES "${expect}")
-    message(FATAL_ERROR "the ${name} consumer did not run: ${r} ${out}")
+    message(FATAL_ERROR "the ${name} consumer did not run as expected: exit ${r}\n${out}${err}")
   endif()
   message(STATUS "${name}: ${out}")
 endfunction()
@@ -55,8 +58,12 @@ if(NOT at EQUAL 0 OR NOT model_source STREQUAL "default (installed)")
 endif()
 message(STATUS "installed CLI, no --model: ${model_path} (${model_source})")
 
-consumer(whole ${SRC} "33914185 parameters")
-consumer(runtime_only ${SRC}/runtime_only "device"
-  -DCMAKE_DISABLE_FIND_PACKAGE_OpenCV=ON -DCMAKE_DISABLE_FIND_PACKAGE_HDF5=ON
+# The C++ example a user copies: two GS frames (one per RS frame, with ground truth there), the
+# default model found under the prefix.
+consumer(example ${EXAMPLE} unroll_folder
+  "frame 0 t=[0-9.]+ us: 48x32 GS image, PSNR [0-9.]+ dB against the ground truth\n.*\n2 GS frames, model ${prefix_models}/selfunroll_small_physics.safetensors \\(default \\(installed\\)\\)"
+  RUN_ARGS ${WORK}/seq gt)
+consumer(runtime_only ${SRC}/runtime_only runtime_consumer "device"
+  CMAKE_ARGS -DCMAKE_DISABLE_FIND_PACKAGE_OpenCV=ON -DCMAKE_DISABLE_FIND_PACKAGE_HDF5=ON
   -DCMAKE_DISABLE_FIND_PACKAGE_PkgConfig=ON -DCMAKE_DISABLE_FIND_PACKAGE_nlohmann_json=ON)
 file(REMOVE_RECURSE ${WORK})
