@@ -33,7 +33,7 @@ struct FirstFrame {
   double first_ms = 0, warm_ms = 0, build_ms = 0;
   uint32_t threads = 0;
   uint64_t submits = 0;  // in the first frame: each ends the recording that its pipelines compile during
-  std::map<std::string, HostTensor> out;
+  std::map<ModelOutput, HostTensor> out;
 };
 
 FirstFrame run_once(const Weights& w, const ModelInputs& in, Mode mode, std::optional<uint32_t> threads) {
@@ -59,7 +59,7 @@ FirstFrame run_once(const Weights& w, const ModelInputs& in, Mode mode, std::opt
   return f;
 }
 
-double max_abs_diff(const std::map<std::string, HostTensor>& a, const std::map<std::string, HostTensor>& b) {
+double max_abs_diff(const std::map<ModelOutput, HostTensor>& a, const std::map<ModelOutput, HostTensor>& b) {
   double d = 0;
   for (const auto& [name, t] : a) {
     const auto it = b.find(name);

@@ -66,7 +66,7 @@ int per_layer_report(Context& ctx, const Weights& w, const ModelInputs& in, Mode
   VulkanBackend::LayerProbe p32, p16;
   RunOptions opt;
   opt.mode = md;
-  std::map<std::string, HostTensor> o32, o16;
+  std::map<ModelOutput, HostTensor> o32, o16;
   {
     VulkanBackend vk(ctx);
     vk.set_layer_probe(&p32);
@@ -99,7 +99,7 @@ int per_layer_report(Context& ctx, const Weights& w, const ModelInputs& in, Mode
     compare(p32[i].first, p32[i].second, p16[i].second);
   }
   std::printf("outputs:\n");
-  for (const auto& [name, a] : o32) compare(name, a.data, o16.at(name).data);
+  for (const auto& [o, a] : o32) compare(output_name(o), a.data, o16.at(o).data);
   return 0;
 }
 
@@ -122,12 +122,12 @@ ResidentTiming time_resident(Context& ctx, Backend& vk, Model& model, const Mode
   vk.flush();
   RunOptions o;
   o.mode = md;
-  o.outputs = {md == Mode::m ? "out" : "fused"};
+  o.outputs = {md == Mode::m ? ModelOutput::out : ModelOutput::fused};
   ResidentTiming best{1e30, 0, {}};
   for (int r = 0; r < std::max(1, runs); ++r) {
     const DeviceTraffic before = ctx.traffic();
     const auto t = std::chrono::steady_clock::now();
-    const std::map<std::string, Buffer> outs = model.run_on_backend(bufs, o);
+    const std::map<ModelOutput, Buffer> outs = model.run_on_backend(bufs, o);
     std::vector<float> image = vk.download(outs.begin()->second.whole());
     const double s = seconds_since(t);
     if (s < best.seconds) best = {s, (ctx.traffic() - before).gpu_ms, std::move(image)};
@@ -288,7 +288,7 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   RunOptions opt;
   opt.mode = md;
   double vk_s = 1e30, first_s = 0, gpu_ms = 0;
-  std::map<std::string, HostTensor> out;
+  std::map<ModelOutput, HostTensor> out;
   // With a measured choice, each timed run is followed by one with the kernels' heuristic on the same
   // input (interleaved, so the shared machine's load drifts over both alike).
   const bool compare = conv_choice != ConvChoice::heuristic;
@@ -298,7 +298,7 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   uint64_t from_table = 0;
   // One run: its wall seconds; `best` and `best_gpu` keep the fastest run's seconds and device ms;
   // `result` (when given) receives the outputs (the measured choice's are the ones compared).
-  auto timed_run = [&](double& best, double& best_gpu, std::map<std::string, HostTensor>* result) {
+  auto timed_run = [&](double& best, double& best_gpu, std::map<ModelOutput, HostTensor>* result) {
     const DeviceTraffic before = ctx.traffic();
     t = std::chrono::steady_clock::now();
     auto o = model.run(in, opt);
@@ -341,7 +341,7 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   const double res_s = resident.seconds;
   if (res_s > 0) {
     // The same network on the same inputs: its image must equal the timed runs' (a check of the path timed).
-    const std::vector<float>& ref = out.at(md == Mode::m ? "out" : "fused").data;
+    const std::vector<float>& ref = out.at(md == Mode::m ? ModelOutput::out : ModelOutput::fused).data;
     double diff = ref.size() == resident.image.size() ? 0.0 : 1e30;
     for (size_t i = 0; diff < 1e30 && i < ref.size(); ++i) diff = std::max(diff, double(std::fabs(ref[i] - resident.image[i])));
     std::printf("  vulkan : resident inputs, only the final image downloaded: %.1f ms per GS frame (device %.1f ms, %.0f%%; "
@@ -380,13 +380,13 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   std::printf("  ratio  : vulkan / torch = %.2f\n", vk_s / torch_s);
   if (res_s > 0) std::printf("  ratio  : resident vulkan / torch = %.2f (both with inputs on the device)\n", res_s / torch_s);
   for (const auto& [name, arr] : out) {
-    const std::vector<float> r = ref.get(name).to_f32();
+    const std::vector<float> r = ref.get(output_name(name)).to_f32();
     double err = 0, mx = 0;
     for (size_t i = 0; i < r.size(); ++i) {
       err = std::max(err, double(std::fabs(r[i] - arr.data[i])));
       mx = std::max(mx, double(std::fabs(r[i])));
     }
-    std::printf("  max abs diff %-6s %.3g (max |value| %.3g)\n", name.c_str(), err, mx);
+    std::printf("  max abs diff %-6s %.3g (max |value| %.3g)\n", output_name(name), err, mx);
   }
   std::filesystem::remove_all(dir);
   return 0;

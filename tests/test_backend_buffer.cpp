@@ -177,12 +177,12 @@ TEST(BackendBuffer, ModelReleasesHandedOverInputs) {
   };
   const uint64_t input_bytes = 4 * H * W * (3 + 3 * ev), output_bytes = 4 * H * W * 3;
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   {
     std::vector<Buffer> held;
     ModelBuffers in;
     inputs(held, in);
-    const std::map<std::string, Buffer> out = model.run_on_backend(in, opt);
+    const std::map<ModelOutput, Buffer> out = model.run_on_backend(in, opt);
     EXPECT_EQ(plan.live_bytes(), input_bytes + output_bytes) << "kept: the caller's inputs and the output";
   }
   EXPECT_EQ(plan.live_bytes(), 0u);
@@ -190,9 +190,9 @@ TEST(BackendBuffer, ModelReleasesHandedOverInputs) {
     std::vector<Buffer> held;
     ModelBuffers in;
     inputs(held, in);
-    const std::map<std::string, Buffer> out = model.run_on_backend(in, opt, std::move(held));
+    const std::map<ModelOutput, Buffer> out = model.run_on_backend(in, opt, std::move(held));
     EXPECT_EQ(plan.live_bytes(), output_bytes) << "handed over: the inputs went with the run";
-    EXPECT_EQ(out.at("fused").shape(), (Shape{1, 3, H, W}));
+    EXPECT_EQ(out.at(ModelOutput::fused).shape(), (Shape{1, 3, H, W}));
   }
   EXPECT_EQ(plan.live_bytes(), 0u);
   // A handed-over buffer that two inputs read cannot be released after either: refused.

@@ -173,7 +173,7 @@ TEST(ConvChoice, BackendTakesTheTablesAlgorithmAndKeepsTheResult) {
   const ModelInputs in = random_inputs(2, 24, 32, w.config.N, 21);
   RunOptions opt;
   opt.mode = Mode::m;
-  opt.outputs = {"out", "fused"};
+  opt.outputs = {ModelOutput::out, ModelOutput::fused};
   Context& ctx = vktest::context();
   VulkanBackend heuristic(ctx);
   const auto ref = Model(heuristic, w).run(in, opt);
@@ -208,7 +208,7 @@ TEST(ConvChoice, InapplicableEntryFallsBackAndMeasuredFillsGaps) {
   const Weights w = load_weights(fixture("selfunroll_tiny.safetensors"));
   const ModelInputs in = random_inputs(1, 16, 16, w.config.N, 22);
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   auto table = std::make_shared<ConvChoiceTable>();
   VulkanBackend probe(ctx);
   probe.set_conv_choice(table, ConvChoice::retune, 1);
@@ -222,7 +222,7 @@ TEST(ConvChoice, InapplicableEntryFallsBackAndMeasuredFillsGaps) {
   const auto ref = Model(plain, w).run(in, opt);
   const auto out = Model(vk, w).run(in, opt);
   EXPECT_EQ(vk.convs_from_table(), 0u);
-  EXPECT_EQ(max_abs_diff(ref.at("fused"), out.at("fused")), 0.0);  // the same heuristic algorithms
+  EXPECT_EQ(max_abs_diff(ref.at(ModelOutput::fused), out.at(ModelOutput::fused)), 0.0);  // the same heuristic algorithms
 
   auto partial = std::make_shared<ConvChoiceTable>();
   partial->set(table->entries().begin()->first, table->entries().begin()->second);
@@ -241,7 +241,7 @@ TEST(ConvChoice, AutomaticTimesOnlyOnGpus) {
   VulkanBackend vk(ctx);
   vk.set_conv_choice(table, ConvChoice::automatic);
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   Model(vk, w).run(random_inputs(1, 16, 16, w.config.N, 23), opt);
   if (cpu_device) {
     EXPECT_EQ(vk.convs_timed(), 0u);  // on a CPU device auto reads the table and never times

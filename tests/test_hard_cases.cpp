@@ -192,10 +192,10 @@ void expect_model_stable(const ModelInputs& in, const std::string& what) {
         }
         EXPECT_EQ(bad, 0u) << where << ": " << bad << " non-finite values in '" << name << "'";
         float want_lo = -INFINITY, want_hi = INFINITY;
-        if (name == "E") want_lo = -1.f, want_hi = 1.f;
-        if (name == "sys") want_lo = rs_lo - 1.f, want_hi = rs_hi + 1.f;
-        if (name == "flow") want_lo = -100.f, want_hi = 100.f;
-        if (name == "m") want_lo = 0.f, want_hi = 1.f;
+        if (name == ModelOutput::E) want_lo = -1.f, want_hi = 1.f;
+        if (name == ModelOutput::sys) want_lo = rs_lo - 1.f, want_hi = rs_hi + 1.f;
+        if (name == ModelOutput::flow) want_lo = -100.f, want_hi = 100.f;
+        if (name == ModelOutput::m) want_lo = 0.f, want_hi = 1.f;
         EXPECT_TRUE(lo >= want_lo && hi <= want_hi) << where << " " << name << " in [" << lo << ", " << hi << "]";
       }
     }

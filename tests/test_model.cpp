@@ -33,8 +33,8 @@ void golden_parity(Backend& backend, const std::string& fixture_name, Mode mode,
   const auto out = model.run(inputs_from(g), opt);
   ASSERT_EQ(out.size(), mode == Mode::m ? 7u : 5u);
   for (const auto& [name, arr] : out) {
-    ASSERT_TRUE(g.has(name)) << name;
-    const HostTensor want = array_from(g.get(name));
+    ASSERT_TRUE(g.has(output_name(name))) << name;
+    const HostTensor want = array_from(g.get(output_name(name)));
     ASSERT_EQ(arr.shape, want.shape) << name;
     EXPECT_LE(max_abs_diff(arr, want), 1e-4) << name << " (" << backend.name() << ", " << fixture_name << ")";
   }
@@ -129,11 +129,11 @@ TEST(ModelCpu, PhysicsGateKeepsPhysicsAwayFromEvents) {
     GatedCase g = gated_case(r);
     CpuBackend cpu;
     RunOptions s;
-    s.outputs = {"fused"};
-    const HostTensor fused = Model(cpu, g.w).run(g.in, s).at("fused");
+    s.outputs = {ModelOutput::fused};
+    const HostTensor fused = Model(cpu, g.w).run(g.in, s).at(ModelOutput::fused);
     Weights ungated = g.w;
     ungated.config.physics_gate = -1;
-    const HostTensor free = Model(cpu, ungated).run(g.in, s).at("fused");
+    const HostTensor free = Model(cpu, ungated).run(g.in, s).at(ModelOutput::fused);
     const Shape sh = fused.shape;
     const int64_t plane = sh.h * sh.w;
     int64_t near = 0, far = 0;
@@ -214,12 +214,12 @@ TEST(ModelCpu, LearnedConfidenceBlendsPhysicsAndTheNetworkPerPixel) {
   const Weights confident = with_confidence(g.w, 3);
   CpuBackend cpu;
   RunOptions s;
-  s.outputs = {"fused"};
-  const HostTensor fused = Model(cpu, confident).run(g.in, s).at("fused");
+  s.outputs = {ModelOutput::fused};
+  const HostTensor fused = Model(cpu, confident).run(g.in, s).at(ModelOutput::fused);
   Weights network = g.w;
   network.config.physics_gate = -1;
-  const HostTensor net = Model(cpu, network).run(g.in, s).at("fused");
-  const HostTensor score = Model(cpu, score_model(confident)).run(g.in, s).at("fused");
+  const HostTensor net = Model(cpu, network).run(g.in, s).at(ModelOutput::fused);
+  const HostTensor score = Model(cpu, score_model(confident)).run(g.in, s).at(ModelOutput::fused);
   const int64_t plane = fused.shape.h * fused.shape.w;
   int64_t low = 0, high = 0, far = 0;
   for (int64_t n = 0; n < fused.shape.n; ++n)
@@ -272,13 +272,13 @@ void m_forced_to_one_is_s(Backend& backend) {
   RunOptions m;
   m.mode = Mode::m;
   m.force_m = 1.f;
-  m.outputs = {"out", "m"};
+  m.outputs = {ModelOutput::out, ModelOutput::m};
   const auto mo = model.run(in, m);
   RunOptions s;
-  s.outputs = {"fused"};
+  s.outputs = {ModelOutput::fused};
   const auto so = model.run(take_items(in, 0, 1), s);
-  EXPECT_EQ(max_abs_diff(mo.at("out"), so.at("fused")), 0.0);
-  for (float v : mo.at("m").data) ASSERT_EQ(v, 1.f);
+  EXPECT_EQ(max_abs_diff(mo.at(ModelOutput::out), so.at(ModelOutput::fused)), 0.0);
+  for (float v : mo.at(ModelOutput::m).data) ASSERT_EQ(v, 1.f);
 }
 }  // namespace
 
@@ -325,9 +325,9 @@ TEST(ModelVulkan, PublishedConfigurationMatchesCpuOn32x32) {
     // whose rounding accumulates over the ~100 convs of this configuration: measured 1.01e-4 on E
     // (max |value| 1); each conv alone is within 1e-4 of the CPU reference (tests/test_conv2d.cpp).
     double tol = 3e-4 * std::max(1.0, scale);
-    if (name == "warped") tol = 3e-4 + 2 * max_abs_diff(gpu.at("flow"), ref.at("flow"));
+    if (name == ModelOutput::warped) tol = 3e-4 + 2 * max_abs_diff(gpu.at(ModelOutput::flow), ref.at(ModelOutput::flow));
     EXPECT_LE(err, tol) << name << " (max |value| " << scale << ")";
-    std::printf("[ parity   ] %-6s max abs err %.3g (max |value| %.3g)\n", name.c_str(), err, scale);
+    std::printf("[ parity   ] %-6s max abs err %.3g (max |value| %.3g)\n", output_name(name), err, scale);
   }
   std::printf("[ timing   ] published config, M 32x32: vulkan weights %.1f s + run %.1f s, cpu reference %.1f s\n",
               std::chrono::duration<double>(tp - t0).count(), std::chrono::duration<double>(t1 - tp).count(),
@@ -351,7 +351,7 @@ TEST(ModelCpu, BatchOfTargetsEqualsTargetsOneByOne) {
   const auto sb = model.run(in, s);
   for (int64_t i = 0; i < 4; ++i) {
     const auto si = model.run(take_items(in, i, 1), s);
-    EXPECT_EQ(max_abs_diff(si.at("fused"), take(sb.at("fused"), i, 1)), 0.0) << i;
+    EXPECT_EQ(max_abs_diff(si.at(ModelOutput::fused), take(sb.at(ModelOutput::fused), i, 1)), 0.0) << i;
   }
 }
 

@@ -46,10 +46,10 @@ void golden_parity_fp16(const std::string& fixture_name, Mode mode, const std::s
   opt.precision = Precision::fp16;
   const auto out = model.run(inputs_from(g), opt);
   for (const auto& [name, arr] : out) {
-    const HostTensor want = array_from(g.get(name));
+    const HostTensor want = array_from(g.get(output_name(name)));
     ASSERT_EQ(arr.shape, want.shape) << name;
     const double err = max_abs_diff(arr, want), scale = std::max(1.0, max_abs(want));
-    std::printf("fp16 %s %s: max abs error %.3g (max |value| %.3g)\n", fixture_name.c_str(), name.c_str(), err, scale);
+    std::printf("fp16 %s %s: max abs error %.3g (max |value| %.3g)\n", fixture_name.c_str(), output_name(name), err, scale);
     EXPECT_LE(err, kFp16RelTol * scale) << name << " (" << fixture_name << ")";
     EXPECT_GT(err, 0.0) << name << ": fp16 equal to fp32 bit for bit means fp16 did not run";
   }
@@ -83,7 +83,7 @@ TEST(ModelVulkanFp16, HardCasesStayFiniteWhereFp32Does) {
     if (!all_finite(a32)) continue;  // fp32 itself overflowed: nothing to ask of fp16
     EXPECT_TRUE(all_finite(out16.at(name))) << name << ": fp16 gave Inf or NaN where fp32 is finite";
   }
-  EXPECT_TRUE(all_finite(out32.at("out")));
+  EXPECT_TRUE(all_finite(out32.at(ModelOutput::out)));
 }
 
 TEST(ModelVulkanFp16, ARunAskingAnotherPrecisionIsRefused) {

@@ -85,7 +85,7 @@ cv::Mat host_path(Model& model, const FrameInput& in, const Rational& t, bool m,
   }
   RunOptions ro;
   ro.mode = m ? Mode::m : Mode::s;
-  ro.outputs = {m ? "out" : "fused"};
+  ro.outputs = {m ? ModelOutput::out : ModelOutput::fused};
   const HostTensor out = tiles ? run_tiled(model, mi, ro, *tiles).outputs.at(ro.outputs[0]) : model.run(mi, ro).at(ro.outputs[0]);
   return planes_image(out.data.data(), H, W, true);
 }

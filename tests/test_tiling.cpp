@@ -136,7 +136,7 @@ TEST(TilingCpu, HaloAtExactHaloEqualsUntiledBitForBit) {
   RunOptions opt;
   opt.mode = Mode::m;
   const auto full = model.run(in, opt);
-  const double max_flow = max_abs(full.at("flow"));
+  const double max_flow = max_abs(full.at(ModelOutput::flow));
   TileOptions t;
   t.tile = 64;
   t.halo = exact_halo(w.config, Mode::m, max_flow);
@@ -160,11 +160,11 @@ TEST(TilingCpu, UnalignedOddSizeAtExactHaloEqualsUntiledBitForBit) {
   const ModelInputs in = random_inputs(2, 61, 226, w.config.N, 6);  // UNet offsets 1 (rows), 15 (columns)
   RunOptions opt;
   opt.mode = Mode::m;
-  opt.outputs = {"flow", "warped", "fused", "out"};
+  opt.outputs = {ModelOutput::flow, ModelOutput::warped, ModelOutput::fused, ModelOutput::out};
   const auto full = model.run(in, opt);
   TileOptions t;
   t.tile = 64;
-  t.halo = exact_halo(w.config, Mode::m, max_abs(full.at("flow")));
+  t.halo = exact_halo(w.config, Mode::m, max_abs(full.at(ModelOutput::flow)));
   ASSERT_EQ(t.halo, 96);
   const TiledResult tiled = run_tiled(model, in, opt, t);
   ASSERT_EQ(tiled.plan.tiles.size(), 4u);
@@ -179,16 +179,16 @@ TEST(TilingCpu, SmallHaloHasABoundedMeasuredError) {
   Model model(cpu, w);
   const ModelInputs in = random_inputs(1, 64, 192, w.config.N, 9);
   RunOptions opt;
-  opt.outputs = {"fused", "flow"};
+  opt.outputs = {ModelOutput::fused, ModelOutput::flow};
   const auto full = model.run(in, opt);
   TileOptions t;
   t.tile = 64;
   t.halo = 32;
   const TiledResult tiled = run_tiled(model, in, opt, t);
-  const double err = max_abs_diff(tiled.outputs.at("fused"), full.at("fused"));
-  const double flow_err = max_abs_diff(tiled.outputs.at("flow"), full.at("flow"));
+  const double err = max_abs_diff(tiled.outputs.at(ModelOutput::fused), full.at(ModelOutput::fused));
+  const double flow_err = max_abs_diff(tiled.outputs.at(ModelOutput::flow), full.at(ModelOutput::flow));
   std::printf("[ tiling   ] halo 32 (exact 96): fused max abs err %.3g (max |fused| %.3g), flow %.3g px\n", err,
-              max_abs(full.at("fused")), flow_err);
+              max_abs(full.at(ModelOutput::fused)), flow_err);
   EXPECT_GT(err, 0.0);
   EXPECT_LT(err, 0.005);  // measured 1.66e-3
 }
@@ -202,7 +202,7 @@ TEST(TilingCpu, SparseExactWithoutEventsReturnsRsAndRunsNoTile) {
   for (Mode mode : {Mode::s, Mode::m}) {
     RunOptions opt;
     opt.mode = mode;
-    opt.outputs = {mode == Mode::m ? "out" : "fused"};
+    opt.outputs = {mode == Mode::m ? ModelOutput::out : ModelOutput::fused};
     TileOptions t;
     t.tile = 32;
     t.halo = 32;
@@ -223,7 +223,7 @@ TEST(TilingCpu, SparseRunsOnlyTilesNearTheEvents) {
   ModelInputs in = random_inputs(1, 96, 96, w.config.N, 4);
   keep_events_in(in, 0, 0, 8, 8);  // events only in the top-left corner
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   TileOptions t;
   t.tile = 32;
   t.halo = 32;
@@ -237,8 +237,8 @@ TEST(TilingCpu, SparseRunsOnlyTilesNearTheEvents) {
   EXPECT_DOUBLE_EQ(sparse.active_fraction, 4.0 / 9);
   // Input rects 64x64, 64x96, 96x64, 96x96 (clipped at the image border) of a 96x96 image.
   EXPECT_DOUBLE_EQ(sparse.work_ratio, (64.0 * 64 + 2 * 64 * 96 + 96 * 96) / (96 * 96));
-  const HostTensor& a = sparse.outputs.at("fused");
-  const HostTensor& d = dense.outputs.at("fused");
+  const HostTensor& a = sparse.outputs.at(ModelOutput::fused);
+  const HostTensor& d = dense.outputs.at(ModelOutput::fused);
   for (const Tile& tl : sparse.plan.tiles) {
     const bool near = tl.interior.y < 64 && tl.interior.x < 64;
     double diff_dense = 0, diff_rs = 0;
@@ -267,7 +267,7 @@ TEST(TilingCpu, SparseMergesNeighbouringActiveTilesIntoOneRect) {
   ModelInputs in = random_inputs(1, 160, 160, w.config.N, 4);
   keep_events_in(in, 0, 0, 8, 8);  // events only in the top-left corner
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   TileOptions t;
   t.tile = 32;
   t.halo = 32;
@@ -287,8 +287,8 @@ TEST(TilingCpu, SparseMergesNeighbouringActiveTilesIntoOneRect) {
   big.tile = 64;
   big.halo = 32;
   const TiledResult one = run_tiled(model, in, opt, big);
-  const HostTensor& a = merged.outputs.at("fused");
-  const HostTensor& b = one.outputs.at("fused");
+  const HostTensor& a = merged.outputs.at(ModelOutput::fused);
+  const HostTensor& b = one.outputs.at(ModelOutput::fused);
   double inside = 0, outside_rs = 0;
   for (int64_t c = 0; c < 3; ++c)
     for (int64_t y = 0; y < 160; ++y)
@@ -347,21 +347,21 @@ TEST(TilingCpu, SparseExactOfTheGatedVariantEqualsDenseBitForBit) {
   CpuBackend cpu;
   Model model(cpu, g.w);
   RunOptions opt;
-  opt.outputs = {"fused", "flow"};
+  opt.outputs = {ModelOutput::fused, ModelOutput::flow};
   const auto full = model.run(g.in, opt);
   TileOptions t;
   t.tile = 32;
-  t.halo = exact_halo(g.w.config, Mode::s, max_abs(full.at("flow")));
+  t.halo = exact_halo(g.w.config, Mode::s, max_abs(full.at(ModelOutput::flow)));
   ASSERT_EQ(t.halo, 96);
   t.sparse = SparsePolicy::exact;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   const TiledResult sparse = run_tiled(model, g.in, opt, t);
   EXPECT_EQ(sparse.tiles, 12);
   EXPECT_EQ(sparse.tiles_run, 2);
   for (const Tile& tl : sparse.plan.tiles)  // every input rect reaches the object
     ASSERT_TRUE(tl.input.y < 46 && tl.input.y + tl.input.h > 40 && tl.input.x < 70 && tl.input.x + tl.input.w > 64);
-  const HostTensor& f = sparse.outputs.at("fused");
-  EXPECT_EQ(max_abs_diff(f, full.at("fused")), 0.0);
+  const HostTensor& f = sparse.outputs.at(ModelOutput::fused);
+  EXPECT_EQ(max_abs_diff(f, full.at(ModelOutput::fused)), 0.0);
   EXPECT_EQ(tiles_diff(sparse.plan, f, clamped(g.in.phys), false), 0.0);
   EXPECT_GT(tiles_diff(sparse.plan, f, clamped(g.in.phys), true), 0.01);  // the network ran there
   // The ungated model keeps the input-rect rule: every tile sees the object within its halo.
@@ -381,7 +381,7 @@ TEST(TilingVulkan, SparseExactOfTheGatedVariantMatchesDenseInFp32AndFp16) {
     Model model(vk, g.w);
     RunOptions opt;
     opt.precision = p;
-    opt.outputs = {"fused"};
+    opt.outputs = {ModelOutput::fused};
     TileOptions t;
     t.tile = 32;
     t.halo = 96;
@@ -389,8 +389,8 @@ TEST(TilingVulkan, SparseExactOfTheGatedVariantMatchesDenseInFp32AndFp16) {
     t.sparse = SparsePolicy::exact;
     const TiledResult sparse = run_tiled(model, g.in, opt, t);
     EXPECT_EQ(sparse.tiles_run, 2) << precision_name(p);
-    const HostTensor& d = dense.outputs.at("fused");
-    const HostTensor& s = sparse.outputs.at("fused");
+    const HostTensor& d = dense.outputs.at(ModelOutput::fused);
+    const HostTensor& s = sparse.outputs.at(ModelOutput::fused);
     // Inactive tiles: the host's clamp(phys) itself; the dense fp16 run rounds it to fp16 (half an
     // ulp below 1: 2^-11).
     EXPECT_EQ(tiles_diff(sparse.plan, s, clamped(g.in.phys), false), 0.0) << precision_name(p);
@@ -413,7 +413,7 @@ TEST(TilingCpu, SparseSplitRunsAnLShapedGroupAsItsTileRectangles) {
       for (int64_t y = 32; y < 64; ++y)
         for (int64_t x = 32; x < 64; ++x) a->data[size_t((c * 128 + y) * 128 + x)] = 0.f;
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   TileOptions t;
   t.tile = 32;
   t.halo = 0;
@@ -427,9 +427,9 @@ TEST(TilingCpu, SparseSplitRunsAnLShapedGroupAsItsTileRectangles) {
   EXPECT_EQ(split.tiles_run, 3);
   EXPECT_DOUBLE_EQ(box.work_ratio, 64.0 * 64 / (128 * 128));
   EXPECT_DOUBLE_EQ(split.work_ratio, (32.0 * 64 + 32 * 32) / (128 * 128));
-  const HostTensor& b = box.outputs.at("fused");
-  const HostTensor& sp = split.outputs.at("fused");
-  const HostTensor& ap = apart.outputs.at("fused");
+  const HostTensor& b = box.outputs.at(ModelOutput::fused);
+  const HostTensor& sp = split.outputs.at(ModelOutput::fused);
+  const HostTensor& ap = apart.outputs.at(ModelOutput::fused);
   double lone = 0, hole_rs = 0, hole_box = 0;
   for (int64_t c = 0; c < 3; ++c)
     for (int64_t y = 32; y < 64; ++y)
@@ -462,20 +462,20 @@ TEST(TilingCpu, SparseSplitAtTheExactHaloEqualsDenseBitForBit) {
           if (!arm) a->data[size_t((c * 384 + y) * 384 + x)] = 0.f;
         }
   RunOptions opt;
-  opt.outputs = {"fused", "flow"};
+  opt.outputs = {ModelOutput::fused, ModelOutput::flow};
   const auto full = model.run(in, opt);
   TileOptions t;
   t.tile = 32;
-  t.halo = exact_halo(w.config, Mode::s, max_abs(full.at("flow")));
+  t.halo = exact_halo(w.config, Mode::s, max_abs(full.at(ModelOutput::flow)));
   ASSERT_LE(t.halo, 128);
   t.sparse = SparsePolicy::exact;
   t.split_groups = true;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   const TiledResult split = run_tiled(model, in, opt, t);
   EXPECT_EQ(split.tiles_run, 19);
   const double arm = double(32 + t.halo) * 384;  // each rectangle's input rect: one arm and its halo
   EXPECT_DOUBLE_EQ(split.work_ratio, 2 * arm / (384.0 * 384));
-  EXPECT_EQ(max_abs_diff(split.outputs.at("fused"), full.at("fused")), 0.0);
+  EXPECT_EQ(max_abs_diff(split.outputs.at(ModelOutput::fused), full.at(ModelOutput::fused)), 0.0);
 }
 
 // Halo 0 with events only in the 4x6 corner tile of a 100x70 image: the merged region reads at
@@ -487,7 +487,7 @@ TEST(TilingCpu, SparseHaloZeroCornerRegionReadsAtLeast32Pixels) {
   ModelInputs in = random_inputs(1, 70, 100, w.config.N, 9);
   keep_events_in(in, 66, 97, 4, 3);
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   TileOptions t;
   t.tile = 32;
   t.halo = 0;
@@ -497,8 +497,8 @@ TEST(TilingCpu, SparseHaloZeroCornerRegionReadsAtLeast32Pixels) {
   EXPECT_EQ(merged.plan.tiles.back().input, (Rect{32, 64, 38, 36}));  // on the 32-grid
   t.merge_active = false;
   const TiledResult apart = run_tiled(model, in, opt, t);
-  EXPECT_EQ(max_abs_diff(merged.outputs.at("fused"), apart.outputs.at("fused")), 0.0);
-  EXPECT_GT(max_abs_diff(merged.outputs.at("fused"), in.rs), 0.0);  // the corner ran
+  EXPECT_EQ(max_abs_diff(merged.outputs.at(ModelOutput::fused), apart.outputs.at(ModelOutput::fused)), 0.0);
+  EXPECT_GT(max_abs_diff(merged.outputs.at(ModelOutput::fused), in.rs), 0.0);  // the corner ran
 }
 
 TEST(TilingCpu, BadOptionsAreClearErrors) {
@@ -526,12 +526,12 @@ TEST(TilingCpu, ExplicitUnetPaddingIsCheckedAndTheCenteredOneReproducesTheDefaul
   ASSERT_EQ(model.unet_stride(), 4);  // depth-2 UNets
   const ModelInputs in = random_inputs(1, 40, 52, w.config.N, 3);  // padded to 64 x 64: rows 12 + 12, columns 6 + 6
   RunOptions opt;
-  opt.outputs = {"fused"};
-  const HostTensor ref = model.run(in, opt).at("fused");
+  opt.outputs = {ModelOutput::fused};
+  const HostTensor ref = model.run(in, opt).at(ModelOutput::fused);
   opt.unet_pad = {12, 6, 12, 6};  // top, left, bottom, right
-  EXPECT_EQ(model.run(in, opt).at("fused").data, ref.data);
+  EXPECT_EQ(model.run(in, opt).at(ModelOutput::fused).data, ref.data);
   opt.unet_pad = {2, 2, 2, 2};  // 44 x 56
-  EXPECT_NE(model.run(in, opt).at("fused").data, ref.data);
+  EXPECT_NE(model.run(in, opt).at(ModelOutput::fused).data, ref.data);
   auto error_of = [&](const UnetPadding& pad) {
     opt.unet_pad = pad;
     try {
@@ -563,8 +563,8 @@ TEST(TilingVulkan, TiledMatchesCpuTiled) {
   const TiledResult c = run_tiled(cm, in, opt, t);
   ASSERT_EQ(g.plan.tiles.size(), 6u);
   for (const auto& [name, arr] : c.outputs) {
-    const double tol = name == "flow" ? 1e-4 * std::max(1.0, max_abs(arr))
-                       : name == "warped" ? 1e-4 + 2 * max_abs_diff(g.outputs.at("flow"), c.outputs.at("flow"))
+    const double tol = name == ModelOutput::flow ? 1e-4 * std::max(1.0, max_abs(arr))
+                       : name == ModelOutput::warped ? 1e-4 + 2 * max_abs_diff(g.outputs.at(ModelOutput::flow), c.outputs.at(ModelOutput::flow))
                                           : 1e-4;
     EXPECT_LE(max_abs_diff(g.outputs.at(name), arr), tol) << name;
   }
@@ -614,7 +614,7 @@ TEST(TilingVulkan, CappedBufferLimitForcesTiles) {
   const Weights w = load_weights(fixture("selfunroll_tiny.safetensors"));
   const ModelInputs in = random_inputs(1, 96, 128, w.config.N, 21);
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   VulkanBackend vk(vktest::context());
   vk.set_max_buffer_bytes(1u << 20);
   Model gm(vk, w);
@@ -628,7 +628,7 @@ TEST(TilingVulkan, CappedBufferLimitForcesTiles) {
   Model cm(cpu, w);
   t.tile = g.plan.tile_h;
   const TiledResult c = run_tiled(cm, in, opt, t);
-  EXPECT_LE(max_abs_diff(g.outputs.at("fused"), c.outputs.at("fused")), 1e-4);
+  EXPECT_LE(max_abs_diff(g.outputs.at(ModelOutput::fused), c.outputs.at(ModelOutput::fused)), 1e-4);
 }
 
 // The shipped default model on one 1280x720 SelfUnroll-S target on lavapipe, tiled (tile 256,
@@ -641,7 +641,7 @@ TEST(TilingVulkan, SmallModel1280x720STarget) {
   VulkanBackend vk(vktest::context());
   Model model(vk, w);
   RunOptions opt;
-  opt.outputs = {"fused"};
+  opt.outputs = {ModelOutput::fused};
   TileOptions t;
   t.tile = 256;
   t.halo = 64;
@@ -653,7 +653,7 @@ TEST(TilingVulkan, SmallModel1280x720STarget) {
               (long long)r.tiles_run, (long long)r.tiles, s);
   EXPECT_EQ(r.tiles, 15);
   EXPECT_EQ(r.tiles_run, 10);  // tile rows 0 (input rows 0..319) and 1 reach the band 256..383
-  const HostTensor& f = r.outputs.at("fused");
+  const HostTensor& f = r.outputs.at(ModelOutput::fused);
   for (float v : f.data) ASSERT_TRUE(std::isfinite(v));
   // Tile row 2 (rows 512..719, input from row 448) saw no event: the RS pixels.
   for (int64_t c = 0; c < 3; ++c)

@@ -35,19 +35,22 @@ HostTensor input_array(const SafetensorsFile& f, const std::string& path, const 
   return {Shape{t.shape[0], t.shape[1], t.shape[2], t.shape[3]}, t.to_f32()};
 }
 
-// --outputs: names of Model::output_names(), each once; an empty list or name is refused.
-std::vector<std::string> requested_outputs(const std::optional<std::string>& list) {
+// --outputs: reference names of ModelOutput, each once; an empty list or name is refused.
+std::vector<ModelOutput> requested_outputs(const std::optional<std::string>& list) {
   if (!list) return {};
   const std::string shown = list->size() > 64 ? list->substr(0, 64) + "..." : *list;
-  std::vector<std::string> out;
+  std::vector<ModelOutput> out;
   std::stringstream ss(*list + ",");
   for (std::string item; std::getline(ss, item, ',');) {
     if (item.empty()) throw UsageError("--outputs '" + shown + "': an empty name (expected a comma-separated list of sys, E, flow, warped, fused, m, out)");
-    const auto& names = Model::output_names();
-    if (std::find(names.begin(), names.end(), item) == names.end())
-      throw UsageError("--outputs: unknown output '" + item.substr(0, 64) + "' (expected sys, E, flow, warped, fused, m, out)");
-    if (std::find(out.begin(), out.end(), item) != out.end()) throw UsageError("--outputs: '" + item + "' is named twice");
-    out.push_back(item);
+    ModelOutput o;
+    try {
+      o = parse_output(item);
+    } catch (const Error& e) {
+      throw UsageError(std::string("--outputs: ") + e.what());
+    }
+    if (std::find(out.begin(), out.end(), o) != out.end()) throw UsageError("--outputs: '" + item + "' is named twice");
+    out.push_back(o);
   }
   return out;
 }
@@ -64,7 +67,7 @@ int run_infer(const InferArgs& a) {
   if (precision == Precision::fp16 && a.backend != "vulkan")
     throw UsageError("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
   check_output_file(a.out, "--out");
-  const std::vector<std::string> outputs = requested_outputs(a.outputs);
+  const std::vector<ModelOutput> outputs = requested_outputs(a.outputs);
   std::error_code ec;
   for (const auto& [opt, path] : {std::pair<const char*, std::string>{"--model", a.model}, {"--inputs", a.inputs}})
     if (!std::filesystem::exists(path, ec)) throw InputMissingError(std::string(opt) + " " + path + ": no such file");
@@ -99,7 +102,7 @@ int run_infer(const InferArgs& a) {
   try {
     (void)Model::resolve_outputs(outputs, opt.mode);
   } catch (const Error& e) {
-    throw UsageError("--outputs: " + std::string(e.what()).substr(std::string("model: ").size()));
+    throw UsageError(std::string("--outputs: ") + e.what());
   }
   opt.max_items = a.max_items;
 
@@ -119,10 +122,12 @@ int run_infer(const InferArgs& a) {
   const auto out = model.run(in, opt);
   const auto t2 = std::chrono::steady_clock::now();
 
+  std::map<std::string, const HostTensor*> by_name;  // the file's tensors in name order
+  for (const auto& [o, arr] : out) by_name[output_name(o)] = &arr;
   std::vector<SafetensorsTensorRef> views;
-  for (const auto& [name, arr] : out)
-    views.push_back({name, StDType::F32, {arr.shape.n, arr.shape.c, arr.shape.h, arr.shape.w}, arr.data.data(),
-                     arr.data.size() * sizeof(float)});
+  for (const auto& [name, t] : by_name)
+    views.push_back({name, StDType::F32, {t->shape.n, t->shape.c, t->shape.h, t->shape.w}, t->data.data(),
+                     t->data.size() * sizeof(float)});
   const std::map<std::string, std::string> md{{"mode", mode},
                                               {"precision", precision_name(precision)},
                                               {"backend", backend->name()},

@@ -54,7 +54,7 @@ ModelInputs random_inputs(const ModelConfig& cfg, int64_t b, int h, int w, std::
 double model_ms(Context& ctx, Model& model, const ModelInputs& in, Mode mode, int reps) {
   RunOptions ro;
   ro.mode = mode;
-  ro.outputs = {mode == Mode::m ? "out" : "fused"};
+  ro.outputs = {mode == Mode::m ? ModelOutput::out : ModelOutput::fused};
   double best = 1e300;
   for (int r = 0; r < reps; ++r) {
     const double g0 = ctx.traffic().gpu_ms;

@@ -1,9 +1,8 @@
 #include "vkunroll/host/model/model.hpp"
 
-#include <chrono>
-
 #include <algorithm>
 #include <cmath>
+#include <ostream>
 #include <set>
 #include <tuple>
 
@@ -33,18 +32,12 @@ BufferSlice items(Backend& b, int buf, int64_t n0, int64_t n) {
 BufferSlice chans(const BufferSlice& v, int64_t c0, int64_t c) { return {v.buf, v.n0, v.n, v.c0 + c0, c}; }
 BufferSlice sub(const BufferSlice& v, int64_t i0, int64_t n) { return {v.buf, v.n0 + i0, n, v.c0, v.c}; }
 
-void check_input(const HostTensor& a, const char* name, int64_t b, int64_t c, int64_t h, int64_t w) {
-  const Shape want{b, c, h, w};
-  if (!(a.shape == want))
-    throw Error(std::string("model input '") + name + "' has shape " + a.shape.str() + ", expected " + want.str());
+// A host input's values: as many as its shape says, all finite. NaN/Inf would spread through every
+// conv and come out as a NaN image; name the first bad value instead (one pass, negligible).
+void check_values(const HostTensor& a, const char* name) {
   if (static_cast<int64_t>(a.data.size()) != a.shape.count())
     throw Error(std::string("model input '") + name + "' holds " + std::to_string(a.data.size()) + " values for shape " +
                 a.shape.str());
-}
-
-// NaN/Inf in an input would spread through every conv and come out as a NaN image; name the
-// first bad value instead. One pass over the inputs, negligible next to the network.
-void check_finite(const HostTensor& a, const char* name) {
   const int64_t plane = a.shape.h * a.shape.w, item = a.shape.c * plane;
   for (size_t i = 0; i < a.data.size(); ++i)
     if (!std::isfinite(a.data[i])) {
@@ -66,55 +59,69 @@ struct Model::Chunk {
   int E = -1, sys = -1, flow = -1, warped = -1, fused = -1, m = -1, out = -1;
 };
 
-const std::vector<std::string>& Model::output_names() {
-  static const std::vector<std::string> names{"sys", "E", "flow", "warped", "fused", "m", "out"};
-  return names;
+const char* output_name(ModelOutput o) {
+  switch (o) {
+    case ModelOutput::sys: return "sys";
+    case ModelOutput::E: return "E";
+    case ModelOutput::flow: return "flow";
+    case ModelOutput::warped: return "warped";
+    case ModelOutput::fused: return "fused";
+    case ModelOutput::m: return "m";
+    case ModelOutput::out: return "out";
+  }
+  return "?";
 }
 
-void Model::add_conv(const Weights& w, const std::string& name, int cin, int cout, int k, int stride, int pad,
-                     bool leaky, float slope, bool transposed) {
-  ConvDesc d{name, cin, cout, k, stride, pad, transposed, leaky, slope};
-  const int id = backend_.prepare_conv(d, w.get(name + ".weight"), w.get(name + ".bias"));
-  convs_[name] = Conv{id, d};
+std::ostream& operator<<(std::ostream& os, ModelOutput o) { return os << output_name(o); }
+
+ModelOutput parse_output(const std::string& name) {
+  for (ModelOutput o : kModelOutputs)
+    if (name == output_name(o)) return o;
+  throw Error("unknown output '" + name.substr(0, 64) + "' (expected sys, E, flow, warped, fused, m, out)");
+}
+
+void Model::add_conv(const Weights& w, const ConvDesc& desc) {
+  const int id = backend_.prepare_conv(desc, w.get(desc.name + ".weight"), w.get(desc.name + ".bias"));
+  convs_[desc.name] = Conv{id, desc};
 }
 
 void Model::add_unet(const Weights& w, const std::string& p, int cin, int cout, const UnetConfig& u) {
   const float s = cfg_.unet_slope;
-  add_conv(w, p + ".head", cin, u.base, 3, 1, 1, false, 0.f);
+  add_conv(w, {.name = p + ".head", .cin = cin, .cout = u.base});
   auto res = [&](const std::string& q, int c) {
-    add_conv(w, q + ".conv.0.0", c, c, 3, 1, 1, true, s);
-    add_conv(w, q + ".conv.1", c, c, 3, 1, 1, false, 0.f);
+    add_conv(w, {.name = q + ".conv.0.0", .cin = c, .cout = c, .leaky = true, .slope = s});
+    add_conv(w, {.name = q + ".conv.1", .cin = c, .cout = c});
   };
   for (int i = 0; i < u.depth; ++i) {
     const int c = u.base << i;
     const std::string d = p + ".down_path." + std::to_string(i);
     res(d + ".conv1", c);
-    add_conv(w, d + ".conv2.0", c, c, 1, 1, 0, true, s);
-    add_conv(w, d + ".down.0", c, 2 * c, 3, 2, 1, true, s);
+    add_conv(w, {.name = d + ".conv2.0", .cin = c, .cout = c, .k = 1, .pad = 0, .leaky = true, .slope = s});
+    add_conv(w, {.name = d + ".down.0", .cin = c, .cout = 2 * c, .stride = 2, .leaky = true, .slope = s});
   }
   res(p + ".bottom.0", u.base << u.depth);
   res(p + ".bottom.1", u.base << u.depth);
   for (int i = 0; i < u.depth; ++i) {
     const int c = u.base << i;
     const std::string q = p + ".up_path." + std::to_string(i);
-    add_conv(w, q + ".deconv.0", 2 * c, c, 4, 2, 1, true, s, /*transposed=*/true);
-    add_conv(w, q + ".conv_skip.0", c, c, 1, 1, 0, true, s);
-    add_conv(w, q + ".conv1.0", 2 * c, c, 3, 1, 1, true, s);
+    add_conv(w, {.name = q + ".deconv.0", .cin = 2 * c, .cout = c, .k = 4, .stride = 2, .transposed = true, .leaky = true, .slope = s});
+    add_conv(w, {.name = q + ".conv_skip.0", .cin = c, .cout = c, .k = 1, .pad = 0, .leaky = true, .slope = s});
+    add_conv(w, {.name = q + ".conv1.0", .cin = 2 * c, .cout = c, .leaky = true, .slope = s});
     res(q + ".conv2", c);
   }
-  add_conv(w, p + ".pred", u.base, cout, 3, 1, 1, false, 0.f);
+  add_conv(w, {.name = p + ".pred", .cin = u.base, .cout = cout});
 }
 
 Model::Model(Backend& backend, const Weights& w) : backend_(backend), cfg_(w.config) {
   cfg_.validate();
-  const int ev = cfg_.ev_channels();
-  add_conv(w, "SFENet1", 4 * cfg_.synthesis_channels(), cfg_.G0, 5, 1, 2, false, 0.f);
-  add_conv(w, "SFENet2", cfg_.G0, cfg_.G0, 3, 1, 1, false, 0.f);
+  add_conv(w, {.name = "SFENet1", .cin = 4 * cfg_.synthesis_channels(), .cout = cfg_.G0, .k = 5, .pad = 2});
+  add_conv(w, {.name = "SFENet2", .cin = cfg_.G0, .cout = cfg_.G0});
   for (int d = 0; d < cfg_.D; ++d) {
     const std::string p = "RDBs." + std::to_string(d);
     for (int c = 0; c < cfg_.C; ++c)
-      add_conv(w, p + ".convs." + std::to_string(c) + ".conv.0", cfg_.G0 + c * cfg_.G, cfg_.G, 3, 1, 1, true, cfg_.rdb_slope);
-    add_conv(w, p + ".LFF", cfg_.G0 + cfg_.C * cfg_.G, cfg_.G0, 1, 1, 0, false, 0.f);
+      add_conv(w, {.name = p + ".convs." + std::to_string(c) + ".conv.0", .cin = cfg_.G0 + c * cfg_.G, .cout = cfg_.G,
+                   .leaky = true, .slope = cfg_.rdb_slope});
+    add_conv(w, {.name = p + ".LFF", .cin = cfg_.G0 + cfg_.C * cfg_.G, .cout = cfg_.G0, .k = 1, .pad = 0});
   }
   // GFF.0 (1x1 over the D block outputs) as D partial 1x1 convs accumulated block by block, so the
   // D * G0-channel concatenation never exists (it is 82 MiB per frame at 346x260 and above the
@@ -128,15 +135,15 @@ Model::Model(Backend& backend, const Weights& w) : backend_(backend), cfg_(w.con
         pw.data[size_t(co) * cfg_.G0 + ci] = gw.data[size_t(co) * cfg_.D * cfg_.G0 + size_t(d) * cfg_.G0 + ci];
     WeightTensor pb{{cfg_.G0}, d == 0 ? gb.data : std::vector<float>(size_t(cfg_.G0), 0.f)};
     const std::string name = "GFF.0.part" + std::to_string(d);
-    ConvDesc desc{name, cfg_.G0, cfg_.G0, 1, 1, 0, false, false, 0.f};
+    const ConvDesc desc{.name = name, .cin = cfg_.G0, .cout = cfg_.G0, .k = 1, .pad = 0};
     convs_[name] = Conv{backend_.prepare_conv(desc, pw, pb), desc};
   }
-  add_conv(w, "GFF.1", cfg_.G0, cfg_.G0, 3, 1, 1, false, 0.f);
-  add_conv(w, "UPNet.0", cfg_.G0, cfg_.upnet_width, 3, 1, 1, false, 0.f);
-  add_conv(w, "UPNet.2", cfg_.upnet_width / 4, 3, 3, 1, 1, false, 0.f);
-  add_unet(w, "flownet", 2 * ev + 3, 2, cfg_.flownet);
-  add_unet(w, "fusion_net", 3 + 3 + 2 + ev + 3, cfg_.fusion_channels(), cfg_.fusion_net);
-  if (cfg_.moa) add_unet(w, "attfusion_net", 3 + 3 + 2 * ev + 2 + 2, 1, cfg_.attfusion_net);
+  add_conv(w, {.name = "GFF.1", .cin = cfg_.G0, .cout = cfg_.G0});
+  add_conv(w, {.name = "UPNet.0", .cin = cfg_.G0, .cout = cfg_.upnet_width});
+  add_conv(w, {.name = "UPNet.2", .cin = cfg_.upnet_width / 4, .cout = 3});
+  add_unet(w, "flownet", cfg_.flownet_input_channels(), 2, cfg_.flownet);
+  add_unet(w, "fusion_net", cfg_.fusion_input_channels(), cfg_.fusion_channels(), cfg_.fusion_net);
+  if (cfg_.moa) add_unet(w, "attfusion_net", cfg_.attfusion_input_channels(), 1, cfg_.attfusion_net);
   if (cfg_.physics_gate >= 0) add_physics_gate();
 }
 
@@ -147,26 +154,24 @@ void Model::add_physics_gate() {
   const int r = cfg_.physics_gate, k = 2 * r + 1, ev = cfg_.ev_channels();
   WeightTensor weight{{1, ev, k, k}, std::vector<float>(size_t(ev) * k * k, 6.f)};
   for (const auto& [name, bias] : {std::pair{"physics_gate.ev1", -3.f}, {"physics_gate.ev2", 0.f}}) {
-    ConvDesc d{name, ev, 1, k, 1, r, false, false, 0.f};
+    const ConvDesc d{.name = name, .cin = ev, .cout = 1, .k = k, .pad = r};
     convs_[name] = Conv{backend_.prepare_conv(d, weight, WeightTensor{{1}, {bias}}), d};
   }
 }
 
-std::vector<std::string> Model::resolve_outputs(const std::vector<std::string>& requested, Mode mode) {
+std::vector<ModelOutput> Model::resolve_outputs(const std::vector<ModelOutput>& requested, Mode mode) {
   const bool m_mode = mode == Mode::m;
-  std::vector<std::string> names;
+  std::vector<ModelOutput> outs;
   if (requested.empty()) {
-    for (const auto& nme : output_names())
-      if (m_mode || (nme != "m" && nme != "out")) names.push_back(nme);
-    return names;
+    for (ModelOutput o : kModelOutputs)
+      if (m_mode || !per_target(o)) outs.push_back(o);
+    return outs;
   }
-  for (const auto& nme : requested) {
-    if (std::find(output_names().begin(), output_names().end(), nme) == output_names().end())
-      throw Error("model: unknown output '" + nme + "' (expected sys, E, flow, warped, fused, m, out)");
-    if (!m_mode && (nme == "m" || nme == "out")) throw Error("model: output '" + nme + "' exists in mode m only");
-    if (std::find(names.begin(), names.end(), nme) == names.end()) names.push_back(nme);
+  for (ModelOutput o : requested) {
+    if (!m_mode && per_target(o)) throw Error(std::string("output '") + output_name(o) + "' exists in mode m only");
+    if (std::find(outs.begin(), outs.end(), o) == outs.end()) outs.push_back(o);
   }
-  return names;
+  return outs;
 }
 
 const Model::Conv& Model::conv(const std::string& name) const {
@@ -204,15 +209,18 @@ int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budg
   // Per item the whole-chunk buffers (inputs and outputs) and the largest working set of a stage.
   const int64_t ev = cfg_.ev_channels();
   const int64_t plane = he * we * 4;
-  const int64_t persistent = plane * (cfg_.synthesis_channels() + 3 + 3 + 2 + 3 + 3 + (mode == Mode::m ? 2 : 0));
+  // The chunk's inputs and its outputs (m and out: one per target, half an item each).
+  int64_t output_planes = 0, target_planes = 0;
+  for (ModelOutput o : resolve_outputs({}, mode)) (per_target(o) ? target_planes : output_planes) += output_channels(o);
+  const int64_t persistent = plane * (cfg_.synthesis_channels() + output_planes + target_planes / 2);
   const int64_t limit = static_cast<int64_t>(backend_.max_buffer_bytes());
   int64_t per_item = std::max<int64_t>(1, plane * ev);  // the largest whole-chunk buffer must fit one binding
   int64_t n = std::max<int64_t>(1, limit / per_item);
   if (memory_budget) {
     // A stage's working set is about 3x its largest buffer (see docs/model.md, memory plan).
     const int64_t work = 3 * std::max({synthesis_item_bytes(he, we),
-                                       unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, UnetPadding{}),
-                                       unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, UnetPadding{})});
+                                       unet_item_bytes(cfg_.flownet, cfg_.flownet_input_channels(), he, we, UnetPadding{}),
+                                       unet_item_bytes(cfg_.fusion_net, cfg_.fusion_input_channels(), he, we, UnetPadding{})});
     n = std::max<int64_t>(1, std::min<int64_t>(n, (int64_t(memory_budget) - work) / std::max<int64_t>(1, persistent)));
   }
   if (mode == Mode::m) n = std::max<int64_t>(2, n & ~int64_t(1));
@@ -221,10 +229,11 @@ int Model::items_per_chunk(int64_t h, int64_t w, Mode mode, uint64_t memory_budg
 
 int64_t Model::item_buffer_bytes(int64_t h, int64_t w, Mode mode, const UnetPadding& pad) const {
   const int64_t he = round_up(h, 2), we = round_up(w, 2), ev = cfg_.ev_channels();
-  int64_t b = std::max({4 * he * we * ev, synthesis_item_bytes(he, we), unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, pad),
-                        unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, pad)});
+  int64_t b = std::max({4 * he * we * ev, synthesis_item_bytes(he, we),
+                        unet_item_bytes(cfg_.flownet, cfg_.flownet_input_channels(), he, we, pad),
+                        unet_item_bytes(cfg_.fusion_net, cfg_.fusion_input_channels(), he, we, pad)});
   if (mode == Mode::m && cfg_.moa)
-    b = std::max(b, unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, pad));
+    b = std::max(b, unet_item_bytes(cfg_.attfusion_net, cfg_.attfusion_input_channels(), he, we, pad));
   return b;
 }
 
@@ -416,7 +425,7 @@ void Model::stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m) {
   Backend& b = backend_;
   const int64_t ev = cfg_.ev_channels();
   // Frames 1 and 2 of a target are batch items 2k and 2k+1: gather them into channel pieces.
-  const int64_t cin = 3 + 3 + 2 * ev + 2 + 2;
+  const int64_t cin = cfg_.attfusion_input_channels();
   Buffer gathered = b.alloc({nt, cin, ch.he, ch.we}, "attfusion_net.gather");
   for (int64_t k = 0; k < nt; ++k) {
     const int64_t f1 = 2 * (t0 + k), f2 = f1 + 1;
@@ -455,43 +464,65 @@ ModelBuffers Model::upload_inputs(const ModelInputs& in, int64_t c0, int64_t n, 
   return buffers;
 }
 
-std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOptions& opt) {
-  Backend& b = backend_;
-  const int64_t B = in.rs.shape.n, H = in.rs.shape.h, W = in.rs.shape.w, ev = cfg_.ev_channels();
-  if (in.rs.shape.c != 3) throw Error("model input 'rs' has shape " + in.rs.shape.str() + ", expected 3 channels");
-  if (B < 1 || H < 2 || W < 2) throw Error("model input 'rs' has shape " + in.rs.shape.str() + ", expected B >= 1, H and W >= 2");
-  check_input(in.rs, "rs", B, 3, H, W);
-  check_input(in.ev1, "ev1", B, ev, H, W);
-  check_input(in.ev2, "ev2", B, ev, H, W);
-  check_input(in.ev3, "ev3", B, ev, H, W);
-  check_finite(in.rs, "rs");
-  check_finite(in.ev1, "ev1");
-  check_finite(in.ev2, "ev2");
-  check_finite(in.ev3, "ev3");
+// The inputs' extents as the checks see them: rs, ev1, ev2, ev3, phys (given: false for none).
+struct Model::InputExtents {
+  struct Input {
+    const char* name;
+    bool given;
+    Shape shape;  // [items, channels, height, width] of the slice or tensor
+  };
+  Input rs, ev1, ev2, ev3, phys;
+};
+
+void Model::check_inputs(const InputExtents& in, const RunOptions& opt) const {
+  if (opt.precision && *opt.precision != backend_.precision())
+    throw Error(std::string("model run: precision ") + precision_name(*opt.precision) + " asked of the " + backend_.name() +
+                " backend, which runs in " + precision_name(backend_.precision()) + " (choose it when creating the backend)");
+  const Shape rs = in.rs.shape;
+  const int64_t B = rs.n, H = rs.h, W = rs.w;
+  if (rs.c != 3 || B < 1 || H < 2 || W < 2)
+    throw Error("model input 'rs' is " + rs.str() + ", expected Bx3xHxW with B >= 1, H and W >= 2");
+  auto check = [&](const InputExtents::Input& v, int64_t c) {
+    const Shape want{B, c, H, W};
+    if (!(v.shape == want)) throw Error(std::string("model input '") + v.name + "' is " + v.shape.str() + ", expected " + want.str());
+  };
+  for (const auto* v : {&in.ev1, &in.ev2, &in.ev3}) check(*v, cfg_.ev_channels());
   if (cfg_.physics_input) {
-    check_input(in.phys, "phys", B, 3, H, W);
-    check_finite(in.phys, "phys");
-  } else if (!in.phys.data.empty()) {
+    if (!in.phys.given) throw Error("model input 'phys' (the physics estimate) is missing: the model is the physics-informed variant");
+    check(in.phys, 3);
+  } else if (in.phys.given) {
     throw Error("model input 'phys' is given, but the model is not the physics-informed variant");
   }
+  if (opt.mode == Mode::m && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
+  if (opt.mode == Mode::m && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
+}
+
+std::map<ModelOutput, HostTensor> Model::run(const ModelInputs& in, const RunOptions& opt) {
+  Backend& b = backend_;
+  const int64_t B = in.rs.shape.n, H = in.rs.shape.h, W = in.rs.shape.w;
+  check_inputs({{"rs", true, in.rs.shape}, {"ev1", true, in.ev1.shape}, {"ev2", true, in.ev2.shape}, {"ev3", true, in.ev3.shape},
+                {"phys", !in.phys.data.empty(), in.phys.shape}},
+               opt);
+  for (const auto& [a, name] : {std::pair{&in.rs, "rs"}, {&in.ev1, "ev1"}, {&in.ev2, "ev2"}, {&in.ev3, "ev3"}, {&in.phys, "phys"}})
+    if (a != &in.phys || cfg_.physics_input) check_values(*a, name);
   // Chunks of batch items, each uploaded, run and downloaded on its own: every input buffer stays
   // within the backend's binding limit (run_on_backend takes the inputs as they are).
   const bool m_mode = opt.mode == Mode::m;
   int64_t per_chunk = opt.max_items > 0 ? opt.max_items : items_per_chunk(H, W, opt.mode, opt.memory_budget);
   if (m_mode) per_chunk = std::max<int64_t>(2, per_chunk & ~int64_t(1));
   per_chunk = std::min(per_chunk, B);
-  std::map<std::string, HostTensor> result;
+  std::map<ModelOutput, HostTensor> result;
   for (int64_t c0 = 0; c0 < B; c0 += per_chunk) {
     const int64_t n = std::min(per_chunk, B - c0);
     std::vector<Buffer> uploaded;  // handed over: the run releases each after its last reader
     const ModelBuffers buffers = upload_inputs(in, c0, n, uploaded);
     RunOptions ro = opt;
     ro.max_items = static_cast<int>(n);
-    const std::map<std::string, Buffer> outs = run_on_backend(buffers, ro, std::move(uploaded));
-    for (const auto& [name, buf] : outs) {
+    const std::map<ModelOutput, Buffer> outs = run_on_backend(buffers, ro, std::move(uploaded));
+    for (const auto& [o, buf] : outs) {
       const Shape s = buf.shape();
-      HostTensor& t = result[name];
-      const int64_t items = (name == "m" || name == "out") ? B / 2 : B, first = (name == "m" || name == "out") ? c0 / 2 : c0;
+      HostTensor& t = result[o];
+      const int64_t items = per_target(o) ? B / 2 : B, first = per_target(o) ? c0 / 2 : c0;
       if (t.data.empty()) t = HostTensor(Shape{items, s.c, s.h, s.w});
       b.download(buf.whole(), std::span<float>(t.data.data() + first * s.c * s.h * s.w, size_t(s.count())));
     }
@@ -501,30 +532,13 @@ std::map<std::string, HostTensor> Model::run(const ModelInputs& in, const RunOpt
 }
 
 void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt, const std::vector<Buffer>& handed_over) const {
-  if (opt.precision && *opt.precision != backend_.precision())
-    throw Error(std::string("model run: precision ") + precision_name(*opt.precision) + " asked of the " + backend_.name() +
-                " backend, which runs in " + precision_name(backend_.precision()) + " (choose it when creating the backend)");
-  const Shape rs = backend_.shape(in.rs.buf);
-  const int64_t B = in.rs.n, H = rs.h, W = rs.w, ev = cfg_.ev_channels();
-  if (in.rs.c != 3) throw Error("model input 'rs' has " + std::to_string(in.rs.c) + " channels, expected 3");
-  if (B < 1 || H < 2 || W < 2) throw Error("model input 'rs' is " + std::to_string(B) + " items of " + std::to_string(H) + "x" +
-                                           std::to_string(W) + ", expected B >= 1, H and W >= 2");
-  for (const auto& [v, name] : {std::pair{&in.ev1, "ev1"}, std::pair{&in.ev2, "ev2"}, std::pair{&in.ev3, "ev3"}}) {
-    const Shape s = backend_.shape(v->buf);
-    if (v->n != B || v->c != ev || s.h != H || s.w != W)
-      throw Error(std::string("model input '") + name + "' is " + Shape{v->n, v->c, s.h, s.w}.str() + ", expected " +
-                  Shape{B, ev, H, W}.str());
-  }
-  if (cfg_.physics_input) {
-    if (in.phys.buf < 0) throw Error("model input 'phys' (the physics estimate) is missing: the model is the physics-informed variant");
-    const Shape s = backend_.shape(in.phys.buf);
-    if (in.phys.n != B || in.phys.c != 3 || s.h != H || s.w != W)
-      throw Error("model input 'phys' is " + Shape{in.phys.n, in.phys.c, s.h, s.w}.str() + ", expected " + Shape{B, 3, H, W}.str());
-  } else if (in.phys.buf >= 0) {
-    throw Error("model input 'phys' is given, but the model is not the physics-informed variant");
-  }
-  if (opt.mode == Mode::m && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
-  if (opt.mode == Mode::m && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
+  auto extent = [&](const BufferSlice& v, const char* name) {
+    if (v.buf < 0) return InputExtents::Input{name, false, Shape{0, 0, 0, 0}};
+    const Shape s = backend_.shape(v.buf);
+    return InputExtents::Input{name, true, Shape{v.n, v.c, s.h, s.w}};
+  };
+  check_inputs({extent(in.rs, "rs"), extent(in.ev1, "ev1"), extent(in.ev2, "ev2"), extent(in.ev3, "ev3"), extent(in.phys, "phys")},
+               opt);
   // A handed-over buffer is released after its input's last reader: no other input may read it.
   for (const Buffer& h : handed_over) {
     int readers = 0;
@@ -540,15 +554,15 @@ struct Model::SubBatches {
 };
 
 Model::SubBatches Model::sub_batches(int64_t he, int64_t we, const RunOptions& opt) const {
-  const int64_t ev = cfg_.ev_channels();
   const uint64_t budget = opt.memory_budget;
   SubBatches sb;
   sb.synthesis = sub_items(synthesis_item_bytes(he, we), budget);
   check_unet_padding(opt.unet_pad, he, we);
   const UnetPadding& pad = opt.unet_pad;
-  sb.flow = sub_items(unet_item_bytes(cfg_.flownet, 2 * int(ev) + 3, he, we, pad), budget);
-  sb.fusion = sub_items(unet_item_bytes(cfg_.fusion_net, 11 + int(ev), he, we, pad), budget);
-  if (opt.mode == Mode::m) sb.moa = sub_items(unet_item_bytes(cfg_.attfusion_net, 10 + 2 * int(ev), he, we, pad), budget);
+  sb.flow = sub_items(unet_item_bytes(cfg_.flownet, cfg_.flownet_input_channels(), he, we, pad), budget);
+  sb.fusion = sub_items(unet_item_bytes(cfg_.fusion_net, cfg_.fusion_input_channels(), he, we, pad), budget);
+  if (opt.mode == Mode::m)
+    sb.moa = sub_items(unet_item_bytes(cfg_.attfusion_net, cfg_.attfusion_input_channels(), he, we, pad), budget);
   return sb;
 }
 
@@ -567,25 +581,21 @@ void Model::check_unet_padding(const UnetPadding& pad, int64_t he, int64_t we) c
   axis(pad.left, pad.right, we);
 }
 
-std::map<std::string, Buffer> Model::run_on_backend(const ModelBuffers& in, const RunOptions& opt, std::vector<Buffer> handed_over) {
+std::map<ModelOutput, Buffer> Model::run_on_backend(const ModelBuffers& in, const RunOptions& opt, std::vector<Buffer> handed_over) {
   Backend& b = backend_;
   check_buffers(in, opt, handed_over);
   const int64_t B = in.rs.n, H = b.shape(in.rs.buf).h, W = b.shape(in.rs.buf).w;
   const bool m_mode = opt.mode == Mode::m;
-  const std::vector<std::string> wanted = resolve_outputs(opt.outputs, opt.mode);
-  const std::set<std::string> want(wanted.begin(), wanted.end());
+  const std::vector<ModelOutput> wanted = resolve_outputs(opt.outputs, opt.mode);
+  const std::set<ModelOutput> want(wanted.begin(), wanted.end());
   const int64_t he = round_up(H, 2), we = round_up(W, 2);
   int64_t per_chunk = opt.max_items > 0 ? opt.max_items : items_per_chunk(H, W, opt.mode, opt.memory_budget);
   if (m_mode) per_chunk = std::max<int64_t>(2, per_chunk & ~int64_t(1));
   per_chunk = std::min(per_chunk, B);
   const SubBatches sb = sub_batches(he, we, opt);
   const int64_t K = m_mode ? B / 2 : 0;
-  std::map<std::string, Buffer> result;
-  for (const auto& nme : want) {
-    const int64_t items = (nme == "m" || nme == "out") ? K : B;
-    const int64_t c = nme == "m" ? 1 : (nme == "flow" ? 2 : 3);
-    result[nme] = b.alloc({items, c, H, W}, nme);
-  }
+  std::map<ModelOutput, Buffer> result;
+  for (ModelOutput o : want) result[o] = b.alloc({per_target(o) ? K : B, output_channels(o), H, W}, output_name(o));
   for (int64_t c0 = 0; c0 < B; c0 += per_chunk) run_chunk(in, opt, want, c0, std::min(per_chunk, B - c0), sb, result, handed_over);
   return result;
 }
@@ -598,8 +608,8 @@ void drop(std::vector<Buffer>& held, int id) {
 }
 }  // namespace
 
-void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::set<std::string>& want, int64_t c0, int64_t n,
-                      const SubBatches& sb, std::map<std::string, Buffer>& result, std::vector<Buffer>& handed_over) {
+void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::set<ModelOutput>& want, int64_t c0, int64_t n,
+                      const SubBatches& sb, std::map<ModelOutput, Buffer>& result, std::vector<Buffer>& handed_over) {
   Backend& b = backend_;
   const int64_t B = in.rs.n, H = b.shape(in.rs.buf).h, W = b.shape(in.rs.buf).w;
   const bool m_mode = opt.mode == Mode::m;
@@ -627,16 +637,16 @@ void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::
   // that are cropped into them.
   const bool direct = ch.n == B && ch.he == H && ch.we == W;
   std::vector<Buffer> chunk_buffers;
-  auto chunk_buffer = [&](const char* nme, const Shape& s) {
-    if (direct && want.count(nme)) return result.at(nme).id();
-    chunk_buffers.push_back(b.alloc(s, nme));
+  auto chunk_buffer = [&](ModelOutput o) {
+    if (direct && want.count(o)) return result.at(o).id();
+    chunk_buffers.push_back(b.alloc({per_target(o) ? ch.nt : ch.n, output_channels(o), ch.he, ch.we}, output_name(o)));
     return chunk_buffers.back().id();
   };
-  ch.E = chunk_buffer("E", {ch.n, 3, ch.he, ch.we});
-  ch.sys = chunk_buffer("sys", {ch.n, 3, ch.he, ch.we});
-  ch.flow = chunk_buffer("flow", {ch.n, 2, ch.he, ch.we});
-  ch.warped = chunk_buffer("warped", {ch.n, 3, ch.he, ch.we});
-  ch.fused = chunk_buffer("fused", {ch.n, 3, ch.he, ch.we});
+  ch.E = chunk_buffer(ModelOutput::E);
+  ch.sys = chunk_buffer(ModelOutput::sys);
+  ch.flow = chunk_buffer(ModelOutput::flow);
+  ch.warped = chunk_buffer(ModelOutput::warped);
+  ch.fused = chunk_buffer(ModelOutput::fused);
   // Stages are recorded back to back; the backend submits only where memory forces it.
   // GPU time is summed per stage (the paper's E-IC_T, E-IC_S, fusion, MOA); glue ops are "model".
   b.set_stage("model.eic_t");
@@ -662,25 +672,25 @@ void Model::run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::
   consumed(ch.ev3, in.ev3);
   if (fusion_reads_phys) consumed_ev2_phys();
   if (m_mode) {
-    ch.m = chunk_buffer("m", {ch.nt, 1, ch.he, ch.we});
-    ch.out = chunk_buffer("out", {ch.nt, 3, ch.he, ch.we});
+    ch.m = chunk_buffer(ModelOutput::m);
+    ch.out = chunk_buffer(ModelOutput::out);
     b.set_stage("model.moa");
     for (int64_t t = 0; t < ch.nt; t += sb.moa) stage_moa(ch, t, std::min<int64_t>(sb.moa, ch.nt - t), opt.force_m);
   }
   b.set_stage("model");
   // The chunk's results, cropped to H x W, into the outputs (the chunk buffers go with the chunk).
-  auto keep = [&](const std::string& nme, int buf, int64_t first) {
-    if (want.count(nme) && buf != result.at(nme).id())
-      b.crop(whole(b, buf), result.at(nme).items(first, b.shape(buf).n), 0, 0);
+  auto keep = [&](ModelOutput o, int buf) {
+    if (want.count(o) && buf != result.at(o).id())
+      b.crop(whole(b, buf), result.at(o).items(per_target(o) ? c0 / 2 : c0, b.shape(buf).n), 0, 0);
   };
-  keep("sys", ch.sys, c0);
-  keep("E", ch.E, c0);
-  keep("flow", ch.flow, c0);
-  keep("warped", ch.warped, c0);
-  keep("fused", ch.fused, c0);
+  keep(ModelOutput::sys, ch.sys);
+  keep(ModelOutput::E, ch.E);
+  keep(ModelOutput::flow, ch.flow);
+  keep(ModelOutput::warped, ch.warped);
+  keep(ModelOutput::fused, ch.fused);
   if (m_mode) {
-    keep("m", ch.m, c0 / 2);
-    keep("out", ch.out, c0 / 2);
+    keep(ModelOutput::m, ch.m);
+    keep(ModelOutput::out, ch.out);
   }
   if (last) handed_over.clear();
 }

@@ -4,8 +4,9 @@
 //   Weights w = load_weights("model.safetensors");
 //   CpuBackend cpu;               // or VulkanBackend vk(ctx);
 //   Model model(cpu, w);
-//   auto out = model.run({rs, ev1, ev2, ev3}, {.mode = Mode::m});   // out["out"], out["fused"], ...
+//   auto out = model.run({rs, ev1, ev2, ev3}, {.mode = Mode::m});   // out[ModelOutput::out], ...
 #pragma once
+#include <iosfwd>
 #include <map>
 #include <optional>
 #include <set>
@@ -19,6 +20,18 @@
 namespace vkunroll {
 
 enum class Mode { s, m };
+
+// What a run can return (the reference network's intermediates). sys, E, flow, warped and fused have
+// one item per batch item; m and out one per target (mode m only: K = B / 2 items).
+enum class ModelOutput { sys, E, flow, warped, fused, m, out };
+inline constexpr ModelOutput kModelOutputs[] = {ModelOutput::sys,    ModelOutput::E,     ModelOutput::flow, ModelOutput::warped,
+                                                ModelOutput::fused, ModelOutput::m,     ModelOutput::out};
+const char* output_name(ModelOutput o);  // the reference name: "sys", "E", ...
+std::ostream& operator<<(std::ostream& os, ModelOutput o);  // writes output_name(o)
+// The output of that reference name; throws Error naming the names expected.
+ModelOutput parse_output(const std::string& name);
+constexpr bool per_target(ModelOutput o) { return o == ModelOutput::m || o == ModelOutput::out; }
+constexpr int64_t output_channels(ModelOutput o) { return o == ModelOutput::flow ? 2 : (o == ModelOutput::m ? 1 : 3); }
 
 // The inputs as slices of backend buffers (e.g. the event tensors where Backend::event_tensors put
 // them): rs [B, 3, H, W], ev1, ev2, ev3 [B, 2N, H, W], read in place.
@@ -45,8 +58,8 @@ struct UnetPadding {
 
 struct RunOptions {
   Mode mode = Mode::s;
-  // Names to return among sys, E, flow, warped, fused, m, out; empty: all of the mode.
-  std::vector<std::string> outputs;
+  // The outputs to return; empty: all of the mode.
+  std::vector<ModelOutput> outputs;
   // >= 0: replaces the MOA blend map m by this constant (tests: m = 1 gives S of frame 1).
   float force_m = -1.f;
   // Most batch items (M: frames, always whole pairs) run together; 0: as many as the backend's
@@ -69,15 +82,15 @@ class Model {
   const ModelConfig& config() const { return cfg_; }
   Backend& backend() { return backend_; }
 
-  // Runs the network; returns the requested intermediates by their reference names, cropped to
-  // the input's H x W (sys, E, flow, warped, fused: B items; m, out: K = B/2 items).
-  std::map<std::string, HostTensor> run(const ModelInputs& in, const RunOptions& opt);
+  // Runs the network; returns the requested intermediates, cropped to the input's H x W (sys, E,
+  // flow, warped, fused: B items; m, out: K = B/2 items).
+  std::map<ModelOutput, HostTensor> run(const ModelInputs& in, const RunOptions& opt);
   // The same on inputs already in the backend, recorded without waiting: returns the outputs as
   // new backend buffers (the caller downloads them; they go with their handles). Nothing is
   // submitted unless the backend's memory forces it. `handed_over`: buffers of the inputs the caller
   // gives up, each the buffer of exactly one input: released once its last reader is recorded (ev2
   // after the flow, ev3 after the fusion), which lowers the peak memory.
-  std::map<std::string, Buffer> run_on_backend(const ModelBuffers& in, const RunOptions& opt,
+  std::map<ModelOutput, Buffer> run_on_backend(const ModelBuffers& in, const RunOptions& opt,
                                                std::vector<Buffer> handed_over = {});
   // Batch items [c0, c0 + n) of the inputs uploaded into new backend buffers (appended to `owned`,
   // which keeps them; run() hands them over): the ModelBuffers run_on_backend takes. Unchecked: run()
@@ -94,10 +107,9 @@ class Model {
   // What every UNet's padded input size must be a multiple of: 2^depth of the deepest UNet.
   int64_t unet_stride() const;
 
-  static const std::vector<std::string>& output_names();  // sys, E, flow, warped, fused, m, out
-  // The outputs a run returns: `requested`, or every output of the mode when empty (in
-  // output_names() order); throws Error for an unknown name or m/out outside mode m.
-  static std::vector<std::string> resolve_outputs(const std::vector<std::string>& requested, Mode mode);
+  // The outputs a run returns: `requested` (each once), or every output of the mode when empty (in
+  // kModelOutputs order); throws Error for m or out outside mode m.
+  static std::vector<ModelOutput> resolve_outputs(const std::vector<ModelOutput>& requested, Mode mode);
 
  private:
   struct Conv {
@@ -105,8 +117,8 @@ class Model {
     ConvDesc desc;
   };
   const Conv& conv(const std::string& name) const;
-  void add_conv(const Weights& w, const std::string& name, int cin, int cout, int k, int stride, int pad,
-                bool leaky, float slope, bool transposed = false);
+  // Prepares the layer `desc` names (desc.name: the checkpoint prefix) with its weights from `w`.
+  void add_conv(const Weights& w, const ConvDesc& desc);
   void add_unet(const Weights& w, const std::string& p, int cin, int cout, const UnetConfig& u);
 
   // Stages on batch items [i0, i0+n) of the chunk buffers.
@@ -122,13 +134,17 @@ class Model {
             const UnetPadding& pad);
   Buffer resblock(const std::string& p, Buffer x);  // returns the output buffer; releases x
 
+  // The one check of a run's inputs and options, on their extents (host tensors or backend slices
+  // alike): throws Error naming the input or option and what was expected.
+  struct InputExtents;
+  void check_inputs(const InputExtents& in, const RunOptions& opt) const;
   void check_buffers(const ModelBuffers& in, const RunOptions& opt, const std::vector<Buffer>& handed_over) const;
   struct SubBatches;
   SubBatches sub_batches(int64_t he, int64_t we, const RunOptions& opt) const;
   // Batch items [c0, c0 + n) of run_on_backend: the stages, into `result`; the last chunk releases
   // `handed_over` as its inputs' readers are recorded.
-  void run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::set<std::string>& want, int64_t c0, int64_t n,
-                 const SubBatches& sb, std::map<std::string, Buffer>& result, std::vector<Buffer>& handed_over);
+  void run_chunk(const ModelBuffers& in, const RunOptions& opt, const std::set<ModelOutput>& want, int64_t c0, int64_t n,
+                 const SubBatches& sb, std::map<ModelOutput, Buffer>& result, std::vector<Buffer>& handed_over);
   int64_t synthesis_item_bytes(int64_t h, int64_t w) const;
   int64_t unet_item_bytes(const UnetConfig& u, int cin, int64_t h, int64_t w, const UnetPadding& pad) const;
   void check_unet_padding(const UnetPadding& pad, int64_t he, int64_t we) const;  // throws Error naming the rule

@@ -18,8 +18,6 @@ namespace vkunroll {
 
 namespace {
 
-bool per_target(const std::string& name) { return name == "m" || name == "out"; }
-
 BufferSlice item_of(const Buffer& buf, int64_t i) { return buf.items(i, 1); }
 BufferSlice item_of(const BufferSlice& v, int64_t i) { return {v.buf, v.n0 + i, 1, v.c0, v.c}; }
 
@@ -83,37 +81,38 @@ bool any_inactive(const std::vector<std::vector<bool>>& active) {
 // the whole frame (a few dispatches, not a few per inactive tile): the active runs' interiors are
 // stitched after.
 void fill_standing(Backend& b, const BufferSlice& rs, const BufferSlice* phys, int64_t H, int64_t W,
-                   const std::map<std::string, Buffer>& outputs, int64_t per) {
+                   const std::map<ModelOutput, Buffer>& outputs, int64_t per) {
   const Rect all{0, 0, H, W};
   for (const auto& [n, buf] : outputs) {
-    const bool clamped = phys && n != "warped";  // the variant's outputs but warped: clamp(phys)
+    const bool clamped = phys && n != ModelOutput::warped;  // the variant's outputs but warped: clamp(phys)
     const BufferSlice& src = clamped ? *phys : rs;
     auto standing = [&](const BufferSlice& from, const BufferSlice& to) {
       if (clamped) b.clamp01(from, to);
       else b.copy(from, to);
     };
-    if (n != "m" && n != "E" && n != "flow" && (per == 1 || !per_target(n))) {
+    const bool zero = n == ModelOutput::E || n == ModelOutput::flow;
+    if (n != ModelOutput::m && !zero && (per == 1 || !per_target(n))) {
       standing(src, buf.whole());  // item i from item i
       continue;
     }
     for (int64_t i = 0; i < buf.shape().n; ++i) {
       const BufferSlice dst = item_of(buf, i);
-      if (n == "m") b.fill_rect(dst, all, 1.f);
-      else if (n == "E" || n == "flow") b.fill_rect(dst, all, 0.f);
+      if (n == ModelOutput::m) b.fill_rect(dst, all, 1.f);
+      else if (zero) b.fill_rect(dst, all, 0.f);
       else standing(item_of(src, i * per), dst);  // M's out: frame 1 of the pair
     }
   }
 }
 
 // The same into host tensors.
-void fill_standing_host(const HostTensor& rs, const HostTensor& standing, std::map<std::string, HostTensor>& outputs, int64_t per) {
+void fill_standing_host(const HostTensor& rs, const HostTensor& standing, std::map<ModelOutput, HostTensor>& outputs, int64_t per) {
   for (auto& [n, arr] : outputs) {
     const Rect all{0, 0, arr.shape.h, arr.shape.w};
     for (int64_t i = 0; i < arr.shape.n; ++i) {
       HostSliceOut dst(arr, 0, -1, i, 1);
-      if (n == "m") fill_rect_ref(dst, all, 1.f);
-      else if (n == "E" || n == "flow") fill_rect_ref(dst, all, 0.f);
-      else copy_rect_ref(HostSlice(n == "warped" ? rs : standing, 0, -1, per_target(n) ? i * per : i, 1), dst, all, 0, 0);
+      if (n == ModelOutput::m) fill_rect_ref(dst, all, 1.f);
+      else if (n == ModelOutput::E || n == ModelOutput::flow) fill_rect_ref(dst, all, 0.f);
+      else copy_rect_ref(HostSlice(n == ModelOutput::warped ? rs : standing, 0, -1, per_target(n) ? i * per : i, 1), dst, all, 0, 0);
     }
   }
 }
@@ -223,7 +222,7 @@ struct TileIO {
   // Writes the input rect `r` of source item `item` into batch item `q` of `batch`.
   std::function<void(const ModelBuffers& batch, int64_t q, int64_t item, const Rect& r)> cut;
   // Takes one batch's outputs (backend buffers) for the listed (batch item, target, tile) triples.
-  std::function<void(const std::map<std::string, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed)> stitch;
+  std::function<void(const std::map<ModelOutput, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed)> stitch;
 };
 
 // A batch's RunOptions::unet_pad (unet_axis_padding per axis): aligned unless the halo is 0 (then
@@ -289,7 +288,7 @@ void run_batches(Model& model, int64_t H, int64_t W, const RunOptions& ro, const
         for (int64_t j = 0; j < per; ++j) io.cut(tin, int64_t(q) * per + j, it.target * per + j, runs[it.run].input);
         placed.push_back({it.target, &runs[it.run]});
       }
-      const std::map<std::string, Buffer> out = model.run_on_backend(tin, batch_ro);
+      const std::map<ModelOutput, Buffer> out = model.run_on_backend(tin, batch_ro);
       cut_buffers.clear();  // before the stitch: the host path's flush then frees them
       io.stitch(out, placed);
     }
@@ -353,7 +352,6 @@ TiledPlan plan_tiled(Model& model, int64_t B, int64_t rs_channels, int64_t H, in
   return p;
 }
 
-int64_t output_channels(const std::string& n) { return n == "flow" ? 2 : (n == "m" ? 1 : 3); }
 
 }  // namespace
 
@@ -395,7 +393,7 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
     res.stage_ms["record"] = ms_since(t_record);
     return res;
   }
-  for (const auto& n : p.ro.outputs) res.outputs[n] = b.alloc({per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W}, n);
+  for (const auto& n : p.ro.outputs) res.outputs[n] = b.alloc({per_target(n) ? p.K : p.B, output_channels(n), p.H, p.W}, output_name(n));
   // The variant: inactive tiles take clamp(phys, 0, 1), what its gate gives away from events.
   if (any_inactive(p.active)) fill_standing(b, in.rs, model.config().physics_input ? &in.phys : nullptr, p.H, p.W, res.outputs, p.per);
   const BufferSlice* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
@@ -405,7 +403,7 @@ TiledBuffers run_tiled_on_backend(Model& model, const ModelBuffers& in, const Ru
     const BufferSlice* cut[5] = {&batch.rs, &batch.ev1, &batch.ev2, &batch.ev3, &batch.phys};
     for (int a = 0; a < inputs; ++a) b.crop(item_of(*full[a], item), item_of(*cut[a], q), int(r.y), int(r.x));
   };
-  io.stitch = [&](const std::map<std::string, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
+  io.stitch = [&](const std::map<ModelOutput, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
     for (size_t q = 0; q < placed.size(); ++q) {
       const auto [target, t] = placed[q];
       const Rect src{t->interior.y - t->input.y, t->interior.x - t->input.x, t->interior.h, t->interior.w};
@@ -461,8 +459,8 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
       b.upload(item_of(*cut[a], q), crop.data);
     }
   };
-  io.stitch = [&](const std::map<std::string, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
-    std::map<std::string, HostTensor> host;
+  io.stitch = [&](const std::map<ModelOutput, Buffer>& out, const std::vector<std::pair<int64_t, const Tile*>>& placed) {
+    std::map<ModelOutput, HostTensor> host;
     for (const auto& [n, buf] : out) {
       host[n] = HostTensor(buf.shape());
       b.download(buf.whole(), host[n].data);

@@ -11,7 +11,7 @@
 //   t.halo = 64;                      // exact when >= exact_halo(cfg, mode, max |flow|)
 //   t.sparse = SparsePolicy::exact;   // tiles with no ev1/ev2 event take the RS pixels (gated variant: clamp(phys))
 //   TiledResult r = run_tiled(model, inputs, run_options, t);
-//   r.outputs["fused"], r.active_fraction, r.stage_ms["record"], ...
+//   r.outputs[ModelOutput::fused], r.active_fraction, r.stage_ms["record"], ...
 //
 // Alignment (why tile and halo are multiples of 32): the model works at even size (space_to_depth)
 // and the untiled run's UNets pad their input to multiples of 32. Tile origins on the 32-grid see
@@ -126,10 +126,10 @@ struct TileStats {
 };
 
 struct TiledResult : TileStats {
-  std::map<std::string, HostTensor> outputs;  // as Model::run: full H x W
+  std::map<ModelOutput, HostTensor> outputs;  // as Model::run: full H x W
 };
 struct TiledBuffers : TileStats {
-  std::map<std::string, Buffer> outputs;  // backend buffers [B or K, c, H, W], held by the caller
+  std::map<ModelOutput, Buffer> outputs;  // backend buffers [B or K, c, H, W], held by the caller
 };
 
 // Per batch item, the summed-area table ((H + 1) x (W + 1)) of the events ev1 and ev2 select at

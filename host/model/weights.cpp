@@ -182,7 +182,6 @@ bool ModelConfig::same_shapes(const ModelConfig& o) const {
 
 std::vector<std::pair<std::string, TensorShape>> expected_tensors(const ModelConfig& c) {
   std::vector<std::pair<std::string, TensorShape>> out;
-  const int64_t ev = c.ev_channels();
   add_conv(out, "SFENet1", 4 * c.synthesis_channels(), c.G0, 5);
   add_conv(out, "SFENet2", c.G0, c.G0, 3);
   for (int d = 0; d < c.D; ++d) {
@@ -194,9 +193,9 @@ std::vector<std::pair<std::string, TensorShape>> expected_tensors(const ModelCon
   add_conv(out, "GFF.1", c.G0, c.G0, 3);
   add_conv(out, "UPNet.0", c.G0, c.upnet_width, 3);
   add_conv(out, "UPNet.2", c.upnet_width / 4, 3, 3);
-  add_unet(out, "flownet", 2 * ev + 3, 2, c.flownet);
-  add_unet(out, "fusion_net", 3 + 3 + 2 + ev + 3, c.fusion_channels(), c.fusion_net);
-  if (c.moa) add_unet(out, "attfusion_net", 3 + 3 + 2 * ev + 2 + 2, 1, c.attfusion_net);
+  add_unet(out, "flownet", c.flownet_input_channels(), 2, c.flownet);
+  add_unet(out, "fusion_net", c.fusion_input_channels(), c.fusion_channels(), c.fusion_net);
+  if (c.moa) add_unet(out, "attfusion_net", c.attfusion_input_channels(), 1, c.attfusion_net);
   return out;
 }
 

@@ -55,6 +55,10 @@ struct ModelConfig {
   int fusion_channels() const { return physics_confidence ? 4 : 3; }  // fusion_net's output
   // E-IC_T's input channels before space_to_depth: rs, ev1, ev2, ev3 (and phys in the variant).
   int synthesis_channels() const { return 3 + 3 * ev_channels() + (physics_input ? 3 : 0); }
+  // Each UNet's input channels, its pieces in the order host/model/model.cpp concatenates them.
+  int flownet_input_channels() const { return 2 * ev_channels() + 3; }            // ev1, ev2, rs
+  int fusion_input_channels() const { return 3 + 3 + 2 + ev_channels() + 3; }     // sys, warped, flow, ev3, rs
+  int attfusion_input_channels() const { return 2 * 3 + 2 * ev_channels() + 2 * 2; }  // E, ev1, flow of frames 1 and 2
   // The published models (fast.pth, gev.pth, gevreal.pth, dre.pth): 33,914,185 parameters.
   static ModelConfig published() { return {}; }
   // Strings for the safetensors metadata (keys in docs/model.md).

@@ -19,7 +19,7 @@ namespace {
 RunOptions group_run_options(bool m) {
   RunOptions ro;
   ro.mode = m ? Mode::m : Mode::s;
-  ro.outputs = {m ? "out" : "fused"};
+  ro.outputs = {m ? ModelOutput::out : ModelOutput::fused};
   return ro;
 }
 
@@ -298,11 +298,11 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
   if (tiling_.sparse != SparsePolicy::off) activity = activity_tables(selected_event_counts(*in.events, pairs, spec), H, W);
   clock.next("model");
   const RunOptions ro = group_run_options(m);
-  const std::string& name = ro.outputs[0];
+  const ModelOutput wanted = ro.outputs[0];
   const TiledBuffers run = run_tiled_on_backend(*model_, inputs, ro, tiling_, &activity);
   clock.next("download");
   std::vector<float> planes(static_cast<size_t>(which.size()) * 3 * H * W);
-  b.download(run.outputs.at(name).whole(), planes);
+  b.download(run.outputs.at(wanted).whole(), planes);
   b.flush();
   for (size_t q = 0; q < which.size(); ++q)
     results[which[q]] = planes_image(planes.data() + q * 3 * H * W, H, W, rgb_);
@@ -345,10 +345,10 @@ void UnrollSession::run_model_on_host(const FrameInput& in, const FramePlanes& f
     }
     clock.next("model");
     const RunOptions ro = group_run_options(m);
-    const std::string& name = ro.outputs[0];
+    const ModelOutput wanted = ro.outputs[0];
     const TiledResult run = run_tiled(*model_, mi, ro, tiling_);
     clock.stop();
-    results[j] = planes_image(run.outputs.at(name).data.data(), H, W, rgb_);
+    results[j] = planes_image(run.outputs.at(wanted).data.data(), H, W, rgb_);
     add_tile_stats(run, 1, H, W);
     stats_.host_path_targets++;
   }

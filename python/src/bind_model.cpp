@@ -122,7 +122,7 @@ void bind_model(py::module_& m) {
             guarded({}, [&] {
               if (mode != "s" && mode != "m") throw Error("Model.run: mode '" + mode + "' (expected s or m)");
               opt.mode = mode == "m" ? Mode::m : Mode::s;
-              opt.outputs = outputs;
+              for (const std::string& name : outputs) opt.outputs.push_back(parse_output(name));
               opt.max_items = max_items;
               opt.force_m = force_m;
               if (!precision.empty()) opt.precision = parse_precision(precision, "precision");
@@ -134,9 +134,9 @@ void bind_model(py::module_& m) {
               return pm.model->run(in, opt);
             });
             py::dict d;
-            for (auto& [name, t] : out) {
+            for (auto& [o, t] : out) {
               const std::vector<py::ssize_t> shape = {t.shape.n, t.shape.c, t.shape.h, t.shape.w};
-              d[py::str(name)] = to_numpy(std::move(t.data), shape);
+              d[py::str(output_name(o))] = to_numpy(std::move(t.data), shape);
             }
             return d;
           },
