@@ -480,11 +480,12 @@ void Model::check_inputs(const InputExtents& in, const RunOptions& opt) const {
                 " backend, which runs in " + precision_name(backend_.precision()) + " (choose it when creating the backend)");
   const Shape rs = in.rs.shape;
   const int64_t B = rs.n, H = rs.h, W = rs.w;
-  if (rs.c != 3 || B < 1 || H < 2 || W < 2)
-    throw Error("model input 'rs' is " + rs.str() + ", expected Bx3xHxW with B >= 1, H and W >= 2");
+  if (rs.c != 3) throw Error("model input 'rs' has shape " + rs.str() + ", expected 3 channels");
+  if (B < 1 || H < 2 || W < 2) throw Error("model input 'rs' has shape " + rs.str() + ", expected B >= 1, H and W >= 2");
   auto check = [&](const InputExtents::Input& v, int64_t c) {
     const Shape want{B, c, H, W};
-    if (!(v.shape == want)) throw Error(std::string("model input '") + v.name + "' is " + v.shape.str() + ", expected " + want.str());
+    if (!(v.shape == want))
+      throw Error(std::string("model input '") + v.name + "' has shape " + v.shape.str() + ", expected " + want.str());
   };
   for (const auto* v : {&in.ev1, &in.ev2, &in.ev3}) check(*v, cfg_.ev_channels());
   if (cfg_.physics_input) {
