@@ -88,3 +88,29 @@ def test_installed_wheel_unrolls_with_its_default_model_outside_the_tree(wheel, 
     where = subprocess.run([str(venv / "bin" / "python"), "-c", "import vkunroll, json; print(json.dumps(vkunroll.__file__))"],
                            cwd=away, env=env, capture_output=True, text=True)
     assert json.loads(where.stdout).startswith(str(venv)), where.stdout + where.stderr
+
+
+def backend_module(monkeypatch):
+    """The backend as pip loads it: from the source root (its working directory is the tree)."""
+    import importlib.util
+    monkeypatch.chdir(ROOT)
+    path = os.path.join(ROOT, "python", "wheel_backend", "vkunroll_wheel_backend.py")
+    spec = importlib.util.spec_from_file_location("vkunroll_wheel_backend", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_wrong_build_dir_is_named_with_what_was_expected(tmp_path, monkeypatch):
+    backend = backend_module(monkeypatch)
+    monkeypatch.setenv("VKUNROLL_WHEEL_BUILD_DIR", str(tmp_path))
+    with pytest.raises(backend.BuildError, match=rf"VKUNROLL_WHEEL_BUILD_DIR={re.escape(str(tmp_path))}: no CMakeCache.txt"):
+        backend.build_wheel(str(tmp_path))
+    (tmp_path / "CMakeCache.txt").write_text("CMAKE_HOME_DIRECTORY:INTERNAL=/elsewhere\nVKUNROLL_BUILD_PYTHON:BOOL=ON\n")
+    with pytest.raises(backend.BuildError, match=r"configured from /elsewhere, not from this source tree"):
+        backend.build_wheel(str(tmp_path))
+    (tmp_path / "CMakeCache.txt").write_text(f"CMAKE_HOME_DIRECTORY:INTERNAL={ROOT}\nVKUNROLL_BUILD_PYTHON:BOOL=OFF\n")
+    with pytest.raises(backend.BuildError, match=r"VKUNROLL_BUILD_PYTHON off \(expected on\)"):
+        backend.build_wheel(str(tmp_path))
+    assert not list(tmp_path.glob("*.whl")) and not list(tmp_path.glob("*.part"))
+    assert backend.cmake_version() == cmake_version() and backend.get_requires_for_build_wheel() == []
