@@ -132,7 +132,7 @@ TEST(ConvChoice, TimingNamesTheFastestCandidate) {
   const auto cands = conv.candidates(in);
   ASSERT_GE(cands.size(), 3u);  // blocked, winograd, direct at least
   for (ConvAlgo a : cands) EXPECT_NE(a, ConvAlgo::naive);
-  const ConvChoiceEntry e = time_conv_algorithms(ctx, conv, in, true, 1);
+  const ConvChoiceEntry e = time_conv_algorithms(ctx, conv, in, true, ConvTimingBudget{1});
   double least = 1e300;
   size_t listed = 0;
   std::istringstream ts(e.timings);
@@ -152,7 +152,7 @@ TEST(ConvChoice, TimingNamesTheFastestCandidate) {
   EXPECT_NE(std::find(pc.begin(), pc.end(), ConvAlgo::gemm), pc.end());
   EXPECT_EQ(std::find(pc.begin(), pc.end(), ConvAlgo::winograd), pc.end());
   const ConvTranspose2d deconv(ctx, random_host({8, 4, 4, 4}, 9, 0.3f), random_host({1, 1, 1, 4}, 10, 0.1f));
-  const ConvChoiceEntry d = time_conv_algorithms(ctx, deconv, {1, 8, 6, 6}, 1);
+  const ConvChoiceEntry d = time_conv_algorithms(ctx, deconv, {1, 8, 6, 6}, ConvTimingBudget{1});
   EXPECT_TRUE(d.algo == "blocked" || d.algo == "direct") << d.algo;
 }
 
@@ -269,11 +269,14 @@ TEST(ConvChoice, TuneWritesTheTableUnrollReads) {
   const std::string cli = VKUNROLL_CLI_PATH;
   if (!fs::exists(cli)) GTEST_SKIP() << cli << " is not here (the device bundle carries no CLI)";
   const std::string model = fixture("selfunroll_tiny.safetensors");
-  ASSERT_EQ(std::system((env + cli + " tune --model " + model + " --size 40x30 --tile 0 --reps 1 > " +
+  ASSERT_EQ(std::system((env + cli + " tune --model " + model + " --size 40x30 --tile 0 --reps 1 --warm-ms 0 --budget-s 0 > " +
                          (dir / "tune.txt").string() + " 2>&1").c_str()), 0)
       << slurp(dir / "tune.txt");
   const std::string report = slurp(dir / "tune.txt");
-  EXPECT_NE(report.find("conv shapes timed"), std::string::npos) << report;
+  EXPECT_NE(report.find("FMA ceiling after"), std::string::npos) << report;
+  EXPECT_NE(report.find("candidates timed in"), std::string::npos) << report;
+  EXPECT_NE(report.find("budget arithmetic"), std::string::npos) << report;
+  EXPECT_EQ(report.find("were not timed"), std::string::npos) << report;  // no budget: every shape timed
   EXPECT_NE(report.find("heuristic / measured"), std::string::npos) << report;
   std::vector<fs::path> tables;
   for (const auto& f : fs::directory_iterator(dir / "cache"))
@@ -318,4 +321,54 @@ TEST(ConvChoice, GpuHeuristicFollowsTheMeasuredRules) {
   EXPECT_EQ(gpu_conv_heuristic(head), ConvAlgo::gemm);
   const GpuConvFacts tiny{3, 2, 512, 6, 7, true, false, true, false};  // one Winograd tile row at stride 2
   EXPECT_EQ(gpu_conv_heuristic(tiny), ConvAlgo::blocked);
+}
+
+// Committed tables are matched by the device that measured them (the '# device' line): the same
+// card and driver before the same model (vendor and device id) and driver, before the same model
+// under another driver (used, and said); another model never; a file without the line is skipped
+// with a warning naming it.
+TEST(ConvChoice, CommittedTablesMatchTheDeviceModel) {
+  const fs::path dir = fresh_dir("committed_match");
+  const ConvDeviceIdentity here{"GPU X", "1.2.3", "uuid-here", 0x10de, 0x2335};
+  auto write = [&](const std::string& file, ConvDeviceIdentity id, const std::string& algo) {
+    ConvChoiceTable t;
+    t.set("conv2d k3 s1 p1 8->8 fp32 n<=1 16x16", {algo, 1.0, algo + "=1.0000", "winograd"});
+    t.save((dir / file).string(), id.name, id);
+  };
+  ConvDeviceIdentity other_model = here, other_driver = here, other_card = here;
+  other_model.device_id = 0x2330, other_model.uuid = "uuid-other";
+  other_driver.driver = "1.2.0", other_driver.uuid = "uuid-other";
+  other_card.uuid = "uuid-other";
+  write("1-other-model.tsv", other_model, "direct");
+  std::vector<std::string> w;
+  EXPECT_FALSE(find_committed_conv_table({dir.string()}, here, &w));
+  write("2-other-driver.tsv", other_driver, "blocked");
+  auto m = find_committed_conv_table({dir.string(), (dir / "absent").string()}, here, &w);
+  ASSERT_TRUE(m);
+  EXPECT_NE(m->how.find("driver 1.2.0 measured, 1.2.3 here"), std::string::npos) << m->how;
+  EXPECT_EQ(m->table.find("conv2d k3 s1 p1 8->8 fp32 n<=1 16x16")->algo, "blocked");
+  write("3-other-card.tsv", other_card, "gemm");
+  m = find_committed_conv_table({dir.string()}, here, &w);
+  EXPECT_EQ(m->how, "device model and driver");
+  write("4-this-card.tsv", here, "winograd");
+  m = find_committed_conv_table({dir.string()}, here, &w);
+  EXPECT_EQ(m->how, "device uuid and driver");
+  EXPECT_EQ(m->path, (dir / "4-this-card.tsv").string());
+  EXPECT_EQ(m->table.identity().device_id, 0x2335u);
+  EXPECT_TRUE(w.empty()) << w.front();
+  {
+    std::ofstream(dir / "5-anonymous.tsv") << "# vkunroll conv algorithm choices v1: x\nk\tdirect\t1\tdirect=1\tdirect\n";
+  }
+  find_committed_conv_table({dir.string()}, here, &w);
+  ASSERT_EQ(w.size(), 1u);
+  EXPECT_NE(w[0].find("5-anonymous.tsv: no '# device' line"), std::string::npos) << w[0];
+  // Merged under this device's own table: its own timings win, and save() leaves the committed out.
+  ConvChoiceTable own;
+  own.set("conv2d k1 s1 p0 8->8 fp32 n<=1 16x16", {"gemm", 0.5, "gemm=0.5000", "gemm"});
+  own.merge_committed(m->table);
+  ASSERT_EQ(own.entries().size(), 2u);
+  EXPECT_TRUE(own.find("conv2d k3 s1 p1 8->8 fp32 n<=1 16x16")->committed);
+  own.save((dir / "cache.tsv").string(), "here", here);
+  EXPECT_EQ(ConvChoiceTable::load((dir / "cache.tsv").string(), nullptr).entries().size(), 1u);
+  fs::remove_all(dir);
 }

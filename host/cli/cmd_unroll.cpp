@@ -112,8 +112,9 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
       ->check(CLI::IsMember({"fp32", "fp16"}))->capture_default_str()->group(g)->type_name("P");
   c->add_option("--conv-choice", a.conv_choice,
                 "conv algorithm per shape: auto (the device's measured table from `vkunroll tune`; a missing shape is "
-                "timed on first use on a GPU) | heuristic | cached | measured (time missing shapes on any device) | retune")
-      ->check(CLI::IsMember({"auto", "heuristic", "cached", "measured", "retune"}))->capture_default_str()->group(g)->type_name("C");
+                "timed on first use on a GPU) | heuristic | cached | measured (time missing shapes on any device) | retune | "
+                "gpu (the GPU kernels' rule on any device, lavapipe included: for tests and counting dispatches)")
+      ->check(CLI::IsMember({"auto", "heuristic", "cached", "measured", "retune", "gpu"}))->capture_default_str()->group(g)->type_name("C");
   c->add_flag("--profile", a.profile,
               "Vulkan: every kernel's GPU time and calls per GS frame in summary.json (gpu_ms_per_gs_frame_by_op)")
       ->group(g);

@@ -184,17 +184,26 @@ int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const 
 void VulkanBackend::set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, int reps) {
   if (choice == ConvChoice::automatic)
     choice = ctx_.info().type == VK_PHYSICAL_DEVICE_TYPE_CPU ? ConvChoice::cached : ConvChoice::measured;
-  if (choice != ConvChoice::heuristic && !table) table = std::make_shared<ConvChoiceTable>();
+  if (choice != ConvChoice::heuristic && choice != ConvChoice::gpu && !table) table = std::make_shared<ConvChoiceTable>();
   choice_table_ = std::move(table);
   choice_ = choice;
-  choice_reps_ = std::max(1, reps);
+  choice_budget_ = ConvTimingBudget{};
+  choice_budget_.reps = std::max(1, reps);
+}
+
+void VulkanBackend::set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, const ConvTimingBudget& budget) {
+  set_conv_choice(std::move(table), choice, budget.reps);
+  choice_budget_ = budget;
 }
 
 std::optional<std::string> VulkanBackend::table_algorithm(const std::string& key,
                                                           const std::function<ConvChoiceEntry()>& time) {
   const ConvChoiceEntry* e = choice_table_->find(key);
   const bool again = choice_ == ConvChoice::retune && !retuned_.count(key);
-  if (again || (!e && choice_ == ConvChoice::measured)) {
+  if ((again || (!e && choice_ == ConvChoice::measured)) && timing_deadline_ &&
+      std::chrono::steady_clock::now() >= *timing_deadline_) {
+    past_deadline_.insert(key);
+  } else if (again || (!e && choice_ == ConvChoice::measured)) {
     // Timed on separate streams: this backend's recording is not submitted yet, so nothing waits on it.
     const auto t0 = std::chrono::steady_clock::now();
     choice_table_->set(key, time());
@@ -206,6 +215,13 @@ std::optional<std::string> VulkanBackend::table_algorithm(const std::string& key
   }
   if (!e) return std::nullopt;
   return e->algo;
+}
+
+ConvAlgo VulkanBackend::gpu_choice(const Conv2d& c, const Shape& in, bool residual_in_output) const {
+  const ConvAlgo a = gpu_family_algorithm(c, in);
+  const std::vector<ConvAlgo> can = c.candidates(in, residual_in_output);
+  // A pick this call cannot take (Winograd's scratch, a residual in the output) keeps the kernels' own.
+  return std::find(can.begin(), can.end(), a) != can.end() ? a : ConvAlgo::automatic;
 }
 
 void VulkanBackend::begin_dense_block(int64_t channels) {
@@ -221,29 +237,34 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
   const int idx = conv_index_.at(static_cast<size_t>(id));
   const Slice si = slice(tensor(in.buf), in), so = slice(tensor(out.buf), out);
   const Shape is = si.shape();
-  const bool tabled = choice_ != ConvChoice::heuristic && choice_table_;  // the key is built only then
+  // the key is built only then
+  const bool tabled = choice_ != ConvChoice::heuristic && choice_ != ConvChoice::gpu && choice_table_;
   if (idx < 0) {
     if (residual) throw Error("vulkan backend: " + descs_[id].name + ": a transposed conv takes no residual");
     const ConvTranspose2d& c = *deconvs_[static_cast<size_t>(~idx)];
-    ConvTransposeAlgo algo = ConvTransposeAlgo::automatic;
-    if (auto name = tabled ? table_algorithm(conv_choice_key(c, is), [&] { return time_conv_algorithms(ctx_, c, is, choice_reps_); })
+    ConvTransposeAlgo algo = choice_ == ConvChoice::gpu ? gpu_family_algorithm(c) : ConvTransposeAlgo::automatic;
+    if (auto name = tabled ? table_algorithm(conv_choice_key(c, is), [&] { return time_conv_algorithms(ctx_, c, is, choice_budget_); })
                            : std::nullopt)
       for (ConvTransposeAlgo a : c.candidates())
         if (*name == conv_transpose_algo_name(a)) algo = a;
-    if (algo != ConvTransposeAlgo::automatic) ++convs_from_table_;
+    if (algo != ConvTransposeAlgo::automatic && choice_ != ConvChoice::gpu) ++convs_from_table_;
+    ++conv_calls_by_algorithm_[std::string("transposed ") +
+                               conv_transpose_algo_name(algo == ConvTransposeAlgo::automatic ? c.choose_algorithm(is.h, is.w) : algo)];
     c.record(*cs_, si, so, algo);
   } else {
     const Conv2d& c = *convs_[static_cast<size_t>(idx)];
     std::optional<Slice> r;
     if (residual) r = slice(tensor(residual->buf), *residual);
     ConvAlgo algo = ConvAlgo::automatic;
-    const auto time = [&] { return time_conv_algorithms(ctx_, c, is, r.has_value(), choice_reps_); };
+    const auto time = [&] { return time_conv_algorithms(ctx_, c, is, r.has_value(), choice_budget_); };
     if (auto name = tabled ? table_algorithm(conv_choice_key(c, is, r.has_value()), time) : std::nullopt)
       // An entry naming an algorithm this call cannot take (another build's, a residual in the
       // output for chunked direct) falls back to the heuristic.
       for (ConvAlgo a : c.candidates(is, c.residual_overlaps_output(so, r)))
         if (*name == conv_algo_name(a)) algo = a;
     if (algo != ConvAlgo::automatic) ++convs_from_table_;
+    if (choice_ == ConvChoice::gpu) algo = gpu_choice(c, is, c.residual_overlaps_output(so, r));
+    ++conv_calls_by_algorithm_[conv_algo_name(algo == ConvAlgo::automatic ? c.choose_algorithm(is.h, is.w) : algo)];
     c.record(*cs_, si, so, r, algo, dense_v_.get());
   }
   if (probe_) {

@@ -4,6 +4,7 @@
 // forced by an alloc() that finds more than pool_flush_bytes pooled), so device memory follows the
 // graph's liveness.
 #pragma once
+#include <chrono>
 #include <deque>
 #include <map>
 #include <set>
@@ -78,6 +79,11 @@ class VulkanBackend final : public Backend {
   // The conv algorithm per shape: `table` (shared; timed shapes are added to it) under `choice`
   // (conv_choice.hpp). Without a call the kernels' heuristic decides. `reps`: timed runs per candidate.
   void set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, int reps = 3);
+  void set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, const ConvTimingBudget& budget);
+  // No shape is timed after `deadline` (vkunroll tune --budget-s): the rest take the table or the
+  // heuristic, counted in convs_past_deadline().
+  void set_conv_timing_deadline(std::chrono::steady_clock::time_point deadline) { timing_deadline_ = deadline; }
+  uint64_t convs_past_deadline() const { return past_deadline_.size(); }
   // The kernels' tuning knobs (ConvOptions; their precision is the backend's) for the convs prepared
   // after the call; validated by each conv.
   void set_conv_options(const ConvOptions& o) { conv_options_ = o; }
@@ -88,6 +94,9 @@ class VulkanBackend final : public Backend {
   // progress with it, so a run stopped by a time limit still says which shapes it reached.
   void on_conv_timed(std::function<void(const std::string&, const ConvChoiceEntry&, double)> f) { on_conv_timed_ = std::move(f); }
   uint64_t convs_from_table() const { return convs_from_table_; }
+  // Conv calls recorded per algorithm name (transposed convs as "transposed NAME"); a call left to the
+  // kernel counts under its choose_algorithm. Shows what --conv-choice changed.
+  const std::map<std::string, uint64_t>& conv_calls_by_algorithm() const { return conv_calls_by_algorithm_; }
 
   Context& context() { return ctx_; }
   // Bytes of device memory held by buffers (live + pooled for reuse), and its peak.
@@ -132,14 +141,19 @@ class VulkanBackend final : public Backend {
   uint64_t pool_flush_bytes_ = kPoolFlushBytes;
   std::shared_ptr<ConvChoiceTable> choice_table_;
   ConvChoice choice_ = ConvChoice::heuristic;
-  int choice_reps_ = 3;
+  ConvTimingBudget choice_budget_;
+  std::optional<std::chrono::steady_clock::time_point> timing_deadline_;
+  std::set<std::string> past_deadline_;  // keys left untimed for the deadline
   ConvOptions conv_options_;
   std::set<std::string> retuned_;  // keys timed again under ConvChoice::retune
   uint64_t convs_timed_ = 0, convs_from_table_ = 0;
+  std::map<std::string, uint64_t> conv_calls_by_algorithm_;
   std::function<void(const std::string&, const ConvChoiceEntry&, double)> on_conv_timed_;
   // The table's algorithm for this conv call (timing it first where the choice says so); nullopt: the
   // heuristic. Only called with a table and a choice other than heuristic.
   std::optional<std::string> table_algorithm(const std::string& key, const std::function<ConvChoiceEntry()>& time);
+  // ConvChoice::gpu's algorithm for a conv call (gpu_family_algorithm where the call can take it).
+  ConvAlgo gpu_choice(const Conv2d& c, const Shape& in, bool residual_in_output) const;
 };
 
 }  // namespace vkunroll

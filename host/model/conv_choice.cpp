@@ -1,6 +1,9 @@
 #include "vkunroll/host/model/conv_choice.hpp"
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <cstring>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -12,6 +15,8 @@
 #include "vkunroll/kernels/common.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
+#include "vkunroll/kernels/shaders.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/profiler.hpp"
@@ -21,6 +26,42 @@ namespace vkunroll {
 namespace {
 
 constexpr const char* kFormatLine = "# vkunroll conv algorithm choices v1";
+constexpr const char* kIdentityLine = "# device\t";  // then vendor=0x.. device=0x.. driver= uuid= name=, tab-separated
+
+std::string hex(uint32_t v) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "0x%x", v);
+  return buf;
+}
+
+std::string identity_line(const ConvDeviceIdentity& d) {
+  return std::string(kIdentityLine) + "vendor=" + hex(d.vendor_id) + "\tdevice=" + hex(d.device_id) + "\tdriver=" + d.driver +
+         "\tuuid=" + d.uuid + "\tname=" + d.name;
+}
+
+// The identity line's fields; false (and `why`) where one is missing or not a number.
+bool parse_identity(const std::string& line, ConvDeviceIdentity& d, std::string& why) {
+  std::map<std::string, std::string> f;
+  std::istringstream ls(line.substr(std::strlen(kIdentityLine)));
+  for (std::string part; std::getline(ls, part, '\t');) {
+    const size_t eq = part.find('=');
+    if (eq != std::string::npos) f[part.substr(0, eq)] = part.substr(eq + 1);
+  }
+  for (const char* k : {"vendor", "device", "driver", "uuid", "name"})
+    if (!f.count(k)) {
+      why = std::string("the device line lacks ") + k + "=";
+      return false;
+    }
+  try {
+    d.vendor_id = static_cast<uint32_t>(std::stoul(f["vendor"], nullptr, 0));
+    d.device_id = static_cast<uint32_t>(std::stoul(f["device"], nullptr, 0));
+  } catch (const std::exception&) {
+    why = "the device line's vendor= or device= is not a number";
+    return false;
+  }
+  d.driver = f["driver"], d.uuid = f["uuid"], d.name = f["name"];
+  return true;
+}
 
 int64_t batch_bucket(int64_t n) {
   int64_t b = 1;
@@ -71,9 +112,9 @@ std::string conv_choice_disagreement(const std::vector<float>& reference, const 
 
 ConvChoice parse_conv_choice(const std::string& s, const std::string& what) {
   for (ConvChoice c : {ConvChoice::automatic, ConvChoice::heuristic, ConvChoice::cached, ConvChoice::measured,
-                       ConvChoice::retune})
+                       ConvChoice::retune, ConvChoice::gpu})
     if (s == conv_choice_name(c)) return c;
-  throw UsageError(what + " '" + s + "': expected auto, heuristic, cached, measured or retune");
+  throw UsageError(what + " '" + s + "': expected auto, heuristic, cached, measured, retune or gpu");
 }
 
 const char* conv_choice_name(ConvChoice c) {
@@ -83,6 +124,7 @@ const char* conv_choice_name(ConvChoice c) {
     case ConvChoice::cached: return "cached";
     case ConvChoice::measured: return "measured";
     case ConvChoice::retune: return "retune";
+    case ConvChoice::gpu: return "gpu";
   }
   return "unknown";
 }
@@ -115,6 +157,11 @@ ConvChoiceTable ConvChoiceTable::load(const std::string& path, std::vector<std::
       }
       continue;
     }
+    if (line.rfind(kIdentityLine, 0) == 0) {
+      std::string why;
+      if (!parse_identity(line, t.identity_, why)) warn(why);
+      continue;
+    }
     if (line.empty() || line[0] == '#') continue;
     std::vector<std::string> f;
     std::istringstream ls(line);
@@ -136,9 +183,18 @@ ConvChoiceTable ConvChoiceTable::load(const std::string& path, std::vector<std::
   return t;
 }
 
-void ConvChoiceTable::save(const std::string& path, const std::string& header) const {
+void ConvChoiceTable::merge_committed(const ConvChoiceTable& committed) {
+  for (const auto& [k, e] : committed.entries_)
+    if (!entries_.count(k)) {
+      entries_[k] = e;
+      entries_[k].committed = true;
+    }
+}
+
+void ConvChoiceTable::save(const std::string& path, const std::string& header, const ConvDeviceIdentity& identity) const {
   ConvChoiceTable merged = load(path, nullptr);
-  for (const auto& [k, e] : entries_) merged.entries_[k] = e;
+  for (const auto& [k, e] : entries_)
+    if (!e.committed) merged.entries_[k] = e;
   const std::filesystem::path p(path);
   std::error_code ec;
   if (p.has_parent_path()) std::filesystem::create_directories(p.parent_path(), ec);
@@ -146,8 +202,9 @@ void ConvChoiceTable::save(const std::string& path, const std::string& header) c
   {
     std::ofstream out(tmp, std::ios::trunc);
     if (!out) throw Error(tmp + ": cannot write the conv choice table");
-    out << kFormatLine << ": " << header << "\n"
-        << "# key\talgorithm\tms\ttimings of every candidate (ms)\theuristic's algorithm\n";
+    out << kFormatLine << ": " << header << "\n";
+    if (identity.known()) out << identity_line(identity) << "\n";
+    out << "# key\talgorithm\tms\ttimings of every candidate (ms)\theuristic's algorithm\n";
     for (const auto& [k, e] : merged.entries_)
       out << k << '\t' << e.algo << '\t' << format_ms(e.ms) << '\t' << e.timings << '\t' << e.heuristic << '\n';
     out.flush();
@@ -171,6 +228,67 @@ std::string conv_choice_path(const Context& ctx) {
 std::string conv_choice_header(const Context& ctx) {
   const DeviceInfo& i = ctx.info();
   return i.name + ", driver " + i.driver_version_string() + ", uuid " + i.uuid_string();
+}
+
+ConvDeviceIdentity conv_device_identity(const Context& ctx) {
+  const DeviceInfo& i = ctx.info();
+  return {i.name, i.driver_version_string(), i.uuid_string(), i.vendor_id, i.device_id};
+}
+
+std::optional<CommittedConvTable> find_committed_conv_table(const std::vector<std::string>& dirs, const ConvDeviceIdentity& device,
+                                                            std::vector<std::string>* warnings) {
+  std::optional<CommittedConvTable> best;
+  int best_rank = 0;
+  for (const std::string& dir : dirs) {
+    std::error_code ec;
+    if (!std::filesystem::is_directory(dir, ec)) continue;
+    std::vector<std::string> files;
+    for (const auto& f : std::filesystem::directory_iterator(dir, ec))
+      if (f.path().extension() == ".tsv") files.push_back(f.path().string());
+    std::sort(files.begin(), files.end());  // the same table wins on every machine
+    for (const std::string& file : files) {
+      ConvChoiceTable t = ConvChoiceTable::load(file, warnings);
+      const ConvDeviceIdentity& id = t.identity();
+      if (!id.known()) {
+        if (warnings) warnings->push_back(file + ": no '# device' line naming the device it was measured on (table ignored)");
+        continue;
+      }
+      const bool model = id.vendor_id == device.vendor_id && id.device_id == device.device_id;
+      const int rank = !model ? 0 : id.driver != device.driver ? 1 : id.uuid != device.uuid ? 2 : 3;
+      if (rank <= best_rank) continue;
+      best_rank = rank;
+      const std::string how = rank == 3   ? "device uuid and driver"
+                              : rank == 2 ? "device model and driver"
+                                          : "device model (" + id.name + "), driver " + id.driver + " measured, " +
+                                                device.driver + " here";
+      best = CommittedConvTable{file, how, std::move(t)};
+    }
+  }
+  return best;
+}
+
+DeviceConvTable load_device_conv_table(const Context& ctx, const std::vector<std::string>& committed_dirs,
+                                       std::vector<std::string>* warnings) {
+  DeviceConvTable d;
+  d.path = conv_choice_path(ctx);
+  d.table = std::make_shared<ConvChoiceTable>(d.path.empty() ? ConvChoiceTable{} : ConvChoiceTable::load(d.path, warnings));
+  if (auto c = find_committed_conv_table(committed_dirs, conv_device_identity(ctx), warnings)) {
+    d.table->merge_committed(c->table);
+    d.committed = c->path;
+    d.committed_how = c->how;
+  }
+  return d;
+}
+
+ConvAlgo gpu_family_algorithm(const Conv2d& c, const Shape& in) {
+  const Conv2dParams& p = c.params();
+  return gpu_conv_heuristic({p.kernel, p.stride, c.cout(), in.h, in.w, c.supports(ConvAlgo::winograd),
+                             c.supports(ConvAlgo::gemm), c.supports(ConvAlgo::direct), c.supports(ConvAlgo::coopmat)});
+}
+
+ConvTransposeAlgo gpu_family_algorithm(const ConvTranspose2d& c) {
+  // ConvTranspose2d::choose_algorithm's rule off a CPU: direct is for llvmpipe.
+  return c.supports(ConvTransposeAlgo::blocked) ? ConvTransposeAlgo::blocked : ConvTransposeAlgo::naive;
 }
 
 std::string conv_choice_key(const Conv2d& c, const Shape& in, bool residual) {
@@ -202,11 +320,47 @@ Tensor random_device_tensor(Context& ctx, const Shape& s, DType dt, uint32_t see
 
 using Recorder = std::function<void(CommandStream&)>;
 
+double ms_since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+}
+
+// The least device ms of `record` under `budget` (ConvTimingBudget); wall ms where the queue has no
+// timestamps.
+double budget_gpu_ms(Context& ctx, const ConvTimingBudget& budget, const Recorder& record) {
+  const auto w0 = std::chrono::steady_clock::now();
+  for (int w = 0; w < 64 && ms_since(w0) < budget.warm_ms; ++w) {
+    CommandStream warm(ctx);
+    record(warm);
+    warm.submit_and_wait();
+  }
+  const bool stamps = ctx.info().timestamps;
+  double best = 1e300;
+  const auto t0 = std::chrono::steady_clock::now();
+  for (int r = 0; r < std::max(1, budget.reps); ++r) {
+    Profiler prof;
+    CommandStream cs(ctx, stamps ? &prof : nullptr);
+    record(cs);
+    const auto s0 = std::chrono::steady_clock::now();
+    cs.submit_and_wait();
+    best = std::min(best, stamps ? prof.total_ms() : ms_since(s0));
+    if (budget.candidate_ms > 0 && ms_since(t0) >= budget.candidate_ms) break;
+  }
+  return best;
+}
+
 // Runs each named candidate once and checks its result in `out` against the first candidate's
 // (blocked: the plainest; conv_choice_disagreement); times those that agree and names the fastest,
-// listing the rejected ones after the timings.
+// listing the rejected ones after the timings. A census runs none.
+ConvChoiceEntry census_entry(const std::vector<std::string>& names, const std::string& heuristic, double flop) {
+  ConvChoiceEntry e{heuristic, 0, {}, heuristic};
+  for (const std::string& n : names) e.timings += (e.timings.empty() ? "" : " ") + n + "=untimed";
+  e.flop = flop;
+  return e;
+}
+
 ConvChoiceEntry time_candidates(Context& ctx, const std::vector<std::pair<std::string, Recorder>>& candidates,
-                                const Tensor& out, Precision precision, int reps, const std::string& who) {
+                                const Tensor& out, Precision precision, const ConvTimingBudget& budget, const std::string& who,
+                                const std::string& heuristic) {
   std::vector<float> reference;
   std::vector<std::pair<std::string, double>> t;
   std::string rejected;
@@ -223,16 +377,25 @@ ConvChoiceEntry time_candidates(Context& ctx, const std::vector<std::pair<std::s
       rejected += (rejected.empty() ? "" : " ") + name + "=" + why;
       continue;
     }
-    t.emplace_back(name, best_gpu_ms(ctx, reps, record));
+    t.emplace_back(name, budget_gpu_ms(ctx, budget, record));
   }
   ConvChoiceEntry e = fastest(t, who);
+  e.heuristic = heuristic;
+  e.timed = static_cast<int>(t.size());
   if (!rejected.empty()) e.timings += " " + rejected;
   return e;
 }
 
 }  // namespace
 
-ConvChoiceEntry time_conv_algorithms(Context& ctx, const Conv2d& conv, const Shape& in, bool residual, int reps) {
+ConvChoiceEntry time_conv_algorithms(Context& ctx, const Conv2d& conv, const Shape& in, bool residual,
+                                     const ConvTimingBudget& budget) {
+  const std::string heuristic = conv_algo_name(conv.choose_algorithm(in.h, in.w));
+  if (budget.census) {
+    std::vector<std::string> names;
+    for (ConvAlgo a : conv.candidates(in)) names.push_back(conv_algo_name(a));
+    return census_entry(names, heuristic, conv.flop(in));
+  }
   const DType dt = precision_dtype(conv.precision());
   Tensor x = random_device_tensor(ctx, in, dt, 1), y(ctx, conv.output_shape(in), dt);
   std::optional<Tensor> r;
@@ -242,21 +405,72 @@ ConvChoiceEntry time_conv_algorithms(Context& ctx, const Conv2d& conv, const Sha
     candidates.emplace_back(conv_algo_name(a), [&, a](CommandStream& cs) {
       conv.record(cs, Slice(x), Slice(y), r ? std::optional<Slice>(Slice(*r)) : std::nullopt, a);
     });
-  ConvChoiceEntry e = time_candidates(ctx, candidates, y, conv.precision(), reps, conv.name());
-  e.heuristic = conv_algo_name(conv.choose_algorithm(in.h, in.w));
+  ConvChoiceEntry e = time_candidates(ctx, candidates, y, conv.precision(), budget, conv.name(), heuristic);
+  e.flop = conv.flop(in);
   return e;
 }
 
-ConvChoiceEntry time_conv_algorithms(Context& ctx, const ConvTranspose2d& conv, const Shape& in, int reps) {
+ConvChoiceEntry time_conv_algorithms(Context& ctx, const ConvTranspose2d& conv, const Shape& in,
+                                     const ConvTimingBudget& budget) {
+  const std::string heuristic = conv_transpose_algo_name(conv.choose_algorithm(in.h, in.w));
+  if (budget.census) {
+    std::vector<std::string> names;
+    for (ConvTransposeAlgo a : conv.candidates()) names.push_back(conv_transpose_algo_name(a));
+    return census_entry(names, heuristic, conv.flop(in));
+  }
   const DType dt = precision_dtype(conv.precision());
   Tensor x = random_device_tensor(ctx, in, dt, 3), y(ctx, conv.output_shape(in), dt);
   std::vector<std::pair<std::string, Recorder>> candidates;
   for (ConvTransposeAlgo a : conv.candidates())
     candidates.emplace_back(conv_transpose_algo_name(a),
                             [&, a](CommandStream& cs) { conv.record(cs, Slice(x), Slice(y), a); });
-  ConvChoiceEntry e = time_candidates(ctx, candidates, y, conv.precision(), reps, "conv_transpose2d");
-  e.heuristic = conv_transpose_algo_name(conv.choose_algorithm(in.h, in.w));
+  ConvChoiceEntry e = time_candidates(ctx, candidates, y, conv.precision(), budget, "conv_transpose2d", heuristic);
+  e.flop = conv.flop(in);
   return e;
+}
+
+namespace {
+
+// fma_ceiling*.comp: 64 invocations a group, 8 vec4 chains each, `iters` rounds of FMAs.
+constexpr uint32_t kCeilingGroups = 256;
+
+struct CeilingRun {
+  Tensor sink;
+  const Pipeline* pipeline;
+  double flop;
+};
+
+CeilingRun ceiling_run(Context& ctx, bool half, double gflop) {
+  const uint32_t iters = std::max<uint32_t>(16, static_cast<uint32_t>(std::lround(gflop * 1e9 / (2.0 * 4 * 8 * 64 * kCeilingGroups))));
+  return {Tensor(ctx, {1, 1, 1, kCeilingGroups * 64 * 4}),
+          &kernel_pipeline(ctx, half ? "fma_ceiling_half" : "fma_ceiling", {iters}, 2 * sizeof(float)),
+          2.0 * 4 * 8 * iters * kCeilingGroups * 64.0};
+}
+
+void record_ceiling(CommandStream& cs, const CeilingRun& c) {
+  const struct {
+    float a, b;
+  } push{0.999f, 0.001f};
+  cs.dispatch(*c.pipeline, {out(c.sink)}, push, Groups{kCeilingGroups}, {"fma_ceiling", c.flop, 0});
+}
+
+}  // namespace
+
+double fma_ceiling_gflops(Context& ctx, bool half, int reps, double gflop) {
+  if (half && !ctx.info().shader_float16) return 0;
+  const CeilingRun c = ceiling_run(ctx, half, gflop);
+  const double ms = budget_gpu_ms(ctx, {reps, 0, 1, false}, [&](CommandStream& cs) { record_ceiling(cs, c); });
+  return c.flop / (ms * 1e6);
+}
+
+void warm_device(Context& ctx, double ms) {
+  const CeilingRun c = ceiling_run(ctx, false, 2.147483648);
+  const auto t0 = std::chrono::steady_clock::now();
+  do {
+    CommandStream cs(ctx);
+    for (int i = 0; i < 4; ++i) record_ceiling(cs, c);
+    cs.submit_and_wait();
+  } while (ms_since(t0) < ms);
 }
 
 }  // namespace vkunroll

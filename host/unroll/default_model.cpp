@@ -27,7 +27,27 @@ fs::path binary_dir() {
   return ec ? fs::path() : exe.parent_path();
 }
 
+// Where models are looked for, in order (after VKUNROLL_MODEL): installed beside the binary, in the
+// install prefix, the source tree.
+std::vector<std::pair<fs::path, std::string>> model_places() {
+  std::vector<std::pair<fs::path, std::string>> places;
+  if (const fs::path dir = binary_dir(); !dir.empty()) {
+    places.emplace_back(dir / ".." / "share" / "vkunroll" / "models", "installed");
+    places.emplace_back(dir / ".." / ".." / ".." / ".." / "share" / "vkunroll" / "models", "installed");
+  }
+  places.emplace_back(fs::path(VKUNROLL_INSTALL_DATADIR) / "vkunroll" / "models", "installed");
+  places.emplace_back(fs::path(VKUNROLL_SOURCE_DIR) / "models", "source tree");
+  return places;
+}
+
 }  // namespace
+
+std::vector<std::string> conv_table_dirs() {
+  if (const std::optional<std::string> d = env::text("VKUNROLL_CONV_TABLES")) return {*d};
+  std::vector<std::string> dirs;
+  for (const auto& [dir, source] : model_places()) dirs.push_back((dir / "conv_choices").lexically_normal().string());
+  return dirs;
+}
 
 DefaultModelSearch find_default_model() {
   DefaultModelSearch r;
@@ -37,14 +57,7 @@ DefaultModelSearch find_default_model() {
       throw UsageError("VKUNROLL_MODEL=" + *m + ": no such model file (unset it to use the shipped default)");
     return {*m, "VKUNROLL_MODEL", {"VKUNROLL_MODEL=" + *m}};
   }
-  std::vector<std::pair<fs::path, std::string>> places;
-  if (const fs::path dir = binary_dir(); !dir.empty()) {
-    places.emplace_back(dir / ".." / "share" / "vkunroll" / "models", "installed");
-    places.emplace_back(dir / ".." / ".." / ".." / ".." / "share" / "vkunroll" / "models", "installed");
-  }
-  places.emplace_back(fs::path(VKUNROLL_INSTALL_DATADIR) / "vkunroll" / "models", "installed");
-  places.emplace_back(fs::path(VKUNROLL_SOURCE_DIR) / "models", "source tree");
-  for (const auto& [dir, source] : places) {
+  for (const auto& [dir, source] : model_places()) {
     std::error_code ec;
     const fs::path file = fs::weakly_canonical(dir / kDefaultModelFile, ec);
     r.searched.push_back((ec ? dir / kDefaultModelFile : file).string());

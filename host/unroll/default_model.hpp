@@ -22,6 +22,11 @@ struct DefaultModelSearch {
 // in the configured install prefix; else the source tree's models/ (a build-tree binary).
 DefaultModelSearch find_default_model();
 
+// Folders of committed conv choice tables (host/model/conv_choice.hpp, find_committed_conv_table):
+// VKUNROLL_CONV_TABLES (one folder) when set; else conv_choices/ in each folder find_default_model
+// looks in (share/vkunroll/models/conv_choices installed, models/conv_choices in the source tree).
+std::vector<std::string> conv_table_dirs();
+
 // The model a run uses: `given` (--model) when not empty; none for --mode physics; else the
 // default. Without one, auto falls back to physics (said in one line on stderr) and s / m /
 // choose are a UsageError naming where it looked. `source` says which of these it was.

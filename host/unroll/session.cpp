@@ -8,6 +8,7 @@
 #include "vkunroll/host/model/backend_cpu.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/model.hpp"
+#include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/image_planes.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 
@@ -79,11 +80,14 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
     if (o.profile_ops) profiler_ = std::make_unique<Profiler>();
     auto vb = std::make_unique<VulkanBackend>(*ctx_, profiler_.get(), kPoolFlushBytes, o.precision);
     auto table = std::make_shared<ConvChoiceTable>();
-    if (o.conv_choice != ConvChoice::heuristic) {
-      conv_choice_path_ = conv_choice_path(*ctx_);
+    if (o.conv_choice != ConvChoice::heuristic && o.conv_choice != ConvChoice::gpu) {
       std::vector<std::string> warnings;
-      if (!conv_choice_path_.empty()) *table = ConvChoiceTable::load(conv_choice_path_, &warnings);
+      DeviceConvTable d = load_device_conv_table(*ctx_, conv_table_dirs(), &warnings);
       for (const auto& w : warnings) std::cerr << "vkunroll: warning: " << w << "\n";
+      table = std::move(d.table);
+      conv_choice_path_ = d.path;
+      conv_committed_table_ = d.committed;
+      conv_committed_how_ = d.committed_how;
     }
     vb->set_conv_choice(table, o.conv_choice);
     backend_ = std::move(vb);
@@ -111,7 +115,7 @@ void UnrollSession::save_conv_choices() {
   const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get());
   if (!vb || !vb->conv_choice_table() || !vb->conv_choice_table()->changed() || conv_choice_path_.empty()) return;
   try {
-    vb->conv_choice_table()->save(conv_choice_path_, conv_choice_header(*ctx_));
+    vb->conv_choice_table()->save(conv_choice_path_, conv_choice_header(*ctx_), conv_device_identity(*ctx_));
   } catch (const std::exception& e) {
     std::cerr << "vkunroll: warning: the measured conv algorithms were not saved: " << e.what() << "\n";
   }
@@ -122,9 +126,12 @@ nlohmann::json UnrollSession::conv_choice_report() const {
   if (!vb) return nullptr;
   return {{"choice", conv_choice_name(options_.conv_choice)},
           {"table", conv_choice_path_},
+          {"committed_table", conv_committed_table_},
+          {"committed_table_match", conv_committed_how_},
           {"table_entries", vb->conv_choice_table() ? vb->conv_choice_table()->entries().size() : 0},
           {"convs_from_table", vb->convs_from_table()},
-          {"shapes_timed", vb->convs_timed()}};
+          {"shapes_timed", vb->convs_timed()},
+          {"calls_by_algorithm", vb->conv_calls_by_algorithm()}};
 }
 
 const Weights& UnrollSession::weights() const {

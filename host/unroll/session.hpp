@@ -159,6 +159,7 @@ class UnrollSession {
   std::unique_ptr<Context> ctx_;
   std::unique_ptr<Profiler> profiler_;  // SessionOptions::profile_ops (declared before the backend that records into it)
   std::string conv_choice_path_;  // the table's file (empty: none)
+  std::string conv_committed_table_, conv_committed_how_;  // a committed table merged in (empty: none)
   std::unique_ptr<Backend> backend_;
   std::unique_ptr<Weights> weights_;
   std::unique_ptr<Model> model_;

@@ -70,7 +70,7 @@ std::vector<cv::Mat> unroll_frame(PySession& ps, const F32Array& rs1, const RowT
 void bind_session(py::module_& m) {
   py::class_<PySession, std::shared_ptr<PySession>>(m, "_Session")
       .def(py::init([](const std::string& model_path, const std::string& backend, const std::string& device,
-                       const std::string& precision, unsigned cpu_threads, bool profile) {
+                       const std::string& precision, unsigned cpu_threads, bool profile, const std::string& conv_choice) {
              SessionOptions o = guarded({{model_path}}, [&] {
                SessionOptions so;
                so.backend = parse_backend_kind(backend, "backend");
@@ -79,6 +79,7 @@ void bind_session(py::module_& m) {
                so.model_path = model_path;
                so.cpu_threads = cpu_threads;
                so.profile_ops = profile;
+               so.conv_choice = parse_conv_choice(conv_choice, "conv_choice");
                return so;
              });
              auto ps = std::make_shared<PySession>();
@@ -88,7 +89,7 @@ void bind_session(py::module_& m) {
              return ps;
            }),
            py::arg("model_path"), py::arg("backend"), py::arg("device"), py::arg("precision"), py::arg("cpu_threads"),
-           py::arg("profile") = false)
+           py::arg("profile") = false, py::arg("conv_choice") = "auto")
       .def_property_readonly("has_model", [](const PySession& s) { return s.session->has_model(); })
       .def_property_readonly("moa", [](const PySession& s) { return s.session->has_model() && s.session->model_config().moa; })
       .def_property_readonly("backend", [](const PySession& s) { return std::string(backend_kind_name(s.session->backend_kind())); })

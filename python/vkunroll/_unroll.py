@@ -24,21 +24,25 @@ class UnrollSession:
     and physics unroller (the library's UnrollSession). Reuse one across :func:`unroll` calls
     (``session=``) to pay the model's set-up once, or call :meth:`unroll_frame` directly.
 
-    ``UnrollSession(model=None, backend="vulkan", device=None, precision="fp32", threads=0, profile=False)``:
+    ``UnrollSession(model=None, backend="vulkan", device=None, precision="fp32", threads=0, profile=False,
+    conv_choice="auto")``:
     ``model`` a weights file or a :class:`Model` (its file is loaded again: the session owns its
     device); None: physics only. ``backend`` "vulkan" or "cpu"; ``device`` an index or name
     substring (None: VKUNROLL_DEVICE, then the best device); ``precision`` "fp32" or "fp16"
     (vulkan only: the network's weights and buffers in float16); ``threads``: CPU backend threads;
     ``profile``: every kernel's GPU time per GS frame in each :func:`unroll` result's ``stats``
-    (``gpu_ms_per_gs_frame_by_op``, as ``vkunroll unroll --profile``; Vulkan).
+    (``gpu_ms_per_gs_frame_by_op``, as ``vkunroll unroll --profile``; Vulkan); ``conv_choice``: the
+    conv algorithm per shape, as ``--conv-choice`` (auto, heuristic, cached, measured, retune, or gpu:
+    the GPU kernels' rule on any device, lavapipe included).
     """
 
-    def __init__(self, model=None, backend="vulkan", device=None, precision="fp32", threads=0, profile=False):
+    def __init__(self, model=None, backend="vulkan", device=None, precision="fp32", threads=0, profile=False,
+                 conv_choice="auto"):
         if isinstance(model, Model):
             model = model.path
         self.model_path = "" if model is None else os.fspath(model)
         self._s = _vk._Session(self.model_path, backend, "" if device is None else str(device), precision, int(threads),
-                               bool(profile))
+                               bool(profile), str(conv_choice))
 
     has_model = property(lambda self: self._s.has_model, doc="True when a model was loaded.")
     moa = property(lambda self: self._s.moa, doc="True when the model has MOA weights (SelfUnroll-M).")
@@ -124,7 +128,7 @@ def _times(times, times_us):
 
 def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=None, backend="vulkan", device=None,
            precision="fp32", channel_order="model", contrast=None, gamma=None, tile=0, halo=-1, sparse="exact",
-           sparse_threshold=0.05, gate_radius="auto", session=None, progress=None):
+           sparse_threshold=0.05, gate_radius="auto", conv_choice="auto", session=None, progress=None):
     """Unroll RS frames into sharp global-shutter (GS) frames at chosen instants.
 
     The same job as ``vkunroll unroll``, frame by frame through one :class:`UnrollSession`:
@@ -148,7 +152,7 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
         or physics when none is installed.
       frames: frame indices to unroll (default all).
       backend, device, precision: where the session runs ("vulkan" or "cpu"; precision "fp32" or
-        "fp16", vulkan only; see :class:`UnrollSession`).
+        "fp16", vulkan only; see :class:`UnrollSession`); conv_choice: as ``--conv-choice``.
       channel_order: "model" (the weights' metadata), "rgb" or "bgr": the model's input order.
       contrast, gamma: physics contrast threshold (default: estimated from consecutive frames'
         agreement) and the frames' decode gamma (default: the sequence's meta.json, else 1).
@@ -176,7 +180,7 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     """
     if session is None and model is None:  # the shipped default, else physics (said), as the CLI
         model = _vk._choose_model(mode, "")[0] or None
-    sess = session if session is not None else UnrollSession(model, backend, device, precision)
+    sess = session if session is not None else UnrollSession(model, backend, device, precision, conv_choice=conv_choice)
     kind, values = _times(times, times_us)
     args = dict(mode=mode, kind=kind, values=values, frames=list(frames or []), channel_order=channel_order,
                 contrast=contrast, gamma=gamma, tile=int(tile), halo=int(halo), sparse=sparse,
@@ -282,7 +286,7 @@ class _Stream:
 def stream(source, events="-", times=0.5, mode="auto", model=None, *, times_us=None, frames=None, contrast=None,
            gamma=None, idle_s=10.0, max_events=1 << 24, on_bad="error", session=None, backend="vulkan", device=None,
            precision="fp32", channel_order="model", tile=0, halo=-1, sparse="exact", sparse_threshold=0.05,
-           gate_radius="auto"):
+           gate_radius="auto", conv_choice="auto"):
     """Unrolls a live recording as ``vkunroll unroll --follow`` does (docs/follow.md), yielding
     each RS frame's GS frames as soon as they are computed.
 
@@ -295,7 +299,7 @@ def stream(source, events="-", times=0.5, mode="auto", model=None, *, times_us=N
     """
     if session is None and model is None:
         model = _vk._choose_model(mode, "")[0] or None
-    sess = session if session is not None else UnrollSession(model, backend, device, precision)
+    sess = session if session is not None else UnrollSession(model, backend, device, precision, conv_choice=conv_choice)
     seq = Sequence.open(source, check_frame_sizes=False, on_bad=on_bad,
                         events_file="/dev/stdin" if events == "-" else os.fspath(events))
     kind, values = _times(times, times_us)

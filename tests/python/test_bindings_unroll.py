@@ -191,3 +191,13 @@ def test_a_profiling_session_reports_each_kernel_per_run(seq):
         assert ops, "profiled run without kernels"
         assert sum(v["ms"] for v in ops.values()) == pytest.approx(r.stats["gpu_ms_per_gs_frame"], rel=1e-6)
         assert ops["event_tensor_rows_sparse"]["calls"] == pytest.approx(0.5)  # one build for the frame's 2 targets
+
+
+def test_conv_choice_gpu_equals_cli(seq, tmp_path):
+    """conv_choice="gpu" (the GPU kernels' rule on any device) reaches the session as the CLI's
+    --conv-choice gpu does: the same frames as the CLI with it; a bad value is named."""
+    r = vkunroll.unroll(seq, times=[0.5], mode="s", frames=[1], model=TINY, conv_choice="gpu")
+    assert_same_as_cli(r, cli_unroll(seq, tmp_path / "cli", "--times", "0.5", "--mode", "s", "--frames", "1",
+                                     "--model", TINY, "--conv-choice", "gpu"))
+    with pytest.raises(ValueError, match="conv_choice 'fastest'"):
+        vkunroll.UnrollSession(model=TINY, conv_choice="fastest")
