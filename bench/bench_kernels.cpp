@@ -21,6 +21,7 @@
 
 #include "bench_args.hpp"
 #include "bench_process.hpp"
+#include "vkunroll/host/model/conv_choice.hpp"
 #include "vkunroll/kernels/shaders.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
@@ -126,22 +127,6 @@ struct Timing {
 template <class F>
 Timing time_gpu(Context& ctx, int reps, Profiler* total, F record) {
   return {best_gpu_ms(ctx, reps, record, total), reps};
-}
-
-// The FMA ceiling: fma_ceiling.comp (fp32 vec4 chains) or, with `half`, fma_ceiling_half.comp
-// (f16vec4 chains, needs shaderFloat16; 0 without it).
-double ceiling_gflops(Context& ctx, Profiler* profile, bool half = false) {
-  if (half && !ctx.info().shader_float16) return 0;
-  const uint32_t iters = 2048, groups = 256;
-  Tensor sink(ctx, {1, 1, 1, groups * 64 * 4});
-  struct {
-    float a, b;
-  } push{0.999f, 0.001f};
-  const Pipeline& pl = kernel_pipeline(ctx, half ? "fma_ceiling_half" : "fma_ceiling", {iters}, sizeof push);
-  const double flop = 2.0 * 4 * 8 * iters * groups * 64.0;
-  auto record = [&](CommandStream& cs) { cs.dispatch(pl, {out(sink)}, push, Groups{groups}, {"fma_ceiling", flop, 0}); };
-  Timing t = time_gpu(ctx, 5, profile, record);
-  return flop / (t.ms * 1e6);
 }
 
 // The same-run peer: PyTorch conv2d / conv_transpose2d (tools/bench/bench_conv_peer.py) per shape key, best of
@@ -317,318 +302,371 @@ void print_peer_summary(const nlohmann::json& rows) {
                 pr.c_str(), s.over2, s.n, s.worst, s.worst_name.c_str(), s.torch > 0 ? s.ours / s.torch : 0.0, s.ours, s.torch);
 }
 
-}  // namespace
+constexpr const char* kHelp =
+    "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"
+    "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
+    "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
+    "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
+    "                              [--gemm-tv N] [--pointwise-cob N] [--pointwise-px N] [--pointwise-single]\n"
+    "                              [--winograd-tile 6|8] (5x5: 8 = F(4x4, 5x5), 6 = four F(4x4, 3x3); 3x3: 6 = F(4x4, 3x3), 8 = F(6x6, 3x3))\n"
+    "                              [--precision fp32|fp16|fp32,fp16] [--fp16-error-model] [--conv-choice heuristic|gpu]\n"
+    "                              [--no-torch] [--torch-threads N] [--torch-device cpu|cuda]\n"
+    "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
+    "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
+    "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
+    "Times are the best of --reps (default 2) rounds, each timing every algorithm of a shape once\n"
+    "(interleaved, after a round that builds the pipelines). The naive shader runs on the\n"
+    "full shape for the 3x3 RDB conv 144->48 and on a band of rows elsewhere (--naive-full:\n"
+    "everywhere; slow). --all-algos also times every other applicable algorithm, --algos A,B\n"
+    "only the named ones (e.g. direct,gemm). --shape (repeatable) times that conv2d shape\n"
+    "(pad K/2) instead of the model's. The --blocked-cob ... flags set the convs' ConvOptions\n"
+    "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice); --pointwise-single makes the\n"
+    "pointwise conv fetch single pixels instead of pairs. --precision fp32,fp16 times\n"
+    "each shape in both precisions (fp16 rows judged against the better of the fp32 and the fp16\n"
+    "FMA ceiling, the latter from fma_ceiling_half.comp where the device has shaderFloat16).\n"
+    "--conv-choice gpu: the chosen row is the GPU kernels' rule (gpu_conv_heuristic) on any device.\n"
+    "--fp16-error-model prints the CPU emulations behind the fp16 kernels' fp32 arithmetic\n"
+    "(fp16 accumulation, Winograd with fp16 operands) and exits.\n"
+    "The peer: PyTorch's conv2d on the CPU (--torch-threads, default 2) times every shape first,\n"
+    "in the same run; `x torch` is our time over its (fp16 rows against its fp32). B/FLOP is the\n"
+    "bytes the algorithm's dispatches read and write per direct-conv FLOP (--no-torch: no peer).\n"
+    "--torch-device cuda: the peer on the CUDA GPU (the race per shape), fp16 rows against its half.\n";
 
-int main(int argc, char** argv) {
+// Everything the command line sets.
+struct KernelBenchArgs {
   std::string json_path, only;
   std::vector<ConvShape> custom;  // --shape: these instead of the model's shapes
   ConvOptions conv_options;       // --blocked-cob ... (validated by the convs)
   std::vector<Precision> precisions{Precision::fp32};  // --precision fp32,fp16
-  const std::vector<std::pair<std::string, int*>> option_flags{
-      {"--blocked-cob", &conv_options.blocked_cob}, {"--blocked-px", &conv_options.blocked_px},
-      {"--direct-cob", &conv_options.direct_cob},   {"--direct-px", &conv_options.direct_px},
-      {"--direct-py", &conv_options.direct_py},     {"--gemm-cob", &conv_options.gemm_cob},
-      {"--gemm-tv", &conv_options.gemm_tv},         {"--pointwise-cob", &conv_options.pointwise_cob},
-      {"--pointwise-px", &conv_options.pointwise_px}, {"--winograd-tile", &conv_options.winograd_tile}};
   bool profile = false, quick = false, naive = true, all_algos = false, naive_full = false, pointwise_pairs = true;
+  bool gpu_choice = false;  // --conv-choice gpu
   std::string algo_filter;  // --algos: ",name,name," (empty: every algorithm)
-  auto wanted = [&](const char* name) { return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos; };
   int reps = 2, torch_threads = 2;
   bool torch = true;
   std::string torch_device = "cpu";
+  bool wanted(const char* name) const {
+    return algo_filter.empty() || algo_filter.find("," + std::string(name) + ",") != std::string::npos;
+  }
+};
+
+// --precision's list; empty where it is not fp32, fp16 or both.
+std::vector<Precision> parse_precisions(const std::string& value) {
+  std::vector<Precision> out;
+  std::string list = value + ",";
+  for (size_t pos; (pos = list.find(',')) != std::string::npos; list.erase(0, pos + 1)) {
+    const std::string name = list.substr(0, pos);
+    if (name != "fp32" && name != "fp16") return {};
+    out.push_back(parse_precision(name));
+  }
+  return out;
+}
+
+// --shape K,S,CIN,COUT,H,W; nullopt where it is not six positive integers.
+std::optional<ConvShape> parse_shape(const std::string& v) {
+  ConvShape c;
+  c.name = "custom";
+  long long k, st, ci, co, h, w;
+  char tail = 0;
+  if (std::sscanf(v.c_str(), "%lld,%lld,%lld,%lld,%lld,%lld%c", &k, &st, &ci, &co, &h, &w, &tail) != 6 || k < 1 || st < 1 ||
+      ci < 1 || co < 1 || h < 1 || w < 1)
+    return std::nullopt;
+  c.k = static_cast<int>(k), c.s = static_cast<int>(st), c.cin = ci, c.cout = co, c.h = h, c.w = w;
+  return c;
+}
+
+// -1: parsed, run the bench; else the exit status (help, the error model, or a bad argument, said).
+int parse_args(int argc, char** argv, KernelBenchArgs& a) {
+  const std::vector<std::pair<std::string, int*>> option_flags{
+      {"--blocked-cob", &a.conv_options.blocked_cob}, {"--blocked-px", &a.conv_options.blocked_px},
+      {"--direct-cob", &a.conv_options.direct_cob},   {"--direct-px", &a.conv_options.direct_px},
+      {"--direct-py", &a.conv_options.direct_py},     {"--gemm-cob", &a.conv_options.gemm_cob},
+      {"--gemm-tv", &a.conv_options.gemm_tv},         {"--pointwise-cob", &a.conv_options.pointwise_cob},
+      {"--pointwise-px", &a.conv_options.pointwise_px}, {"--winograd-tile", &a.conv_options.winograd_tile}};
+  const char* bench = "vkunroll-bench-kernels";
   for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
+    const std::string f = argv[i];
     auto value = [&]() -> std::string {
       if (i + 1 >= argc) {
-        std::cerr << "vkunroll-bench-kernels: " << a << " needs a value\n";
+        std::cerr << bench << ": " << f << " needs a value\n";
         std::exit(2);
       }
       return argv[++i];
     };
-    const auto flag = std::find_if(option_flags.begin(), option_flags.end(), [&](const auto& f) { return f.first == a; });
-    if (flag != option_flags.end()) *flag->second = static_cast<int>(bench_int_arg("vkunroll-bench-kernels", a, value(), 0, 4096));
-    else if (a == "--json") json_path = value();
-    else if (a == "--profile") profile = true;
-    else if (a == "--quick") quick = true;
-    else if (a == "--no-naive") naive = false;
-    else if (a == "--naive-full") naive_full = true;
-    else if (a == "--pointwise-single") pointwise_pairs = false;
-    else if (a == "--all-algos") all_algos = true;
-    else if (a == "--algos") {
-      all_algos = true;
-      algo_filter = "," + value() + ",";
-    }
-    else if (a == "--only") only = value();
-    else if (a == "--fp16-error-model") {
+    const auto flag = std::find_if(option_flags.begin(), option_flags.end(), [&](const auto& o) { return o.first == f; });
+    if (flag != option_flags.end()) *flag->second = static_cast<int>(bench_int_arg(bench, f, value(), 0, 4096));
+    else if (f == "--json") a.json_path = value();
+    else if (f == "--profile") a.profile = true;
+    else if (f == "--quick") a.quick = true;
+    else if (f == "--no-naive") a.naive = false;
+    else if (f == "--naive-full") a.naive_full = true;
+    else if (f == "--pointwise-single") a.pointwise_pairs = false;
+    else if (f == "--all-algos") a.all_algos = true;
+    else if (f == "--algos") a.all_algos = true, a.algo_filter = "," + value() + ",";
+    else if (f == "--only") a.only = value();
+    else if (f == "--fp16-error-model") {
       accumulation_error_table();
       winograd_rounding_table();
       return 0;
-    }
-    else if (a == "--precision") {
-      precisions.clear();
-      std::string list = value() + ",";
-      for (size_t pos; (pos = list.find(',')) != std::string::npos; list.erase(0, pos + 1)) {
-        const std::string name = list.substr(0, pos);
-        if (name != "fp32" && name != "fp16") break;
-        precisions.push_back(parse_precision(name));
-      }
-      if (precisions.empty() || !list.empty()) {
-        std::cerr << "vkunroll-bench-kernels: --precision: expected fp32, fp16 or fp32,fp16\n";
+    } else if (f == "--precision") {
+      a.precisions = parse_precisions(value());
+      if (a.precisions.empty()) {
+        std::cerr << bench << ": --precision: expected fp32, fp16 or fp32,fp16\n";
         return 2;
       }
-    }
-    else if (a == "--shape") {
+    } else if (f == "--conv-choice") {
       const std::string v = value();
-      ConvShape c;
-      c.name = "custom";
-      long long k, st, ci, co, h, w;
-      char tail = 0;
-      if (std::sscanf(v.c_str(), "%lld,%lld,%lld,%lld,%lld,%lld%c", &k, &st, &ci, &co, &h, &w, &tail) != 6 || k < 1 ||
-          st < 1 || ci < 1 || co < 1 || h < 1 || w < 1) {
-        std::cerr << "vkunroll-bench-kernels: --shape '" << v << "': expected K,STRIDE,CIN,COUT,H,W (positive integers)\n";
+      if (v != "heuristic" && v != "gpu") {
+        std::cerr << bench << ": --conv-choice '" << v << "': expected heuristic or gpu\n";
         return 2;
       }
-      c.k = static_cast<int>(k), c.s = static_cast<int>(st), c.cin = ci, c.cout = co, c.h = h, c.w = w;
-      custom.push_back(c);
-    }
-    else if (a == "--reps") reps = static_cast<int>(bench_int_arg("vkunroll-bench-kernels", a, value(), 1, 1000));
-    else if (a == "--no-torch") torch = false;
-    else if (a == "--torch-device") {
-      torch_device = value();
-      if (torch_device != "cpu" && torch_device != "cuda") {
-        std::cerr << "vkunroll-bench-kernels: --torch-device '" << torch_device << "': expected cpu or cuda\n";
+      a.gpu_choice = v == "gpu";
+    } else if (f == "--shape") {
+      const std::string v = value();
+      const std::optional<ConvShape> c = parse_shape(v);
+      if (!c) {
+        std::cerr << bench << ": --shape '" << v << "': expected K,STRIDE,CIN,COUT,H,W (positive integers)\n";
         return 2;
       }
-    }
-    else if (a == "--torch-threads") {
-      torch_threads = static_cast<int>(bench_int_arg("vkunroll-bench-kernels", a, value(), 1, 1024));
-    }
-    else if (a == "-h" || a == "--help") {
-      std::cout << "usage: vkunroll-bench-kernels [--quick] [--json FILE] [--profile] [--reps N] [--no-naive]\n"
-                   "                              [--naive-full] [--all-algos] [--algos A,B] [--only NAME_SUBSTRING]\n"
-                   "                              [--shape K,S,CIN,COUT,H,W]... [--blocked-cob N] [--blocked-px N]\n"
-                   "                              [--direct-cob N] [--direct-px N] [--direct-py N] [--gemm-cob N]\n"
-                   "                              [--gemm-tv N] [--pointwise-cob N] [--pointwise-px N] [--pointwise-single]\n"
-                   "                              [--winograd-tile 6|8] (5x5: 8 = F(4x4, 5x5), 6 = four F(4x4, 3x3); 3x3: 6 = F(4x4, 3x3), 8 = F(6x6, 3x3))\n"
-                   "                              [--precision fp32|fp16|fp32,fp16] [--fp16-error-model]\n"
-                   "                              [--no-torch] [--torch-threads N] [--torch-device cpu|cuda]\n"
-                   "Times every conv / transposed-conv shape of the published SelfUnroll model at 346x260\n"
-                   "(the algorithm `automatic` picks, and the naive shader for comparison) against an FMA\n"
-                   "ceiling kernel measured in the same run. GFLOP/s counts the direct convolution's work.\n"
-                   "Times are the best of --reps (default 2) rounds, each timing every algorithm of a shape once\n"
-                   "(interleaved, after a round that builds the pipelines). The naive shader runs on the\n"
-                   "full shape for the 3x3 RDB conv 144->48 and on a band of rows elsewhere (--naive-full:\n"
-                   "everywhere; slow). --all-algos also times every other applicable algorithm, --algos A,B\n"
-                   "only the named ones (e.g. direct,gemm). --shape (repeatable) times that conv2d shape\n"
-                   "(pad K/2) instead of the model's. The --blocked-cob ... flags set the convs' ConvOptions\n"
-                   "(docs/kernels.md, \"Conv options\"; 0 = the kernel's choice); --pointwise-single makes the\n"
-                   "pointwise conv fetch single pixels instead of pairs. --precision fp32,fp16 times\n"
-                   "each shape in both precisions (fp16 rows judged against the better of the fp32 and the fp16\n"
-                   "FMA ceiling, the latter from fma_ceiling_half.comp where the device has shaderFloat16).\n"
-                   "--fp16-error-model prints the CPU emulations behind the fp16 kernels' fp32 arithmetic\n"
-                   "(fp16 accumulation, Winograd with fp16 operands) and exits.\n"
-                   "The peer: PyTorch's conv2d on the CPU (--torch-threads, default 2) times every shape first,\n"
-                   "in the same run; `x torch` is our time over its (fp16 rows against its fp32). B/FLOP is the\n"
-                   "bytes the algorithm's dispatches read and write per direct-conv FLOP (--no-torch: no peer).\n"
-                   "--torch-device cuda: the peer on the CUDA GPU (the race per shape), fp16 rows against its half.\n";
+      a.custom.push_back(*c);
+    } else if (f == "--reps") a.reps = static_cast<int>(bench_int_arg(bench, f, value(), 1, 1000));
+    else if (f == "--no-torch") a.torch = false;
+    else if (f == "--torch-device") {
+      a.torch_device = value();
+      if (a.torch_device != "cpu" && a.torch_device != "cuda") {
+        std::cerr << bench << ": --torch-device '" << a.torch_device << "': expected cpu or cuda\n";
+        return 2;
+      }
+    } else if (f == "--torch-threads") a.torch_threads = static_cast<int>(bench_int_arg(bench, f, value(), 1, 1024));
+    else if (f == "-h" || f == "--help") {
+      std::cout << kHelp;
       return 0;
     } else {
-      std::cerr << "vkunroll-bench-kernels: unknown argument '" << a << "' (see --help)\n";
+      std::cerr << bench << ": unknown argument '" << f << "' (see --help)\n";
       return 2;
     }
   }
+  return -1;
+}
+
+// One shape's conv (or transposed conv) in one precision, with the algorithms to time: the chosen one
+// first, then (--all-algos, --algos) every other that applies.
+struct ConvUnderTest {
+  bool transposed = false;
+  std::optional<Conv2d> conv;
+  std::optional<ConvTranspose2d> deconv;
+  Shape os;
+  double flop = 0;
+  std::vector<std::string> algos;
+
+  void record(CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) const {
+    if (transposed) {
+      for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+        if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
+    } else {
+      for (ConvAlgo a : kConvAlgos)
+        if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
+    }
+  }
+  Shape output_shape(const Shape& in) const { return transposed ? deconv->output_shape(in) : conv->output_shape(in); }
+  double flop_of(const Shape& in) const { return transposed ? deconv->flop(in) : conv->flop(in); }
+};
+
+void make_conv(Context& ctx, const KernelBenchArgs& a, const ConvShape& c, Precision prec, const Shape& in, std::mt19937& rng,
+               ConvUnderTest& u) {
+  ConvOptions options = a.conv_options;
+  options.precision = prec;
+  const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
+  u.transposed = c.transposed;
+  if (c.transposed) {
+    u.deconv.emplace(ctx, random_host({c.cin, c.cout, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
+                     ConvTranspose2dParams{c.k, c.s, 1, leaky_relu(0.1f)}, c.name, options);
+    const ConvTransposeAlgo chosen = a.gpu_choice ? gpu_family_algorithm(*u.deconv) : u.deconv->choose_algorithm(c.h, c.w);
+    u.algos.push_back(conv_transpose_algo_name(chosen));
+    if (a.all_algos)
+      for (ConvTransposeAlgo t : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+        if (t != chosen && u.deconv->supports(t) && a.wanted(conv_transpose_algo_name(t))) u.algos.push_back(conv_transpose_algo_name(t));
+  } else {
+    u.conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
+                   Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name, nullptr, options);
+    u.conv->set_pointwise_pairs(a.pointwise_pairs);
+    const ConvAlgo chosen = a.gpu_choice ? gpu_family_algorithm(*u.conv, in) : u.conv->choose_algorithm(c.h, c.w);
+    u.algos.push_back(conv_algo_name(chosen));
+    if (a.all_algos)
+      for (ConvAlgo t : kConvAlgos)
+        if (t != chosen && u.conv->supports(t) && a.wanted(conv_algo_name(t))) u.algos.push_back(conv_algo_name(t));
+  }
+  u.os = u.output_shape(in);
+  u.flop = u.flop_of(in);
+}
+
+// The naive shader is 10-50x slower: it runs on the full shape for the target shape (the 3x3
+// RDB conv 144->48) and on a band of input rows (same width and channels, so the same per-pixel work)
+// elsewhere; its GFLOP/s is that of what it ran.
+struct NaiveTiming {
+  Timing t;
+  double flop = 0;
+  int64_t rows = 0;
+};
+std::optional<NaiveTiming> time_naive(Context& ctx, const KernelBenchArgs& a, const ConvShape& c, const ConvUnderTest& u,
+                                      DType dt, std::mt19937& rng, Profiler* prof) {
+  if (!a.naive || u.algos.front() == "naive") return std::nullopt;
+  const bool full = c.name == "RDBs.d.convs.1" || a.naive_full;
+  NaiveTiming n;
+  n.rows = full ? c.h : std::min<int64_t>(c.h, c.transposed ? 8 : 16 * c.s);
+  Tensor xb = to_device(ctx, random_host({1, c.cin, n.rows, c.w}, rng, 1.f), dt);
+  Tensor yb(ctx, u.output_shape(xb.shape()), dt);
+  n.flop = u.flop_of(xb.shape());
+  n.t = time_gpu(ctx, 1, prof, [&](CommandStream& cs) { u.record(cs, "naive", xb, yb); });
+  return n;
+}
+
+// Interleaved rounds (every algorithm once per round, the best per algorithm kept) after a round that
+// builds the pipelines: timed one after another, whichever ran first read slower. Per algorithm its
+// best time and the bytes its dispatches moved per run.
+std::vector<std::pair<Timing, double>> time_rounds(Context& ctx, int reps, const ConvUnderTest& u, const Tensor& x,
+                                                   const Tensor& y, Profiler* prof) {
+  std::vector<std::pair<Timing, double>> best(u.algos.size());
+  for (int round = -1; round < reps; ++round)
+    for (size_t ai = 0; ai < u.algos.size(); ++ai) {
+      Profiler moved;
+      const Timing t = time_gpu(ctx, 1, &moved, [&](CommandStream& cs) { u.record(cs, u.algos[ai], x, y); });
+      double bytes = 0;
+      for (const auto& [op, st] : moved.ops()) {
+        bytes += st.bytes;
+        if (prof && round >= 0) prof->record(op, st.total_ms, st.flop, st.bytes);
+      }
+      if (round < 0) continue;
+      Timing& b = best[ai].first;
+      best[ai].second = bytes;
+      if (b.reps == 0 || t.ms < b.ms) b.ms = t.ms;
+      b.reps++;
+    }
+  return best;
+}
+
+// One row: printed, and its JSON record.
+nlohmann::json report_row(const ConvShape& c, Precision prec, const std::string& algo, bool chosen, const Timing& t,
+                          double moved_bytes, double flop, double ceiling, double torch_ms, const std::optional<NaiveTiming>& naive) {
+  const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
+  const double nms = naive ? naive->t.ms : 0, ngf = naive ? naive->flop / (nms * 1e6) : 0;
+  const double bytes_per_flop = moved_bytes / flop;
+  std::printf("%-34s %-26s %-4s %-9s %9.2f %8.2f %5.1f%% %6.3f %9.2f %6.2fx %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(),
+              c.shape_str().c_str(), precision_name(prec), algo.c_str(), t.ms, gf, 100 * frac, bytes_per_flop, torch_ms,
+              torch_ms > 0 ? t.ms / torch_ms : 0.0, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
+              naive && naive->rows < c.h ? (" (naive: " + std::to_string(naive->rows) + " rows)").c_str() : "",
+              chosen ? "" : "  (forced)");
+  std::fflush(stdout);
+  nlohmann::json row{{"op", c.transposed ? "conv_transpose2d" : "conv2d"}, {"name", c.name}, {"shape", c.shape_str()},
+                     {"kernel", c.k}, {"stride", c.s}, {"cin", c.cin}, {"cout", c.cout}, {"h", c.h}, {"w", c.w},
+                     {"uses", c.uses}, {"algo", algo}, {"precision", precision_name(prec)}, {"chosen", chosen},
+                     {"ms", t.ms}, {"gflop", flop * 1e-9}, {"gflops", gf}, {"ceiling_gflops", ceiling},
+                     {"fraction_of_ceiling", frac}, {"bytes_moved", moved_bytes}, {"bytes_per_flop", bytes_per_flop}};
+  if (torch_ms > 0) {
+    row["torch_ms"] = torch_ms;
+    row["ratio_to_torch"] = t.ms / torch_ms;
+  }
+  if (naive) {
+    row["naive_ms"] = nms;
+    row["naive_rows"] = naive->rows;
+    row["naive_gflops"] = ngf;
+    row["speedup_vs_naive"] = gf / ngf;
+  }
+  return row;
+}
+
+// Every row of one shape in one precision.
+void bench_shape(Context& ctx, const KernelBenchArgs& a, const ConvShape& c, Precision prec, double ceiling,
+                 const std::map<std::string, double>& peer, Profiler* prof, std::mt19937& rng, nlohmann::json& rows) {
+  const DType dt = precision_dtype(prec);
+  const HostTensor x = random_host({1, c.cin, c.h, c.w}, rng, 1.f);
+  Tensor xd = to_device(ctx, x, dt);
+  ConvUnderTest u;
+  make_conv(ctx, a, c, prec, xd.shape(), rng, u);
+  Tensor yd(ctx, u.os, dt);
+  auto peer_it = prec == Precision::fp16 ? peer.find("fp16:" + c.key()) : peer.end();
+  if (peer_it == peer.end()) peer_it = peer.find(c.key());
+  const double torch_ms = peer_it == peer.end() ? 0.0 : peer_it->second;
+  const std::optional<NaiveTiming> naive = time_naive(ctx, a, c, u, dt, rng, prof);
+  const auto best = time_rounds(ctx, a.reps, u, xd, yd, prof);
+  for (size_t ai = 0; ai < u.algos.size(); ++ai)
+    rows.push_back(report_row(c, prec, u.algos[ai], ai == 0, best[ai].first, best[ai].second, u.flop, ceiling, torch_ms, naive));
+}
+
+// The machine is shared: the ceiling is measured again at the end and every shape judged against the
+// better of the two (the conservative fraction); then the target shape, the peer summary and the
+// lowest fractions.
+void finish_report(Context& ctx, nlohmann::json& rows, double ceiling32, double ceiling16, bool any16) {
+  const double ceiling_end = fma_ceiling_gflops(ctx);
+  const double ceil_best = std::max(ceiling32, ceiling_end);
+  std::printf("FMA ceiling again at the end: %.2f GFLOP/s; fractions below use %.2f\n", ceiling_end, ceil_best);
+  const double ceil16_best = any16 ? std::max({ceil_best, ceiling16, fma_ceiling_gflops(ctx, true)}) : 0;
+  if (any16) std::printf("fp16 rows use the better of both ceilings in both measurements: %.2f\n", ceil16_best);
+  std::map<std::string, std::pair<double, std::string>> worst_by_prec;  // lowest fraction per precision
+  for (auto& row : rows) {
+    const std::string pr = row["precision"].get<std::string>();
+    const double cb = pr == "fp16" ? ceil16_best : ceil_best;
+    row["ceiling_gflops"] = cb;
+    row["fraction_of_ceiling"] = row["gflops"].get<double>() / cb;
+    auto& w = worst_by_prec.try_emplace(pr, 1e9, "").first->second;
+    if (row["chosen"].get<bool>() && row["fraction_of_ceiling"].get<double>() < w.first)
+      w = {row["fraction_of_ceiling"].get<double>(), row["name"].get<std::string>() + " [" + row["shape"].get<std::string>() + "]"};
+    if (row["chosen"].get<bool>() && row["name"] == "RDBs.d.convs.1" && row.contains("speedup_vs_naive"))
+      std::printf("target 3x3 RDB conv 144->48 @130x173 (%s): %s %.2f GFLOP/s = %.1f%% of the ceiling, %.1fx the naive shader\n",
+                  pr.c_str(), row["algo"].get<std::string>().c_str(), row["gflops"].get<double>(),
+                  100 * row["fraction_of_ceiling"].get<double>(), row["speedup_vs_naive"].get<double>());
+  }
+  print_peer_summary(rows);
+  for (const auto& [pr, w] : worst_by_prec)
+    if (w.first < 1e9)
+      std::printf("lowest fraction of the ceiling (chosen algorithms, %s): %.1f%% (%s)\n", pr.c_str(), 100 * w.first,
+                  w.second.c_str());
+}
+
+int run_bench(const KernelBenchArgs& a) {
+  ContextOptions opt;
+  Context ctx(opt);
+  Profiler total;
+  Profiler* prof = a.profile ? &total : nullptr;
+  const double ceiling32 = fma_ceiling_gflops(ctx);
+  const bool any16 = std::find(a.precisions.begin(), a.precisions.end(), Precision::fp16) != a.precisions.end();
+  const double ceiling16 = any16 ? fma_ceiling_gflops(ctx, true) : 0;
+  std::printf("device: %s\nFMA ceiling: %.2f GFLOP/s (fma_ceiling, 8 vec4 chains per invocation)\n", ctx.info().name.c_str(),
+              ceiling32);
+  if (any16)
+    std::printf("fp16 FMA ceiling: %.2f GFLOP/s (fma_ceiling_half, 8 f16vec4 chains; 0: no shaderFloat16)\n", ceiling16);
+  if (a.gpu_choice) std::printf("conv choice: the GPU kernels' rule (gpu_conv_heuristic) on this device\n");
+  std::vector<ConvShape> shapes;
+  for (const ConvShape& c : a.custom.empty() ? model_shapes() : a.custom)
+    if ((!a.quick || c.quick) && (a.only.empty() || c.name.find(a.only) != std::string::npos)) shapes.push_back(c);
+  const std::map<std::string, double> peer =
+      a.torch ? torch_peer_ms(shapes, a.torch_threads, a.reps, a.torch_device) : std::map<std::string, double>{};
+  std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %6s %9s %7s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "prec",
+              "algo", "ms", "GFLOP/s", "%ceil", "B/FLOP", "torch ms", "x torch", "naive ms", "naive GF", "speedup");
+  nlohmann::json rows = nlohmann::json::array();
+  std::mt19937 rng(42);
+  for (const ConvShape& c : shapes)
+    for (const Precision prec : a.precisions)  // fp16 kernels compute in fp32 from fp16 storage: the better of both ceilings
+      bench_shape(ctx, a, c, prec, prec == Precision::fp16 ? std::max(ceiling32, ceiling16) : ceiling32, peer, prof, rng, rows);
+  finish_report(ctx, rows, ceiling32, ceiling16, any16);
+  if (!a.json_path.empty()) {
+    std::ofstream f(a.json_path);
+    if (!f) throw Error("cannot write --json file '" + a.json_path + "'");
+    f << rows.dump(2) << "\n";
+    std::printf("wrote %s (%zu rows)\n", a.json_path.c_str(), rows.size());
+  }
+  if (a.profile) total.print(std::cout);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  KernelBenchArgs a;
+  if (const int status = parse_args(argc, argv, a); status >= 0) return status;
   try {
-    ContextOptions opt;
-    Context ctx(opt);
-    Profiler total;
-    Profiler* prof = profile ? &total : nullptr;
-    const double ceiling32 = ceiling_gflops(ctx, prof);
-    const bool any16 = std::find(precisions.begin(), precisions.end(), Precision::fp16) != precisions.end();
-    const double ceiling16 = any16 ? ceiling_gflops(ctx, prof, true) : 0;
-    std::printf("device: %s\nFMA ceiling: %.2f GFLOP/s (fma_ceiling, 8 vec4 chains per invocation)\n",
-                ctx.info().name.c_str(), ceiling32);
-    if (any16)
-      std::printf("fp16 FMA ceiling: %.2f GFLOP/s (fma_ceiling_half, 8 f16vec4 chains; 0: no shaderFloat16)\n", ceiling16);
-    std::vector<ConvShape> shapes;
-    for (const ConvShape& c : custom.empty() ? model_shapes() : custom)
-      if ((!quick || c.quick) && (only.empty() || c.name.find(only) != std::string::npos)) shapes.push_back(c);
-    const std::map<std::string, double> peer = torch ? torch_peer_ms(shapes, torch_threads, reps, torch_device) : std::map<std::string, double>{};
-    std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %6s %9s %7s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "prec",
-                "algo", "ms", "GFLOP/s", "%ceil", "B/FLOP", "torch ms", "x torch", "naive ms", "naive GF", "speedup");
-    nlohmann::json rows = nlohmann::json::array();
-    std::mt19937 rng(42);
-    for (const ConvShape& c : shapes) {
-      for (const Precision prec : precisions) {
-        ConvOptions options = conv_options;
-        options.precision = prec;
-        const DType dt = precision_dtype(prec);
-        // fp16 kernels compute in fp32 from fp16 storage: judged against the better of both ceilings.
-        const double ceiling = prec == Precision::fp16 ? std::max(ceiling32, ceiling16) : ceiling32;
-        const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
-        HostTensor x = random_host({1, c.cin, c.h, c.w}, rng, 1.f);
-        Tensor xd = to_device(ctx, x, dt);
-        std::vector<std::string> algos;
-        std::optional<Conv2d> conv;
-        std::optional<ConvTranspose2d> deconv;
-        Shape os;
-        double flop = 0;
-        if (c.transposed) {
-          deconv.emplace(ctx, random_host({c.cin, c.cout, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
-                         ConvTranspose2dParams{c.k, c.s, 1, leaky_relu(0.1f)}, c.name, options);
-          os = deconv->output_shape(xd.shape());
-          flop = deconv->flop(xd.shape());
-          const ConvTransposeAlgo chosen = deconv->choose_algorithm(c.h, c.w);
-          algos.push_back(conv_transpose_algo_name(chosen));
-          if (all_algos)
-            for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
-              if (a != chosen && deconv->supports(a) && wanted(conv_transpose_algo_name(a)))
-                algos.push_back(conv_transpose_algo_name(a));
-        } else {
-          conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),
-                       Conv2dParams{c.k, c.s, c.k / 2, leaky_relu(0.1f)}, c.name, nullptr, options);
-          conv->set_pointwise_pairs(pointwise_pairs);
-          os = conv->output_shape(xd.shape());
-          flop = conv->flop(xd.shape());
-          const ConvAlgo chosen = conv->choose_algorithm(c.h, c.w);
-          algos.push_back(conv_algo_name(chosen));
-          if (all_algos)
-            for (ConvAlgo a : kConvAlgos)
-              if (a != chosen && conv->supports(a) && wanted(conv_algo_name(a))) algos.push_back(conv_algo_name(a));
-        }
-        Tensor yd(ctx, os, dt);
-        auto record_algo = [&](CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) {
-          if (c.transposed) {
-            for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
-              if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
-          } else {
-            for (ConvAlgo a : kConvAlgos)
-              if (algo == conv_algo_name(a)) conv->record(cs, Slice(in), Slice(out), std::nullopt, a);
-          }
-        };
-        double moved_bytes = 0;  // of the last run(): what its dispatches read and write, per run
-        auto run = [&](const std::string& algo, int n, bool profiled = true) {
-          Profiler moved;
-          const Timing t = time_gpu(ctx, n, &moved, [&](CommandStream& cs) { record_algo(cs, algo, xd, yd); });
-          moved_bytes = 0;
-          for (const auto& [op, st] : moved.ops()) {
-            moved_bytes += st.bytes / n;
-            if (prof && profiled) prof->record(op, st.total_ms, st.flop, st.bytes);
-          }
-          return t;
-        };
-        auto peer_it = prec == Precision::fp16 ? peer.find("fp16:" + c.key()) : peer.end();
-        if (peer_it == peer.end()) peer_it = peer.find(c.key());
-        const double torch_ms = peer_it == peer.end() ? 0.0 : peer_it->second;
-        // The naive shader is 10-50x slower: it runs on the full shape for the target shape
-        // (the 3x3 RDB conv 144->48) and on a band of input rows (same width and channels, so the
-        // same per-pixel work) elsewhere; its GFLOP/s is that of what it ran.
-        std::optional<Timing> naive_t;
-        double naive_flop = 0;
-        int64_t naive_rows = c.h;
-        if (naive && algos.front() != "naive") {
-          const bool full = c.name == "RDBs.d.convs.1" || naive_full;
-          naive_rows = full ? c.h : std::min<int64_t>(c.h, c.transposed ? 8 : 16 * c.s);
-          Tensor xb = to_device(ctx, random_host({1, c.cin, naive_rows, c.w}, rng, 1.f), dt);
-          const Shape ob = c.transposed ? deconv->output_shape(xb.shape()) : conv->output_shape(xb.shape());
-          Tensor yb(ctx, ob, dt);
-          naive_flop = c.transposed ? deconv->flop(xb.shape()) : conv->flop(xb.shape());
-          naive_t = time_gpu(ctx, 1, prof, [&](CommandStream& cs) { record_algo(cs, "naive", xb, yb); });
-        }
-        // Interleaved rounds (every algorithm once per round, the best per algorithm kept) after a
-        // round that builds the pipelines: timed one after another, whichever ran first read slower.
-        std::vector<Timing> best(algos.size());
-        std::vector<double> moved(algos.size(), 0.0);
-        for (int round = -1; round < reps; ++round)
-          for (size_t ai = 0; ai < algos.size(); ++ai) {
-            const Timing t = run(algos[ai], 1, round >= 0);
-            if (round < 0) continue;
-            moved[ai] = moved_bytes;
-            if (best[ai].reps == 0 || t.ms < best[ai].ms) best[ai].ms = t.ms;
-            best[ai].reps++;
-          }
-        for (size_t ai = 0; ai < algos.size(); ++ai) {
-          const Timing t = best[ai];
-          moved_bytes = moved[ai];
-          const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
-          const double nms = naive_t ? naive_t->ms : 0;
-          const double ngf = naive_t ? naive_flop / (nms * 1e6) : 0;
-          const double bytes_per_flop = moved_bytes / flop;
-          std::printf("%-34s %-26s %-4s %-9s %9.2f %8.2f %5.1f%% %6.3f %9.2f %6.2fx %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(),
-                      c.shape_str().c_str(), precision_name(prec), algos[ai].c_str(), t.ms, gf, 100 * frac, bytes_per_flop,
-                      torch_ms, torch_ms > 0 ? t.ms / torch_ms : 0.0, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
-                      naive_t && naive_rows < c.h ? (" (naive: " + std::to_string(naive_rows) + " rows)").c_str() : "",
-                      ai == 0 ? "" : "  (forced)");
-          std::fflush(stdout);
-          nlohmann::json row{{"op", c.transposed ? "conv_transpose2d" : "conv2d"},
-                             {"name", c.name},
-                             {"shape", c.shape_str()},
-                             {"kernel", c.k},
-                             {"stride", c.s},
-                             {"cin", c.cin},
-                             {"cout", c.cout},
-                             {"h", c.h},
-                             {"w", c.w},
-                             {"uses", c.uses},
-                             {"algo", algos[ai]},
-                             {"precision", precision_name(prec)},
-                             {"chosen", ai == 0},
-                             {"ms", t.ms},
-                             {"gflop", flop * 1e-9},
-                             {"gflops", gf},
-                             {"ceiling_gflops", ceiling},
-                             {"fraction_of_ceiling", frac},
-                             {"bytes_moved", moved_bytes},
-                             {"bytes_per_flop", bytes_per_flop}};
-          if (torch_ms > 0) {
-            row["torch_ms"] = torch_ms;
-            row["ratio_to_torch"] = t.ms / torch_ms;
-          }
-          if (naive_t) {
-            row["naive_ms"] = nms;
-            row["naive_rows"] = naive_rows;
-            row["naive_gflops"] = ngf;
-            row["speedup_vs_naive"] = gf / ngf;
-          }
-          rows.push_back(row);
-        }
-      }  // precisions
-    }
-    // The machine is shared: measure the ceiling again and judge every shape against the better
-    // of the two (the conservative fraction).
-    const double ceiling_end = ceiling_gflops(ctx, prof);
-    const double ceil_best = std::max(ceiling32, ceiling_end);
-    std::printf("FMA ceiling again at the end: %.2f GFLOP/s; fractions below use %.2f\n", ceiling_end, ceil_best);
-    const double ceil16_best = any16 ? std::max({ceil_best, ceiling16, ceiling_gflops(ctx, prof, true)}) : 0;
-    if (any16) std::printf("fp16 rows use the better of both ceilings in both measurements: %.2f\n", ceil16_best);
-    std::map<std::string, std::pair<double, std::string>> worst_by_prec;  // lowest fraction per precision
-    for (auto& row : rows) {
-      const std::string pr = row["precision"].get<std::string>();
-      const double cb = pr == "fp16" ? ceil16_best : ceil_best;
-      row["ceiling_gflops"] = cb;
-      row["fraction_of_ceiling"] = row["gflops"].get<double>() / cb;
-      auto& w = worst_by_prec.try_emplace(pr, 1e9, "").first->second;
-      if (row["chosen"].get<bool>() && row["fraction_of_ceiling"].get<double>() < w.first)
-        w = {row["fraction_of_ceiling"].get<double>(), row["name"].get<std::string>() + " [" + row["shape"].get<std::string>() + "]"};
-      if (row["chosen"].get<bool>() && row["name"] == "RDBs.d.convs.1" && row.contains("speedup_vs_naive"))
-        std::printf("target 3x3 RDB conv 144->48 @130x173 (%s): %s %.2f GFLOP/s = %.1f%% of the ceiling, %.1fx the naive shader\n",
-                    pr.c_str(), row["algo"].get<std::string>().c_str(), row["gflops"].get<double>(),
-                    100 * row["fraction_of_ceiling"].get<double>(), row["speedup_vs_naive"].get<double>());
-    }
-    print_peer_summary(rows);
-    for (const auto& [pr, w] : worst_by_prec)
-      if (w.first < 1e9)
-        std::printf("lowest fraction of the ceiling (chosen algorithms, %s): %.1f%% (%s)\n", pr.c_str(), 100 * w.first,
-                    w.second.c_str());
-    if (!json_path.empty()) {
-      std::ofstream f(json_path);
-      if (!f) throw Error("cannot write --json file '" + json_path + "'");
-      f << rows.dump(2) << "\n";
-      std::printf("wrote %s (%zu rows)\n", json_path.c_str(), rows.size());
-    }
-    if (profile) total.print(std::cout);
+    return run_bench(a);
   } catch (const std::exception& e) {
     std::cerr << "vkunroll-bench-kernels: " << e.what() << "\n";
     return 1;
   }
-  return 0;
 }

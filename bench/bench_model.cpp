@@ -5,12 +5,13 @@
 //
 // usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]
 //                             [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]
-//                             [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune]
+//                             [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune|gpu]
 //                             [--winograd-tile 6|8]
 //
 // --conv-choice (default heuristic): the conv algorithm per shape (host/model/conv_choice.hpp), from
 // the device's table in the cache directory; measured / retune first time the missing / every shape
-// in an untimed full-size run (reported) and save the table.
+// in an untimed full-size run (reported) and save the table; a committed table of this GPU model
+// (models/conv_choices/) lies under the device's own. gpu: the GPU kernels' rule on any device.
 // The race: with --torch-device cuda the peer is the PyTorch mirror on the same GPU (CUDA, best of
 // --runs after a full-size warm-up, in the same precision), and the ratio is vulkan / torch.
 // --precision fp16 runs the Vulkan side in fp16 (the mirror stays fp32, so the diffs are fp16's error).
@@ -40,6 +41,7 @@
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/profiler.hpp"
@@ -135,237 +137,237 @@ ResidentTiming time_resident(Context& ctx, Backend& vk, Model& model, const Mode
   return best;
 }
 
-}  // namespace
-
-int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
-              const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device,
-              ConvChoice conv_choice, const ConvOptions& conv_options);
-
-int main(int argc, char** argv) {
+// Everything the command line sets.
+struct BenchArgs {
   int W = 346, H = 260, torch_threads = 0, runs = 1;
   bool torch = true, profile = false, per_layer = false;
   std::string mode = "m", model_path, inputs_path, torch_device = "cpu";
   ConvChoice conv_choice = ConvChoice::heuristic;
   Precision precision = Precision::fp32;
   ConvOptions conv_options;  // --winograd-tile: 5x5 convs as F(4x4, 5x5) (8) or four F(4x4, 3x3) (6)
+};
+
+constexpr const char* kUsage =
+    "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]\n"
+    "                            [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]\n"
+    "                            [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune|gpu]\n"
+    "                            [--winograd-tile 6|8]\n";
+
+// -1: parsed, run the bench; else the exit status (a bad argument is said on stderr).
+int parse_args(int argc, char** argv, BenchArgs& a) {
   for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--size" && i + 1 < argc) {
-      const BenchSize z = bench_size_arg("vkunroll-bench-model", a, argv[++i], 2, 16384);
-      W = static_cast<int>(z.w);
-      H = static_cast<int>(z.h);
-    } else if (a == "--mode" && i + 1 < argc) {
-      mode = argv[++i];
-    } else if (a == "--profile") {
-      profile = true;
-    } else if (a == "--no-torch") {
-      torch = false;
-    } else if (a == "--runs" && i + 1 < argc) {
-      runs = static_cast<int>(bench_int_arg("vkunroll-bench-model", a, argv[++i], 1, 1000));
-    } else if (a == "--torch-threads" && i + 1 < argc) {
-      torch_threads = static_cast<int>(bench_int_arg("vkunroll-bench-model", a, argv[++i], 1, 1024));
-    } else if (a == "--precision" && i + 1 < argc) {
-      try {
-        precision = parse_precision(argv[++i], "--precision");
-      } catch (const Error& e) {
-        std::fprintf(stderr, "%s\n", e.what());
+    const std::string f = argv[i];
+    const bool has_value = i + 1 < argc;
+    try {
+      if (f == "--size" && has_value) {
+        const BenchSize z = bench_size_arg("vkunroll-bench-model", f, argv[++i], 2, 16384);
+        a.W = static_cast<int>(z.w);
+        a.H = static_cast<int>(z.h);
+      } else if (f == "--mode" && has_value) {
+        a.mode = argv[++i];
+      } else if (f == "--profile") {
+        a.profile = true;
+      } else if (f == "--no-torch") {
+        a.torch = false;
+      } else if (f == "--runs" && has_value) {
+        a.runs = static_cast<int>(bench_int_arg("vkunroll-bench-model", f, argv[++i], 1, 1000));
+      } else if (f == "--torch-threads" && has_value) {
+        a.torch_threads = static_cast<int>(bench_int_arg("vkunroll-bench-model", f, argv[++i], 1, 1024));
+      } else if (f == "--precision" && has_value) {
+        a.precision = parse_precision(argv[++i], "--precision");
+      } else if (f == "--conv-choice" && has_value) {
+        a.conv_choice = parse_conv_choice(argv[++i], "--conv-choice");
+      } else if (f == "--winograd-tile" && has_value) {  // the convs check the tile
+        a.conv_options.winograd_tile = static_cast<int>(bench_int_arg("vkunroll-bench-model", f, argv[++i], 0, 64));
+      } else if (f == "--per-layer") {
+        a.per_layer = true;
+      } else if (f == "--model" && has_value) {
+        a.model_path = argv[++i];
+      } else if (f == "--inputs" && has_value) {
+        a.inputs_path = argv[++i];
+      } else if (f == "--torch-device" && has_value) {
+        a.torch_device = argv[++i];
+        if (a.torch_device != "cpu" && a.torch_device != "cuda") {
+          std::fprintf(stderr, "--torch-device '%s': expected cpu or cuda\n", a.torch_device.c_str());
+          return 2;
+        }
+      } else {
+        std::fprintf(stderr, "%s", kUsage);
         return 2;
       }
-    } else if (a == "--conv-choice" && i + 1 < argc) {
-      try {
-        conv_choice = parse_conv_choice(argv[++i], "--conv-choice");
-      } catch (const Error& e) {
-        std::fprintf(stderr, "%s\n", e.what());
-        return 2;
-      }
-    } else if (a == "--winograd-tile" && i + 1 < argc) {
-      conv_options.winograd_tile = static_cast<int>(bench_int_arg("vkunroll-bench-model", a, argv[++i], 0, 64));  // the convs check the tile
-    } else if (a == "--per-layer") {
-      per_layer = true;
-    } else if (a == "--model" && i + 1 < argc) {
-      model_path = argv[++i];
-    } else if (a == "--inputs" && i + 1 < argc) {
-      inputs_path = argv[++i];
-    } else if (a == "--torch-device" && i + 1 < argc) {
-      torch_device = argv[++i];
-      if (torch_device != "cpu" && torch_device != "cuda") {
-        std::fprintf(stderr, "--torch-device '%s': expected cpu or cuda\n", torch_device.c_str());
-        return 2;
-      }
-    } else {
-      std::fprintf(stderr, "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]\n"
-                           "                            [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]\n"
-                           "                            [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune]\n"
-                           "                            [--winograd-tile 6|8]\n");
+    } catch (const Error& e) {
+      std::fprintf(stderr, "%s\n", e.what());
       return 2;
     }
   }
-  if (per_layer && precision != Precision::fp16) {
+  if (a.per_layer && a.precision != Precision::fp16) {
     std::fprintf(stderr, "--per-layer compares fp16 with fp32: give --precision fp16\n");
     return 2;
   }
-  try {
-    return run_bench(W, H, torch_threads, runs, torch, profile, per_layer, mode, model_path, inputs_path, precision, torch_device,
-                     conv_choice, conv_options);
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "vkunroll-bench-model: %s\n", e.what());
-    return 1;
-  }
+  return -1;
 }
 
-int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profile, bool per_layer, const std::string& mode,
-              const std::string& model_path, const std::string& inputs_path, Precision precision, const std::string& torch_device,
-              ConvChoice conv_choice, const ConvOptions& conv_options) {
-  const Mode md = mode == "s" ? Mode::s : Mode::m;
-  const int64_t B = md == Mode::m ? 2 : 1;
-  const Weights w = model_path.empty() ? random_weights(ModelConfig::published(), 2024) : load_weights(model_path);
-  const ModelConfig& cfg = w.config;
-  ModelInputs in;
-  if (!inputs_path.empty()) {
-    const SafetensorsFile f = read_safetensors(inputs_path);
-    in = {input_tensor(f, inputs_path, "rs"), input_tensor(f, inputs_path, "ev1"), input_tensor(f, inputs_path, "ev2"),
-          input_tensor(f, inputs_path, "ev3")};
-    if (f.has("phys")) in.phys = input_tensor(f, inputs_path, "phys");
-    H = static_cast<int>(in.rs.shape.h);
-    W = static_cast<int>(in.rs.shape.w);
-  } else {
-    in = random_model_inputs(cfg, B, H, W);
-  }
+// --inputs' tensors (and their size into a.W, a.H), else random inputs of B items.
+ModelInputs load_inputs(BenchArgs& a, const ModelConfig& cfg, int64_t B) {
+  if (a.inputs_path.empty()) return random_model_inputs(cfg, B, a.H, a.W);
+  const SafetensorsFile f = read_safetensors(a.inputs_path);
+  ModelInputs in{input_tensor(f, a.inputs_path, "rs"), input_tensor(f, a.inputs_path, "ev1"),
+                 input_tensor(f, a.inputs_path, "ev2"), input_tensor(f, a.inputs_path, "ev3")};
+  if (f.has("phys")) in.phys = input_tensor(f, a.inputs_path, "phys");
+  a.H = static_cast<int>(in.rs.shape.h);
+  a.W = static_cast<int>(in.rs.shape.w);
+  return in;
+}
 
-  Context ctx;
-  if (per_layer) return per_layer_report(ctx, w, in, md);
-  Profiler profiler;
-  VulkanBackend vk(ctx, profile ? &profiler : nullptr, kPoolFlushBytes, precision);
-  vk.set_conv_options(conv_options);
-  auto t = std::chrono::steady_clock::now();
-  Model model(vk, w);
-  const double prep = seconds_since(t);
-  // Warm-up on a small crop: compiles every pipeline variant, so the timed run is steady-state.
-  {
-    ModelInputs small;
-    auto crop = [](const HostTensor& a) {
-      HostTensor r;
-      r.shape = {a.shape.n, a.shape.c, 32, 32};
-      for (int64_t n = 0; n < a.shape.n; ++n)
-        for (int64_t c = 0; c < a.shape.c; ++c)
-          for (int64_t y = 0; y < 32; ++y)
-            for (int64_t x = 0; x < 32; ++x) r.data.push_back(a.data[size_t(((n * a.shape.c + c) * a.shape.h + y) * a.shape.w + x)]);
-      return r;
-    };
-    small = {crop(in.rs), crop(in.ev1), crop(in.ev2), crop(in.ev3)};
-    if (!in.phys.data.empty()) small.phys = crop(in.phys);
-    RunOptions o;
-    o.mode = md;
-    t = std::chrono::steady_clock::now();
-    model.run(small, o);
-    // Progress on stderr (unbuffered): a run stopped by a time limit still says how far it got.
-    std::fprintf(stderr, "progress: weights prepared in %.2f s; the 32x32 warm-up (every pipeline built) took %.2f s\n", prep,
-                 seconds_since(t));
+// Warm-up on a 32x32 crop: compiles every pipeline variant, so that the timed runs are steady-state.
+void warm_up(Model& model, const ModelInputs& in, Mode md, double prep) {
+  auto crop = [](const HostTensor& a) {
+    HostTensor r;
+    r.shape = {a.shape.n, a.shape.c, 32, 32};
+    for (int64_t n = 0; n < a.shape.n; ++n)
+      for (int64_t c = 0; c < a.shape.c; ++c)
+        for (int64_t y = 0; y < 32; ++y)
+          for (int64_t x = 0; x < 32; ++x) r.data.push_back(a.data[size_t(((n * a.shape.c + c) * a.shape.h + y) * a.shape.w + x)]);
+    return r;
+  };
+  ModelInputs small{crop(in.rs), crop(in.ev1), crop(in.ev2), crop(in.ev3)};
+  if (!in.phys.data.empty()) small.phys = crop(in.phys);
+  RunOptions o;
+  o.mode = md;
+  const auto t = std::chrono::steady_clock::now();
+  model.run(small, o);
+  // Progress on stderr (unbuffered): a run stopped by a time limit still says how far it got.
+  std::fprintf(stderr, "progress: weights prepared in %.2f s; the 32x32 warm-up (every pipeline built) took %.2f s\n", prep,
+               seconds_since(t));
+}
+
+// Sets --conv-choice on the backend: the device's table (its cache file with a committed table under
+// it), timing what it lacks first (measured) or everything (retune) in an untimed run, then saved;
+// gpu: the GPU kernels' rule, no table.
+void apply_conv_choice(const BenchArgs& a, Context& ctx, VulkanBackend& vk, Model& model, const ModelInputs& in, Mode md) {
+  if (a.conv_choice == ConvChoice::heuristic) return;
+  if (a.conv_choice == ConvChoice::gpu) {
+    vk.set_conv_choice(nullptr, ConvChoice::gpu);
+    return;
   }
-  if (conv_choice != ConvChoice::heuristic) {
-    const std::string path = conv_choice_path(ctx);
-    std::vector<std::string> warnings;
-    auto table = std::make_shared<ConvChoiceTable>(path.empty() ? ConvChoiceTable{} : ConvChoiceTable::load(path, &warnings));
-    for (const auto& wn : warnings) std::fprintf(stderr, "warning: %s\n", wn.c_str());
-    vk.set_conv_choice(table, conv_choice);
-    vk.on_conv_timed([](const std::string& key, const ConvChoiceEntry& e, double s) {
-      std::fprintf(stderr, "progress: timed %s in %.2f s: %s (%s)\n", key.c_str(), s, e.algo.c_str(), e.timings.c_str());
-    });
-    if (conv_choice == ConvChoice::measured || conv_choice == ConvChoice::retune) {
-      RunOptions o;
-      o.mode = md;
-      t = std::chrono::steady_clock::now();
-      model.run(in, o);  // untimed: times the shapes the table lacks (retune: all)
-      std::printf("  conv choice %s: %llu shapes timed in %.1f s (table %s)\n", conv_choice_name(conv_choice),
-                  static_cast<unsigned long long>(vk.convs_timed()), seconds_since(t), path.empty() ? "not saved" : path.c_str());
-      if (!path.empty()) table->save(path, conv_choice_header(ctx));
-      vk.set_conv_choice(table, ConvChoice::cached);
-    }
-  }
-  vk.reset_peak();
-  profiler.clear();
-  ctx.allocator().reset_peak();
+  std::vector<std::string> warnings;
+  const DeviceConvTable d = load_device_conv_table(ctx, conv_table_dirs(), &warnings);
+  for (const auto& wn : warnings) std::fprintf(stderr, "warning: %s\n", wn.c_str());
+  if (!d.committed.empty()) std::printf("  conv choice: committed table %s (%s)\n", d.committed.c_str(), d.committed_how.c_str());
+  vk.set_conv_choice(d.table, a.conv_choice);
+  vk.on_conv_timed([](const std::string& key, const ConvChoiceEntry& e, double s) {
+    std::fprintf(stderr, "progress: timed %s in %.2f s: %s (%s)\n", key.c_str(), s, e.algo.c_str(), e.timings.c_str());
+  });
+  if (a.conv_choice != ConvChoice::measured && a.conv_choice != ConvChoice::retune) return;
+  RunOptions o;
+  o.mode = md;
+  const auto t = std::chrono::steady_clock::now();
+  model.run(in, o);  // untimed: times the shapes the table lacks (retune: all)
+  std::printf("  conv choice %s: %llu shapes timed in %.1f s (table %s)\n", conv_choice_name(a.conv_choice),
+              static_cast<unsigned long long>(vk.convs_timed()), seconds_since(t), d.path.empty() ? "not saved" : d.path.c_str());
+  if (!d.path.empty()) d.table->save(d.path, conv_choice_header(ctx), conv_device_identity(ctx));
+  vk.set_conv_choice(d.table, ConvChoice::cached);
+}
+
+// The timed runs: the best and the first wall seconds, the best run's device ms and outputs; with a
+// conv choice other than the heuristic, a heuristic run after each on the same input (interleaved, so
+// the shared machine's load drifts over both alike).
+struct TimedRuns {
+  double best_s = 1e30, first_s = 0, gpu_ms = 0, heuristic_s = 1e30, heuristic_gpu_ms = 0;
+  uint64_t from_table = 0;
+  std::map<ModelOutput, HostTensor> out;
+};
+
+TimedRuns timed_runs(const BenchArgs& a, Context& ctx, VulkanBackend& vk, Model& model, const ModelInputs& in, Mode md,
+                     Profiler& profiler) {
   RunOptions opt;
   opt.mode = md;
-  double vk_s = 1e30, first_s = 0, gpu_ms = 0;
-  std::map<ModelOutput, HostTensor> out;
-  // With a measured choice, each timed run is followed by one with the kernels' heuristic on the same
-  // input (interleaved, so the shared machine's load drifts over both alike).
-  const bool compare = conv_choice != ConvChoice::heuristic;
+  TimedRuns r;
+  const bool compare = a.conv_choice != ConvChoice::heuristic;
   const std::shared_ptr<ConvChoiceTable> table = vk.conv_choice_table();
-  const ConvChoice chosen = conv_choice == ConvChoice::automatic ? ConvChoice::automatic : ConvChoice::cached;
-  double h_s = 1e30, h_gpu = 0;
-  uint64_t from_table = 0;
-  // One run: its wall seconds; `best` and `best_gpu` keep the fastest run's seconds and device ms;
-  // `result` (when given) receives the outputs (the measured choice's are the ones compared).
-  auto timed_run = [&](double& best, double& best_gpu, std::map<ModelOutput, HostTensor>* result) {
+  const ConvChoice chosen = a.conv_choice == ConvChoice::automatic || a.conv_choice == ConvChoice::gpu ? a.conv_choice
+                                                                                                         : ConvChoice::cached;
+  auto one_run = [&](double& best, double& best_gpu, std::map<ModelOutput, HostTensor>* result) {
     const DeviceTraffic before = ctx.traffic();
-    t = std::chrono::steady_clock::now();
+    const auto t = std::chrono::steady_clock::now();
     auto o = model.run(in, opt);
     const double s = seconds_since(t);
     if (s < best) best = s, best_gpu = (ctx.traffic() - before).gpu_ms;
     if (result) *result = std::move(o);
     return s;
   };
-  for (int r = 0; r < runs; ++r) {
-    if (r > 0) profiler.clear();  // the table shows the last run
+  for (int i = 0; i < a.runs; ++i) {
+    if (i > 0) profiler.clear();  // the table shows the last run
     const uint64_t ft = vk.convs_from_table();
-    const double s = timed_run(vk_s, gpu_ms, &out);
-    std::fprintf(stderr, "progress: run %d took %.1f ms\n", r + 1, 1000 * s);
-    from_table = vk.convs_from_table() - ft;
-    if (r == 0) first_s = s;
+    const double s = one_run(r.best_s, r.gpu_ms, &r.out);
+    std::fprintf(stderr, "progress: run %d took %.1f ms\n", i + 1, 1000 * s);
+    r.from_table = vk.convs_from_table() - ft;
+    if (i == 0) r.first_s = s;
     if (!compare) continue;
     vk.set_conv_choice(nullptr, ConvChoice::heuristic);
-    timed_run(h_s, h_gpu, nullptr);
+    one_run(r.heuristic_s, r.heuristic_gpu_ms, nullptr);
     vk.set_conv_choice(table, chosen);
   }
-  const double frames = 1.0;  // one GS frame (one target) per run
+  return r;
+}
+
+void print_vulkan(const BenchArgs& a, Context& ctx, const VulkanBackend& vk, const ModelConfig& cfg, Mode md, double prep,
+                  const TimedRuns& r) {
   std::printf("vkunroll-bench-model: SelfUnroll-%s, %s (%lld parameters), %dx%d, %s, device %s\n", md == Mode::m ? "M" : "S",
-              model_path.empty() ? "published configuration" : model_path.c_str(), static_cast<long long>(parameter_count(cfg)), W, H,
-              precision_name(precision), ctx.info().name.c_str());
+              a.model_path.empty() ? "published configuration" : a.model_path.c_str(), static_cast<long long>(parameter_count(cfg)),
+              a.W, a.H, precision_name(a.precision), ctx.info().name.c_str());
   std::printf("  vulkan : %.1f ms per GS frame (weights prepared in %.2f s; peak intermediates %.1f MiB, "
               "device buffers peak %.1f MiB, allocator peak %.1f MiB incl. %.1f MiB of weights as given)\n",
-              1000 * vk_s / frames, prep, vk.peak_bytes() / 1048576.0, vk.device_peak_bytes() / 1048576.0,
+              1000 * r.best_s, prep, vk.peak_bytes() / 1048576.0, vk.device_peak_bytes() / 1048576.0,
               ctx.allocator().stats().peak_used_bytes / 1048576.0, vk.weight_bytes() / 1048576.0);
-  if (runs > 1) std::printf("  vulkan : best of %d runs; the first took %.1f ms\n", runs, 1000 * first_s);
-  if (compare) {
-    std::printf("  vulkan : conv algorithms: %llu of the run's convs took the measured table's choice\n",
-                static_cast<unsigned long long>(from_table));
+  if (a.runs > 1) std::printf("  vulkan : best of %d runs; the first took %.1f ms\n", a.runs, 1000 * r.first_s);
+  if (a.conv_choice != ConvChoice::heuristic) {
+    if (a.conv_choice != ConvChoice::gpu)
+      std::printf("  vulkan : conv algorithms: %llu of the run's convs took the measured table's choice\n",
+                  static_cast<unsigned long long>(r.from_table));
     std::printf("  vulkan : with the heuristic conv choice %.1f ms per GS frame (device %.1f ms; runs interleaved); "
-                "measured / heuristic = %.2f\n", 1000 * h_s, h_gpu, vk_s / h_s);
+                "%s / heuristic = %.2f\n", 1000 * r.heuristic_s, r.heuristic_gpu_ms,
+                a.conv_choice == ConvChoice::gpu ? "gpu" : "measured", r.best_s / r.heuristic_s);
   }
-  std::printf("  vulkan : device time %.1f ms of the %.1f ms frame (%.0f%%; the rest is host work and waits)\n", gpu_ms,
-              1000 * vk_s, 100 * gpu_ms / (1000 * vk_s));
-  if (profile) profiler.print(std::cout);  // the last timed run's dispatches, before the resident runs add theirs
-  const ResidentTiming resident = time_resident(ctx, vk, model, in, md, runs);
-  const double res_s = resident.seconds;
-  if (res_s > 0) {
-    // The same network on the same inputs: its image must equal the timed runs' (a check of the path timed).
-    const std::vector<float>& ref = out.at(md == Mode::m ? ModelOutput::out : ModelOutput::fused).data;
-    double diff = ref.size() == resident.image.size() ? 0.0 : 1e30;
-    for (size_t i = 0; diff < 1e30 && i < ref.size(); ++i) diff = std::max(diff, double(std::fabs(ref[i] - resident.image[i])));
-    std::printf("  vulkan : resident inputs, only the final image downloaded: %.1f ms per GS frame (device %.1f ms, %.0f%%; "
-                "max abs diff to the timed runs' image %.3g)\n", 1000 * res_s, resident.gpu_ms, 100 * resident.gpu_ms / (1000 * res_s), diff);
-  }
-  if (!torch) return 0;
+  std::printf("  vulkan : device time %.1f ms of the %.1f ms frame (%.0f%%; the rest is host work and waits)\n", r.gpu_ms,
+              1000 * r.best_s, 100 * r.gpu_ms / (1000 * r.best_s));
+}
 
+// The resident timing (time_resident) beside the timed runs; its seconds (0: skipped).
+double print_resident(Context& ctx, VulkanBackend& vk, Model& model, const ModelInputs& in, Mode md, int runs,
+                      const TimedRuns& r) {
+  const ResidentTiming resident = time_resident(ctx, vk, model, in, md, runs);
+  if (resident.seconds <= 0) return 0;
+  // The same network on the same inputs: its image must equal the timed runs' (a check of the path timed).
+  const std::vector<float>& ref = r.out.at(md == Mode::m ? ModelOutput::out : ModelOutput::fused).data;
+  double diff = ref.size() == resident.image.size() ? 0.0 : 1e30;
+  for (size_t i = 0; diff < 1e30 && i < ref.size(); ++i) diff = std::max(diff, double(std::fabs(ref[i] - resident.image[i])));
+  std::printf("  vulkan : resident inputs, only the final image downloaded: %.1f ms per GS frame (device %.1f ms, %.0f%%; "
+              "max abs diff to the timed runs' image %.3g)\n", 1000 * resident.seconds, resident.gpu_ms,
+              100 * resident.gpu_ms / (1000 * resident.seconds), diff);
+  return resident.seconds;
+}
+
+// The PyTorch mirror on the same weights and inputs (tools/bench/bench_mirror.py): its time, the ratios and
+// every output's difference. The exit status (1: the mirror failed).
+int run_torch_peer(const BenchArgs& a, const Weights& w, const ModelInputs& in, const TimedRuns& r, double res_s) {
   const auto dir = std::filesystem::temp_directory_path() / ("vkunroll_bench_model_" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   save_weights((dir / "w.safetensors").string(), w);
   std::vector<SafetensorsTensorRef> views;
   std::vector<std::pair<const char*, const HostTensor*>> named{{"rs", &in.rs}, {"ev1", &in.ev1}, {"ev2", &in.ev2}, {"ev3", &in.ev3}};
   if (!in.phys.data.empty()) named.push_back({"phys", &in.phys});
-  for (auto [name, a] : named)
-    views.push_back({name, StDType::F32, {a->shape.n, a->shape.c, a->shape.h, a->shape.w}, a->data.data(), a->data.size() * 4});
+  for (auto [name, t] : named)
+    views.push_back({name, StDType::F32, {t->shape.n, t->shape.c, t->shape.h, t->shape.w}, t->data.data(), t->data.size() * 4});
   write_safetensors((dir / "in.safetensors").string(), views);
   // CPU PyTorch has no fp16 convs: there the peer stays fp32 and the diffs are fp16's error.
-  const std::string torch_precision = torch_device == "cuda" ? precision_name(precision) : "fp32";
+  const std::string torch_precision = a.torch_device == "cuda" ? precision_name(a.precision) : "fp32";
   // tools/ is a package run from the source root (the mirror imports tools.model); the paths below are absolute.
   const std::string cmd = "cd " + std::string(VKUNROLL_SOURCE_DIR) + " && /usr/bin/python3 -m tools.bench.bench_mirror " +
                           (dir / "w.safetensors").string() + " " + (dir / "in.safetensors").string() + " " +
-                          (dir / "out.safetensors").string() + " --mode " + mode +
-                          (torch_threads ? " --threads " + std::to_string(torch_threads) : "") + " --device " + torch_device +
-                          " --precision " + torch_precision + " --runs " + std::to_string(runs);
+                          (dir / "out.safetensors").string() + " --mode " + a.mode +
+                          (a.torch_threads ? " --threads " + std::to_string(a.torch_threads) : "") + " --device " +
+                          a.torch_device + " --precision " + torch_precision + " --runs " + std::to_string(a.runs);
   if (std::system(cmd.c_str()) != 0) {
     std::fprintf(stderr, "the PyTorch mirror failed: %s\n", cmd.c_str());
     std::filesystem::remove_all(dir);
@@ -373,21 +375,59 @@ int run_bench(int W, int H, int torch_threads, int runs, bool torch, bool profil
   }
   const SafetensorsFile ref = read_safetensors((dir / "out.safetensors").string());
   const double torch_s = std::stod(ref.metadata.at("seconds"));
-  std::printf("  torch  : %.1f ms per GS frame (PyTorch mirror, %s, %s, %s)\n", 1000 * torch_s / frames, torch_device.c_str(),
+  std::printf("  torch  : %.1f ms per GS frame (PyTorch mirror, %s, %s, %s)\n", 1000 * torch_s, a.torch_device.c_str(),
               torch_precision.c_str(), ref.metadata.count("device") ? ref.metadata.at("device").c_str() : "?");
   if (ref.metadata.count("settings"))  // on CUDA: every PyTorch setting tried, the fastest is the peer
     std::printf("  torch  : settings %s; fastest %s\n", ref.metadata.at("settings").c_str(), ref.metadata.at("setting").c_str());
-  std::printf("  ratio  : vulkan / torch = %.2f\n", vk_s / torch_s);
+  std::printf("  ratio  : vulkan / torch = %.2f\n", r.best_s / torch_s);
   if (res_s > 0) std::printf("  ratio  : resident vulkan / torch = %.2f (both with inputs on the device)\n", res_s / torch_s);
-  for (const auto& [name, arr] : out) {
-    const std::vector<float> r = ref.get(output_name(name)).to_f32();
+  for (const auto& [name, arr] : r.out) {
+    const std::vector<float> v = ref.get(output_name(name)).to_f32();
     double err = 0, mx = 0;
-    for (size_t i = 0; i < r.size(); ++i) {
-      err = std::max(err, double(std::fabs(r[i] - arr.data[i])));
-      mx = std::max(mx, double(std::fabs(r[i])));
+    for (size_t i = 0; i < v.size(); ++i) {
+      err = std::max(err, double(std::fabs(v[i] - arr.data[i])));
+      mx = std::max(mx, double(std::fabs(v[i])));
     }
     std::printf("  max abs diff %-6s %.3g (max |value| %.3g)\n", output_name(name), err, mx);
   }
   std::filesystem::remove_all(dir);
   return 0;
+}
+
+int run_bench(BenchArgs& a) {
+  const Mode md = a.mode == "s" ? Mode::s : Mode::m;
+  const Weights w = a.model_path.empty() ? random_weights(ModelConfig::published(), 2024) : load_weights(a.model_path);
+  const ModelInputs in = load_inputs(a, w.config, md == Mode::m ? 2 : 1);
+  Context ctx;
+  if (a.per_layer) return per_layer_report(ctx, w, in, md);
+  Profiler profiler;
+  VulkanBackend vk(ctx, a.profile ? &profiler : nullptr, kPoolFlushBytes, a.precision);
+  vk.set_conv_options(a.conv_options);
+  const auto t = std::chrono::steady_clock::now();
+  Model model(vk, w);
+  const double prep = seconds_since(t);
+  warm_up(model, in, md, prep);  // the heuristic's pipelines, which the interleaved runs also take
+  apply_conv_choice(a, ctx, vk, model, in, md);
+  if (a.conv_choice == ConvChoice::gpu) warm_up(model, in, md, prep);  // the GPU rule's pipelines
+  vk.reset_peak();
+  profiler.clear();
+  ctx.allocator().reset_peak();
+  const TimedRuns r = timed_runs(a, ctx, vk, model, in, md, profiler);
+  print_vulkan(a, ctx, vk, w.config, md, prep, r);
+  if (a.profile) profiler.print(std::cout);  // the last timed run's dispatches, before the resident runs add theirs
+  const double res_s = print_resident(ctx, vk, model, in, md, a.runs, r);
+  return a.torch ? run_torch_peer(a, w, in, r, res_s) : 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  BenchArgs a;
+  if (const int status = parse_args(argc, argv, a); status >= 0) return status;
+  try {
+    return run_bench(a);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "vkunroll-bench-model: %s\n", e.what());
+    return 1;
+  }
 }
