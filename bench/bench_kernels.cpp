@@ -61,9 +61,23 @@ void add(std::vector<ConvShape>& v, ConvShape c) {
   v.push_back(std::move(c));
 }
 
-// Every conv algorithm --all-algos times (and a row's name records).
-constexpr ConvAlgo kConvAlgos[] = {ConvAlgo::naive,  ConvAlgo::blocked, ConvAlgo::winograd, ConvAlgo::gemm,
-                                   ConvAlgo::direct, ConvAlgo::coopmat, ConvAlgo::pointwise};
+// Every named conv algorithm (what --all-algos times, and a row's name records): the enum's values
+// after `automatic` that have a name, so that an algorithm added to the kernels is benched too.
+std::vector<ConvAlgo> all_conv_algos() {
+  std::vector<ConvAlgo> out;
+  for (uint32_t v = static_cast<uint32_t>(ConvAlgo::naive); v < 32; ++v)
+    if (std::string(conv_algo_name(static_cast<ConvAlgo>(v))) != "unknown") out.push_back(static_cast<ConvAlgo>(v));
+  return out;
+}
+const std::vector<ConvAlgo> kConvAlgos = all_conv_algos();
+std::vector<ConvTransposeAlgo> all_conv_transpose_algos() {
+  std::vector<ConvTransposeAlgo> out;
+  for (uint32_t v = static_cast<uint32_t>(ConvTransposeAlgo::naive); v < 32; ++v)
+    if (std::string(conv_transpose_algo_name(static_cast<ConvTransposeAlgo>(v))) != "unknown")
+      out.push_back(static_cast<ConvTransposeAlgo>(v));
+  return out;
+}
+const std::vector<ConvTransposeAlgo> kConvTransposeAlgos = all_conv_transpose_algos();
 
 // The UNet of section 2.4 at the size-adapter-padded extent h x w.
 void unet_shapes(std::vector<ConvShape>& v, const std::string& net, int64_t in, int64_t out, int depth, int64_t h,
@@ -460,7 +474,7 @@ struct ConvUnderTest {
 
   void record(CommandStream& cs, const std::string& algo, const Tensor& in, const Tensor& out) const {
     if (transposed) {
-      for (ConvTransposeAlgo a : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+      for (ConvTransposeAlgo a : kConvTransposeAlgos)
         if (algo == conv_transpose_algo_name(a)) deconv->record(cs, Slice(in), Slice(out), a);
     } else {
       for (ConvAlgo a : kConvAlgos)
@@ -483,7 +497,7 @@ void make_conv(Context& ctx, const KernelBenchArgs& a, const ConvShape& c, Preci
     const ConvTransposeAlgo chosen = a.gpu_choice ? gpu_family_algorithm(*u.deconv) : u.deconv->choose_algorithm(c.h, c.w);
     u.algos.push_back(conv_transpose_algo_name(chosen));
     if (a.all_algos)
-      for (ConvTransposeAlgo t : {ConvTransposeAlgo::naive, ConvTransposeAlgo::blocked, ConvTransposeAlgo::direct})
+      for (ConvTransposeAlgo t : kConvTransposeAlgos)
         if (t != chosen && u.deconv->supports(t) && a.wanted(conv_transpose_algo_name(t))) u.algos.push_back(conv_transpose_algo_name(t));
   } else {
     u.conv.emplace(ctx, random_host({c.cout, c.cin, c.k, c.k}, rng, ws), random_host({1, 1, 1, c.cout}, rng, 0.1f),

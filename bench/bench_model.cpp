@@ -41,7 +41,6 @@
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/host/model/weights.hpp"
-#include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/profiler.hpp"
@@ -241,6 +240,14 @@ void warm_up(Model& model, const ModelInputs& in, Mode md, double prep) {
                seconds_since(t));
 }
 
+// Where committed conv tables are looked for: VKUNROLL_CONV_TABLES, else the source tree's. (The
+// unroll layer's conv_table_dirs() would link the unroll layer, and OpenCV's codecs with it, into
+// the device bundle's copy of this bench: 135 more libraries.)
+std::vector<std::string> committed_table_dirs() {
+  if (const char* d = std::getenv("VKUNROLL_CONV_TABLES"); d && *d) return {d};
+  return {std::string(VKUNROLL_SOURCE_DIR) + "/models/conv_choices"};
+}
+
 // Sets --conv-choice on the backend: the device's table (its cache file with a committed table under
 // it), timing what it lacks first (measured) or everything (retune) in an untimed run, then saved;
 // gpu: the GPU kernels' rule, no table.
@@ -251,7 +258,7 @@ void apply_conv_choice(const BenchArgs& a, Context& ctx, VulkanBackend& vk, Mode
     return;
   }
   std::vector<std::string> warnings;
-  const DeviceConvTable d = load_device_conv_table(ctx, conv_table_dirs(), &warnings);
+  const DeviceConvTable d = load_device_conv_table(ctx, committed_table_dirs(), &warnings);
   for (const auto& wn : warnings) std::fprintf(stderr, "warning: %s\n", wn.c_str());
   if (!d.committed.empty()) std::printf("  conv choice: committed table %s (%s)\n", d.committed.c_str(), d.committed_how.c_str());
   vk.set_conv_choice(d.table, a.conv_choice);
