@@ -56,7 +56,8 @@ Command add_tune(CLI::App& parent) {
       "shape; the fastest goes into this device's table in the cache directory (conv-choices-<uuid>-<driver>.tsv,\n"
       "beside the pipeline cache), which `unroll --conv-choice auto` reads. The device is warmed first (--warm-ms\n"
       "on the FMA ceiling kernel); each candidate runs once checked, then is timed for at most --candidate-ms\n"
-      "or --reps submits; no shape is timed after --budget-s. The FMA ceiling is printed beside every shape.\n"
+      "or --reps submits; no shape is timed after --budget-s (shared evenly by the precisions). The FMA ceiling\n"
+      "is printed beside every shape.\n"
       "Then it times the model with the kernels' heuristic and with the measured choice, side by side.\n"
       "--plan counts the shapes and candidates (nothing timed) and prints the budget arithmetic.");
   c->add_option("--model", a->model, "SelfUnroll weights (safetensors), or 'published': the published configuration "
