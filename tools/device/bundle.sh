@@ -6,16 +6,17 @@
 #   tools/device/bundle.sh [BUILD_DIR=build]   -> .devrun/ (bin, lib, layers, run.sh), packed as .devrun.txz, and .gl/
 # The device tool carries at most 64 MiB with the working tree: unpacked the bundle is over 50 MiB (the
 # validation layer alone 22), packed about 11. On the device: tar xJf .devrun.txz && bash .devrun/run.sh all
+# tools/device/dry_run.sh builds it and runs that command here with lavapipe standing in.
 set -euo pipefail
 B=${1:-build}
 R=$(cd "$(dirname "$0")/../.." && pwd)
 cd "$R"
 cmake --build "$B" --target vkunroll_tests vkunroll-bench-kernels vkunroll-bench-event-tensor vkunroll-bench-model vkunroll-bench-dispatch \
-  vkunroll-bench-layout vkunroll-bench-first-frame
-mkdir -p .devrun/bin .devrun/layers .gl
+  vkunroll-bench-layout vkunroll-bench-first-frame vkunroll-bench-tune
+rm -rf .devrun; mkdir -p .devrun/bin .devrun/layers .gl
 LIBS=$(ninja -C "$B" -t commands bench/vkunroll-bench-kernels | tail -1 | grep -oE ' (lib[^ ]+\.a|/usr/lib[^ ]+\.(so[.0-9]*|a)|-l[a-z]+)' | tr '\n' ' ')
 (cd "$B"
- for b in kernels event-tensor model dispatch layout first-frame; do
+ for b in kernels event-tensor model dispatch layout first-frame tune; do
    c++ -O3 -Wl,--as-needed bench/CMakeFiles/vkunroll-bench-$b.dir/bench_*.cpp.o -o "$R/.devrun/bin/vkunroll-bench-$b" $LIBS
  done
  T=tests/CMakeFiles/vkunroll_tests.dir
@@ -35,6 +36,9 @@ cp /usr/lib/x86_64-linux-gnu/libVkLayer_khronos_validation.so .devrun/layers/
 sed 's|"library_path": *"[^"]*"|"library_path": "./libVkLayer_khronos_validation.so"|' \
     /usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json > .devrun/layers/VkLayer_khronos_validation.json
 cp tools/device/run_checks.sh .devrun/run.sh
+# The benches find tools/bench_mirror.py under the source folder they were built in: run.sh links it there.
+echo "$R" > .devrun/source_dir
+echo "$(git rev-parse --short HEAD)$(git diff --quiet HEAD || echo ' (with uncommitted changes)')" > .devrun/revision
 # The loader (and glvnd, which NVIDIA's Vulkan ICD needs) as Debian packages, unpacked there.
 o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
 mkdir -p /tmp/amd64/partial
