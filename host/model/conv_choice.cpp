@@ -361,6 +361,12 @@ ConvChoiceEntry census_entry(const std::vector<std::string>& names, const std::s
 ConvChoiceEntry time_candidates(Context& ctx, const std::vector<std::pair<std::string, Recorder>>& candidates,
                                 const Tensor& out, Precision precision, const ConvTimingBudget& budget, const std::string& who,
                                 const std::string& heuristic) {
+  // Every candidate recorded once first and dropped unsubmitted: a stream binds its pipelines only at
+  // submit, so their builds run side by side on the compiler's workers instead of one per check below.
+  for (const auto& c : candidates) {
+    CommandStream cs(ctx);
+    c.second(cs);
+  }
   std::vector<float> reference;
   std::vector<std::pair<std::string, double>> t;
   std::string rejected;

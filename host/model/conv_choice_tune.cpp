@@ -21,6 +21,10 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+// Untimed submits before each candidate's timing: after the start's warm-up only the check run and
+// the host's compare left the GPU idle, briefly. --warm-ms 0 turns both off.
+double candidate_warm_ms(const TuneOptions& a) { return std::min(a.warm_ms, 2.0); }
+
 // What one precision's pass timed (or, with --plan, counted).
 struct TuneCount {
   uint64_t shapes = 0, candidates = 0, past_deadline = 0;
@@ -107,7 +111,7 @@ TuneCount time_shapes(const TuneOptions& a, Context& ctx, VulkanBackend& backend
 
 // The arithmetic behind the time a table takes: candidates x the per-candidate budget.
 void print_estimate(const TuneOptions& a, const TuneCount& c, Precision precision) {
-  const double per = a.candidate_ms + std::min(a.warm_ms, 3.0);
+  const double per = a.candidate_ms + candidate_warm_ms(a);
   if (a.plan)
     std::printf("%s: %llu conv shapes, %llu candidates counted (the model's runs took %.1f s)\n", precision_name(precision),
                 static_cast<unsigned long long>(c.shapes), static_cast<unsigned long long>(c.candidates), c.seconds);
@@ -118,7 +122,7 @@ void print_estimate(const TuneOptions& a, const TuneCount& c, Precision precisio
                 c.candidates ? 1000 * c.seconds / static_cast<double>(c.candidates) : 0.0);
   std::printf("  budget arithmetic: %llu candidates x (%.0f ms timed + %.0f ms warm) = %.1f s of timing, plus one checked "
               "run and the pipeline builds per candidate and one FMA ceiling read per shape\n",
-              static_cast<unsigned long long>(c.candidates), a.candidate_ms, std::min(a.warm_ms, 3.0),
+              static_cast<unsigned long long>(c.candidates), a.candidate_ms, candidate_warm_ms(a),
               static_cast<double>(c.candidates) * per / 1000);
   if (c.past_deadline)
     std::printf("  %llu shapes were not timed: the %.0f s budget (--budget-s) ran out; they keep the heuristic\n",
@@ -152,8 +156,8 @@ void tune_precision(const TuneOptions& a, const Weights& weights, Precision prec
   if (d.path.empty() && !a.plan) throw UsageError("no cache directory: set VKUNROLL_CACHE_DIR, XDG_CACHE_HOME or HOME");
   auto table = a.plan ? std::make_shared<ConvChoiceTable>() : d.table;
   VulkanBackend backend(ctx, nullptr, kPoolFlushBytes, precision);
-  backend.set_conv_choice(table, ConvChoice::retune, ConvTimingBudget{a.reps, a.candidate_ms, std::min(a.warm_ms, 3.0), a.plan});
-  backend.set_conv_timing_deadline(deadline);
+  backend.set_conv_choice(table, ConvChoice::retune, ConvTimingBudget{a.reps, a.candidate_ms, candidate_warm_ms(a), a.plan});
+  if (!a.plan) backend.set_conv_timing_deadline(deadline);  // a census times nothing: it counts every shape
   Model model(backend, weights);
   std::mt19937 rng(1);
   std::printf("tune %s on %s (driver %s, uuid %s)%s\n", precision_name(precision), ctx.info().name.c_str(),

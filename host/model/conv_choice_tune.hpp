@@ -25,7 +25,10 @@ struct TuneOptions {
   bool s = true, m = true;      // the modes run (M where the model has it, batch 2, frame sizes only)
   std::vector<Precision> precisions{Precision::fp32};
   int reps = 10;                                    // timed submits per candidate at most
-  double candidate_ms = 20, warm_ms = 300, budget_s = 55;  // budget_s 0: no limit
+  // candidate_ms: wall ms of timed submits per candidate at most (at least one); 8 keeps the published
+  // configuration's table (about 2300 candidates on a GPU with the igemm family, docs/kernels.md)
+  // inside budget_s. warm_ms: FMA work at the start. budget_s 0: no limit.
+  double candidate_ms = 8, warm_ms = 300, budget_s = 55;
   bool plan = false;    // count shapes and candidates, time nothing, write no table
   bool compare = true;  // then time the model with the heuristic against the measured choice
   std::string device;   // ContextOptions::device

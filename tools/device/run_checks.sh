@@ -82,7 +82,7 @@ coopmat_tests() {  # the cooperative-matrix conv first, on its own, validation f
 }
 tune() {  # tune NAME MODEL SIZES TILE CAP BUDGET: the conv table the races (and unroll) read
   step "tune $1" $5 $O/tune_$1.txt $B/vkunroll-bench-tune --model "$2" --size "$3" --tile $4 --precision all \
-    --budget-s $6 --candidate-ms 20 --reps 10 --warm-ms 300
+    --budget-s $6 --candidate-ms 8 --reps 10 --warm-ms 300
   grep -E "^(FMA|fp32|fp16|  budget|  [0-9]+ shapes were not|table|tune took)|heuristic / measured" $O/tune_$1.txt
 }
 race() {  # race MODE PRECISION SIZE CAP: the same network in PyTorch on the same card, best settings
