@@ -43,8 +43,16 @@ const char* conv_algo_name(ConvAlgo a) {
     case ConvAlgo::direct: return "direct";
     case ConvAlgo::coopmat: return "coopmat";
     case ConvAlgo::pointwise: return "pointwise";
+    case ConvAlgo::igemm_l: return "igemm_l";
+    case ConvAlgo::igemm_m: return "igemm_m";
+    case ConvAlgo::igemm_s: return "igemm_s";
+    case ConvAlgo::igemm_n: return "igemm_n";
   }
   return "unknown";
+}
+
+bool is_igemm(ConvAlgo a) {
+  return a == ConvAlgo::igemm_l || a == ConvAlgo::igemm_m || a == ConvAlgo::igemm_s || a == ConvAlgo::igemm_n;
 }
 
 int64_t conv_output_size(int64_t in, int kernel, int stride, int pad) {
@@ -206,22 +214,27 @@ bool Conv2d::supports(ConvAlgo algo) const {
     case ConvAlgo::direct: return direct_cob_ % 4 == 0 && direct_chunks().chunk >= 1;
     case ConvAlgo::coopmat: return coopmat_applies();
     case ConvAlgo::pointwise: return pointwise_applies();
+    case ConvAlgo::igemm_l:
+    case ConvAlgo::igemm_m:
+    case ConvAlgo::igemm_s:
+    case ConvAlgo::igemm_n: return true;
     default: return false;
   }
 }
 
 ConvAlgo gpu_conv_heuristic(const GpuConvFacts& f) {
-  // H100 (2026-11, docs/gpu_nvidia.md): the uniform-buffer `direct` path, built for llvmpipe, is 3-10x
-  // slower than `blocked` on 3x3 convs; Winograd wins, except for 1-4 output channels; 1x1 convs take
-  // the GEMM (`blocked` led by 20% alone but was 10x slower in the model, on batch-2 channel slices).
-  // H200 (2026-12-04): the 5x5 Winograd was 45% of SelfUnroll-S's frame; direct ran SFENet1 (396->96)
-  // in 15.6 against 110 ms at 240x320 and 15.4 against 24.5 at 130x173. In fp16 the cooperative-matrix
-  // 1x1 conv ran 5x the GEMM (LFF 336->96 0.07 against 0.37 ms, GFF 960->96 0.21 against 1.02).
-  if (f.kernel == 5 && f.direct) return ConvAlgo::direct;
-  if (f.kernel == 1 && f.coopmat && f.h * f.w >= 64) return ConvAlgo::coopmat;
-  if (f.cout > 4 && f.winograd && f.h >= 4 * f.stride && f.w >= 4 * f.stride) return ConvAlgo::winograd;
-  if (f.gemm && f.h * f.w >= 64) return ConvAlgo::gemm;
-  return ConvAlgo::blocked;
+  // The GPU family, one dispatch per conv. The H100 and H200 runs (docs/gpu_nvidia.md) measured the
+  // CPU-shaped algorithms at 2-57x cuDNN: Winograd's 256-accumulator GEMM spills, `direct` reads
+  // weights through uniform buffers, and both run 3 dispatches or more per conv. In fp16 the tensor
+  // cores (coopmat) where the device has them; otherwise the tile whose channel side fits cout, the
+  // 128 x 128 tile where it still gives about two workgroups per shader core (split-K covers the rest).
+  if (f.coopmat) return ConvAlgo::coopmat;
+  if (f.cout <= 16) return ConvAlgo::igemm_n;
+  if (f.cout <= 32) return ConvAlgo::igemm_s;
+  const int64_t cores = f.cores > 0 ? f.cores : 128;
+  const int64_t large_groups = ((f.pixels + 127) / 128) * ((f.cout + 127) / 128);
+  if (f.cout >= 128 && large_groups >= 2 * cores) return ConvAlgo::igemm_l;
+  return ConvAlgo::igemm_m;
 }
 
 ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
@@ -231,9 +244,7 @@ ConvAlgo Conv2d::choose_algorithm(int64_t h, int64_t w) const {
   // 1-4 output channels (Winograd pads them to 8; there only where one dispatch per channel block
   // holds all input channels) and the GEMM for 1x1 convs with <= 64 input channels (no pack and
   // epilogue passes) or with the wide blocks (32 or 48 output channels per invocation).
-  if (ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU)
-    return gpu_conv_heuristic({params_.kernel, params_.stride, cout_, h, w, supports(ConvAlgo::winograd),
-                               supports(ConvAlgo::gemm), supports(ConvAlgo::direct), supports(ConvAlgo::coopmat)});
+  if (ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU || gpu_family_) return gpu_choice(Shape{1, cin_, h, w});
   const bool direct_whole = supports(ConvAlgo::direct) && direct_chunks().chunk >= cin_;
   if (direct_whole && cout_ <= 4 && params_.kernel > 1) return ConvAlgo::direct;
   // 3x3 stride 2: direct (input through a texel buffer) runs 1.6-2x the speed of Winograd on the
@@ -323,7 +334,8 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
       throw Error(name_ + ": residual slice " + residual->shape().str() + ", expected " + expect.str());
   }
   if (algo == ConvAlgo::automatic) {
-    algo = choose_algorithm(is.h, is.w);
+    const bool gpu = ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU || gpu_family_;
+    algo = gpu ? gpu_choice(is) : choose_algorithm(is.h, is.w);
     // direct or pointwise in several chunks accumulates in the output, so it cannot add a residual
     // that overlaps it.
     if (accumulates_in_output(algo) && residual_overlaps_output(out, residual))
@@ -363,6 +375,10 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     case ConvAlgo::gemm: return record_gemm(cs, r);
     case ConvAlgo::coopmat: return record_coopmat(cs, r);
     case ConvAlgo::pointwise: return record_pointwise(cs, r);
+    case ConvAlgo::igemm_l:
+    case ConvAlgo::igemm_m:
+    case ConvAlgo::igemm_s:
+    case ConvAlgo::igemm_n: return record_igemm(cs, r, algo);
     default: break;
   }
   throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " is not implemented");

@@ -9,6 +9,7 @@
 
 #include "vkunroll/kernels/common.hpp"
 #include "vkunroll/kernels/conv_options.hpp"
+#include "vkunroll/kernels/igemm.hpp"
 
 namespace vkunroll {
 
@@ -30,23 +31,33 @@ enum class ConvAlgo : uint32_t {
                   // one position: 8 pixels x 8/16 channels per invocation, vec4 loads), epilogue
   direct = 6,     // register blocking (8 pixels x 16 output channels per invocation) with the weights in
                   // a uniform buffer, one dispatch per channel block and input-channel chunk; all shapes
-  coopmat = 7,    // fp16 only, GEMMs on cooperative matrices (tensor cores, VK_NV_cooperative_matrix: fp16
-                  // operands, fp32 accumulators): 1x1 stride 1 between the gemm path's pack and epilogue,
-                  // 3x3 stride 1 (pad 1) as an implicit GEMM (im2col in shared memory) and the same
-                  // epilogue; conv2d_coopmat.cpp. Tests run its emulated form where the device has none.
+  coopmat = 7,    // fp16 only: the GPU family's implicit GEMM on cooperative matrices (tensor cores,
+                  // VK_NV_cooperative_matrix: fp16 operands, fp32 accumulators), any kernel and stride,
+                  // operands staged in shared memory, epilogue fused, one dispatch; conv2d_coopmat.cpp.
+                  // Tests run its emulated form where the device has none.
   pointwise = 8,  // 1x1 stride 1 (pad 0): one dispatch per block of output channels and chunk of input channels
                   // reads the input slice in place and writes the output slice (bias, activation, residual
                   // in the last chunk); the chunk's channel loop unrolled so the weights load as scalars on
                   // llvmpipe; conv2d_pointwise.cpp
+  // The GPU family (conv2d_igemm.cpp, kernels/igemm.hpp): any kernel, stride and padding as one tiled
+  // implicit GEMM dispatch with the epilogue fused (split-K adds a reduce where the output gives the
+  // device too few workgroups). BM output channels x BN pixels per workgroup:
+  igemm_l = 9,   // 128 x 128, 8 x 8 per invocation (wide layers)
+  igemm_m = 10,  // 64 x 64, 4 x 4
+  igemm_s = 11,  // 32 x 64, 4 x 4 (up to 32 output channels)
+  igemm_n = 12,  // 16 x 128, 4 x 4 (heads: up to 16 output channels)
 };
+// Whether `a` is one of the igemm_* tile variants.
+bool is_igemm(ConvAlgo a);
 const char* conv_algo_name(ConvAlgo a);
 
 // What the heuristic on a GPU (any device that is not a CPU) looks at: the shape, and which
 // algorithms apply to it (Conv2d::supports). A pure function, so that its rules are tested on lavapipe.
 struct GpuConvFacts {
   int kernel = 3, stride = 1;
-  int64_t cout = 0, h = 0, w = 0;
-  bool winograd = false, gemm = false, direct = false, coopmat = false;
+  int64_t cin = 0, cout = 0, pixels = 0;  // pixels: output pixels of the whole batch
+  int64_t cores = 0;                      // DeviceInfo::compute_units (0: unknown)
+  bool coopmat = false;                   // the coopmat path applies to this conv and input
 };
 ConvAlgo gpu_conv_heuristic(const GpuConvFacts& f);
 
@@ -114,6 +125,10 @@ class Conv2d {
 
   // The algorithm `automatic` picks for an input of this height and width.
   ConvAlgo choose_algorithm(int64_t h, int64_t w) const;
+  // `automatic` takes the GPU family's choice (gpu_conv_heuristic) on any device, lavapipe included
+  // (the default on devices that are not CPUs): `--conv-choice gpu`, tests, dispatch counts.
+  void set_gpu_family(bool on) { gpu_family_ = on; }
+  ConvAlgo gpu_choice(const Shape& in) const;  // gpu_conv_heuristic's answer for this input
   // Every algorithm record() accepts for this input, naive left out (the baseline, 10-50x slower):
   // the candidates a measured choice times. `residual_in_output`: the residual overlaps the output
   // (see residual_overlaps_output), which the chunked direct path cannot add.
@@ -144,6 +159,10 @@ class Conv2d {
   // Tests: `coopmat` runs the emulated form of its shader (plain GLSL with the same tiling, fragments
   // 16 x n x k; n, k 8 or 16) where the device has no cooperative matrix (supports() then says yes).
   void set_coopmat_emulation(bool on, uint32_t n = 8, uint32_t k = 16);
+  // Splits of the igemm reduction: 0 chooses per device and shape, n > 0 forces n (tests).
+  void set_igemm_splits(int n) { igemm_splits_forced_ = n; }
+  // What `algo`'s tiles imply for an input of this shape: multiply-adds and global / shared bytes.
+  ConvCost cost(ConvAlgo algo, const Shape& in) const;
   Shape output_shape(const Shape& in) const;  // {n, cout, oh, ow}
   double flop(const Shape& in) const;         // 2 x multiply-adds of the direct algorithm
   int64_t cin() const { return cin_; }
@@ -177,6 +196,10 @@ class Conv2d {
   void record_gemm(CommandStream& cs, const Recording& r) const;      // conv2d_winograd.cpp
   void record_coopmat(CommandStream& cs, const Recording& r) const;   // conv2d_coopmat.cpp
   void record_pointwise(CommandStream& cs, const Recording& r) const;  // conv2d_pointwise.cpp
+  void record_igemm(CommandStream& cs, const Recording& r, ConvAlgo algo) const;  // conv2d_igemm.cpp
+  IgemmProblem igemm_problem(const Shape& in) const;                            // conv2d_igemm.cpp
+  bool igemm_fits_shape(ConvAlgo algo, const Shape& in) const;                  // conv2d_igemm.cpp
+  void pack_igemm() const;                                                       // conv2d_igemm.cpp
   // The 1x1 paths' shared passes (gemm, coopmat; conv2d_winograd.cpp): input channels [c0, c0 + cn)
   // packed into `v` as `rows` (>= cn; the extra rows zero) x pix_pad values, and M [cout_pad][pix_pad]
   // + bias, activation and residual into the output slice. `tag` names the dispatches.
@@ -186,7 +209,7 @@ class Conv2d {
                          const std::string& tag) const;
   bool coopmat_applies() const;                  // conv2d_coopmat.cpp: supports(coopmat)
   bool coopmat_fits(const Shape& in) const;      // conv2d_coopmat.cpp: supports(coopmat, in)
-  int64_t coopmat_chunk(const Shape& in) const;  // input channels per GEMM dispatch (a multiple of 16)
+  IgemmTile coopmat_tile_for_device() const;     // conv2d_coopmat.cpp: the fragments the device (or emulation) has
   void choose_blocking(const ConvOptions& options);
   // Packings other than the automatic path's are uploaded on first use (record is const).
   void pack_naive() const;
@@ -257,6 +280,9 @@ class Conv2d {
   uint32_t pointwise_px_ = 1;    // pixels per invocation of the pointwise path
   bool pointwise_pairs_ = true;
   int64_t pointwise_chunk_limit_ = 0;  // input channels per pointwise dispatch at most (0: no limit)
+  mutable Tensor weight_igemm_;  // A of the igemm family: [kpad][cout_pad] (kernels/igemm.hpp)
+  int igemm_splits_forced_ = 0;
+  bool gpu_family_ = false;
   mutable std::shared_ptr<ConvWorkspace> workspace_;
 };
 

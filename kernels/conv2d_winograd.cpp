@@ -138,6 +138,7 @@ int64_t Conv2d::winograd_chunk(const Shape& in) const {
 bool Conv2d::supports(ConvAlgo algo, const Shape& in) const {
   if (!supports(algo)) return false;
   if (algo == ConvAlgo::coopmat) return coopmat_fits(in);
+  if (is_igemm(algo)) return igemm_fits_shape(algo, in);
   // M (fp32 in both precisions, all output channels) must fit one binding; V runs in chunks.
   if (algo == ConvAlgo::gemm)
     return static_cast<uint64_t>(gemm_cout_pad_ * gemm_pix_pad(in)) * 4 <= ctx_.info().max_storage_buffer_range &&

@@ -1,11 +1,13 @@
 // conv_transpose2d: PyTorch's ConvTranspose2d (weight [in, out, kh, kw]) with bias and a fused
 // activation; the UNets use kernel 4, stride 2, padding 1 (output exactly 2H x 2W).
 #pragma once
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "vkunroll/kernels/common.hpp"
 #include "vkunroll/kernels/conv_options.hpp"
+#include "vkunroll/kernels/igemm.hpp"
 
 namespace vkunroll {
 
@@ -20,6 +22,8 @@ enum class ConvTransposeAlgo : uint32_t {
   blocked = 2,  // sub-pixel (phase) decomposition, 4 pixels x 8 output channels per invocation
   direct = 3,   // the same decomposition, 8 pixels x 16 output channels per invocation, weights from a
                 // uniform buffer, one dispatch per channel block and input-channel chunk
+  igemm = 4,    // the GPU family (kernels/igemm.hpp): the STRIDE^2 phases as stride-1 convs of the
+                // (kernel / stride)^2 sub-kernels, one tiled implicit-GEMM dispatch; kernel % stride == 0
 };
 const char* conv_transpose_algo_name(ConvTransposeAlgo a);
 
@@ -45,6 +49,10 @@ class ConvTranspose2d {
   // Every algorithm record() accepts, naive left out: the candidates a measured choice times.
   std::vector<ConvTransposeAlgo> candidates() const;
   ConvTransposeAlgo choose_algorithm(int64_t h, int64_t w) const;
+  // `automatic` takes the GPU family (igemm) on any device, lavapipe included (the default on GPUs).
+  void set_gpu_family(bool on) { gpu_family_ = on; }
+  void set_igemm_splits(int n) { igemm_splits_forced_ = n; }  // 0: per device and shape (tests force n)
+  ConvCost cost(ConvTransposeAlgo algo, const Shape& in) const;
   Shape output_shape(const Shape& in) const;
   double flop(const Shape& in) const;  // 2 x multiply-adds: in.count/cin x cin x cout x k x k
   int64_t cin() const { return cin_; }
@@ -74,6 +82,14 @@ class ConvTranspose2d {
   int64_t direct_cob_ = 16;
   int64_t direct_chunk_limit_ = 0;
   bool texel_fetch_ = true;
+  bool gpu_family_ = false;
+  int igemm_splits_forced_ = 0;
+  mutable Tensor weight_igemm_;  // A of each phase: [stride^2][kpad][cout_pad] (kernels/igemm.hpp)
+  mutable std::shared_ptr<ConvWorkspace> workspace_;  // split-K's partial sums
+  IgemmProblem igemm_problem(const Shape& in) const;
+  IgemmTile igemm_tile() const;
+  void record_igemm(CommandStream& cs, const BoundSlice& in, const BoundSlice& out, const Shape& is,
+                    const DispatchInfo& info) const;
 };
 
 }  // namespace vkunroll

@@ -101,6 +101,25 @@ uint32_t queue_family_for_compute(VkPhysicalDevice pd) {
 
 // VK_NV_cooperative_matrix: its feature, the Vulkan memory model glslang's cooperative-matrix SPIR-V
 // declares, and the list of shapes. Usable only with fp16 arithmetic and 16-bit storage too.
+// Shader cores (NVIDIA SMs, AMD compute units) where an extension says; 0 elsewhere. The GPU conv
+// family sizes its split-K by it (kernels/igemm.cpp).
+uint32_t read_compute_units(VkPhysicalDevice pd) {
+  VkPhysicalDeviceProperties2 props2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2};
+  VkPhysicalDeviceShaderSMBuiltinsPropertiesNV sm{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SHADER_SM_BUILTINS_PROPERTIES_NV};
+  VkPhysicalDeviceShaderCorePropertiesAMD amd{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SHADER_CORE_PROPERTIES_AMD};
+  if (device_extension_available(pd, VK_NV_SHADER_SM_BUILTINS_EXTENSION_NAME)) {
+    props2.pNext = &sm;
+    vkGetPhysicalDeviceProperties2(pd, &props2);
+    return sm.shaderSMCount;
+  }
+  if (device_extension_available(pd, VK_AMD_SHADER_CORE_PROPERTIES_EXTENSION_NAME)) {
+    props2.pNext = &amd;
+    vkGetPhysicalDeviceProperties2(pd, &props2);
+    return amd.shaderEngineCount * amd.shaderArraysPerEngineCount * amd.computeUnitsPerShaderArray;
+  }
+  return 0;
+}
+
 void read_coopmat_info(VkPhysicalDevice pd, bool v12, DeviceInfo& info) {
   info.coopmat_khr_listed = device_extension_available(pd, "VK_KHR_cooperative_matrix");
   if (!device_extension_available(pd, VK_NV_COOPERATIVE_MATRIX_EXTENSION_NAME)) return;
@@ -193,6 +212,7 @@ DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
   info.push_descriptor = device_extension_available(pd, VK_KHR_PUSH_DESCRIPTOR_EXTENSION_NAME);
   info.shader_float16 = storage16.pNext && f16.shaderFloat16;
   read_coopmat_info(pd, v12, info);
+  info.compute_units = read_compute_units(pd);
 
   const uint32_t qf = queue_family_for_compute(pd);
   if (qf != UINT32_MAX) {

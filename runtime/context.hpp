@@ -76,6 +76,7 @@ struct DeviceInfo {
   uint32_t vendor_id = 0, device_id = 0;
   std::string driver_name, driver_info;
   uint32_t subgroup_size = 0;
+  uint32_t compute_units = 0;  // NVIDIA SMs or AMD compute units where the driver says; 0: unknown
   bool shader_float16 = false;          // fp16 arithmetic in shaders (enabled when present)
   bool push_descriptor = false;         // VK_KHR_push_descriptor (enabled unless ContextOptions says no)
   bool storage_buffer_16bit = false;    // fp16 values in storage buffers (enabled; the fp16 kernels need it)

@@ -1,6 +1,6 @@
-// conv2d `coopmat` (1x1 GEMM, 3x3 and 5x5 implicit GEMM on cooperative matrices, fp16) against the CPU reference: the emulated
-// shader (the same tiling in plain GLSL) on every device, the real VK_NV_cooperative_matrix one where
-// the device has it (else skipped, naming the extension).
+// conv2d `coopmat` (the implicit GEMM on cooperative matrices, fp16, any kernel and stride) against the
+// CPU reference: the emulated shader (the same tiling in plain GLSL) on every device, the real
+// VK_NV_cooperative_matrix one where the device has it (else skipped, naming the extension).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -23,7 +23,7 @@ namespace {
 constexpr double kTolFp16 = 1e-2;
 
 struct Case {
-  int k;  // 1, 3 or 5 (stride 1, pad k / 2)
+  int k;  // 1, 3 or 5 (pad k / 2)
   int64_t cin, cout, h, w;
   Act act;
   bool residual;
@@ -33,6 +33,7 @@ struct Case {
   // (its loop limit; measured: 3x3 1100->96 and 5x5 396->96 wrong with 16x16x16 or 16x8x8 fragments,
   // 3x3 800->96 and 5x5 200->96 right), so SFENet1's reduction runs where the device has the extension.
   bool real_only = false;
+  int s = 1;  // stride
 };
 
 // test_conv2d.cpp's 1x1 and 3x3 stride-1 cases, odd channel counts (padding to 16 in both), several
@@ -71,23 +72,26 @@ std::vector<Case> cases() {
       {5, 200, 96, 6, 7, lrelu01, false},
       {5, 396, 96, 6, 7, lrelu01, false, 0, 0, 0, 0, 1, 0, 1, true},
       {5, 13, 17, 9, 10, Act{}, true, 3, 2, 4, 1, 2, 0, 2},
+      // stride 2 (the UNets' down convs), 1x1 stride 2, two pixel workgroups and channel tiles
+      {3, 9, 12, 16, 18, lrelu01, false, 3, 3, 0, 0, 1, 1, 3, false, 2},
+      {3, 64, 70, 13, 17, lrelu01, false, 0, 0, 0, 0, 2, 0, 2, false, 2},
+      {1, 3, 5, 9, 8, Act{}, false, 0, 0, 0, 0, 1, 0, 1, false, 2},
+      {5, 5, 4, 11, 14, Act{Activation::sigmoid}, true, 0, 0, 0, 0, 1, 0, 1, false, 2},
   };
 }
 
 struct Run {
   bool emulated = true;
   uint32_t n = 8, k = 16;  // emulated fragment 16 x n x k
-  int64_t chunk_rows = 0;  // >0: cap V so that each GEMM dispatch takes this many input channels
+  int splits = 0;          // > 0: the reduction in that many splits (partial sums, then the reduce)
 };
 
-int64_t ceil_div(int64_t a, int64_t b) { return (a + b - 1) / b; }
-
 // One case of the op in fp16: the conv built when it is recorded, on a shared scratch full of fp16
-// NaNs (the padded rows of V must be written as zeros and M overwritten by the first chunk, or NaNs
-// reach the output).
+// NaNs (split-K's partial sums must be written before the reduce reads them, or NaNs reach the output).
 optest::OpCase coopmat_case(const Case& c, const Run& run, const std::shared_ptr<ConvWorkspace>& workspace,
                             std::mt19937& rng) {
-  const Conv2dParams p{c.k, 1, c.k / 2, c.act};
+  const Conv2dParams p{c.k, c.s, c.k / 2, c.act};
+  const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
   const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
   const HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
   const HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
@@ -95,27 +99,23 @@ optest::OpCase coopmat_case(const Case& c, const Run& run, const std::shared_ptr
   optest::OpCase k;
   k.what = std::to_string(c.k) + "x" + std::to_string(c.k) + " " + std::to_string(c.cin) + "->" + std::to_string(c.cout) +
            " " + std::to_string(c.h) + "x" + std::to_string(c.w) + " batch " + std::to_string(c.batch) + " act " +
-           activation_name(c.act.kind) + (c.residual ? " residual" : "");
-  k.inputs = {random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng), random_tensor({nb, c.cout, c.h, c.w}, rng)};
-  k.outputs = {{{c.batch, c.cout, c.h, c.w}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
+           activation_name(c.act.kind) + (c.residual ? " residual" : "") + " stride " + std::to_string(c.s);
+  k.inputs = {random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng), random_tensor({nb, c.cout, oh, ow}, rng)};
+  k.outputs = {{{c.batch, c.cout, oh, ow}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
   k.reference = [c, w, b, p](optest::HostRun& r) {
     const HostSlice residual(r.inputs[1], 0, -1, c.in_n0, c.batch);
     conv2d_ref(HostSlice(r.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch), r.out(0), w, b, p,
                c.residual ? std::optional<HostSlice>(residual) : std::nullopt);
   };
   k.record = [c, w, b, p, run, workspace](optest::DeviceRun& d) {
-    if (run.chunk_rows > 0 && c.k != 1) return false;  // the k x k path has no scratch to cap
     CommandStream poison(d.ctx);
-    for (int slot : {0, 1}) poison.fill(workspace->get(d.ctx, slot, 4u << 20), 0x7e007e00u);
+    poison.fill(workspace->get(d.ctx, 2, 4u << 20), 0x7fc00000u);  // fp32 NaN in the partial sums' slot
     poison.submit_and_wait();
     ConvOptions options;
     options.precision = Precision::fp16;
-    auto conv = std::make_shared<Conv2d>(d.ctx, w, b, p, "conv1x1", workspace, options);
+    auto conv = std::make_shared<Conv2d>(d.ctx, w, b, p, "conv_coopmat", workspace, options);
     if (run.emulated) conv->set_coopmat_emulation(true, run.n, run.k);
-    const int64_t npix = c.batch * c.h * c.w;
-    // V holds chunk_rows channels of the pixels padded to 128 (the workgroup's), fp16
-    if (run.chunk_rows > 0)
-      conv->set_winograd_scratch_limit(static_cast<uint64_t>(run.chunk_rows * ceil_div(npix, 128) * 128 * 2));
+    conv->set_igemm_splits(run.splits);
     const Slice in(d.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch);
     if (!conv->supports(ConvAlgo::coopmat) || !conv->supports(ConvAlgo::coopmat, in.shape())) {
       ADD_FAILURE() << "coopmat does not apply to a case it is for";
@@ -123,9 +123,9 @@ optest::OpCase coopmat_case(const Case& c, const Run& run, const std::shared_ptr
     }
     const Slice residual(d.inputs[1], 0, -1, c.in_n0, c.batch);
     conv->record(d.stream, in, d.out(0), c.residual ? std::optional<Slice>(residual) : std::nullopt, ConvAlgo::coopmat);
-    // 1x1: pack + GEMM per input-channel chunk, one epilogue; k x k: the GEMM (no scratch), the epilogue
-    const int64_t chunks = run.chunk_rows > 0 ? ceil_div(c.cin, run.chunk_rows) : 1;
-    EXPECT_EQ(d.stream.recorded(), static_cast<size_t>(c.k > 1 ? 2 : 2 * chunks + 1));
+    // One dispatch, epilogue fused; split-K adds the reduce (a reduction of one stage stays whole).
+    const bool split = run.splits > 1 && c.cin * c.k * c.k > 16;
+    EXPECT_EQ(d.stream.recorded(), split ? 2u : 1u);
     d.keep_alive = conv;
     return true;
   };
@@ -142,7 +142,7 @@ void run_cases(Context& ctx, const std::vector<Case>& all, const Run& run) {
   auto workspace = std::make_shared<ConvWorkspace>();
   optest::OpTest test{std::string("conv2d coopmat ") + (run.emulated ? "emulated" : "NV") + " 16x" +
                           std::to_string(run.n) + "x" + std::to_string(run.k) +
-                          (run.chunk_rows ? ", chunks of " + std::to_string(run.chunk_rows) + " channels" : ""),
+                          (run.splits > 1 ? ", split-K " + std::to_string(run.splits) : ""),
                       {}, {0, kTolFp16}, {Precision::fp16}};
   for (const Case& c : list) test.cases.push_back(coopmat_case(c, run, workspace, rng));
   const optest::OpTestReport report = optest::run_op_test(ctx, test);
@@ -173,21 +173,21 @@ TEST(Conv2dCoopmat, EmulatedMatchesReference) {
   for (auto [n, k] : {std::pair{8u, 16u}, {16u, 16u}, {8u, 8u}}) run_cases(ctx, cases(), {true, n, k});
 }
 
-// 1x1: input channels in chunks of 16 and 32: the GEMM accumulates into M (ACCUM), V is repacked per
-// chunk (the 3x3 cases ignore the scratch cap: they have no scratch).
-TEST(Conv2dCoopmat, EmulatedInChunksMatchesReference) {
+// The reduction in splits: partial sums into scratch, then the family's reduce adds bias,
+// activation and residual.
+TEST(Conv2dCoopmat, EmulatedSplitKMatchesReference) {
   Context& ctx = vktest::context();
-  run_cases(ctx, cases(), {true, 8, 16, 16});
-  run_cases(ctx, cases(), {true, 16, 8, 32});
+  run_cases(ctx, cases(), {true, 8, 16, 3});
+  run_cases(ctx, cases(), {true, 16, 8, 2});
 }
 
 // Every slice binds its whole tensor: a write outside the output slice lands on a canary.
 TEST(Conv2dCoopmat, EmulatedWritesNothingOutsideItsSlice) {
   run_cases(vktest::whole_binding_context(), cases(), {true, 8, 16});
-  run_cases(vktest::whole_binding_context(), cases(), {true, 8, 16, 16});
+  run_cases(vktest::whole_binding_context(), cases(), {true, 8, 16, 2});
 }
 
-TEST(Conv2dCoopmat, AppliesToFp16OneThreeAndFiveSquareStrideOne) {
+TEST(Conv2dCoopmat, AppliesToEveryFp16Conv) {
   Context& ctx = vktest::context();
   std::mt19937 rng(7);
   ConvOptions fp16;
@@ -199,15 +199,15 @@ TEST(Conv2dCoopmat, AppliesToFp16OneThreeAndFiveSquareStrideOne) {
   Conv2d c1_32(ctx, random_tensor({8, 4, 1, 1}, rng), b, {1, 1, 0, {}});
   Conv2d c1(ctx, random_tensor({8, 4, 1, 1}, rng), b, {1, 1, 0, {}}, "c1", nullptr, fp16);
   for (Conv2d* c : {&c3, &c5, &c1_32, &c3s1}) c->set_coopmat_emulation(true);
-  EXPECT_FALSE(c3.supports(ConvAlgo::coopmat));
-  EXPECT_TRUE(c5.supports(ConvAlgo::coopmat));  // 5x5 stride 1 pad 2: the implicit GEMM (SFENet1)
+  EXPECT_TRUE(c3.supports(ConvAlgo::coopmat));  // stride 2: the gather reads every other pixel
+  EXPECT_TRUE(c5.supports(ConvAlgo::coopmat));
   Conv2d c5p1(ctx, random_tensor({8, 4, 5, 5}, rng), b, {5, 1, 1, {}}, "c5p1", nullptr, fp16);
   Conv2d c7(ctx, random_tensor({8, 4, 7, 7}, rng), b, {7, 1, 3, {}}, "c7", nullptr, fp16);
   for (Conv2d* c : {&c5p1, &c7}) c->set_coopmat_emulation(true);
-  EXPECT_FALSE(c5p1.supports(ConvAlgo::coopmat));  // the shader pads k / 2
-  EXPECT_FALSE(c7.supports(ConvAlgo::coopmat));
+  EXPECT_TRUE(c5p1.supports(ConvAlgo::coopmat));  // any padding and kernel
+  EXPECT_TRUE(c7.supports(ConvAlgo::coopmat));
   EXPECT_TRUE(c3s1.supports(ConvAlgo::coopmat));
-  EXPECT_FALSE(c1_32.supports(ConvAlgo::coopmat));
+  EXPECT_FALSE(c1_32.supports(ConvAlgo::coopmat));  // fp32: no tensor cores in this path
   EXPECT_EQ(c1.supports(ConvAlgo::coopmat), nv_missing(ctx).empty());
   c1.set_coopmat_emulation(true);
   EXPECT_TRUE(c1.supports(ConvAlgo::coopmat));
@@ -255,8 +255,7 @@ TEST(Conv2dCoopmat, NvMatchesReference) {
   }
   const CoopMatShape s = *ctx.info().coopmat_fp16_shape();
   run_cases(ctx, cases(), {false, s.n, s.k});
-  run_cases(ctx, cases(), {false, s.n, s.k, 16});
-  run_cases(ctx, cases(), {false, s.n, s.k, 32});
+  run_cases(ctx, cases(), {false, s.n, s.k, 3});
   run_cases(vktest::whole_binding_context(), cases(), {false, s.n, s.k});
-  run_cases(vktest::whole_binding_context(), cases(), {false, s.n, s.k, 16});
+  run_cases(vktest::whole_binding_context(), cases(), {false, s.n, s.k, 2});
 }

@@ -300,29 +300,6 @@ TEST(ConvChoice, TuneWritesTheTableUnrollReads) {
   fs::remove_all(dir);
 }
 
-// The GPU heuristic (the measured table's fallback on every device that is not a CPU), rule by rule,
-// with the shapes of the H200 run (2026-12-04) that set them: a 5x5 conv takes direct where it
-// applies, a 1x1 conv cooperative matrices where the device has them, Winograd the 3x3 convs with
-// more than 4 output channels, the GEMM the rest, blocked what nothing else takes.
-TEST(ConvChoice, GpuHeuristicFollowsTheMeasuredRules) {
-  GpuConvFacts sfenet1{5, 1, 96, 240, 320, true, true, true, false};
-  EXPECT_EQ(gpu_conv_heuristic(sfenet1), ConvAlgo::direct);
-  sfenet1.direct = false;  // where direct does not apply, the 5x5 Winograd as before
-  EXPECT_EQ(gpu_conv_heuristic(sfenet1), ConvAlgo::winograd);
-  GpuConvFacts gff{1, 1, 96, 130, 173, false, true, false, true};
-  EXPECT_EQ(gpu_conv_heuristic(gff), ConvAlgo::coopmat);
-  gff.coopmat = false;  // fp32, or a device without cooperative matrices
-  EXPECT_EQ(gpu_conv_heuristic(gff), ConvAlgo::gemm);
-  gff.coopmat = true, gff.h = 4, gff.w = 4;  // under 64 pixels neither pays its passes
-  EXPECT_EQ(gpu_conv_heuristic(gff), ConvAlgo::blocked);
-  const GpuConvFacts rdb{3, 1, 48, 130, 173, true, true, true, true};
-  EXPECT_EQ(gpu_conv_heuristic(rdb), ConvAlgo::winograd);
-  const GpuConvFacts head{3, 1, 3, 260, 346, true, true, true, true};  // 1-4 output channels
-  EXPECT_EQ(gpu_conv_heuristic(head), ConvAlgo::gemm);
-  const GpuConvFacts tiny{3, 2, 512, 6, 7, true, false, true, false};  // one Winograd tile row at stride 2
-  EXPECT_EQ(gpu_conv_heuristic(tiny), ConvAlgo::blocked);
-}
-
 // Committed tables are matched by the device that measured them (the '# device' line): the same
 // card and driver before the same model (vendor and device id) and driver, before the same model
 // under another driver (used, and said); another model never; a file without the line is skipped

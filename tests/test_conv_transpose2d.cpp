@@ -21,6 +21,7 @@ struct Case {
   int64_t cin, cout, h, w;
   Act act;
   int64_t in_extra_c = 0, in_c0 = 0, out_extra_c = 0, out_c0 = 0, batch = 1;
+  int k = 4, s = 2, pad = 1;  // the UNets' deconvs unless a case says otherwise
 };
 
 struct Variant {
@@ -28,19 +29,22 @@ struct Variant {
   int64_t direct_chunk_limit = 0;
   bool texel_fetch = true;
   std::vector<Precision> precisions{Precision::fp32, Precision::fp16};
+  int igemm_splits = 0;  // > 0: igemm's reduction in that many splits
 };
 
 // One case of the op: weights drawn here, the op built per precision when the case is recorded.
 optest::OpCase deconv_case(const Case& c, const Variant& v, std::mt19937& rng) {
-  const ConvTranspose2dParams p{4, 2, 1, c.act};
-  const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * 4));
-  const HostTensor w = random_tensor({c.cin, c.cout, 4, 4}, rng, -ws, ws);
+  const ConvTranspose2dParams p{c.k, c.s, c.pad, c.act};
+  const float ws = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k / (c.s * c.s)));
+  const HostTensor w = random_tensor({c.cin, c.cout, c.k, c.k}, rng, -ws, ws);
+  const int64_t oh = conv_transpose_output_size(c.h, c.k, c.s, c.pad), ow = conv_transpose_output_size(c.w, c.k, c.s, c.pad);
   const HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
   optest::OpCase k;
   k.what = std::to_string(c.cin) + "->" + std::to_string(c.cout) + " " + std::to_string(c.h) + "x" +
-           std::to_string(c.w) + " batch " + std::to_string(c.batch);
+           std::to_string(c.w) + " batch " + std::to_string(c.batch) + " k" + std::to_string(c.k) + " s" +
+           std::to_string(c.s) + " p" + std::to_string(c.pad);
   k.inputs = {random_tensor({c.batch, c.cin + c.in_extra_c, c.h, c.w}, rng)};
-  k.outputs = {{{c.batch, c.cout, 2 * c.h, 2 * c.w}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
+  k.outputs = {{{c.batch, c.cout, oh, ow}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
   k.reference = [c, w, b, p](optest::HostRun& r) {
     conv_transpose2d_ref(HostSlice(r.inputs[0], c.in_c0, c.cin), r.out(0), w, b, p);
   };
@@ -50,6 +54,7 @@ optest::OpCase deconv_case(const Case& c, const Variant& v, std::mt19937& rng) {
     auto deconv = std::make_shared<ConvTranspose2d>(d.ctx, w, b, p, "conv_transpose2d", opt);
     deconv->set_direct_chunk_limit(v.direct_chunk_limit);
     deconv->set_texel_fetch(v.texel_fetch);
+    deconv->set_igemm_splits(v.igemm_splits);
     if (!deconv->supports(v.algo)) return false;
     deconv->record(d.stream, Slice(d.inputs[0], c.in_c0, c.cin), d.out(0), v.algo);
     d.keep_alive = deconv;
@@ -68,9 +73,14 @@ void run_cases(Context& ctx, const Variant& v) {
       {9, 13, 6, 5, Act{Activation::hardsigmoid}},
       {32, 16, 11, 9, leaky_relu(0.01f), 0, 0, 16, 16, 2},
       {33, 64, 5, 3, leaky_relu(0.2f), 2, 1, 0, 0, 1},  // direct's 32-channel blocks
+      // other kernels and strides (the igemm sub-pixel form's general case; the others skip them)
+      {6, 5, 7, 6, Act{}, 0, 0, 0, 0, 2, 2, 2, 0},
+      {7, 4, 5, 4, leaky_relu(0.1f), 0, 0, 0, 0, 1, 6, 3, 2},
+      {4, 20, 6, 9, Act{Activation::tanh}, 0, 0, 0, 0, 1, 4, 2, 2},
   };
   optest::OpTest test{std::string("conv_transpose2d ") + conv_transpose_algo_name(v.algo) +
-                          (v.direct_chunk_limit ? " in chunks" : "") + (v.texel_fetch ? "" : " storage input"),
+                          (v.direct_chunk_limit ? " in chunks" : "") + (v.texel_fetch ? "" : " storage input") +
+                          (v.igemm_splits > 1 ? " split-K" : ""),
                       {}, {kTol, kTolFp16}, v.precisions};
   for (const Case& c : cases) test.cases.push_back(deconv_case(c, v, rng));
   optest::run_op_test(ctx, test);
@@ -91,6 +101,13 @@ TEST(ConvTranspose2d, DirectInChunksOnAStrictUniformAlignment) {
 }
 // The input through a storage buffer instead of a texel buffer (the fallback for huge inputs).
 TEST(ConvTranspose2d, DirectStorageInputMatchesReference) { run_cases({ConvTransposeAlgo::direct, 0, false}); }
+// The GPU family: the phases as stride-1 convs in one dispatch, whole and split-K (with its reduce).
+TEST(ConvTranspose2d, IgemmMatchesReference) {
+  run_cases({ConvTransposeAlgo::igemm});
+  Variant split{ConvTransposeAlgo::igemm};
+  split.igemm_splits = 2;
+  run_cases(split);
+}
 TEST(ConvTranspose2d, AutomaticMatchesReference) { run_cases({ConvTransposeAlgo::automatic, 0, true, {kFp32}}); }
 
 // Every algorithm on a context that binds whole tensors: a write outside the output slice lands on
@@ -101,6 +118,8 @@ TEST(ConvTranspose2d, WritesNothingOutsideItsSlice) {
     run_cases(ctx, {a, 0, true, {kFp32}});
   run_cases(ctx, {ConvTransposeAlgo::direct, 3, true, {kFp32}});
   run_cases(ctx, {ConvTransposeAlgo::direct, 0, false, {kFp32}});
+  run_cases(ctx, {ConvTransposeAlgo::igemm, 0, true, {kFp32, Precision::fp16}});
+  run_cases(ctx, {ConvTransposeAlgo::igemm, 0, true, {kFp32}, 3});
 }
 
 TEST(ConvTranspose2d, ReferenceKnownValues) {
