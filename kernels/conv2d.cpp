@@ -135,6 +135,7 @@ Conv2d::Conv2d(Context& ctx, const HostTensor& weight, const HostTensor& bias, c
   bias_host_ = bias.data.empty() ? std::vector<float>(static_cast<size_t>(cout_), 0.f) : bias.data;
   bias_ = to_device(ctx, HostTensor(Shape{1, 1, 1, cout_}, bias_host_));
   choose_blocking(options);
+  gpu_family_ = options.gpu_family;
   const bool wino_s2 = k == 3 && params.stride == 2 && params.pad == 1;
   if ((k == 3 && params.stride == 1 && params.pad == 1) || (k == 5 && params.stride == 1 && params.pad == 2) || wino_s2)
     pack_winograd();

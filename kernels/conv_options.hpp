@@ -26,6 +26,9 @@ struct ConvOptions {
   int winograd_tile = 0;
   int pointwise_cob = 0;  // conv2d pointwise: output channels per invocation, 1-32 (0: the kernel's choice)
   int pointwise_px = 0;   // conv2d pointwise: pixels per invocation, 1-8 (0: the kernel's choice)
+  // `automatic` takes the GPU family's choice (igemm, coopmat in fp16 where the device has it) on any
+  // device, lavapipe included: `--conv-choice gpu`, its tests and dispatch counts (GPUs take it anyway).
+  bool gpu_family = false;
 
   // Throws Error naming the field, its value and the allowed values; `who` (the conv's name) leads.
   void validate(const std::string& who) const;

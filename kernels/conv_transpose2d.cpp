@@ -93,6 +93,7 @@ ConvTranspose2d::ConvTranspose2d(Context& ctx, const HostTensor& weight, const H
   weight_ = upload_weights(ctx, weight.data, precision_, name_);
   bias_ = to_device(ctx, HostTensor(Shape{1, 1, 1, cout_}, b));
   weight_host_ = weight;  // for the packings uploaded on first use (direct, igemm)
+  gpu_family_ = options.gpu_family;
   if (k == 4 && params.stride == 2 && params.pad == 1) {
     // 32 channels per invocation where they divide cout: 3-6% faster than 16 on lavapipe (fewer
     // input loads per FMA), even on 512->256 where the chunks halve.
