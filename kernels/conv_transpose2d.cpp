@@ -152,10 +152,14 @@ std::vector<ConvTransposeAlgo> ConvTranspose2d::candidates() const {
   return out;
 }
 
+ConvTransposeAlgo ConvTranspose2d::gpu_choice() const {
+  // The igemm family, one dispatch for all the phases (blocked was the H100's best, 2026-11).
+  if (supports(ConvTransposeAlgo::igemm)) return ConvTransposeAlgo::igemm;
+  return supports(ConvTransposeAlgo::blocked) ? ConvTransposeAlgo::blocked : ConvTransposeAlgo::naive;
+}
+
 ConvTransposeAlgo ConvTranspose2d::choose_algorithm(int64_t, int64_t) const {
-  // GPUs: the igemm family, one dispatch for all four phases (blocked was the H100's best, 2026-11).
-  const bool gpu = ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU || gpu_family_;
-  if (gpu && supports(ConvTransposeAlgo::igemm)) return ConvTransposeAlgo::igemm;
+  if (ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU || gpu_family_) return gpu_choice();
   // direct (weights from a uniform buffer, 16 or 32 channels per invocation) measured 5-10% faster than
   // blocked on every transposed conv of the model on lavapipe.
   // On a GPU `blocked` is 4-45x faster than `direct` (H100, docs/gpu_nvidia.md): direct is for llvmpipe.

@@ -51,6 +51,7 @@ class ConvTranspose2d {
   ConvTransposeAlgo choose_algorithm(int64_t h, int64_t w) const;
   // `automatic` takes the GPU family (igemm) on any device, lavapipe included (the default on GPUs).
   void set_gpu_family(bool on) { gpu_family_ = on; }
+  ConvTransposeAlgo gpu_choice() const;  // the GPU family's choice: igemm where it applies, else blocked
   void set_igemm_splits(int n) { igemm_splits_forced_ = n; }  // 0: per device and shape (tests force n)
   ConvCost cost(ConvTransposeAlgo algo, const Shape& in) const;
   Shape output_shape(const Shape& in) const;

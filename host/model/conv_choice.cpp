@@ -280,16 +280,9 @@ DeviceConvTable load_device_conv_table(const Context& ctx, const std::vector<std
   return d;
 }
 
-ConvAlgo gpu_family_algorithm(const Conv2d& c, const Shape& in) {
-  const Conv2dParams& p = c.params();
-  return gpu_conv_heuristic({p.kernel, p.stride, c.cout(), in.h, in.w, c.supports(ConvAlgo::winograd),
-                             c.supports(ConvAlgo::gemm), c.supports(ConvAlgo::direct), c.supports(ConvAlgo::coopmat)});
-}
+ConvAlgo gpu_family_algorithm(const Conv2d& c, const Shape& in) { return c.gpu_choice(in); }
 
-ConvTransposeAlgo gpu_family_algorithm(const ConvTranspose2d& c) {
-  // ConvTranspose2d::choose_algorithm's rule off a CPU: direct is for llvmpipe.
-  return c.supports(ConvTransposeAlgo::blocked) ? ConvTransposeAlgo::blocked : ConvTransposeAlgo::naive;
-}
+ConvTransposeAlgo gpu_family_algorithm(const ConvTranspose2d& c) { return c.gpu_choice(); }
 
 std::string conv_choice_key(const Conv2d& c, const Shape& in, bool residual) {
   const Conv2dParams& p = c.params();

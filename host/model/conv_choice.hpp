@@ -121,8 +121,9 @@ std::string conv_choice_path(const Context& ctx);
 // "device name, driver version, uuid": the file's first line.
 std::string conv_choice_header(const Context& ctx);
 
-// What the kernels choose for this conv and input on a device that is not a CPU (gpu_conv_heuristic;
-// transposed convs: blocked), whatever device runs it. An algorithm `candidates` lacks falls back there.
+// What the kernels choose for this conv and input on a device that is not a CPU (the GPU family:
+// Conv2d::gpu_choice, ConvTranspose2d::gpu_choice), whatever device runs it. An algorithm `candidates`
+// lacks falls back there.
 ConvAlgo gpu_family_algorithm(const Conv2d& conv, const Shape& in);
 ConvTransposeAlgo gpu_family_algorithm(const ConvTranspose2d& conv);
 
