@@ -42,7 +42,7 @@ std::string slurp(const fs::path& p) {
 }  // namespace
 
 // --conv-choice gpu runs the GPU kernels' rule on lavapipe: other algorithms than lavapipe's own
-// choice (1x1 convs on the GEMM, 3x3 stride 2 on Winograd, transposed convs on blocked), and the
+// choice (the igemm family, transposed convs as its sub-pixel phases), and the
 // shipped default model's GS frames equal those of lavapipe's choice within one PNG step.
 TEST(ConvChoice, GpuChoiceKeepsTheFramesOfTheDevicesOwnChoice) {
   const std::string cli = VKUNROLL_CLI_PATH;
@@ -65,9 +65,9 @@ TEST(ConvChoice, GpuChoiceKeepsTheFramesOfTheDevicesOwnChoice) {
     calls[choice] = summary.at("conv_algorithms").at("calls_by_algorithm");
   }
   EXPECT_NE(calls["gpu"], calls["heuristic"]) << calls["gpu"].dump();
-  EXPECT_TRUE(calls["gpu"].contains("gemm")) << calls["gpu"].dump();  // the model's 1x1 convs
-  EXPECT_TRUE(calls["gpu"].contains("transposed blocked")) << calls["gpu"].dump();
-  EXPECT_FALSE(calls["heuristic"].contains("transposed blocked")) << calls["heuristic"].dump();
+  EXPECT_TRUE(calls["gpu"].contains("igemm_n")) << calls["gpu"].dump();  // the 8-channel UNet levels, the heads
+  EXPECT_TRUE(calls["gpu"].contains("transposed igemm")) << calls["gpu"].dump();
+  EXPECT_FALSE(calls["heuristic"].contains("transposed igemm")) << calls["heuristic"].dump();
   size_t frames = 0;
   for (const auto& f : fs::directory_iterator(dir / "heuristic" / "frames")) {
     const cv::Mat a = cv::imread(f.path().string(), cv::IMREAD_UNCHANGED);
