@@ -1,15 +1,13 @@
+// CommandStream, the recording half: commands checked, their descriptors and barriers worked out.
+// Submission, replay and completion: command_stream_submit.cpp.
 #include "vkunroll/runtime/command_stream.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cstring>
-#include <cstdlib>
-#include <sstream>
 
-#include "vkunroll/base/env.hpp"
-#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
-#include "vkunroll/runtime/profiler.hpp"
 
 namespace vkunroll {
 
@@ -18,47 +16,18 @@ constexpr uint32_t kSetsPerPool = 256;
 constexpr uint32_t kDescriptorsPerSet = 16;
 constexpr uint32_t kUniformsPerSet = Pipeline::kMaxUniformBindings;  // pool sizing
 constexpr uint32_t kTexelsPerSet = Pipeline::kMaxTexelBindings;
-constexpr uint32_t kMaxDispatchesPerSubmit = 2048;  // timestamp pairs per query pool
+constexpr VkPipelineStageFlags kComputeStage = VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT;
+constexpr VkPipelineStageFlags kTransferStage = VK_PIPELINE_STAGE_TRANSFER_BIT;
 
-// A full-size model pass on a software rasterizer can take minutes.
-double default_timeout() { return env::seconds("VKUNROLL_FENCE_TIMEOUT_S", 600.0, 1e6); }
-
+bool overlaps(VkBuffer buffer, VkDeviceSize begin, VkDeviceSize end, VkBuffer b2, VkDeviceSize begin2, VkDeviceSize end2) {
+  return buffer == b2 && begin < end2 && begin2 < end;
+}
 }  // namespace
-
-CommandStream::CommandStream(Context& ctx, Profiler* profiler)
-    : ctx_(ctx), profiler_(profiler), timeout_s_(default_timeout()) {
-  VkCommandPoolCreateInfo pci{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
-  pci.flags = VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT;
-  pci.queueFamilyIndex = ctx.queue_family();
-  VK_CHECK(vkCreateCommandPool(ctx.device(), &pci, nullptr, &pool_));
-  VkCommandBufferAllocateInfo ai{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
-  ai.commandPool = pool_;
-  ai.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
-  ai.commandBufferCount = 1;
-  VK_CHECK(vkAllocateCommandBuffers(ctx.device(), &ai, &cb_));
-  VkFenceCreateInfo fci{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
-  VK_CHECK(vkCreateFence(ctx.device(), &fci, nullptr, &fence_));
-  if (ctx.info().timestamps) {
-    VkQueryPoolCreateInfo qci{VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO};
-    qci.queryType = VK_QUERY_TYPE_TIMESTAMP;
-    qci.queryCount = 2 * kMaxDispatchesPerSubmit;
-    VK_CHECK(vkCreateQueryPool(ctx.device(), &qci, nullptr, &queries_));
-    query_capacity_ = qci.queryCount;
-  }
-}
-
-CommandStream::~CommandStream() {
-  VkDevice d = ctx_.device();
-  if (queries_) vkDestroyQueryPool(d, queries_, nullptr);
-  for (const auto& v : views_) vkDestroyBufferView(d, v.view, nullptr);
-  for (auto p : desc_pools_) vkDestroyDescriptorPool(d, p, nullptr);
-  if (fence_) vkDestroyFence(d, fence_, nullptr);
-  if (pool_) vkDestroyCommandPool(d, pool_, nullptr);
-}
 
 VkDescriptorSet CommandStream::allocate_set(VkDescriptorSetLayout layout, uint32_t bindings) {
   if (bindings > kDescriptorsPerSet) throw Error("a dispatch binds more than 16 buffers");
-  if (desc_pools_.empty() || desc_pool_used_ >= kSetsPerPool) {
+  Slot& s = *slots_[current_];
+  if (s.desc_pools.empty() || s.desc_pool_used >= kSetsPerPool) {
     const VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, kSetsPerPool * kDescriptorsPerSet},
                                            {VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, kSetsPerPool * kUniformsPerSet},
                                            {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, kSetsPerPool * kTexelsPerSet},
@@ -69,35 +38,56 @@ VkDescriptorSet CommandStream::allocate_set(VkDescriptorSetLayout layout, uint32
     ci.pPoolSizes = sizes;
     VkDescriptorPool pool;
     VK_CHECK(vkCreateDescriptorPool(ctx_.device(), &ci, nullptr, &pool));
-    desc_pools_.push_back(pool);
-    desc_pool_used_ = 0;
+    s.desc_pools.push_back(pool);
+    s.desc_pool_used = 0;
   }
   VkDescriptorSetAllocateInfo ai{VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO};
-  ai.descriptorPool = desc_pools_.back();
+  ai.descriptorPool = s.desc_pools.back();
   ai.descriptorSetCount = 1;
   ai.pSetLayouts = &layout;
   VkDescriptorSet set;
   VK_CHECK(vkAllocateDescriptorSets(ctx_.device(), &ai, &set));
-  desc_pool_used_++;
+  s.desc_pool_used++;
   return set;
 }
 
-bool CommandStream::hazard_barrier(const std::vector<Span>& reads, const std::vector<Span>& writes) {
+bool CommandStream::hazard_barrier(const std::vector<Span>& reads, const std::vector<Span>& writes,
+                                   VkPipelineStageFlags stage, Recorded& c) {
   auto hit = [](const Span& s, const std::vector<Span>& list) {
-    return std::any_of(list.begin(), list.end(), [&](const Span& o) {
-      return o.buffer == s.buffer && s.begin < o.end && o.begin < s.end;
-    });
+    return std::any_of(list.begin(), list.end(),
+                       [&](const Span& o) { return overlaps(s.buffer, s.begin, s.end, o.buffer, o.begin, o.end); });
   };
   bool need = false;
   for (const auto& r : reads) need = need || hit(r, pending_writes_);                           // RAW
   for (const auto& w : writes) need = need || hit(w, pending_writes_) || hit(w, pending_reads_);  // WAW, WAR
-  if (need) {
+  if (need && !drop_barriers_) {
+    // The writes since the last barrier become visible; the reads only need to have happened.
+    c.barrier = true;
+    c.barrier_first = static_cast<uint32_t>(barrier_ranges_.size());
+    std::sort(pending_writes_.begin(), pending_writes_.end(), [](const Span& a, const Span& b) {
+      return a.buffer != b.buffer ? a.buffer < b.buffer : a.begin < b.begin;
+    });
+    for (const Span& w : pending_writes_) {  // merged where they touch
+      BufferRange* last = barrier_ranges_.size() > c.barrier_first ? &barrier_ranges_.back() : nullptr;
+      if (last && last->buffer == w.buffer && w.begin <= last->offset + last->size)
+        last->size = std::max(last->offset + last->size, w.end) - last->offset;
+      else
+        barrier_ranges_.push_back({w.buffer, w.begin, w.end - w.begin});
+    }
+    c.barrier_count = static_cast<uint32_t>(barrier_ranges_.size()) - c.barrier_first;
     pending_reads_.clear();
     pending_writes_.clear();
+    pending_stages_ = 0;
   }
   pending_reads_.insert(pending_reads_.end(), reads.begin(), reads.end());
   pending_writes_.insert(pending_writes_.end(), writes.begin(), writes.end());
-  return need;
+  pending_stages_ |= stage;
+  return c.barrier;
+}
+
+void CommandStream::add_note(DispatchInfo info, const char* stage, Groups groups, bool dispatch) {
+  if (info.detail.empty() && dispatch) info.detail = detail_;
+  notes_.push_back({std::move(info), stage ? std::string(stage) : stage_, groups, dispatch});
 }
 
 void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& args, const void* push,
@@ -114,20 +104,20 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
       groups.z > lim.max_workgroup_count[2])
     throw Error("dispatch '" + info.name + "': workgroup count " + std::to_string(groups.x) + "x" +
                 std::to_string(groups.y) + "x" + std::to_string(groups.z) + " exceeds the device limit");
-  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();  // keep submits bounded
+  if (args.size() > kDescriptorsPerSet) throw Error("dispatch '" + info.name + "' binds more than 16 buffers");
+  make_room();
 
   std::vector<Span> reads, writes;
-  std::vector<VkDescriptorBufferInfo> bufs(args.size());
-  std::vector<VkBufferView> views(args.size(), VK_NULL_HANDLE);
-  std::vector<VkWriteDescriptorSet> w(args.size());
-  // Push descriptors live in the command buffer; otherwise a set from the stream's pools per dispatch.
+  std::array<VkDescriptorBufferInfo, kDescriptorsPerSet> bufs{};
+  std::array<VkBufferView, kDescriptorsPerSet> views{};
+  std::array<VkWriteDescriptorSet, kDescriptorsPerSet> w{};
+  // Push descriptors live in the command buffer; otherwise a set from the slot's pools per dispatch.
   const bool push_descriptors = ctx_.uses_push_descriptors();
-  if (args.size() > kDescriptorsPerSet) throw Error("dispatch '" + info.name + "' binds more than 16 buffers");
   VkDescriptorSet set = push_descriptors ? VK_NULL_HANDLE : allocate_set(pipeline.set_layout(), static_cast<uint32_t>(args.size()));
   for (size_t i = 0; i < args.size(); ++i) {
     const BufferRange& r = args[i].range;
-    const std::string what = "dispatch '" + info.name + "': argument " + std::to_string(i);
-    if (r.buffer == VK_NULL_HANDLE) throw Error(what + " is an empty tensor");
+    auto what = [&] { return "dispatch '" + info.name + "': argument " + std::to_string(i); };
+    if (r.buffer == VK_NULL_HANDLE) throw Error(what() + " is an empty tensor");
     const DescriptorKind kind = pipeline.binding_kind(static_cast<uint32_t>(i));
     const bool uniform = kind == DescriptorKind::uniform_buffer;
     if (uniform && (r.size > lim.max_uniform_buffer_range || r.offset % lim.min_uniform_buffer_offset_alignment != 0))
@@ -136,16 +126,15 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
                   "; at most maxUniformBufferRange (" + std::to_string(lim.max_uniform_buffer_range) +
                   ") bytes at a multiple of " + std::to_string(lim.min_uniform_buffer_offset_alignment) + " allowed");
     if (!is_texel_buffer(kind) && r.size > lim.max_storage_buffer_range)
-      throw Error(what + " spans " + std::to_string(r.size) +
-                  " bytes, more than maxStorageBufferRange (" + std::to_string(lim.max_storage_buffer_range) +
-                  " bytes); bind it in sub-ranges");
+      throw Error(what() + " spans " + std::to_string(r.size) + " bytes, more than maxStorageBufferRange (" +
+                  std::to_string(lim.max_storage_buffer_range) + " bytes); bind it in sub-ranges");
     w[i] = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
     w[i].dstSet = set;
     w[i].dstBinding = static_cast<uint32_t>(i);
     w[i].descriptorCount = 1;
     w[i].descriptorType = descriptor_type(kind);
     if (is_texel_buffer(kind)) {
-      views[i] = texel_view(args[i], kind, what);
+      views[i] = texel_view(args[i], kind, info.name, i);
       w[i].pTexelBufferView = &views[i];
     } else {
       bufs[i] = {r.buffer, r.offset, r.size};
@@ -162,20 +151,18 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
   c.groups = groups;
   if (push_descriptors) {
     c.first_write = static_cast<uint32_t>(pushed_.size());
-    c.write_count = static_cast<uint32_t>(w.size());
-    for (size_t i = 0; i < w.size(); ++i) pushed_.push_back({w[i].descriptorType, bufs[i], views[i]});
+    c.write_count = static_cast<uint32_t>(args.size());
+    for (size_t i = 0; i < args.size(); ++i) pushed_.push_back({w[i].descriptorType, bufs[i], views[i]});
   } else {
-    vkUpdateDescriptorSets(ctx_.device(), static_cast<uint32_t>(w.size()), w.data(), 0, nullptr);
+    vkUpdateDescriptorSets(ctx_.device(), static_cast<uint32_t>(args.size()), w.data(), 0, nullptr);
   }
   c.push_offset = static_cast<uint32_t>(push_data_.size());
   c.push_bytes = push_bytes;
   const auto* push_begin = static_cast<const uint8_t*>(push);
   if (push_bytes) push_data_.insert(push_data_.end(), push_begin, push_begin + push_bytes);
-  c.barrier = hazard_barrier(reads, writes);
+  hazard_barrier(reads, writes, kComputeStage, c);
   recorded_.push_back(c);
-  names_.push_back(info.name);
-  infos_.push_back(info);
-  stages_.push_back(stage_);
+  add_note(info, nullptr, groups, true);
 }
 
 namespace {
@@ -196,10 +183,11 @@ uint64_t texel_bytes(VkFormat f) {
 }
 }  // namespace
 
-VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const std::string& what) {
+VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const std::string& op, size_t index) {
   const BufferRange& r = a.range;
-  for (const auto& v : views_)
-    if (v.buffer == r.buffer && v.offset == r.offset && v.size == r.size && v.format == a.texel_format) return v.view;
+  const auto key = std::make_tuple(r.buffer, r.offset, r.size, a.texel_format);
+  if (const auto it = views_.find(key); it != views_.end()) return it->second;
+  const std::string what = "dispatch '" + op + "': argument " + std::to_string(index);
   const auto& lim = ctx_.info();
   const uint64_t texel = texel_bytes(a.texel_format);
   const char* kind_name = descriptor_kind_name(kind);
@@ -236,12 +224,16 @@ VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const 
   ci.range = r.size;
   VkBufferView view = VK_NULL_HANDLE;
   VK_CHECK(vkCreateBufferView(ctx_.device(), &ci, nullptr, &view));
-  views_.push_back({r.buffer, r.offset, r.size, a.texel_format, view});
+  views_.emplace(key, view);
   return view;
 }
 
+void CommandStream::make_room() {
+  if (recorded_.size() >= kCommandsPerSubmit) submit();
+}
+
 void CommandStream::fill(const Tensor& t, uint32_t value) {
-  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
+  make_room();
   const BufferRange r = t.range();
   Recorded c;
   c.kind = Recorded::Kind::fill;
@@ -249,15 +241,12 @@ void CommandStream::fill(const Tensor& t, uint32_t value) {
   c.dst_offset = r.offset;
   c.size = (r.size + 3) / 4 * 4;
   c.value = value;
-  c.barrier = hazard_barrier({}, {Span{r.buffer, r.offset, r.offset + r.size}});
+  hazard_barrier({}, {Span{r.buffer, r.offset, r.offset + r.size}}, kTransferStage, c);
   recorded_.push_back(c);
-  names_.push_back("fill");
-  infos_.push_back({"fill", 0, static_cast<double>(r.size)});
-  stages_.push_back(stage_);
+  add_note({"fill", 0, static_cast<double>(r.size)}, nullptr, {0, 0, 0}, false);
 }
 
 void CommandStream::record_copy(const BufferRange& src, const BufferRange& dst, const char* name) {
-  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
   Recorded c;
   c.kind = Recorded::Kind::copy;
   c.src = src.buffer;
@@ -265,190 +254,34 @@ void CommandStream::record_copy(const BufferRange& src, const BufferRange& dst, 
   c.dst = dst.buffer;
   c.dst_offset = dst.offset;
   c.size = src.size;
-  c.barrier = hazard_barrier({Span{src.buffer, src.offset, src.offset + src.size}},
-                             {Span{dst.buffer, dst.offset, dst.offset + dst.size}});
+  hazard_barrier({Span{src.buffer, src.offset, src.offset + src.size}}, {Span{dst.buffer, dst.offset, dst.offset + dst.size}},
+                 kTransferStage, c);
   recorded_.push_back(c);
-  names_.push_back(name);
-  infos_.push_back({name, 0, static_cast<double>(src.size)});
   const std::string_view n(name);
-  stages_.push_back(n == "upload" || n == "download" ? std::string(n) : stage_);
+  add_note({name, 0, static_cast<double>(src.size)}, n == "upload" || n == "download" ? name : nullptr, {0, 0, 0}, false);
 }
 
 void CommandStream::upload(const Tensor& dst, size_t byte_offset, const void* data, size_t bytes) {
   if (bytes == 0) return;
   const BufferRange d = dst.range(byte_offset, bytes);  // checks the range
-  // A submit inside record_copy would free the staging range before its copy ran: make room first.
-  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
-  staging_.push_back(ctx_.allocator().allocate(bytes, /*host_visible=*/true));
-  const Allocation& s = staging_.back();
-  std::memcpy(s.mapped, data, bytes);
+  make_room();  // the staging belongs to the slot whose submission holds the copy
+  void* mapped = nullptr;
+  const BufferRange s = staging(bytes, &mapped);
+  std::memcpy(mapped, data, bytes);
   ctx_.traffic().upload_bytes += bytes;
-  record_copy({s.buffer, s.offset, bytes}, d, "upload");
+  record_copy(s, d, "upload");
   // The host wrote the staging memory before the submission: no barrier is needed for that.
 }
 
 void CommandStream::download(const Tensor& src, size_t byte_offset, void* host, size_t bytes) {
   if (bytes == 0) return;
   const BufferRange r = src.range(byte_offset, bytes);
-  if (names_.size() >= kMaxDispatchesPerSubmit) submit_and_wait();
-  staging_.push_back(ctx_.allocator().allocate(bytes, /*host_visible=*/true));
-  const Allocation& s = staging_.back();
-  record_copy(r, {s.buffer, s.offset, bytes}, "download");
-  readbacks_.push_back({host, s.mapped, bytes});
+  make_room();
+  void* mapped = nullptr;
+  const BufferRange s = staging(bytes, &mapped);
+  record_copy(r, s, "download");
+  slots_[current_]->readbacks.push_back({host, mapped, bytes});
   ctx_.traffic().download_bytes += bytes;
-}
-
-std::string CommandStream::in_flight_description() {
-  std::ostringstream os;
-  os << names_.size() << " dispatches submitted";
-  if (queries_ && !names_.empty()) {
-    // The first dispatch whose end timestamp is not available was the one in flight.
-    for (size_t i = 0; i < names_.size(); ++i) {
-      uint64_t v[2] = {0, 0};
-      VkResult r = vkGetQueryPoolResults(ctx_.device(), queries_, static_cast<uint32_t>(2 * i + 1), 1, sizeof v, v,
-                                         sizeof v, VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WITH_AVAILABILITY_BIT);
-      if (r != VK_SUCCESS || v[1] == 0) {
-        os << "; dispatch #" << i << " '" << names_[i] << "' was in flight";
-        return os.str();
-      }
-    }
-  }
-  if (!names_.empty()) os << "; first '" << names_.front() << "', last '" << names_.back() << "'";
-  return os.str();
-}
-
-void CommandStream::replay() {
-  VkCommandBufferBeginInfo bi{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
-  bi.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-  VK_CHECK(vkBeginCommandBuffer(cb_, &bi));
-  if (queries_) vkCmdResetQueryPool(cb_, queries_, 0, query_capacity_);
-  VkMemoryBarrier hazard{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
-  hazard.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
-  hazard.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_UNIFORM_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT |
-                         VK_ACCESS_TRANSFER_READ_BIT | VK_ACCESS_TRANSFER_WRITE_BIT;
-  const VkPipelineStageFlags stages = VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT;
-  std::vector<VkWriteDescriptorSet> w;
-  for (size_t i = 0; i < recorded_.size(); ++i) {
-    const Recorded& c = recorded_[i];
-    if (c.barrier) vkCmdPipelineBarrier(cb_, stages, stages, 0, 1, &hazard, 0, nullptr, 0, nullptr);
-    const uint32_t q = static_cast<uint32_t>(i) * 2;
-    if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, queries_, q);
-    if (c.kind == Recorded::Kind::fill) {
-      vkCmdFillBuffer(cb_, c.dst, c.dst_offset, c.size, c.value);
-    } else if (c.kind == Recorded::Kind::copy) {
-      const VkBufferCopy region{c.src_offset, c.dst_offset, c.size};
-      vkCmdCopyBuffer(cb_, c.src, c.dst, 1, &region);
-    } else {
-      const Pipeline& p = *c.pipeline;
-      vkCmdBindPipeline(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, p.handle());  // waits for its build
-      if (c.set) {
-        vkCmdBindDescriptorSets(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, p.layout(), 0, 1, &c.set, 0, nullptr);
-      } else if (c.write_count) {
-        w.assign(c.write_count, VkWriteDescriptorSet{VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET});
-        for (uint32_t b = 0; b < c.write_count; ++b) {
-          const PushedDescriptor& d = pushed_[c.first_write + b];
-          w[b].dstBinding = b;
-          w[b].descriptorCount = 1;
-          w[b].descriptorType = d.type;
-          if (d.view) w[b].pTexelBufferView = &d.view;
-          else w[b].pBufferInfo = &d.buffer;
-        }
-        vkCmdPushDescriptorSetKHR(cb_, VK_PIPELINE_BIND_POINT_COMPUTE, p.layout(), 0, c.write_count, w.data());
-      }
-      if (c.push_bytes)
-        vkCmdPushConstants(cb_, p.layout(), VK_SHADER_STAGE_COMPUTE_BIT, 0, c.push_bytes, push_data_.data() + c.push_offset);
-      vkCmdDispatch(cb_, c.groups.x, c.groups.y, c.groups.z);
-    }
-    if (queries_) vkCmdWriteTimestamp(cb_, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, queries_, q + 1);
-  }
-  if (!readbacks_.empty()) {
-    // The downloads' copies must be visible to the host reads after the fence.
-    VkMemoryBarrier mb{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
-    mb.srcAccessMask = VK_ACCESS_TRANSFER_WRITE_BIT;
-    mb.dstAccessMask = VK_ACCESS_HOST_READ_BIT;
-    vkCmdPipelineBarrier(cb_, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1, &mb, 0, nullptr, 0, nullptr);
-  }
-  VK_CHECK(vkEndCommandBuffer(cb_));
-}
-
-void CommandStream::submit_and_wait() {
-  if (recorded_.empty()) return;
-  try {
-    replay();  // before the wait's clock: the pipeline builds it waits for count as builds
-  } catch (...) {
-    reset();
-    throw;
-  }
-  struct WaitClock {  // counts the wait also when the submission throws
-    DeviceTraffic& traffic;
-    Clock::time_point t0;
-    ~WaitClock() { traffic.wait_ms += ms_since(t0); }
-  } wait_clock{ctx_.traffic(), Clock::now()};
-  VkSubmitInfo si{VK_STRUCTURE_TYPE_SUBMIT_INFO};
-  si.commandBufferCount = 1;
-  si.pCommandBuffers = &cb_;
-  VkResult r = ctx_.faults().next(FaultInjection::Site::submit);
-  if (r == VK_SUCCESS) r = vkQueueSubmit(ctx_.queue(), 1, &si, fence_);
-  ctx_.traffic().submits++;
-  if (r != VK_SUCCESS) {
-    const std::string what = in_flight_description();
-    reset();
-    throw_vk_error(r, "vkQueueSubmit", __FILE__, __LINE__, what);
-  }
-  const auto timeout_ns = static_cast<uint64_t>(std::max(0.0, timeout_s_) * 1e9);
-  r = vkWaitForFences(ctx_.device(), 1, &fence_, VK_TRUE, timeout_ns);
-  if (r == VK_TIMEOUT) {
-    const std::string what = in_flight_description();
-    vkDeviceWaitIdle(ctx_.device());  // the fence and pools cannot be reset while in use
-    reset();
-    throw VulkanError(VK_TIMEOUT, "GPU work did not finish within " + std::to_string(timeout_s_) +
-                                      " s (VKUNROLL_FENCE_TIMEOUT_S): " + what);
-  }
-  if (r != VK_SUCCESS) {
-    const std::string what = (r == VK_ERROR_DEVICE_LOST ? "device lost; " : "") + in_flight_description();
-    reset();
-    throw_vk_error(r, "vkWaitForFences", __FILE__, __LINE__, what);
-  }
-  for (const Readback& rb : readbacks_) std::memcpy(rb.host, rb.staging, rb.bytes);
-  if (queries_ && !names_.empty()) {
-    std::vector<uint64_t> ts(names_.size() * 2);
-    VK_CHECK(vkGetQueryPoolResults(ctx_.device(), queries_, 0, static_cast<uint32_t>(ts.size()),
-                                   ts.size() * sizeof(uint64_t), ts.data(), sizeof(uint64_t),
-                                   VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
-    const double period = ctx_.info().timestamp_period_ns;
-    for (size_t i = 0; i < names_.size(); ++i) {
-      const double ms = static_cast<double>(ts[2 * i + 1] - ts[2 * i]) * period * 1e-6;
-      ctx_.traffic().gpu_ms += ms;
-      ctx_.traffic().gpu_ms_by_stage[stages_[i]] += ms;
-      if (profiler_) profiler_->record(infos_[i].name, ms, infos_[i].flop, infos_[i].bytes);
-    }
-  }
-  reset();
-}
-
-void CommandStream::reset() {
-  vkResetFences(ctx_.device(), 1, &fence_);
-  vkResetCommandBuffer(cb_, 0);
-  for (auto p : desc_pools_) vkResetDescriptorPool(ctx_.device(), p, 0);
-  // Keep one pool for reuse; the others return to the driver.
-  while (desc_pools_.size() > 1) {
-    vkDestroyDescriptorPool(ctx_.device(), desc_pools_.back(), nullptr);
-    desc_pools_.pop_back();
-  }
-  desc_pool_used_ = 0;
-  for (const auto& v : views_) vkDestroyBufferView(ctx_.device(), v.view, nullptr);
-  views_.clear();
-  for (const Allocation& a : staging_) ctx_.allocator().free(a);
-  staging_.clear();
-  readbacks_.clear();
-  recorded_.clear();
-  pushed_.clear();
-  push_data_.clear();
-  names_.clear();
-  infos_.clear();
-  stages_.clear();
-  pending_reads_.clear();
-  pending_writes_.clear();
 }
 
 }  // namespace vkunroll

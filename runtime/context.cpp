@@ -240,7 +240,7 @@ int type_rank(VkPhysicalDeviceType t) {
   }
 }
 
-VkInstance make_instance(bool validation, bool* messenger_ok) {
+VkInstance make_instance(bool validation, bool* messenger_ok, bool sync_validation = false) {
   ensure_volk();
   uint32_t loader_version = VK_API_VERSION_1_0;
   if (vkEnumerateInstanceVersion) vkEnumerateInstanceVersion(&loader_version);
@@ -271,6 +271,12 @@ VkInstance make_instance(bool validation, bool* messenger_ok) {
   ci.enabledExtensionCount = static_cast<uint32_t>(exts.size());
   ci.ppEnabledExtensionNames = exts.data();
   if (portability) ci.flags |= VK_INSTANCE_CREATE_ENUMERATE_PORTABILITY_BIT_KHR;
+  // The layer reads this (it exposes VK_EXT_validation_features itself): hazards between commands.
+  const VkValidationFeatureEnableEXT sync = VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT;
+  VkValidationFeaturesEXT features{VK_STRUCTURE_TYPE_VALIDATION_FEATURES_EXT};
+  features.enabledValidationFeatureCount = 1;
+  features.pEnabledValidationFeatures = &sync;
+  if (validation && sync_validation) ci.pNext = &features;
   VkInstance instance = VK_NULL_HANDLE;
   VkResult r = vkCreateInstance(&ci, nullptr, &instance);
   if (r == VK_ERROR_INCOMPATIBLE_DRIVER) throw VulkanError(r, std::string("vkCreateInstance: ") + kNoDriverHelp);
@@ -432,6 +438,8 @@ Context::Context(ContextOptions options) : options_(std::move(options)) {
   if (fault.site == FaultInjection::Site::none)
     if (const auto text = env::text("VKUNROLL_INJECT_FAULT")) fault = parse_fault_injection(*text, "VKUNROLL_INJECT_FAULT");
   faults_ = FaultInjector(fault);
+  timestamps_ = options_.timestamps;
+  command_replay_ = options_.command_replay;
   create_instance(validation_);
   try {
     create_device();
@@ -475,7 +483,7 @@ void Context::release() {
 
 void Context::create_instance(bool validation) {
   bool messenger_ok = false;
-  instance_ = make_instance(validation, &messenger_ok);
+  instance_ = make_instance(validation, &messenger_ok, options_.synchronization_validation);
   if (messenger_ok) {
     VkDebugUtilsMessengerCreateInfoEXT ci{VK_STRUCTURE_TYPE_DEBUG_UTILS_MESSENGER_CREATE_INFO_EXT};
     ci.messageSeverity = VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT | VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT;

@@ -16,6 +16,7 @@ namespace vkunroll {
 
 class Allocator;
 class Pipeline;
+class Trace;
 class PipelineCompiler;
 struct ShaderModuleBlob;
 
@@ -56,6 +57,16 @@ struct ContextOptions {
   // Unset: one fewer than the machine's hardware threads (the recording thread compiles too), 1 to 8;
   // 0: each pipeline compiles when it is first asked for, on the asking thread. At most 64.
   std::optional<uint32_t> pipeline_compile_threads;
+  // Write a timestamp pair around every recorded command (GPU time per command, per stage, per op)
+  // where the queue supports timestamps. The unroll session turns this off unless --profile or
+  // --trace asks for the times; a stream with a Profiler, or a context with a Trace, times anyway.
+  bool timestamps = true;
+  // A submission whose commands equal those of one already recorded replays that command buffer
+  // instead of recording again (runtime/command_stream.hpp; with push descriptors only).
+  bool command_replay = true;
+  // With validation: the layer's synchronization validation too (missing or wrong barriers are
+  // reported as SYNC-HAZARD-* messages). Slow; for tests of the stream's barriers.
+  bool synchronization_validation = false;
 };
 
 // One entry of vkGetPhysicalDeviceCooperativeMatrixPropertiesNV: D (MxN) = A (MxK) B (KxN) + C.
@@ -122,18 +133,27 @@ struct DeviceInfo {
 struct DeviceTraffic {
   uint64_t upload_bytes = 0;    // host -> device
   uint64_t download_bytes = 0;  // device -> host
-  uint64_t submits = 0;         // queue submissions, each waited for
+  uint64_t submits = 0;         // queue submissions
+  uint64_t waits = 0;           // times the host waited for all submitted work to finish (CommandStream::finish)
+  uint64_t dispatches = 0;      // compute dispatches submitted (vkCmdDispatch)
+  uint64_t transfers = 0;       // buffer copies and fills submitted (uploads, downloads, zeroing)
+  uint64_t replayed_submits = 0;     // submissions that replayed a command buffer recorded before
+  uint64_t replayed_commands = 0;    // the commands (dispatches, copies, fills) of those submissions
+  uint64_t barriers = 0;             // pipeline barriers submitted between commands
   double gpu_ms = 0;            // sum of the submitted dispatches' device time (timestamps; 0 without)
   // gpu_ms by the stage each command was recorded in (CommandStream::set_stage; "" when none was set).
   std::map<std::string, double> gpu_ms_by_stage;
-  // Host wall time spent in submit_and_wait: submitting, waiting for the fence, reading back.
+  // Host wall time spent waiting for the device: submitting, waiting for a free submission slot or
+  // for all work (CommandStream::finish), reading back.
   double wait_ms = 0;
   // Host wall time the recording thread spent on pipelines: making their modules and layouts, and
   // waiting for (or running) their compilation when it bound them (Pipeline::handle).
   double pipeline_build_ms = 0;
   DeviceTraffic operator-(const DeviceTraffic& o) const {
-    DeviceTraffic d{upload_bytes - o.upload_bytes, download_bytes - o.download_bytes, submits - o.submits,
-                    gpu_ms - o.gpu_ms, gpu_ms_by_stage, wait_ms - o.wait_ms, pipeline_build_ms - o.pipeline_build_ms};
+    DeviceTraffic d{upload_bytes - o.upload_bytes, download_bytes - o.download_bytes, submits - o.submits, waits - o.waits,
+                    dispatches - o.dispatches, transfers - o.transfers, replayed_submits - o.replayed_submits,
+                    replayed_commands - o.replayed_commands, barriers - o.barriers, gpu_ms - o.gpu_ms, gpu_ms_by_stage,
+                    wait_ms - o.wait_ms, pipeline_build_ms - o.pipeline_build_ms};
     for (const auto& [stage, ms] : o.gpu_ms_by_stage) d.gpu_ms_by_stage[stage] -= ms;
     return d;
   }
@@ -185,6 +205,16 @@ class Context {
   FaultInjector& faults() { return faults_; }
   const FaultInjector& faults() const { return faults_; }
   const DeviceTraffic& traffic() const { return traffic_; }
+  // Whether streams write timestamps around their commands now: the queue supports them and
+  // ContextOptions::timestamps (or set_timestamps) asks for them, or a trace is attached.
+  bool timestamps() const { return info_.timestamps && (timestamps_ || trace_); }
+  void set_timestamps(bool on) { timestamps_ = on; }
+  // Whether streams replay command buffers of repeated submissions (ContextOptions::command_replay).
+  bool command_replay() const { return command_replay_ && push_descriptors_; }
+  void set_command_replay(bool on) { command_replay_ = on; }
+  // The timeline streams add their GPU spans (and the session its stages) to; nullptr: none. Not owned.
+  Trace* trace() const { return trace_; }
+  void set_trace(Trace* t) { trace_ = t; }
 
   // Pipelines are created once per (shader, specialization, push size) and kept here.
   // (The module's name identifies it: one name, one module.)
@@ -221,6 +251,8 @@ class Context {
   DeviceInfo info_;
   DeviceTraffic traffic_;
   FaultInjector faults_;
+  bool timestamps_ = true, command_replay_ = true;
+  Trace* trace_ = nullptr;
   std::unique_ptr<Allocator> allocator_;
   std::unique_ptr<PipelineCompiler> compiler_;  // outlives pipelines_: each cancels or waits for its build first
   std::map<std::string, std::unique_ptr<Pipeline>> pipelines_;

@@ -6,6 +6,8 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <fstream>
+#include <set>
 #include <opencv2/imgcodecs.hpp>
 
 #include "vkunroll/host/model/backend_vulkan.hpp"
@@ -164,8 +166,9 @@ TEST(Session, DeviceResidentFrameEqualsTheHostPath) {
       const cv::Mat want = host_path(reference, in, targets[j].t_us, m, tiles == &sparse ? tiles : nullptr);
       EXPECT_LE(max_abs(got[j], want), 2e-5) << "target " << j << (tiles == &sparse ? " (sparse tiles)" : " (dense)");
     }
-    // S and M: one submission each; down: the three GS images at fp32 and nothing else.
-    EXPECT_EQ(d.submits, 2u);
+    // S and M: one wait for the device each (their uploads and network go up as separate
+    // submissions, runtime/command_stream.hpp); down: the three GS images at fp32 and nothing else.
+    EXPECT_EQ(d.waits, 2u);
     EXPECT_EQ(d.download_bytes, uint64_t(3) * 3 * 48 * 64 * 4);
     // Up: per group the RS frame(s) and the window's events with their per-row records (at most
     // 8 bytes an event; records and ranges (N + 8) words per job and row), never the tensors.
@@ -225,6 +228,7 @@ TEST(Session, ShippedModelTrafficPerGsFrameAt346x260) {
     o.frames = {0};
     o.sparse = sparse;
     o.output.write_video = false;
+    o.session.profile_ops = true;  // GPU times need the timestamps
     const auto s = run_unroll(o);
     const auto& t = s.at("device_traffic_per_gs_frame");
     const double image = 3.0 * 260 * 346 * 4;
@@ -233,7 +237,7 @@ TEST(Session, ShippedModelTrafficPerGsFrameAt346x260) {
     // ev1, ev2, ev3 of one target: what the host path uploaded per GS frame on top of the image.
     const double tensors = 3.0 * 2 * load_weights(model.string()).config.N * 260 * 346 * 4;
     EXPECT_LT(t.at("upload_bytes").get<double>(), tensors) << t.dump();
-    EXPECT_LE(t.at("submits").get<double>(), 1.0) << t.dump();  // both targets in one submission
+    EXPECT_LE(t.at("waits").get<double>(), 1.0) << t.dump();  // both targets in one batch, one wait for it
     EXPECT_EQ(s.at("memory_forced_submits").get<int>(), 0) << t.dump();
     expect_honest_time_breakdown(s, true);
   }
@@ -251,6 +255,7 @@ TEST(Session, PhysicsTimeBreakdownAddsUp) {
   o.mode = UnrollMode::physics;
   o.times = parse_target_times("0.25,0.75");
   o.output.write_video = false;
+  o.session.profile_ops = true;  // GPU times need the timestamps
   expect_honest_time_breakdown(run_unroll(o), false);
   fs::remove_all(dir);
 }
@@ -267,7 +272,12 @@ TEST(Session, ProfileOpsAddUpToTheGpuTime) {
   o.times = parse_target_times("0.25,0.75");
   o.output.write_video = false;
   o.out_dir = (dir / "plain").string();
-  EXPECT_FALSE(run_unroll(o).contains("gpu_ms_per_gs_frame_by_op"));
+  const auto plain = run_unroll(o);
+  EXPECT_FALSE(plain.contains("gpu_ms_per_gs_frame_by_op"));
+  // Without --profile or --trace the device writes no timestamps: no GPU times, said so.
+  EXPECT_FALSE(plain.at("gpu_timestamps").get<bool>());
+  EXPECT_TRUE(plain.at("gpu_ms_per_gs_frame").is_null());
+  EXPECT_TRUE(plain.at("gpu_ms_per_gs_frame_by_stage").is_null());
   o.out_dir = (dir / "profiled").string();
   o.session.profile_ops = true;
   const auto s = run_unroll(o);
@@ -281,6 +291,50 @@ TEST(Session, ProfileOpsAddUpToTheGpuTime) {
   EXPECT_NEAR(sum, gpu, 1e-6 * gpu + 1e-9) << ops.dump();
   for (const char* k : {"physics_unroll", "upload", "download"}) EXPECT_TRUE(ops.contains(k)) << k << " " << ops.dump();
   EXPECT_DOUBLE_EQ(ops.at("physics_unroll").at("calls").get<double>(), 1.0) << "one physics dispatch per GS frame";
+  fs::remove_all(dir);
+}
+
+// --trace FILE.json end to end (the model, S and M): Chrome trace events with a track of the
+// session's host stages and the GPU's dispatches (each conv named with its shape and algorithm);
+// per op, the GPU spans add up to --profile's per-op times (summary.json's are per GS frame).
+TEST(Session, TraceFileHasHostStagesAndGpuSpansThatAddUpToTheProfile) {
+  const fs::path dir = temp_dir("trace");
+  UnrollOptions o;
+  o.sequence = make_sequence(dir, 64, 48, 2).string();
+  o.out_dir = (dir / "out").string();
+  o.trace_path = (dir / "trace.json").string();
+  o.quiet = true;
+  o.session.device = "llvmpipe";
+  o.session.model_path = fixture("selfunroll_tiny.safetensors");
+  o.session.profile_ops = true;
+  o.times = parse_target_times("0.25,0.75");
+  o.output.write_video = false;
+  const auto s = run_unroll(o);
+  const double targets = s.at("targets").get<double>();
+  std::ifstream f(o.trace_path);
+  const nlohmann::json j = nlohmann::json::parse(f);
+  std::map<int, std::string> track;
+  std::map<std::string, double> gpu_ms;
+  std::set<std::string> stages;
+  bool conv_detail = false;
+  for (const auto& e : j.at("traceEvents")) {
+    if (e.at("ph") == "M") {
+      if (e.at("name") == "thread_name") track[e.at("tid").get<int>()] = e.at("args").at("name").get<std::string>();
+      continue;
+    }
+    const std::string& t = track.at(e.at("tid").get<int>());
+    if (t == "host stages") stages.insert(e.at("name").get<std::string>());
+    if (t.rfind("GPU", 0) != 0) continue;
+    gpu_ms[e.at("args").at("op").get<std::string>()] += e.at("dur").get<double>() * 1e-3;
+    conv_detail = conv_detail || e.at("args").value("detail", "").find("->") != std::string::npos;
+  }
+  for (const char* k : {"upload", "event_tensors", "model", "download"}) EXPECT_TRUE(stages.count(k)) << k;
+  EXPECT_TRUE(conv_detail) << "convs carry their shapes and algorithm";
+  const auto& ops = s.at("gpu_ms_per_gs_frame_by_op");
+  EXPECT_EQ(gpu_ms.size(), ops.size());
+  for (const auto& [op, v] : ops.items())
+    EXPECT_NEAR(gpu_ms[op], v.at("ms").get<double>() * targets, 1e-6 * v.at("calls").get<double>() * targets + 1e-6) << op;
+  EXPECT_EQ(s.at("trace").at("file").get<std::string>(), o.trace_path);
   fs::remove_all(dir);
 }
 

@@ -13,7 +13,7 @@ namespace {
 
 struct UnrollArgs {
   std::optional<std::string> frames;  // given empty: an error (never "all frames" by accident)
-  std::string sequence, out, model, mode = "auto", times = "0.5", times_us, channel_order, backend = "vulkan",
+  std::string sequence, out, trace, model, mode = "auto", times = "0.5", times_us, channel_order, backend = "vulkan",
                            precision = "fp32", sparse = "exact", frame_format, bit_depth, conv_choice = "auto",
                            gate_radius = "auto";
   std::optional<double> contrast, gamma, fps;
@@ -30,6 +30,7 @@ UnrollOptions to_options(const UnrollArgs& a) {
   UnrollOptions o;
   o.sequence = a.sequence;
   o.out_dir = a.out;
+  o.trace_path = a.trace;
   o.mode = parse_unroll_mode(a.mode, "--mode");
   const ModelChoice model = choose_model(o.mode, a.model);  // no --model: the shipped default
   o.session.model_path = model.path;
@@ -118,6 +119,10 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
   c->add_flag("--profile", a.profile,
               "Vulkan: every kernel's GPU time and calls per GS frame in summary.json (gpu_ms_per_gs_frame_by_op)")
       ->group(g);
+  c->add_option("--trace", a.trace,
+                "Vulkan: write the run's timeline to FILE.json (Chrome trace-event format: open it in ui.perfetto.dev "
+                "or chrome://tracing): host stages, and every GPU dispatch with its op, shape, algorithm and GFLOP/s")
+      ->group(g)->type_name("FILE.json");
 }
 
 void add_output_options(CLI::App* c, UnrollArgs& a) {

@@ -21,6 +21,10 @@ struct VulkanBackend::Buf {
   Tensor t;
   bool live = false;
   bool pooled = false;  // released, reusable by an alloc of the same size until the next flush
+  // Pooled at the last flush and kept for the next recording: a repeated frame gets the same buffers
+  // (the stream replays its commands only where they name the same ranges). Freed at the next flush
+  // unless an alloc took it again.
+  bool retained = false;
   const Tensor* external = nullptr;  // a tensor the backend does not own (event_tensors())
   // The builder's output of an earlier event_tensors() call whose handle is still held: not
   // readable, its slot kept until the handle releases it (so the id names no other buffer).
@@ -57,18 +61,18 @@ int VulkanBackend::alloc_id(const Shape& shape, const std::string& what) {
   // itself never submits, so a handle going out of scope cannot fail).
   if (pooled_bytes_ > pool_flush_bytes_) {
     pool_flushes_++;
-    flush();
+    flush(/*keep_pool=*/false);
   }
   const uint64_t bytes = static_cast<uint64_t>(shape.count()) * dtype_size(dtype_);
   account_alloc(bytes);
   // A pooled buffer of the same size takes the new shape: only recorded dispatches (ordered by the
   // stream's barriers) write a backend buffer, never the host directly.
   for (size_t i = 0; i < bufs_.size(); ++i)
-    if (bufs_[i] && bufs_[i]->pooled && bufs_[i]->t.bytes() == bytes) {
+    if (bufs_[i] && (bufs_[i]->pooled || bufs_[i]->retained) && bufs_[i]->t.bytes() == bytes) {
       bufs_[i]->t.reshape(shape);
-      bufs_[i]->pooled = false;
+      if (bufs_[i]->pooled) pooled_bytes_ -= bytes;
+      bufs_[i]->pooled = bufs_[i]->retained = false;
       bufs_[i]->live = true;
-      pooled_bytes_ -= bytes;
       return static_cast<int>(i);
     }
   if (bytes > max_buffer_bytes())
@@ -103,24 +107,45 @@ void VulkanBackend::release_id(int id) noexcept {
 
 Shape VulkanBackend::shape(int id) const { return tensor(id).shape(); }
 
-void VulkanBackend::set_stage(const std::string& stage) { cs_->set_stage(stage); }
+namespace {
+std::string_view stage_family(std::string_view stage) { return stage.substr(0, stage.find('.')); }
+}  // namespace
 
-void VulkanBackend::flush() {
-  if (cs_->recorded()) cs_->submit_and_wait();
+void VulkanBackend::set_stage(const std::string& stage) {
+  // The network's commands start a submission of their own: they repeat from frame to frame where
+  // the uploads and event tensors before them do not, so they replay (runtime/command_stream.hpp).
+  if (stage_family(stage) == "model" && stage_family(cs_->stage()) != "model") cs_->submit();
+  cs_->set_stage(stage);
+}
+
+void VulkanBackend::flush() { flush(/*keep_pool=*/true); }
+
+void VulkanBackend::flush(bool keep_pool) {
+  cs_->submit_and_wait();
   physics_.clear();
   scratch_.clear();
   events_recorded_ = false;
-  // Nothing recorded references the pooled buffers any more: give their memory back.
+  // Nothing recorded references the pooled buffers any more: the ones kept at the last flush and not
+  // taken since give their memory back, and (unless memory asked for the flush) this recording's
+  // released buffers are kept for the next one.
   for (auto& b : bufs_)
-    if (b && b->pooled) {
+    if (b && (b->retained || (b->pooled && !keep_pool))) {
       device_bytes_ -= b->t.bytes();
       b.reset();
+    } else if (b && b->pooled) {
+      b->pooled = false;
+      b->retained = true;
     }
   pooled_bytes_ = 0;
 }
 
 namespace {
 Slice slice(const Tensor& t, const BufferSlice& v) { return Slice(t, v.c0, v.c, v.n0, v.n); }
+
+// The trace's words for a conv's dispatches: "2x48x130x173->2x48x130x173 winograd".
+std::string conv_detail(const Shape& in, const Shape& out, const char* algo) {
+  return in.str() + "->" + out.str() + " " + algo;
+}
 }  // namespace
 
 // A slice's batch items are contiguous byte ranges (its channels of one item): one transfer each,
@@ -248,8 +273,9 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
       for (ConvTransposeAlgo a : c.candidates())
         if (*name == conv_transpose_algo_name(a)) algo = a;
     if (algo != ConvTransposeAlgo::automatic && choice_ != ConvChoice::gpu) ++convs_from_table_;
-    ++conv_calls_by_algorithm_[std::string("transposed ") +
-                               conv_transpose_algo_name(algo == ConvTransposeAlgo::automatic ? c.choose_algorithm(is.h, is.w) : algo)];
+    const char* algo_name = conv_transpose_algo_name(algo == ConvTransposeAlgo::automatic ? c.choose_algorithm(is.h, is.w) : algo);
+    ++conv_calls_by_algorithm_[std::string("transposed ") + algo_name];
+    if (ctx_.trace()) cs_->set_detail(conv_detail(is, so.shape(), algo_name));
     c.record(*cs_, si, so, algo);
   } else {
     const Conv2d& c = *convs_[static_cast<size_t>(idx)];
@@ -264,9 +290,12 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
         if (*name == conv_algo_name(a)) algo = a;
     if (algo != ConvAlgo::automatic) ++convs_from_table_;
     if (choice_ == ConvChoice::gpu) algo = gpu_choice(c, is, c.residual_overlaps_output(so, r));
-    ++conv_calls_by_algorithm_[conv_algo_name(algo == ConvAlgo::automatic ? c.choose_algorithm(is.h, is.w) : algo)];
+    const char* algo_name = conv_algo_name(algo == ConvAlgo::automatic ? c.choose_algorithm(is.h, is.w) : algo);
+    ++conv_calls_by_algorithm_[algo_name];
+    if (ctx_.trace()) cs_->set_detail(conv_detail(is, so.shape(), algo_name));
     c.record(*cs_, si, so, r, algo, dense_v_.get());
   }
+  cs_->set_detail({});
   if (probe_) {
     const Shape os = tensor(out.buf).shape();
     probe_->emplace_back(descs_[id].name, std::vector<float>(static_cast<size_t>(out.n * out.c * os.h * os.w)));

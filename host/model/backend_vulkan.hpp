@@ -1,8 +1,9 @@
 // The Vulkan backend: the kernels' GPU ops recorded into one CommandStream per flush. Buffers are
-// device Tensors; a released buffer is reused by a later alloc() of the same size within the same
-// recording (the stream's hazard barriers order the reuse) and destroyed at the next flush (also
-// forced by an alloc() that finds more than pool_flush_bytes pooled), so device memory follows the
-// graph's liveness.
+// device Tensors; a released buffer is reused by a later alloc() of the same size (the stream's
+// hazard barriers order the reuse), kept over one flush for the next recording (a repeated frame
+// then names the same buffers, and its commands replay), and destroyed at the flush after that if
+// nothing took it, or at once when an alloc() finds more than pool_flush_bytes pooled, so device
+// memory follows the graph's liveness.
 #pragma once
 #include <chrono>
 #include <deque>
@@ -111,6 +112,9 @@ class VulkanBackend final : public Backend {
  private:
   struct Buf;
   int alloc_id(const Shape& shape, const std::string& what) override;
+  // Submits and waits; then frees the buffers kept at the last flush that no alloc took since, and
+  // keeps this recording's released buffers for the next one (keep_pool) or frees them too.
+  void flush(bool keep_pool);
   void release_id(int buf) noexcept override;
   int event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs, const EventTensorSpec& spec) override;
   const Tensor& tensor(int buf) const;

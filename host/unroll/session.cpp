@@ -45,6 +45,7 @@ void UnrollSession::StageClock::stop() {
   s_.stats_.ms[stage_] += std::max(0.0, ms_since(t0_) - wait - builds);
   s_.stats_.ms["wait"] += wait;
   s_.stats_.ms["pipeline_builds"] += builds;
+  if (s_.trace_) s_.trace_->host_span("host stages", stage_, t0_, Clock::now());
   stage_ = nullptr;
 }
 
@@ -77,6 +78,11 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
     co.device = o.device;
     co.announce = o.announce;
     ctx_ = std::make_unique<Context>(co);
+    ctx_->set_timestamps(o.profile_ops || o.trace);  // the device's timestamps cost time: only when asked for
+    if (o.trace) {
+      trace_ = std::make_unique<Trace>();
+      ctx_->set_trace(trace_.get());
+    }
     if (o.profile_ops) profiler_ = std::make_unique<Profiler>();
     auto vb = std::make_unique<VulkanBackend>(*ctx_, profiler_.get(), kPoolFlushBytes, o.precision);
     auto table = std::make_shared<ConvChoiceTable>();

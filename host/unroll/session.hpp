@@ -26,6 +26,7 @@
 #include "vkunroll/kernels/physics_unroll.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/profiler.hpp"
+#include "vkunroll/runtime/trace.hpp"
 
 namespace vkunroll {
 
@@ -90,6 +91,8 @@ class UnrollSession {
   // GPU ms per op (kernel) summed over the session's dispatches: SessionOptions::profile_ops on
   // the Vulkan backend, else null.
   const Profiler* profiler() const { return profiler_.get(); }
+  // The timeline of host stages and GPU dispatches: SessionOptions::trace on the Vulkan backend, else null.
+  const Trace* trace() const { return trace_.get(); }
   // Host <-> device traffic and submissions since the session started (zeros on the CPU backend).
   DeviceTraffic traffic() const;
   // The most bytes one tensor may hold: the device's binding limit, or the tiling's lower one.
@@ -156,6 +159,7 @@ class UnrollSession {
   Buffer physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs);
 
   SessionOptions options_;
+  std::unique_ptr<Trace> trace_;  // SessionOptions::trace (before the context that points to it)
   std::unique_ptr<Context> ctx_;
   std::unique_ptr<Profiler> profiler_;  // SessionOptions::profile_ops (declared before the backend that records into it)
   std::string conv_choice_path_;  // the table's file (empty: none)

@@ -65,7 +65,10 @@ class FolderSink : public ResultSink {
   // The frame's unroll: its wall time, the GPU's (timestamps) and the wait for the device.
   static std::string frame_times(const GsResult& r) {
     char buf[96];
-    std::snprintf(buf, sizeof buf, " (%.0f ms: GPU %.0f, wait %.0f)", r.frame_ms, r.frame_gpu_ms, r.frame_wait_ms);
+    if (r.frame_gpu_ms > 0)  // timestamps on (--profile, --trace)
+      std::snprintf(buf, sizeof buf, " (%.0f ms: GPU %.0f, wait %.0f)", r.frame_ms, r.frame_gpu_ms, r.frame_wait_ms);
+    else
+      std::snprintf(buf, sizeof buf, " (%.0f ms: wait %.0f)", r.frame_ms, r.frame_wait_ms);
     return buf;
   }
   static std::string key(int frame, const UnrollTarget& t) { return std::to_string(frame) + "|" + t.t_us.str(); }
@@ -164,10 +167,14 @@ void report(const UnrollOptions& o, const nlohmann::json& summary, const UnrollS
   };
   std::cerr << "unroll: " << summary["frames"] << " frame(s), " << summary["targets"] << " GS frame(s), mode "
             << summary["mode"].get<std::string>() << ", " << summary["ms_per_gs_frame_total"].get<double>()
-            << " ms per GS frame (by stage, ms: " << stages(summary["ms_per_gs_frame"]) << "; GPU ms "
-            << summary["gpu_ms_per_gs_frame"].get<double>() << " inside the wait: " << stages(summary["gpu_ms_per_gs_frame_by_stage"])
+            << " ms per GS frame (by stage, ms: " << stages(summary["ms_per_gs_frame"]) << "; "
+            << (summary["gpu_ms_per_gs_frame"].is_null()
+                    ? std::string("GPU time not measured: --profile or --trace")
+                    : "GPU ms " + std::to_string(summary["gpu_ms_per_gs_frame"].get<double>()) + " inside the wait: " +
+                          stages(summary["gpu_ms_per_gs_frame_by_stage"]))
             << "), per GS frame " << traffic["upload_bytes"].get<double>() / 1e6 << " MB up, " << traffic["download_bytes"].get<double>() / 1e6
-            << " MB down, " << traffic["submits"].get<double>() << " submits; peak device memory "
+            << " MB down, " << traffic["submits"].get<double>() << " submits, " << traffic["dispatches"].get<double>()
+            << " dispatches; peak device memory "
             << (session.peak_device_bytes() >> 20) << " MiB\n";
   if (summary.contains("resume"))
     std::cerr << "unroll: resume: " << summary["resume"]["reused"] << " GS frame(s) reused, " << summary["resume"]["computed"]
@@ -220,6 +227,11 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   check_unroll_inputs(o);
   SessionOptions session_options = o.session;
   session_options.announce = session_options.announce && !o.quiet;
+  session_options.trace = session_options.trace || !o.trace_path.empty();
+  if (!o.trace_path.empty()) {  // refused now, not after the run
+    const fs::path dir = fs::absolute(o.trace_path).parent_path();
+    if (!fs::is_directory(dir)) throw UsageError("--trace " + o.trace_path + ": the folder " + dir.string() + " does not exist");
+  }
   if (o.mode == UnrollMode::physics) session_options.model_path.clear();
   // The model and the device before the sequence: their errors come first.
   UnrollSession session = in_device_stage("setting up the device and the model", [&] { return UnrollSession(session_options); });
@@ -271,6 +283,10 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
                              existing_output_name(o.output.existing) + ")");
   if (follow) extra["follow"] = follow_report(*follow, *follow_sink, stopped, job.total_targets());
   extra["provenance"]["finished_utc"] = utc_now();
+  if (const Trace* trace = session.trace(); trace && !o.trace_path.empty()) {  // before the output claims success
+    trace->write(o.trace_path);
+    extra["trace"] = {{"file", o.trace_path}, {"spans", trace->spans()}};
+  }
   for (const auto& w : extra["warnings"]) std::cerr << "unroll: warning: " << w.get<std::string>() << "\n";  // even under --quiet
   nlohmann::json summary = output.finish(extra);
   if (!o.quiet) report(o, summary, session);

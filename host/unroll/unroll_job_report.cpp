@@ -8,6 +8,7 @@
 
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/unroll/unroll_job.hpp"
+#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll {
 
@@ -16,7 +17,8 @@ namespace {
 nlohmann::json traffic_per_target(const DeviceTraffic& t, size_t targets) {
   const double n = static_cast<double>(std::max<size_t>(targets, 1));
   return {{"upload_bytes", double(t.upload_bytes) / n}, {"download_bytes", double(t.download_bytes) / n},
-          {"submits", double(t.submits) / n}};
+          {"submits", double(t.submits) / n}, {"waits", double(t.waits) / n}, {"dispatches", double(t.dispatches) / n},
+          {"transfers", double(t.transfers) / n}};
 }
 
 nlohmann::json tiling_json(const UnrollOptions& o, const TileOptions& tiling, const SessionStats& st) {
@@ -95,11 +97,14 @@ void UnrollJob::add_time_breakdown(nlohmann::json& r, const SessionStats& st, do
   r["ms_per_gs_frame"] = ms;
   r["ms_per_gs_frame_total"] = std::max(total_ms, tracked) / n;
   r["device_traffic_per_gs_frame"] = traffic_per_target(traffic_, total_targets_);
+  // GPU times exist only where the device wrote timestamps: --profile or --trace (they cost time).
+  const bool timed = session_.context() && session_.context()->timestamps();
+  r["gpu_timestamps"] = timed;
   nlohmann::json gpu = nlohmann::json::object();
   for (const auto& [stage, v] : traffic_.gpu_ms_by_stage)
     if (v > 0) gpu[stage.empty() ? "other" : stage] = gpu.value(stage.empty() ? "other" : stage, 0.0) + v / n;
-  r["gpu_ms_per_gs_frame_by_stage"] = gpu;
-  r["gpu_ms_per_gs_frame"] = traffic_.gpu_ms / n;
+  r["gpu_ms_per_gs_frame_by_stage"] = timed ? gpu : nlohmann::json();
+  r["gpu_ms_per_gs_frame"] = timed ? nlohmann::json(traffic_.gpu_ms / n) : nlohmann::json();
   if (const Profiler* p = session_.profiler()) {  // --profile: each kernel's GPU time and calls, this run's
     nlohmann::json ops = nlohmann::json::object();
     for (const auto& [op, s] : p->ops()) {
@@ -112,10 +117,10 @@ void UnrollJob::add_time_breakdown(nlohmann::json& r, const SessionStats& st, do
   }
   const double wait = host.count("wait") ? host["wait"] : 0.0;
   // Inside the wait but not GPU work: submission, gaps between commands, the fence's latency.
-  r["wait_not_gpu_ms_per_gs_frame"] = std::max(0.0, wait - traffic_.gpu_ms) / n;
+  r["wait_not_gpu_ms_per_gs_frame"] = timed ? nlohmann::json(std::max(0.0, wait - traffic_.gpu_ms) / n) : nlohmann::json();
   r["host_ms_per_gs_frame"] = std::max(0.0, std::max(total_ms, tracked) - wait) / n;
   // Device time against wall time: on a GPU most of a frame should be device work (target >= 0.8).
-  r["gpu_share_of_frame_time"] = total_ms > 0 ? traffic_.gpu_ms / std::max(total_ms, tracked) : 0.0;
+  r["gpu_share_of_frame_time"] = !timed ? nlohmann::json() : nlohmann::json(total_ms > 0 ? traffic_.gpu_ms / std::max(total_ms, tracked) : 0.0);
 }
 
 nlohmann::json UnrollJob::events_report(std::vector<std::string>& warnings) const {

@@ -76,6 +76,9 @@ struct SessionOptions {
   ConvChoice conv_choice = ConvChoice::automatic;
   // Vulkan: sum every dispatch's GPU time per op (kernel) too, for summary.json's per-op table.
   bool profile_ops = false;
+  // Vulkan: keep a timeline of the host stages and every GPU dispatch (UnrollSession::trace(), the
+  // CLI's --trace FILE.json). GPU timestamps are written only with this or profile_ops.
+  bool trace = false;
 };
 
 // The largest time a target or a timing override may name: +-2^53 us (285 years), where a double
@@ -97,6 +100,7 @@ struct UnrollOptions {
   std::string sequence;           // folder
   SequenceOptions sequence_options;
   std::string out_dir;
+  std::string trace_path;         // --trace: the run's timeline (Chrome trace-event JSON) is written here (empty: none)
   SessionOptions session;
   std::string model_source;       // how session.model_path was chosen (choose_model), for summary.json
   UnrollMode mode = UnrollMode::automatic;

@@ -92,6 +92,7 @@ void bind_runtime(py::module_& m) {
         d["upload_bytes"] = t.upload_bytes;
         d["download_bytes"] = t.download_bytes;
         d["submits"] = t.submits;
+        d["dispatches"] = t.dispatches;
         d["gpu_ms"] = t.gpu_ms;
         return d;
       });

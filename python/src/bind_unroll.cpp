@@ -32,6 +32,7 @@ py::dict stats_dict(const UnrollSession& s) {
   d["upload_bytes"] = t.upload_bytes;
   d["download_bytes"] = t.download_bytes;
   d["submits"] = t.submits;
+  d["dispatches"] = t.dispatches;
   d["gpu_ms"] = t.gpu_ms;
   d["memory_forced_submits"] = s.memory_forced_submits();
   d["peak_device_bytes"] = s.peak_device_bytes();
