@@ -6,7 +6,7 @@
 // usage: vkunroll-bench-model [--size 346x260] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]
 //                             [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]
 //                             [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune|gpu]
-//                             [--winograd-tile 6|8]
+//                             [--winograd-tile 6|8] [--trace FILE.json]
 //
 // --conv-choice (default heuristic): the conv algorithm per shape (host/model/conv_choice.hpp), from
 // the device's table in the cache directory; measured / retune first time the missing / every shape
@@ -44,6 +44,7 @@
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/profiler.hpp"
+#include "vkunroll/runtime/trace.hpp"
 #include <deque>
 #include <iostream>
 
@@ -141,6 +142,7 @@ struct BenchArgs {
   int W = 346, H = 260, torch_threads = 0, runs = 1;
   bool torch = true, profile = false, per_layer = false;
   std::string mode = "m", model_path, inputs_path, torch_device = "cpu";
+  std::string trace_path;  // --trace: the timed runs' timeline (runtime/trace.hpp)
   ConvChoice conv_choice = ConvChoice::heuristic;
   Precision precision = Precision::fp32;
   ConvOptions conv_options;  // --winograd-tile: 5x5 convs as F(4x4, 5x5) (8) or four F(4x4, 3x3) (6)
@@ -150,7 +152,7 @@ constexpr const char* kUsage =
     "usage: vkunroll-bench-model [--size WxH] [--mode m|s] [--no-torch] [--torch-threads N] [--profile] [--runs N]\n"
     "                            [--precision fp32|fp16] [--per-layer] [--model W.safetensors] [--inputs IN.safetensors]\n"
     "                            [--torch-device cpu|cuda] [--conv-choice heuristic|auto|cached|measured|retune|gpu]\n"
-    "                            [--winograd-tile 6|8]\n";
+    "                            [--winograd-tile 6|8] [--trace FILE.json]\n";
 
 // -1: parsed, run the bench; else the exit status (a bad argument is said on stderr).
 int parse_args(int argc, char** argv, BenchArgs& a) {
@@ -166,6 +168,8 @@ int parse_args(int argc, char** argv, BenchArgs& a) {
         a.mode = argv[++i];
       } else if (f == "--profile") {
         a.profile = true;
+      } else if (f == "--trace" && has_value) {
+        a.trace_path = argv[++i];
       } else if (f == "--no-torch") {
         a.torch = false;
       } else if (f == "--runs" && has_value) {
@@ -281,7 +285,7 @@ void apply_conv_choice(const BenchArgs& a, Context& ctx, VulkanBackend& vk, Mode
 // the shared machine's load drifts over both alike).
 struct TimedRuns {
   double best_s = 1e30, first_s = 0, gpu_ms = 0, heuristic_s = 1e30, heuristic_gpu_ms = 0;
-  uint64_t from_table = 0;
+  uint64_t from_table = 0, dispatches = 0, transfers = 0;  // of the best run
   std::map<ModelOutput, HostTensor> out;
 };
 
@@ -299,21 +303,31 @@ TimedRuns timed_runs(const BenchArgs& a, Context& ctx, VulkanBackend& vk, Model&
     const auto t = std::chrono::steady_clock::now();
     auto o = model.run(in, opt);
     const double s = seconds_since(t);
-    if (s < best) best = s, best_gpu = (ctx.traffic() - before).gpu_ms;
-    if (result) *result = std::move(o);
+    const DeviceTraffic d = ctx.traffic() - before;
+    if (s < best) best = s, best_gpu = d.gpu_ms;
+    if (result) *result = std::move(o), r.dispatches = d.dispatches, r.transfers = d.transfers;
     return s;
   };
+  Trace trace;
+  if (!a.trace_path.empty()) ctx.set_trace(&trace);
   for (int i = 0; i < a.runs; ++i) {
     if (i > 0) profiler.clear();  // the table shows the last run
+    const auto run_start = std::chrono::steady_clock::now();
     const uint64_t ft = vk.convs_from_table();
     const double s = one_run(r.best_s, r.gpu_ms, &r.out);
     std::fprintf(stderr, "progress: run %d took %.1f ms\n", i + 1, 1000 * s);
+    trace.host_span("host stages", "run " + std::to_string(i + 1), run_start, std::chrono::steady_clock::now());
     r.from_table = vk.convs_from_table() - ft;
     if (i == 0) r.first_s = s;
     if (!compare) continue;
     vk.set_conv_choice(nullptr, ConvChoice::heuristic);
     one_run(r.heuristic_s, r.heuristic_gpu_ms, nullptr);
     vk.set_conv_choice(table, chosen);
+  }
+  ctx.set_trace(nullptr);
+  if (!a.trace_path.empty()) {
+    trace.write(a.trace_path);
+    std::printf("  trace  : %zu spans of the timed runs in %s\n", trace.spans(), a.trace_path.c_str());
   }
   return r;
 }
@@ -328,6 +342,8 @@ void print_vulkan(const BenchArgs& a, Context& ctx, const VulkanBackend& vk, con
               1000 * r.best_s, prep, vk.peak_bytes() / 1048576.0, vk.device_peak_bytes() / 1048576.0,
               ctx.allocator().stats().peak_used_bytes / 1048576.0, vk.weight_bytes() / 1048576.0);
   if (a.runs > 1) std::printf("  vulkan : best of %d runs; the first took %.1f ms\n", a.runs, 1000 * r.first_s);
+  std::printf("  vulkan : %llu dispatches and %llu transfers (copies, fills) per GS frame\n",
+              static_cast<unsigned long long>(r.dispatches), static_cast<unsigned long long>(r.transfers));
   if (a.conv_choice != ConvChoice::heuristic) {
     if (a.conv_choice != ConvChoice::gpu)
       std::printf("  vulkan : conv algorithms: %llu of the run's convs took the measured table's choice\n",
