@@ -62,6 +62,7 @@ void parse_size(const std::string& s, const std::string& what, int& w, int& h);
 
 // Validators with messages that name the range.
 CLI::Validator finite_at_least(double lo, bool open = false);  // x >= lo (x > lo when open), finite
+CLI::Validator finite_range(double lo, double hi);             // lo <= x <= hi, finite
 CLI::Validator int_range(long long lo, long long hi);
 CLI::Validator non_empty();  // refuses "" (an empty value is an error, never "the default")
 

@@ -70,9 +70,10 @@ Command add_tune(CLI::App& parent) {
       ->check(CLI::IsMember({"fp32", "fp16", "all"}))->capture_default_str()->type_name("P");
   c->add_option("--reps", o.reps, "timed submits per candidate at most (the least counts)")->check(int_range(1, 1000))->capture_default_str()->type_name("N");
   c->add_option("--candidate-ms", o.candidate_ms, "wall ms of timed submits per candidate at most (at least one; 0: --reps)")
-      ->check(finite_at_least(0))->capture_default_str()->type_name("MS");
-  c->add_option("--warm-ms", o.warm_ms, "ms of FMA work before the timings, to bring the clocks up")
-      ->check(finite_at_least(0))->capture_default_str()->type_name("MS");
+      ->check(finite_range(0, 60000))->capture_default_str()->type_name("MS");
+  // Bounded: the warm-up is spent in full, so a huge value would hang the tuner.
+  c->add_option("--warm-ms", o.warm_ms, "ms of FMA work before the timings, to bring the clocks up (at most a minute)")
+      ->check(finite_range(0, 60000))->capture_default_str()->type_name("MS");
   c->add_option("--budget-s", o.budget_s, "no shape is timed after this many seconds (0: no limit); the rest keep the heuristic")
       ->check(finite_at_least(0))->capture_default_str()->type_name("S");
   c->add_flag("--plan", o.plan, "count the conv shapes and candidates, time nothing, write no table");

@@ -142,6 +142,19 @@ CLI::Validator finite_at_least(double lo, bool open) {
       std::string(open ? "> " : ">= ") + number_text(lo));
 }
 
+CLI::Validator finite_range(double lo, double hi) {
+  return CLI::Validator(
+      [lo, hi](std::string& s) -> std::string {
+        char* end = nullptr;
+        const double v = std::strtod(s.c_str(), &end);
+        if (end == s.c_str() || *end) return "'" + s + "' is not a number";
+        if (!std::isfinite(v)) return "'" + s + "' is not a finite number";
+        if (!(v >= lo && v <= hi)) return "'" + s + "': expected a value in [" + number_text(lo) + ", " + number_text(hi) + "]";
+        return {};
+      },
+      "[" + number_text(lo) + ", " + number_text(hi) + "]");
+}
+
 CLI::Validator int_range(long long lo, long long hi) {
   return CLI::Validator(
       [lo, hi](std::string& s) -> std::string {
