@@ -15,13 +15,13 @@
 //
 // Writes DIR/report.md, DIR/report.json and DIR/report.png (PSNR against ms per GS frame).
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
+#include <optional>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -36,6 +36,7 @@
 #include "vkunroll/host/unroll/unroll.hpp"
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 
 using namespace vkunroll;
 namespace fs = std::filesystem;
@@ -218,200 +219,196 @@ void plot(const std::vector<RowResult>& rows, const std::string& path) {
   cv::imwrite(path, img);
 }
 
-}  // namespace
+constexpr const char* kBench = "vkunroll-bench-report";
 
-int main(int argc, char** argv) try {
-  std::string out = "report", model;  // empty: the shipped default, looked up once the arguments are read
-  std::string sizes_arg = "346x260,640x480", scenes_arg = "static,camera,noisy", published_size = "346x260";
-  std::string thresholds_arg = "0.002,0.01,0.05";
+struct ReportArgs {
+  std::string out = "report", model;  // empty model: the shipped default, looked up once the arguments are read
+  std::string sizes = "346x260,640x480", scenes = "static,camera,noisy", published_size = "346x260";
+  std::string thresholds = "0.002,0.01,0.05";
   int frames = 3, gt_per_frame = 2;
   int64_t sparse_tile = 64, sparse_halo = 32;
   bool sparse_rows = true, fp16_rows = true;
   std::string variant = "none";
+  std::string plot_from;  // redraw this report.json's PNG instead of measuring
+  bool help = false;
+};
+
+ReportArgs parse_report_args(int argc, char** argv) {
+  ReportArgs a;
   for (int i = 1; i < argc; ++i) {
     const std::string k = argv[i];
     auto next = [&]() -> std::string {
-      if (i + 1 >= argc) throw Error("vkunroll-bench-report: " + k + " needs a value");
+      if (i + 1 >= argc) throw Error(std::string(kBench) + ": " + k + " needs a value");
       return argv[++i];
     };
-    if (k == "--out") out = next();
-    else if (k == "--sizes") sizes_arg = next();
-    else if (k == "--scenes") scenes_arg = next();
-    else if (k == "--model") model = next();
-    else if (k == "--frames") frames = static_cast<int>(bench_int_arg("vkunroll-bench-report", k, next(), 1, 100000));
-    else if (k == "--gt-per-frame") gt_per_frame = static_cast<int>(bench_int_arg("vkunroll-bench-report", k, next(), 1, 1000));
-    else if (k == "--published-size") published_size = next();
-    else if (k == "--thresholds") thresholds_arg = next();
-    else if (k == "--no-sparse") sparse_rows = false;
-    else if (k == "--no-fp16") fp16_rows = false;
-    else if (k == "--variant") variant = next();
-    else if (k == "--plot-from") {
-      // Redraws the PNG of an earlier run's report.json (no measurement).
-      const std::string json_path = next();
-      std::ifstream f(json_path);
-      if (!f) throw Error("vkunroll-bench-report: cannot read " + json_path);
-      const nlohmann::json j = nlohmann::json::parse(f);
-      std::vector<RowResult> rows;
-      for (const auto& r : j.at("rows")) {
-        RowResult x;
-        x.spec.label = r.value("row", "");
-        x.spec.mode = r.value("mode", "");
-        x.spec.sparse = r.value("sparse", "off");
-        x.scene = r.value("scene", "");
-        x.size = r.value("size", "");
-        x.ms_compute = r["ms_per_gs_frame"].is_number() ? r["ms_per_gs_frame"].get<double>() : NAN;
-        x.psnr = r["psnr"].is_number() ? r["psnr"].get<double>() : NAN;
-        rows.push_back(x);
-      }
-      const std::string png = (fs::path(json_path).parent_path() / "report.png").string();
-      plot(rows, png);
-      std::cout << "wrote " << png << "\n";
-      return 0;
-    }
-    else if (k == "--sparse-tile") sparse_tile = bench_int_arg("vkunroll-bench-report", k, next(), 1, 4096);
-    else if (k == "--sparse-halo") sparse_halo = bench_int_arg("vkunroll-bench-report", k, next(), 0, 4096);
-    else if (k == "--help" || k == "-h") {
-      std::cout << "usage: vkunroll-bench-report [--out DIR] [--sizes 346x260,640x480] [--scenes static,camera,noisy]\n"
-                   "         [--frames 3] [--gt-per-frame 2] [--model FILE] [--published-size WxH|none]\n"
-                   "         [--thresholds 0.002,0.01,0.05] [--sparse-tile 64] [--sparse-halo 32] [--no-sparse]\n"
-                   "         [--variant FILE|none] [--no-fp16]\n"
-                   "       vkunroll-bench-report --plot-from DIR/report.json   (redraws DIR/report.png)\n";
-      return 0;
-    } else
-      throw Error("vkunroll-bench-report: unknown argument '" + k + "' (see --help)");
+    if (k == "--out") a.out = next();
+    else if (k == "--sizes") a.sizes = next();
+    else if (k == "--scenes") a.scenes = next();
+    else if (k == "--model") a.model = next();
+    else if (k == "--frames") a.frames = static_cast<int>(bench_int_arg(kBench, k, next(), 1, 100000));
+    else if (k == "--gt-per-frame") a.gt_per_frame = static_cast<int>(bench_int_arg(kBench, k, next(), 1, 1000));
+    else if (k == "--published-size") a.published_size = next();
+    else if (k == "--thresholds") a.thresholds = next();
+    else if (k == "--no-sparse") a.sparse_rows = false;
+    else if (k == "--no-fp16") a.fp16_rows = false;
+    else if (k == "--variant") a.variant = next();
+    else if (k == "--plot-from") a.plot_from = next();
+    else if (k == "--sparse-tile") a.sparse_tile = bench_int_arg(kBench, k, next(), 1, 4096);
+    else if (k == "--sparse-halo") a.sparse_halo = bench_int_arg(kBench, k, next(), 0, 4096);
+    else if (k == "--help" || k == "-h") a.help = true;
+    else throw Error(std::string(kBench) + ": unknown argument '" + k + "' (see --help)");
   }
-  if (model.empty()) model = vkunroll::find_default_model().path;
-  if (model.empty()) throw Error("vkunroll-bench-report: no default model found; --model FILE");
-  fs::create_directories(out);
-  const fs::path data = fs::path(out) / "data", runs = fs::path(out) / "runs";
+  return a;
+}
 
+// Redraws the PNG of an earlier run's report.json (no measurement).
+void plot_from(const std::string& json_path) {
+  std::ifstream f(json_path);
+  if (!f) throw Error(std::string(kBench) + ": cannot read " + json_path);
+  const nlohmann::json j = nlohmann::json::parse(f);
+  std::vector<RowResult> rows;
+  for (const auto& r : j.at("rows")) {
+    RowResult x;
+    x.spec.label = r.value("row", "");
+    x.spec.mode = r.value("mode", "");
+    x.spec.sparse = r.value("sparse", "off");
+    x.scene = r.value("scene", "");
+    x.size = r.value("size", "");
+    x.ms_compute = r["ms_per_gs_frame"].is_number() ? r["ms_per_gs_frame"].get<double>() : NAN;
+    x.psnr = r["psnr"].is_number() ? r["psnr"].get<double>() : NAN;
+    rows.push_back(x);
+  }
+  const std::string png = (fs::path(json_path).parent_path() / "report.png").string();
+  plot(rows, png);
+  std::cout << "wrote " << png << "\n";
+}
+
+// Every row of a scene: physics, S, M and choose dense; sparse exact and fast; fp16; the variant's.
+std::vector<RowSpec> row_specs(const ReportArgs& a) {
   std::vector<RowSpec> specs = {{"physics", "physics"}, {"S dense", "s"}, {"M dense", "m"}};
   specs.push_back({"choose (S in frame, M between)", "choose"});
-  if (sparse_rows) {
-    const int64_t T = sparse_tile, Hh = sparse_halo;
+  if (a.sparse_rows) {
+    const int64_t T = a.sparse_tile, Hh = a.sparse_halo;
     specs.push_back({"S sparse exact", "s", "exact", 0.0, false, "S dense", T, Hh});
     specs.push_back({"M sparse exact", "m", "exact", 0.0, false, "M dense", T, Hh});
-    for (const auto& t : split(thresholds_arg)) {
+    for (const auto& t : split(a.thresholds)) {
       specs.push_back({"S sparse fast " + t, "s", "fast", std::stod(t), false, "S dense", T, Hh});
       specs.push_back({"M sparse fast " + t, "m", "fast", std::stod(t), false, "M dense", T, Hh});
     }
   }
-  if (fp16_rows) {
+  if (a.fp16_rows) {
     specs.push_back({"S dense fp16", "s", "off", 0.0, false, "S dense", 0, 64, "fp16"});
     specs.push_back({"M dense fp16", "m", "off", 0.0, false, "M dense", 0, 64, "fp16"});
-    if (sparse_rows)
-      specs.push_back({"S sparse exact fp16", "s", "exact", 0.0, false, "S dense", sparse_tile, sparse_halo, "fp16"});
+    if (a.sparse_rows)
+      specs.push_back({"S sparse exact fp16", "s", "exact", 0.0, false, "S dense", a.sparse_tile, a.sparse_halo, "fp16"});
   }
-  if (variant != "none") {
-    if (!fs::exists(variant)) throw Error("vkunroll-bench-report: --variant " + variant + ": no such file (none: no variant rows)");
+  if (a.variant != "none") {
+    if (!fs::exists(a.variant))
+      throw Error(std::string(kBench) + ": --variant " + a.variant + ": no such file (none: no variant rows)");
     specs.push_back({"variant S dense", "s", "off", 0.0, false, "", 0, 64, "fp32", true});
     // M is the variant's mode on the natural held-out suite (unroll --mode auto): timed beside S.
     specs.push_back({"variant M dense", "m", "off", 0.0, false, "", 0, 64, "fp32", true});
-    if (sparse_rows)
-      specs.push_back({"variant S sparse exact", "s", "exact", 0.0, false, "variant S dense", sparse_tile, sparse_halo, "fp32", true});
-    if (fp16_rows) specs.push_back({"variant S dense fp16", "s", "off", 0.0, false, "variant S dense", 0, 64, "fp16", true});
+    if (a.sparse_rows)
+      specs.push_back({"variant S sparse exact", "s", "exact", 0.0, false, "variant S dense", a.sparse_tile, a.sparse_halo, "fp32", true});
+    if (a.fp16_rows) specs.push_back({"variant S dense fp16", "s", "off", 0.0, false, "variant S dense", 0, 64, "fp16", true});
   }
   for (auto& s : specs)
     if (s.reference.empty() && s.mode != "physics") s.reference = s.label;
+  return specs;
+}
 
-  std::vector<RowResult> results;
-  const auto t_start = std::chrono::steady_clock::now();
-  for (const auto& size_s : split(sizes_arg)) {
-    const Size size = parse_size(size_s);
-    for (const auto& scene_name : split(scenes_arg)) {
-      const auto& kinds = scene_kinds();
-      auto it = std::find_if(kinds.begin(), kinds.end(), [&](const SceneKind& k) { return k.name == scene_name; });
-      if (it == kinds.end()) throw Error("vkunroll-bench-report: unknown scene '" + scene_name + "' (static, camera, noisy)");
-      sim::SimulationConfig cfg = sim::simulation_preset(it->preset);
-      cfg.width = size.w, cfg.height = size.h, cfg.frames = frames, cfg.gt_per_frame = gt_per_frame;
-      cfg.motion = it->motion, cfg.sprites = it->sprites, cfg.bit_depth = 8, cfg.seed = 7000 + results.size();
-      cfg.line_delay_us = 25900.0 / size.h;  // the same 25.9 ms readout at every size
-      const fs::path seq_dir = data / (it->name + "_" + size.str());
-      if (!fs::exists(seq_dir / "meta.json")) {
-        std::cerr << "report: simulating " << seq_dir.string() << " (" << it->description << ")\n";
-        const sim::SimulatedSequence seq = sim::simulate(cfg);
-        sim::write_sequence(cfg, seq, seq_dir.string());
-      }
-      std::map<std::string, fs::path> dirs;
-      for (const auto& spec : specs) {
-        RowResult r;
-        r.spec = spec, r.scene = it->name, r.size = size.str();
-        const fs::path dir = runs / (it->name + "_" + size.str()) / spec.label;
-        fs::remove_all(dir);
-        UnrollOptions o;
-        o.sequence = seq_dir.string();
-        o.out_dir = dir.string();
-        o.session.model_path = spec.mode == "physics" ? "" : spec.variant ? variant : model;
-        o.session.precision = parse_precision(spec.precision, "precision");
-        o.mode = parse_unroll_mode(spec.mode, "mode");
-        o.times = {TargetTimes::Kind::ground_truth, {}};
-        o.quiet = true;
-        o.output.write_video = false;
-        o.output.frame_format = FrameFormat::png16;
-        o.sparse = parse_sparse_policy(spec.sparse, "sparse");
-        o.sparse_threshold = spec.threshold;
-        o.tile = spec.tile;
-        o.halo = spec.halo;
-        std::cerr << "report: " << it->name << " " << size.str() << " " << spec.label << " ..." << std::flush;
-        try {
-          const nlohmann::json s = run_unroll(o);
-          r.ms_compute = compute_ms(s);
-          r.ms_total = s.value("ms_per_gs_frame_total", 0.0);
-          r.targets = s.value("targets", 0);
-          if (s.contains("metrics")) {
-            r.psnr = s["metrics"].value("mean_psnr", NAN);
-            r.ssim = s["metrics"].value("mean_ssim", NAN);
-            r.rs_psnr = s["metrics"].value("rs_mean_psnr", NAN);
-          }
-          if (s.contains("tiling")) r.active = s["tiling"].value("active_tile_fraction", NAN);
-          dirs[spec.label] = dir;
-          if (!spec.reference.empty() && dirs.count(spec.reference)) r.max_diff = max_abs_diff(dirs[spec.reference], dir);
-          std::cerr << " " << fmt(r.ms_compute, 1) << " ms/frame, PSNR " << fmt(r.psnr, 2) << "\n";
-        } catch (const std::exception& e) {
-          r.note = e.what();
-          std::cerr << " failed: " << e.what() << "\n";
-        }
-        results.push_back(r);
-      }
-    }
+// The scene's sequence at this size, simulated once into DATA/<scene>_<size>.
+fs::path scene_sequence(const ReportArgs& a, const SceneKind& kind, const Size& size, uint64_t seed) {
+  sim::SimulationConfig cfg = sim::simulation_preset(kind.preset);
+  cfg.width = size.w, cfg.height = size.h, cfg.frames = a.frames, cfg.gt_per_frame = a.gt_per_frame;
+  cfg.motion = kind.motion, cfg.sprites = kind.sprites, cfg.bit_depth = 8, cfg.seed = seed;
+  cfg.line_delay_us = 25900.0 / size.h;  // the same 25.9 ms readout at every size
+  const fs::path seq_dir = fs::path(a.out) / "data" / (kind.name + "_" + size.str());
+  if (!fs::exists(seq_dir / "meta.json")) {
+    std::cerr << "report: simulating " << seq_dir.string() << " (" << kind.description << ")\n";
+    const sim::SimulatedSequence seq = sim::simulate(cfg);
+    sim::write_sequence(cfg, seq, seq_dir.string());
   }
-  // The published configuration with random weights: speed only (its output means nothing).
-  if (published_size != "none") {
-    const Size size = parse_size(published_size);
-    const fs::path wfile = fs::path(out) / "published_random.safetensors";
-    if (!fs::exists(wfile)) save_weights(wfile.string(), random_weights(ModelConfig::published(), 2024));
-    const fs::path seq_dir = data / ("camera_" + size.str());
-    for (const std::string mode : {"s"}) {
-      RowResult r;
-      r.spec = {"published config (random weights) S", mode, "off", 0.0, true, ""};
-      r.scene = "camera", r.size = size.str();
-      UnrollOptions o;
-      o.sequence = seq_dir.string();
-      o.out_dir = (runs / ("published_" + size.str())).string();
-      o.output.existing = ExistingOutput::overwrite;  // the report's own folder from an earlier report
-      o.session.model_path = wfile.string();
-      o.mode = parse_unroll_mode(mode, "mode");
-      o.times = {TargetTimes::Kind::normalized, {Rational(1, 2)}};
-      o.frames = {0};
-      o.quiet = true;
-      o.output.write_video = false;
-      std::cerr << "report: published configuration, one target at " << size.str() << " ..." << std::flush;
-      try {
-        const nlohmann::json s = run_unroll(o);
-        r.ms_compute = compute_ms(s);
-        r.ms_total = s.value("ms_per_gs_frame_total", 0.0);
-        r.targets = s.value("targets", 0);
-        r.note = "speed only: random weights";
-        std::cerr << " " << fmt(r.ms_compute, 0) << " ms\n";
-      } catch (const std::exception& e) {
-        r.note = e.what();
-        std::cerr << " failed: " << e.what() << "\n";
-      }
-      results.push_back(r);
-    }
-  }
-  const double minutes = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count() / 60;
+  return seq_dir;
+}
 
+// One row: the unroll of `seq_dir` as `spec` asks, scored; `dirs` holds the outputs of the rows so far.
+RowResult run_row(const ReportArgs& a, const RowSpec& spec, const std::string& scene, const Size& size, const fs::path& seq_dir,
+                  std::map<std::string, fs::path>& dirs) {
+  RowResult r;
+  r.spec = spec, r.scene = scene, r.size = size.str();
+  const fs::path dir = fs::path(a.out) / "runs" / (scene + "_" + size.str()) / spec.label;
+  fs::remove_all(dir);
+  UnrollOptions o;
+  o.sequence = seq_dir.string();
+  o.out_dir = dir.string();
+  o.session.model_path = spec.mode == "physics" ? "" : spec.variant ? a.variant : a.model;
+  o.session.precision = parse_precision(spec.precision, "precision");
+  o.mode = parse_unroll_mode(spec.mode, "mode");
+  o.times = {TargetTimes::Kind::ground_truth, {}};
+  o.quiet = true;
+  o.output.write_video = false;
+  o.output.frame_format = FrameFormat::png16;
+  o.sparse = parse_sparse_policy(spec.sparse, "sparse");
+  o.sparse_threshold = spec.threshold;
+  o.tile = spec.tile;
+  o.halo = spec.halo;
+  std::cerr << "report: " << scene << " " << size.str() << " " << spec.label << " ..." << std::flush;
+  try {
+    const nlohmann::json s = run_unroll(o);
+    r.ms_compute = compute_ms(s);
+    r.ms_total = s.value("ms_per_gs_frame_total", 0.0);
+    r.targets = s.value("targets", 0);
+    if (s.contains("metrics")) {
+      r.psnr = s["metrics"].value("mean_psnr", NAN);
+      r.ssim = s["metrics"].value("mean_ssim", NAN);
+      r.rs_psnr = s["metrics"].value("rs_mean_psnr", NAN);
+    }
+    if (s.contains("tiling")) r.active = s["tiling"].value("active_tile_fraction", NAN);
+    dirs[spec.label] = dir;
+    if (!spec.reference.empty() && dirs.count(spec.reference)) r.max_diff = max_abs_diff(dirs[spec.reference], dir);
+    std::cerr << " " << fmt(r.ms_compute, 1) << " ms/frame, PSNR " << fmt(r.psnr, 2) << "\n";
+  } catch (const std::exception& e) {
+    r.note = e.what();
+    std::cerr << " failed: " << e.what() << "\n";
+  }
+  return r;
+}
+
+// The published configuration with random weights: speed only (its output means nothing).
+RowResult published_row(const ReportArgs& a) {
+  const Size size = parse_size(a.published_size);
+  const fs::path wfile = fs::path(a.out) / "published_random.safetensors";
+  if (!fs::exists(wfile)) save_weights(wfile.string(), random_weights(ModelConfig::published(), 2024));
+  RowResult r;
+  r.spec = {"published config (random weights) S", "s", "off", 0.0, true, ""};
+  r.scene = "camera", r.size = size.str();
+  UnrollOptions o;
+  o.sequence = (fs::path(a.out) / "data" / ("camera_" + size.str())).string();
+  o.out_dir = (fs::path(a.out) / "runs" / ("published_" + size.str())).string();
+  o.output.existing = ExistingOutput::overwrite;  // the report's own folder from an earlier report
+  o.session.model_path = wfile.string();
+  o.mode = UnrollMode::s;
+  o.times = {TargetTimes::Kind::normalized, {Rational(1, 2)}};
+  o.frames = {0};
+  o.quiet = true;
+  o.output.write_video = false;
+  std::cerr << "report: published configuration, one target at " << size.str() << " ..." << std::flush;
+  try {
+    const nlohmann::json s = run_unroll(o);
+    r.ms_compute = compute_ms(s);
+    r.ms_total = s.value("ms_per_gs_frame_total", 0.0);
+    r.targets = s.value("targets", 0);
+    r.note = "speed only: random weights";
+    std::cerr << " " << fmt(r.ms_compute, 0) << " ms\n";
+  } catch (const std::exception& e) {
+    r.note = e.what();
+    std::cerr << " failed: " << e.what() << "\n";
+  }
+  return r;
+}
+
+nlohmann::json report_json(const std::vector<RowResult>& results, double minutes) {
   nlohmann::json j;
   j["device_note"] = "ms per GS frame = event tensors + E-IC + MOA + physics (+ sparse planning), without PNG read/write";
   j["fp16"] = "rows marked fp16: weights and activations stored in fp16, fp32 arithmetic inside (docs/kernels.md "
@@ -427,8 +424,10 @@ int main(int argc, char** argv) try {
                          {"max_abs_diff_to_dense", num(r.max_diff)}, {"active_tile_fraction", num(r.active)},
                          {"targets", r.targets}, {"note", r.note}});
   }
-  std::ofstream(fs::path(out) / "report.json") << j.dump(2) << "\n";
+  return j;
+}
 
+std::string report_markdown(const std::vector<RowResult>& results, const nlohmann::json& j) {
   std::ostringstream md;
   md << "| scene | size | row | ms / GS frame | PSNR (dB) | SSIM | max abs diff to dense | active tiles | note |\n"
      << "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | --- |\n";
@@ -443,9 +442,53 @@ int main(int argc, char** argv) try {
        << r.note << " |\n";
   }
   md << "\nfp16: " << j["fp16"].get<std::string>() << ".\n";
-  std::ofstream(fs::path(out) / "report.md") << md.str();
-  plot(results, (fs::path(out) / "report.png").string());
-  std::cout << md.str() << "\nwrote " << out << "/report.md, report.json, report.png (" << fmt(minutes, 1) << " min)\n";
+  return md.str();
+}
+
+const char* kUsage =
+    "usage: vkunroll-bench-report [--out DIR] [--sizes 346x260,640x480] [--scenes static,camera,noisy]\n"
+    "         [--frames 3] [--gt-per-frame 2] [--model FILE] [--published-size WxH|none]\n"
+    "         [--thresholds 0.002,0.01,0.05] [--sparse-tile 64] [--sparse-halo 32] [--no-sparse]\n"
+    "         [--variant FILE|none] [--no-fp16]\n"
+    "       vkunroll-bench-report --plot-from DIR/report.json   (redraws DIR/report.png)\n";
+
+}  // namespace
+
+int main(int argc, char** argv) try {
+  ReportArgs a = parse_report_args(argc, argv);
+  if (a.help) {
+    std::cout << kUsage;
+    return 0;
+  }
+  if (!a.plot_from.empty()) {
+    plot_from(a.plot_from);
+    return 0;
+  }
+  if (a.model.empty()) a.model = vkunroll::find_default_model().path;
+  if (a.model.empty()) throw Error(std::string(kBench) + ": no default model found; --model FILE");
+  fs::create_directories(a.out);
+  const std::vector<RowSpec> specs = row_specs(a);
+  std::vector<RowResult> results;
+  const Stopwatch since_start;
+  for (const auto& size_s : split(a.sizes)) {
+    const Size size = parse_size(size_s);
+    for (const auto& scene_name : split(a.scenes)) {
+      const auto& kinds = scene_kinds();
+      auto it = std::find_if(kinds.begin(), kinds.end(), [&](const SceneKind& k) { return k.name == scene_name; });
+      if (it == kinds.end()) throw Error(std::string(kBench) + ": unknown scene '" + scene_name + "' (static, camera, noisy)");
+      const fs::path seq_dir = scene_sequence(a, *it, size, 7000 + results.size());
+      std::map<std::string, fs::path> dirs;
+      for (const auto& spec : specs) results.push_back(run_row(a, spec, it->name, size, seq_dir, dirs));
+    }
+  }
+  if (a.published_size != "none") results.push_back(published_row(a));
+  const double minutes = since_start.seconds() / 60;
+  const nlohmann::json j = report_json(results, minutes);
+  std::ofstream(fs::path(a.out) / "report.json") << j.dump(2) << "\n";
+  const std::string md = report_markdown(results, j);
+  std::ofstream(fs::path(a.out) / "report.md") << md;
+  plot(results, (fs::path(a.out) / "report.png").string());
+  std::cout << md << "\nwrote " << a.out << "/report.md, report.json, report.png (" << fmt(minutes, 1) << " min)\n";
   return 0;
 } catch (const std::exception& e) {
   std::cerr << "vkunroll-bench-report: " << e.what() << "\n";

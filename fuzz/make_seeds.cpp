@@ -59,6 +59,52 @@ EventStream first_events(const std::vector<uint8_t>& raw) {
   return sink.finish();
 }
 
+// The index fuzzer: first byte = format (text, evt2, evt3, dat, aedat4) + 5 * policy (error,
+// drop, sort); files past the 32 KiB checkpoint stride, with records out of time order.
+void put_index_seeds(const fs::path& out) {
+  EventStream many = random_stream(9000, 64, 48, 4, 1000, 5);
+  for (size_t i = 0; i < many.size(); i += 37) many.t[i] -= 3;
+  std::string txt = "# width 64 height 48\n";
+  for (size_t i = 0; i < many.size() / 2; ++i)
+    txt += std::to_string(many.t[i]) + " " + std::to_string(many.x[i]) + " " + std::to_string(many.y[i]) + " 1\n";
+  const std::vector<std::vector<uint8_t>> bodies = {
+      text_bytes(txt), encode_evt2(many, "% evt 2.0\n% geometry 64x48\n"),
+      encode_evt3(many, "% evt 3.0\n% geometry 64x48\n", true), encode_dat(many), encode_aedat4(many, 1, 700)};
+  for (int f = 0; f < 5; ++f)
+    for (int policy = 0; policy < 3; policy += (f == 2 ? 1 : 2)) {
+      std::vector<uint8_t> b{uint8_t(f + 5 * policy)};
+      b.insert(b.end(), bodies[size_t(f)].begin(), bodies[size_t(f)].end());
+      put(out / "index", "seed_" + std::to_string(f) + "_" + std::to_string(policy), b);
+    }
+  // EVT 2.1, AEDAT 2.0, AEDAT 3.1: first byte 15 + format + 3 * policy (fuzz_index.hpp).
+  EventStream davis = many;
+  davis.width = 346, davis.height = 260;
+  const std::vector<std::vector<uint8_t>> jaer = {encode_evt21(many, "% evt 2.1\n% geometry 64x48\n", false),
+                                                  encode_aedat2(davis, "# AEChip: Davis346B\r\n", true),
+                                                  encode_aedat3(many, "DAVIS346B", 300, true)};
+  for (int f = 0; f < 3; ++f)
+    for (int policy = 0; policy < 3; ++policy) {
+      std::vector<uint8_t> b{uint8_t(15 + f + 3 * policy)};
+      b.insert(b.end(), jaer[size_t(f)].begin(), jaer[size_t(f)].end());
+      put(out / "index", "seed_jaer_" + std::to_string(f) + "_" + std::to_string(policy), b);
+    }
+}
+
+// Seeds cut from the real recordings of the shared folder, where they exist.
+void put_real_seeds(const fs::path& out, const fs::path& shared) {
+  if (fs::exists(shared / "data/real-events/evt3_sample.raw"))
+    put(out / "evt3", "seed_real_head", head(shared / "data/real-events/evt3_sample.raw", 4096));
+  if (fs::exists(shared / "data/real-events/evt3_sample.raw")) {
+    // The real recording's first events, re-encoded as EVT 2.1 and AEDAT 3.1.
+    const auto raw = head(shared / "data/real-events/evt3_sample.raw", 4096);
+    const EventStream real = first_events(raw);
+    put(out / "evt21", "seed_real_head", encode_evt21(real, "% evt 2.1\n% format EVT21;height=720;width=1280\n", false));
+    put(out / "aedat3", "seed_real_head", encode_aedat3(real, "Prophesee", 64, false));
+  }
+  if (fs::exists(shared / "data/real-events/sample.aedat4"))
+    put(out / "aedat4", "seed_real_head", head(shared / "data/real-events/sample.aedat4", 2334 + 8 + 7949 + 8 + 383));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -127,50 +173,8 @@ int main(int argc, char** argv) {
     for (auto& b : r) b = uint8_t(rng());
     put(out / "hdf5", "seed_random_" + std::to_string(k), r);
   }
-  // The index fuzzer: first byte = format (text, evt2, evt3, dat, aedat4) + 5 * policy (error,
-  // drop, sort); files past the 32 KiB checkpoint stride, with records out of time order.
-  {
-    EventStream many = random_stream(9000, 64, 48, 4, 1000, 5);
-    for (size_t i = 0; i < many.size(); i += 37) many.t[i] -= 3;
-    std::string txt = "# width 64 height 48\n";
-    for (size_t i = 0; i < many.size() / 2; ++i)
-      txt += std::to_string(many.t[i]) + " " + std::to_string(many.x[i]) + " " + std::to_string(many.y[i]) + " 1\n";
-    const std::vector<std::vector<uint8_t>> bodies = {
-        text_bytes(txt), encode_evt2(many, "% evt 2.0\n% geometry 64x48\n"),
-        encode_evt3(many, "% evt 3.0\n% geometry 64x48\n", true), encode_dat(many), encode_aedat4(many, 1, 700)};
-    for (int f = 0; f < 5; ++f)
-      for (int policy = 0; policy < 3; policy += (f == 2 ? 1 : 2)) {
-        std::vector<uint8_t> b{uint8_t(f + 5 * policy)};
-        b.insert(b.end(), bodies[size_t(f)].begin(), bodies[size_t(f)].end());
-        put(out / "index", "seed_" + std::to_string(f) + "_" + std::to_string(policy), b);
-      }
-    // EVT 2.1, AEDAT 2.0, AEDAT 3.1: first byte 15 + format + 3 * policy (fuzz_index.hpp).
-    EventStream davis = many;
-    davis.width = 346, davis.height = 260;
-    const std::vector<std::vector<uint8_t>> jaer = {encode_evt21(many, "% evt 2.1\n% geometry 64x48\n", false),
-                                                    encode_aedat2(davis, "# AEChip: Davis346B\r\n", true),
-                                                    encode_aedat3(many, "DAVIS346B", 300, true)};
-    for (int f = 0; f < 3; ++f)
-      for (int policy = 0; policy < 3; ++policy) {
-        std::vector<uint8_t> b{uint8_t(15 + f + 3 * policy)};
-        b.insert(b.end(), jaer[size_t(f)].begin(), jaer[size_t(f)].end());
-        put(out / "index", "seed_jaer_" + std::to_string(f) + "_" + std::to_string(policy), b);
-      }
-  }
-  if (argc > 2) {
-    const fs::path shared = argv[2];
-    if (fs::exists(shared / "data/real-events/evt3_sample.raw"))
-      put(out / "evt3", "seed_real_head", head(shared / "data/real-events/evt3_sample.raw", 4096));
-    if (fs::exists(shared / "data/real-events/evt3_sample.raw")) {
-      // The real recording's first events, re-encoded as EVT 2.1 and AEDAT 3.1.
-      const auto raw = head(shared / "data/real-events/evt3_sample.raw", 4096);
-      const EventStream real = first_events(raw);
-      put(out / "evt21", "seed_real_head", encode_evt21(real, "% evt 2.1\n% format EVT21;height=720;width=1280\n", false));
-      put(out / "aedat3", "seed_real_head", encode_aedat3(real, "Prophesee", 64, false));
-    }
-    if (fs::exists(shared / "data/real-events/sample.aedat4"))
-      put(out / "aedat4", "seed_real_head", head(shared / "data/real-events/sample.aedat4", 2334 + 8 + 7949 + 8 + 383));
-  }
+  put_index_seeds(out);
+  if (argc > 2) put_real_seeds(out, argv[2]);
   std::cout << "seeds written under " << out << "\n";
   return 0;
 }

@@ -226,6 +226,36 @@ struct AedatPacketHeaderFb {
   int32_t stream, size;
 };
 
+struct Aedat4Packet {
+  int32_t stream;
+  std::vector<uint8_t> payload;
+  int64_t n, t0, t1;
+};
+
+// The file's data table (FTAB): each packet's offset, stream, event count and time span, compressed.
+inline std::vector<uint8_t> aedat4_packet_table(const std::vector<Aedat4Packet>& packets, const std::vector<int64_t>& offsets,
+                                                int compression) {
+  flatbuffers::FlatBufferBuilder b;
+  std::vector<flatbuffers::uoffset_t> defs;
+  for (size_t i = 0; i < packets.size(); ++i) {
+    const auto start = b.StartTable();
+    b.AddElement<int64_t>(4, offsets[i], 0);
+    const AedatPacketHeaderFb ph{packets[i].stream, int32_t(0)};
+    b.AddStruct(6, &ph);
+    b.AddElement<int64_t>(8, packets[i].n, 0);
+    b.AddElement<int64_t>(10, packets[i].t0, 0);
+    b.AddElement<int64_t>(12, packets[i].t1, 0);
+    defs.push_back(b.EndTable(start));
+  }
+  b.StartVector(defs.size(), sizeof(flatbuffers::uoffset_t));
+  for (size_t i = defs.size(); i-- > 0;) b.PushElement(flatbuffers::Offset<void>(defs[i]));
+  const auto vec = b.EndVector(defs.size());
+  const auto start = b.StartTable();
+  b.AddOffset(4, flatbuffers::Offset<void>(vec));
+  b.FinishSizePrefixed(flatbuffers::Offset<flatbuffers::Table>(b.EndTable(start)), "FTAB");
+  return aedat_compress(std::vector<uint8_t>(b.GetBufferPointer(), b.GetBufferPointer() + b.GetSize()), compression);
+}
+
 // Events in packets of `per_packet`, an IMU packet (stream 1) after the first event packet, and
 // a data table unless `with_table` is false. Times must be sorted.
 inline std::vector<uint8_t> encode_aedat4(const EventStream& ev, int compression, size_t per_packet = 1000,
@@ -240,12 +270,7 @@ inline std::vector<uint8_t> encode_aedat4(const EventStream& ev, int compression
       "</attr>\n</node>\n</node>\n"
       "<node name=\"1\" path=\"/mainloop/Recorder/outInfo/1/\">\n<attr key=\"originalOutputName\" type=\"string\">imu</attr>\n"
       "<attr key=\"typeIdentifier\" type=\"string\">IMUS</attr>\n</node>\n</node>\n</dv>\n";
-  struct Packet {
-    int32_t stream;
-    std::vector<uint8_t> payload;
-    int64_t n, t0, t1;
-  };
-  std::vector<Packet> packets;
+  std::vector<Aedat4Packet> packets;
   auto event_packet = [&](size_t a, size_t e) {
     flatbuffers::FlatBufferBuilder b;
     uint8_t* mem = nullptr;
@@ -308,25 +333,7 @@ inline std::vector<uint8_t> encode_aedat4(const EventStream& ev, int compression
   file.insert(file.end(), h.begin(), h.end());
   file.insert(file.end(), body.begin(), body.end());
   if (with_table) {
-    flatbuffers::FlatBufferBuilder b;
-    std::vector<flatbuffers::uoffset_t> defs;
-    for (size_t i = 0; i < packets.size(); ++i) {
-      const auto start = b.StartTable();
-      b.AddElement<int64_t>(4, offsets[i], 0);
-      const AedatPacketHeaderFb ph{packets[i].stream, int32_t(0)};
-      b.AddStruct(6, &ph);
-      b.AddElement<int64_t>(8, packets[i].n, 0);
-      b.AddElement<int64_t>(10, packets[i].t0, 0);
-      b.AddElement<int64_t>(12, packets[i].t1, 0);
-      defs.push_back(b.EndTable(start));
-    }
-    b.StartVector(defs.size(), sizeof(flatbuffers::uoffset_t));
-    for (size_t i = defs.size(); i-- > 0;) b.PushElement(flatbuffers::Offset<void>(defs[i]));
-    const auto vec = b.EndVector(defs.size());
-    const auto start = b.StartTable();
-    b.AddOffset(4, flatbuffers::Offset<void>(vec));
-    b.FinishSizePrefixed(flatbuffers::Offset<flatbuffers::Table>(b.EndTable(start)), "FTAB");
-    const auto c = aedat_compress(std::vector<uint8_t>(b.GetBufferPointer(), b.GetBufferPointer() + b.GetSize()), compression);
+    const auto c = aedat4_packet_table(packets, offsets, compression);
     file.insert(file.end(), c.begin(), c.end());
   }
   return file;

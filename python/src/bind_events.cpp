@@ -55,9 +55,38 @@ static EventReadOptions read_options(const py::object& t_begin, const py::object
 
 namespace {
 
+// RowTiming as a value: ==, repr and pickling (its times as exact rational strings).
+void add_value_protocols(py::class_<RowTiming>& cls) {
+  cls.def(
+          "__eq__",
+          [](const RowTiming& a, const RowTiming& b) {
+            return a.rows == b.rows && a.t0 == b.t0 && a.line_delay == b.line_delay && a.exposure == b.exposure &&
+                   a.readout == b.readout;
+          },
+          py::is_operator())
+      .def("__repr__",
+           [](const RowTiming& t) {
+             return "RowTiming(height=" + std::to_string(t.rows) + ", t0_us=" + t.t0.str() + ", line_delay_us=" +
+                    t.line_delay.str() + ", exposure_us=" + t.exposure.str() + ", readout='" + readout_name(t.readout) + "')";
+           })
+      .def(py::pickle(
+          [](const RowTiming& t) {
+            return py::make_tuple(t.rows, t.t0.str(), t.line_delay.str(), t.exposure.str(), std::string(readout_name(t.readout)));
+          },
+          [](const py::tuple& s) {
+            RowTiming t;
+            t.rows = s[0].cast<int>();
+            t.t0 = Rational::parse(s[1].cast<std::string>());
+            t.line_delay = Rational::parse(s[2].cast<std::string>());
+            t.exposure = Rational::parse(s[3].cast<std::string>());
+            t.readout = parse_readout(s[4].cast<std::string>());
+            return t;
+          }));
+}
+
 // RowTiming as a Python class: exact times in, fractions.Fraction out.
 void bind_row_timing(py::module_& m) {
-  py::class_<RowTiming>(m, "RowTiming", R"doc(
+  py::class_<RowTiming> cls(m, "RowTiming", R"doc(
 Rolling-shutter timing of one frame, in exact rational microseconds.
 
 RowTiming(height, t0_us, line_delay_us, exposure_us, readout="top-down")
@@ -66,8 +95,8 @@ Row y is read as the r-th row, r = y (top-down) or height-1-y (bottom-up); it is
 [t0 + r * line_delay, t0 + r * line_delay + exposure]. Times may be ints, floats (taken as the
 simplest fraction that rounds to them: 0.1 -> 1/10), strings ("73000/259", "2.5e3") or
 fractions.Fraction; they come back as fractions.Fraction, so nothing is rounded on the way.
-)doc")
-      .def(py::init([](int height, const py::object& t0, const py::object& delay, const py::object& exposure,
+)doc");
+  cls.def(py::init([](int height, const py::object& t0, const py::object& delay, const py::object& exposure,
                        const std::string& readout) {
              return guarded({}, [&] {
                RowTiming t;
@@ -130,32 +159,8 @@ fractions.Fraction; they come back as fractions.Fraction, so nothing is rounded 
           [](const RowTiming& t, const py::object& t_us) {
             return guarded({}, [&] { return to_fraction(t.tau_of(to_rational(t_us, "t_us"))); });
           },
-          py::arg("t_us"), "The normalized instant of t_us (the inverse of target_time), a Fraction.")
-      .def(
-          "__eq__",
-          [](const RowTiming& a, const RowTiming& b) {
-            return a.rows == b.rows && a.t0 == b.t0 && a.line_delay == b.line_delay && a.exposure == b.exposure &&
-                   a.readout == b.readout;
-          },
-          py::is_operator())
-      .def("__repr__",
-           [](const RowTiming& t) {
-             return "RowTiming(height=" + std::to_string(t.rows) + ", t0_us=" + t.t0.str() + ", line_delay_us=" +
-                    t.line_delay.str() + ", exposure_us=" + t.exposure.str() + ", readout='" + readout_name(t.readout) + "')";
-           })
-      .def(py::pickle(
-          [](const RowTiming& t) {
-            return py::make_tuple(t.rows, t.t0.str(), t.line_delay.str(), t.exposure.str(), std::string(readout_name(t.readout)));
-          },
-          [](const py::tuple& s) {
-            RowTiming t;
-            t.rows = s[0].cast<int>();
-            t.t0 = Rational::parse(s[1].cast<std::string>());
-            t.line_delay = Rational::parse(s[2].cast<std::string>());
-            t.exposure = Rational::parse(s[3].cast<std::string>());
-            t.readout = parse_readout(s[4].cast<std::string>());
-            return t;
-          }));
+          py::arg("t_us"), "The normalized instant of t_us (the inverse of target_time), a Fraction.");
+  add_value_protocols(cls);
 }
 
 }  // namespace

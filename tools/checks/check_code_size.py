@@ -1,22 +1,30 @@
 #!/usr/bin/env python3
-"""The project's size rules, checked in CI: no source file over 800 lines, no function over 100 lines
-in the core library (runtime/, kernels/, host/) and none over 150 in the rest of it (base/, python/);
-tests and benches are exempt from the function rule.
+"""The project's size rules, checked in CI over the whole tree: no source file over 800 lines, and no
+function over 100 lines, in C++ (library, Python bindings, tests, benches, fuzzers) and in Python
+(tools, the package, tests, the workflow's scripts) alike.
 
-A function is a brace block that opens at namespace or class scope after a parenthesised header
-(comments, strings and preprocessor lines are stripped first). Usage:
-    tools/checks/check_code_size.py [ROOT] [--max-file 800] [--max-core-function 100] [--max-function 150]
+A C++ function is a brace block that opens at namespace or class scope after a parenthesised header
+(comments, strings and preprocessor lines are stripped first); a Python function is a def (methods
+and nested defs each on their own: a nested def's lines also count in its parent's). Usage:
+    tools/checks/check_code_size.py [ROOT] [--max-file 800] [--max-function 100]
 Prints every violation and exits 1 if there is any.
 """
 import argparse
+import ast
 import pathlib
 import re
 import sys
 
-LIBRARY_DIRS = ("base", "runtime", "kernels", "host", "python")
-CORE_DIRS = ("runtime", "kernels", "host")  # held to --max-core-function
-ALL_DIRS = LIBRARY_DIRS + ("tests", "bench", "fuzz", "tools", "shaders")
-SUFFIXES = {".cpp", ".hpp", ".h", ".c", ".comp", ".glsl", ".py"}
+SOURCE_DIRS = ("base", "runtime", "kernels", "host", "python", "tests", "bench", "fuzz", "tools", "shaders", "workflow", "scripts",
+               "examples")
+CPP_SUFFIXES = {".cpp", ".hpp", ".h", ".c"}
+SUFFIXES = CPP_SUFFIXES | {".comp", ".glsl", ".py"}
+# Functions held to a larger limit for now, each with the reason and who removes it. Temporary:
+# the gpu-tuner branch (issue 49) splits these two while it reshapes them; the entries go when it lands.
+TEMPORARY_EXEMPTIONS = {
+    ("bench/bench_kernels.cpp", "main"): 320,
+    ("bench/bench_model.cpp", "run_bench"): 180,
+}
 
 
 def strip_code(text):
@@ -56,6 +64,7 @@ CONTROL = re.compile(r"\b(if|for|while|switch|catch|do|else|try)\b\s*(\(|$)")
 
 
 def long_functions(text, limit):
+    """(start line, length, name) of every C++ function over `limit` lines."""
     code = strip_code(text)
     stack = []  # per open brace: ("scope" | "function" | "block", start line)
     header_start, line = 0, 1
@@ -65,46 +74,74 @@ def long_functions(text, limit):
             line += 1
         elif c in ";}":
             if c == "}" and stack:
-                kind, start = stack.pop()
+                kind, start, name = stack.pop()
                 if kind == "function" and line - start + 1 > limit:
-                    found.append((start, line - start + 1))
+                    found.append((start, line - start + 1, name))
             header_start = pos + 1
         elif c == "{":
             header = code[header_start:pos].strip()
-            at_scope = all(k == "scope" for k, _ in stack)
+            at_scope = all(k == "scope" for k, _, _ in stack)
             if SCOPE.search(header) and "(" not in header.split("{")[-1]:
                 kind = "scope"
             elif at_scope and ")" in header and not CONTROL.search(header.split(")")[0]) and "=" not in header.split("(")[0]:
                 kind = "function"
             else:
                 kind = "block"
-            stack.append((kind, line))
+            names = re.findall(r"([A-Za-z_~][\w:~]*)\s*\(", header)
+            stack.append((kind, line, names[0].split("::")[-1] if names else "?"))
             header_start = pos + 1
     return found
+
+
+def long_python_functions(text, limit):
+    """(start line, length, name) of every Python def over `limit` lines (decorators included)."""
+    found = []
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            start = min([node.lineno] + [d.lineno for d in node.decorator_list])
+            length = node.end_lineno - start + 1
+            if length > limit:
+                found.append((start, length, node.name))
+    return found
+
+
+def sources(root):
+    """Every source file of the tree (the fuzz corpus and build folders left out), in order."""
+    for d in SOURCE_DIRS:
+        for p in sorted((root / d).rglob("*")):
+            if p.suffix in SUFFIXES and p.is_file() and "fuzz_corpus" not in p.parts and "__pycache__" not in p.parts:
+                yield p
+    yield from (p for p in sorted(root.glob("*.py")) if p.is_file())
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("root", nargs="?", default=pathlib.Path(__file__).resolve().parents[2])
     ap.add_argument("--max-file", type=int, default=800)
-    ap.add_argument("--max-core-function", type=int, default=100, help="function lines in " + ", ".join(CORE_DIRS))
-    ap.add_argument("--max-function", type=int, default=150, help="function lines in the other library folders")
+    ap.add_argument("--max-function", type=int, default=100)
     a = ap.parse_args()
     root = pathlib.Path(a.root)
     problems = []
-    for d in ALL_DIRS:
-        for p in sorted((root / d).rglob("*")):
-            if p.suffix not in SUFFIXES or not p.is_file() or "fuzz_corpus" in p.parts:
+    for p in sources(root):
+        text = p.read_text(errors="replace")
+        rel = p.relative_to(root).as_posix()
+        lines = text.count("\n") + (0 if text.endswith("\n") else 1)
+        if lines > a.max_file:
+            problems.append(f"{rel}: {lines} lines (at most {a.max_file})")
+        if p.suffix in CPP_SUFFIXES:
+            found = long_functions(text, a.max_function)
+        elif p.suffix == ".py":
+            try:
+                found = long_python_functions(text, a.max_function)
+            except SyntaxError as e:
+                problems.append(f"{rel}:{e.lineno}: not Python the checker can read ({e.msg})")
                 continue
-            text = p.read_text(errors="replace")
-            rel = p.relative_to(root)
-            lines = text.count("\n") + (0 if text.endswith("\n") else 1)
-            if lines > a.max_file:
-                problems.append(f"{rel}: {lines} lines (at most {a.max_file})")
-            if d in LIBRARY_DIRS and p.suffix in {".cpp", ".hpp", ".h", ".c"}:
-                limit = a.max_core_function if d in CORE_DIRS else a.max_function
-                for start, length in long_functions(text, limit):
-                    problems.append(f"{rel}:{start}: a function of {length} lines (at most {limit})")
+        else:
+            found = []
+        for start, length, name in found:
+            allowed = TEMPORARY_EXEMPTIONS.get((rel, name), a.max_function)
+            if length > allowed:
+                problems.append(f"{rel}:{start}: {name}, a function of {length} lines (at most {a.max_function})")
     for m in problems:
         print(m)
     print(f"check_code_size: {len(problems)} violation(s)" if problems else "check_code_size: every file and function within the limits")

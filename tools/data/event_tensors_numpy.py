@@ -21,8 +21,9 @@ import numpy as np
 
 
 # ---- section 4, float64 + np.add.at ------------------------------------------------------------
-def event_tensor(t, x, y, p, a_rows, b_rows, bins, crop):
-    """One tensor [2N, h, w]: a_rows/b_rows are float64 per full-sensor row; crop = (x0, y0, w, h)."""
+def selected_cells(t, x, y, p, a_rows, b_rows, bins, crop):
+    """The (channel, row, column) in the crop of every event between its row's a and b: channel
+    2k + (signed polarity > 0), k its bin; a_rows/b_rows are float64 per full-sensor row."""
     x0, y0, w, h = crop
     inside = (x >= x0) & (x < x0 + w) & (y >= y0) & (y < y0 + h)
     t, x, y, p = t[inside].astype(np.float64), x[inside], y[inside], p[inside]
@@ -33,26 +34,23 @@ def event_tensor(t, x, y, p, a_rows, b_rows, bins, crop):
     s = np.where(t < a, -s, s)
     k = np.floor(np.abs(t - a) * bins / np.abs(b - a)).astype(np.int64)
     k[k == bins] = bins - 1
-    ch = 2 * k + (s > 0)
+    return 2 * k + (s > 0), y - y0, x - x0
+
+
+def event_tensor(t, x, y, p, a_rows, b_rows, bins, crop):
+    """One tensor [2N, h, w]: a_rows/b_rows are float64 per full-sensor row; crop = (x0, y0, w, h)."""
+    _, _, w, h = crop
     out = np.zeros((2 * bins, h, w), dtype=np.float32)
-    np.add.at(out, (ch, y - y0, x - x0), 1)
+    np.add.at(out, selected_cells(t, x, y, p, a_rows, b_rows, bins, crop), 1)
     return out
 
 
 def event_tensor_fast(t, x, y, p, a_rows, b_rows, bins, crop):
     """event_tensor with np.bincount instead of np.add.at (same counts, ~20x faster; used by
     tools/train/train.py; tests/python/test_train.py checks it against event_tensor)."""
-    x0, y0, w, h = crop
-    inside = (x >= x0) & (x < x0 + w) & (y >= y0) & (y < y0 + h)
-    t, x, y, p = t[inside].astype(np.float64), x[inside], y[inside], p[inside]
-    a, b = a_rows[y], b_rows[y]
-    sel = (t >= np.minimum(a, b)) & (t < np.maximum(a, b))
-    t, x, y, p, a, b = t[sel], x[sel], y[sel], p[sel], a[sel], b[sel]
-    s = np.where(p > 0, 1, -1)
-    s = np.where(t < a, -s, s)
-    k = np.floor(np.abs(t - a) * bins / np.abs(b - a)).astype(np.int64)
-    k[k == bins] = bins - 1
-    flat = ((2 * k + (s > 0)) * h + (y - y0)) * w + (x - x0)
+    _, _, w, h = crop
+    ch, yy, xx = selected_cells(t, x, y, p, a_rows, b_rows, bins, crop)
+    flat = (ch * h + yy) * w + xx
     return np.bincount(flat, minlength=2 * bins * h * w).astype(np.float32).reshape(2 * bins, h, w)
 
 

@@ -25,7 +25,6 @@ Validation (--val) uses the ground truth of held-out sequences to print PSNRs, n
 """
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import math
@@ -45,6 +44,7 @@ from tools.model import safetensors_io
 from tools.model.selfunroll_torch import SelfUnroll, SelfUnrollConfig, Unet, UnetConfig
 from tools.data.sequence_data import DataError, Sequence, list_sequences
 from tools.train.adapt_guard import AdaptGuard, IntraAnchor, one_way_pair, selected_so_far
+from tools.train.train_args import build_parser, check_args
 from tools.train.train_schedule import ThreadChooser, cosine_lr
 from tools.train.train_data import (CacheSampler, Sample, Sampler, SeqInfo, crop_img, describe_data, find_cli,  # noqa: F401
                                     SUPERVISED_PASSES, from_model_encoding, gt_targets, images, make_data,
@@ -456,49 +456,8 @@ def make_sampler(a, cfg, rng, out):
     return sampler, seqs, describe_data(paths, seqs), paths
 
 
-def train(a) -> None:
-    dev = torch.device(a.device)
-    threads = ThreadChooser(a.threads if dev.type == "cpu" else "1")
-    os.makedirs(a.out, exist_ok=True)
-    ckpt_path = os.path.join(a.out, "checkpoint.pt")
-    state = None
-    if a.resume:
-        state = torch.load(a.resume, map_location="cpu", weights_only=False)
-        print(f"resuming {a.resume}: stage {state['stage']}, step {state['step']}", flush=True)
-    net = build_model(a, state).to(dev)
-    if a.confidence_only:  # the rest stays as loaded (masked gradients), and stage M has nothing to train
-        from tools.model import selfunroll_torch
-        try:
-            selfunroll_torch.confidence_only(net)
-        except ValueError as e:
-            raise DataError(f"--confidence-only: {e} (add --physics-confidence)")
-    cfg = net.cfg
-    n_params = sum(p.numel() for p in net.parameters())
-    val = [Sequence(p) for p in list_sequences(a.val)] if a.val else []
-    rng = random.Random(a.seed)
-    if state and "rng" in state:
-        rng.setstate(state["rng"])
-    sampler, seqs, data_desc, paths = make_sampler(a, cfg, rng, a.out)
-    val_infos = {v.folder: SeqInfo(v, a.data_gamma, os.path.join(a.out, "contrast_cache.json")) for v in val}
-    guard = AdaptGuard(seqs[0], sampler, net, stage_s_losses, a.out, a.ckpt_every, batch=a.batch,
-                       resumed=bool(a.resume), log=lambda m: print(m, flush=True)) if a.adapt else None
-    # the input model as --from gives it, also on --resume (the anchor never moves)
-    anchor = IntraAnchor(build_model(a, None).to(dev), a.adapt_anchor, run_passes, BRANCHES) if a.adapt_anchor else None
-    print(f"model: {n_params} parameters ({n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}, "
-          f"{'physics-informed, ' if cfg.physics_input else ''}gamma {cfg.gamma}; data: {data_desc}; "
-          f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, device {dev}, threads {a.threads}"
-          + (f"; physics contrast x [1/{a.contrast_jitter:g}, {a.contrast_jitter:g}]" if a.contrast_jitter > 1 else ""),
-          flush=True)
-    if a.make_cache:
-        write_cache(sampler, a.make_cache, a.cache_samples, log=lambda m: print(m, flush=True))
-        return
-
-    steps_m = a.steps_m if cfg.moa and not a.adapt and not a.confidence_only else 0
-    stages = [("s", a.steps_s), ("m", steps_m)]
-    budget = a.max_minutes * 60 if a.max_minutes else None
-    # share of the time budget per stage: proportional to steps, an M step costing ~1.3 S steps
-    w = {"s": a.steps_s, "m": 1.3 * steps_m}
-    stage_budget = {k: (budget * w[k] / max(1e-9, sum(w.values())) if budget else None) for k in w}
+def run_info(a, state, data_desc, dev) -> Dict[str, str]:
+    """The metadata the exported weights carry: the command, the data, the losses and the settings."""
     info = dict(state["info"]) if state else {}
     info.setdefault("command", shlex.join(["python3", "-m", "tools.train.train"] + sys.argv[1:]))
     info.update({"data": data_desc, "crop": f"{a.crop[0]}x{a.crop[1]}", "batch": str(a.batch), "seed": str(a.seed),
@@ -513,17 +472,108 @@ def train(a) -> None:
     if a.adapt:
         info.update({"adapt": a.adapt, "adapt_from": a.from_model or "", "adapt_minutes": str(a.max_minutes),
                      "adapt_anchor": str(a.adapt_anchor), "adapt_lc_one_way": str(a.adapt_lc_one_way).lower()})
-    start_stage = state["stage"] if state else "s"
-    step = state["step"] if state else 0
-    elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
-    t_run0 = time.time()
-    session_steps = 0
+    return info
 
-    for stage, steps in stages:
-        if stage == "s" and start_stage == "m":
-            continue
-        if steps <= 0:
-            continue
+
+class TrainRun:
+    """What every stage of one run shares: the model, the data, validation, the guard and the metadata."""
+
+    def __init__(self, a):
+        self.a = a
+        self.dev = torch.device(a.device)
+        self.threads = ThreadChooser(a.threads if self.dev.type == "cpu" else "1")
+        os.makedirs(a.out, exist_ok=True)
+        self.ckpt_path = os.path.join(a.out, "checkpoint.pt")
+        self.state = None
+        if a.resume:
+            self.state = torch.load(a.resume, map_location="cpu", weights_only=False)
+            print(f"resuming {a.resume}: stage {self.state['stage']}, step {self.state['step']}", flush=True)
+        self.net = build_model(a, self.state).to(self.dev)
+        if a.confidence_only:  # the rest stays as loaded (masked gradients), and stage M has nothing to train
+            from tools.model import selfunroll_torch
+            try:
+                selfunroll_torch.confidence_only(self.net)
+            except ValueError as e:
+                raise DataError(f"--confidence-only: {e} (add --physics-confidence)")
+        self.cfg = self.net.cfg
+        self.n_params = sum(p.numel() for p in self.net.parameters())
+        self.val = [Sequence(p) for p in list_sequences(a.val)] if a.val else []
+        self.rng = random.Random(a.seed)
+        if self.state and "rng" in self.state:
+            self.rng.setstate(self.state["rng"])
+        self.sampler, self.seqs, self.data_desc, self.paths = make_sampler(a, self.cfg, self.rng, a.out)
+        self.val_infos = {v.folder: SeqInfo(v, a.data_gamma, os.path.join(a.out, "contrast_cache.json")) for v in self.val}
+        self.guard = AdaptGuard(self.seqs[0], self.sampler, self.net, stage_s_losses, a.out, a.ckpt_every, batch=a.batch,
+                                resumed=bool(a.resume), log=lambda m: print(m, flush=True)) if a.adapt else None
+        # the input model as --from gives it, also on --resume (the anchor never moves)
+        self.anchor = IntraAnchor(build_model(a, None).to(self.dev), a.adapt_anchor, run_passes, BRANCHES) \
+            if a.adapt_anchor else None
+        self.info = run_info(a, self.state, self.data_desc, self.dev)
+        self.t_run0 = time.time()
+        self.session_steps = 0
+
+    def describe(self):
+        a, cfg = self.a, self.cfg
+        print(f"model: {self.n_params} parameters ({self.n_params * 4 / 1e6:.2f} MB F32), N={cfg.N}, "
+              f"{'physics-informed, ' if cfg.physics_input else ''}gamma {cfg.gamma}; data: {self.data_desc}; "
+              f"crop {a.crop[0]}x{a.crop[1]}, batch {a.batch}, device {self.dev}, threads {a.threads}"
+              + (f"; physics contrast x [1/{a.contrast_jitter:g}, {a.contrast_jitter:g}]" if a.contrast_jitter > 1 else ""),
+              flush=True)
+
+    def save(self, opt, stage, step, elapsed):
+        save_ckpt(self.ckpt_path, self.net, opt, stage, step, elapsed, self.rng, self.info, self.cfg)
+
+    def step(self, stage, opt, params, step, lr):
+        """One optimizer step of `stage`: its losses (floats) and the seconds spent drawing the samples."""
+        a = self.a
+        for g in opt.param_groups:
+            g["lr"] = lr
+        self.threads.before_step(step)
+        t_step = t_data = time.time()
+        samples = [self.sampler.draw() for _ in range(a.batch)]
+        t_data = time.time() - t_data
+        L = stage_s_losses(self.net, samples, a.supervised, self.anchor, a.adapt_lc_one_way) if stage == "s" else \
+            stage_m_losses(self.net, samples, a.supervised)
+        opt.zero_grad(set_to_none=True)
+        L["total"].backward()
+        torch.nn.utils.clip_grad_norm_(params, 1.0)
+        opt.step()
+        self.threads.after_step(time.time() - t_step)
+        return L, t_data
+
+    def between_steps(self, stage, step, opt, t0) -> bool:
+        """New sequences, validation, the guard and checkpoints after `step`; True when the session stops here."""
+        a = self.a
+        if a.rescan_every and step % a.rescan_every == 0 and not a.cache:
+            known = {q.folder for q in self.sampler.seqs}
+            if not a.adapt:
+                refuse_heldout(self.paths, "--data")  # one written into the folder since
+            new = [Sequence(p) for p in list_sequences(self.paths) if p not in known]
+            new = [q for q in new if q.num_frames >= 2]
+            if new:
+                self.sampler.add(new)
+                self.seqs += new
+                print(f"[{stage}] step {step}: {len(new)} new sequences, {len(self.sampler.seqs)} in all", flush=True)
+        if a.val_every and step % a.val_every == 0 and self.val:
+            v = validate(self.net, self.val, self.cfg.N, a.target_exposure_us, a.val_targets, a.val_crop, self.val_infos)
+            print(f"[{stage}] step {step} validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()), flush=True)
+        if self.guard:
+            self.guard.check(self.net, step)
+        if step % a.ckpt_every == 0:
+            self.save(opt, stage, step, time.time() - t0)
+        self.session_steps += 1
+        chunk_over = a.chunk_minutes and time.time() - self.t_run0 >= 60 * a.chunk_minutes
+        if (a.stop_after and self.session_steps >= a.stop_after) or chunk_over:
+            self.save(opt, stage, step, time.time() - t0)
+            why = "--chunk-minutes" if chunk_over else "--stop-after"
+            print(f"[{stage}] stopped after {self.session_steps} steps ({why}); resume with --resume {self.ckpt_path}",
+                  flush=True)
+            return True
+        return False
+
+    def stage(self, stage, steps, stage_budget, step, elapsed_before) -> bool:
+        """Trains `stage` for `steps` steps or its time budget, from `step`; True when the session stopped inside it."""
+        a, net, state = self.a, self.net, self.state
         if stage == "m":
             for n, p in net.named_parameters():
                 p.requires_grad_(n.startswith("attfusion_net."))
@@ -533,7 +583,6 @@ def train(a) -> None:
             opt.load_state_dict(state["opt"])
         else:
             step, elapsed_before = 0, 0.0
-        sb = stage_budget[stage]
         t0 = time.time() - elapsed_before
         t_sess0, step_sess0 = time.time(), step
         last_print, ema, done_reason = 0.0, {}, "steps"
@@ -541,25 +590,13 @@ def train(a) -> None:
         while True:
             elapsed = time.time() - t0
             progress = step / steps
-            if sb:
-                progress = max(progress, elapsed / sb)
+            if stage_budget:
+                progress = max(progress, elapsed / stage_budget)
             if progress >= 1.0:
                 done_reason = "time" if step < steps else "steps"
                 break
             lr = a.lr if a.constant_lr else cosine_lr(a.lr, progress)
-            for g in opt.param_groups:
-                g["lr"] = lr
-            threads.before_step(step)
-            t_step = t_data = time.time()
-            samples = [sampler.draw() for _ in range(a.batch)]
-            t_data = time.time() - t_data
-            L = stage_s_losses(net, samples, a.supervised, anchor, a.adapt_lc_one_way) if stage == "s" else \
-                stage_m_losses(net, samples, a.supervised)
-            opt.zero_grad(set_to_none=True)
-            L["total"].backward()
-            torch.nn.utils.clip_grad_norm_(params, 1.0)
-            opt.step()
-            threads.after_step(time.time() - t_step)
+            L, t_data = self.step(stage, opt, params, step, lr)
             step += 1
             for k, v in L.items():
                 ema[k] = float(v) if k not in ema else 0.9 * ema[k] + 0.1 * float(v)
@@ -570,56 +607,61 @@ def train(a) -> None:
                 parts = " ".join(f"{k} {v:.4f}" for k, v in ema.items() if k != "total")
                 print(f"[{stage}] step {step}/{steps} lr {lr:.2e} loss {ema['total']:.4f} ({parts}) "
                       f"{rate:.2f} step/s data {t_data:.2f}s elapsed {(now - t0) / 60:.1f} min", flush=True)
-            if a.rescan_every and step % a.rescan_every == 0 and not a.cache:
-                known = {q.folder for q in sampler.seqs}
-                if not a.adapt:
-                    refuse_heldout(paths, "--data")  # one written into the folder since
-                new = [Sequence(p) for p in list_sequences(paths) if p not in known]
-                new = [q for q in new if q.num_frames >= 2]
-                if new:
-                    sampler.add(new)
-                    seqs += new
-                    print(f"[{stage}] step {step}: {len(new)} new sequences, {len(sampler.seqs)} in all", flush=True)
-            if a.val_every and step % a.val_every == 0 and val:
-                v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop, val_infos)
-                print(f"[{stage}] step {step} validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()),
-                      flush=True)
-            if guard:
-                guard.check(net, step)
-            if step % a.ckpt_every == 0:
-                save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
-            session_steps += 1
-            chunk_over = a.chunk_minutes and time.time() - t_run0 >= 60 * a.chunk_minutes
-            if (a.stop_after and session_steps >= a.stop_after) or chunk_over:
-                save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
-                why = "--chunk-minutes" if chunk_over else "--stop-after"
-                print(f"[{stage}] stopped after {session_steps} steps ({why}); resume with --resume {ckpt_path}",
-                      flush=True)
-                return
-        if guard and step % guard.every:
-            guard.check(net, step, last=True)  # the last step, between two evaluations
+            if self.between_steps(stage, step, opt, t0):
+                return True
+        if self.guard and step % self.guard.every:
+            self.guard.check(net, step, last=True)  # the last step, between two evaluations
         if not a.cache:
-            info["data"] = describe_data(paths, seqs)
-        info[f"steps_{stage}"] = str(step)
-        info[f"minutes_{stage}"] = f"{(time.time() - t0) / 60:.1f}"
-        info[f"final_loss_{stage}"] = f"{ema.get('total', float('nan')):.4f}"
+            self.info["data"] = describe_data(self.paths, self.seqs)
+        self.info[f"steps_{stage}"] = str(step)
+        self.info[f"minutes_{stage}"] = f"{(time.time() - t0) / 60:.1f}"
+        self.info[f"final_loss_{stage}"] = f"{ema.get('total', float('nan')):.4f}"
         print(f"[{stage}] done after {step} steps ({done_reason}), {(time.time() - t0) / 60:.1f} min", flush=True)
-        save_ckpt(ckpt_path, net, opt, stage, step, time.time() - t0, rng, info, cfg)
+        self.save(opt, stage, step, time.time() - t0)
         for p in net.parameters():
             p.requires_grad_(True)
-        state = None
-    if val:
-        v = validate(net, val, cfg.N, a.target_exposure_us, a.val_targets, a.val_crop, val_infos)
-        info["val_psnr"] = " ".join(f"{k}={x:.2f}dB" for k, x in v.items())
-        print("final validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()), flush=True)
-    if guard:
-        guard.finish(net, info)
-    info["finished_utc"] = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-    save_ckpt(ckpt_path, net, None, "done", 0, 0.0, rng, info, cfg)
-    out = a.export or os.path.join(a.out, "adapted.safetensors" if a.adapt else "model.safetensors")
-    size = export(net, out, info)
-    print(f"wrote {out}: {size / 1e6:.2f} MB ({n_params} parameters), run time {(time.time() - t_run0) / 60:.1f} min",
-          flush=True)
+        self.state = None
+        return False
+
+    def finish(self):
+        a, net, info = self.a, self.net, self.info
+        if self.val:
+            v = validate(net, self.val, self.cfg.N, a.target_exposure_us, a.val_targets, a.val_crop, self.val_infos)
+            info["val_psnr"] = " ".join(f"{k}={x:.2f}dB" for k, x in v.items())
+            print("final validation PSNR " + " ".join(f"{k} {x:.2f} dB" for k, x in v.items()), flush=True)
+        if self.guard:
+            self.guard.finish(net, info)
+        info["finished_utc"] = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+        save_ckpt(self.ckpt_path, net, None, "done", 0, 0.0, self.rng, info, self.cfg)
+        out = a.export or os.path.join(a.out, "adapted.safetensors" if a.adapt else "model.safetensors")
+        size = export(net, out, info)
+        print(f"wrote {out}: {size / 1e6:.2f} MB ({self.n_params} parameters), run time "
+              f"{(time.time() - self.t_run0) / 60:.1f} min", flush=True)
+
+
+def train(a) -> None:
+    run = TrainRun(a)
+    run.describe()
+    if a.make_cache:
+        write_cache(run.sampler, a.make_cache, a.cache_samples, log=lambda m: print(m, flush=True))
+        return
+    steps_m = a.steps_m if run.cfg.moa and not a.adapt and not a.confidence_only else 0
+    stages = [("s", a.steps_s), ("m", steps_m)]
+    budget = a.max_minutes * 60 if a.max_minutes else None
+    # share of the time budget per stage: proportional to steps, an M step costing ~1.3 S steps
+    w = {"s": a.steps_s, "m": 1.3 * steps_m}
+    stage_budget = {k: (budget * w[k] / max(1e-9, sum(w.values())) if budget else None) for k in w}
+    state = run.state
+    start_stage = state["stage"] if state else "s"
+    step = state["step"] if state else 0
+    elapsed_before = state.get("elapsed_stage", 0.0) if state else 0.0
+    run.t_run0 = time.time()
+    for stage, steps in stages:
+        if (stage == "s" and start_stage == "m") or steps <= 0:
+            continue
+        if run.stage(stage, steps, stage_budget[stage], step, elapsed_before):
+            return
+    run.finish()
 
 
 def save_ckpt(path, net, opt, stage, step, elapsed, rng, info, cfg):
@@ -633,99 +675,8 @@ def save_ckpt(path, net, opt, stage, step, elapsed, rng, info, cfg):
     os.replace(tmp, path)  # a kill during the save never leaves a broken checkpoint
 
 
-def parse_size(s: str) -> Tuple[int, int]:
-    try:
-        w, h = s.lower().split("x")
-        return int(w), int(h)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{s}': expected WIDTHxHEIGHT, e.g. 64x64") from None
-
-
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[1], formatter_class=argparse.RawDescriptionHelpFormatter,
-                                 epilog=__doc__.split("\n", 2)[2])
-    g = ap.add_argument_group("data generation")
-    g.add_argument("--make-data", metavar="DIR", help="simulate --sequences sequences into DIR and exit")
-    g.add_argument("--sequences", type=int, default=16)
-    g.add_argument("--seed-base", type=int, default=1000)
-    g.add_argument("--size", default="240x180", help="simulated sensor size [240x180]")
-    g.add_argument("--frames", type=int, default=8)
-    g.add_argument("--gt-per-frame", type=int, default=4)
-    g.add_argument("--speeds", default="1", help="comma-separated motion speed factors, cycled [1]")
-    g.add_argument("--cli", help="vkunroll executable [env VKUNROLL_CLI or build/vkunroll]")
-    g.add_argument("--sim-arg", action="append", default=[], help="extra argument for vkunroll simulate (repeatable)")
-    g = ap.add_argument_group("training")
-    g.add_argument("--data", nargs="+", help="sequence folders, or folders of them (generic layout)")
-    g.add_argument("--val", nargs="*", default=[], help="held-out sequences with ground truth, for validation PSNR")
-    g.add_argument("--out", default="runs/train", help="folder for checkpoint.pt and model.safetensors")
-    g.add_argument("--export", help="weights file to write at the end [OUT/model.safetensors]")
-    g.add_argument("--config", choices=sorted(PRESETS), default="small")
-    g.add_argument("--bins", type=int, help="N temporal bins (overrides the configuration's)")
-    g.add_argument("--description", default="")
-    g.add_argument("--init", help="start from these weights (a checkpoint.pt)")
-    g.add_argument("--resume", help="continue a checkpoint.pt (stage, step, optimizer, sampler state)")
-    g.add_argument("--steps-s", type=int, default=2000, help="stage 1 steps (SelfUnroll-S)")
-    g.add_argument("--steps-m", type=int, default=400, help="stage 2 steps (MOA alone)")
-    g.add_argument("--max-minutes", type=float, help="time budget of both stages (the cosine schedule follows it)")
-    g.add_argument("--crop", type=parse_size, default=(64, 64))
-    g.add_argument("--batch", type=int, default=2)
-    g.add_argument("--lr", type=float, default=1e-3)
-    g.add_argument("--target-exposure-us", type=float, help="GS target exposure (ev3 window) [the RS exposure]")
-    g.add_argument("--seed", type=int, default=1)
-    g.add_argument("--no-fusion-passthrough", action="store_true",
-                   help="initialise fusion_net randomly instead of as the identity on its sys input")
-    g.add_argument("--threads", default="2", help="torch threads, or 'auto': re-measure 1 vs 2 every 200 steps "
-                   "(2 OpenMP threads on an oversubscribed machine can be many times slower than 1) [2]")
-    g.add_argument("--supervised", action="store_true", help="L1 to the ground truth of simulated sequences "
-                   "(t* at their GT instants) instead of the self-supervised losses")
-    g.add_argument("--print-every", type=float, default=10.0, help="seconds between progress lines")
-    g.add_argument("--ckpt-every", type=int, default=100)
-    g.add_argument("--rescan-every", type=int, default=0,
-                   help="every this many steps, add sequences that appeared in --data folders (data still being made)")
-    g.add_argument("--stop-after", type=int, default=0, help="stop (with a checkpoint) after this many steps")
-    g.add_argument("--val-every", type=int, default=0)
-    g.add_argument("--val-targets", type=int, default=8)
-    g.add_argument("--val-crop", type=parse_size, default=None)
-    g.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1, ... [cpu]")
-    g.add_argument("--chunk-minutes", type=float, default=0,
-                   help="stop (with a checkpoint) after this many minutes of this session; --resume continues")
-    g.add_argument("--physics-variant", action="store_true",
-                   help="the physics-informed variant (E-IC_T corrects the physics estimate; docs/model.md)")
-    g.add_argument("--gamma", type=float, help="intensity encoding the model works in (metadata 'gamma') [2.2]")
-    g.add_argument("--data-gamma", type=float, default=1.0,
-                   help="encoding gamma of sequences whose meta.json states none (as unroll --mode physics) [1]")
-    g.add_argument("--from", dest="from_model", metavar="MODEL.safetensors",
-                   help="start from this weights file (with --physics-variant: lifted to the variant)")
-    g.add_argument("--constant-lr", action="store_true", help="no warm-up or cosine decay")
-    g.add_argument("--physics-gate", type=int, metavar="R",
-                   help="variant: fused = physics wherever no event lies within the (2R+1)^2 square (metadata physics_gate)")
-    g.add_argument("--physics-confidence", action="store_true", help="with a variant --from: add the learned "
-                   "confidence (fused = c * fusion_net + (1 - c) * phys; metadata physics_confidence)")
-    g.add_argument("--confidence-only", action="store_true", help="train the learned confidence alone (stage S; "
-                   "every other weight stays as loaded)")
-    g.add_argument("--reset-moa", action="store_true",
-                   help="with --from: restart attfusion_net.pred near m = 0.5 (a saturated MOA cannot learn)")
-    g.add_argument("--event-crops", type=float, default=0.0, metavar="P",
-                   help="with probability P a crop is centred on a random event of its frame pair (else uniform) [0]")
-    g.add_argument("--contrast-jitter", type=float, default=1.0, metavar="J",
-                   help="physics variant: each sample's physics input at its recording's contrast times a factor "
-                   "drawn log-uniformly in [1/J, J] (a model that tolerates a misestimated contrast) [1: none]")
-    g = ap.add_argument_group("adaptation to one recording (self-supervised; ground truth is never read)")
-    g.add_argument("--adapt", metavar="SEQUENCE", help="fine-tune --from on this recording alone (stage S), "
-                   "for --minutes; writes OUT/adapted.safetensors (or --export)")
-    g.add_argument("--minutes", type=float, help="with --adapt: the time budget (= --max-minutes)")
-    g.add_argument("--adapt-anchor", type=float, metavar="W", help="with --adapt: W x the mean |output - the input "
-                   f"model's| for targets inside an exposure span joins the loss (between frames: free) [{ADAPT_ANCHOR}; 0: off]")
-    g.add_argument("--adapt-lc-one-way", action="store_true", help="with --adapt: inside an exposure span, "
-                   "the latent consistency pulls the other frame's pass toward the exposing frame's, not both ways")
-    g = ap.add_argument_group("sample cache (data prepared in advance, e.g. for a short GPU slot)")
-    g.add_argument("--make-cache", metavar="DIR", help="draw --cache-samples samples from --data into DIR and exit")
-    g.add_argument("--cache-samples", type=int, default=2048)
-    g.add_argument("--cache", metavar="DIR", help="train on the samples of a cache instead of --data")
-    g.add_argument("--gate-radii", metavar="FILE", help="gated variant: each --data sequence's event gate radius "
-                   "(tools/train/gate_radii.py: what `unroll --gate-radius auto` picks there) instead of the model's")
-    g = ap.add_argument_group("export only")
-    g.add_argument("--export-checkpoint", nargs=2, metavar=("CKPT", "OUT"))
+    ap = build_parser(__doc__, PRESETS, ADAPT_ANCHOR)
     a = ap.parse_args(argv)
     try:
         if a.make_data:
@@ -735,40 +686,7 @@ def main(argv=None) -> int:
         if a.export_checkpoint:
             export_checkpoint(*a.export_checkpoint)
             return 0
-        if a.adapt:
-            if not a.from_model and not a.resume:
-                ap.error("--adapt needs --from MODEL.safetensors (the model to fine-tune)")
-            if a.minutes is None and a.max_minutes is None:
-                ap.error("--adapt needs --minutes M")
-            a.max_minutes = a.minutes if a.minutes is not None else a.max_minutes
-            if a.supervised:
-                ap.error("--adapt uses the self-supervised losses only")
-            a.adapt_anchor = ADAPT_ANCHOR if a.adapt_anchor is None else a.adapt_anchor
-            if a.adapt_anchor < 0 or (a.adapt_anchor and not a.from_model):
-                ap.error(f"--adapt-anchor {a.adapt_anchor:g}: expected a weight >= 0 and --from (the input model it "
-                         "pulls toward; --adapt-anchor 0 adapts without it)")
-        elif a.adapt_anchor is not None or a.adapt_lc_one_way:
-            ap.error(f"--adapt-{'anchor' if a.adapt_anchor is not None else 'lc-one-way'} applies to --adapt only")
-        elif not a.data and not a.resume and not a.cache:
-            ap.error("--data is required (or --cache / --adapt / --make-data / --export-checkpoint)")
-        elif a.resume and not a.data and not a.cache:
-            ap.error("--resume needs the same --data (or --cache) as the run it continues")
-        if a.physics_gate is not None and (a.physics_gate < 0 or not (a.physics_variant or a.from_model)):
-            ap.error("--physics-gate R needs R >= 0 and the physics variant (--physics-variant or a variant --from)")
-        if a.physics_confidence and not a.from_model:
-            ap.error("--physics-confidence needs a physics-variant --from model")
-        if not 0.0 <= a.event_crops <= 1.0:
-            ap.error(f"--event-crops {a.event_crops}: expected a probability in [0, 1]")
-        if a.make_cache and a.cache:
-            ap.error("--make-cache draws from --data, not from --cache")
-        if not a.contrast_jitter >= 1.0:
-            ap.error(f"--contrast-jitter {a.contrast_jitter}: expected a factor >= 1")
-        if a.contrast_jitter > 1.0 and (a.cache or a.make_cache):
-            ap.error("--contrast-jitter applies to samples drawn from --data, not to a cache")
-        if a.gate_radii and (a.cache or a.make_cache):
-            ap.error("--gate-radii applies to samples drawn from --data, not to a cache")
-        if a.device.startswith("cuda") and not torch.cuda.is_available():
-            ap.error(f"--device {a.device}: this PyTorch has no CUDA device")
+        check_args(ap, a, ADAPT_ANCHOR)
         refuse_heldout(a.data or [], "--data")
         refuse_heldout(a.val, "--val")
         train(a)
