@@ -3,8 +3,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <random>
 
+#include "op_test_harness.hpp"
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
@@ -150,29 +152,58 @@ EventStream random_stream(std::mt19937& rng, int W, int H) {
 }
 }  // namespace
 
-TEST(PhysicsUnroll, GpuMatchesCpuOnRandomStreams) {
+namespace {
+// GPU == CPU through the op harness on random streams: a fractional line delay, t* before, inside and
+// after the exposure, with and without a log offset; within 1e-4 of the output's range. fp32 only:
+// the unroller computes and stores f32 (its exponentials), and fp16 tensors are refused (below).
+optest::OpTest physics_unroll_test() {
   std::mt19937 rng(7);
   const int W = 23, H = 17, C = 3;
   const EventStream es = random_stream(rng, W, H);
-  auto s = starts(H, 0, 37.5);  // fractional line delay
-  std::vector<float> rs(C * W * H);
+  const auto s = starts(H, 0, 37.5);
+  HostTensor rs({1, C, H, W});
   std::uniform_real_distribution<float> u(0.f, 1.f);
-  for (auto& v : rs) v = u(rng);
-  rs[5] = 0.f;
-  PhysicsUnrollParams prm;
-  prm.contrast = 0.2f;
-  prm.gamma = 2.2f;
+  for (auto& v : rs.data) v = u(rng);
+  rs.data[5] = 0.f;
+  optest::OpTest test{"physics_unroll", {}, {1e-4, 0}};
+  test.precisions = {Precision::fp32};
   for (float offset : {0.f, 0.05f})
     for (double t_star : {-1000.0, 0.0, 650.0, 2400.0}) {
+      PhysicsUnrollParams prm;
+      prm.contrast = 0.2f;
+      prm.gamma = 2.2f;
       prm.log_offset = offset;
-      auto ev = gather_pixel_events(es, t_star, s, plus(s, 1500), 0, 0, W, H);
-      EXPECT_GT(ev.tau.size(), 100u);
-      auto cpu = physics_unroll_ref(rs, C, ev, prm);
-      auto gpu = run_gpu(rs, C, ev, prm);
-      for (size_t i = 0; i < cpu.size(); ++i)
-        ASSERT_NEAR(gpu[i], cpu[i], 1e-4 * std::max(1.f, std::abs(cpu[i]))) << "offset " << offset << " t*=" << t_star << " i=" << i;
+      const auto ev = std::make_shared<PixelEventLists>(gather_pixel_events(es, t_star, s, plus(s, 1500), 0, 0, W, H));
+      EXPECT_GT(ev->tau.size(), 100u);
+      double scale = 1;
+      for (float v : physics_unroll_ref(rs.data, C, *ev, prm)) scale = std::max(scale, double(std::abs(v)));
+      optest::OpCase k;
+      k.what = "offset " + std::to_string(offset) + ", t* " + std::to_string(t_star) + " us";
+      k.inputs = {rs};
+      k.outputs = {{{1, C, H, W}, 0, 0, scale}};  // whole items: the unroller writes items, not channel slices
+      k.reference = [ev, prm](optest::HostRun& r) {
+        const std::vector<float> v = physics_unroll_ref(r.inputs[0].data, int(r.inputs[0].shape.c), *ev, prm);
+        HostSliceOut out = r.out(0);
+        const Shape sh = out.shape();
+        for (int64_t c = 0; c < sh.c; ++c)
+          for (int64_t y = 0; y < sh.h; ++y)
+            for (int64_t x = 0; x < sh.w; ++x) out.at(0, c, y, x) = v[size_t((c * sh.h + y) * sh.w + x)];
+      };
+      k.record = [ev, prm](optest::DeviceRun& d) {
+        auto op = std::make_shared<PhysicsUnroll>(d.ctx, *ev);
+        op->record(d.stream, Slice(d.inputs[0]), d.out(0), prm);
+        d.keep_alive = op;
+        return true;
+      };
+      test.cases.push_back(std::move(k));
     }
+  return test;
 }
+}  // namespace
+
+TEST(PhysicsUnroll, GpuMatchesCpuOnRandomStreams) { optest::run_op_test(vktest::context(), physics_unroll_test()); }
+// On a context that binds whole tensors a write outside the output item lands on a canary.
+TEST(PhysicsUnroll, WritesNothingOutsideItsItem) { optest::run_op_test(vktest::whole_binding_context(), physics_unroll_test()); }
 
 // The session writes each target's physics straight into its item of the batch: item 2 of an image
 // batch into item 1 of an output batch, the other items (canaries) untouched; a channel slice is refused.

@@ -361,14 +361,14 @@ fs::path make_text_sequence(const std::string& name, int frames, const std::stri
 
 // A generic sequence whose meta.json was deleted (rs/, gs/, the project's events.h5) used to be
 // read as Gev-RS with its 200 us / 3200 us convention, silently.
-TEST(SequenceIssue18, MissingMetaJsonIsRefusedNotGuessedAsGevRs) {
+TEST(SequenceReliability, MissingMetaJsonIsRefusedNotGuessedAsGevRs) {
   const fs::path d = fresh_dir("no_meta");
   for (int k = 0; k < 3; ++k) png(d / "rs" / (std::to_string(k) + ".png"), 16, 12);
   for (int k = 0; k < 3; ++k) png(d / "gs" / (std::to_string(k) + ".png"), 16, 12);
   write_events_hdf5((d / "events.h5").string(), evtest::random_stream(300, 16, 12, 40, 0, 5));
   const std::string e = error_of([&] { load_sequence(d.string()); });
   for (const char* part : {"no_meta", "no meta.json", "rs/ (3 images)", "gs/ (3 images)", "events.h5",
-                           "events/{t,x,y,p}", "meta.json is missing", "--layout gev-rs"})
+                           "events/{t,x,y,p}", "meta.json is missing", "with layout gev-rs"})
     EXPECT_NE(e.find(part), std::string::npos) << "missing '" << part << "' in: " << e;
   // Choosing the layout explicitly still works.
   SequenceOptions o;
@@ -391,7 +391,7 @@ TEST(SequenceIssue18, MissingMetaJsonIsRefusedNotGuessedAsGevRs) {
 
 // A t0 near the int64 limit gave a window ending at -9223372036854775807; swapped t0s reported the
 // recording as [110000, 17700]. Both are now errors at load naming the field and the frame.
-TEST(SequenceIssue18, FrameTimesOutOfRangeOrOutOfOrderNameTheFieldAndFrame) {
+TEST(SequenceReliability, FrameTimesOutOfRangeOrOutOfOrderNameTheFieldAndFrame) {
   const std::string frames_huge =
       R"({"file": "rs/000000.png", "t0_us": 0}, {"file": "rs/000001.png", "t0_us": 9223372036854775000})";
   fs::path d = make_text_sequence("t0_huge", 2, "10 1 1 1\n", frames_huge);
@@ -421,7 +421,7 @@ TEST(SequenceIssue18, FrameTimesOutOfRangeOrOutOfOrderNameTheFieldAndFrame) {
 
 // An empty event file gave exit 0 and the RS input back with nothing said; now the stream is
 // empty without an error and the totals say "no event records".
-TEST(SequenceIssue18, EmptyEventFileIsVisibleInTheTotals) {
+TEST(SequenceReliability, EmptyEventFileIsVisibleInTheTotals) {
   const fs::path d = make_text_sequence("empty_events", 3, "");
   const Sequence s = load_sequence(d.string());
   EventReadReport rep;
@@ -437,7 +437,7 @@ TEST(SequenceIssue18, EmptyEventFileIsVisibleInTheTotals) {
 
 // --on-bad drop never said how many it dropped. The totals count each record once, however many
 // overlapping frame windows read it.
-TEST(SequenceIssue18, DroppedEventsAreCountedOnceAcrossOverlappingWindows) {
+TEST(SequenceReliability, DroppedEventsAreCountedOnceAcrossOverlappingWindows) {
   std::string ev;
   uint64_t n = 0, out_of_order = 0;
   for (int i = 0; i < 22219; ++i, ++n) {
@@ -472,7 +472,7 @@ TEST(SequenceIssue18, DroppedEventsAreCountedOnceAcrossOverlappingWindows) {
 }
 
 // Images listed in meta.json that cannot be read: missing, a folder, garbage, cut short.
-TEST(SequenceIssue18, UnreadableFrameAndGroundTruthImagesAreClearErrors) {
+TEST(SequenceReliability, UnreadableFrameAndGroundTruthImagesAreClearErrors) {
   fs::path d = make_text_sequence("bad_images", 2, "10 1 1 1\n");
   const fs::path img = d / "rs" / "000001.png";
   const std::string png_bytes = [&] {
@@ -500,7 +500,7 @@ TEST(SequenceIssue18, UnreadableFrameAndGroundTruthImagesAreClearErrors) {
 }
 
 // A 200-frame text sequence read frame by frame through the Sequence equals one-off reads.
-TEST(SequenceIssue18, TwoHundredFrameWindowsEqualOneOffReads) {
+TEST(SequenceReliability, TwoHundredFrameWindowsEqualOneOffReads) {
   const EventStream ev = evtest::random_stream(60000, 16, 12, 43, 0, 6);
   std::string lines = "# width 16 height 12\n";
   for (size_t i = 0; i < ev.size(); ++i)
@@ -523,7 +523,7 @@ TEST(SequenceIssue18, TwoHundredFrameWindowsEqualOneOffReads) {
 
 // Fastec's per-frame .npz files: each window reads only the files whose rows overlap it (each file
 // opened once), and returns the merged events of a full read of every file.
-TEST(SequenceIssue18, PerFrameFilesAreSkippedOutsideTheWindow) {
+TEST(SequenceReliability, PerFrameFilesAreSkippedOutsideTheWindow) {
   const fs::path d = fresh_dir("fastec_files");
   const int frames = 20;
   EventStream all;
