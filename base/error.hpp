@@ -3,9 +3,17 @@
 //
 // Each error has a kind, so that a caller can tell "bad data, don't retry" from "device lost, retry"
 // (the CLI maps kinds to sysexits exit codes: host/cli/exit_codes.hpp, docs/reliability.md).
+//
+// A message names an option by the library's field for it (UnrollOptions' `times_us`, ...), marked
+// with opt(), never by one front end's spelling of it: the CLI spells a field as its flag
+// (--times-us), Python as its keyword (times_us), each through its own map (Error::spelled). what()
+// spells each field as it is. An error about one option is an OptionError: it also carries the
+// field, the value given and the rule.
 #pragma once
+#include <functional>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 namespace vkunroll {
 
@@ -19,14 +27,40 @@ enum class ErrorKind {
   temporary,           // worth retrying: device lost, a submit timed out, the output is busy
 };
 
+// The option `field` inside a message, e.g. opt("times_us") + " 1e400: ...": a mark the front end spells.
+inline std::string opt(std::string_view field) { return "\x1f" + std::string(field) + "\x1f"; }
+// How a front end spells a field: the CLI's flag, Python's keyword.
+using FieldSpelling = std::function<std::string(std::string_view field)>;
+// `text` with each opt() mark spelled by `spell`.
+std::string spell_fields(std::string_view text, const FieldSpelling& spell);
+
 class Error : public std::runtime_error {
  public:
-  explicit Error(const std::string& what, ErrorKind kind = ErrorKind::unspecified)
-      : std::runtime_error(what), kind_(kind) {}
+  explicit Error(const std::string& text, ErrorKind kind = ErrorKind::unspecified);
   ErrorKind kind() const { return kind_; }
+  // The message with its options marked (opt()): wrap it, not what(), into another error's message.
+  const std::string& text() const { return text_; }
+  std::string spelled(const FieldSpelling& spell) const { return spell_fields(text_, spell); }
 
  private:
   ErrorKind kind_;
+  std::string text_;
+};
+
+// A refused option or argument: `field` (the option at fault), `value` (as given; may be empty) and
+// `rule` (what was expected). `text`: the whole message, options marked with opt(); empty:
+// opt(field) + " value: rule" (opt(field) + ": rule" without a value). Usually a usage error
+// (exit 2, ValueError); a path option naming nothing is input_missing (66, FileNotFoundError).
+class OptionError : public Error {
+ public:
+  OptionError(std::string field, std::string value, std::string rule, std::string text = {},
+              ErrorKind kind = ErrorKind::usage);
+  const std::string& field() const { return field_; }
+  const std::string& value() const { return value_; }
+  const std::string& rule() const { return rule_; }
+
+ private:
+  std::string field_, value_, rule_;
 };
 
 struct UsageError : Error {

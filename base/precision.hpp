@@ -11,11 +11,11 @@ namespace vkunroll {
 enum class Precision { fp32, fp16 };
 
 inline const char* precision_name(Precision p) { return p == Precision::fp16 ? "fp16" : "fp32"; }
-// "fp32" | "fp16"; `what` names the option or field in the error.
+// "fp32" | "fp16"; the OptionError names the field `what`.
 inline Precision parse_precision(const std::string& s, const std::string& what = "precision") {
   if (s == "fp32") return Precision::fp32;
   if (s == "fp16") return Precision::fp16;
-  throw Error(what + " '" + s + "': expected fp32 or fp16");
+  throw OptionError(what, "'" + s + "'", "expected fp32 or fp16");
 }
 
 }  // namespace vkunroll

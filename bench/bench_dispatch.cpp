@@ -14,7 +14,6 @@
 // usage: vkunroll-bench-dispatch [--dispatches 2000] [--elements 4096] [--reps 5] [--frame-size 32x32] [--frames 10]
 //                                [--model W.safetensors] [--no-chain]
 #include <algorithm>
-#include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
@@ -25,6 +24,7 @@
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/runtime/command_stream.hpp"
 #include "vkunroll/runtime/context.hpp"
@@ -42,15 +42,13 @@ void run(Context& ctx, int dispatches, int64_t elements, Times& best) {
   add(cs, Slice(a), Slice(b), Slice(c));  // compiles the pipeline outside the timing
   cs.submit_and_wait();
   const double wait0 = ctx.traffic().wait_ms;  // the stream submits every 256 commands: its waits are not recording
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch clock;
   for (int i = 0; i < dispatches; ++i) add(cs, Slice(i % 2 ? c : a), Slice(b), Slice(i % 2 ? a : c));
-  const auto t1 = std::chrono::steady_clock::now();
-  const double waited = ctx.traffic().wait_ms - wait0;
+  const double record_ms = clock.ms() - (ctx.traffic().wait_ms - wait0);
   cs.submit_and_wait();
-  const auto t2 = std::chrono::steady_clock::now();
-  best.record_us_per_dispatch = std::min(
-      best.record_us_per_dispatch, (std::chrono::duration<double, std::micro>(t1 - t0).count() - 1000 * waited) / dispatches);
-  best.submit_ms = std::min(best.submit_ms, std::chrono::duration<double, std::milli>(t2 - t0).count());
+  const double submit_ms = clock.ms();
+  best.record_us_per_dispatch = std::min(best.record_us_per_dispatch, 1e3 * record_ms / dispatches);
+  best.submit_ms = std::min(best.submit_ms, submit_ms);
 }
 // One path of the frame comparison: its own context, backend and model.
 struct FramePath {
@@ -67,9 +65,9 @@ void run_frames(FramePath& p, const ModelInputs& in, int frames) {
   RunOptions ro;
   ro.mode = Mode::s;
   const DeviceTraffic before = p.ctx.traffic();
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch clock;
   for (int f = 0; f < frames; ++f) p.model.run(in, ro);
-  const double wall = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / frames;
+  const double wall = clock.ms() / frames;
   const DeviceTraffic d = p.ctx.traffic() - before;
   if (wall < p.wall_ms) {
     p.wall_ms = wall;

@@ -12,7 +12,6 @@
 #include <zip.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -21,6 +20,7 @@
 #include <vector>
 
 #include "bench_args.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #if __has_include("vkunroll/host/events/event_file_reader.hpp")
 #include "vkunroll/host/events/event_file_reader.hpp"
@@ -55,16 +55,12 @@ void write_npz(const std::string& path, const std::vector<uint8_t>& npy, bool de
 double time_read(const std::string& path, size_t& n) {
   double best = 1e30;
   for (int rep = 0; rep < 3; ++rep) {
-    const auto t0 = std::chrono::steady_clock::now();
+    const Stopwatch reading;
     const EventStream ev = read_events(path);
-    best = std::min(best, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    best = std::min(best, reading.seconds());
     n = ev.size();
   }
   return best;
-}
-
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 // Writes `ev` in every format into `dir`: (label, path).
@@ -120,31 +116,31 @@ int run_windows(size_t n, int frames) {
   std::printf("%-22s %8s %9s %11s %9s %11s %9s %9s %11s %9s\n", "format", "MiB", "full s", "one-off s", "/full",
               "indexed s", "/full", "1 win ms", "idx/1 win", "speedup");
   for (const auto& [label, path] : files) {
-    auto t0 = std::chrono::steady_clock::now();
+    Stopwatch t0;
     const size_t total = read_events(path).size();
-    const double full = seconds_since(t0);
+    const double full = t0.seconds();
     size_t got_old = 0, got_new = 0;
     (void)got_new;
-    t0 = std::chrono::steady_clock::now();
+    t0.restart();
     for (int k = 0; k < frames; ++k) {
       EventReadOptions o;
       o.t_begin_us = first + k * period;
       o.t_end_us = first + k * period + period * 3 / 2;
       got_old += read_events(path, o).size();
     }
-    const double old_s = seconds_since(t0);
+    const double old_s = t0.seconds();
     double new_s = 0, one_ms = 0;
 #ifdef VKUNROLL_HAVE_FILE_READER
-    t0 = std::chrono::steady_clock::now();
+    t0.restart();
     EventFileReader reader(path, {});
     for (int k = 0; k < frames; ++k) got_new += reader.read(first + k * period, first + k * period + period * 3 / 2).size();
-    new_s = seconds_since(t0);
+    new_s = t0.seconds();
     // One frame's window once the file is indexed (median of 21 frames spread over the recording).
     std::vector<double> one;
     for (int k = 0; k < frames; k += std::max(1, frames / 21)) {
-      t0 = std::chrono::steady_clock::now();
+      t0.restart();
       reader.read(first + k * period, first + k * period + period * 3 / 2);
-      one.push_back(seconds_since(t0) * 1e3);
+      one.push_back(t0.ms());
     }
     std::nth_element(one.begin(), one.begin() + long(one.size() / 2), one.end());
     one_ms = one[one.size() / 2];

@@ -7,13 +7,13 @@
 // usage: vkunroll-bench-layout [--size 346x260] [--channels 16] [--batch 4] [--dispatches 10] [--reps 3]
 //                              [--precision fp32|fp16|both]
 #include <algorithm>
-#include <chrono>
 #include <cstdio>
 #include <functional>
 #include <string>
 #include <vector>
 
 #include "bench_args.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/kernels/elementwise.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 #include "vkunroll/kernels/space_to_depth.hpp"
@@ -34,10 +34,10 @@ double time_chain(Context& ctx, int dispatches, const std::function<void(Command
   CommandStream cs(ctx);
   op(cs);
   cs.submit_and_wait();
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch clock;
   for (int i = 0; i < dispatches; ++i) op(cs);
   cs.submit_and_wait();
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / dispatches;
+  return clock.ms() / dispatches;
 }
 
 struct Case {

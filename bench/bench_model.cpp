@@ -35,6 +35,7 @@
 
 #include "bench_args.hpp"
 #include "bench_model_inputs.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
@@ -52,8 +53,8 @@ using namespace vkunroll;
 
 namespace {
 
-double seconds_since(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
 }
 
 HostTensor input_tensor(const SafetensorsFile& f, const std::string& path, const std::string& name) {
@@ -128,7 +129,7 @@ ResidentTiming time_resident(Context& ctx, Backend& vk, Model& model, const Mode
   ResidentTiming best{1e30, 0, {}};
   for (int r = 0; r < std::max(1, runs); ++r) {
     const DeviceTraffic before = ctx.traffic();
-    const auto t = std::chrono::steady_clock::now();
+    const auto t = Clock::now();
     const std::map<ModelOutput, Buffer> outs = model.run_on_backend(bufs, o);
     std::vector<float> image = vk.download(outs.begin()->second.whole());
     const double s = seconds_since(t);
@@ -237,7 +238,7 @@ void warm_up(Model& model, const ModelInputs& in, Mode md, double prep) {
   if (!in.phys.data.empty()) small.phys = crop(in.phys);
   RunOptions o;
   o.mode = md;
-  const auto t = std::chrono::steady_clock::now();
+  const auto t = Clock::now();
   model.run(small, o);
   // Progress on stderr (unbuffered): a run stopped by a time limit still says how far it got.
   std::fprintf(stderr, "progress: weights prepared in %.2f s; the 32x32 warm-up (every pipeline built) took %.2f s\n", prep,
@@ -272,7 +273,7 @@ void apply_conv_choice(const BenchArgs& a, Context& ctx, VulkanBackend& vk, Mode
   if (a.conv_choice != ConvChoice::measured && a.conv_choice != ConvChoice::retune) return;
   RunOptions o;
   o.mode = md;
-  const auto t = std::chrono::steady_clock::now();
+  const auto t = Clock::now();
   model.run(in, o);  // untimed: times the shapes the table lacks (retune: all)
   std::printf("  conv choice %s: %llu shapes timed in %.1f s (table %s)\n", conv_choice_name(a.conv_choice),
               static_cast<unsigned long long>(vk.convs_timed()), seconds_since(t), d.path.empty() ? "not saved" : d.path.c_str());
@@ -300,7 +301,7 @@ TimedRuns timed_runs(const BenchArgs& a, Context& ctx, VulkanBackend& vk, Model&
                                                                                                          : ConvChoice::cached;
   auto one_run = [&](double& best, double& best_gpu, std::map<ModelOutput, HostTensor>* result) {
     const DeviceTraffic before = ctx.traffic();
-    const auto t = std::chrono::steady_clock::now();
+    const auto t = Clock::now();
     auto o = model.run(in, opt);
     const double s = seconds_since(t);
     const DeviceTraffic d = ctx.traffic() - before;
@@ -312,11 +313,11 @@ TimedRuns timed_runs(const BenchArgs& a, Context& ctx, VulkanBackend& vk, Model&
   if (!a.trace_path.empty()) ctx.set_trace(&trace);
   for (int i = 0; i < a.runs; ++i) {
     if (i > 0) profiler.clear();  // the table shows the last run
-    const auto run_start = std::chrono::steady_clock::now();
+    const auto run_start = Clock::now();
     const uint64_t ft = vk.convs_from_table();
     const double s = one_run(r.best_s, r.gpu_ms, &r.out);
     std::fprintf(stderr, "progress: run %d took %.1f ms\n", i + 1, 1000 * s);
-    trace.host_span("host stages", "run " + std::to_string(i + 1), run_start, std::chrono::steady_clock::now());
+    trace.host_span("host stages", "run " + std::to_string(i + 1), run_start, Clock::now());
     r.from_table = vk.convs_from_table() - ft;
     if (i == 0) r.first_s = s;
     if (!compare) continue;
@@ -426,7 +427,7 @@ int run_bench(BenchArgs& a) {
   Profiler profiler;
   VulkanBackend vk(ctx, a.profile ? &profiler : nullptr, kPoolFlushBytes, a.precision);
   vk.set_conv_options(a.conv_options);
-  const auto t = std::chrono::steady_clock::now();
+  const auto t = Clock::now();
   Model model(vk, w);
   const double prep = seconds_since(t);
   warm_up(model, in, md, prep);  // the heuristic's pipelines, which the interleaved runs also take

@@ -95,14 +95,15 @@ Row time_row(UnrollSession& session, const std::string& axis, int w, int h, size
   for (int r = 0; r < reps + 1; ++r) {  // the first builds pipelines for the new shapes: not counted
     const SessionStats before = session.stats();
     const DeviceTraffic t0 = session.traffic();
-    const auto start = Clock::now();
+    const Stopwatch unrolling;
     session.unroll(in, targets);
-    const double ms = ms_since(start);
+    const double ms = unrolling.ms();
     if (r == 0 || (r > 1 && ms >= best.ms)) continue;
     const DeviceTraffic d = session.traffic() - t0;
     best = {axis, w, h, n, mode, ms, d.gpu_ms, d.wait_ms, nlohmann::json::object(), nlohmann::json::object(),
             session.stats().host_path_targets > before.host_path_targets};
-    for (const auto& [k, v] : session.stats().ms) best.host_ms[k] = v - (before.ms.count(k) ? before.ms.at(k) : 0.0);
+    for (const auto& [stage, v] : session.stats().ms)
+      best.host_ms[stage_name(stage)] = v - (before.ms.count(stage) ? before.ms.at(stage) : 0.0);
     for (const auto& [k, v] : d.gpu_ms_by_stage)
       if (v > 0) best.gpu_by_stage[k.empty() ? "other" : k] = v;
   }

@@ -31,6 +31,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/shader_registry.hpp"
 #include "vkunroll/runtime/tensor.hpp"
@@ -177,7 +178,7 @@ class CommandStream {
     VkQueryPool queries = VK_NULL_HANDLE;       // created when first timed
     VkCommandBuffer one_time = VK_NULL_HANDLE;  // fresh recordings that are not kept
     bool in_flight = false, timed = false;
-    std::chrono::steady_clock::time_point submitted_at;
+    Clock::time_point submitted_at;
     std::vector<Note> notes;  // of the submission in flight
     std::vector<Readback> readbacks;
     std::vector<VkDescriptorPool> desc_pools;

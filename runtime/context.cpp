@@ -7,13 +7,13 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <iostream>
 #include <sstream>
 #include <thread>
 
 #include <unistd.h>
 
 #include "vkunroll/base/env.hpp"
+#include "vkunroll/base/log.hpp"
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
 #include "vkunroll/runtime/pipeline_compiler.hpp"
@@ -502,7 +502,7 @@ void Context::create_device() {
   auto pds = physical_devices(instance_);
   std::vector<DeviceInfo> infos;
   for (uint32_t i = 0; i < pds.size(); ++i) infos.push_back(read_device_info(pds[i], i));
-  std::string selector = options_.device, source = "--device";
+  std::string selector = options_.device, source = opt("device");
   if (selector.empty())
     if (const auto from_env = env::text("VKUNROLL_DEVICE")) selector = *from_env, source = "VKUNROLL_DEVICE";
   const uint32_t chosen = choose_device(infos, selector, source);
@@ -569,10 +569,9 @@ void Context::create_device() {
   // dispatch on the handle and serve any number of contexts.
   vkGetDeviceQueue(device_, queue_family_, 0, &queue_);
   if (options_.announce)
-    std::cerr << "vkunroll: device [" << info_.index << "] " << info_.name << " (" << info_.type_name()
-              << ", Vulkan " << info_.api_version_string()
-              << (info_.driver_info.empty() ? "" : ", " + info_.driver_info) << ", uuid:" << info_.uuid_string()
-              << (validation_ ? ", validation on" : "") << ")\n";
+    log_info("vkunroll: device [" + std::to_string(info_.index) + "] " + info_.name + " (" + info_.type_name() + ", Vulkan " +
+             info_.api_version_string() + (info_.driver_info.empty() ? "" : ", " + info_.driver_info) + ", uuid:" +
+             info_.uuid_string() + (validation_ ? ", validation on" : "") + ")");
 }
 
 void Context::load_pipeline_cache() {
@@ -650,9 +649,9 @@ void Context::clear_validation_messages() {
 }
 
 void Context::on_validation_message(const std::string& message) {
-  std::cerr << "vkunroll: " << message << "\n";
+  log_message(message.rfind("validation error", 0) == 0 ? LogLevel::error : LogLevel::warning, "vkunroll: " + message);
   if (validation_fatal_) {
-    std::cerr << "vkunroll: aborting on a validation message (VKUNROLL_VALIDATION_FATAL)\n";
+    log_error("vkunroll: aborting on a validation message (VKUNROLL_VALIDATION_FATAL)");
     std::abort();
   }
   std::lock_guard<std::mutex> lock(messages_mutex_);

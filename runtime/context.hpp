@@ -26,7 +26,7 @@ struct ContextOptions {
   // Device by index, by "uuid:<deviceUUID>" (as `vkunroll devices` shows it; dashes optional, a
   // unique prefix is enough) or by case-insensitive name substring; empty: VKUNROLL_DEVICE, then policy.
   std::string device;
-  // Say the chosen device in one line on stderr.
+  // Log the chosen device in one line (info, base/log.hpp).
   bool announce = true;
   // Abort the process on a validation message (tests: contexts made inside library code fail
   // loudly). Unset: VKUNROLL_VALIDATION_FATAL=1 turns it on.
@@ -166,10 +166,10 @@ struct DeviceList {
 };
 
 // Policy: discrete > integrated > virtual > cpu > other; ties keep enumeration order. `selector`: an
-// index, "uuid:<hex>" or a name substring; `source` names where it came from in errors ("--device",
-// "VKUNROLL_DEVICE"). Throws DeviceUnavailableError when nothing matches.
+// index, "uuid:<hex>" or a name substring; `source` names where it came from in errors (the option
+// opt("device"), or "VKUNROLL_DEVICE"). Throws DeviceUnavailableError when nothing matches.
 uint32_t choose_device(const std::vector<DeviceInfo>& devices, const std::string& selector,
-                       const std::string& source = "--device");
+                       const std::string& source = opt("device"));
 
 class Context {
  public:

@@ -2,9 +2,9 @@
 
 #include "vkunroll/runtime/command_stream.hpp"
 #include "vkunroll/runtime/context.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cstdio>
 #include <vector>
 
@@ -49,12 +49,12 @@ double best_gpu_ms(Context& ctx, int reps, const std::function<void(CommandStrea
   // Warm-up: submissions for at least 25 ms (at most 64 of them), so that a GPU that clocked down
   // while the host worked is back at speed for the timed runs (an H200's FMA ceiling read 53 and 9.6
   // TFLOP/s within one bench run, 2026-12-04). On lavapipe one run usually takes that long alone.
-  const auto warm0 = std::chrono::steady_clock::now();
+  const Stopwatch warm_clock;
   for (int w = 0; w < 64; ++w) {
     CommandStream warm(ctx);
     record(warm);
     warm.submit_and_wait();
-    if (std::chrono::steady_clock::now() - warm0 >= std::chrono::milliseconds(25)) break;
+    if (warm_clock.ms() >= 25) break;
   }
   const bool stamps = ctx.info().timestamps;
   double best = 1e300;
@@ -62,9 +62,9 @@ double best_gpu_ms(Context& ctx, int reps, const std::function<void(CommandStrea
     Profiler prof;
     CommandStream cs(ctx, stamps ? &prof : nullptr);
     record(cs);
-    const auto t0 = std::chrono::steady_clock::now();
+    const Stopwatch clock;
     cs.submit_and_wait();
-    const double wall = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    const double wall = clock.ms();
     best = std::min(best, stamps ? prof.total_ms() : wall);
     if (total)
       for (const auto& [op, st] : prof.ops()) total->record(op, st.total_ms, st.flop, st.bytes);

@@ -10,12 +10,13 @@
 // (no barrier between them) go to extra lanes of the GPU track: every lane is a sequence of
 // non-overlapping spans.
 #pragma once
-#include <chrono>
 #include <cstdint>
 #include <map>
 #include <mutex>
 #include <string>
 #include <vector>
+
+#include "vkunroll/base/stopwatch.hpp"
 
 namespace vkunroll {
 
@@ -31,7 +32,7 @@ struct GpuSpan {
 
 class Trace {
  public:
-  using Clock = std::chrono::steady_clock;
+  using Clock = vkunroll::Clock;
   Trace();
 
   // A host span on `track` (a named lane: "host stages", "host waits").

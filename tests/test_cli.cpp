@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "cli_test_util.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 
 namespace fs = std::filesystem;
 using clitest::cli;
@@ -132,8 +133,8 @@ TEST(Cli, KilledRunLeavesNothingThatClaimsSuccess) {
       ::_exit(127);
     }
     // Kill it once it has staged a few frames (600 to go: it is far from done).
-    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(120);
-    while (files_in(stage / "frames").size() < 3 && std::chrono::steady_clock::now() < until)
+    const vkunroll::Stopwatch waiting;
+    while (files_in(stage / "frames").size() < 3 && waiting.seconds() < 120)
       std::this_thread::sleep_for(std::chrono::milliseconds(2));
     ::kill(pid, SIGKILL);
     int st = 0;
@@ -352,8 +353,8 @@ TEST(Cli, ConcurrentRunIntoTheSameOutputIsBusy) {
             static_cast<char*>(nullptr));
     ::_exit(127);
   }
-  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(120);
-  while (files_in(stage / "frames").empty() && std::chrono::steady_clock::now() < until)
+  const vkunroll::Stopwatch waiting;
+  while (files_in(stage / "frames").empty() && waiting.seconds() < 120)
     std::this_thread::sleep_for(std::chrono::milliseconds(2));
   const CliRun r = cli("unroll " + seq.string() + " --out " + out.string() + " --overwrite --quiet");
   ::kill(pid, SIGKILL);

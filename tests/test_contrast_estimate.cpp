@@ -188,18 +188,20 @@ TEST(ContrastEstimate, NoiseMeasuresTellACleanRecordingFromANoisyOne) {
 }
 
 TEST(ContrastEstimate, GateRadiusOptionIsParsedAndApplied) {
-  EXPECT_EQ(parse_gate_radius("auto", "--gate-radius").kind, GateRadiusOption::Kind::automatic);
-  EXPECT_EQ(parse_gate_radius("model", "--gate-radius").kind, GateRadiusOption::Kind::model);
-  const GateRadiusOption three = parse_gate_radius("3", "--gate-radius");
+  EXPECT_EQ(parse_gate_radius("auto", "gate_radius").kind, GateRadiusOption::Kind::automatic);
+  EXPECT_EQ(parse_gate_radius("model", "gate_radius").kind, GateRadiusOption::Kind::model);
+  const GateRadiusOption three = parse_gate_radius("3", "gate_radius");
   EXPECT_EQ(three.kind, GateRadiusOption::Kind::fixed);
   EXPECT_EQ(three.radius, 3);
   EXPECT_EQ(gate_radius_text(three), "3");
   for (const char* bad : {"", "-1", "16", "2x", "one"}) {
     try {
-      parse_gate_radius(bad, "--gate-radius");
+      parse_gate_radius(bad, "gate_radius");
       ADD_FAILURE() << "accepted '" << bad << "'";
-    } catch (const UsageError& e) {
-      EXPECT_NE(std::string(e.what()).find("--gate-radius '" + std::string(bad) + "'"), std::string::npos) << e.what();
+    } catch (const OptionError& e) {
+      EXPECT_EQ(e.field(), "gate_radius");
+      EXPECT_EQ(e.kind(), ErrorKind::usage);
+      EXPECT_NE(std::string(e.what()).find("gate_radius '" + std::string(bad) + "'"), std::string::npos) << e.what();
     }
   }
   PhysicsPlan unmeasured;  // a given contrast: no noise measure
@@ -211,5 +213,5 @@ TEST(ContrastEstimate, GateRadiusOptionIsParsedAndApplied) {
   EXPECT_EQ(choose_gate_radius({GateRadiusOption::Kind::model, 0}, 1, noisy).radius, 1);
   EXPECT_EQ(choose_gate_radius(three, 1, noisy).radius, 3);
   EXPECT_EQ(choose_gate_radius(GateRadiusOption{}, -1, noisy).radius, -1) << "no gate: none chosen";
-  EXPECT_THROW(choose_gate_radius(three, -1, noisy), UsageError);
+  EXPECT_THROW(choose_gate_radius(three, -1, noisy), OptionError);
 }

@@ -428,7 +428,7 @@ TEST(EventReadersEvt, Evt3OutOfSensorUnknownWordAndNoGeometry) {
   // a header that says neither encoding nor geometry: detection asks for --format
   const std::string bare = tmp("bare.raw");
   write_bytes(bare, encode_evt3(ev, "% date today\n", false));
-  expect_error(bare, {}, {"bare.raw", "--format"});
+  expect_error(bare, {}, {"bare.raw", "pass format"});
   o = {};
   o.format = "evt3";
   const EventStream r = read_events(bare, o, &rep);

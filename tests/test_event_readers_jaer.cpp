@@ -90,7 +90,7 @@ TEST(EventReadersJaer, Aedat2HeaderRulesTruncationAndBadAddresses) {
   const std::string path = tmp("bad.aedat");
   // No chip named: the size is needed to undo jAER's flips; the options give it.
   write_bytes(path, encode_aedat2(ev, "", false));
-  expect_error(path, {}, {"bad.aedat", "names no DAVIS chip", "--width"});
+  expect_error(path, {}, {"bad.aedat", "names no DAVIS chip", "pass width"});
   EventReadOptions o;
   o.width = 240, o.height = 180;
   expect_same(ev, read_events(path, o));

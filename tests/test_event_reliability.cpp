@@ -69,7 +69,7 @@ TEST(EventReliability, NpzMemberCrcIsChecked) {
 TEST(EventReliability, InfiniteAndHugeTextTimesAreNamedAsSuch) {
   const std::string p = tmp("inf.txt");
   write_file(p, "inf 1 2 1\n");
-  expect_error(p, {}, {"inf.txt", "record 0 (line 1)", "time is +infinity", "--on-bad drop"});
+  expect_error(p, {}, {"inf.txt", "record 0 (line 1)", "time is +infinity", "use on_bad drop"});
   write_file(p, "-Infinity 1 2 1\n");
   expect_error(p, {}, {"time is -infinity"});
   write_file(p, "nan 1 2 1\n");
@@ -97,14 +97,14 @@ TEST(EventReliability, BinaryFileReadAsTextSaysWhatItLooksLike) {
   }
   const std::string p = tmp("evt3_named.txt");
   write_bytes(p, b);
-  expect_error(p, {}, {"evt3_named.txt", "not a text event file", "binary", "Prophesee EVT 3.0", "--format evt3", ".raw"});
+  expect_error(p, {}, {"evt3_named.txt", "not a text event file", "binary", "Prophesee EVT 3.0", "format evt3", ".raw"});
   EventReadOptions o;
   o.format = "txt";  // forced: the same answer
-  expect_error(p, o, {"Prophesee EVT 3.0", "--format evt3"});
+  expect_error(p, o, {"Prophesee EVT 3.0", "format evt3"});
   const std::string a = tmp("aedat_named.csv");
   write_bytes(a, encode_aedat4(random_stream(100, 64, 48, 52), 1, 50));
   o.format = "txt";
-  expect_error(a, o, {"aedat_named.csv", "AEDAT 4", "--format aedat4"});
+  expect_error(a, o, {"aedat_named.csv", "AEDAT 4", "format aedat4"});
   const std::string g = tmp("garbage.txt");
   write_bytes(g, std::vector<uint8_t>{0x01, 0x02, 0x00, 0xff, 0x10, '\n', 0x00});
   expect_error(g, {}, {"garbage.txt", "byte 0 is binary (0x01)", "match no event format"});
@@ -147,7 +147,7 @@ TEST(EventReliability, HostileInputsGetClearErrors) {
       {"trunc.aedat4", {aed.begin(), aed.begin() + long(aed.size() * 2 / 3)}, {"truncated AEDAT 4"}},
       {"hdr.aedat4", {aed.begin(), aed.begin() + 60}, {"header size", "does not fit the file"}},
       {"trunc.npy", {npy.begin(), npy.end() - 9}, {"truncated file"}},
-      {"noheader.raw", text_bytes("no header at all"), {"Prophesee header does not say the encoding", "--format"}},
+      {"noheader.raw", text_bytes("no header at all"), {"Prophesee header does not say the encoding", "pass format"}},
       {"evt21.raw", text_bytes("% evt 2.1\nxxxx"), {"record 0 (byte 10)", "ends inside a 64-bit EVT 2.1 word", "truncated file"}},
       {"hugeline.raw", text_bytes("% " + std::string(70000, 'x') + "\n"), {"longer than 64 KiB"}},
       {"neg.txt", text_bytes("10 -1 2 1\n"), {"record 0 (line 1)", "x=-1", "outside"}},
@@ -173,7 +173,7 @@ TEST(EventReliability, HostileInputsGetClearErrors) {
          return b;
        }(), {"implausible"}},
       {"notzip.npz", text_bytes("PK\x03\x04 but not a zip"), {"not a readable .npz"}},
-      {"unknown.bin", text_bytes("hello"), {"cannot tell the event format", "--format"}},
+      {"unknown.bin", text_bytes("hello"), {"cannot tell the event format", "pass format"}},
   };
   for (const auto& c : cases) {
     SCOPED_TRACE(c.name);

@@ -450,7 +450,7 @@ TEST(Simulator, RejectsImpossibleTimingAndNamesTheSetting) {
     c.validate();
     FAIL() << "expected an error";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("--line-delay-us"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("line_delay_us"), std::string::npos) << e.what();
   }
   c = small_config(64, 48);
   c.readout = "sideways";

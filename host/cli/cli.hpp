@@ -2,8 +2,10 @@
 // generated from the same declarations) and parses them into the library's typed options.
 // Shared option groups (sequence timing, device) live in common.cpp; exit codes in exit_codes.hpp.
 #pragma once
+#include <exception>
 #include <functional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <CLI/CLI.hpp>
@@ -74,6 +76,12 @@ void check_output_file(const std::string& path, const std::string& option);
 // An output folder: refused (UsageError naming `option`) when `path`, or a folder above it, exists
 // and is not a folder (the run could not create it; the option is at fault, not the disk).
 void check_output_folder(const std::string& path, const std::string& option);
+
+// The flag that spells a library field in messages (base/error.hpp opt()): times_us -> --times-us,
+// sequence -> SEQUENCE, speed_scale -> --speed, ...
+std::string flag_for(std::string_view field);
+// An exception's message as the CLI shows it: a library error's options spelled as flags.
+std::string cli_message(const std::exception& e);
 
 // Numbers in messages: inf, -inf, nan by name; integers without an exponent.
 std::string number_text(double v);

@@ -20,7 +20,7 @@ Rational exact_option(const std::string& text, const std::string& name) {
   try {
     return Rational::parse(text, name);
   } catch (const Error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.text());
   }
 }
 
@@ -39,9 +39,9 @@ int run_bag_sequence(const BagSequenceArgs& a) {
   timing.t0s_us = std::vector<Rational>{o.t0_offset_us};
   try {
     validate_sequence_options(timing);
-  } catch (const UsageError& e) {
-    throw UsageError(std::string(e.what()).rfind("--t0s-us", 0) == 0 ? "--t0-offset-us " + a.t0_offset + ": not a time vkunroll can hold"
-                                                                     : e.what());
+  } catch (const OptionError& e) {
+    if (e.field() == "t0s_us") throw UsageError("--t0-offset-us " + a.t0_offset + ": not a time vkunroll can hold");
+    throw;
   }
   if (!(Rational(0) < o.line_delay_us))
     throw UsageError("--line-delay-us " + a.line_delay + ": expected > 0 us (a bag does not hold the row timing)");
@@ -51,7 +51,7 @@ int run_bag_sequence(const BagSequenceArgs& a) {
   try {
     r = write_bag_sequence(a.bag, a.out, o);
   } catch (const Error& e) {  // a topic the bag lacks is the option's fault: name it
-    const std::string m = e.what();
+    const std::string m = e.text();
     for (const auto& [option, topic] : {std::pair<std::string, std::string>{"--frames-topic", a.frames_topic}, {"--events-topic", a.events_topic}})
       if (!topic.empty() && m.find("has no topic '" + topic + "'") != std::string::npos) throw UsageError(option + ": " + m);
     throw;

@@ -1,12 +1,12 @@
 // vkunroll demo: simulate a built-in scene and unroll it with the default model and with the
 // physics unroller (the baseline every model must beat), and print both against the truth.
 #include <algorithm>
-#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <iomanip>
 #include <iostream>
 
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 #include "vkunroll/host/unroll/output_folder.hpp"
@@ -54,9 +54,9 @@ int run_demo(const DemoArgs& a) {
   try {
     cfg.validate();
   } catch (const Error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.text());
   }
-  const auto t0 = std::chrono::steady_clock::now();
+  const Stopwatch simulating;
   const auto seq = sim::simulate(cfg);
   try {
     // The demo's own earlier sequence is replaced whole, never mixed with this one's files.
@@ -65,9 +65,9 @@ int run_demo(const DemoArgs& a) {
     folder.commit();
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::unspecified) throw;
-    throw IoError(e.what());
+    throw IoError(e.text());
   }
-  const double sim_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double sim_s = simulating.seconds();
   std::cout << "demo: simulated " << cfg.frames << " RS frames at " << cfg.width << "x" << cfg.height << " with "
             << seq.events.size() << " events (preset realistic, seed " << cfg.seed << ") in " << std::setprecision(3)
             << sim_s << " s -> " << (out / "sequence").string() << "\n";
@@ -82,6 +82,7 @@ int run_demo(const DemoArgs& a) {
   o.mode = UnrollMode::physics;
   o.output.existing = ExistingOutput::overwrite;  // the demo's own folders from an earlier demo
   o.command_line = command_line();
+  o.option_spelling = flag_for;
   const nlohmann::json phys = run_unroll(o);
   nlohmann::json learned;
   const ModelChoice choice = choose_model(a.physics_only ? UnrollMode::physics : UnrollMode::automatic, a.model);
@@ -102,7 +103,7 @@ int run_demo(const DemoArgs& a) {
     print_result(("model (" + learned["mode"].get<std::string>() + ")").c_str(), learned);
     const double gain = learned["metrics"]["mean_psnr"].get<double>() - phys["metrics"]["mean_psnr"].get<double>();
     std::cout << "demo: the model is " << std::showpos << gain << std::noshowpos << " dB PSNR against physics\n"
-              << "demo: model " << model << " (" << choice.source << "), sha256 " << learned["model"]["sha256"].get<std::string>()
+              << "demo: model " << model << " (" << spell_fields(choice.source, flag_for) << "), sha256 " << learned["model"]["sha256"].get<std::string>()
               << "\n";
   }
   std::cout << "demo: outputs in " << fs::absolute(out).string() << " (physics/"

@@ -1,4 +1,3 @@
-#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
@@ -6,6 +5,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 
@@ -66,7 +66,7 @@ int run_events(const EventsArgs& a) {
   int64_t t_first = 0, t_last = 0;
   int64_t t_min = std::numeric_limits<int64_t>::max(), t_max = std::numeric_limits<int64_t>::min();
   EventReadReport report;
-  const auto start = std::chrono::steady_clock::now();
+  const Stopwatch scanning;
   scan_events(a.file, o,
               [&](const EventStream& c) {
                 if (n == 0 && !c.empty()) t_first = c.t.front();
@@ -79,7 +79,7 @@ int run_events(const EventsArgs& a) {
                 n += c.size();
               },
               &report);
-  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const double secs = scanning.seconds();
   const double span = n ? double(t_max - t_min) : 0.0;
   if (a.json) {
     nlohmann::json j = {{"file", a.file}, {"format", report.format}, {"events", n},

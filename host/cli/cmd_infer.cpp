@@ -2,7 +2,6 @@
 // every intermediate written under the reference's names. This is how anyone checks vkunroll
 // against a PyTorch run of the same weights.
 #include <algorithm>
-#include <chrono>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -10,8 +9,8 @@
 #include <set>
 #include <sstream>
 
-#include "vkunroll/host/model/backend_cpu.hpp"
-#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/make_backend.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
@@ -43,12 +42,7 @@ std::vector<ModelOutput> requested_outputs(const std::optional<std::string>& lis
   std::stringstream ss(*list + ",");
   for (std::string item; std::getline(ss, item, ',');) {
     if (item.empty()) throw UsageError("--outputs '" + shown + "': an empty name (expected a comma-separated list of sys, E, flow, warped, fused, m, out)");
-    ModelOutput o;
-    try {
-      o = parse_output(item);
-    } catch (const Error& e) {
-      throw UsageError(std::string("--outputs: ") + e.what());
-    }
+    const ModelOutput o = parse_output(item);
     if (std::find(out.begin(), out.end(), o) != out.end()) throw UsageError("--outputs: '" + item + "' is named twice");
     out.push_back(o);
   }
@@ -63,9 +57,8 @@ struct InferArgs {
 };
 
 int run_infer(const InferArgs& a) {
-  const Precision precision = parse_precision(a.precision, "--precision");
-  if (precision == Precision::fp16 && a.backend != "vulkan")
-    throw UsageError("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
+  const Precision precision = parse_precision(a.precision, "precision");
+  if (precision == Precision::fp16 && a.backend != "vulkan") throw fp16_needs_vulkan();  // before the inputs are read
   check_output_file(a.out, "--out");
   const std::vector<ModelOutput> outputs = requested_outputs(a.outputs);
   std::error_code ec;
@@ -99,28 +92,21 @@ int run_infer(const InferArgs& a) {
   if (mode == "m" && B % 2) throw UsageError("--mode m needs an even batch (items 2k and 2k+1 are frames 1 and 2), " + a.inputs + " has " + std::to_string(B));
   opt.mode = mode == "m" ? Mode::m : Mode::s;
   opt.outputs = outputs;
-  try {
-    (void)Model::resolve_outputs(outputs, opt.mode);
-  } catch (const Error& e) {
-    throw UsageError(std::string("--outputs: ") + e.what());
-  }
+  (void)Model::resolve_outputs(outputs, opt.mode);
   opt.max_items = a.max_items;
 
-  std::unique_ptr<Context> ctx;
-  std::unique_ptr<Backend> backend;
-  if (a.backend == "vulkan") {
-    ContextOptions co;
-    co.device = a.device.device;
-    ctx = std::make_unique<Context>(co);
-    backend = std::make_unique<VulkanBackend>(*ctx, nullptr, kPoolFlushBytes, precision);
-  } else {
-    backend = std::make_unique<CpuBackend>(a.device.threads);
-  }
-  const auto t0 = std::chrono::steady_clock::now();
+  const OpenedBackend opened = make_backend({.kind = parse_backend_kind(a.backend, "backend"),
+                                             .precision = precision,
+                                             .device = a.device.device,
+                                             .cpu_threads = a.device.threads});
+  const std::unique_ptr<Context>& ctx = opened.context;
+  const std::unique_ptr<Backend>& backend = opened.backend;
+  Stopwatch clock;
   Model model(*backend, weights);
-  const auto t1 = std::chrono::steady_clock::now();
+  const double weights_s = clock.seconds();
+  clock.restart();
   const auto out = model.run(in, opt);
-  const auto t2 = std::chrono::steady_clock::now();
+  const double run_s = clock.seconds();
 
   std::map<std::string, const HostTensor*> by_name;  // the file's tensors in name order
   for (const auto& [o, arr] : out) by_name[output_name(o)] = &arr;
@@ -138,11 +124,11 @@ int run_infer(const InferArgs& a) {
     write_safetensors(a.out, views, md);
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::unspecified) throw;
-    throw IoError(e.what());
+    throw IoError(e.text());
   }
   std::cerr << "infer: SelfUnroll-" << (mode == "m" ? "M" : "S") << " on " << in.rs.shape.str() << " ("
             << weights.config.summary() << ") on " << backend->name() << ": weights "
-            << std::chrono::duration<double>(t1 - t0).count() << " s, run " << std::chrono::duration<double>(t2 - t1).count()
+            << weights_s << " s, run " << run_s
             << " s, peak intermediates " << (backend->peak_bytes() >> 20) << " MiB; wrote " << out.size() << " tensors to "
             << a.out << "\n";
   return 0;

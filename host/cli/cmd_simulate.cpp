@@ -1,9 +1,9 @@
-#include <chrono>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
 #include <memory>
 
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 #include "vkunroll/host/unroll/output_folder.hpp"
@@ -34,7 +34,7 @@ sim::SimulationConfig to_config(const SimulateArgs& a) {
     c = sim::simulation_preset(a.preset);
     c.motion = sim::parse_motion_kind(a.motion);
   } catch (const Error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.text());
   }
   c.seed = static_cast<uint64_t>(a.seed);
   c.events.seed = c.seed;
@@ -73,7 +73,7 @@ sim::SimulationConfig to_config(const SimulateArgs& a) {
   try {
     c.validate();
   } catch (const Error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.text());
   }
   return c;
 }
@@ -83,11 +83,11 @@ int run_simulate(const SimulateArgs& a) {
   // Staged and renamed into place whole: a killed run leaves no sequence, an earlier one is never
   // mixed with this one's files (and replaced only with --overwrite, if it holds only its own).
   OutputFolder folder(a.out, a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, sequence_output_layout());
-  const auto t0 = std::chrono::steady_clock::now();
+  Stopwatch clock;
   const sim::SimulatedSequence seq = sim::simulate(c);
-  const auto t1 = std::chrono::steady_clock::now();
+  const double simulate_ms = clock.ms();
+  clock.restart();
   if (!a.quiet) {
-    const auto ms = [](auto x, auto y) { return std::chrono::duration<double, std::milli>(y - x).count(); };
     const auto& s = seq.event_stats;
     std::printf("wrote %s: %d RS frames %dx%d, %zu ground-truth frames, %zu events (%llu ON, %llu OFF, %llu shot noise, "
                 "%llu dropped by refractory)\n",
@@ -97,17 +97,17 @@ int run_simulate(const SimulateArgs& a) {
     std::printf("time steps: %llu samples (mean %.1f us, min %.2f us), %llu split, %llu over the limit at the minimum step\n",
                 static_cast<unsigned long long>(seq.steps.samples), seq.steps.mean_dt_us, seq.steps.min_dt_us,
                 static_cast<unsigned long long>(seq.steps.rejected), static_cast<unsigned long long>(seq.steps.over_limit));
-    std::printf("simulate %.0f ms\n", ms(t0, t1));
+    std::printf("simulate %.0f ms\n", simulate_ms);
   }
   try {
     sim::write_sequence(c, seq, folder.staging().string());
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::unspecified) throw;
-    throw IoError(e.what());
+    throw IoError(e.text());
   }
   folder.commit();
   if (!a.quiet)
-    std::printf("write %.0f ms\n", std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t1).count());
+    std::printf("write %.0f ms\n", clock.ms());
   return 0;
 }
 

@@ -25,7 +25,7 @@ int run_tune(TuneArgs& a) {
   if (a.precision == "all")
     o.precisions = {Precision::fp32, Precision::fp16};
   else
-    o.precisions = {parse_precision(a.precision, "--precision")};
+    o.precisions = {parse_precision(a.precision, "precision")};
   std::vector<std::pair<int, int>> frames;
   std::stringstream ss(a.sizes);
   for (std::string item; std::getline(ss, item, ',');) {

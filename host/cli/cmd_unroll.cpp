@@ -31,7 +31,7 @@ UnrollOptions to_options(const UnrollArgs& a) {
   o.sequence = a.sequence;
   o.out_dir = a.out;
   o.trace_path = a.trace;
-  o.mode = parse_unroll_mode(a.mode, "--mode");
+  o.mode = parse_unroll_mode(a.mode, "mode");
   const ModelChoice model = choose_model(o.mode, a.model);  // no --model: the shipped default
   o.session.model_path = model.path;
   o.model_source = model.source;
@@ -39,35 +39,36 @@ UnrollOptions to_options(const UnrollArgs& a) {
     o.times = parse_target_times(a.times, a.times_us);
     if (a.frames) {
       if (a.frames->empty()) throw UsageError("--frames: empty value: expected frames like 0:3 or 1,4 (leave the option out for all)");
-      o.frames = parse_frame_list(*a.frames, "--frames");
+      o.frames = parse_frame_list(*a.frames, "frames");
     }
   } catch (const Error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.text());
   }
-  if (!a.channel_order.empty()) o.channel_order = parse_channel_order(a.channel_order, "--channel-order");
+  if (!a.channel_order.empty()) o.channel_order = parse_channel_order(a.channel_order, "channel_order");
   o.session.device = a.device.device;
   o.session.cpu_threads = a.device.threads;
-  o.session.backend = parse_backend_kind(a.backend, "--backend");
-  o.session.precision = parse_precision(a.precision, "--precision");
+  o.session.backend = parse_backend_kind(a.backend, "backend");
+  o.session.precision = parse_precision(a.precision, "precision");
   o.session.conv_choice = parse_conv_choice(a.conv_choice, "--conv-choice");
   o.session.profile_ops = a.profile;
   o.contrast = a.contrast;
   o.gamma = a.gamma;
-  o.gate_radius = parse_gate_radius(a.gate_radius, "--gate-radius");
+  o.gate_radius = parse_gate_radius(a.gate_radius, "gate_radius");
   o.tile = a.tile;
   o.halo = a.halo;
-  o.sparse = parse_sparse_policy(a.sparse, "--sparse");
+  o.sparse = parse_sparse_policy(a.sparse, "sparse");
   o.sparse_threshold = a.sparse_threshold;
   o.sparse_split = a.sparse_split;
   o.quiet = a.quiet;
   o.output.write_video = !a.no_video;
   o.output.video_fps = a.fps;
   if (!a.bit_depth.empty()) o.output.frame_format = a.bit_depth == "16" ? FrameFormat::png16 : FrameFormat::png8;
-  if (!a.frame_format.empty()) o.output.frame_format = parse_frame_format(a.frame_format, "--frame-format");
+  if (!a.frame_format.empty()) o.output.frame_format = parse_frame_format(a.frame_format, "frame_format");
   o.output.existing = a.resume ? ExistingOutput::resume : a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse;
   o.sequence_options = sequence_options(a.timing);
   o.follow = a.follow;
   o.command_line = command_line();
+  o.option_spelling = flag_for;
   return o;
 }
 

@@ -1,10 +1,10 @@
 // vkunroll voxelize: the row-aware event tensors ev1, ev2, ev3 of (frame, target) pairs of a
 // sequence, written as float32 safetensors [frames x targets, 2N, H, W], frame-major.
-#include <chrono>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
 
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/events/sequence.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
@@ -55,7 +55,7 @@ void output_io(F&& f) {
     f();
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::unspecified) throw;
-    throw IoError(e.what());
+    throw IoError(e.text());
   }
 }
 
@@ -72,11 +72,11 @@ VoxelizeTargets parse_targets(const VoxelizeArgs& a) {
   t.tau = !a.times.empty();
   if (t.tau == !a.times_us.empty()) throw UsageError("give exactly one of --times and --times-us");
   try {
-    t.targets = parse_value_list(t.tau ? a.times : a.times_us, t.tau ? "--times" : "--times-us");
-    t.frames = parse_frame_list(a.frames, "--frames");
+    t.targets = parse_value_list(t.tau ? a.times : a.times_us, t.tau ? "times" : "times_us");
+    t.frames = parse_frame_list(a.frames, "frames");
     if (!a.target_exposure.empty()) t.exposure = Rational::parse(a.target_exposure, "--target-exposure");
   } catch (const Error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.text());
   }
   for (const Rational& v : t.targets)
     if (!(std::abs(v.to_double()) <= (t.tau ? kMaxTau : kMaxTimeUs)))
@@ -173,7 +173,7 @@ VoxelizeCounts write_tensors(const Sequence& seq, const std::vector<EventTensorP
 int run_voxelize(const VoxelizeArgs& a) {
   SequenceOptions so = sequence_options(a.timing);
   check_output_file(a.out, "--out");
-  check_output_apart(a.out, "--out", {{"SEQUENCE", a.sequence}, {"--events file", so.events_file.value_or("")}});
+  check_output_apart(a.out, "out", {{opt("sequence"), a.sequence}, {opt("events") + " file", so.events_file.value_or("")}});
   const VoxelizeTargets targets = parse_targets(a);
   EventTensorSpec spec;
   spec.bins = a.bins;
@@ -182,7 +182,7 @@ int run_voxelize(const VoxelizeArgs& a) {
   if (!std::filesystem::exists(a.sequence, ec)) throw InputMissingError("SEQUENCE " + a.sequence + ": no such folder");
   const Sequence seq = load_sequence(a.sequence, so);
   for (const auto& w : seq.warnings) std::cerr << "voxelize: warning: " << w << "\n";
-  for (const auto& f : seq.event_files) check_output_apart(a.out, "--out", {{"event file", f}});
+  for (const auto& f : seq.event_files) check_output_apart(a.out, "out", {{"event file", f}});
   for (int f : targets.frames) (void)seq.frame(f);
   SensorCrop crop;
   try {
@@ -210,10 +210,10 @@ int run_voxelize(const VoxelizeArgs& a) {
     ctx = std::make_unique<Context>(co);
     builder = std::make_unique<EventTensorBuilder>(*ctx);
   }
-  const auto t_start = std::chrono::steady_clock::now();
+  const Stopwatch writing;
   const VoxelizeCounts counts = write_tensors(seq, pairs, spec, slice, a.batch, builder.get(), *writer);
   output_io([&] { writer->finish(); });
-  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  const double secs = writing.seconds();
   std::cout << "wrote " << a.out << ": ev1, ev2, ev3 float32 [" << P << ", " << 2 * spec.bins << ", " << crop.height << ", "
             << crop.width << "] (" << targets.frames.size() << " frames x " << targets.targets.size() << " targets), "
             << counts.events_read << " events read, " << counts.events_used << " in the tensors' windows, "

@@ -1,8 +1,10 @@
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <iostream>
+#include <map>
 #include <opencv2/core/utility.hpp>
 
 #include "vkunroll/base/error.hpp"
@@ -32,11 +34,26 @@ Rational rational(const std::string& text, const std::string& what) {
   try {
     return Rational::parse(text, what);
   } catch (const Error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.text());
   }
 }
 
 }  // namespace
+
+std::string flag_for(std::string_view field) {
+  // Fields whose flag is not "--" + the field with '-' for '_'.
+  static const std::map<std::string_view, std::string_view> renamed = {
+      {"sequence", "SEQUENCE"}, {"speed_scale", "--speed"}, {"flicker_amplitude", "--flicker-amp"}, {"hot_fraction", "--hot-pixels"}};
+  if (auto it = renamed.find(field); it != renamed.end()) return std::string(it->second);
+  std::string flag = "--" + std::string(field);
+  std::replace(flag.begin(), flag.end(), '_', '-');
+  return flag;
+}
+
+std::string cli_message(const std::exception& e) {
+  if (const auto* err = dynamic_cast<const Error*>(&e)) return err->spelled(flag_for);
+  return e.what();
+}
 
 Formatter::Formatter() {
   column_width(34);
@@ -90,9 +107,9 @@ SequenceOptions sequence_options(const SequenceTimingArgs& a) {
   try {
     if (!a.layout.empty()) so.layout = parse_sequence_layout(a.layout);
     if (!a.readout.empty()) so.readout = parse_readout(a.readout);
-    if (!a.t0s.empty()) so.t0s_us = parse_value_list(a.t0s, "--t0s-us");
+    if (!a.t0s.empty()) so.t0s_us = parse_value_list(a.t0s, "t0s_us");
   } catch (const Error& e) {
-    throw UsageError(e.what());
+    throw UsageError(e.text());
   }
   if (so.t0s_us) {
     const std::vector<Rational>& t0 = *so.t0s_us;

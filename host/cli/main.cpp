@@ -7,6 +7,7 @@
 #include <malloc.h>
 #endif
 
+#include "vkunroll/base/log.hpp"
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/cli/exit_codes.hpp"
 #include "vkunroll/host/unroll/provenance.hpp"
@@ -44,6 +45,13 @@ int main(int argc, char** argv) {
   mallopt(M_TRIM_THRESHOLD, 1 << 30);
 #endif
   set_command_line(argc, argv);
+  // The library's messages on stderr, its options spelled as flags (a command's --quiet keeps its
+  // own lines out; warnings and errors always show).
+  vkunroll::set_log_sink([](vkunroll::LogLevel level, std::string_view message) {
+    const std::string text = vkunroll::spell_fields(message, flag_for);
+    if (level == vkunroll::LogLevel::progress) std::cerr << text << std::flush;  // a progress line has its own line end
+    else std::cerr << text << "\n";
+  });
   CLI::App app{"vkunroll " + vkunroll::build_info_line() +
                    ": rolling-shutter images + events -> global-shutter video (SelfUnroll on Vulkan)",
                "vkunroll"};
@@ -86,7 +94,7 @@ int main(int argc, char** argv) {
     } catch (const std::exception& e) {
       std::string category;
       const int code = exit_code_for(e, &category);
-      std::cerr << "vkunroll " << c.app->get_name() << ": error: " << without_prefix(e.what(), c.app->get_name()) << "\n";
+      std::cerr << "vkunroll " << c.app->get_name() << ": error: " << without_prefix(cli_message(e), c.app->get_name()) << "\n";
       if (code == kExitUsage) std::cerr << formatter->usage(c.app) << "(see 'vkunroll " << c.app->get_name() << " --help')\n";
       return code;
     }

@@ -108,7 +108,7 @@ std::string detect_format(ByteSource& src, const std::string& path) {
   if (ext == ".aedat4") return "aedat4";
   if (ext == ".aedat" || ext == ".aedat2" || ext == ".aedat3")
     throw Error(path + ": an AEDAT file without a '#!AER-DAT2.0', '#!AER-DAT3.1' or '#!AER-DAT4.0' version line "
-                       "(AEDAT 1.0 and headerless files are not supported); pass --format aedat2/aedat3/aedat4 if it is one");
+                       "(AEDAT 1.0 and headerless files are not supported); pass " + opt("format") + " aedat2/aedat3/aedat4 if it is one");
   if (ext == ".txt" || ext == ".csv" || ext == ".tsv") return "txt";
   if (ext == ".dat") return "dat";
   if (ext == ".raw" || (!head.empty() && head[0] == '%')) {
@@ -118,11 +118,11 @@ std::string detect_format(ByteSource& src, const std::string& path) {
     if (h.evt == "2.1") return "evt21";
     if (h.evt.empty())
       throw Error(path + ": Prophesee header does not say the encoding (no '% evt' or '% format' line, unknown plugin);"
-                         " pass --format evt2, evt21 or evt3");
+                         " pass " + opt("format") + " evt2, evt21 or evt3");
     throw Error(path + ": Prophesee encoding EVT " + h.evt + " is not supported (EVT 2.0, 2.1 and 3.0 are)");
   }
   throw Error(path + ": cannot tell the event format from the extension '" + ext +
-              "' or the first bytes; pass --format (txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4, bag)");
+              "' or the first bytes; pass " + opt("format") + " (txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4, bag)");
 }
 
 BinaryGuess guess_binary_format(ByteSource& src) {
@@ -142,7 +142,7 @@ BinaryGuess guess_binary_format(ByteSource& src) {
     if (h.evt == "2.1") return {"evt21", ".raw", "a Prophesee EVT 2.1 recording (its '%' header says EVT 2.1)"};
     if (!h.evt.empty())
       return {"", "", "a Prophesee EVT " + h.evt + " recording, which is not supported (EVT 2.0, 2.1 and 3.0 are)"};
-    return {"dat", ".dat", "a Prophesee recording ('%' header lines, no EVT encoding named: .dat, or .raw with --format evt2/evt3)"};
+    return {"dat", ".dat", "a Prophesee recording ('%' header lines, no EVT encoding named: .dat, or .raw with " + opt("format") + " evt2/evt3)"};
   }
   return {"", "", "its first bytes match no event format vkunroll reads"};
 }

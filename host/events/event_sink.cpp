@@ -72,12 +72,12 @@ std::string EventSink::where() const {
 void EventSink::fail(const std::string& rule) const { throw Error(where() + rule); }
 
 void EventSink::fail_rule(const std::string& rule) const {
-  fail(rule + " (use --on-bad drop or sort, or EventReadOptions::on_bad, to drop such records and count them)");
+  fail(rule + " (use " + opt("on_bad") + " drop or sort, or EventReadOptions::on_bad, to drop such records and count them)");
 }
 
 void EventSink::unknown_record(const std::string& what) {
   if (options_.on_bad == BadEventPolicy::error)
-    fail(what + " (use --on-bad drop to skip and count such records)");
+    fail(what + " (use " + opt("on_bad") + " drop to skip and count such records)");
   tally(Outcome::unknown_word, false);
   ++index_;
 }

@@ -34,20 +34,21 @@ struct EventStreamFollower::Decoder {
 EventStreamFollower::EventStreamFollower(const std::string& path, const EventReadOptions& options)
     : name_(path == "-" ? "stdin" : path), options_(options) {
   if (options_.on_bad == BadEventPolicy::sort)
-    throw UsageError("--follow: --on-bad sort cannot apply to a live stream (events are used as they come); use error or drop");
+    throw OptionError("on_bad", "sort", "error or drop",
+                      opt("follow") + ": " + opt("on_bad") + " sort cannot apply to a live stream (events are used as they come); use error or drop");
   if (path == "-") {
     fd_ = 0;
   } else {
     fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
     if (fd_ < 0) {
-      if (errno == ENOENT) throw InputMissingError("--follow-events " + path + ": no such file");
-      throw DataError("--follow-events " + path + ": cannot open (" + std::strerror(errno) + ")");
+      if (errno == ENOENT) throw OptionError("follow_events", path, "no such file", {}, ErrorKind::input_missing);
+      throw OptionError("follow_events", path, std::string("cannot open (") + std::strerror(errno) + ")", {}, ErrorKind::data);
     }
     own_fd_ = true;
   }
   struct stat st {};
   if (::fstat(fd_, &st) == 0) pipe_ = S_ISFIFO(st.st_mode) || S_ISSOCK(st.st_mode) || S_ISCHR(st.st_mode);
-  if (::fstat(fd_, &st) == 0 && S_ISDIR(st.st_mode)) throw DataError("--follow-events " + path + ": is a folder");
+  if (::fstat(fd_, &st) == 0 && S_ISDIR(st.st_mode)) throw OptionError("follow_events", path, "is a folder", {}, ErrorKind::data);
 }
 
 EventStreamFollower::~EventStreamFollower() {
@@ -77,7 +78,7 @@ void EventStreamFollower::parse_header() {
   const detail::PropheseeHeader h = detail::parse_prophesee_header(head);
   if (h.evt != "3.0" && h.evt != "2.0" && h.evt != "2.1")
     throw DataError(name_ + ": the stream's '%' header says " + (h.evt.empty() ? std::string("no encoding") : "EVT " + h.evt) +
-                    "; --follow reads EVT 2.0, 2.1 or 3.0 ('% evt 3.0', '% format EVT21;...')");
+                    "; " + opt("follow") + " reads EVT 2.0, 2.1 or 3.0 ('% evt 3.0', '% format EVT21;...')");
   evt_ = h.evt;
   evt21_legacy_ = h.evt21_legacy;
   pending_.erase(pending_.begin(), pending_.begin() + long(off));

@@ -90,7 +90,7 @@ void read_aedat2(ByteSource& src, EventSink& sink) {
   if (!sink.geometry_known())
     throw Error(src.name() + ": the AEDAT 2.0 header names no DAVIS chip (no '# AEChip:' or '# HardwareInterface:' line "
                              "with DAVIS346, 240, 640, 128 or 208); the sensor size is needed to undo jAER's flipped "
-                             "x and y: pass --width and --height (EventReadOptions::width/height)");
+                             "x and y: pass " + opt("width") + " and " + opt("height") + " (EventReadOptions::width/height)");
   sink.note("AEDAT 2.0 records start at byte " + std::to_string(h.data_offset) +
             "; DAVIS layout, x = width-1 - address x, y = height-1 - address y (jAER's origin is the lower left)");
   Wrap32Clock st;

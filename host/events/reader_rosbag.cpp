@@ -76,7 +76,7 @@ std::string choose_topic(const BagInfo& info, const std::string& asked, const st
     std::string s;
     for (const auto& t : found) s += (s.empty() ? "" : ", ") + t;
     throw Error(file + ": the bag has several event topics (" + s +
-                "); choose one with --events-topic (EventReadOptions::events_topic, Python topic=)");
+                "); choose one with " + opt("events_topic") + " (EventReadOptions::events_topic)");
   }
   return found.front();
 }

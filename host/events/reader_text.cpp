@@ -241,10 +241,10 @@ void refuse_binary(ByteSource& src) {
                       return std::string{d[c >> 4], d[c & 15]};
                     }() + ")";
   if (!g.format.empty())
-    msg += "; it looks like " + g.description + ": read it with --format " + g.format + " (EventReadOptions::format = \"" +
+    msg += "; it looks like " + g.description + ": read it with " + opt("format") + " " + g.format + " (EventReadOptions::format = \"" +
            g.format + "\") or give it the " + g.extension + " extension";
   else
-    msg += "; " + g.description + " (pass --format if it is one of txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4)";
+    msg += "; " + g.description + " (pass " + opt("format") + " if it is one of txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4)";
   throw Error(msg);
 }
 

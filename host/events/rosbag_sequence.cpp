@@ -95,7 +95,7 @@ std::vector<uint32_t> frame_connections(const BagInfo& info, const std::string& 
     for (const auto& t : images) list += (list.empty() ? "" : ", ") + t;
     if (images.size() != 1)
       throw Error(bag + ": " + (images.empty() ? std::string("the bag has no sensor_msgs/Image topic")
-                                               : "the bag has several image topics (" + list + "); choose one with --frames-topic"));
+                                               : "the bag has several image topics (" + list + "); choose one with " + opt("frames_topic")));
     topic = images.front();
   }
   std::vector<uint32_t> conns;

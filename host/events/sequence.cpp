@@ -318,7 +318,7 @@ ImageHeader check_image(const Sequence& s, const std::string& image, const char*
 // Where frame k's t0 came from, for messages.
 std::string t0_source(const Sequence& s, size_t k, const SequenceOptions& o) {
   const std::string n = std::to_string(k);
-  if (o.t0s_us) return "t0s value " + std::to_string(k + 1) + " (the --t0s-us option, SequenceOptions::t0s_us)";
+  if (o.t0s_us) return "t0s value " + std::to_string(k + 1) + " (the " + opt("t0s_us") + " option, SequenceOptions::t0s_us)";
   switch (s.layout) {
     case SequenceLayout::generic: return (fs::path(s.root) / "meta.json").string() + ":frames[" + n + "].t0_us";
     case SequenceLayout::dre: return s.event_files.at(0) + ": start_image_ts[" + n + "]";
@@ -360,10 +360,10 @@ void check_meta_rules(const Sequence& s, const SequenceOptions& o) {
   const bool overridden = o.t0s_us || o.line_delay_us;
   try {
     rule_readout_within_frame_period(s, [&](size_t k) {
-      return overridden ? "--t0s-us/--line-delay-us:frame " + std::to_string(k) : t0_source(s, k, o);
+      return overridden ? opt("t0s_us") + "/" + opt("line_delay_us") + ":frame " + std::to_string(k) : t0_source(s, k, o);
     });
   } catch (const MetaSchemaError& e) {
-    if (overridden) throw UsageError(e.what());  // the options' values, not meta.json's, break the rule
+    if (overridden) throw UsageError(e.text());  // the options' values, not meta.json's, break the rule
     throw;
   }
   // --t0s-us moves the frames, not meta.json's ground-truth instants: the rule is meta.json's own.
@@ -413,8 +413,8 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
   if (s.frames.empty()) throw Error(s.root + ": the sequence has no frames");
   // Overrides.
   if (o.t0s_us && o.t0s_us->size() != s.frames.size())
-    throw UsageError("--t0s-us: " + std::to_string(o.t0s_us->size()) + " values given, the sequence has " +
-                     std::to_string(s.frames.size()) + " frames (one first-row start per frame)");
+    throw OptionError("t0s_us", "", std::to_string(o.t0s_us->size()) + " values given, the sequence has " +
+                                        std::to_string(s.frames.size()) + " frames (one first-row start per frame)");
   for (size_t k = 0; k < s.frames.size(); ++k) {
     auto& t = s.frames[k].timing;
     if (o.line_delay_us) t.line_delay = *o.line_delay_us;

@@ -138,8 +138,9 @@ SequenceLayout detect_sequence_layout(const std::string& path) {
   for (size_t i = 0; i < s.found.size(); ++i) msg += (i ? ", " : "") + s.found[i];
   for (const auto& w : why) msg += "; " + w;
   if (h5_kind == "events") msg += ". This looks like a generic sequence whose meta.json is missing: restore it";
-  msg += ". A reference dataset's timing is a convention, so it is not guessed: choose it with --layout gev-rs (200 us "
-         "line delay, 3200 us exposure), --layout dre, --layout gev-rs-real or --layout fastec "
+  const std::string layout = opt("layout");
+  msg += ". A reference dataset's timing is a convention, so it is not guessed: choose it with " + layout + " gev-rs (200 us "
+         "line delay, 3200 us exposure), " + layout + " dre, " + layout + " gev-rs-real or " + layout + " fastec "
          "(SequenceOptions::layout), or write a meta.json";
   throw Error(msg);
 }

@@ -7,6 +7,7 @@
 // and CpuBackend (host/model/backend_cpu.hpp, the kernels' CPU references).
 #pragma once
 #include <cstdint>
+#include <map>
 #include <span>
 #include <string>
 #include <vector>
@@ -19,6 +20,8 @@
 #include "vkunroll/runtime/tensor.hpp"
 
 namespace vkunroll {
+
+class ConvChoiceTable;
 
 // A view, owning nothing: the buffer must outlive it.
 struct BufferSlice {
@@ -142,6 +145,20 @@ class Backend {
   // The largest tensor one buffer may hold (bytes); the graph splits batches to respect it.
   virtual uint64_t max_buffer_bytes() const = 0;
 
+  // What a device backend reports beyond its ops (the CPU backend: nothing). Submissions it made
+  // because released buffers held too much memory (a wait inside the work), and the peak of device
+  // memory its buffers held (live and pooled).
+  virtual uint64_t pool_flushes() const { return 0; }
+  virtual uint64_t device_peak_bytes() const { return 0; }
+  // The measured conv algorithm choice (host/model/conv_choice.hpp): its table (null: the kernels'
+  // heuristic decides), the conv shapes this backend timed, and the recorded convs that took the
+  // table's algorithm.
+  virtual const ConvChoiceTable* conv_table() const { return nullptr; }
+  virtual uint64_t convs_timed() const { return 0; }
+  virtual uint64_t convs_from_table() const { return 0; }
+  // Conv calls recorded per algorithm name (transposed convs as "transposed NAME"); empty: not counted.
+  virtual std::map<std::string, uint64_t> conv_calls_by_algorithm() const { return {}; }
+
   // Memory accounting of live buffers (bytes), maintained by alloc() and the handles' release.
   uint64_t live_bytes() const { return live_bytes_; }
   uint64_t peak_bytes() const { return peak_bytes_; }
@@ -213,7 +230,7 @@ class PlanningBackend final : public Backend {
   void set_pool_flush_bytes(uint64_t b) { pool_flush_bytes_ = b; }  // as VulkanBackend's
   // Device memory under VulkanBackend's policy (released buffers stay allocated until the next
   // flush unless an allocation of the same size reuses them): its peak.
-  uint64_t device_peak_bytes() const { return device_peak_; }
+  uint64_t device_peak_bytes() const override { return device_peak_; }
   // The largest single buffer allocated, with its description.
   uint64_t largest_buffer() const { return largest_; }
   // The live buffers at the peak, largest first ("name shape, ...").

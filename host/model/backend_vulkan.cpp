@@ -1,7 +1,6 @@
 #include "vkunroll/host/model/backend_vulkan.hpp"
 
 #include <algorithm>
-#include <chrono>
 #include <cstring>
 
 #include "vkunroll/kernels/backward_warp.hpp"
@@ -14,28 +13,32 @@
 #include "vkunroll/kernels/space_to_depth.hpp"
 #include "vkunroll/runtime/context.hpp"
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 
 namespace vkunroll {
 
 struct VulkanBackend::Buf {
+  enum class State {
+    live,    // held by its handle
+    pooled,  // released, reusable by an alloc of the same size until the next flush
+    // Pooled at the last flush and kept for the next recording: a repeated frame gets the same buffers
+    // (the stream replays its commands only where they name the same ranges). Freed at the next flush
+    // unless an alloc took it again.
+    retained,
+    // The builder's output of an earlier event_tensors() call whose handle is still held: not
+    // readable, its slot kept until the handle releases it (so the id names no other buffer).
+    stale,
+  };
   Tensor t;
-  bool live = false;
-  bool pooled = false;  // released, reusable by an alloc of the same size until the next flush
-  // Pooled at the last flush and kept for the next recording: a repeated frame gets the same buffers
-  // (the stream replays its commands only where they name the same ranges). Freed at the next flush
-  // unless an alloc took it again.
-  bool retained = false;
+  State state = State::live;
   const Tensor* external = nullptr;  // a tensor the backend does not own (event_tensors())
-  // The builder's output of an earlier event_tensors() call whose handle is still held: not
-  // readable, its slot kept until the handle releases it (so the id names no other buffer).
-  bool stale = false;
   const Tensor& tensor() const { return external ? *external : t; }
 };
 
 VulkanBackend::VulkanBackend(Context& ctx, Profiler* profiler, uint64_t pool_flush_bytes, Precision precision)
     : ctx_(ctx), precision_(precision), dtype_(precision_dtype(precision)), workspace_(std::make_shared<ConvWorkspace>()),
       cs_(std::make_unique<CommandStream>(ctx, profiler)), pool_flush_bytes_(pool_flush_bytes) {
-  if (precision == Precision::fp16) require_fp16(ctx, "vulkan backend (--precision fp16)");
+  if (precision == Precision::fp16) require_fp16(ctx, "vulkan backend (" + opt("precision") + " fp16)");
 }
 
 Tensor& VulkanBackend::scratch_f32(const Shape& shape) {
@@ -51,7 +54,7 @@ uint64_t VulkanBackend::max_buffer_bytes() const {
 }
 
 const Tensor& VulkanBackend::tensor(int id) const {
-  if (id < 0 || id >= static_cast<int>(bufs_.size()) || !bufs_[id] || !bufs_[id]->live)
+  if (id < 0 || id >= static_cast<int>(bufs_.size()) || !bufs_[id] || bufs_[id]->state != Buf::State::live)
     throw Error("vulkan backend: buffer " + std::to_string(id) + " is not allocated");
   return bufs_[id]->tensor();
 }
@@ -68,11 +71,11 @@ int VulkanBackend::alloc_id(const Shape& shape, const std::string& what) {
   // A pooled buffer of the same size takes the new shape: only recorded dispatches (ordered by the
   // stream's barriers) write a backend buffer, never the host directly.
   for (size_t i = 0; i < bufs_.size(); ++i)
-    if (bufs_[i] && (bufs_[i]->pooled || bufs_[i]->retained) && bufs_[i]->t.bytes() == bytes) {
+    if (bufs_[i] && (bufs_[i]->state == Buf::State::pooled || bufs_[i]->state == Buf::State::retained) &&
+        bufs_[i]->t.bytes() == bytes) {
       bufs_[i]->t.reshape(shape);
-      if (bufs_[i]->pooled) pooled_bytes_ -= bytes;
-      bufs_[i]->pooled = bufs_[i]->retained = false;
-      bufs_[i]->live = true;
+      if (bufs_[i]->state == Buf::State::pooled) pooled_bytes_ -= bytes;
+      bufs_[i]->state = Buf::State::live;
       return static_cast<int>(i);
     }
   if (bytes > max_buffer_bytes())
@@ -80,7 +83,6 @@ int VulkanBackend::alloc_id(const Shape& shape, const std::string& what) {
                 " MiB, above the device's storage-buffer limit of " + std::to_string(max_buffer_bytes() >> 20) + " MiB");
   auto b = std::make_unique<Buf>();
   b->t = Tensor(ctx_, shape, dtype_);
-  b->live = true;
   device_bytes_ += bytes;
   device_peak_ = std::max(device_peak_, device_bytes_);
   for (size_t i = 0; i < bufs_.size(); ++i)
@@ -94,14 +96,13 @@ int VulkanBackend::alloc_id(const Shape& shape, const std::string& what) {
 
 void VulkanBackend::release_id(int id) noexcept {
   Buf& b = *bufs_[size_t(id)];  // a live (or stale) buffer: only its handle releases it, once
-  if (b.external || b.stale) {
+  if (b.external || b.state == Buf::State::stale) {
     bufs_[size_t(id)].reset();
     if (id == events_buf_) events_buf_ = -1;
     return;
   }
   account_release(b.t.bytes());
-  b.live = false;
-  b.pooled = true;
+  b.state = Buf::State::pooled;
   pooled_bytes_ += b.t.bytes();
 }
 
@@ -129,12 +130,11 @@ void VulkanBackend::flush(bool keep_pool) {
   // taken since give their memory back, and (unless memory asked for the flush) this recording's
   // released buffers are kept for the next one.
   for (auto& b : bufs_)
-    if (b && (b->retained || (b->pooled && !keep_pool))) {
+    if (b && (b->state == Buf::State::retained || (b->state == Buf::State::pooled && !keep_pool))) {
       device_bytes_ -= b->t.bytes();
       b.reset();
-    } else if (b && b->pooled) {
-      b->pooled = false;
-      b->retained = true;
+    } else if (b && b->state == Buf::State::pooled) {
+      b->state = Buf::State::retained;
     }
   pooled_bytes_ = 0;
 }
@@ -195,15 +195,15 @@ int VulkanBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const 
   if (d.transposed) {
     deconvs_.push_back(
         std::make_unique<ConvTranspose2d>(ctx_, wt, bt, ConvTranspose2dParams{d.k, d.stride, d.pad, act}, d.name, options));
-    conv_index_.push_back(~static_cast<int>(deconvs_.size() - 1));
+    conv_refs_.push_back({true, deconvs_.size() - 1});
   } else {
     convs_.push_back(
         std::make_unique<Conv2d>(ctx_, wt, bt, Conv2dParams{d.k, d.stride, d.pad, act}, d.name, workspace_, options));
-    conv_index_.push_back(static_cast<int>(convs_.size() - 1));
+    conv_refs_.push_back({false, convs_.size() - 1});
   }
   weight_bytes_ += w.data.size() * dtype_size(dtype_) + b.data.size() * 4;  // biases stay f32
   descs_.push_back(d);
-  return static_cast<int>(conv_index_.size() - 1);
+  return static_cast<int>(conv_refs_.size() - 1);
 }
 
 void VulkanBackend::set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, int reps) {
@@ -226,17 +226,17 @@ std::optional<std::string> VulkanBackend::table_algorithm(const std::string& key
   const ConvChoiceEntry* e = choice_table_->find(key);
   const bool again = choice_ == ConvChoice::retune && !retuned_.count(key);
   if ((again || (!e && choice_ == ConvChoice::measured)) && timing_deadline_ &&
-      std::chrono::steady_clock::now() >= *timing_deadline_) {
+      Clock::now() >= *timing_deadline_) {
     past_deadline_.insert(key);
   } else if (again || (!e && choice_ == ConvChoice::measured)) {
     // Timed on separate streams: this backend's recording is not submitted yet, so nothing waits on it.
-    const auto t0 = std::chrono::steady_clock::now();
+    const Stopwatch timing;
     choice_table_->set(key, time());
     retuned_.insert(key);
     ++convs_timed_;
     e = choice_table_->find(key);
     if (on_conv_timed_)
-      on_conv_timed_(key, *e, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+      on_conv_timed_(key, *e, timing.seconds());
   }
   if (!e) return std::nullopt;
   return e->algo;
@@ -259,14 +259,14 @@ void VulkanBackend::end_dense_block() {
 }
 
 void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) {
-  const int idx = conv_index_.at(static_cast<size_t>(id));
+  const ConvRef ref = conv_refs_.at(static_cast<size_t>(id));
   const Slice si = slice(tensor(in.buf), in), so = slice(tensor(out.buf), out);
   const Shape is = si.shape();
   // the key is built only then
   const bool tabled = choice_ != ConvChoice::heuristic && choice_ != ConvChoice::gpu && choice_table_;
-  if (idx < 0) {
+  if (ref.transposed) {
     if (residual) throw Error("vulkan backend: " + descs_[id].name + ": a transposed conv takes no residual");
-    const ConvTranspose2d& c = *deconvs_[static_cast<size_t>(~idx)];
+    const ConvTranspose2d& c = *deconvs_[ref.index];
     ConvTransposeAlgo algo = choice_ == ConvChoice::gpu ? gpu_family_algorithm(c) : ConvTransposeAlgo::automatic;
     if (auto name = tabled ? table_algorithm(conv_choice_key(c, is), [&] { return time_conv_algorithms(ctx_, c, is, choice_budget_); })
                            : std::nullopt)
@@ -278,7 +278,7 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
     if (ctx_.trace()) cs_->set_detail(conv_detail(is, so.shape(), algo_name));
     c.record(*cs_, si, so, algo);
   } else {
-    const Conv2d& c = *convs_[static_cast<size_t>(idx)];
+    const Conv2d& c = *convs_[ref.index];
     std::optional<Slice> r;
     if (residual) r = slice(tensor(residual->buf), *residual);
     ConvAlgo algo = ConvAlgo::automatic;
@@ -348,8 +348,7 @@ int VulkanBackend::event_tensors_id(const EventStream& events, const std::vector
   if (events_buf_ >= 0) {  // the previous build's handle is still held: no longer readable
     Buf& old = *bufs_[size_t(events_buf_)];
     old.external = nullptr;
-    old.live = false;
-    old.stale = true;
+    old.state = Buf::State::stale;
     events_buf_ = -1;
   }
   const Tensor& t = events_->record_resident(*cs_, events, pairs, spec);
@@ -362,7 +361,6 @@ int VulkanBackend::event_tensors_id(const EventStream& events, const std::vector
   }
   auto b = std::make_unique<Buf>();
   b->external = &t;
-  b->live = true;
   for (size_t i = 0; i <= bufs_.size(); ++i)
     if (i == bufs_.size() || !bufs_[i]) {
       if (i == bufs_.size()) bufs_.push_back(nullptr);

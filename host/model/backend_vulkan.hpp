@@ -16,6 +16,7 @@
 #include <utility>
 #include <vector>
 
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/kernels/conv_options.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
@@ -83,31 +84,31 @@ class VulkanBackend final : public Backend {
   void set_conv_choice(std::shared_ptr<ConvChoiceTable> table, ConvChoice choice, const ConvTimingBudget& budget);
   // No shape is timed after `deadline` (vkunroll tune --budget-s): the rest take the table or the
   // heuristic, counted in convs_past_deadline().
-  void set_conv_timing_deadline(std::chrono::steady_clock::time_point deadline) { timing_deadline_ = deadline; }
+  void set_conv_timing_deadline(Clock::time_point deadline) { timing_deadline_ = deadline; }
   uint64_t convs_past_deadline() const { return past_deadline_.size(); }
   // The kernels' tuning knobs (ConvOptions; their precision is the backend's) for the convs prepared
   // after the call; validated by each conv.
   void set_conv_options(const ConvOptions& o) { conv_options_ = o; }
   const std::shared_ptr<ConvChoiceTable>& conv_choice_table() const { return choice_table_; }
-  // Conv shapes this backend timed, and recorded convs that took the table's algorithm.
-  uint64_t convs_timed() const { return convs_timed_; }
+  const ConvChoiceTable* conv_table() const override { return choice_table_.get(); }
+  uint64_t convs_timed() const override { return convs_timed_; }
   // Called after each shape the measured choice times (key, its entry, seconds spent): benches report
   // progress with it, so a run stopped by a time limit still says which shapes it reached.
   void on_conv_timed(std::function<void(const std::string&, const ConvChoiceEntry&, double)> f) { on_conv_timed_ = std::move(f); }
-  uint64_t convs_from_table() const { return convs_from_table_; }
+  uint64_t convs_from_table() const override { return convs_from_table_; }
   // Conv calls recorded per algorithm name (transposed convs as "transposed NAME"); a call left to the
   // kernel counts under its choose_algorithm. Shows what --conv-choice changed.
-  const std::map<std::string, uint64_t>& conv_calls_by_algorithm() const { return conv_calls_by_algorithm_; }
+  std::map<std::string, uint64_t> conv_calls_by_algorithm() const override { return conv_calls_by_algorithm_; }
 
   Context& context() { return ctx_; }
   // Bytes of device memory held by buffers (live + pooled for reuse), and its peak.
   uint64_t device_bytes() const { return device_bytes_; }
-  uint64_t device_peak_bytes() const { return device_peak_; }
+  uint64_t device_peak_bytes() const override { return device_peak_; }
   // Bytes of prepared weights on the device (all packings the conv kernels keep).
   uint64_t weight_bytes() const { return weight_bytes_; }
   // Submissions the backend made on its own (at an alloc()) because released buffers held more
   // than pool_flush_bytes (memory forced a wait inside the work).
-  uint64_t pool_flushes() const { return pool_flushes_; }
+  uint64_t pool_flushes() const override { return pool_flushes_; }
 
  private:
   struct Buf;
@@ -131,7 +132,11 @@ class VulkanBackend final : public Backend {
   std::vector<std::unique_ptr<Buf>> bufs_;
   std::vector<std::unique_ptr<Conv2d>> convs_;
   std::vector<std::unique_ptr<ConvTranspose2d>> deconvs_;
-  std::vector<int> conv_index_;        // conv id -> index in convs_ (>= 0) or ~index in deconvs_
+  struct ConvRef {
+    bool transposed = false;  // in deconvs_, else in convs_
+    size_t index = 0;
+  };
+  std::vector<ConvRef> conv_refs_;  // by conv id
   std::vector<ConvDesc> descs_;
   // Event tensors are built into the builder's persistent output (the sparse path), recorded into
   // this backend's stream; a new build waits for the recorded readers of the previous one.
@@ -146,7 +151,7 @@ class VulkanBackend final : public Backend {
   std::shared_ptr<ConvChoiceTable> choice_table_;
   ConvChoice choice_ = ConvChoice::heuristic;
   ConvTimingBudget choice_budget_;
-  std::optional<std::chrono::steady_clock::time_point> timing_deadline_;
+  std::optional<Clock::time_point> timing_deadline_;
   std::set<std::string> past_deadline_;  // keys left untimed for the deadline
   ConvOptions conv_options_;
   std::set<std::string> retuned_;  // keys timed again under ConvChoice::retune

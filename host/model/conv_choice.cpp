@@ -1,3 +1,4 @@
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
 
 #include <algorithm>
@@ -313,14 +314,10 @@ Tensor random_device_tensor(Context& ctx, const Shape& s, DType dt, uint32_t see
 
 using Recorder = std::function<void(CommandStream&)>;
 
-double ms_since(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
-}
-
 // The least device ms of `record` under `budget` (ConvTimingBudget); wall ms where the queue has no
 // timestamps.
 double budget_gpu_ms(Context& ctx, const ConvTimingBudget& budget, const Recorder& record) {
-  const auto w0 = std::chrono::steady_clock::now();
+  const auto w0 = Clock::now();
   for (int w = 0; w < 64 && ms_since(w0) < budget.warm_ms; ++w) {
     CommandStream warm(ctx);
     record(warm);
@@ -328,12 +325,12 @@ double budget_gpu_ms(Context& ctx, const ConvTimingBudget& budget, const Recorde
   }
   const bool stamps = ctx.info().timestamps;
   double best = 1e300;
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = Clock::now();
   for (int r = 0; r < std::max(1, budget.reps); ++r) {
     Profiler prof;
     CommandStream cs(ctx, stamps ? &prof : nullptr);
     record(cs);
-    const auto s0 = std::chrono::steady_clock::now();
+    const auto s0 = Clock::now();
     cs.submit_and_wait();
     best = std::min(best, stamps ? prof.total_ms() : ms_since(s0));
     if (budget.candidate_ms > 0 && ms_since(t0) >= budget.candidate_ms) break;
@@ -464,7 +461,7 @@ double fma_ceiling_gflops(Context& ctx, bool half, int reps, double gflop) {
 
 void warm_device(Context& ctx, double ms) {
   const CeilingRun c = ceiling_run(ctx, false, 2.147483648);
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = Clock::now();
   do {
     CommandStream cs(ctx);
     for (int i = 0; i < 4; ++i) record_ceiling(cs, c);

@@ -1,3 +1,4 @@
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/conv_choice_tune.hpp"
 
 #include <chrono>
@@ -18,8 +19,6 @@
 namespace vkunroll {
 
 namespace {
-
-using Clock = std::chrono::steady_clock;
 
 // Untimed submits before each candidate's timing: after the start's warm-up only the check run and
 // the host's compare left the GPU idle, briefly. --warm-ms 0 turns both off.

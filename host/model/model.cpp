@@ -77,7 +77,9 @@ std::ostream& operator<<(std::ostream& os, ModelOutput o) { return os << output_
 ModelOutput parse_output(const std::string& name) {
   for (ModelOutput o : kModelOutputs)
     if (name == output_name(o)) return o;
-  throw Error("unknown output '" + name.substr(0, 64) + "' (expected sys, E, flow, warped, fused, m, out)");
+  const std::string expected = "expected sys, E, flow, warped, fused, m, out";
+  throw OptionError("outputs", "'" + name.substr(0, 64) + "'", expected,
+                    opt("outputs") + ": unknown output '" + name.substr(0, 64) + "' (" + expected + ")");
 }
 
 void Model::add_conv(const Weights& w, const ConvDesc& desc) {
@@ -168,7 +170,8 @@ std::vector<ModelOutput> Model::resolve_outputs(const std::vector<ModelOutput>& 
     return outs;
   }
   for (ModelOutput o : requested) {
-    if (!m_mode && per_target(o)) throw Error(std::string("output '") + output_name(o) + "' exists in mode m only");
+    if (!m_mode && per_target(o))
+      throw OptionError("outputs", output_name(o), "mode m only", opt("outputs") + ": output '" + output_name(o) + "' exists in mode m only");
     if (std::find(outs.begin(), outs.end(), o) == outs.end()) outs.push_back(o);
   }
   return outs;

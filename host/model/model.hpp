@@ -28,7 +28,7 @@ inline constexpr ModelOutput kModelOutputs[] = {ModelOutput::sys,    ModelOutput
                                                 ModelOutput::fused, ModelOutput::m,     ModelOutput::out};
 const char* output_name(ModelOutput o);  // the reference name: "sys", "E", ...
 std::ostream& operator<<(std::ostream& os, ModelOutput o);  // writes output_name(o)
-// The output of that reference name; throws Error naming the names expected.
+// The output of that reference name; throws an OptionError of field "outputs" naming those expected.
 ModelOutput parse_output(const std::string& name);
 constexpr bool per_target(ModelOutput o) { return o == ModelOutput::m || o == ModelOutput::out; }
 constexpr int64_t output_channels(ModelOutput o) { return o == ModelOutput::flow ? 2 : (o == ModelOutput::m ? 1 : 3); }
@@ -108,7 +108,7 @@ class Model {
   int64_t unet_stride() const;
 
   // The outputs a run returns: `requested` (each once), or every output of the mode when empty (in
-  // kModelOutputs order); throws Error for m or out outside mode m.
+  // kModelOutputs order); throws an OptionError of field "outputs" for m or out outside mode m.
   static std::vector<ModelOutput> resolve_outputs(const std::vector<ModelOutput>& requested, Mode mode);
 
  private:

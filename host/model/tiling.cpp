@@ -123,7 +123,7 @@ SparsePolicy parse_sparse_policy(const std::string& s, const std::string& what) 
   if (s == "off") return SparsePolicy::off;
   if (s == "exact") return SparsePolicy::exact;
   if (s == "fast") return SparsePolicy::fast;
-  throw Error(what + " '" + s + "' (expected off, exact or fast)");
+  throw OptionError(what, "'" + s + "'", "expected off, exact or fast", opt(what) + " '" + s + "' (expected off, exact or fast)");
 }
 
 const char* sparse_policy_name(SparsePolicy p) {

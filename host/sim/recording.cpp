@@ -59,43 +59,44 @@ SimulationConfig simulation_preset(const std::string& preset) {
 }
 
 void SimulationConfig::validate() const {
-  auto fail = [](const std::string& what) { throw Error("simulate: " + what); };
+  // `text` names options with opt(); the error is the OptionError of `field`.
+  auto fail = [](const std::string& field, const std::string& text) { throw OptionError(field, "", text, "simulate: " + text); };
   if (width < 2 || height < 2 || width > 8192 || height > 8192)
-    fail("--size " + std::to_string(width) + "x" + std::to_string(height) + " out of range (2x2 .. 8192x8192)");
-  if (frames < 1 || frames > 100000) fail("--frames " + std::to_string(frames) + " must be in 1..100000");
-  if (gt_per_frame < 0 || gt_per_frame > 1000) fail("--gt-per-frame " + std::to_string(gt_per_frame) + " must be in 0..1000");
-  if (!(fps > 0) || fps > 1e5) fail("--fps must be in (0, 100000]");
-  if (!(line_delay_us >= 0)) fail("--line-delay-us must be >= 0");
-  if (!(exposure_us > 0)) fail("--exposure-us must be > 0");
-  if (!(lead_in_us >= 0 && lead_in_us <= 1e7)) fail("--lead-in-us " + num(lead_in_us) + " must be in [0, 1e7] us (10 s)");
-  if (!(speed_scale >= 0 && speed_scale <= 1000)) fail("--speed " + num(speed_scale) + " must be in [0, 1000]");
+    fail("size", opt("size") + " " + std::to_string(width) + "x" + std::to_string(height) + " out of range (2x2 .. 8192x8192)");
+  if (frames < 1 || frames > 100000) fail("frames", opt("frames") + " " + std::to_string(frames) + " must be in 1..100000");
+  if (gt_per_frame < 0 || gt_per_frame > 1000) fail("gt_per_frame", opt("gt_per_frame") + " " + std::to_string(gt_per_frame) + " must be in 0..1000");
+  if (!(fps > 0) || fps > 1e5) fail("fps", opt("fps") + " must be in (0, 100000]");
+  if (!(line_delay_us >= 0)) fail("line_delay_us", opt("line_delay_us") + " must be >= 0");
+  if (!(exposure_us > 0)) fail("exposure_us", opt("exposure_us") + " must be > 0");
+  if (!(lead_in_us >= 0 && lead_in_us <= 1e7)) fail("lead_in_us", opt("lead_in_us") + " " + num(lead_in_us) + " must be in [0, 1e7] us (10 s)");
+  if (!(speed_scale >= 0 && speed_scale <= 1000)) fail("speed_scale", opt("speed_scale") + " " + num(speed_scale) + " must be in [0, 1000]");
   // Plausible sensor ranges (docs/simulator.md): beyond them a run only grows without bound.
-  for (const auto& [value, name, hi] : {std::tuple<double, const char*, double>{events.shot_hz, "--shot-hz", 1e4},
-                                        {events.leak_hz, "--leak-hz", 1e4}, {events.refractory_us, "--refractory-us", 1e7},
-                                        {events.sigma, "--sigma", 1.0}, {events.c_on, "--c-on", 5.0}, {events.c_off, "--c-off", 5.0},
-                                        {events.cutoff_hz, "--cutoff-hz", 1e9}, {events.eps, "--eps", 1.0},
-                                        {events.hot_fraction, "--hot-pixels", 1.0}, {events.hot_hz, "--hot-hz", 1e4},
-                                        {events.jitter_us, "--jitter-us", 1e6},
-                                        {flicker_hz, "--flicker-hz", 1e5}})
-    if (!(value >= 0 && value <= hi)) fail(std::string(name) + " " + num(value) + " must be in [0, " + num(hi) + "]");
+  for (const auto& [value, name, hi] : {std::tuple<double, const char*, double>{events.shot_hz, "shot_hz", 1e4},
+                                        {events.leak_hz, "leak_hz", 1e4}, {events.refractory_us, "refractory_us", 1e7},
+                                        {events.sigma, "sigma", 1.0}, {events.c_on, "c_on", 5.0}, {events.c_off, "c_off", 5.0},
+                                        {events.cutoff_hz, "cutoff_hz", 1e9}, {events.eps, "eps", 1.0},
+                                        {events.hot_fraction, "hot_fraction", 1.0}, {events.hot_hz, "hot_hz", 1e4},
+                                        {events.jitter_us, "jitter_us", 1e6},
+                                        {flicker_hz, "flicker_hz", 1e5}})
+    if (!(value >= 0 && value <= hi)) fail(name, opt(name) + " " + num(value) + " must be in [0, " + num(hi) + "]");
   const double period = frame_period_us(), readout_time = (height - 1) * line_delay_us;
   if (readout_time > period)
-    fail("--line-delay-us " + num(line_delay_us) + " x " + std::to_string(height - 1) + " rows = " +
-         fmt_us(readout_time) + " of readout, longer than the frame period " + fmt_us(period) + " of --fps " + num(fps) + " (a rolling shutter reads each frame out before the next)");
+    fail("line_delay_us", opt("line_delay_us") + " " + num(line_delay_us) + " x " + std::to_string(height - 1) + " rows = " +
+         fmt_us(readout_time) + " of readout, longer than the frame period " + fmt_us(period) + " of " + opt("fps") + " " + num(fps) + " (a rolling shutter reads each frame out before the next)");
   if (exposure_us > period)
-    fail("--exposure-us " + num(exposure_us) + " is longer than the frame period " + fmt_us(period));
-  if (readout != "top-down" && readout != "bottom-up") fail("--readout '" + readout + "': expected top-down or bottom-up");
-  if (bit_depth != 8 && bit_depth != 16) fail("--bit-depth " + std::to_string(bit_depth) + ": expected 8 or 16");
+    fail("exposure_us", opt("exposure_us") + " " + num(exposure_us) + " is longer than the frame period " + fmt_us(period));
+  if (readout != "top-down" && readout != "bottom-up") fail("readout", opt("readout") + " '" + readout + "': expected top-down or bottom-up");
+  if (bit_depth != 8 && bit_depth != 16) fail("bit_depth", opt("bit_depth") + " " + std::to_string(bit_depth) + ": expected 8 or 16");
   if (events_format != "h5" && events_format != "txt" && events_format != "both")
-    fail("--events-format '" + events_format + "': expected h5, txt or both");
-  if (!(gamma > 0.1 && gamma < 10)) fail("--gamma must be in (0.1, 10)");
-  if (sprites < 0 || sprites > 64) fail("--sprites must be in 0..64");
-  if (supersample < 1 || supersample > 8) fail("--supersample must be in 1..8");
-  if (!(step_fraction > 0 && step_fraction <= 4)) fail("--step-fraction " + num(step_fraction) + " must be in (0, 4]");
-  if (!(dt_min_us > 0) || !(dt_max_us >= dt_min_us)) fail("time step bounds need 0 < dt_min <= dt_max");
-  if (flicker_amplitude < 0 || flicker_amplitude >= 1) fail("--flicker-amp must be in [0, 1)");
-  if (flicker_amplitude > 0 && !(flicker_hz > 0)) fail("--flicker-hz must be > 0");
-  if (frame_noise.full_well_e < 0 || frame_noise.read_noise < 0) fail("frame noise parameters must be >= 0");
+    fail("events_format", opt("events_format") + " '" + events_format + "': expected h5, txt or both");
+  if (!(gamma > 0.1 && gamma < 10)) fail("gamma", opt("gamma") + " must be in (0.1, 10)");
+  if (sprites < 0 || sprites > 64) fail("sprites", opt("sprites") + " must be in 0..64");
+  if (supersample < 1 || supersample > 8) fail("supersample", opt("supersample") + " must be in 1..8");
+  if (!(step_fraction > 0 && step_fraction <= 4)) fail("step_fraction", opt("step_fraction") + " " + num(step_fraction) + " must be in (0, 4]");
+  if (!(dt_min_us > 0) || !(dt_max_us >= dt_min_us)) fail("dt_min_us", "time step bounds need 0 < dt_min <= dt_max");
+  if (flicker_amplitude < 0 || flicker_amplitude >= 1) fail("flicker_amplitude", opt("flicker_amplitude") + " must be in [0, 1)");
+  if (flicker_amplitude > 0 && !(flicker_hz > 0)) fail("flicker_hz", opt("flicker_hz") + " must be > 0");
+  if (frame_noise.full_well_e < 0 || frame_noise.read_noise < 0) fail("full_well_e", "frame noise parameters must be >= 0");
 }
 
 nlohmann::json SimulationConfig::to_json() const {
@@ -449,7 +450,7 @@ void set_texture(SimulationConfig& c, const std::string& texture) {
     c.texture = parse_texture_kind(texture);
   } catch (const Error&) {  // not a procedural name: an image file
     if (!std::ifstream(texture))
-      throw InputMissingError("texture '" + texture + "' (--texture) is neither checkerboard, bars, noise, text, mixed nor a readable image file");
+      throw InputMissingError("texture '" + texture + "' (" + opt("texture") + ") is neither checkerboard, bars, noise, text, mixed nor a readable image file");
     c.texture_file = texture;
   }
 }

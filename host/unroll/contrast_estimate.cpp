@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <iterator>
 
+#include "vkunroll/base/error.hpp"
 #include "vkunroll/base/luminance.hpp"
 #include "vkunroll/host/unroll/unroll_plan.hpp"
 
@@ -113,7 +114,7 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
   if (pairs.empty())
     return {0.2, 0.0, "a fixed 0.2, not estimated: no pair of consecutive frames",
             "contrast c = 0.2 is a fixed default: the frames unrolled have no successor to estimate it from "
-            "(give --contrast C, or include the next frame)",
+            "(give " + opt("contrast") + " C, or include the next frame)",
             true, {}, 0};
   std::vector<Sample> samples;
   std::vector<double> quiet;
@@ -145,7 +146,7 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
     return {0.2, 0.0, "a fixed 0.2, not estimated: " + std::to_string(kept.size()) + " pixels of frames " + over +
                           " have events explained by a brightness change (" + std::to_string(kMinPixels) + " needed)",
             "contrast c = 0.2 is a fixed default: too few pixels of frames " + over +
-                " have both events and a matching brightness change to estimate it (give --contrast C)",
+                " have both events and a matching brightness change to estimate it (give " + opt("contrast") + " C)",
             true, pairs, kept.size(), frame_noise, isolated_fraction};
   // Per offset: c is the L1 fit of log change against event count; the offset whose fit leaves the
   // least residual (in events) wins.
@@ -180,17 +181,16 @@ ContrastEstimate estimate_contrast(const std::vector<RowTiming>& timings, const 
     char text[260];
     std::snprintf(text, sizeof text,
                   "the contrast estimate c = %.3f lies outside the range of event-camera thresholds (%.2f to %.1f): "
-                  "event noise or a slow sensor may dominate; give --contrast C if it is known", best_c, kPlausibleLow,
-                  kPlausibleHigh);
-    r.warning = text;
+                  "event noise or a slow sensor may dominate; give ", best_c, kPlausibleLow, kPlausibleHigh);
+    r.warning = text + opt("contrast") + " C if it is known";
   }
   if (grid_bound) {
     char text[360];
     std::snprintf(text, sizeof text,
                   "the log offset fit stopped at its largest candidate (%g) and %g fits these pixels clearly better: the "
                   "contrast c = %.3f is bounded by the offset grid, not by the data (heavy event noise or a large "
-                  "dark offset); give --contrast C if it is known", largest, kBeyondOffset, best_c);
-    r.warning += (r.warning.empty() ? "" : "; ") + std::string(text);
+                  "dark offset); give ", largest, kBeyondOffset, best_c);
+    r.warning += (r.warning.empty() ? "" : "; ") + std::string(text) + opt("contrast") + " C if it is known";
   }
   return r;
 }

@@ -4,10 +4,10 @@
 
 #include <cstdlib>
 #include <filesystem>
-#include <iostream>
 
 #include "vkunroll/base/env.hpp"
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/log.hpp"
 
 namespace vkunroll {
 
@@ -72,15 +72,16 @@ DefaultModelSearch find_default_model() {
 
 ModelChoice choose_model(UnrollMode mode, const std::string& given) {
   if (mode == UnrollMode::physics) return {"", "none"};
-  if (!given.empty()) return {given, "--model"};
+  if (!given.empty()) return {given, opt("model")};
   const DefaultModelSearch d = find_default_model();
   if (!d.path.empty()) return {d.path, "default (" + d.source + ")"};
   std::string where;
   for (const std::string& s : d.searched) where += (where.empty() ? "" : ", ") + s;
   if (mode != UnrollMode::automatic)
-    throw UsageError(std::string("--mode ") + unroll_mode_name(mode) + " needs a model: no --model given and no default model "
-                     "found (looked for " + where + ")");
-  std::cerr << "unroll: no model file found (looked for " << where << "): running the physics unroller (--mode physics)\n";
+    throw OptionError("mode", unroll_mode_name(mode), "needs a model",
+                      opt("mode") + " " + unroll_mode_name(mode) + " needs a model: no " + opt("model") +
+                          " given and no default model found (looked for " + where + ")");
+  log_info("unroll: no model file found (looked for " + where + "): running the physics unroller (" + opt("mode") + " physics)");
   return {"", "none"};
 }
 

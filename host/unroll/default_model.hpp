@@ -32,7 +32,7 @@ std::vector<std::string> conv_table_dirs();
 // choose are a UsageError naming where it looked. `source` says which of these it was.
 struct ModelChoice {
   std::string path;    // empty: physics only
-  std::string source;  // "--model", "default (...)", "none"
+  std::string source;  // opt("model") (given), "default (...)", "none"
 };
 ModelChoice choose_model(UnrollMode mode, const std::string& given);
 

@@ -14,10 +14,10 @@ auto in_device_stage(const std::string& stage, F&& f) -> decltype(f()) {
   try {
     return f();
   } catch (const VulkanError& e) {
-    throw VulkanError(e.result(), stage + ": " + e.what());
+    throw VulkanError(e.result(), stage + ": " + e.text());
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::temporary && e.kind() != ErrorKind::device_unavailable) throw;
-    throw Error(stage + ": " + e.what(), e.kind());
+    throw Error(stage + ": " + e.text(), e.kind());
   }
 }
 

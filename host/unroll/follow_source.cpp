@@ -113,7 +113,7 @@ void FollowFrameSource::reader_loop() {
       }
       if (!ended_ && options_.idle_s > 0 && seconds_since(last_news_) > options_.idle_s) {
         ended_ = true;
-        end_reason_ = "no new events for " + std::to_string(options_.idle_s) + " s (--follow-idle-s)";
+        end_reason_ = "no new events for " + std::to_string(options_.idle_s) + " s (" + opt("follow_idle_s") + ")";
       }
       cv_.notify_all();
       if (ended_) return;
@@ -141,7 +141,7 @@ void FollowFrameSource::wait_image(const std::string& path, int k) {
       const double quiet = std::min(seconds_since(since), seconds_since(last_news_));
       if (options_.idle_s > 0 && (ended_ ? seconds_since(since) : quiet) > options_.idle_s)
         throw StreamStopped("frame " + std::to_string(k) + "'s image " + path + " did not appear within " +
-                            std::to_string(options_.idle_s) + " s (--follow-idle-s)" + (ended_ ? " after " + end_reason_ : ""));
+                            std::to_string(options_.idle_s) + " s (" + opt("follow_idle_s") + ")" + (ended_ ? " after " + end_reason_ : ""));
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(kPollMs));
   }
@@ -170,7 +170,7 @@ EventStream FollowFrameSource::events(double lo, double hi) {
     check_stop("events");
     if (latest_t_ > e || ended_) break;
     if (reader_full_)
-      throw DataError("--follow-max-events " + std::to_string(options_.max_events) + ": the window [" + std::to_string(b) +
+      throw DataError(opt("follow_max_events") + " " + std::to_string(options_.max_events) + ": the window [" + std::to_string(b) +
                       ", " + std::to_string(e) + "] us needs more events than the ring holds; raise it");
     cv_.wait_for(lock, std::chrono::milliseconds(kPollMs));
   }

@@ -32,7 +32,7 @@ FrameFormat parse_frame_format(const std::string& s, const std::string& what) {
   if (s == "png8") return FrameFormat::png8;
   if (s == "png16") return FrameFormat::png16;
   if (s == "npy") return FrameFormat::npy;
-  throw UsageError(what + " '" + s + "': expected png8, png16 or npy");
+  throw OptionError(what, "'" + s + "'", "expected png8, png16 or npy");
 }
 
 const char* frame_format_name(FrameFormat f) {

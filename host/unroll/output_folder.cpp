@@ -131,11 +131,11 @@ OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const Ou
     : existing_(existing), layout_(layout) {
   std::string text = final_dir.string();
   while (text.size() > 1 && text.back() == '/') text.pop_back();
-  if (text.empty()) throw UsageError("--out: empty folder name");
+  if (text.empty()) throw OptionError("out", "", "empty folder name");
   final_ = fs::absolute(fs::path(text)).lexically_normal();
   const std::string name = final_.filename().string();
   if (name.empty() || name == "." || name == "..")
-    throw UsageError("--out '" + final_dir.string() + "': name a folder to create (not '.', '..' or '/')");
+    throw OptionError("out", "'" + final_dir.string() + "'", "name a folder to create (not '.', '..' or '/')");
   staging_ = final_.parent_path() / ("." + name + ".partial");
   std::error_code ec;
   // A file where a folder of the path must be is the option's fault (exit 2), not an I/O error.
@@ -143,7 +143,7 @@ OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const Ou
     const auto st = fs::status(p, ec);
     if (!fs::exists(st)) continue;
     if (!fs::is_directory(st))
-      throw UsageError("--out " + final_dir.string() + ": " + p.string() + " exists and is not a folder");
+      throw OptionError("out", final_dir.string(), p.string() + " exists and is not a folder");
     break;
   }
   fs::create_directories(final_.parent_path(), ec);
@@ -184,7 +184,7 @@ void OutputFolder::lock() {
       std::string holder = n > 0 ? std::string(who, static_cast<size_t>(n)) : std::string("unknown");
       while (!holder.empty() && holder.back() == '\n') holder.pop_back();
       throw OutputBusyError(final_.string() + ": another vkunroll run is writing this output (" + holder +
-                            "); wait for it to finish or choose another --out");
+                            "); wait for it to finish or choose another " + opt("out"));
     }
     // The lock file must still be the one at the path (not one a committing run just unlinked).
     struct stat a {}, b {};
@@ -210,13 +210,11 @@ void OutputFolder::check_final() {
   const auto st = fs::symlink_status(final_, ec);
   if (!fs::exists(st)) return;
   if (!fs::is_directory(st))
-    throw UsageError("--out " + final_.string() + ": exists and is not a folder (" +
-                     (fs::is_symlink(st) ? "a symbolic link" : "a file") + ")");
+    throw OptionError("out", final_.string(), std::string("exists and is not a folder (") + (fs::is_symlink(st) ? "a symbolic link" : "a file") + ")");
   if (is_empty_dir(final_)) return;
   if (existing_ == ExistingOutput::refuse)
-    throw UsageError("--out " + final_.string() +
-                     ": the folder exists and is not empty; pass --overwrite to replace it" +
-                     std::string(layout_.resumable ? ", or --resume to continue it (its valid GS frames are kept)" : ""));
+    throw OptionError("out", final_.string(), "the folder exists and is not empty; pass " + opt("overwrite") + " to replace it" +
+                      std::string(layout_.resumable ? ", or " + opt("resume") + " to continue it (its valid GS frames are kept)" : ""));
   // Everything inside, at any depth, must be what vkunroll wrote there: listed in the folder's
   // manifest, or (an output from before manifests) one of the output's names, frames/ holding only PNGs.
   const std::optional<std::set<std::string>> listed = read_manifest(final_);
@@ -233,9 +231,10 @@ void OutputFolder::check_final() {
       ours = !dir && rel.extension() == ".png" && std::find(pngs.begin(), pngs.end(), rel.parent_path().string()) != pngs.end();
     else ours = std::find(names.begin(), names.end(), r) != names.end();
     if (!ours)
-      throw UsageError("--out " + final_.string() + ": holds '" + r + "', which vkunroll did not write there" +
-                       (has_manifest ? " (not in its " + std::string(kManifestName) + ")" : "") +
-                       "; refusing to replace the folder (move it away or choose another --out)");
+      throw OptionError("out", final_.string(),
+                        "holds '" + r + "', which vkunroll did not write there" +
+                            (has_manifest ? " (not in its " + std::string(kManifestName) + ")" : "") +
+                            "; refusing to replace the folder (move it away or choose another " + opt("out") + ")");
   }
   if (ec) throw IoError(final_.string() + ": cannot list the earlier output (" + ec.message() + ")");
   replaces_ = true;

@@ -3,6 +3,9 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
+
+#include "vkunroll/base/log.hpp"
 
 namespace vkunroll {
 
@@ -11,9 +14,8 @@ Progress::Style Progress::automatic(bool quiet) {
   return isatty(fileno(stderr)) ? Style::bar : Style::lines;
 }
 
-Progress::Progress(std::string what, size_t total, Style style, std::FILE* out)
-    : what_(std::move(what)), total_(std::max<size_t>(total, 1)), style_(style), out_(out),
-      start_(std::chrono::steady_clock::now()) {}
+Progress::Progress(std::string what, size_t total, Style style)
+    : what_(std::move(what)), total_(std::max<size_t>(total, 1)), style_(style) {}
 
 std::string Progress::format_duration(double s) {
   char buf[32];
@@ -29,29 +31,32 @@ std::string Progress::format_duration(double s) {
 void Progress::update(size_t done, const std::string& label) {
   if (style_ == Style::quiet) return;
   done = std::min(done, total_);
-  const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  const double elapsed = elapsed_.seconds();
   const double eta = done ? elapsed / done * (total_ - done) : 0;
   const int percent = static_cast<int>(100 * done / total_);
   if (style_ == Style::bar) {
     const int width = 30, filled = width * static_cast<int>(done) / static_cast<int>(total_);
     std::string bar(filled, '#');
     bar.resize(width, '.');
-    std::fprintf(out_, "\r%s [%s] %zu/%zu %3d%% elapsed %s ETA %s %-24.24s", what_.c_str(), bar.c_str(), done, total_,
-                 percent, format_duration(elapsed).c_str(), done ? format_duration(eta).c_str() : "?", label.c_str());
-    std::fflush(out_);
+    char line[256];
+    std::snprintf(line, sizeof line, "\r%s [%s] %zu/%zu %3d%% elapsed %s ETA %s %-24.24s", what_.c_str(), bar.c_str(), done,
+                  total_, percent, format_duration(elapsed).c_str(), done ? format_duration(eta).c_str() : "?", label.c_str());
+    log_message(LogLevel::progress, line);
   } else if (percent / 10 != last_percent_line_ / 10 || done == total_) {
     // Plain lines (logs, CI): one line per 10% step.
     last_percent_line_ = percent;
-    std::fprintf(out_, "%s: %zu/%zu (%d%%) elapsed %s ETA %s%s%s\n", what_.c_str(), done, total_, percent,
-                 format_duration(elapsed).c_str(), done ? format_duration(eta).c_str() : "?",
-                 label.empty() ? "" : " ", label.c_str());
+    char line[512];
+    std::snprintf(line, sizeof line, "%s: %zu/%zu (%d%%) elapsed %s ETA %s%s%s\n", what_.c_str(), done, total_, percent,
+                  format_duration(elapsed).c_str(), done ? format_duration(eta).c_str() : "?", label.empty() ? "" : " ",
+                  label.c_str());
+    log_message(LogLevel::progress, line);
   }
 }
 
 void Progress::finish() {
   if (finished_) return;
   finished_ = true;
-  if (style_ == Style::bar) std::fprintf(out_, "\n");
+  if (style_ == Style::bar) log_message(LogLevel::progress, "\n");
 }
 
 }  // namespace vkunroll

@@ -1,8 +1,9 @@
-// A progress bar with ETA on a terminal, plain lines otherwise, nothing when quiet.
+// A job's progress, as log messages of level `progress` (base/log.hpp): a bar with ETA redrawn in
+// place on a terminal, plain lines otherwise, nothing when quiet.
 #pragma once
-#include <chrono>
-#include <cstdio>
 #include <string>
+
+#include "vkunroll/base/stopwatch.hpp"
 
 namespace vkunroll {
 
@@ -12,7 +13,7 @@ class Progress {
   // `automatic`: a bar when stderr is a terminal, plain lines otherwise.
   static Style automatic(bool quiet);
 
-  Progress(std::string what, size_t total, Style style, std::FILE* out = stderr);
+  Progress(std::string what, size_t total, Style style);
   // Marks `done` of `total` finished; `label` says what was just finished.
   void update(size_t done, const std::string& label = {});
   void finish();
@@ -23,8 +24,7 @@ class Progress {
   std::string what_;
   size_t total_;
   Style style_;
-  std::FILE* out_;
-  std::chrono::steady_clock::time_point start_;
+  Stopwatch elapsed_;
   int last_percent_line_ = -1;
   bool finished_ = false;
 };

@@ -1,12 +1,12 @@
 #include "vkunroll/host/unroll/session.hpp"
 
 #include <algorithm>
-#include <iostream>
+#include <iterator>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/log.hpp"
 #include "vkunroll/base/stopwatch.hpp"
-#include "vkunroll/host/model/backend_cpu.hpp"
-#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/make_backend.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/image_planes.hpp"
@@ -26,14 +26,22 @@ RunOptions group_run_options(bool m) {
 
 }  // namespace
 
-UnrollSession::StageClock::StageClock(UnrollSession& s, const char* stage) : s_(s) { next(stage); }
+const char* stage_name(Stage s) {
+  static const char* const names[] = {"setup", "read",     "contrast_estimate", "upload", "event_tensors",  // in Stage's order
+                                      "physics", "model", "download", "write", "wait", "pipeline_builds"};
+  static_assert(std::size(names) == static_cast<size_t>(Stage::pipeline_builds) + 1);
+  const auto i = static_cast<size_t>(s);
+  return i < std::size(names) ? names[i] : "?";
+}
 
-void UnrollSession::StageClock::next(const char* stage) {
+UnrollSession::StageClock::StageClock(UnrollSession& s, Stage stage) : s_(s) { next(stage); }
+
+void UnrollSession::StageClock::next(Stage stage) {
   stop();
   stage_ = stage;
   t0_ = Clock::now();
   before_ = s_.traffic();
-  s_.backend_->set_stage(stage);
+  s_.backend_->set_stage(stage_name(stage));
 }
 
 // The stage's host time is its wall time less the device waits and the pipeline builds inside
@@ -42,11 +50,11 @@ void UnrollSession::StageClock::stop() {
   if (!stage_) return;
   const DeviceTraffic now = s_.traffic();
   const double wait = now.wait_ms - before_.wait_ms, builds = now.pipeline_build_ms - before_.pipeline_build_ms;
-  s_.stats_.ms[stage_] += std::max(0.0, ms_since(t0_) - wait - builds);
-  s_.stats_.ms["wait"] += wait;
-  s_.stats_.ms["pipeline_builds"] += builds;
-  if (s_.trace_) s_.trace_->host_span("host stages", stage_, t0_, Clock::now());
-  stage_ = nullptr;
+  s_.stats_.ms[*stage_] += std::max(0.0, ms_since(t0_) - wait - builds);
+  s_.stats_.ms[Stage::wait] += wait;
+  s_.stats_.ms[Stage::pipeline_builds] += builds;
+  if (s_.trace_) s_.trace_->host_span("host stages", stage_name(*stage_), t0_, Clock::now());
+  stage_.reset();
 }
 
 const char* frame_method_name(FrameTarget::Method m) {
@@ -66,39 +74,32 @@ FrameTarget::Method parse_frame_method(const std::string& s, const std::string& 
 }
 
 UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
-  if (o.precision == Precision::fp16 && o.backend == BackendKind::cpu)
-    throw Error("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
+  if (o.precision == Precision::fp16 && o.backend == BackendKind::cpu) throw fp16_needs_vulkan();
   if (!o.model_path.empty()) {
     weights_ = std::make_unique<Weights>(load_weights(o.model_path));
     rgb_ = weights_->config.channel_order != "bgr";
     if (weights_->config.physics_input) metadata_gate_radius_ = weights_->config.physics_gate;
   }
-  if (o.backend == BackendKind::vulkan) {
-    ContextOptions co;
-    co.device = o.device;
-    co.announce = o.announce;
-    ctx_ = std::make_unique<Context>(co);
+  if (o.backend == BackendKind::vulkan && o.profile_ops) profiler_ = std::make_unique<Profiler>();
+  OpenedBackend opened = make_backend({.kind = o.backend,
+                                       .precision = o.precision,
+                                       .device = o.device,
+                                       .announce = o.announce,
+                                       .cpu_threads = o.cpu_threads,
+                                       .conv_choice = o.conv_choice,
+                                       .committed_conv_tables = conv_table_dirs(),
+                                       .profiler = profiler_.get()});
+  ctx_ = std::move(opened.context);
+  backend_ = std::move(opened.backend);
+  conv_choice_path_ = opened.conv_table.path;
+  conv_committed_table_ = opened.conv_table.committed;
+  conv_committed_how_ = opened.conv_table.committed_how;
+  if (ctx_) {
     ctx_->set_timestamps(o.profile_ops || o.trace);  // the device's timestamps cost time: only when asked for
     if (o.trace) {
       trace_ = std::make_unique<Trace>();
       ctx_->set_trace(trace_.get());
     }
-    if (o.profile_ops) profiler_ = std::make_unique<Profiler>();
-    auto vb = std::make_unique<VulkanBackend>(*ctx_, profiler_.get(), kPoolFlushBytes, o.precision);
-    auto table = std::make_shared<ConvChoiceTable>();
-    if (o.conv_choice != ConvChoice::heuristic && o.conv_choice != ConvChoice::gpu) {
-      std::vector<std::string> warnings;
-      DeviceConvTable d = load_device_conv_table(*ctx_, conv_table_dirs(), &warnings);
-      for (const auto& w : warnings) std::cerr << "vkunroll: warning: " << w << "\n";
-      table = std::move(d.table);
-      conv_choice_path_ = d.path;
-      conv_committed_table_ = d.committed;
-      conv_committed_how_ = d.committed_how;
-    }
-    vb->set_conv_choice(table, o.conv_choice);
-    backend_ = std::move(vb);
-  } else {
-    backend_ = std::make_unique<CpuBackend>(o.cpu_threads);
   }
   if (weights_) model_ = std::make_unique<Model>(*backend_, *weights_);
 }
@@ -118,26 +119,26 @@ UnrollSession::~UnrollSession() {
 }
 
 void UnrollSession::save_conv_choices() {
-  const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get());
-  if (!vb || !vb->conv_choice_table() || !vb->conv_choice_table()->changed() || conv_choice_path_.empty()) return;
+  const ConvChoiceTable* table = backend_->conv_table();
+  if (!table || !table->changed() || conv_choice_path_.empty() || !ctx_) return;
   try {
-    vb->conv_choice_table()->save(conv_choice_path_, conv_choice_header(*ctx_), conv_device_identity(*ctx_));
+    table->save(conv_choice_path_, conv_choice_header(*ctx_), conv_device_identity(*ctx_));
   } catch (const std::exception& e) {
-    std::cerr << "vkunroll: warning: the measured conv algorithms were not saved: " << e.what() << "\n";
+    log_warning(std::string("vkunroll: warning: the measured conv algorithms were not saved: ") + e.what());
   }
 }
 
 nlohmann::json UnrollSession::conv_choice_report() const {
-  const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get());
-  if (!vb) return nullptr;
+  if (options_.backend != BackendKind::vulkan) return nullptr;
+  const ConvChoiceTable* table = backend_->conv_table();
   return {{"choice", conv_choice_name(options_.conv_choice)},
           {"table", conv_choice_path_},
           {"committed_table", conv_committed_table_},
           {"committed_table_match", conv_committed_how_},
-          {"table_entries", vb->conv_choice_table() ? vb->conv_choice_table()->entries().size() : 0},
-          {"convs_from_table", vb->convs_from_table()},
-          {"shapes_timed", vb->convs_timed()},
-          {"calls_by_algorithm", vb->conv_calls_by_algorithm()}};
+          {"table_entries", table ? table->entries().size() : 0},
+          {"convs_from_table", backend_->convs_from_table()},
+          {"shapes_timed", backend_->convs_timed()},
+          {"calls_by_algorithm", backend_->conv_calls_by_algorithm()}};
 }
 
 const Weights& UnrollSession::weights() const {
@@ -152,19 +153,15 @@ uint64_t UnrollSession::binding_limit() const {
   return tiling_.max_buffer_bytes ? std::min(tiling_.max_buffer_bytes, device) : device;
 }
 
-uint64_t UnrollSession::memory_forced_submits() const {
-  const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get());
-  return vb ? vb->pool_flushes() : 0;
-}
+uint64_t UnrollSession::memory_forced_submits() const { return backend_->pool_flushes(); }
 
 uint64_t UnrollSession::peak_device_bytes() const {
-  uint64_t peak = ctx_ ? ctx_->allocator().stats().peak_used_bytes : 0;
-  if (const auto* vb = dynamic_cast<const VulkanBackend*>(backend_.get())) peak = std::max(peak, vb->device_peak_bytes());
-  return peak;
+  const uint64_t allocated = ctx_ ? ctx_->allocator().stats().peak_used_bytes : 0;
+  return std::max(allocated, backend_->device_peak_bytes());
 }
 
 UnrollSession::FramePlanes UnrollSession::upload_frame(const FrameInput& in, bool with_next) {
-  StageClock clock(*this, "upload");
+  StageClock clock(*this, Stage::upload);
   FramePlanes fp;
   fp.rgb = model_ ? rgb_ : false;  // physics is per channel: any order serves it
   const int H = in.rs1.rows, W = in.rs1.cols;
@@ -198,7 +195,7 @@ std::vector<cv::Mat> UnrollSession::unroll(const FrameInput& in, const std::vect
   std::vector<size_t> groups[3];  // s, m, physics
   for (size_t j = 0; j < targets.size(); ++j) groups[static_cast<int>(targets[j].method)].push_back(j);
   if ((!groups[0].empty() || !groups[1].empty()) && !model_)
-    throw Error("unroll session: SelfUnroll-S/-M targets need a model (--model FILE.safetensors)");
+    throw Error("unroll session: SelfUnroll-S/-M targets need a model (" + opt("model") + " FILE.safetensors)");
   if (!groups[1].empty() && (in.rs2.empty() || in.rs2.size() != in.rs1.size()))
     throw Error("unroll session: SelfUnroll-M targets need the next RS frame");
   std::vector<cv::Mat> results(targets.size());
@@ -215,25 +212,21 @@ void UnrollSession::run_physics(const FrameInput& in, const FramePlanes& fp, con
                                 const std::vector<size_t>& which, std::vector<cv::Mat>& results) {
   Backend& b = *backend_;
   const int H = in.rs1.rows, W = in.rs1.cols;
-  StageClock clock(*this, "physics");
+  StageClock clock(*this, Stage::physics);
   const std::vector<float>& rs = fp.rs1;
   const auto starts = in.timing1.start_times_us(), ends = in.timing1.end_times_us();
   std::vector<std::pair<size_t, Buffer>> on_device;  // (target, output buffer)
   for (size_t j : which) {
     const PixelEventLists lists = gather_pixel_events(*in.events, targets[j].t_us.to_double(), starts, ends, 0, 0, W, H);
     check_physics_image(rs, 3, lists);
-    if (!PhysicsUnroll::fits(lists)) {
-      // A pixel beyond the GPU kernel's loop limit: the CPU reference has none.
-      const std::vector<float> gs = physics_unroll_ref(rs, 3, lists, physics_);
-      results[j] = planes_image(gs.data(), H, W, fp.rgb);
-      stats_.physics_on_cpu++;
+    Buffer out = b.alloc({1, 3, H, W}, "physics");
+    if (const auto on_cpu = physics_estimate(fp.rs1_buf.whole(), rs, lists, out.whole())) {
+      results[j] = planes_image(on_cpu->data(), H, W, fp.rgb);
       continue;
     }
-    Buffer out = b.alloc({1, 3, H, W}, "physics");
-    b.physics_unroll(fp.rs1_buf.whole(), lists, physics_, out.whole());
     on_device.emplace_back(j, std::move(out));
   }
-  clock.next("download");
+  clock.next(Stage::download);
   std::vector<std::vector<float>> planes(on_device.size(), std::vector<float>(size_t(3) * H * W));
   for (size_t q = 0; q < on_device.size(); ++q) b.download(on_device[q].second.whole(), planes[q]);
   b.flush();
@@ -255,15 +248,21 @@ Buffer UnrollSession::physics_input(const FrameInput& in, const FramePlanes& fp,
     const RowTiming& t = second ? in.timing2 : in.timing1;
     const PixelEventLists lists = gather_pixel_events(*in.events, pairs[size_t(i)].target_us.to_double(), t.start_times_us(),
                                                       t.end_times_us(), 0, 0, W, H);
-    const BufferSlice dst = phys.items(i, 1);
-    if (!PhysicsUnroll::fits(lists)) {  // beyond the GPU kernel's per-pixel event limit
-      b.upload(dst, physics_unroll_ref(second ? fp.rs2 : fp.rs1, 3, lists, physics_));
-      stats_.physics_on_cpu++;
-      continue;
-    }
-    b.physics_unroll((second ? fp.rs2_buf : fp.rs1_buf).whole(), lists, physics_, dst);  // into the batch, in place
+    const BufferSlice dst = phys.items(i, 1);  // into the batch, in place
+    if (const auto on_cpu = physics_estimate((second ? fp.rs2_buf : fp.rs1_buf).whole(), second ? fp.rs2 : fp.rs1, lists, dst))
+      b.upload(dst, *on_cpu);
   }
   return phys;
+}
+
+std::optional<std::vector<float>> UnrollSession::physics_estimate(const BufferSlice& rs, const std::vector<float>& rs_planes,
+                                                                  const PixelEventLists& lists, const BufferSlice& out) {
+  if (PhysicsUnroll::fits(lists)) {
+    backend_->physics_unroll(rs, lists, physics_, out);
+    return std::nullopt;
+  }
+  stats_.physics_on_cpu++;  // a pixel beyond the GPU kernel's loop limit: the CPU reference has none
+  return physics_unroll_ref(rs_planes, 3, lists, physics_);
 }
 
 void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
@@ -281,7 +280,7 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
     return;
   }
   const int64_t B = static_cast<int64_t>(which.size()) * per;
-  StageClock clock(*this, "model");
+  StageClock clock(*this, Stage::model);
   // The RS frame(s), uploaded once per frame, repeated on the device for every target of the batch.
   int rs = fp.rs1_buf.id();
   Buffer rs_batch;
@@ -297,23 +296,23 @@ void UnrollSession::run_model(const FrameInput& in, const FramePlanes& fp, const
   }
   EventTensorSpec spec;
   spec.bins = model_->config().N;
-  clock.next("event_tensors");
+  clock.next(Stage::event_tensors);
   const Buffer ev = b.event_tensors(*in.events, pairs, spec);
   ModelBuffers inputs{{rs, 0, B, 0, 3}, ev.items(0, B), ev.items(B, B), ev.items(2 * B, B)};
   Buffer phys;
   if (model_->config().physics_input) {
-    clock.next("physics");
+    clock.next(Stage::physics);
     phys = physics_input(in, fp, pairs);
     inputs.phys = phys.whole();
-    clock.next("event_tensors");
+    clock.next(Stage::event_tensors);
   }
   ActivityTables activity;
   if (tiling_.sparse != SparsePolicy::off) activity = activity_tables(selected_event_counts(*in.events, pairs, spec), H, W);
-  clock.next("model");
+  clock.next(Stage::model);
   const RunOptions ro = group_run_options(m);
   const ModelOutput wanted = ro.outputs[0];
   const TiledBuffers run = run_tiled_on_backend(*model_, inputs, ro, tiling_, &activity);
-  clock.next("download");
+  clock.next(Stage::download);
   std::vector<float> planes(static_cast<size_t>(which.size()) * 3 * H * W);
   b.download(run.outputs.at(wanted).whole(), planes);
   b.flush();
@@ -333,7 +332,7 @@ void UnrollSession::run_model_on_host(const FrameInput& in, const FramePlanes& f
   const std::vector<float>& p1 = fp.rs1;
   const std::vector<float>& p2 = fp.rs2;
   for (size_t j : which) {  // one target at a time: the host copies of its tensors are large already
-    StageClock clock(*this, "event_tensors");
+    StageClock clock(*this, Stage::event_tensors);
     std::vector<EventTensorPair> pairs{{in.timing1, targets[j].t_us, std::nullopt}};
     if (m) pairs.push_back({in.timing2, targets[j].t_us, std::nullopt});
     if (ctx_ && !host_builder_) host_builder_ = std::make_unique<EventTensorBuilder>(*ctx_);
@@ -356,7 +355,7 @@ void UnrollSession::run_model_on_host(const FrameInput& in, const FramePlanes& f
         std::copy(gs.begin(), gs.end(), mi.phys.data.begin() + i * 3 * H * W);
       }
     }
-    clock.next("model");
+    clock.next(Stage::model);
     const RunOptions ro = group_run_options(m);
     const ModelOutput wanted = ro.outputs[0];
     const TiledResult run = run_tiled(*model_, mi, ro, tiling_);

@@ -10,8 +10,8 @@
 //   auto images = session.unroll(frame_input, {{t_us, FrameTarget::Method::s}});
 #pragma once
 #include <cstdint>
-#include <chrono>
 #include <map>
+#include <optional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -20,6 +20,7 @@
 
 #include "vkunroll/base/events.hpp"
 #include "vkunroll/base/row_timing.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/tiling.hpp"
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/host/unroll/unroll_options.hpp"
@@ -52,6 +53,12 @@ struct FrameInput {
   const EventStream* events = nullptr;
 };
 
+// The host stages a GS frame's time is split into (summary.json's ms_per_gs_frame keys): the job's
+// (setup, read, contrast_estimate, write) and the session's (upload ... download), and the device
+// waits and driver shader builds inside them, counted once.
+enum class Stage { setup, read, contrast_estimate, upload, event_tensors, physics, model, download, write, wait, pipeline_builds };
+const char* stage_name(Stage s);  // "setup", "read", ...
+
 // What the session did, summed over its frames.
 struct SessionStats {
   size_t runs_s = 0, runs_m = 0, runs_physics = 0;
@@ -71,7 +78,7 @@ struct SessionStats {
   // recording the network), "download" (planes to images); "wait", the time blocked on the
   // device (submitting, the fence, reading back); "pipeline_builds" (the driver compiling shaders,
   // the first frames). They add up to the session's wall time.
-  std::map<std::string, double> ms;
+  std::map<Stage, double> ms;
 };
 
 class UnrollSession {
@@ -136,15 +143,15 @@ class UnrollSession {
   // records with the stage; next() ends it and starts another.
   class StageClock {
    public:
-    StageClock(UnrollSession& s, const char* stage);
+    StageClock(UnrollSession& s, Stage stage);
     ~StageClock() { stop(); }
-    void next(const char* stage);
+    void next(Stage stage);
     void stop();
 
    private:
     UnrollSession& s_;
-    const char* stage_ = nullptr;
-    std::chrono::steady_clock::time_point t0_;
+    std::optional<Stage> stage_;
+    Clock::time_point t0_;
     DeviceTraffic before_;
   };
   void run_physics(const FrameInput& in, const FramePlanes& fp, const std::vector<FrameTarget>& targets,
@@ -157,6 +164,11 @@ class UnrollSession {
   // The physics-informed variant's input: [B, 3, H, W] physics estimates of the batch's (frame,
   // target) pairs, computed on the device from the uploaded frames (model order).
   Buffer physics_input(const FrameInput& in, const FramePlanes& fp, const std::vector<EventTensorPair>& pairs);
+  // One physics estimate of the frame `rs` (its host planes `rs_planes`) with `lists`: recorded on
+  // the device into `out` when every pixel's events fit the kernel (PhysicsUnroll::fits); else the
+  // CPU reference's planes, returned (counted in stats_.physics_on_cpu) and `out` left as it is.
+  std::optional<std::vector<float>> physics_estimate(const BufferSlice& rs, const std::vector<float>& rs_planes,
+                                                     const PixelEventLists& lists, const BufferSlice& out);
 
   SessionOptions options_;
   std::unique_ptr<Trace> trace_;  // SessionOptions::trace (before the context that points to it)

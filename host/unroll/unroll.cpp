@@ -6,7 +6,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
-#include <iostream>
+#include <sstream>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/core/utility.hpp>
@@ -15,6 +15,7 @@
 #include <optional>
 
 #include "vkunroll/base/env.hpp"
+#include "vkunroll/base/log.hpp"
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/unroll/provenance.hpp"
 #include "vkunroll/host/unroll/sha256.hpp"
@@ -165,26 +166,32 @@ void report(const UnrollOptions& o, const nlohmann::json& summary, const UnrollS
     for (const auto& [name, v] : ms.items()) s += (s.empty() ? "" : ", ") + name + " " + std::to_string(std::lround(v.get<double>()));
     return s;
   };
-  std::cerr << "unroll: " << summary["frames"] << " frame(s), " << summary["targets"] << " GS frame(s), mode "
+  std::ostringstream line;
+  line << "unroll: " << summary["frames"] << " frame(s), " << summary["targets"] << " GS frame(s), mode "
             << summary["mode"].get<std::string>() << ", " << summary["ms_per_gs_frame_total"].get<double>()
             << " ms per GS frame (by stage, ms: " << stages(summary["ms_per_gs_frame"]) << "; "
             << (summary["gpu_ms_per_gs_frame"].is_null()
-                    ? std::string("GPU time not measured: --profile or --trace")
+                    ? std::string("GPU time not measured: the profile and the trace are off")
                     : "GPU ms " + std::to_string(summary["gpu_ms_per_gs_frame"].get<double>()) + " inside the wait: " +
                           stages(summary["gpu_ms_per_gs_frame_by_stage"]))
             << "), per GS frame " << traffic["upload_bytes"].get<double>() / 1e6 << " MB up, " << traffic["download_bytes"].get<double>() / 1e6
             << " MB down, " << traffic["submits"].get<double>() << " submits, " << traffic["dispatches"].get<double>()
             << " dispatches; peak device memory "
-            << (session.peak_device_bytes() >> 20) << " MiB\n";
-  if (summary.contains("resume"))
-    std::cerr << "unroll: resume: " << summary["resume"]["reused"] << " GS frame(s) reused, " << summary["resume"]["computed"]
-              << " computed\n";
-  if (summary.contains("metrics"))
-    std::cerr << "unroll: vs ground truth (" << summary["metrics"]["count"] << " frames): PSNR "
-              << summary["metrics"]["mean_psnr"] << " dB, SSIM " << summary["metrics"]["mean_ssim"]
-              << "; RS input: PSNR " << summary["metrics"]["rs_mean_psnr"] << " dB, SSIM "
-              << summary["metrics"]["rs_mean_ssim"] << "\n";
-  std::cerr << "unroll: wrote " << o.out_dir << "\n";
+            << (session.peak_device_bytes() >> 20) << " MiB";
+  log_info(line.str());
+  if (summary.contains("resume")) {
+    std::ostringstream resume;
+    resume << "unroll: resume: " << summary["resume"]["reused"] << " GS frame(s) reused, " << summary["resume"]["computed"] << " computed";
+    log_info(resume.str());
+  }
+  if (summary.contains("metrics")) {
+    std::ostringstream metrics;
+    metrics << "unroll: vs ground truth (" << summary["metrics"]["count"] << " frames): PSNR " << summary["metrics"]["mean_psnr"]
+            << " dB, SSIM " << summary["metrics"]["mean_ssim"] << "; RS input: PSNR " << summary["metrics"]["rs_mean_psnr"]
+            << " dB, SSIM " << summary["metrics"]["rs_mean_ssim"];
+    log_info(metrics.str());
+  }
+  log_info("unroll: wrote " + o.out_dir);
 }
 
 // 10x slow motion of the recording, unless the options name a rate.
@@ -214,15 +221,16 @@ nlohmann::json follow_report(const FollowFrameSource& source, const FollowSink& 
   j["gs_frames_planned"] = planned;
   j["status"] = stopped.empty() ? "complete" : "stopped";
   j["stopped_because"] = stopped.empty() ? nlohmann::json() : nlohmann::json(stopped);
-  if (!stopped.empty()) std::cerr << "unroll: stopped: " << stopped << "; " << sink.report()["gs_frames"] << " of " << planned
-                                  << " GS frame(s) written, all valid\n";
+  if (!stopped.empty())
+    log_warning("unroll: stopped: " + stopped + "; " + sink.report()["gs_frames"].dump() + " of " + std::to_string(planned) +
+                " GS frame(s) written, all valid");
   return j;
 }
 
 }  // namespace
 
 nlohmann::json run_unroll(const UnrollOptions& o) {
-  const auto t_start = Clock::now();
+  const Stopwatch since_start;
   validate_unroll_options(o);  // a refused option does not wait for the sequence to load
   check_unroll_inputs(o);
   SessionOptions session_options = o.session;
@@ -230,18 +238,18 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   session_options.trace = session_options.trace || !o.trace_path.empty();
   if (!o.trace_path.empty()) {  // refused now, not after the run
     const fs::path dir = fs::absolute(o.trace_path).parent_path();
-    if (!fs::is_directory(dir)) throw UsageError("--trace " + o.trace_path + ": the folder " + dir.string() + " does not exist");
+    if (!fs::is_directory(dir)) throw OptionError("trace", o.trace_path, "the folder " + dir.string() + " does not exist");
   }
   if (o.mode == UnrollMode::physics) session_options.model_path.clear();
   // The model and the device before the sequence: their errors come first.
   UnrollSession session = in_device_stage("setting up the device and the model", [&] { return UnrollSession(session_options); });
-  const auto t_load = Clock::now();
-  const double setup_ms = ms_since(t_start);
+  const double setup_ms = since_start.ms();
+  const Stopwatch loading;
   const Sequence seq = load_sequence(o.sequence, follow_sequence_options(o));
-  const double load_ms = ms_since(t_load);
+  const double load_ms = loading.ms();
   std::vector<std::pair<std::string, std::string>> event_files;  // meta.json may name files outside the folder
   for (const auto& f : seq.event_files) event_files.emplace_back("event file", f);
-  check_output_apart(o.out_dir, "--out", event_files);
+  check_output_apart(o.out_dir, "out", event_files);
   std::optional<InterruptFlag> interrupt;  // --follow: SIGINT stops the stream cleanly
   if (o.follow.enabled) interrupt.emplace();
   std::unique_ptr<FrameSource> source;
@@ -252,11 +260,11 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   try {
     planned.emplace(o, session, *source);
   } catch (const StreamStopped& e) {
-    throw DataError(std::string("--follow: the stream stopped before the job was planned (nothing written): ") + e.what());
+    throw DataError(opt("follow") + ": the stream stopped before the job was planned (nothing written): " + e.text());
   }
   UnrollJob& job = *planned;
-  job.add_stage_ms("setup", setup_ms);  // the device, the model and the shaders
-  job.add_stage_ms("read", load_ms);    // the sequence's load
+  job.add_stage_ms(Stage::setup, setup_ms);  // the device, the model and the shaders
+  job.add_stage_ms(Stage::read, load_ms);    // the sequence's load
 
   const std::string model_sha = session.has_model() ? sha256_file(o.session.model_path) : std::string();
   UnrollOutputOptions out_options = output_options(o, seq, job);
@@ -267,17 +275,17 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   std::optional<FollowSink> follow_sink;
   if (follow) {
     follow_sink.emplace(sink, *follow, job);
-    if (!o.quiet) std::cerr << "unroll: following " << o.follow.events << "; GS frames appear in " << output.staging().string() << "\n";
+    if (!o.quiet) log_info("unroll: following " + o.follow.events + "; GS frames appear in " + output.staging().string());
   }
   std::string stopped;
   try {
     job.run(follow_sink ? static_cast<ResultSink&>(*follow_sink) : sink);
   } catch (const StreamStopped& e) {
-    stopped = e.what();
+    stopped = e.text();
   }
   progress.finish();
 
-  nlohmann::json extra = summary_extra(o, job, session, seq, model_sha, ms_since(t_start));  // the whole run, as the frames' time
+  nlohmann::json extra = summary_extra(o, job, session, seq, model_sha, since_start.ms());  // the whole run, as the frames' time
   if (output.replaces_existing())
     extra["notes"].push_back("replaced the earlier output in " + output.dir().string() + " (" +
                              existing_output_name(o.output.existing) + ")");
@@ -287,7 +295,8 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
     trace->write(o.trace_path);
     extra["trace"] = {{"file", o.trace_path}, {"spans", trace->spans()}};
   }
-  for (const auto& w : extra["warnings"]) std::cerr << "unroll: warning: " << w.get<std::string>() << "\n";  // even under --quiet
+  spell_options(extra, o.option_spelling);
+  for (const auto& w : extra["warnings"]) log_warning("unroll: warning: " + w.get<std::string>());  // even under --quiet
   nlohmann::json summary = output.finish(extra);
   if (!o.quiet) report(o, summary, session);
   return summary;

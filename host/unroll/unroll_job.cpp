@@ -1,9 +1,10 @@
 #include "vkunroll/host/unroll/unroll_job.hpp"
 
 #include <algorithm>
-#include <iostream>
+#include <sstream>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/log.hpp"
 #include "vkunroll/host/unroll/device_stage.hpp"
 
 namespace vkunroll {
@@ -16,10 +17,11 @@ std::map<int, std::vector<UnrollTarget>> planned_targets(const Sequence& layout,
   try {
     return plan_targets(layout, frames, times, where);
   } catch (const TimeRangeError& e) {
-    const char* option = times.kind == TargetTimes::Kind::absolute_us ? "--times-us"
-                         : times.kind == TargetTimes::Kind::normalized ? "--times" : "--times gt";
-    throw UsageError(std::string(option) + ": a target instant is out of the range of exact time arithmetic (" + e.what() +
-                     "); targets must lie within +-2^53 us of the recording");
+    const std::string field = times.kind == TargetTimes::Kind::absolute_us ? "times_us" : "times";
+    const std::string rule = "targets must lie within +-2^53 us of the recording";
+    throw OptionError(field, "", rule,
+                      opt(field) + (times.kind == TargetTimes::Kind::ground_truth ? " gt" : "") +
+                          ": a target instant is out of the range of exact time arithmetic (" + e.text() + "); " + rule);
   }
 }
 
@@ -39,48 +41,65 @@ bool is_m(const FrameTarget& t) { return t.method == FrameTarget::Method::m; }
 
 }  // namespace
 
-UnrollJob::UnrollJob(const UnrollOptions& o, UnrollSession& session, FrameSource& source)
-    : options_(o), session_(session), source_(source) {
-  mode_ = o.mode == UnrollMode::automatic && !session.has_model() ? UnrollMode::physics : o.mode;
-  if (mode_ != UnrollMode::physics && !session.has_model())
-    throw UsageError(std::string("--mode ") + unroll_mode_name(mode_) + " needs a model (--model FILE.safetensors)");
-  if (mode_ == UnrollMode::m && !session.model_config().moa)
-    throw UsageError(o.session.model_path + ": the model has no MOA weights (attfusion_net), so it runs SelfUnroll-S only; use --mode s");
-  if (o.channel_order != ChannelOrder::model) session.set_model_rgb(o.channel_order == ChannelOrder::rgb);
+JobPlan plan_job(const UnrollOptions& o, const UnrollSession& session, FrameSource& source,
+                 const std::function<cv::Mat(int)>& image) {
+  JobPlan p;
+  p.mode = o.mode == UnrollMode::automatic && !session.has_model() ? UnrollMode::physics : o.mode;
+  if (p.mode != UnrollMode::physics && !session.has_model())
+    throw OptionError("mode", unroll_mode_name(p.mode), "needs a model",
+                      opt("mode") + " " + unroll_mode_name(p.mode) + " needs a model (" + opt("model") + " FILE.safetensors)");
+  if (p.mode == UnrollMode::m && !session.model_config().moa)
+    throw OptionError("mode", "m", "a model with MOA weights",
+                      o.session.model_path + ": the model has no MOA weights (attfusion_net), so it runs SelfUnroll-S only; use " +
+                          opt("mode") + " s");
+  if (o.channel_order != ChannelOrder::model) p.model_rgb = o.channel_order == ChannelOrder::rgb;
   const Sequence& layout = source.layout();
   if (layout.frames.empty()) throw DataError(o.sequence + ": the sequence has no frames");
-  frames_ = chosen_frames(layout, o.frames);
-  targets_ = planned_targets(layout, frames_, o.times, o.sequence);
-  for (const auto& [k, ts] : targets_) total_targets_ += ts.size();
-
+  p.frames = chosen_frames(layout, o.frames);
+  p.targets = planned_targets(layout, p.frames, o.times, o.sequence);
+  for (const auto& [k, ts] : p.targets) p.total_targets += ts.size();
   // The frames' encoding and the model's: frames go into a model with a known gamma as
   // v^(g_f/g_m) and its results come back (docs/model.md, "unroll").
   const double seq_gamma = o.gamma ? *o.gamma : source.recorded_gamma();
   std::vector<RowTiming> timings;
   for (const SequenceFrame& f : layout.frames) timings.push_back(f.timing);
-  physics_ = plan_physics(mode_, session, seq_gamma, o.contrast, [&](double gamma) {
-    const auto t = Clock::now();
-    ContrastEstimate c = estimate_contrast(
-        timings, frames_, gamma, layout.width, layout.height, [&](int k) { return decoded(k).image; },
-        [&](double lo, double hi) { return source_.events(lo, hi); });
-    stage_ms_["contrast_estimate"] = ms_since(t);
+  p.physics = plan_physics(p.mode, session, seq_gamma, o.contrast, [&](double gamma) {
+    const Stopwatch t;
+    ContrastEstimate c = estimate_contrast(timings, p.frames, gamma, layout.width, layout.height, image,
+                                           [&](double lo, double hi) { return source.events(lo, hi); });
+    p.contrast_estimate_ms = t.ms();
     return c;
   });
-  if (physics_.uses_physics && !o.quiet)
-    std::cerr << "unroll: " << (physics_.variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
-              << physics_.params.contrast << " (" << physics_.contrast_source << "), log offset " << physics_.params.log_offset
-              << ", gamma " << physics_.params.gamma << "\n";
-  // A default or an implausible contrast is a warning, said even with --quiet (summary.json has it too).
-  if (!physics_.contrast_warning.empty()) std::cerr << "unroll: warning: " << physics_.contrast_warning << "\n";
-  session.set_physics(physics_.params);
   // Without a model (or a gate) the radius is -1, and a given one is refused by choose_gate_radius.
-  gate_ = choose_gate_radius(o.gate_radius, session.metadata_gate_radius(), physics_);
-  if (gate_.radius >= 0) {
-    session.set_gate_radius(gate_.radius);
-    if (!o.quiet) std::cerr << "unroll: event gate radius " << gate_.radius << " (" << gate_.source << ")\n";
+  p.gate = choose_gate_radius(o.gate_radius, session.metadata_gate_radius(), p.physics);
+  p.tiling = tile_options(o);
+  return p;
+}
+
+void configure_session(UnrollSession& session, const JobPlan& plan) {
+  if (plan.model_rgb) session.set_model_rgb(*plan.model_rgb);
+  session.set_physics(plan.physics.params);
+  if (plan.gate.radius >= 0) session.set_gate_radius(plan.gate.radius);
+  session.set_tiling(plan.tiling);
+}
+
+UnrollJob::UnrollJob(const UnrollOptions& o, UnrollSession& session, FrameSource& source)
+    : options_(o), session_(session), source_(source) {
+  plan_ = plan_job(o, session, source, [&](int k) { return decoded(k).image; });
+  if (plan_.contrast_estimate_ms > 0) stage_ms_[Stage::contrast_estimate] = plan_.contrast_estimate_ms;
+  const PhysicsPlan& physics = plan_.physics;
+  if (physics.uses_physics && !o.quiet) {
+    std::ostringstream line;
+    line << "unroll: " << (physics.variant ? "physics input of the model" : "physics unroller") << ", contrast c = "
+         << physics.params.contrast << " (" << physics.contrast_source << "), log offset " << physics.params.log_offset
+         << ", gamma " << physics.params.gamma;
+    log_info(line.str());
   }
-  tiling_ = tile_options(o);
-  session.set_tiling(tiling_);
+  // A default or an implausible contrast is a warning, said even when quiet (summary.json has it too).
+  if (!physics.contrast_warning.empty()) log_warning("unroll: warning: " + physics.contrast_warning);
+  if (plan_.gate.radius >= 0 && !o.quiet)
+    log_info("unroll: event gate radius " + std::to_string(plan_.gate.radius) + " (" + plan_.gate.source + ")");
+  configure_session(session, plan_);
 }
 
 UnrollJob::DecodedFrame& UnrollJob::decoded(int k) {
@@ -96,7 +115,7 @@ UnrollJob::DecodedFrame& UnrollJob::decoded(int k) {
 
 const cv::Mat& UnrollJob::model_encoded(DecodedFrame& f) const {
   // Encoded on first use in the loop: the contrast estimate decodes frames before to_model is known.
-  if (f.for_model.empty()) f.for_model = encode_for_model(f.image, physics_.to_model);
+  if (f.for_model.empty()) f.for_model = encode_for_model(f.image, plan_.physics.to_model);
   return f.for_model;
 }
 
@@ -109,7 +128,7 @@ std::vector<FrameTarget> UnrollJob::methods_for(int k, const std::vector<UnrollT
   for (const UnrollTarget& t : todo) {
     const double tv = t.t_us.to_double();
     const bool inside = tv >= timing.first_start().to_double() && tv <= timing.last_end().to_double();
-    methods.push_back({t.t_us, target_method(mode_, moa, has_next, inside, k, notes_)});
+    methods.push_back({t.t_us, target_method(plan_.mode, moa, has_next, inside, k, notes_)});
   }
   return methods;
 }
@@ -119,9 +138,9 @@ void UnrollJob::run(ResultSink& sink) {
   stats_before_ = session_.stats();
   if (const Profiler* p = session_.profiler()) ops_before_ = p->ops();
   try {
-    for (int k : frames_) {
-      auto it = targets_.find(k);
-      if (it != targets_.end()) run_frame(k, it->second, sink);
+    for (int k : plan_.frames) {
+      auto it = plan_.targets.find(k);
+      if (it != plan_.targets.end()) run_frame(k, it->second, sink);
     }
   } catch (...) {
     traffic_ = session_.traffic() - traffic_before_;  // a stopped stream (--follow) still reports its frames
@@ -139,7 +158,7 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
     if (!reused[j]) todo.push_back(ts[j]);
   }
   const std::vector<FrameTarget> methods = methods_for(k, todo);
-  auto t_read = Clock::now();
+  const Stopwatch t_read;
   DecodedFrame& f1 = decoded(k);
   const cv::Mat rs_input = f1.image;  // the header outlives the cache entry erased below (the pixels are shared)
   std::vector<cv::Mat> results;
@@ -156,24 +175,24 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
     const auto [lo, hi] = frame_window(layout.frames[size_t(k)], f2, todo, methods);
     const EventStream ev = source_.events(lo, hi);
     in.events = &ev;
-    stage_ms_["read"] += ms_since(t_read);
+    stage_ms_[Stage::read] += t_read.ms();
     counters_.events_per_frame.push_back({k, ev.size()});
     counters_.events_in_windows += ev.size();
     counters_.frames_read++;
     if (ev.empty()) counters_.frames_without_events.push_back(k);
     const DeviceTraffic before = session_.traffic();
-    const auto t_unroll = Clock::now();
+    const Stopwatch t_unroll;
     results = in_device_stage("frame " + std::to_string(k) + ", unrolling " + std::to_string(methods.size()) + " target(s)",
                               [&] { return session_.unroll(in, methods); });
     const DeviceTraffic d = session_.traffic() - before;
-    frame_time = {ms_since(t_unroll), d.gpu_ms, d.wait_ms};
-    decode_model_results(results, methods, physics_.to_model);
+    frame_time = {t_unroll.ms(), d.gpu_ms, d.wait_ms};
+    decode_model_results(results, methods, plan_.physics.to_model);
   } else {
-    stage_ms_["read"] += ms_since(t_read);
+    stage_ms_[Stage::read] += t_read.ms();
   }
   // Frames at or before k are past: only the next frame (k + 1, as f1) is used again.
   decoded_.erase(decoded_.begin(), decoded_.upper_bound(k));
-  const auto t_write = Clock::now();
+  const Stopwatch t_write;
   size_t next = 0;
   for (size_t j = 0; j < ts.size(); ++j) {
     GsResult r;
@@ -192,8 +211,8 @@ void UnrollJob::run_frame(int k, const std::vector<UnrollTarget>& ts, ResultSink
     sink.add(r);
   }
   done_ += ts.size();
-  stage_ms_["write"] += ms_since(t_write);
-  sink.frame_finished(k, done_, total_targets_);
+  stage_ms_[Stage::write] += t_write.ms();
+  sink.frame_finished(k, done_, plan_.total_targets);
 }
 
 }  // namespace vkunroll

@@ -4,10 +4,11 @@
 // one UnrollSession call, the gamma encoding into the model and back, and the report of what was done.
 //
 //   SequenceFrameSource source(seq);
-//   UnrollJob job(options, session, source);   // plans; errors name the option
+//   UnrollJob job(options, session, source);   // plans (plan_job); errors name the option
 //   job.run(sink);                              // sink.add() per GS frame
 //   nlohmann::json what = job.report();
 #pragma once
+#include <functional>
 #include <map>
 #include <optional>
 #include <set>
@@ -49,6 +50,27 @@ class ResultSink {
   virtual void frame_finished(int /*frame*/, size_t /*done*/, size_t /*total*/) {}
 };
 
+// Everything a job decides before its first frame: what to unroll and how the session runs it.
+struct JobPlan {
+  UnrollMode mode = UnrollMode::automatic;  // auto without a model is physics
+  std::vector<int> frames;
+  std::map<int, std::vector<UnrollTarget>> targets;  // by frame
+  size_t total_targets = 0;
+  PhysicsPlan physics;       // encodings, physics parameters (the contrast estimated when asked)
+  GateChoice gate;           // the variant's event gate radius (-1: none) and why
+  TileOptions tiling;
+  std::optional<bool> model_rgb;  // the model's channel order asked for (unset: the weights' metadata)
+  double contrast_estimate_ms = 0;
+};
+
+// The plan from the options, the session's model (read only) and the source: errors name the
+// option. It reads frames (through `image`, the job's decode cache) and events only for a contrast
+// estimate; it changes nothing else.
+JobPlan plan_job(const UnrollOptions& options, const UnrollSession& session, FrameSource& source,
+                 const std::function<cv::Mat(int)>& image);
+// Sets the session up for `plan`, in one place: channel order, physics parameters, gate, tiling.
+void configure_session(UnrollSession& session, const JobPlan& plan);
+
 // What the loop counted: reads, decodes, events.
 struct UnrollJobCounters {
   size_t frame_decodes = 0;          // frame images decoded from the source (each frame once)
@@ -62,25 +84,24 @@ struct UnrollJobCounters {
 
 class UnrollJob {
  public:
-  // Plans the job: the mode (auto without a model is physics), the frames, every frame's targets,
-  // the physics parameters (the contrast estimated from the source when neither given nor in the
-  // model), the model's channel order and the tiling, all set on `session`. Errors name the option.
+  // Plans the job (plan_job), logs what it chose and configures `session` for it.
   UnrollJob(const UnrollOptions& options, UnrollSession& session, FrameSource& source);
 
-  UnrollMode mode() const { return mode_; }
-  const std::vector<int>& frames() const { return frames_; }
-  const std::map<int, std::vector<UnrollTarget>>& targets() const { return targets_; }
-  size_t total_targets() const { return total_targets_; }
-  const PhysicsPlan& physics() const { return physics_; }
-  const TileOptions& tiling() const { return tiling_; }
+  const JobPlan& plan() const { return plan_; }
+  UnrollMode mode() const { return plan_.mode; }
+  const std::vector<int>& frames() const { return plan_.frames; }
+  const std::map<int, std::vector<UnrollTarget>>& targets() const { return plan_.targets; }
+  size_t total_targets() const { return plan_.total_targets; }
+  const PhysicsPlan& physics() const { return plan_.physics; }
+  const TileOptions& tiling() const { return plan_.tiling; }
   const UnrollJobCounters& counters() const { return counters_; }
 
   // Every frame, in order, into `sink`.
   void run(ResultSink& sink);
 
-  // Host time the caller spent for the job outside it (e.g. "setup", "read" of the sequence):
-  // it joins the report's per-stage breakdown.
-  void add_stage_ms(const std::string& stage, double ms) { stage_ms_[stage] += ms; }
+  // Host time the caller spent for the job outside it (setup, the sequence's read): it joins the
+  // report's per-stage breakdown.
+  void add_stage_ms(Stage stage, double ms) { stage_ms_[stage] += ms; }
 
   // What the job did, as summary.json says it: mode, runs, physics, encoding, tiling, events,
   // reads, notes, warnings, ms per GS frame by stage and device traffic (per GS frame). `total_ms`:
@@ -102,18 +123,12 @@ class UnrollJob {
   const UnrollOptions& options_;
   UnrollSession& session_;
   FrameSource& source_;
-  Clock::time_point start_ = Clock::now();
-  UnrollMode mode_ = UnrollMode::automatic;
-  std::vector<int> frames_;
-  std::map<int, std::vector<UnrollTarget>> targets_;
-  size_t total_targets_ = 0;
-  PhysicsPlan physics_;
-  GateChoice gate_;  // the variant's event gate radius and why
-  TileOptions tiling_;
+  Stopwatch since_start_;  // the job's wall time, planning included
   std::map<int, DecodedFrame> decoded_;  // frames decoded and still needed (the next frame's f1)
   std::set<int> ever_decoded_;
+  JobPlan plan_;
   std::map<std::string, int> notes_;
-  std::map<std::string, double> stage_ms_{{"read", 0}, {"write", 0}};
+  std::map<Stage, double> stage_ms_{{Stage::read, 0}, {Stage::write, 0}};
   UnrollJobCounters counters_;
   DeviceTraffic traffic_before_, traffic_;
   SessionStats stats_before_;

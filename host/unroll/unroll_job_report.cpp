@@ -86,9 +86,10 @@ std::string joined(const std::vector<std::string>& items) {
 // job's bookkeeping) add up to the frame time; GPU time, from timestamps, is split by the stage
 // its commands were recorded in and lies inside the wait.
 void UnrollJob::add_time_breakdown(nlohmann::json& r, const SessionStats& st, double total_ms) const {
-  const double n = static_cast<double>(std::max<size_t>(total_targets_, 1));
-  std::map<std::string, double> host = stage_ms_;
-  for (const auto& [name, v] : st.ms) host[name] += v;
+  const double n = static_cast<double>(std::max<size_t>(plan_.total_targets, 1));
+  std::map<std::string, double> host;
+  for (const auto& [stage, v] : stage_ms_) host[stage_name(stage)] += v;
+  for (const auto& [stage, v] : st.ms) host[stage_name(stage)] += v;
   double tracked = 0;
   for (const auto& [name, v] : host) tracked += v;
   host["other"] += std::max(0.0, total_ms - tracked);
@@ -96,7 +97,7 @@ void UnrollJob::add_time_breakdown(nlohmann::json& r, const SessionStats& st, do
   for (const auto& [name, v] : host) ms[name] = v / n;
   r["ms_per_gs_frame"] = ms;
   r["ms_per_gs_frame_total"] = std::max(total_ms, tracked) / n;
-  r["device_traffic_per_gs_frame"] = traffic_per_target(traffic_, total_targets_);
+  r["device_traffic_per_gs_frame"] = traffic_per_target(traffic_, plan_.total_targets);
   // GPU times exist only where the device wrote timestamps: --profile or --trace (they cost time).
   const bool timed = session_.context() && session_.context()->timestamps();
   r["gpu_timestamps"] = timed;
@@ -145,46 +146,46 @@ nlohmann::json UnrollJob::events_report(std::vector<std::string>& warnings) cons
                                   {totals.dropped_time_order, "out of time order"}, {totals.dropped_nan, "NaN time"},
                                   {totals.dropped_unknown_word, "unknown word"}, {totals.dropped_bad_polarity, "bad polarity"}})
       if (n) kinds.push_back(std::to_string(n) + " " + what);
-    warnings.push_back("--on-bad drop: " + std::to_string(totals.dropped()) + " of " + std::to_string(totals.records) +
+    warnings.push_back(opt("on_bad") + " drop: " + std::to_string(totals.dropped()) + " of " + std::to_string(totals.records) +
                        " event record(s) broke a rule and were dropped (" + joined(kinds) + ") in " + files);
   }
   if (totals.reordered)
-    warnings.push_back("--on-bad sort: " + std::to_string(totals.reordered) + " event record(s) were out of time order and were sorted");
+    warnings.push_back(opt("on_bad") + " sort: " + std::to_string(totals.reordered) + " event record(s) were out of time order and were sorted");
   if (totals.empty_files) warnings.push_back(std::to_string(totals.empty_files) + " event file(s) are empty (0 bytes): " + files);
   return j;
 }
 
 nlohmann::json UnrollJob::report(double total_ms) const {
   const SessionStats st = since(session_.stats(), stats_before_);
-  const size_t n = total_targets_;
+  const size_t n = plan_.total_targets;
   nlohmann::json r;
-  r["mode"] = unroll_mode_name(mode_);
-  r["frames"] = frames_.size();
+  r["mode"] = unroll_mode_name(plan_.mode);
+  r["frames"] = plan_.frames.size();
   r["targets"] = n;
   r["runs"] = {{"s", st.runs_s}, {"m", st.runs_m}, {"physics", st.runs_physics}, {"physics_on_cpu", st.physics_on_cpu},
                {"host_path", st.host_path_targets}};
-  if (physics_.uses_physics) {
-    r["physics"] = {{"contrast", physics_.params.contrast}, {"contrast_source", physics_.contrast_source},
-                    {"contrast_method", physics_.contrast_method},
-                    {"log_offset", physics_.params.log_offset},
-                    {"gamma", physics_.params.gamma}, {"role", physics_.variant ? "the model's physics input" : "the unroller"}};
-    if (!physics_.contrast_pairs.empty()) r["physics"]["contrast_pairs"] = physics_.contrast_pairs;
-    if (physics_.contrast_method == "event_count_fit") r["physics"]["contrast_pixels"] = physics_.contrast_pixels;
-    if (physics_.frame_noise >= 0) r["physics"]["frame_noise"] = physics_.frame_noise;
-    if (physics_.isolated_event_fraction >= 0) r["physics"]["isolated_event_fraction"] = physics_.isolated_event_fraction;
-    if (gate_.radius >= 0) r["physics"]["gate_radius"] = {{"radius", gate_.radius}, {"source", gate_.source}};
+  if (plan_.physics.uses_physics) {
+    r["physics"] = {{"contrast", plan_.physics.params.contrast}, {"contrast_source", plan_.physics.contrast_source},
+                    {"contrast_method", plan_.physics.contrast_method},
+                    {"log_offset", plan_.physics.params.log_offset},
+                    {"gamma", plan_.physics.params.gamma}, {"role", plan_.physics.variant ? "the model's physics input" : "the unroller"}};
+    if (!plan_.physics.contrast_pairs.empty()) r["physics"]["contrast_pairs"] = plan_.physics.contrast_pairs;
+    if (plan_.physics.contrast_method == "event_count_fit") r["physics"]["contrast_pixels"] = plan_.physics.contrast_pixels;
+    if (plan_.physics.frame_noise >= 0) r["physics"]["frame_noise"] = plan_.physics.frame_noise;
+    if (plan_.physics.isolated_event_fraction >= 0) r["physics"]["isolated_event_fraction"] = plan_.physics.isolated_event_fraction;
+    if (plan_.gate.radius >= 0) r["physics"]["gate_radius"] = {{"radius", plan_.gate.radius}, {"source", plan_.gate.source}};
   }
   if (session_.has_model()) {
     const auto& g = session_.model_config().gamma;
-    r["encoding"] = {{"sequence_gamma", physics_.seq_gamma}, {"model_gamma", g ? nlohmann::json(*g) : nlohmann::json()},
-                     {"to_model", physics_.to_model}};
-    r["tiling"] = tiling_json(options_, tiling_, st);
+    r["encoding"] = {{"sequence_gamma", plan_.physics.seq_gamma}, {"model_gamma", g ? nlohmann::json(*g) : nlohmann::json()},
+                     {"to_model", plan_.physics.to_model}};
+    r["tiling"] = tiling_json(options_, plan_.tiling, st);
   }
   const UnrollJobCounters& c = counters_;
   r["reads"] = {{"frame_decodes", c.frame_decodes}, {"distinct_frames_decoded", c.distinct_frames_decoded},
                 {"ground_truth_decodes", c.ground_truth_decodes},
                 {"image_uploads", st.image_uploads}, {"frames_unrolled", st.frames_unrolled}};
-  if (total_ms < 0) total_ms = ms_since(start_);
+  if (total_ms < 0) total_ms = since_start_.ms();
   add_time_breakdown(r, st, total_ms);
 
   std::map<std::string, int> notes = notes_;
@@ -209,7 +210,7 @@ nlohmann::json UnrollJob::report(double total_ms) const {
     warnings.push_back(std::to_string(c.frames_without_events.size()) + " of " + std::to_string(c.frames_read) +
                        " frame(s) have no event in their window (frames " + list + "): their GS frames are the RS input");
   }
-  if (!physics_.contrast_warning.empty()) warnings.push_back(physics_.contrast_warning);
+  if (!plan_.physics.contrast_warning.empty()) warnings.push_back(plan_.physics.contrast_warning);
   r["warnings"] = warnings;
   return r;
 }

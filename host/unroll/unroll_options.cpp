@@ -22,20 +22,30 @@ std::string number_text(double v) {
   return buf;
 }
 
-void check_time(const Rational& v, const std::string& what) {
+// `which`: the value's place in a list (" value 2"), empty for a single value.
+void check_time(const Rational& v, const std::string& field, const std::string& which = "") {
   const double d = v.to_double();
+  const std::string rule = "times must lie within +-2^53 us (285 years)";
   if (!(std::abs(d) <= kMaxTimeUs))
-    throw UsageError(what + " " + v.str() + " us is out of range: times must lie within +-2^53 us (285 years)");
+    throw OptionError(field, v.str(), rule, opt(field) + which + " " + v.str() + " us is out of range: " + rule);
 }
 
-void check_exists(const std::string& path, const std::string& what, bool folder) {
+// The path `field` names exists and is a folder (or a regular file): an OptionError of kind
+// input_missing (exit 66) or data (exit 65) otherwise.
+void check_exists(const std::string& path, const std::string& field, bool folder) {
+  const std::string what = opt(field) + " " + path;
+  auto fail = [&](const std::string& rule, ErrorKind kind) { throw OptionError(field, path, rule, what + ": " + rule, kind); };
   std::error_code ec;
   const auto st = fs::status(path, ec);
-  if (!fs::exists(st)) throw InputMissingError(what + " " + path + ": no such " + (folder ? "folder" : "file"));
-  if (folder && !fs::is_directory(st)) throw DataError(what + " " + path + ": is not a folder");
-  if (!folder && fs::is_directory(st)) throw DataError(what + " " + path + ": is a folder, expected a file");
+  if (!fs::exists(st)) fail(std::string("no such ") + (folder ? "folder" : "file"), ErrorKind::input_missing);
+  if (folder && !fs::is_directory(st)) fail("is not a folder", ErrorKind::data);
+  if (!folder && fs::is_directory(st)) fail("is a folder, expected a file", ErrorKind::data);
   if (const std::string kind = special_file_kind(path); !folder && !kind.empty())
-    throw DataError(what + " " + path + ": is " + kind + ", expected a regular file (reading it could block for ever)");
+    fail("is " + kind + ", expected a regular file (reading it could block for ever)", ErrorKind::data);
+}
+
+[[noreturn]] void refuse(const std::string& field, const std::string& value, const std::string& rule) {
+  throw OptionError(field, value, rule);
 }
 
 }  // namespace
@@ -46,7 +56,8 @@ UnrollMode parse_unroll_mode(const std::string& s, const std::string& what) {
   if (s == "m") return UnrollMode::m;
   if (s == "physics") return UnrollMode::physics;
   if (s == "choose") return UnrollMode::choose;
-  throw UsageError(what + " '" + s + "' (expected s, m, choose, physics or auto)");
+  throw OptionError(what, "'" + s + "'", "expected s, m, choose, physics or auto",
+                    opt(what) + " '" + s + "' (expected s, m, choose, physics or auto)");
 }
 
 const char* unroll_mode_name(UnrollMode m) {
@@ -60,19 +71,12 @@ const char* unroll_mode_name(UnrollMode m) {
   return "?";
 }
 
-BackendKind parse_backend_kind(const std::string& s, const std::string& what) {
-  if (s == "vulkan") return BackendKind::vulkan;
-  if (s == "cpu") return BackendKind::cpu;
-  throw UsageError(what + " '" + s + "' (expected vulkan or cpu)");
-}
-
-const char* backend_kind_name(BackendKind b) { return b == BackendKind::cpu ? "cpu" : "vulkan"; }
-
 ChannelOrder parse_channel_order(const std::string& s, const std::string& what) {
   if (s == "rgb") return ChannelOrder::rgb;
   if (s == "bgr") return ChannelOrder::bgr;
   if (s == "model") return ChannelOrder::model;
-  throw UsageError(what + " '" + s + "' (expected rgb, bgr or model: the weights' metadata)");
+  throw OptionError(what, "'" + s + "'", "expected rgb, bgr or model: the weights' metadata",
+                    opt(what) + " '" + s + "' (expected rgb, bgr or model: the weights' metadata)");
 }
 
 GateRadiusOption parse_gate_radius(const std::string& s, const std::string& what) {
@@ -86,7 +90,7 @@ GateRadiusOption parse_gate_radius(const std::string& s, const std::string& what
     used = 0;
   }
   if (used != s.size() || s.empty() || r < 0 || r > kMaxGateRadius)
-    throw UsageError(what + " '" + s + "': expected auto, model or an integer radius 0.." + std::to_string(kMaxGateRadius));
+    throw OptionError(what, "'" + s + "'", "expected auto, model or an integer radius 0.." + std::to_string(kMaxGateRadius));
   return {GateRadiusOption::Kind::fixed, r};
 }
 
@@ -100,73 +104,75 @@ std::string gate_radius_text(const GateRadiusOption& g) {
 }
 
 TargetTimes parse_target_times(const std::string& times, const std::string& times_us) {
-  if (!times_us.empty()) return {TargetTimes::Kind::absolute_us, parse_value_list(times_us, "--times-us")};
+  if (!times_us.empty()) return {TargetTimes::Kind::absolute_us, parse_value_list(times_us, "times_us")};
   if (times == "gt") return {TargetTimes::Kind::ground_truth, {}};
-  return {TargetTimes::Kind::normalized, parse_value_list(times, "--times")};
+  return {TargetTimes::Kind::normalized, parse_value_list(times, "times")};
 }
 
 void validate_sequence_options(const SequenceOptions& o) {
   if (o.line_delay_us) {
-    check_time(*o.line_delay_us, "--line-delay-us");
+    check_time(*o.line_delay_us, "line_delay_us");
     if (*o.line_delay_us < Rational(0) || *o.line_delay_us > Rational(1000000))
-      throw UsageError("--line-delay-us " + o.line_delay_us->str() + ": expected 0 to 1e6 us (a row-to-row delay; sensors use 1 to 100 us)");
+      refuse("line_delay_us", o.line_delay_us->str(), "expected 0 to 1e6 us (a row-to-row delay; sensors use 1 to 100 us)");
   }
   if (o.exposure_us) {
-    check_time(*o.exposure_us, "--exposure-us");
-    if (*o.exposure_us <= Rational(0)) throw UsageError("--exposure-us " + o.exposure_us->str() + ": expected > 0 us");
+    check_time(*o.exposure_us, "exposure_us");
+    if (*o.exposure_us <= Rational(0)) refuse("exposure_us", o.exposure_us->str(), "expected > 0 us");
   }
   if (o.frame_period_us) {
-    check_time(*o.frame_period_us, "--frame-period-us");
-    if (*o.frame_period_us <= Rational(0)) throw UsageError("--frame-period-us " + o.frame_period_us->str() + ": expected > 0 us");
+    check_time(*o.frame_period_us, "frame_period_us");
+    if (*o.frame_period_us <= Rational(0)) refuse("frame_period_us", o.frame_period_us->str(), "expected > 0 us");
   }
   if (o.t0s_us) {
-    if (o.t0s_us->empty()) throw UsageError("--t0s-us: no value given");
-    for (size_t i = 0; i < o.t0s_us->size(); ++i) check_time((*o.t0s_us)[i], "--t0s-us value " + std::to_string(i + 1));
+    if (o.t0s_us->empty()) refuse("t0s_us", "", "no value given");
+    for (size_t i = 0; i < o.t0s_us->size(); ++i) check_time((*o.t0s_us)[i], "t0s_us", " value " + std::to_string(i + 1));
   }
-  if (o.events_file) check_exists(*o.events_file, "--events", false);
+  if (o.events_file) check_exists(*o.events_file, "events", false);
 }
 
 void validate_unroll_options(const UnrollOptions& o) {
-  if (o.sequence.empty()) throw UsageError("no SEQUENCE folder given");
-  if (o.out_dir.empty()) throw UsageError("--out DIR is required");
+  if (o.sequence.empty()) throw OptionError("sequence", "", "a folder", "no " + opt("sequence") + " folder given");
+  if (o.out_dir.empty()) throw OptionError("out", "", "a folder", opt("out") + " DIR is required");
   const bool needs_model = o.mode == UnrollMode::s || o.mode == UnrollMode::m || o.mode == UnrollMode::choose;
   if (needs_model && o.session.model_path.empty())
-    throw UsageError(std::string("--mode ") + unroll_mode_name(o.mode) + " needs --model FILE.safetensors");
-  if (o.session.precision == Precision::fp16 && o.session.backend == BackendKind::cpu)
-    throw UsageError("--precision fp16 needs --backend vulkan (the CPU backend computes the fp32 reference)");
+    throw OptionError("mode", unroll_mode_name(o.mode), "needs a model",
+                      std::string(opt("mode") + " ") + unroll_mode_name(o.mode) + " needs " + opt("model") + " FILE.safetensors");
+  if (o.session.precision == Precision::fp16 && o.session.backend == BackendKind::cpu) throw fp16_needs_vulkan();
   if (o.tile < 0 || o.tile % kTileAlign)
-    throw UsageError("--tile " + std::to_string(o.tile) + ": expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
+    refuse("tile", std::to_string(o.tile), "expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
   if (o.halo < -1 || (o.halo >= 0 && o.halo % kTileAlign))
-    throw UsageError("--halo " + std::to_string(o.halo) + ": expected -1 (automatic) or a non-negative multiple of " + std::to_string(kTileAlign));
+    refuse("halo", std::to_string(o.halo), "expected -1 (automatic) or a non-negative multiple of " + std::to_string(kTileAlign));
   if (!(o.sparse_threshold >= 0) || std::isinf(o.sparse_threshold))
-    throw UsageError("--sparse-threshold " + number_text(o.sparse_threshold) + ": expected a finite value >= 0 events per pixel");
+    refuse("sparse_threshold", number_text(o.sparse_threshold), "expected a finite value >= 0 events per pixel");
   // Ranges a real sensor can have: event thresholds are 0.05 to 1 in log intensity, decode gammas 1 to 2.6.
   if (o.contrast && !(*o.contrast > 0 && *o.contrast <= 5))
-    throw UsageError("--contrast " + number_text(*o.contrast) + ": expected a log-intensity threshold in (0, 5]");
+    refuse("contrast", number_text(*o.contrast), "expected a log-intensity threshold in (0, 5]");
   if (o.gamma && !(*o.gamma >= 0.1 && *o.gamma <= 10))
-    throw UsageError("--gamma " + number_text(*o.gamma) + ": expected a decode gamma in [0.1, 10] (2.2 for sRGB-like frames, 1 for linear)");
+    refuse("gamma", number_text(*o.gamma), "expected a decode gamma in [0.1, 10] (2.2 for sRGB-like frames, 1 for linear)");
   if (o.output.video_fps && !(*o.output.video_fps > 0 && *o.output.video_fps <= 1000))
-    throw UsageError("--fps " + number_text(*o.output.video_fps) + ": expected a frame rate in (0, 1000]");
-  if (o.times.kind != TargetTimes::Kind::ground_truth && o.times.values.empty())
-    throw UsageError(o.times.kind == TargetTimes::Kind::absolute_us ? "--times-us: no target given" : "--times: no target given");
+    refuse("fps", number_text(*o.output.video_fps), "expected a frame rate in (0, 1000]");
+  const char* times_field = o.times.kind == TargetTimes::Kind::absolute_us ? "times_us" : "times";
+  if (o.times.kind != TargetTimes::Kind::ground_truth && o.times.values.empty()) refuse(times_field, "", "no target given");
   for (const Rational& v : o.times.values) {
-    if (o.times.kind == TargetTimes::Kind::absolute_us) check_time(v, "--times-us");
+    if (o.times.kind == TargetTimes::Kind::absolute_us) check_time(v, "times_us");
     else if (!(std::abs(v.to_double()) <= kMaxTau))
-      throw UsageError("--times " + v.str() + ": a normalized target must lie within +-1e6 frame spans");
+      refuse("times", v.str(), "a normalized target must lie within +-1e6 frame spans");
   }
   for (int k : o.frames)
-    if (k < 0) throw UsageError("--frames: frame index " + std::to_string(k) + " is negative");
+    if (k < 0) refuse("frames", "", "frame index " + std::to_string(k) + " is negative");
   validate_sequence_options(o.sequence_options);
   if (o.follow.enabled) {
-    if (o.output.existing == ExistingOutput::resume) throw UsageError("--follow writes a fresh output; --resume does not apply to it");
-    if (o.sequence_options.events_file) throw UsageError("--follow reads its events from --follow-events (default stdin), not --events");
+    if (o.output.existing == ExistingOutput::resume)
+      throw OptionError("follow", "", "a fresh output", opt("follow") + " writes a fresh output; " + opt("resume") + " does not apply to it");
+    if (o.sequence_options.events_file)
+      throw OptionError("events", "", "not with follow", opt("follow") + " reads its events from " + opt("follow_events") + " (default stdin), not " + opt("events"));
     if (!(o.follow.idle_s >= 0) || std::isinf(o.follow.idle_s))
-      throw UsageError("--follow-idle-s " + number_text(o.follow.idle_s) + ": expected seconds >= 0 (0: wait for ever)");
-    if (o.follow.max_events < 1024) throw UsageError("--follow-max-events " + std::to_string(o.follow.max_events) + ": expected at least 1024");
+      refuse("follow_idle_s", number_text(o.follow.idle_s), "expected seconds >= 0 (0: wait for ever)");
+    if (o.follow.max_events < 1024) refuse("follow_max_events", std::to_string(o.follow.max_events), "expected at least 1024");
   }
 }
 
-void check_output_apart(const std::string& out, const std::string& out_option,
+void check_output_apart(const std::string& out, const std::string& out_field,
                         const std::vector<std::pair<std::string, std::string>>& inputs) {
   namespace fs = std::filesystem;
   std::error_code ec;
@@ -182,21 +188,33 @@ void check_output_apart(const std::string& out, const std::string& out_option,
     if (path.empty()) continue;
     const fs::path in = fs::weakly_canonical(fs::absolute(path), ec);
     if (ec) continue;
+    const std::string option = opt(out_field);
     if (within(in, o))
-      throw UsageError(out_option + " " + out + ": " + (in == o ? "is" : "holds") + " the input " + what + " " + path +
-                       "; the output would replace what the run reads: choose another " + out_option);
+      throw OptionError(out_field, out, "apart from the inputs",
+                        option + " " + out + ": " + (in == o ? "is" : "holds") + " the input " + what + " " + path +
+                            "; the output would replace what the run reads: choose another " + option);
     if (within(o, in))
-      throw UsageError(out_option + " " + out + ": lies inside the input " + what + " " + path +
-                       "; write the output outside the inputs: choose another " + out_option);
+      throw OptionError(out_field, out, "apart from the inputs",
+                        option + " " + out + ": lies inside the input " + what + " " + path +
+                            "; write the output outside the inputs: choose another " + option);
   }
 }
 
 void check_unroll_inputs(const UnrollOptions& o) {
-  check_exists(o.sequence, "SEQUENCE", true);
-  if (!o.session.model_path.empty() && o.mode != UnrollMode::physics) check_exists(o.session.model_path, "--model", false);
-  check_output_apart(o.out_dir, "--out", {{"SEQUENCE", o.sequence},
-                                          {"--events file", o.sequence_options.events_file.value_or("")},
-                                          {"--model file", o.mode == UnrollMode::physics ? "" : o.session.model_path}});
+  check_exists(o.sequence, "sequence", true);
+  if (!o.session.model_path.empty() && o.mode != UnrollMode::physics) check_exists(o.session.model_path, "model", false);
+  check_output_apart(o.out_dir, "out", {{opt("sequence"), o.sequence},
+                                        {opt("events") + " file", o.sequence_options.events_file.value_or("")},
+                                        {opt("model") + " file", o.mode == UnrollMode::physics ? "" : o.session.model_path}});
+}
+
+void spell_options(nlohmann::json& j, const FieldSpelling& spell) {
+  if (j.is_string()) {
+    const std::string& s = j.get_ref<const std::string&>();
+    if (s.find('\x1f') != std::string::npos) j = spell_fields(s, spell ? spell : [](std::string_view f) { return std::string(f); });
+  } else if (j.is_structured()) {
+    for (auto& item : j) spell_options(item, spell);
+  }
 }
 
 nlohmann::json unroll_options_json(const UnrollOptions& o) {

@@ -1,6 +1,8 @@
 // What `vkunroll unroll` (and the library's UnrollSession) is asked to do, as typed values. The CLI
 // and the Python bindings only parse their inputs into these; validate_unroll_options() checks the
-// combinations before any work starts, naming the option.
+// combinations before any work starts. Errors are OptionErrors (base/error.hpp) naming the
+// option by its field here (times_us, precision, ...), which the CLI spells as its flag and Python
+// as its keyword; `what` / `field` arguments below are such field names.
 #pragma once
 #include <cstdint>
 #include <functional>
@@ -11,10 +13,12 @@
 
 #include <nlohmann/json.hpp>
 
+#include "vkunroll/base/error.hpp"
 #include "vkunroll/base/precision.hpp"
 #include "vkunroll/base/row_timing.hpp"
 #include "vkunroll/host/events/sequence.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
+#include "vkunroll/host/model/make_backend.hpp"
 #include "vkunroll/host/model/tiling.hpp"
 #include "vkunroll/host/unroll/unroll_output.hpp"
 
@@ -26,10 +30,6 @@ namespace vkunroll {
 enum class UnrollMode { automatic, s, m, physics, choose };
 UnrollMode parse_unroll_mode(const std::string& s, const std::string& what);  // "auto" | "s" | ...
 const char* unroll_mode_name(UnrollMode m);                                   // "auto", "s", ...
-
-enum class BackendKind { vulkan, cpu };
-BackendKind parse_backend_kind(const std::string& s, const std::string& what);
-const char* backend_kind_name(BackendKind b);
 
 // The image channel order of the model's input; `model`: the weights' metadata says.
 enum class ChannelOrder { model, rgb, bgr };
@@ -44,7 +44,7 @@ struct GateRadiusOption {
   int radius = 0;
 };
 constexpr int kMaxGateRadius = 15;  // as the metadata (docs/model.md)
-// "auto" | "model" | an integer 0..kMaxGateRadius; UsageError names `what`.
+// "auto" | "model" | an integer 0..kMaxGateRadius; the OptionError names field `what`.
 GateRadiusOption parse_gate_radius(const std::string& s, const std::string& what);
 std::string gate_radius_text(const GateRadiusOption& g);  // "auto", "model" or the number
 
@@ -59,8 +59,8 @@ struct TargetTimes {
   std::vector<Rational> values{Rational(1, 2)};
 };
 
-// From the CLI's texts: `times_us` a value list (absolute; empty: not given), else `times` a value
-// list of normalized instants or "gt". Errors name the option.
+// From the front end's texts: `times_us` a value list (absolute; empty: not given), else `times` a
+// value list of normalized instants or "gt". Errors name the field (times_us or times).
 TargetTimes parse_target_times(const std::string& times, const std::string& times_us = {});
 
 // What the session holds: where it runs and which model.
@@ -69,7 +69,7 @@ struct SessionOptions {
   std::string device;             // index, name substring; empty: VKUNROLL_DEVICE, then policy
   Precision precision = Precision::fp32;
   std::string model_path;         // safetensors; empty: physics only
-  bool announce = true;           // say the chosen device on stderr
+  bool announce = true;           // log the chosen device (info)
   unsigned cpu_threads = 0;       // CPU backend threads (0: the machine's, at most 8)
   // Vulkan: the conv algorithm per shape (host/model/conv_choice.hpp): the device's measured table
   // in the cache directory; auto times a missing shape on first use on a GPU only.
@@ -110,10 +110,13 @@ struct UnrollOptions {
   std::optional<double> contrast;  // physics: c; empty: estimated (see estimate_contrast)
   std::optional<double> gamma;     // physics: decode gamma of the frames; empty: meta.json's source gamma or 1
   GateRadiusOption gate_radius;    // the variant's event gate: chosen from the recording's noise unless given
-  bool quiet = false;             // nothing on stderr but warnings and errors
-  UnrollOutputOptions output;     // frame format, video, what to do with an existing folder (--overwrite, --resume)
+  bool quiet = false;             // log nothing but warnings and errors, show no progress
+  UnrollOutputOptions output;     // frame format, video, what to do with an existing folder (overwrite, resume)
   // Provenance: the command line that asked for this run (summary.json; empty for library calls).
   std::vector<std::string> command_line;
+  // How the front end names options (base/error.hpp opt()) in the texts run_unroll writes into
+  // summary.json (the CLI: its flags); empty: by their fields.
+  FieldSpelling option_spelling;
   // Tiled / sparse model execution (host/model/tiling.hpp, docs/tiling.md). Defaults from the
   // speed-against-error report: sparse exact on 32-pixel tiles with a 32-pixel halo never lost PSNR
   // there and ran 1.8-2x faster on a static scene.
@@ -125,26 +128,28 @@ struct UnrollOptions {
   FollowOptions follow;
 };
 
-// Throws UsageError naming the option when a value or a combination is refused, and
-// InputMissingError naming the path when the sequence, the model or the event file does not
-// exist (before any work).
+// Throws OptionError naming the option when a value or a combination is refused (and, of kind
+// input_missing, the events file that does not exist), before any work.
 void validate_unroll_options(const UnrollOptions& o);
-// The SEQUENCE folder and the --model file exist (InputMissingError naming them); run_unroll calls
-// it after validate_unroll_options, the Python bindings (arrays in memory) do not.
+// The sequence folder and the model file exist (OptionError of kind input_missing naming them);
+// run_unroll calls it after validate_unroll_options, the Python bindings (arrays in memory) do not.
 void check_unroll_inputs(const UnrollOptions& o);
 
-// Refuses (UsageError) an output that is one of the inputs, holds one, or lies inside an input
-// folder: a run never writes over, or replaces, what it reads. `inputs`: (what, path) pairs, e.g.
-// ("SEQUENCE", dir); paths are compared after resolving links and '..'.
-void check_output_apart(const std::string& out, const std::string& out_option,
+// Refuses (OptionError of `out_field`) an output that is one of the inputs, holds one, or lies
+// inside an input folder: a run never writes over, or replaces, what it reads. `inputs`: (what, path)
+// pairs, e.g. ("{sequence}", dir), what naming options as {field}; paths are compared after
+// resolving links and '..'.
+void check_output_apart(const std::string& out, const std::string& out_field,
                         const std::vector<std::pair<std::string, std::string>>& inputs);
 
 // The timing overrides of a sequence (shared by unroll and voxelize): finite, within kMaxTimeUs,
-// line delay >= 0, exposure and frame period > 0. UsageError names the option (`--line-delay-us`, ...).
+// line delay >= 0, exposure and frame period > 0. The OptionError names the field (line_delay_us, ...).
 void validate_sequence_options(const SequenceOptions& o);
 
 // Every option as resolved, for summary.json's provenance.
 nlohmann::json unroll_options_json(const UnrollOptions& o);
+// Every string in `j` (at any depth) with its options (opt()) spelled by `spell` (empty: by their fields).
+void spell_options(nlohmann::json& j, const FieldSpelling& spell);
 
 // A physics contrast estimate (estimate_contrast in unroll_plan.hpp) and what to say of it.
 struct ContrastEstimate {

@@ -83,7 +83,7 @@ double read_meta_gamma(const Sequence& seq) {
     const nlohmann::json& g = j.at(at);
     if (!g.is_number() || !(g.get<double>() >= 0.1 && g.get<double>() <= 10))
       throw DataError(meta.string() + ": " + name + " is " + g.dump() +
-                      ": expected a number in [0.1, 10] (the frames' encoding gamma; --gamma overrides it)");
+                      ": expected a number in [0.1, 10] (the frames' encoding gamma; " + opt("gamma") + " overrides it)");
     return g.get<double>();
   }
   return 1.0;
@@ -101,7 +101,7 @@ std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requ
     for (int k : frames) seq.frame(k);  // throws naming the index and the count
   } catch (const Error& e) {
     if (e.kind() != ErrorKind::unspecified) throw;
-    throw UsageError(std::string("--frames: ") + e.what());
+    throw OptionError("frames", "", e.text(), opt("frames") + ": " + e.text());
   }
   return frames;
 }
@@ -116,7 +116,7 @@ std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const
   };
   switch (times.kind) {
     case TargetTimes::Kind::ground_truth:
-      if (seq.ground_truth.empty()) throw UsageError("--times gt: " + where + " has no ground-truth frames");
+      if (seq.ground_truth.empty()) throw OptionError("times", "gt", where + " has no ground-truth frames");
       for (size_t g = 0; g < seq.ground_truth.size(); ++g) {
         const auto& gt = seq.ground_truth[g];
         const int k = frame_for_time(seq, frames, gt.t_us.to_double());
@@ -147,8 +147,9 @@ std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const
   for (const auto& [k, ts] : targets)
     for (const auto& t : ts)
       if (t.t_us.to_double() < rec_lo - margin || t.t_us.to_double() > rec_hi + margin)
-        throw UsageError(std::string(times.kind == TargetTimes::Kind::absolute_us ? "--times-us" : "--times") +
-                         ": target t* = " + us_text(t.t_us.to_double()) + " us is outside the recording [" + us_text(rec_lo) +
+        throw OptionError(times.kind == TargetTimes::Kind::absolute_us ? "times_us" : "times", us_text(t.t_us.to_double()),
+                          "within a frame period of the recording",
+                          opt(times.kind == TargetTimes::Kind::absolute_us ? "times_us" : "times") + ": target t* = " + us_text(t.t_us.to_double()) + " us is outside the recording [" + us_text(rec_lo) +
                          ", " + us_text(rec_hi) + "] us by more than a frame period");
   return targets;
 }
@@ -225,11 +226,11 @@ PhysicsPlan plan_physics(UnrollMode mode, const UnrollSession& session, double s
 GateChoice choose_gate_radius(const GateRadiusOption& o, int model_radius, const PhysicsPlan& physics) {
   if (model_radius < 0) {
     if (o.kind == GateRadiusOption::Kind::fixed)
-      throw UsageError("--gate-radius " + std::to_string(o.radius) +
-                       ": this run has no model with an event gate (metadata physics_gate: the physics-informed variant)");
+      throw OptionError("gate_radius", std::to_string(o.radius),
+                        "this run has no model with an event gate (metadata physics_gate: the physics-informed variant)");
     return {-1, "the model has no event gate"};
   }
-  if (o.kind == GateRadiusOption::Kind::fixed) return {o.radius, "--gate-radius"};
+  if (o.kind == GateRadiusOption::Kind::fixed) return {o.radius, opt("gate_radius")};
   const std::string own = "the model's metadata (physics_gate " + std::to_string(model_radius) + ")";
   if (o.kind == GateRadiusOption::Kind::model) return {model_radius, own};
   if (physics.frame_noise < 0 || physics.isolated_event_fraction < 0)

@@ -19,30 +19,44 @@ std::vector<std::string> split(const std::string& s, char sep) {
   return out;
 }
 
+// `field`'s number: Rational::parse's rule, as the field's OptionError.
+Rational parse_number(const std::string& item, const std::string& field) {
+  try {
+    return Rational::parse(item, opt(field));
+  } catch (const OptionError&) {
+    throw;
+  } catch (const Error& e) {
+    throw OptionError(field, "'" + item + "'", "a number", e.text());
+  }
+}
+
 std::vector<Rational> parse_items(const std::string& text, const std::string& what, bool frames) {
-  if (text.empty()) throw Error(what + ": empty list");
+  const std::string option = opt(what);
+  auto fail = [&](const std::string& value, const std::string& text_after) {
+    throw OptionError(what, value, text_after, option + ": " + text_after);
+  };
+  if (text.empty()) fail("", "empty list");
   std::vector<Rational> out;
   for (const auto& item : split(text, ',')) {
-    if (item.empty()) throw Error(what + ": empty item in '" + text + "'");
+    if (item.empty()) fail(text, "empty item in '" + text + "'");
     const auto parts = split(item, ':');
     if (parts.size() == 1) {
-      out.push_back(Rational::parse(item, what));
+      out.push_back(parse_number(item, what));
     } else if (parts.size() == 2 && frames) {
-      const Rational a = Rational::parse(parts[0], what), b = Rational::parse(parts[1], what);
-      if (a.den() != 1 || b.den() != 1 || b < a)
-        throw Error(what + ": '" + item + "' must be a:b with integers a <= b");
-      if (b - a > Rational(1000000)) throw Error(what + ": '" + item + "' spans more than 1000000 frames");
+      const Rational a = parse_number(parts[0], what), b = parse_number(parts[1], what);
+      if (a.den() != 1 || b.den() != 1 || b < a) fail(item, "'" + item + "' must be a:b with integers a <= b");
+      if (b - a > Rational(1000000)) fail(item, "'" + item + "' spans more than 1000000 frames");
       for (int64_t v = a.floor(); v <= b.floor(); ++v) out.push_back(Rational(v));
     } else if (parts.size() == 3) {
-      const Rational a = Rational::parse(parts[0], what), b = Rational::parse(parts[1], what);
-      const Rational n = Rational::parse(parts[2], what);
+      const Rational a = parse_number(parts[0], what), b = parse_number(parts[1], what);
+      const Rational n = parse_number(parts[2], what);
       if (n.den() != 1 || n < Rational(1) || n > Rational(1000000))
-        throw Error(what + ": '" + item + "': the count (third number) must be an integer in [1, 1000000]");
+        fail(item, "'" + item + "': the count (third number) must be an integer in [1, 1000000]");
       const int64_t count = n.floor();
       for (int64_t i = 0; i < count; ++i)
         out.push_back(count == 1 ? a : a + (b - a) * Rational(i) / Rational(count - 1));
     } else {
-      throw Error(what + ": '" + item + "' is not a value or start:stop:count" + (frames ? " or a:b" : ""));
+      fail(item, "'" + item + "' is not a value or start:stop:count" + (frames ? " or a:b" : ""));
     }
   }
   // A value twice would compute (and write) the same result twice: refused, naming it.
@@ -50,8 +64,8 @@ std::vector<Rational> parse_items(const std::string& text, const std::string& wh
   std::sort(sorted.begin(), sorted.end(), [](const Rational& x, const Rational& y) { return x < y; });
   for (size_t i = 1; i < sorted.size(); ++i)
     if (!(sorted[i - 1] < sorted[i]))
-      throw Error(what + ": " + (frames ? "frame " : "value ") + sorted[i].str() + " is listed twice in '" +
-                  text.substr(0, 64) + (text.size() > 64 ? "...'" : "'") + " (each once)");
+      fail(sorted[i].str(), std::string(frames ? "frame " : "value ") + sorted[i].str() + " is listed twice in '" +
+                                text.substr(0, 64) + (text.size() > 64 ? "...'" : "'") + " (each once)");
   return out;
 }
 
@@ -65,7 +79,7 @@ std::vector<int> parse_frame_list(const std::string& text, const std::string& wh
   std::vector<int> out;
   for (const auto& v : parse_items(text, what, true)) {
     if (v.den() != 1 || v < Rational(0) || v > Rational(1 << 30))
-      throw Error(what + ": frame " + v.str() + " is not a non-negative integer");
+      throw OptionError(what, v.str(), "a non-negative integer", opt(what) + ": frame " + v.str() + " is not a non-negative integer");
     out.push_back(static_cast<int>(v.floor()));
   }
   return out;

@@ -11,6 +11,7 @@
 
 namespace vkunroll {
 
+// Errors are OptionErrors of the field `what` (e.g. "times_us").
 std::vector<Rational> parse_value_list(const std::string& text, const std::string& what);
 std::vector<int> parse_frame_list(const std::string& text, const std::string& what);
 

@@ -1,8 +1,7 @@
 // Model: SelfUnroll-S/-M weights on a VulkanBackend (a shared context) or the CpuBackend, run on raw
 // tensors exactly as `vkunroll infer` runs them (Model::run).
 #include "common.hpp"
-#include "vkunroll/host/model/backend_cpu.hpp"
-#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/make_backend.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/host/unroll/unroll_options.hpp"
@@ -77,12 +76,12 @@ void bind_model(py::module_& m) {
                        const std::string& precision_str, int gate_radius) {
              auto pm = std::make_shared<PyModel>();
              pm->path = path;
+             BackendKind kind = BackendKind::vulkan;
              const Precision precision = guarded({{path}}, [&] {
-               if (backend != "vulkan" && backend != "cpu") throw Error("backend '" + backend + "': expected vulkan or cpu");
-               if (backend == "vulkan" && !ctx) throw Error("Model.load: the vulkan backend needs a context");
+               kind = parse_backend_kind(backend, "backend");
+               if (kind == BackendKind::vulkan && !ctx) throw Error("Model.load: the vulkan backend needs a context");
                const Precision p = parse_precision(precision_str, "precision");
-               if (p == Precision::fp16 && backend == "cpu")
-                 throw Error("precision fp16 needs backend 'vulkan' (the CPU backend computes the fp32 reference)");
+               if (p == Precision::fp16 && kind == BackendKind::cpu) throw fp16_needs_vulkan();
                if (gate_radius < -1 || gate_radius > kMaxGateRadius)
                  throw UsageError("gate_radius " + std::to_string(gate_radius) + ": expected None or 0.." +
                                   std::to_string(kMaxGateRadius));
@@ -95,15 +94,12 @@ void bind_model(py::module_& m) {
                    throw UsageError(path + ": gate_radius " + std::to_string(gate_radius) + " given, but this model has no event gate");
                  pm->weights->config.physics_gate = gate_radius;
                }
-               if (backend == "vulkan") {
-                 pm->ctx = ctx;
-                 std::lock_guard<std::mutex> lock(ctx->mutex);
-                 pm->backend = std::make_unique<VulkanBackend>(*ctx->ctx, nullptr, kPoolFlushBytes, precision);
-                 pm->model = std::make_unique<Model>(*pm->backend, *pm->weights);
-               } else {
-                 pm->backend = std::make_unique<CpuBackend>(threads);
-                 pm->model = std::make_unique<Model>(*pm->backend, *pm->weights);
-               }
+               std::unique_lock<std::mutex> lock;  // the shared device: one user at a time
+               if (kind == BackendKind::vulkan) pm->ctx = ctx, lock = std::unique_lock<std::mutex>(ctx->mutex);
+               pm->backend = make_backend({.kind = kind, .precision = precision, .cpu_threads = threads},
+                                          kind == BackendKind::vulkan ? ctx->ctx.get() : nullptr)
+                                 .backend;
+               pm->model = std::make_unique<Model>(*pm->backend, *pm->weights);
              });
              return pm;
            }),

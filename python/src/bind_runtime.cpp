@@ -1,7 +1,7 @@
 // devices() and Context: the Vulkan devices the loader sees, and one opened device shared by the
 // Python objects that run on it (Model, event tensors, physics).
 #include "common.hpp"
-#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/make_backend.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/runtime/context.hpp"
 
@@ -19,8 +19,8 @@ EventTensorBuilder& SharedContext::builder() {
   return *builder_;
 }
 
-VulkanBackend& SharedContext::backend() {
-  if (!backend_) backend_ = std::make_unique<VulkanBackend>(*ctx);
+Backend& SharedContext::backend() {
+  if (!backend_) backend_ = make_backend({}, ctx.get()).backend;
   return *backend_;
 }
 

@@ -1,6 +1,6 @@
 // Event tensors (GPU builder or the exact CPU reference), the physics unroller, image metrics.
 #include "common.hpp"
-#include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
@@ -17,7 +17,7 @@ std::vector<float> physics_planes(SharedContext* ctx, const std::vector<float>& 
   on_cpu = ctx == nullptr || !PhysicsUnroll::fits(lists);
   if (on_cpu) return physics_unroll_ref(rs, channels, lists, prm);
   std::lock_guard<std::mutex> lock(ctx->mutex);
-  VulkanBackend& b = ctx->backend();
+  Backend& b = ctx->backend();
   const Shape shape{1, channels, lists.height, lists.width};
   const Buffer in = b.alloc(shape, "physics rs"), out = b.alloc(shape, "physics out");
   b.upload(in.whole(), rs);

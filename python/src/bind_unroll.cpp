@@ -27,7 +27,9 @@ py::dict stats_dict(const UnrollSession& s) {
   d["tiles_per_target"] = st.tiles_per_target;
   d["work_pixels"] = st.work_pixels;
   d["target_active_fraction"] = st.target_active_fraction;
-  d["ms"] = st.ms;
+  py::dict ms;
+  for (const auto& [stage, v] : st.ms) ms[stage_name(stage)] = v;
+  d["ms"] = ms;
   const DeviceTraffic t = s.traffic();
   d["upload_bytes"] = t.upload_bytes;
   d["download_bytes"] = t.download_bytes;
@@ -133,7 +135,7 @@ void bind_unroll(py::module_& m) {
   m.def("_choose_model", [](const std::string& mode, const std::string& given) {
     return without_gil({}, [&] {
       const ModelChoice c = choose_model(parse_unroll_mode(mode, "mode"), given);
-      return std::make_pair(c.path, c.source);
+      return std::make_pair(c.path, spell_fields(c.source, python_keyword));
     });
   }, py::arg("mode"), py::arg("given"));
 

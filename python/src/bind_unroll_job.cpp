@@ -97,7 +97,9 @@ py::tuple run_job(PySession& ps, FrameSource& source, const py::dict& args, cons
     UnrollJob job(o, *ps.session, source);
     ps.to_model = job.physics().to_model;
     job.run(sink);
-    return job.report().dump();
+    nlohmann::json r = job.report();
+    spell_options(r, python_keyword);
+    return r.dump();
   });
   py::list images, targets;
   for (const cv::Mat& im : sink.images) images.append(bgr_mat_to_rgb(im));
@@ -162,7 +164,7 @@ std::string run_stream(PySession& ps, const Sequence& seq, const py::dict& args,
     try {
       job.emplace(o, *ps.session, source);
     } catch (const StreamStopped& e) {
-      throw DataError(std::string("stream: the stream stopped before the job was planned: ") + e.what());
+      throw DataError("stream: the stream stopped before the job was planned: " + e.text());
     }
     ps.to_model = job->physics().to_model;
     FollowSink sink(inner, source, *job);
@@ -170,13 +172,14 @@ std::string run_stream(PySession& ps, const Sequence& seq, const py::dict& args,
     try {
       job->run(sink);
     } catch (const StreamStopped& e) {
-      stopped = e.what();
+      stopped = e.text();
     }
     nlohmann::json report = job->report();
     report["follow"] = source.report();
     report["follow"].update(sink.report());
     report["follow"]["status"] = stopped.empty() ? "complete" : "stopped";
     report["follow"]["stopped_because"] = stopped.empty() ? nlohmann::json() : nlohmann::json(stopped);
+    spell_options(report, python_keyword);
     return report.dump();
   });
 }

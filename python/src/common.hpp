@@ -8,6 +8,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -22,7 +23,7 @@ namespace py = pybind11;
 namespace vkunroll {
 class Context;
 class EventTensorBuilder;
-class VulkanBackend;
+class Backend;
 }  // namespace vkunroll
 
 namespace vkunroll::python {
@@ -45,7 +46,11 @@ struct ClassifiedError : std::runtime_error {
 PyObject* python_error_type(const Error& e, const CallInfo& call);
 void register_errors(py::module_& m);
 
-// Runs f(), turning vkunroll::Error into the ClassifiedError of `call`.
+// The keyword that spells a library field (base/error.hpp opt()) in Python: the field itself, but
+// for vkunroll.stream's events, idle_s and max_events (log_sink.cpp).
+std::string python_keyword(std::string_view field);
+
+// Runs f(), turning vkunroll::Error into the ClassifiedError of `call`, its options spelled as keywords.
 template <class F>
 auto guarded(const CallInfo& call, F&& f) -> decltype(f()) {
   try {
@@ -53,28 +58,21 @@ auto guarded(const CallInfo& call, F&& f) -> decltype(f()) {
   } catch (const ClassifiedError&) {
     throw;
   } catch (const Error& e) {
-    throw ClassifiedError(python_error_type(e, call), e.what());
+    throw ClassifiedError(python_error_type(e, call), e.spelled(python_keyword));
   }
 }
 
-// ---- logging (log_capture.cpp) -----------------------------------------------------------------
-// While alive, lines the library writes to std::cerr go to logging.getLogger("vkunroll")
-// (validation errors at ERROR, validation warnings at WARNING, the rest at INFO) instead of the process's stderr.
-class LogCapture {
- public:
-  LogCapture();
-  ~LogCapture();
-  LogCapture(const LogCapture&) = delete;
-  LogCapture& operator=(const LogCapture&) = delete;
-};
+// ---- logging (log_sink.cpp) ----------------------------------------------------------------------
+// The library's log to logging.getLogger("vkunroll") at its level (progress at DEBUG); installed
+// once, when the module is imported.
+void install_log_sink();
 // logging.getLogger("vkunroll").log(level, message); takes the GIL.
 void log_message(int level, const std::string& message);
 constexpr int kDebug = 10, kInfo = 20, kWarning = 30, kError = 40;
 
-// Long library work: the GIL released, std::cerr captured, errors classified.
+// Long library work: the GIL released, errors classified.
 template <class F>
 auto without_gil(const CallInfo& call, F&& f) -> decltype(f()) {
-  LogCapture capture;
   return guarded(call, [&]() -> decltype(f()) {
     py::gil_scoped_release release;
     return f();
@@ -121,11 +119,11 @@ struct SharedContext {
   std::mutex mutex;  // one user of the device's queue at a time (Python threads run with the GIL released)
   // Made on first use, under `mutex`.
   EventTensorBuilder& builder();
-  VulkanBackend& backend();
+  Backend& backend();
 
  private:
   std::unique_ptr<EventTensorBuilder> builder_;
-  std::unique_ptr<VulkanBackend> backend_;
+  std::unique_ptr<Backend> backend_;
 };
 using ContextPtr = std::shared_ptr<SharedContext>;
 

@@ -31,14 +31,14 @@ PyObject* python_error_type(const Error& e, const CallInfo& call) {
   switch (e.kind()) {
     case ErrorKind::input_missing: return PyExc_FileNotFoundError;
     case ErrorKind::device_unavailable:  // a selector that matches nothing is the caller's bad input
-      return message.rfind("--device", 0) == 0 ? PyExc_ValueError : PyExc_RuntimeError;
+      return e.text().rfind(opt("device"), 0) == 0 ? PyExc_ValueError : PyExc_RuntimeError;
     case ErrorKind::temporary:
     case ErrorKind::io: return PyExc_RuntimeError;
     case ErrorKind::usage:
     case ErrorKind::data: return PyExc_ValueError;
     case ErrorKind::unspecified: break;
   }
-  if (call.device && message.rfind("--device", 0) != 0) return PyExc_RuntimeError;
+  if (call.device && e.text().rfind(opt("device"), 0) != 0) return PyExc_RuntimeError;
   std::error_code ec;
   for (const std::string& p : call.paths)
     if (!p.empty() && !std::filesystem::exists(p, ec)) return PyExc_FileNotFoundError;
@@ -57,7 +57,7 @@ void register_errors(py::module_& m) {
     } catch (const VulkanError& e) {
       PyErr_SetString(PyExc_RuntimeError, e.what());
     } catch (const Error& e) {  // a library error outside guarded(): bad input by default
-      PyErr_SetString(PyExc_ValueError, e.what());
+      PyErr_SetString(PyExc_ValueError, e.spelled(python_keyword).c_str());
     }
   });
 }

@@ -7,6 +7,7 @@ PYBIND11_MODULE(_vkunroll, m) {
   m.doc() = "vkunroll's C++ library (internal; use the `vkunroll` package).";
   m.attr("__version__") = VKUNROLL_VERSION;
   vp::register_errors(m);
+  vp::install_log_sink();
   vp::bind_runtime(m);
   vp::bind_events(m);
   vp::bind_sequence(m);

@@ -140,13 +140,14 @@ def test_targets_sessions_and_errors(seq, tiny):
     assert session.stats()["runs_s"] - runs_s == 4
     one = session.unroll_frame(seq.frame(1), seq.timing(1), seq.frame_events(1), [(t_us, "s")])
     np.testing.assert_array_equal(np.clip(one[0], 0, 1), a.frames[1])  # the frame's span holds the target's events
-    with pytest.raises(ValueError, match="outside the recording"):
+    with pytest.raises(ValueError, match="outside the recording") as bad_time:
         vkunroll.unroll(seq, times_us=[1e9], session=session, mode="s")
+    assert str(bad_time.value).startswith("times_us: ") and "--" not in str(bad_time.value), bad_time.value  # its keyword, not the CLI's flag
     with pytest.raises(ValueError, match="frame 7 does not exist"):
         vkunroll.unroll(seq, frames=[7], session=session, mode="s")
-    with pytest.raises(ValueError, match="fp16 needs --backend vulkan"):
+    with pytest.raises(ValueError, match="fp16 needs backend vulkan"):
         vkunroll.UnrollSession(model=TINY, backend="cpu", precision="fp16")
-    with pytest.raises(ValueError, match="--tile 5"):
+    with pytest.raises(ValueError, match="tile 5"):
         vkunroll.unroll(seq, tile=5, session=session, mode="s")
     with pytest.raises(ValueError, match="gate_radius 'wide'"):
         vkunroll.unroll(seq, gate_radius="wide", session=session, mode="s")
