@@ -104,7 +104,8 @@ TEST(LibraryLanguage, OneClockEverywhere) {
   // take Stopwatch when those land (then this list is the first entry alone).
   const std::vector<std::string> allowed = {"base/stopwatch.hpp", "runtime/profiler.cpp", "host/cli/cmd_tune.cpp",
                                             "bench/bench_model.cpp"};
-  for (const std::string& f : findings(std::regex(R"(std::chrono::steady_clock)"), allowed, all))
+  // (The pattern in two pieces, so that this file does not match itself.)
+  for (const std::string& f : findings(std::regex(std::string("std::chrono::steady_") + "clock"), allowed, all))
     ADD_FAILURE() << f << "  (use base/stopwatch.hpp)";
 }
 
