@@ -76,6 +76,10 @@ int main(int argc, char** argv) {
     std::string model;
     TuneOptions o;
     if (const int status = parse_args(argc, argv, model, o); status >= 0) return status;
+    o.report = [](const std::string& line) {
+      std::printf("%s\n", line.c_str());
+      std::fflush(stdout);
+    };
     tune_conv_choices(tune_model_weights(model), o);
     return 0;
   } catch (const std::exception& e) {

@@ -82,15 +82,11 @@ std::vector<std::string> findings(const std::regex& pattern, const std::vector<s
   return found;
 }
 
-// Temporary: `vkunroll tune`'s engine (host/model/conv_choice_tune.cpp, issue 49's gpu-tuner branch)
-// still prints its report and names its flags; it moves behind the CLI or takes opt() and the log sink.
-const std::vector<std::string> kTuneEngine = {"host/model/conv_choice_tune.cpp"};
-
 TEST(LibraryLanguage, NoCliFlagLiteralBelowTheFrontEnds) {
   ASSERT_GT(library_sources().size(), 100u);  // the tree was found
   // A string literal holding "--" and a letter: a flag, which only a front end may spell.
   const std::regex flag(R"("(?:[^"\\\n]|\\.)*--[A-Za-z](?:[^"\\\n]|\\.)*")");
-  for (const std::string& f : findings(flag, kTuneEngine)) ADD_FAILURE() << f << "  (name the option with opt(\"field\"))";
+  for (const std::string& f : findings(flag)) ADD_FAILURE() << f << "  (name the option with opt(\"field\"))";
 }
 
 TEST(LibraryLanguage, NoConsoleOutputBelowTheFrontEnds) {
@@ -98,19 +94,14 @@ TEST(LibraryLanguage, NoConsoleOutputBelowTheFrontEnds) {
   const std::regex console(
       R"(std::(cerr|cout|clog)\b|\bprintf\s*\(|\bputs\s*\(|\bf(printf|puts|write)\s*\([^;]*\b(stderr|stdout)\b)");
   // base/log.cpp holds the default sink: warnings to stderr until a program installs its own.
-  std::vector<std::string> allowed = kTuneEngine;
-  allowed.push_back("base/log.cpp");
-  for (const std::string& f : findings(console, allowed)) ADD_FAILURE() << f << "  (log it: base/log.hpp)";
+  for (const std::string& f : findings(console, {"base/log.cpp"})) ADD_FAILURE() << f << "  (log it: base/log.hpp)";
 }
 
 TEST(LibraryLanguage, OneClockEverywhere) {
   // Wall time is base/stopwatch.hpp's (Stopwatch, Clock), in every folder.
   const std::vector<Source> all = sources({"base", "runtime", "kernels", "host", "python", "tests", "bench", "fuzz", "examples"}, true);
-  // base/stopwatch.hpp names the clock. Temporary: files of issue 49's branches (the profiler, the conv
-  // choice and its tuning deadline); they take Stopwatch and Clock (then this list is the first entry alone).
-  const std::vector<std::string> allowed = {"base/stopwatch.hpp", "runtime/profiler.cpp", "host/model/conv_choice.cpp",
-                                            "host/model/conv_choice_tune.cpp", "host/model/backend_vulkan.hpp",
-                                            "host/model/backend_vulkan.cpp", "bench/bench_model.cpp"};
+  // base/stopwatch.hpp names the clock.
+  const std::vector<std::string> allowed = {"base/stopwatch.hpp"};
   // (The pattern in two pieces, so that this file does not match itself.)
   for (const std::string& f : findings(std::regex(std::string("std::chrono::steady_") + "clock"), allowed, all))
     ADD_FAILURE() << f << "  (use base/stopwatch.hpp)";

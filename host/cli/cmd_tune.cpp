@@ -1,4 +1,5 @@
 // vkunroll tune: the conv algorithm tuner (host/model/conv_choice_tune.hpp) on the command line.
+#include <cstdio>
 #include <memory>
 #include <sstream>
 
@@ -40,6 +41,10 @@ int run_tune(TuneArgs& a) {
   o.compare = !a.no_compare;
   o.device = a.device.device;
   apply_threads(a.device.threads);
+  o.report = [](const std::string& line) {  // the command's report is its standard output
+    std::printf("%s\n", line.c_str());
+    std::fflush(stdout);
+  };
   tune_conv_choices(weights, o);
   return kExitOk;
 }

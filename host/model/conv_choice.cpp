@@ -1,4 +1,3 @@
-#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
 
 #include <algorithm>
@@ -13,6 +12,7 @@
 #include <unistd.h>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/kernels/common.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"

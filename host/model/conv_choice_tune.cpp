@@ -1,15 +1,16 @@
-#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/conv_choice_tune.hpp"
 
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
-#include <iostream>
+#include <cstdarg>
 #include <memory>
 #include <random>
 #include <sstream>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/log.hpp"
+#include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
 #include "vkunroll/host/model/conv_choice.hpp"
 #include "vkunroll/host/model/model.hpp"
@@ -19,6 +20,21 @@
 namespace vkunroll {
 
 namespace {
+
+// One line of the tune report (a printf format), to TuneOptions::report or the log sink.
+__attribute__((format(printf, 2, 3))) void say(const TuneOptions& a, const char* format, ...) {
+  std::va_list args, again;
+  va_start(args, format);
+  va_copy(again, args);
+  const int n = std::vsnprintf(nullptr, 0, format, args);
+  va_end(args);
+  std::string line(static_cast<size_t>(std::max(n, 0)), '\0');
+  std::vsnprintf(line.data(), line.size() + 1, format, again);
+  va_end(again);
+  if (!line.empty() && line.back() == '\n') line.pop_back();
+  if (a.report) a.report(line);
+  else log_info(line);
+}
 
 // Untimed submits before each candidate's timing: after the start's warm-up only the check run and
 // the host's compare left the GPU idle, briefly. --warm-ms 0 turns both off.
@@ -63,24 +79,23 @@ double model_ms(Context& ctx, Model& model, const ModelInputs& in, Mode mode, in
 }
 
 // Prints each shape as it is timed, with the FMA ceiling read right after it (a dropped clock shows).
-void print_timed_shape(Context& ctx, bool plan, bool half, const std::string& key, const ConvChoiceEntry& e, double s,
+void print_timed_shape(const TuneOptions& a, Context& ctx, bool half, const std::string& key, const ConvChoiceEntry& e, double s,
                        TuneCount& count) {
   ++count.shapes;
   std::istringstream ts(e.timings);
   int listed = 0;
   for (std::string item; ts >> item;) listed += item.find("rejected") == std::string::npos;
-  count.candidates += static_cast<uint64_t>(plan ? listed : e.timed);
-  if (plan) {
-    std::printf("  %-52s %d candidates: %s\n", key.c_str(), listed, e.timings.c_str());
+  count.candidates += static_cast<uint64_t>(a.plan ? listed : e.timed);
+  if (a.plan) {
+    say(a, "  %-52s %d candidates: %s\n", key.c_str(), listed, e.timings.c_str());
     return;
   }
   const double ceiling = fma_ceiling_gflops(ctx, false, 1, 0.5);
   const double ceiling16 = half ? fma_ceiling_gflops(ctx, true, 1, 0.5) : 0;
   const double gf = e.ms > 0 ? e.flop / (e.ms * 1e6) : 0, best_ceiling = std::max(ceiling, ceiling16);
-  std::printf("  %-52s %-9s %9.4f ms %9.1f GFLOP/s %5.1f%% of the ceiling %9.1f  %.2f s  heuristic %-9s [%s]\n",
+  say(a, "  %-52s %-9s %9.4f ms %9.1f GFLOP/s %5.1f%% of the ceiling %9.1f  %.2f s  heuristic %-9s [%s]\n",
               key.c_str(), e.algo.c_str(), e.ms, gf, best_ceiling > 0 ? 100 * gf / best_ceiling : 0.0, best_ceiling, s,
               e.heuristic.c_str(), e.timings.c_str());
-  std::fflush(stdout);
 }
 
 // Meets every conv shape of the model at each size and mode, timing (retune) or counting (--plan) it.
@@ -89,16 +104,16 @@ TuneCount time_shapes(const TuneOptions& a, Context& ctx, VulkanBackend& backend
   TuneCount count;
   const bool half = precision == Precision::fp16;
   backend.on_conv_timed([&](const std::string& key, const ConvChoiceEntry& e, double s) {
-    print_timed_shape(ctx, a.plan, half, key, e, s, count);
+    print_timed_shape(a, ctx, half, key, e, s, count);
   });
   const auto t0 = Clock::now();
   for (const TuneSize& s : sizes) {
     if (a.s) {
-      std::printf(" S %dx%d batch %d\n", s.w, s.h, s.batch_s);
+      say(a, " S %dx%d batch %d\n", s.w, s.h, s.batch_s);
       model_ms(ctx, model, random_inputs(weights.config, s.batch_s, s.h, s.w, rng), Mode::s, 1);
     }
     if (a.m && weights.config.moa && s.batch_s == 1) {
-      std::printf(" M %dx%d batch 2\n", s.w, s.h);
+      say(a, " M %dx%d batch 2\n", s.w, s.h);
       model_ms(ctx, model, random_inputs(weights.config, 2, s.h, s.w, rng), Mode::m, 1);
     }
   }
@@ -112,19 +127,19 @@ TuneCount time_shapes(const TuneOptions& a, Context& ctx, VulkanBackend& backend
 void print_estimate(const TuneOptions& a, const TuneCount& c, Precision precision) {
   const double per = a.candidate_ms + candidate_warm_ms(a);
   if (a.plan)
-    std::printf("%s: %llu conv shapes, %llu candidates counted (the model's runs took %.1f s)\n", precision_name(precision),
+    say(a, "%s: %llu conv shapes, %llu candidates counted (the model's runs took %.1f s)\n", precision_name(precision),
                 static_cast<unsigned long long>(c.shapes), static_cast<unsigned long long>(c.candidates), c.seconds);
   else
-    std::printf("%s: %llu conv shapes, %llu candidates timed in %.1f s (%.1f ms per candidate, all overhead included)\n",
+    say(a, "%s: %llu conv shapes, %llu candidates timed in %.1f s (%.1f ms per candidate, all overhead included)\n",
                 precision_name(precision), static_cast<unsigned long long>(c.shapes),
                 static_cast<unsigned long long>(c.candidates), c.seconds,
                 c.candidates ? 1000 * c.seconds / static_cast<double>(c.candidates) : 0.0);
-  std::printf("  budget arithmetic: %llu candidates x (%.0f ms timed + %.0f ms warm) = %.1f s of timing, plus one checked "
+  say(a, "  budget arithmetic: %llu candidates x (%.0f ms timed + %.0f ms warm) = %.1f s of timing, plus one checked "
               "run and the pipeline builds per candidate and one FMA ceiling read per shape\n",
               static_cast<unsigned long long>(c.candidates), a.candidate_ms, candidate_warm_ms(a),
               static_cast<double>(c.candidates) * per / 1000);
   if (c.past_deadline)
-    std::printf("  %llu shapes were not timed: the %.0f s budget (--budget-s) ran out; they keep the heuristic\n",
+    say(a, "  %llu shapes were not timed: the %.0f s budget ran out; they keep the heuristic\n",
                 static_cast<unsigned long long>(c.past_deadline), a.budget_s);
 }
 
@@ -139,7 +154,7 @@ void compare_choices(const TuneOptions& a, Context& ctx, VulkanBackend& backend,
     const double h_ms = model_ms(ctx, model, in, Mode::s, reps);
     backend.set_conv_choice(table, ConvChoice::cached);
     const double m_ms = model_ms(ctx, model, in, Mode::s, reps);
-    std::printf("  S %dx%d batch %d %s: heuristic %.2f ms, measured %.2f ms per run (heuristic / measured %.2f)\n", s.w,
+    say(a, "  S %dx%d batch %d %s: heuristic %.2f ms, measured %.2f ms per run (heuristic / measured %.2f)\n", s.w,
                 s.h, s.batch_s, precision_name(precision), h_ms, m_ms, m_ms > 0 ? h_ms / m_ms : 0.0);
   }
 }
@@ -151,7 +166,7 @@ void tune_precision(const TuneOptions& a, const Weights& weights, Precision prec
   Context ctx(co);
   std::vector<std::string> warnings;
   DeviceConvTable d = load_device_conv_table(ctx, {}, &warnings);  // this device's own table; tune never merges a committed one
-  for (const auto& w : warnings) std::cerr << "vkunroll: warning: " << w << "\n";
+  for (const auto& w : warnings) log_warning("vkunroll: warning: " + w);
   if (d.path.empty() && !a.plan) throw UsageError("no cache directory: set VKUNROLL_CACHE_DIR, XDG_CACHE_HOME or HOME");
   auto table = a.plan ? std::make_shared<ConvChoiceTable>() : d.table;
   VulkanBackend backend(ctx, nullptr, kPoolFlushBytes, precision);
@@ -159,15 +174,15 @@ void tune_precision(const TuneOptions& a, const Weights& weights, Precision prec
   if (!a.plan) backend.set_conv_timing_deadline(deadline);  // a census times nothing: it counts every shape
   Model model(backend, weights);
   std::mt19937 rng(1);
-  std::printf("tune %s on %s (driver %s, uuid %s)%s\n", precision_name(precision), ctx.info().name.c_str(),
+  say(a, "tune %s on %s (driver %s, uuid %s)%s\n", precision_name(precision), ctx.info().name.c_str(),
               ctx.info().driver_version_string().c_str(), ctx.info().uuid_string().c_str(),
-              a.plan ? ": counting every conv shape's candidates (--plan: nothing timed)" : "");
+              a.plan ? ": counting every conv shape's candidates (a plan: nothing timed)" : "");
   if (!a.plan) {
     const auto w0 = Clock::now();
     warm_device(ctx, a.warm_ms);
     const double warmed = std::chrono::duration<double, std::milli>(Clock::now() - w0).count();
     const double c32 = fma_ceiling_gflops(ctx), c16 = precision == Precision::fp16 ? fma_ceiling_gflops(ctx, true) : 0;
-    std::printf("FMA ceiling after %.0f ms of warm-up: %.1f GFLOP/s fp32, %.1f fp16 (0: not read); candidates timed for at "
+    say(a, "FMA ceiling after %.0f ms of warm-up: %.1f GFLOP/s fp32, %.1f fp16 (0: not read); candidates timed for at "
                 "most %.0f ms or %d submits each (the least device time counts), the ceiling read again after each shape\n",
                 warmed, c32, c16, a.candidate_ms, a.reps);
   }
@@ -178,7 +193,7 @@ void tune_precision(const TuneOptions& a, const Weights& weights, Precision prec
   size_t differs = 0, entries = 0;
   for (const auto& [key, e] : table->entries())
     if (key.find(precision_name(precision)) != std::string::npos) ++entries, differs += e.algo != e.heuristic;
-  std::printf("table: %s (%zu entries of %s, %zu differ from the heuristic)\n", d.path.c_str(), entries,
+  say(a, "table: %s (%zu entries of %s, %zu differ from the heuristic)\n", d.path.c_str(), entries,
               precision_name(precision), differs);
   if (a.compare) compare_choices(a, ctx, backend, model, weights, sizes, table, precision, rng);
 }
@@ -190,8 +205,10 @@ std::vector<TuneSize> tune_sizes(const std::vector<std::pair<int, int>>& frames,
   for (const auto& [w, h] : frames) out.push_back({w, h, 1});
   if (tile > 0) {
     if (tile % 32 || halo < 0 || halo % 32)
-      throw UsageError("--tile " + std::to_string(tile) + " --halo " + std::to_string(halo) +
-                       ": expected multiples of 32 (the sparse tiles of `unroll`), --tile 0 for none");
+      throw OptionError("tile", std::to_string(tile),
+                        "expected the tile and the halo (" + std::to_string(halo) + ") in multiples of 32 (the sparse tiles of `unroll`), 0 for none",
+                        opt("tile") + " " + std::to_string(tile) + " " + opt("halo") + " " + std::to_string(halo) +
+                            ": expected multiples of 32 (the sparse tiles of `unroll`), " + opt("tile") + " 0 for none");
     const int side = tile + 2 * halo;
     out.push_back({side, side, 1});
     out.push_back({side, side, 4});
@@ -202,7 +219,7 @@ std::vector<TuneSize> tune_sizes(const std::vector<std::pair<int, int>>& frames,
 Weights tune_model_weights(const std::string& model) {
   if (model == "published") return random_weights(ModelConfig::published(), 2024);
   std::error_code ec;
-  if (!std::filesystem::exists(model, ec)) throw InputMissingError("--model " + model + ": no such file (or 'published')");
+  if (!std::filesystem::exists(model, ec)) throw OptionError("model", model, "no such file (or 'published')", {}, ErrorKind::input_missing);
   return load_weights(model);
 }
 
@@ -216,7 +233,7 @@ void tune_conv_choices(const Weights& weights, const TuneOptions& o) {
                                          : Clock::time_point::max();
     tune_precision(o, weights, o.precisions[i], deadline);
   }
-  std::printf("tune took %.1f s in all\n", std::chrono::duration<double>(Clock::now() - t0).count());
+  say(a, "tune took %.1f s in all\n", std::chrono::duration<double>(Clock::now() - t0).count());
 }
 
 }  // namespace vkunroll

@@ -6,6 +6,7 @@
 // each candidate is timed for at most candidate_ms, no shape is timed after budget_s, and the FMA
 // ceiling is read again beside every shape's timing, so that a clock that dropped shows in the table.
 #pragma once
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -32,17 +33,19 @@ struct TuneOptions {
   bool plan = false;    // count shapes and candidates, time nothing, write no table
   bool compare = true;  // then time the model with the heuristic against the measured choice
   std::string device;   // ContextOptions::device
+  // Each line of the report as it goes; empty: the log sink at info level.
+  std::function<void(const std::string&)> report;
 };
 
 // The frames (w, h) at batch 1, and where tile > 0 the sparse tiles' side (tile + 2 halo) at batch 1
-// and 4. UsageError naming --tile/--halo where they are not multiples of 32.
+// and 4. OptionError naming tile and halo where they are not multiples of 32.
 std::vector<TuneSize> tune_sizes(const std::vector<std::pair<int, int>>& frames, int tile, int halo);
 
-// --model's weights: a file (InputMissingError naming it where missing), or "published": the published
+// The model option's weights: a file (an input_missing OptionError naming it where missing), or "published": the published
 // configuration with random weights, the shapes the benches race (timings do not depend on the values).
 Weights tune_model_weights(const std::string& model);
 
-// Prints as it goes (stdout). UsageError where there is no cache directory to keep the table in.
+// Reports as it goes (TuneOptions::report). UsageError where there is no cache directory to keep the table in.
 void tune_conv_choices(const Weights& weights, const TuneOptions& options);
 
 }  // namespace vkunroll
