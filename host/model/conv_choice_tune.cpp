@@ -233,7 +233,7 @@ void tune_conv_choices(const Weights& weights, const TuneOptions& o) {
                                          : Clock::time_point::max();
     tune_precision(o, weights, o.precisions[i], deadline);
   }
-  say(a, "tune took %.1f s in all\n", std::chrono::duration<double>(Clock::now() - t0).count());
+  say(o, "tune took %.1f s in all\n", std::chrono::duration<double>(Clock::now() - t0).count());
 }
 
 }  // namespace vkunroll
