@@ -5,6 +5,7 @@
 
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/events/rosbag_sequence.hpp"
+#include "vkunroll/host/unroll/output_folder.hpp"
 #include "vkunroll/host/unroll/unroll_options.hpp"
 
 namespace vkunroll::cli {
@@ -14,6 +15,7 @@ namespace {
 struct BagSequenceArgs {
   std::string bag, out, frames_topic, events_topic, line_delay, exposure, readout = "top-down", t0_offset = "0";
   uint64_t max_frames = 0;
+  bool overwrite = false;
 };
 
 Rational exact_option(const std::string& text, const std::string& name) {
@@ -26,6 +28,7 @@ Rational exact_option(const std::string& text, const std::string& name) {
 
 int run_bag_sequence(const BagSequenceArgs& a) {
   check_output_folder(a.out, "OUT");
+  check_output_apart(a.out, "bag_sequence_out", {{"BAG", a.bag}});
   BagSequenceOptions o;
   o.frames_topic = a.frames_topic;
   o.events_topic = a.events_topic;
@@ -49,7 +52,11 @@ int run_bag_sequence(const BagSequenceArgs& a) {
   o.max_frames = a.max_frames;
   BagSequenceReport r;
   try {
-    r = write_bag_sequence(a.bag, a.out, o);
+    // The output rule of every writer: staged, checked by the loader's schema, then committed.
+    OutputFolder folder(a.out, a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, sequence_output_layout(), "bag_sequence_out");
+    r = write_bag_sequence(a.bag, folder.staging().string(), o);
+    check_written_sequence(folder.staging().string(), a.out);
+    folder.commit();
   } catch (const Error& e) {  // a topic the bag lacks is the option's fault: name it
     const std::string m = e.text();
     for (const auto& [option, topic] : {std::pair<std::string, std::string>{"--frames-topic", a.frames_topic}, {"--events-topic", a.events_topic}})
@@ -87,6 +94,7 @@ Command add_bag_sequence(CLI::App& parent) {
   c->add_option("--t0-offset-us", a->t0_offset, "added to each header stamp to give the first row's exposure start")
       ->capture_default_str()->type_name("US");
   c->add_option("--max-frames", a->max_frames, "write at most N frames (0: all)")->type_name("N");
+  c->add_flag("--overwrite", a->overwrite, "replace an existing OUT (only a folder vkunroll wrote: its manifest lists everything)");
   return {c, [a] { return run_bag_sequence(*a); }};
 }
 

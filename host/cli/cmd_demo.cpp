@@ -56,6 +56,13 @@ int run_demo(const DemoArgs& a) {
   } catch (const Error& e) {
     throw UsageError(e.text());
   }
+  // All three outputs are checked before any is written: one that holds what vkunroll did not write
+  // refuses the demo with nothing new beside it (the checks take and release each lock).
+  const ModelChoice choice = choose_model(a.physics_only ? UnrollMode::physics : UnrollMode::automatic, a.model);
+  for (const char* sub : {"sequence", "physics", "model"})
+    if (std::string(sub) != "model" || !choice.path.empty())
+      OutputFolder(out / sub, ExistingOutput::overwrite,
+                   std::string(sub) == "sequence" ? sequence_output_layout() : unroll_output_layout());
   const Stopwatch simulating;
   const auto seq = sim::simulate(cfg);
   try {
@@ -85,7 +92,6 @@ int run_demo(const DemoArgs& a) {
   o.option_spelling = flag_for;
   const nlohmann::json phys = run_unroll(o);
   nlohmann::json learned;
-  const ModelChoice choice = choose_model(a.physics_only ? UnrollMode::physics : UnrollMode::automatic, a.model);
   const std::string& model = choice.path;
   if (!model.empty()) {
     o.session.model_path = model;

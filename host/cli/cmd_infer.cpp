@@ -15,6 +15,7 @@
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/host/unroll/output_file.hpp"
 #include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll::cli {
@@ -53,6 +54,7 @@ struct InferArgs {
   std::string model, inputs, out, mode, precision = "fp32", backend = "vulkan";
   std::optional<std::string> outputs;
   int max_items = 0;
+  bool overwrite = false;
   DeviceArgs device;
 };
 
@@ -60,6 +62,8 @@ int run_infer(const InferArgs& a) {
   const Precision precision = parse_precision(a.precision, "precision");
   if (precision == Precision::fp16 && a.backend != "vulkan") throw fp16_needs_vulkan();  // before the inputs are read
   check_output_file(a.out, "--out");
+  check_output_file_rule(a.out, "out", a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse,
+                         {{"--inputs file", a.inputs}, {"--model file", a.model}});
   const std::vector<ModelOutput> outputs = requested_outputs(a.outputs);
   std::error_code ec;
   for (const auto& [opt, path] : {std::pair<const char*, std::string>{"--model", a.model}, {"--inputs", a.inputs}})
@@ -119,7 +123,8 @@ int run_infer(const InferArgs& a) {
                                               {"backend", backend->name()},
                                               {"device", ctx ? ctx->info().name : "cpu"},
                                               {"model", a.model},
-                                              {"config", weights.config.summary()}};
+                                              {"config", weights.config.summary()},
+                                              {kSafetensorsWrittenBy, std::string(kWrittenByVkunroll) + " infer"}};
   try {
     write_safetensors(a.out, views, md);
   } catch (const Error& e) {
@@ -147,6 +152,7 @@ Command add_infer(CLI::App& parent) {
   c->add_option("--model", a->model, "SelfUnroll weights (safetensors)")->required()->type_name("FILE");
   c->add_option("--inputs", a->inputs, "input tensors rs, ev1, ev2, ev3 (safetensors)")->required()->type_name("FILE");
   c->add_option("--out", a->out, "the safetensors file to write")->required()->type_name("FILE");
+  c->add_flag("--overwrite", a->overwrite, "replace an existing --out file (only one vkunroll wrote)");
   c->add_option("--mode", a->mode, "s | m (default: m when the model has MOA weights and B is even, else s)")
       ->check(CLI::IsMember({"s", "m"}))->type_name("M");
   c->add_option("--backend", a->backend, "vulkan | cpu (the CPU reference, slow)")

@@ -8,7 +8,9 @@
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/events/sequence.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
+#include "vkunroll/host/unroll/output_file.hpp"
 #include "vkunroll/host/unroll/unroll_options.hpp"
+#include "vkunroll/host/unroll/unroll_plan.hpp"
 #include "vkunroll/host/unroll/value_list.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/runtime/context.hpp"
@@ -21,7 +23,7 @@ struct VoxelizeArgs {
   std::string sequence, frames, times, times_us, out, crop, target_exposure;
   int bins = 16;
   int64_t batch = 0;
-  bool cpu = false;
+  bool cpu = false, overwrite = false;
   SequenceTimingArgs timing;
   DeviceArgs device;
 };
@@ -96,6 +98,7 @@ std::vector<EventTensorPair> voxelize_pairs(const Sequence& seq, const VoxelizeT
       for (const auto& v : t.targets) {
         const RowTiming& tm = seq.frame(f).timing;
         const Rational ts = t.tau ? tm.target_time(v) : v;
+        check_target_in_recording(seq, ts.to_double(), t.tau ? "--times" : "--times-us");
         pairs.push_back({tm, ts, t.exposure});
         pair_meta.push_back({{"frame", f}, {"target", v.str()}, {"t_star_us", ts.str()}, {"t_star_us_float", ts.to_double()}});
       }
@@ -117,6 +120,7 @@ std::map<std::string, std::string> voxelize_metadata(const Sequence& seq, const 
   }
   return {
       {"format", "vkunroll-event-tensors-1"},
+      {kSafetensorsWrittenBy, std::string(kWrittenByVkunroll) + " voxelize"},
       {"sequence", seq.root},
       {"layout", sequence_layout_name(seq.layout)},
       {"bins", std::to_string(spec.bins)},
@@ -173,7 +177,8 @@ VoxelizeCounts write_tensors(const Sequence& seq, const std::vector<EventTensorP
 int run_voxelize(const VoxelizeArgs& a) {
   SequenceOptions so = sequence_options(a.timing);
   check_output_file(a.out, "--out");
-  check_output_apart(a.out, "out", {{opt("sequence"), a.sequence}, {opt("events") + " file", so.events_file.value_or("")}});
+  check_output_file_rule(a.out, "out", a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse,
+                         {{opt("sequence"), a.sequence}, {opt("events") + " file", so.events_file.value_or("")}});
   const VoxelizeTargets targets = parse_targets(a);
   EventTensorSpec spec;
   spec.bins = a.bins;
@@ -242,6 +247,7 @@ Command add_voxelize(CLI::App& parent) {
       ->excludes(times)->type_name("LIST");
   c->add_option("--out", a->out, "the safetensors file to write (written under a temporary name, renamed when complete)")
       ->required()->type_name("FILE");
+  c->add_flag("--overwrite", a->overwrite, "replace an existing --out file (only one vkunroll wrote)");
   c->add_option("--bins", a->bins, "temporal bins N (2N channels)")->check(int_range(1, 4096))->capture_default_str()->type_name("N");
   c->add_option("--crop", a->crop, "sensor window x,y,w,h (w, h > 0); rows keep their own full-sensor times")->type_name("X,Y,W,H");
   c->add_option("--target-exposure", a->target_exposure, "ev3 window length in us, > 0 (default: the frame's exposure)")

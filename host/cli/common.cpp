@@ -43,7 +43,7 @@ Rational rational(const std::string& text, const std::string& what) {
 std::string flag_for(std::string_view field) {
   // Fields whose flag is not "--" + the field with '-' for '_'.
   static const std::map<std::string_view, std::string_view> renamed = {
-      {"sequence", "SEQUENCE"}, {"speed_scale", "--speed"}, {"flicker_amplitude", "--flicker-amp"}, {"hot_fraction", "--hot-pixels"}};
+      {"sequence", "SEQUENCE"}, {"bag_sequence_out", "OUT"}, {"speed_scale", "--speed"}, {"flicker_amplitude", "--flicker-amp"}, {"hot_fraction", "--hot-pixels"}};
   if (auto it = renamed.find(field); it != renamed.end()) return std::string(it->second);
   std::string flag = "--" + std::string(field);
   std::replace(flag.begin(), flag.end(), '_', '-');

@@ -92,14 +92,33 @@ void write_events_hdf5(const std::string& path, const EventStream& ev) {
   write_dataset(path, g.id, "p", H5T_STD_I8LE, H5T_NATIVE_INT8, p01.data(), n);
   write_int_attr(path, g.id, "width", ev.width);
   write_int_attr(path, g.id, "height", ev.height);
+  write_int_attr(path, file.id, kEventFileMark, 1);  // the output rule replaces only marked files
   if (H5Fflush(file.id, H5F_SCOPE_GLOBAL) < 0) throw Error(path + ": cannot flush the HDF5 file");
+}
+
+bool event_file_written_by_vkunroll(const std::string& path) {
+  char head[64] = {};
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) return false;
+  const size_t n = std::fread(head, 1, sizeof head - 1, f);
+  std::fclose(f);
+  if (std::string(head, n).rfind(kTextEventMark, 0) == 0) return true;
+  if (n < 8 || std::memcmp(head, "\x89HDF\r\n\x1a\n", 8) != 0) return false;
+  H5E_auto2_t func = nullptr;
+  void* data = nullptr;
+  H5Eget_auto2(H5E_DEFAULT, &func, &data);
+  H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr);
+  H5Closer file{H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose};
+  const bool marked = file.id >= 0 && H5Aexists(file.id, kEventFileMark) > 0;
+  H5Eset_auto2(H5E_DEFAULT, func, data);
+  return marked;
 }
 
 void write_events_text(const std::string& path, const EventStream& ev) {
   check_stream(path, ev);
   std::FILE* f = std::fopen(path.c_str(), "wb");
   if (!f) throw Error(path + ": cannot create the text event file (" + std::strerror(errno) + ")");
-  std::fprintf(f, "# vkunroll events: t x y p (t in microseconds, p 1 = brightness increase, 0 = decrease)\n");
+  std::fprintf(f, "%s: t x y p (t in microseconds, p 1 = brightness increase, 0 = decrease)\n", kTextEventMark);
   std::fprintf(f, "# width %d height %d\n", ev.width, ev.height);
   std::vector<char> buf(1 << 20);
   size_t used = 0;

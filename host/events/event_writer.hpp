@@ -14,4 +14,10 @@ void write_events_hdf5(const std::string& path, const EventStream& events);
 // Text: "# width W height H" comment, then one "t x y p" line per event (t in us, p 1/0).
 void write_events_text(const std::string& path, const EventStream& events);
 
+// What marks an event file as vkunroll's (the output rule, host/unroll/output_file.hpp, replaces
+// only marked files): an HDF5 root attribute, the text file's first line.
+constexpr const char* kEventFileMark = "written_by_vkunroll";
+constexpr const char* kTextEventMark = "# vkunroll events";
+bool event_file_written_by_vkunroll(const std::string& path);
+
 }  // namespace vkunroll

@@ -7,6 +7,8 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
+#include <climits>
 #include <cerrno>
 #include <cstring>
 #include <ctime>
@@ -15,6 +17,7 @@
 #include <set>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/host/events/sequence.hpp"
 #include "vkunroll/host/unroll/sha256.hpp"
 
 namespace vkunroll {
@@ -103,8 +106,25 @@ const OutputLayout& unroll_output_layout() {
 }
 
 const OutputLayout& sequence_output_layout() {
-  static const OutputLayout layout = {{"meta.json", "rs", "gs", "events.h5", "events.txt"}, {"rs", "gs"}, {}, false};
+  static const OutputLayout layout = {{"meta.json", "rs", "gs", "events.h5", "events.txt"}, {"rs", "gs"}, {}, false, false};
   return layout;
+}
+
+void check_written_sequence(const std::string& staging, const std::string& shown, const std::string& events_topic) {
+  try {
+    SequenceOptions so;
+    so.layout = SequenceLayout::generic;
+    so.events.events_topic = events_topic;
+    const Sequence seq = load_sequence(staging, so);
+    const RowTiming& first = seq.frames.front().timing;
+    EventReadReport report;
+    (void)seq.read_events(INT64_MIN, int64_t(std::ceil(first.last_end().to_double())) + 1, &report);
+    if (!report.size_disagreement.empty()) throw DataError(report.size_disagreement);
+  } catch (const Error& e) {
+    std::string m = e.what();
+    for (size_t at; (at = m.find(staging)) != std::string::npos;) m.replace(at, staging.size(), shown);
+    throw DataError(shown + ": the sequence written would not load, so nothing was committed: " + m);
+  }
 }
 
 std::string sha256_file(const fs::path& path) {
@@ -127,15 +147,15 @@ std::string sha256_file(const fs::path& path) {
   return h.hex();
 }
 
-OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const OutputLayout& layout)
-    : existing_(existing), layout_(layout) {
+OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const OutputLayout& layout, std::string field)
+    : field_(std::move(field)), existing_(existing), layout_(layout) {
   std::string text = final_dir.string();
   while (text.size() > 1 && text.back() == '/') text.pop_back();
-  if (text.empty()) throw OptionError("out", "", "empty folder name");
+  if (text.empty()) throw OptionError(field_, "", "empty folder name");
   final_ = fs::absolute(fs::path(text)).lexically_normal();
   const std::string name = final_.filename().string();
   if (name.empty() || name == "." || name == "..")
-    throw OptionError("out", "'" + final_dir.string() + "'", "name a folder to create (not '.', '..' or '/')");
+    throw OptionError(field_, "'" + final_dir.string() + "'", "name a folder to create (not '.', '..' or '/')");
   staging_ = final_.parent_path() / ("." + name + ".partial");
   std::error_code ec;
   // A file where a folder of the path must be is the option's fault (exit 2), not an I/O error.
@@ -143,7 +163,7 @@ OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const Ou
     const auto st = fs::status(p, ec);
     if (!fs::exists(st)) continue;
     if (!fs::is_directory(st))
-      throw OptionError("out", final_dir.string(), p.string() + " exists and is not a folder");
+      throw OptionError(field_, final_dir.string(), p.string() + " exists and is not a folder");
     break;
   }
   fs::create_directories(final_.parent_path(), ec);
@@ -184,7 +204,7 @@ void OutputFolder::lock() {
       std::string holder = n > 0 ? std::string(who, static_cast<size_t>(n)) : std::string("unknown");
       while (!holder.empty() && holder.back() == '\n') holder.pop_back();
       throw OutputBusyError(final_.string() + ": another vkunroll run is writing this output (" + holder +
-                            "); wait for it to finish or choose another " + opt("out"));
+                            "); wait for it to finish or choose another " + opt(field_));
     }
     // The lock file must still be the one at the path (not one a committing run just unlinked).
     struct stat a {}, b {};
@@ -210,15 +230,20 @@ void OutputFolder::check_final() {
   const auto st = fs::symlink_status(final_, ec);
   if (!fs::exists(st)) return;
   if (!fs::is_directory(st))
-    throw OptionError("out", final_.string(), std::string("exists and is not a folder (") + (fs::is_symlink(st) ? "a symbolic link" : "a file") + ")");
+    throw OptionError(field_, final_.string(), std::string("exists and is not a folder (") + (fs::is_symlink(st) ? "a symbolic link" : "a file") + ")");
   if (is_empty_dir(final_)) return;
   if (existing_ == ExistingOutput::refuse)
-    throw OptionError("out", final_.string(), "the folder exists and is not empty; pass " + opt("overwrite") + " to replace it" +
-                      std::string(layout_.resumable ? ", or " + opt("resume") + " to continue it (its valid GS frames are kept)" : ""));
+    throw OptionError(field_, final_.string(),
+                      "the folder exists and is not empty; " + opt("overwrite") + " replaces it (only what vkunroll wrote is replaced)" +
+                          std::string(layout_.resumable ? ", or " + opt("resume") + " continues it (its valid GS frames are kept)" : ""));
   // Everything inside, at any depth, must be what vkunroll wrote there: listed in the folder's
   // manifest, or (an output from before manifests) one of the output's names, frames/ holding only PNGs.
   const std::optional<std::set<std::string>> listed = read_manifest(final_);
   const bool has_manifest = listed.has_value();
+  if (!has_manifest && !layout_.by_names_without_manifest)
+    throw OptionError(field_, final_.string(),
+                      std::string("holds no ") + kManifestName + ", so vkunroll cannot tell that it wrote what is there; refusing "
+                          "to replace the folder (move it away or choose another " + opt(field_) + ")");
   const auto& names = layout_.names;
   const auto& pngs = layout_.png_folders;
   for (auto it = fs::recursive_directory_iterator(final_, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
@@ -231,10 +256,10 @@ void OutputFolder::check_final() {
       ours = !dir && rel.extension() == ".png" && std::find(pngs.begin(), pngs.end(), rel.parent_path().string()) != pngs.end();
     else ours = std::find(names.begin(), names.end(), r) != names.end();
     if (!ours)
-      throw OptionError("out", final_.string(),
+      throw OptionError(field_, final_.string(),
                         "holds '" + r + "', which vkunroll did not write there" +
                             (has_manifest ? " (not in its " + std::string(kManifestName) + ")" : "") +
-                            "; refusing to replace the folder (move it away or choose another " + opt("out") + ")");
+                            "; refusing to replace the folder (move it away or choose another " + opt(field_) + ")");
   }
   if (ec) throw IoError(final_.string() + ": cannot list the earlier output (" + ec.message() + ")");
   replaces_ = true;

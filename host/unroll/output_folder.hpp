@@ -30,6 +30,9 @@ struct OutputLayout {
   std::vector<std::string> png_folders;
   std::vector<std::string> make;
   bool resumable = false;  // --resume applies (the refusal names it)
+  // An output from before manifests is recognized by its names (unroll's); false: a folder without a
+  // manifest is never replaced (a hand-written meta.json and rs/ look like a sequence's names).
+  bool by_names_without_manifest = true;
 };
 const OutputLayout& unroll_output_layout();    // frames/, gs_video.mp4, contact_sheet.png, ...
 const OutputLayout& sequence_output_layout();  // a simulated sequence: meta.json, rs/, gs/, events
@@ -42,8 +45,9 @@ class OutputFolder {
   // that holds, at any depth, anything vkunroll did not write there: what its manifest
   // (.vkunroll-manifest, written at commit) does not list, or for an output from before
   // manifests, anything but the output's names and PNGs in frames/ (nothing else is ever deleted).
+  // `field`: the option that names the folder, in messages (opt(): each front end spells it).
   OutputFolder(std::filesystem::path final_dir, ExistingOutput existing,
-               const OutputLayout& layout = unroll_output_layout());
+               const OutputLayout& layout = unroll_output_layout(), std::string field = "out");
   // Without commit: the staging folder is removed (kept under `resume`, for the next --resume).
   ~OutputFolder();
   OutputFolder(const OutputFolder&) = delete;
@@ -80,6 +84,7 @@ class OutputFolder {
   void write_manifest() const;
 
   std::filesystem::path final_, staging_;
+  std::string field_;
   ExistingOutput existing_;
   OutputLayout layout_;
   bool replaces_ = false;
@@ -89,6 +94,11 @@ class OutputFolder {
   std::string append_rel_;
 };
 
+
+// A sequence folder a converter wrote into `staging` is loaded back with the loader's schema (and its
+// first frame's events read) before it is committed: a writer never commits a folder its own loader
+// refuses. DataError naming `shown` (the final folder) and the loader's complaint.
+void check_written_sequence(const std::string& staging, const std::string& shown, const std::string& events_topic = {});
 
 // SHA-256 of a file's bytes (hex); throws IoError naming the file.
 std::string sha256_file(const std::filesystem::path& path);

@@ -1,5 +1,6 @@
 // Sequences: load any supported layout, read frames and events by window, write the generic layout.
 #include "common.hpp"
+#include "output_rule.hpp"
 #include "vkunroll/host/events/sequence.hpp"
 #include "vkunroll/host/events/sequence_writer.hpp"
 #include "vkunroll/host/unroll/unroll_plan.hpp"
@@ -125,7 +126,7 @@ void bind_sequence(py::module_& m) {
       "_write_sequence",
       [](const std::string& dir, int width, int height, const py::list& frames, const std::vector<RowTiming>& timings,
          const py::list& gt_times, const py::list& gt_images, const I64Array& t, const U16Array& x, const U16Array& y,
-         const I8Array& p, const std::string& events_format, const std::string& source_json) {
+         const I8Array& p, const std::string& events_format, const std::string& source_json, bool overwrite) {
         SequenceWriteSpec spec = guarded({}, [&] {
           SequenceWriteSpec s;
           s.width = width;
@@ -143,11 +144,13 @@ void bind_sequence(py::module_& m) {
           s.source_json = source_json;
           return s;
         });
-        without_gil({}, [&] { write_generic_sequence(dir, spec); });
+        without_gil({}, [&] {
+          write_sequence_folder(dir, overwrite, [&](const std::string& staging) { write_generic_sequence(staging, spec); });
+        });
       },
       py::arg("dir"), py::arg("width"), py::arg("height"), py::arg("frames"), py::arg("timings"), py::arg("gt_times"),
       py::arg("gt_images"), py::arg("t"), py::arg("x"), py::arg("y"), py::arg("p"), py::arg("events_format"),
-      py::arg("source_json"));
+      py::arg("source_json"), py::arg("overwrite"));
 }
 
 }  // namespace vkunroll::python

@@ -3,6 +3,7 @@
 #include <fstream>
 
 #include "common.hpp"
+#include "output_rule.hpp"
 #include "vkunroll/host/sim/recording.hpp"
 
 namespace vkunroll::python {
@@ -37,7 +38,7 @@ bool set_setting(sim::SimulationConfig& c, const std::string& key, const py::han
 void bind_sim(py::module_& m) {
   m.def(
       "_simulate",
-      [](const std::string& out, const std::string& preset, uint64_t seed, const py::dict& settings) {
+      [](const std::string& out, const std::string& preset, uint64_t seed, const py::dict& settings, bool overwrite) {
         sim::SimulationConfig c = guarded({}, [&] {
           sim::SimulationConfig cfg = sim::simulation_preset(preset);
           cfg.seed = seed;
@@ -51,11 +52,13 @@ void bind_sim(py::module_& m) {
         });
         const std::string meta = without_gil({}, [&] {
           const sim::SimulatedSequence seq = sim::simulate(c);
-          return sim::write_sequence(c, seq, out).dump();
+          std::string meta;
+          write_sequence_folder(out, overwrite, [&](const std::string& staging) { meta = sim::write_sequence(c, seq, staging).dump(); });
+          return meta;
         });
         return meta;
       },
-      py::arg("out"), py::arg("preset"), py::arg("seed"), py::arg("settings"));
+      py::arg("out"), py::arg("preset"), py::arg("seed"), py::arg("settings"), py::arg("overwrite"));
 }
 
 }  // namespace vkunroll::python
