@@ -91,10 +91,15 @@ Rational Rational::parse(const std::string& text, const std::string& what) {
   auto fail = [&](const std::string& why) -> Rational {
     throw Error(what + ": '" + text + "' is not a number (" + why + "); expected e.g. 12, -3.25, 1e3 or 73000/259");
   };
-  std::string s;
-  for (char c : text)
-    if (!std::isspace(static_cast<unsigned char>(c))) s.push_back(c);
+  // One grammar for exact times: [sign] digits [. digits] [e [sign] digits] [/ the same], spaces
+  // only around the whole ("60 000" is not 60000).
+  size_t b = 0, e = text.size();
+  while (b < e && std::isspace(static_cast<unsigned char>(text[b]))) ++b;
+  while (e > b && std::isspace(static_cast<unsigned char>(text[e - 1]))) --e;
+  const std::string s = text.substr(b, e - b);
   if (s.empty()) return fail("empty");
+  for (char c : s)
+    if (std::isspace(static_cast<unsigned char>(c))) return fail("a space inside it");
   const auto slash = s.find('/');
   if (slash != std::string::npos) {
     Rational n = parse(s.substr(0, slash), what), d = parse(s.substr(slash + 1), what);

@@ -98,7 +98,7 @@ std::vector<EventTensorPair> voxelize_pairs(const Sequence& seq, const VoxelizeT
       for (const auto& v : t.targets) {
         const RowTiming& tm = seq.frame(f).timing;
         const Rational ts = t.tau ? tm.target_time(v) : v;
-        check_target_in_recording(seq, ts.to_double(), t.tau ? "--times" : "--times-us");
+        check_target_in_recording(seq, ts.to_double(), t.tau ? "times" : "times_us");
         pairs.push_back({tm, ts, t.exposure});
         pair_meta.push_back({{"frame", f}, {"target", v.str()}, {"t_star_us", ts.str()}, {"t_star_us_float", ts.to_double()}});
       }

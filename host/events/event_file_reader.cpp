@@ -122,6 +122,7 @@ EventFileReader::EventFileReader(const std::string& path, const EventReadOptions
   if (format != "h5" && format != "npz") s_->src = std::make_unique<detail::FileSource>(path);
   if (s_->empty) format = "empty";
   if (format.empty()) format = detail::canonical_format(detail::detect_format(*s_->src, path));
+  if (format != "empty") detail::check_topic_applies(path, format, options);
   s_->format = format;
 }
 
@@ -215,6 +216,7 @@ const EventTotals& EventFileReader::totals() const { return s_->totals; }
 const std::string& EventFileReader::path() const { return s_->path; }
 const std::string& EventFileReader::format() const { return s_->format; }
 const EventReadOptions& EventFileReader::options() const { return s_->options; }
+bool EventFileReader::streamed() const { return s_->streamed(); }
 size_t EventFileReader::checkpoints() const { return s_->index.segments.size(); }
 
 }  // namespace vkunroll

@@ -44,6 +44,8 @@ class EventFileReader {
   const std::string& path() const;
   const std::string& format() const;    // as detect_event_format, or the forced one
   const EventReadOptions& options() const;
+  // A format read in file order (text, EVT, .dat, AEDAT, bags): windows stop at their end.
+  bool streamed() const;
   // Checkpoints of the streamed formats' index so far (0 for random-access formats).
   size_t checkpoints() const;
 

@@ -201,6 +201,16 @@ std::string special_file_kind(const std::string& path) {
   }
 }
 
+namespace detail {
+
+void check_topic_applies(const std::string& path, const std::string& format, const EventReadOptions& o) {
+  if (!o.events_topic.empty() && format != "bag")
+    throw UsageError("events topic '" + o.events_topic + "' (--events-topic, topic= or meta.json's events_topic): " + path + " is " + format +
+                     ", not a ROS bag; a topic applies to bags only (leave it out)");
+}
+
+}  // namespace detail
+
 std::string detect_event_format(const std::string& path) {
   detail::FileSource src(path);
   return detail::detect_format(src, path);
@@ -224,6 +234,7 @@ EventStream run_reader(const std::string& path, const EventReadOptions& options,
   if (format.empty() || (format != "h5" && format != "npz")) src = std::make_unique<detail::FileSource>(path);
   if (format.empty()) format = detail::detect_format(*src, path);
   format = detail::canonical_format(format);
+  detail::check_topic_applies(path, format, options);
   rep.format = format;
   rep.time_unit = "us";
   detail::EventSink sink(path, options, rep, std::move(on_chunk), chunk_events);
@@ -273,6 +284,7 @@ EventTotals& EventTotals::operator+=(const EventTotals& o) {
   dropped_bad_polarity += o.dropped_bad_polarity;
   reordered += o.reordered;
   empty_files += o.empty_files;
+  if (size_disagreement.empty()) size_disagreement = o.size_disagreement;
   return *this;
 }
 

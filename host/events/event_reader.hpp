@@ -77,6 +77,9 @@ struct EventReadReport : ReadStats {
   std::string time_unit;        // unit the file's times were read in ("us" for binary formats)
   std::map<std::string, uint64_t> ignored;  // records of other kinds that were skipped, e.g. "EXT_TRIGGER"
   std::vector<std::string> notes;           // what the reader chose (layout, geometry source, ...)
+  // The file declares a sensor size other than the one given (meta.json, width/height): said as a
+  // warning by unroll, online and offline, and refused by bag-sequence. Empty: they agree.
+  std::string size_disagreement;
 
   std::string summary() const;  // one paragraph for humans: counts, drops, ignored, notes
 };
@@ -92,6 +95,7 @@ struct EventTotals {
            dropped_unknown_word = 0, dropped_bad_polarity = 0;
   uint64_t reordered = 0;  // distinct valid records out of file order (on_bad=sort)
   uint64_t empty_files = 0;  // event files of 0 bytes among those read
+  std::string size_disagreement;  // the first read's EventReadReport::size_disagreement
 
   uint64_t dropped() const {
     return dropped_out_of_sensor + dropped_time_order + dropped_nan + dropped_unknown_word + dropped_bad_polarity;

@@ -343,6 +343,9 @@ std::string detect_format(ByteSource& src, const std::string& path);
 std::string canonical_format(const std::string& format);
 // Throws Error when `path` does not exist or is a folder.
 void check_event_file(const std::string& path);
+// A ROS bag topic given for a file that is not a bag is refused (UsageError naming the topic and the
+// file): an option that does not apply is never ignored.
+void check_topic_applies(const std::string& path, const std::string& format, const EventReadOptions& o);
 // A 0-byte event file: an empty stream, the report says so (empty_file, records 0).
 EventStream read_empty_file(EventSink& sink);
 

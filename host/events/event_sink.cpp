@@ -52,9 +52,14 @@ void EventSink::set_file_geometry(int width, int height, const std::string& sour
     throw Error(file_ + ": sensor size " + std::to_string(width) + "x" + std::to_string(height) + " from " + source +
                 " is invalid (at most 65536x65536)");
   if (override_size_) {
-    if (width != width_ || height != height_)
-      note("sensor size " + std::to_string(width) + "x" + std::to_string(height) + " from " + source +
-           " overridden by the option " + std::to_string(width_) + "x" + std::to_string(height_));
+    if (width != width_ || height != height_) {
+      const std::string said = "sensor size " + std::to_string(width) + "x" + std::to_string(height) + " from " + source +
+                               " differs from the size given (meta.json or the width/height option), " +
+                               std::to_string(width_) + "x" + std::to_string(height_) + ", which is used";
+      note(said);
+      if (report_.size_disagreement.empty()) report_.size_disagreement = file_ + ": " + said;
+      if (totals_ && totals_->size_disagreement.empty()) totals_->size_disagreement = file_ + ": " + said;
+    }
     return;
   }
   width_ = width;

@@ -1,5 +1,7 @@
 #include "vkunroll/host/events/meta_schema.hpp"
 
+#include <sys/stat.h>
+
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -284,10 +286,7 @@ void rule_distinct_frame_files(const Sequence& s, const std::string& meta_path) 
   auto check = [&](const std::vector<std::string>& images, const char* list) {
     std::map<std::string, size_t> first;
     for (size_t k = 0; k < images.size(); ++k) {
-      std::error_code ec;
-      fs::path p = fs::weakly_canonical(images[k], ec);
-      if (ec) p = fs::path(images[k]).lexically_normal();
-      const auto [it, fresh] = first.emplace(p.string(), k);
+      const auto [it, fresh] = first.emplace(image_identity(images[k]), k);
       if (!fresh)
         throw MetaSchemaError(meta_path, std::string(list) + "[" + std::to_string(k) + "].file", "\"" + images[k] + "\"",
                               std::string("the same image as ") + list + "[" + std::to_string(it->second) + "] (" +
@@ -316,27 +315,36 @@ void rule_ground_truth_inside_recording(const Sequence& s, const std::string& me
   }
 }
 
-void rule_images_agree(const Sequence& s, const std::vector<ImageHeader>& frames, const std::vector<ImageHeader>& truth) {
+std::string image_identity(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) == 0) return "inode " + std::to_string(st.st_dev) + ":" + std::to_string(st.st_ino);
+  std::error_code ec;
+  fs::path p = fs::weakly_canonical(path, ec);
+  if (ec) p = fs::path(path).lexically_normal();
+  return p.string();
+}
+
+void rule_image_agrees(const Sequence& s, const std::string& field, const std::string& image, const ImageHeader& h,
+                       const ImageHeader& reference, const std::string& reference_field) {
   const std::string file = seq_file(s);
-  const int channels = frames.empty() ? 0 : frames[0].channels;
-  auto check = [&](const std::vector<ImageHeader>& hs, const char* list, auto image_of) {
-    for (size_t k = 0; k < hs.size(); ++k) {
-      const ImageHeader& h = hs[k];
-      const std::string field = std::string(list) + "[" + std::to_string(k) + "].file";
-      const std::string value = "\"" + image_of(k) + "\" (" + std::to_string(h.width) + "x" + std::to_string(h.height) +
-                                ", " + channels_text(h.channels) + ")";
-      if (h.width != s.width || h.height != s.height)
-        throw MetaSchemaError(file, field, value,
-                              "the image is " + std::to_string(h.width) + "x" + std::to_string(h.height) + ", the sensor is " +
-                                  std::to_string(s.width) + "x" + std::to_string(s.height) + " (" + rule_text("images-agree") + ")");
-      if (h.channels != channels)
-        throw MetaSchemaError(file, field, value,
-                              "the image has " + channels_text(h.channels) + ", frames[0] has " + channels_text(channels) +
-                                  " (" + rule_text("images-agree") + ")");
-    }
-  };
-  check(frames, "frames", [&](size_t k) { return s.frames[k].image; });
-  check(truth, "ground_truth", [&](size_t k) { return s.ground_truth[k].image; });
+  const std::string value = "\"" + image + "\" (" + std::to_string(h.width) + "x" + std::to_string(h.height) + ", " +
+                            channels_text(h.channels) + ")";
+  if (h.width != s.width || h.height != s.height)
+    throw MetaSchemaError(file, field, value,
+                          "the image is " + std::to_string(h.width) + "x" + std::to_string(h.height) + ", the sensor is " +
+                              std::to_string(s.width) + "x" + std::to_string(s.height) + " (" + rule_text("images-agree") + ")");
+  if (h.channels != reference.channels)
+    throw MetaSchemaError(file, field, value,
+                          "the image has " + channels_text(h.channels) + ", " + reference_field + " has " +
+                              channels_text(reference.channels) + " (" + rule_text("images-agree") + ")");
+}
+
+void rule_images_agree(const Sequence& s, const std::vector<ImageHeader>& frames, const std::vector<ImageHeader>& truth) {
+  const ImageHeader reference = frames.empty() ? ImageHeader{} : frames[0];
+  for (size_t k = 0; k < frames.size(); ++k)
+    rule_image_agrees(s, "frames[" + std::to_string(k) + "].file", s.frames[k].image, frames[k], reference, "frames[0]");
+  for (size_t k = 0; k < truth.size(); ++k)
+    rule_image_agrees(s, "ground_truth[" + std::to_string(k) + "].file", s.ground_truth[k].image, truth[k], reference, "frames[0]");
 }
 
 std::string meta_schema_markdown() {

@@ -48,8 +48,18 @@ void rule_ground_truth_inside_recording(const Sequence& s, const std::string& me
 struct ImageHeader {
   int width = 0, height = 0, channels = 0;
 };
+// A frame or ground-truth image exists, is a regular file and (PNG) ends with its IEND chunk; its
+// header (size, channels). Error naming the image otherwise (sequence.cpp).
+ImageHeader check_sequence_image(const Sequence& s, const std::string& image, const char* what);
 // Every frame and ground-truth image has the sensor's size and the first frame's channel count.
 void rule_images_agree(const Sequence& s, const std::vector<ImageHeader>& frames, const std::vector<ImageHeader>& truth);
+// The same rule for one image as it appears (unroll --follow): `field` names it ("frames[3].file"),
+// `reference` is the first frame's header (`reference_field` names that frame).
+void rule_image_agrees(const Sequence& s, const std::string& field, const std::string& image, const ImageHeader& h,
+                       const ImageHeader& reference, const std::string& reference_field);
+// Two files are the same image when they are one file: a symlink or a hard link to it (device and
+// inode), or the same path. A key per file that is equal exactly then.
+std::string image_identity(const std::string& path);
 
 // The schema as the markdown section of docs/reliability.md (between its meta-schema markers).
 std::string meta_schema_markdown();

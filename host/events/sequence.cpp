@@ -372,6 +372,10 @@ void check_meta_rules(const Sequence& s, const SequenceOptions& o) {
 
 }  // namespace
 
+ImageHeader check_sequence_image(const Sequence& s, const std::string& image, const char* what) {
+  return check_image(s, image, what);
+}
+
 const char* sequence_layout_name(SequenceLayout l) {
   switch (l) {
     case SequenceLayout::automatic: return "auto";
@@ -428,8 +432,8 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
   if (o.line_delay_us || o.exposure_us || o.readout || o.t0s_us) s.notes.push_back("timing overridden by options");
   if (o.check_frame_sizes) {
     std::vector<ImageHeader> frames, truth;
-    for (const auto& f : s.frames) frames.push_back(check_image(s, f.image, "frame"));
-    for (const auto& g : s.ground_truth) truth.push_back(check_image(s, g.image, "ground-truth"));
+    for (const auto& f : s.frames) frames.push_back(check_sequence_image(s, f.image, "frame"));
+    for (const auto& g : s.ground_truth) truth.push_back(check_sequence_image(s, g.image, "ground-truth"));
     rule_images_agree(s, frames, truth);
   }
   if (o.events_file) {

@@ -68,6 +68,10 @@ struct Sequence {
   // What all reads so far decoded, each record counted once however many windows covered it: for
   // the unroll summary ("11110 of 22219 records dropped (out of time order)", "no event records").
   EventTotals event_totals() const;
+  // Decodes what no read has decoded yet of each streamed event file (windows stop at their end), so
+  // the record rules hold over the whole stream: a backward time jump after the last window is an
+  // error (on_bad error) or dropped and counted (drop), as a full scan has it. Keeps no event.
+  void read_events_to_end() const;
   const SequenceFrame& frame(int index) const;  // throws Error naming the index and the count
 
  private:

@@ -1,6 +1,7 @@
 // Sequence::read_events: one EventFileReader per event file, opened on the first read and kept,
 // so every later window seeks through the file's index instead of re-parsing it.
 #include <algorithm>
+#include <cstdint>
 #include <list>
 #include <mutex>
 #include <numeric>
@@ -115,6 +116,18 @@ EventStream Sequence::read_events(int64_t t_begin_us, int64_t t_end_us, EventRea
     return std::move(c.count(sorted));
   }
   return std::move(c.count(all));
+}
+
+void Sequence::read_events_to_end() const {
+  if (!event_readers_) return;
+  SequenceEventReaders& c = *event_readers_;
+  std::lock_guard<std::mutex> lock(c.mutex);
+  c.sync(event_files, event_options);
+  for (size_t i = 0; i < event_files.size(); ++i) {
+    EventFileReader& r = c.reader(i);
+    // A window that begins after every record keeps none, and resumes at the index's end.
+    if (r.streamed()) (void)r.read(INT64_MAX, std::nullopt);
+  }
 }
 
 EventTotals Sequence::event_totals() const {

@@ -27,6 +27,11 @@ class FrameSource {
   virtual EventStream events(double lo, double hi) = 0;
   // The frames' encoding gamma the source records (a sequence's meta.json), else 1.
   virtual double recorded_gamma() const = 0;
+  // After the last window: decodes what no window read, so the record rules (time order above all)
+  // hold over the whole stream and the totals count every record (a sequence's files; no-op else).
+  virtual void read_events_to_end() {}
+  // Every record the source decoded, counted once (a sequence's files; a live stream's records).
+  virtual EventTotals event_totals() const { return layout().event_totals(); }
 };
 
 // A loaded sequence folder; images and events are read from its files when asked for.
@@ -38,6 +43,7 @@ class SequenceFrameSource : public FrameSource {
   cv::Mat decode_ground_truth(int j) override;
   EventStream events(double lo, double hi) override;
   double recorded_gamma() const override;
+  void read_events_to_end() override { seq_.read_events_to_end(); }
 
  private:
   const Sequence& seq_;

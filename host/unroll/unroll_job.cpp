@@ -142,6 +142,7 @@ void UnrollJob::run(ResultSink& sink) {
       auto it = plan_.targets.find(k);
       if (it != plan_.targets.end()) run_frame(k, it->second, sink);
     }
+    source_.read_events_to_end();  // the whole stream's rules (time order), not only the windows'
   } catch (...) {
     traffic_ = session_.traffic() - traffic_before_;  // a stopped stream (--follow) still reports its frames
     throw;

@@ -132,7 +132,7 @@ nlohmann::json UnrollJob::events_report(std::vector<std::string>& warnings) cons
                       {"per_frame", per_frame}, {"frames_without_events", c.frames_without_events}};
   const Sequence& layout = source_.layout();
   if (layout.event_files.empty()) return j;  // arrays: no files to total
-  const EventTotals totals = layout.event_totals();
+  const EventTotals totals = source_.event_totals();
   j["files"] = layout.event_files;
   j["file_totals"] = {{"records", totals.records}, {"valid", totals.valid}, {"dropped", totals.dropped()},
                       {"dropped_out_of_sensor", totals.dropped_out_of_sensor}, {"dropped_time_order", totals.dropped_time_order},
@@ -152,6 +152,7 @@ nlohmann::json UnrollJob::events_report(std::vector<std::string>& warnings) cons
   if (totals.reordered)
     warnings.push_back(opt("on_bad") + " sort: " + std::to_string(totals.reordered) + " event record(s) were out of time order and were sorted");
   if (totals.empty_files) warnings.push_back(std::to_string(totals.empty_files) + " event file(s) are empty (0 bytes): " + files);
+  if (!totals.size_disagreement.empty()) warnings.push_back(totals.size_disagreement);
   return j;
 }
 

@@ -138,20 +138,23 @@ std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const
         }
       break;
   }
+  const std::string field = times.kind == TargetTimes::Kind::absolute_us ? "times_us" : "times";
+  for (const auto& [k, ts] : targets)
+    for (const auto& t : ts) check_target_in_recording(seq, t.t_us.to_double(), field);
+  return targets;
+}
+
+void check_target_in_recording(const Sequence& seq, double t_us, const std::string& field) {
   // Over all frames: a sequence whose frames are out of time order still names its true span.
   double rec_lo = seq.frames.front().timing.first_start().to_double(), rec_hi = seq.frames.front().timing.last_end().to_double();
   for (const auto& f : seq.frames)
     rec_lo = std::min(rec_lo, f.timing.first_start().to_double()), rec_hi = std::max(rec_hi, f.timing.last_end().to_double());
   const double margin = seq.frames.size() > 1 ? frame_mid(seq.frames[1]) - frame_mid(seq.frames[0])
                                               : seq.frames[0].timing.last_end().to_double() - rec_lo;
-  for (const auto& [k, ts] : targets)
-    for (const auto& t : ts)
-      if (t.t_us.to_double() < rec_lo - margin || t.t_us.to_double() > rec_hi + margin)
-        throw OptionError(times.kind == TargetTimes::Kind::absolute_us ? "times_us" : "times", us_text(t.t_us.to_double()),
-                          "within a frame period of the recording",
-                          opt(times.kind == TargetTimes::Kind::absolute_us ? "times_us" : "times") + ": target t* = " + us_text(t.t_us.to_double()) + " us is outside the recording [" + us_text(rec_lo) +
-                         ", " + us_text(rec_hi) + "] us by more than a frame period");
-  return targets;
+  if (t_us < rec_lo - margin || t_us > rec_hi + margin)
+    throw OptionError(field, us_text(t_us), "within a frame period of the recording",
+                      opt(field) + ": target t* = " + us_text(t_us) + " us is outside the recording [" + us_text(rec_lo) + ", " +
+                          us_text(rec_hi) + "] us by more than a frame period");
 }
 
 FrameTarget::Method target_method(UnrollMode mode, bool moa, bool has_next, bool inside, int frame,

@@ -49,6 +49,10 @@ std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requ
 std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const std::vector<int>& frames,
                                                       const TargetTimes& times, const std::string& where);
 
+// A target instant lies within the recording's span, give or take a frame period (an OptionError naming
+// `field`, times or times_us, otherwise): unroll's target times and voxelize's, one rule.
+void check_target_in_recording(const Sequence& seq, double t_us, const std::string& field);
+
 // How one target is unrolled under `mode`; `notes` collects what the user should know.
 FrameTarget::Method target_method(UnrollMode mode, bool moa, bool has_next, bool inside, int frame,
                                   std::map<std::string, int>& notes);
