@@ -4,6 +4,7 @@
 
 #include "vkunroll/host/cli/cli.hpp"
 #include "vkunroll/host/unroll/default_model.hpp"
+#include "vkunroll/host/unroll/follow_source.hpp"
 #include "vkunroll/host/unroll/unroll.hpp"
 #include "vkunroll/host/unroll/value_list.hpp"
 
@@ -154,8 +155,8 @@ void add_follow_options(CLI::App* c, UnrollArgs& a) {
               "live: meta.json lists the frames to come; each GS frame is written as soon as its image exists and the "
               "events have passed its window; ends at the stream's end, after --follow-idle-s, or on SIGINT")->group(g);
   c->add_option("--follow-events", a.follow.events, "EVT 3.0 raw stream: a pipe, a growing file, or - (stdin)")
-      ->capture_default_str()->group(g)->type_name("FILE");
-  c->add_option("--follow-idle-s", a.follow.idle_s, "no new events and no awaited frame for this long: the stream ended (0: never)")
+      ->check(non_empty())->capture_default_str()->group(g)->type_name("FILE");
+  c->add_option("--follow-idle-s", a.follow.idle_s, "no new events and no awaited frame for this long: the stream ended (0: never; else 0.1 to 1e6)")
       ->check(finite_at_least(0))->capture_default_str()->group(g)->type_name("S");
   c->add_option("--follow-max-events", a.follow.max_events, "events held at most (the ring of events later frames need)")
       ->check(int_range(1024, int64_t(1) << 34))->capture_default_str()->group(g)->type_name("N");
@@ -185,10 +186,14 @@ Command add_unroll(CLI::App& parent) {
   add_follow_options(c, *a);
   add_device_options(c, a->device);
   add_sequence_timing(c, a->timing);
-  return {c, [a] {
+  return {c, [a, c] {
             apply_threads(a->device.threads);
-            run_unroll(to_options(*a));
-            return 0;
+            // Options that do not apply are refused, never ignored.
+            if (!a->follow.enabled)
+              for (const char* f : {"--follow-events", "--follow-idle-s", "--follow-max-events"})
+                if (c->count(f)) throw UsageError(std::string(f) + " applies only with --follow");
+            const nlohmann::json summary = run_unroll(to_options(*a));
+            return summary.contains("follow") ? follow_exit_code(summary["follow"]) : 0;
           }};
 }
 

@@ -33,13 +33,16 @@ struct EventStreamFollower::Decoder {
 
 EventStreamFollower::EventStreamFollower(const std::string& path, const EventReadOptions& options)
     : name_(path == "-" ? "stdin" : path), options_(options) {
+  if (path.empty()) throw UsageError("--follow-events: an empty value (name a pipe, a growing file, or - for stdin)");
   if (options_.on_bad == BadEventPolicy::sort)
     throw OptionError("on_bad", "sort", "error or drop",
                       opt("follow") + ": " + opt("on_bad") + " sort cannot apply to a live stream (events are used as they come); use error or drop");
   if (path == "-") {
     fd_ = 0;
   } else {
-    fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    // Non-blocking: opening a FIFO that no writer has opened yet must not block (the idle limit
+    // applies to the wait); poll() then waits for the writer's bytes.
+    fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
     if (fd_ < 0) {
       if (errno == ENOENT) throw OptionError("follow_events", path, "no such file", {}, ErrorKind::input_missing);
       throw OptionError("follow_events", path, std::string("cannot open (") + std::strerror(errno) + ")", {}, ErrorKind::data);
@@ -55,8 +58,9 @@ EventStreamFollower::~EventStreamFollower() {
   if (own_fd_ && fd_ >= 0) ::close(fd_);
 }
 
-// '%' lines up to "% end" or the first byte that is not '%' at a line start; needs EVT 3.0.
-void EventStreamFollower::parse_header() {
+// '%' lines up to "% end" or the first byte that is not '%' at a line start (or the stream's end:
+// a header that never ended is validated all the same).
+void EventStreamFollower::parse_header(bool at_end) {
   size_t off = 0;
   bool ended = false;  // "% end" seen, or a byte that starts no '%' line: the data begins at `off`
   while (!ended && off < pending_.size()) {
@@ -67,27 +71,38 @@ void EventStreamFollower::parse_header() {
     const auto nl = std::find(pending_.begin() + long(off), pending_.end(), uint8_t('\n'));
     if (nl == pending_.end()) {
       if (pending_.size() - off > (1 << 16)) throw DataError(name_ + ": a '%' header line longer than 64 KiB");
-      return;  // the line is not complete yet
+      if (!at_end) return;  // the line is not complete yet
+      off = pending_.size();
+      break;
     }
     const std::string line(pending_.begin() + long(off), nl);
     off = size_t(nl - pending_.begin()) + 1;
     ended = line.rfind("% end", 0) == 0;
   }
-  if (!ended) return;  // only header lines so far
+  if (!ended && !at_end) return;  // only header lines so far
   detail::MemorySource head(name_, std::vector<uint8_t>(pending_.begin(), pending_.begin() + long(off)));
   const detail::PropheseeHeader h = detail::parse_prophesee_header(head);
   if (h.evt != "3.0" && h.evt != "2.0" && h.evt != "2.1")
     throw DataError(name_ + ": the stream's '%' header says " + (h.evt.empty() ? std::string("no encoding") : "EVT " + h.evt) +
-                    "; " + opt("follow") + " reads EVT 2.0, 2.1 or 3.0 ('% evt 3.0', '% format EVT21;...')");
+                    "; " + opt("follow") + " reads EVT 2.0, 2.1 or 3.0 ('% evt 3.0', '% format EVT21;...')" +
+                    (ended ? "" : " (the stream ended inside its header, before '% end')"));
   evt_ = h.evt;
   evt21_legacy_ = h.evt21_legacy;
+  header_width_ = h.width, header_height_ = h.height, header_geometry_ = h.geometry_source;
   pending_.erase(pending_.begin(), pending_.begin() + long(off));
   data_offset_ = off;
   header_done_ = true;
+  open_decoder();
+}
+
+void EventStreamFollower::open_decoder() {
+  if (decoder_) return;
+  decoder_ = std::make_unique<Decoder>(name_, options_, report_);
+  // The header's sensor size against the sequence's: a disagreement is said, as offline.
+  decoder_->sink.set_file_geometry(header_width_, header_height_, header_geometry_.empty() ? "the '%' header" : header_geometry_);
 }
 
 void EventStreamFollower::decode(EventStream& out) {
-  if (!decoder_) decoder_ = std::make_unique<Decoder>(name_, options_, report_);
   decoder_->out = &out;
   Decoder& d = *decoder_;
   const size_t unit = evt_ == "3.0" ? 2 : evt_ == "2.0" ? 4 : 8;  // bytes a word
@@ -106,9 +121,32 @@ void EventStreamFollower::decode(EventStream& out) {
   }
   data_offset_ += whole;
   pending_.erase(pending_.begin(), pending_.begin() + long(whole));
+  // Time words move the sensor clock even when no event comes (a quiet scene).
+  int64_t clock = INT64_MIN;
+  if (unit == 2 && d.state.have_high) clock = int64_t(d.state.loop + (d.state.time_high << 12) + d.state.time_low);
+  if (unit != 2 && d.state2.have_high) clock = int64_t(d.state2.loop + (d.state2.time_high << 6));
+  if (!out.empty()) clock = std::max(clock, out.t.back());
+  clock_us_ = std::max(clock_us_, clock);
+}
+
+void EventStreamFollower::finish() {
+  if (finished_) return;
+  finished_ = true;
+  if (!header_done_ && !pending_.empty()) parse_header(true);
+  if (!header_done_ || pending_.empty()) return;
+  Decoder& d = *decoder_;
+  const char* word = evt_ == "3.0" ? "16-bit EVT 3.0 word" : evt_ == "2.0" ? "32-bit EVT 2.0 word" : "64-bit EVT 2.1 word";
+  d.sink.set_record_index(d.record++);
+  d.sink.set_byte_offset(int64_t(data_offset_));
+  const size_t trailing = pending_.size();
+  pending_.clear();
+  // The offline reader's rule and words for a truncated file (reader_evt.cpp, finish_words).
+  d.sink.unknown_record(std::string("the stream ends inside a ") + word + " (" + std::to_string(trailing) +
+                        " trailing bytes; truncated stream)");
 }
 
 EventStreamFollower::Status EventStreamFollower::read_some(int timeout_ms, EventStream& out) {
+  if (finished_) return Status::end;
   pollfd p{fd_, POLLIN, 0};
   if (pipe_) {
     const int r = ::poll(&p, 1, timeout_ms);
@@ -122,15 +160,25 @@ EventStreamFollower::Status EventStreamFollower::read_some(int timeout_ms, Event
     throw DataError(name_ + ": cannot read events (" + std::strerror(errno) + ")");
   }
   if (n == 0) {
-    if (pipe_) return Status::end;
+    if (pipe_) {
+      finish();
+      return Status::end;
+    }
     std::this_thread::sleep_for(std::chrono::milliseconds(timeout_ms));  // a growing file: wait for more
     return Status::no_data;
   }
-  bytes_ += uint64_t(n);
-  pending_.insert(pending_.end(), buf, buf + n);
-  if (!header_done_) parse_header();
-  if (header_done_) decode(out);
+  feed(buf, size_t(n), out);
   return Status::data;
 }
+
+void EventStreamFollower::feed(const uint8_t* data, size_t size, EventStream& out) {
+  bytes_ += uint64_t(size);
+  pending_.insert(pending_.end(), data, data + size);
+  if (!header_done_) parse_header(false);
+  if (header_done_) decode(out);
+}
+
+EventStreamFollower::EventStreamFollower(const std::string& name, const EventReadOptions& options, std::nullptr_t)
+    : name_(name), options_(options) {}
 
 }  // namespace vkunroll

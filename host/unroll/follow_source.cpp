@@ -6,6 +6,7 @@
 #include <csignal>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
 #include "vkunroll/host/unroll/unroll_plan.hpp"
 
@@ -25,23 +26,27 @@ extern "C" void on_stop_signal(int sig) {
 
 constexpr int kPollMs = 20;
 
-// A frame file is complete: it exists and, a PNG, ends with its IEND chunk (writers that rename
-// into place are always complete; others are waited for).
-bool frame_file_complete(const std::string& path) {
+// Whether a frame file is complete: "" when it exists and, a PNG, ends with its IEND chunk (writers
+// that rename into place are always complete; others are waited for); else what it is so far.
+std::string frame_file_state(const std::string& path) {
   std::error_code ec;
   const auto st = fs::status(path, ec);
-  if (ec || !fs::is_regular_file(st)) return false;
+  if (ec || !fs::exists(st)) return "does not exist";
+  if (!fs::is_regular_file(st)) return "is not a regular file";
   const uint64_t size = fs::file_size(path, ec);
-  if (ec || size < 8) return false;
+  const std::string bytes = " (" + std::to_string(size) + " bytes so far)";
+  if (ec || size < 8) return "exists but is too short to be an image" + bytes;
   std::ifstream in(path, std::ios::binary);
   char sig[4] = {};
   in.read(sig, 4);
-  if (sig[1] != 'P' || sig[2] != 'N' || sig[3] != 'G') return true;
+  if (sig[1] != 'P' || sig[2] != 'N' || sig[3] != 'G') return "";
   const uint64_t tail = std::min<uint64_t>(size, 64);
   std::string end(tail, '\0');
   in.seekg(std::streamoff(size - tail));
   in.read(end.data(), std::streamsize(tail));
-  return end.find("IEND") != std::string::npos;
+  if (end.find("IEND") != std::string::npos) return "";
+  return "exists but is an incomplete PNG, no IEND chunk at its end" + bytes +
+         " (write frames under another name and rename them into place)";
 }
 
 double seconds_since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
@@ -81,82 +86,146 @@ FollowFrameSource::~FollowFrameSource() {
   reader_.join();
 }
 
-// The reader thread: bytes -> events into the ring, until the end, an error or quit; it waits
-// while the ring is full (the writer then waits on the pipe).
+// The reader thread: bytes -> events into the ring, until the end, an error or quit. The ring never
+// holds more than max_events: what a read decoded beyond that waits in the backlog (and the reader
+// with it; the writer then waits on the pipe), so the cap is hard and its outcome deterministic.
 void FollowFrameSource::reader_loop() {
-  EventStream batch;
   try {
     for (;;) {
       {
         std::unique_lock<std::mutex> lock(mu_);
+        move_backlog();
         reader_full_ = ring_.size() - head_ >= options_.max_events;
         if (reader_full_) cv_.notify_all();
         cv_.wait(lock, [&] { return quit_ || ring_.size() - head_ < options_.max_events; });
         reader_full_ = false;
         if (quit_) return;
+        move_backlog();
+        if (backlog_at_ < backlog_.size()) continue;  // the ring filled again
+        if (stream_over_) return;                      // everything read is in the ring
       }
-      batch.t.clear(), batch.x.clear(), batch.y.clear(), batch.p.clear();
-      const auto status = follower_.read_some(kPollMs, batch);
-      std::lock_guard<std::mutex> lock(mu_);
-      if (status == EventStreamFollower::Status::end) {
-        ended_ = true;
-        end_reason_ = "end of stream (" + follower_.name() + " closed)";
-        cv_.notify_all();
-        return;
-      }
-      if (status == EventStreamFollower::Status::data) last_news_ = Clock::now();
-      for (size_t i = 0; i < batch.size(); ++i) ring_.push(batch.t[i], batch.x[i], batch.y[i], batch.p[i]);
-      peak_ = std::max<uint64_t>(peak_, ring_.size() - head_);
-      if (!batch.empty()) {
-        latest_t_ = std::max(latest_t_, batch.t.back());
-        arrivals_.push_back({latest_t_, Clock::now()});
-      }
-      if (!ended_ && options_.idle_s > 0 && seconds_since(last_news_) > options_.idle_s) {
-        ended_ = true;
-        end_reason_ = "no new events for " + std::to_string(options_.idle_s) + " s (" + opt("follow_idle_s") + ")";
-      }
-      cv_.notify_all();
-      if (ended_) return;
+      read_into_ring();
     }
   } catch (...) {
     std::lock_guard<std::mutex> lock(mu_);
     reader_error_ = std::current_exception();
-    ended_ = true;
+    stream_over_ = ended_ = true;
     cv_.notify_all();
   }
 }
 
+// One read of the stream into the backlog and, as it takes them, the ring.
+void FollowFrameSource::read_into_ring() {
+  EventStream batch;
+  const auto status = follower_.read_some(kPollMs, batch);
+  std::lock_guard<std::mutex> lock(mu_);
+  if (status == EventStreamFollower::Status::data) last_news_ = Clock::now();
+  backlog_ = std::move(batch), backlog_at_ = 0, backlog_clock_ = follower_.clock_us();
+  if (status == EventStreamFollower::Status::end) {
+    end_stream("end of stream (" + follower_.name() + " closed)");
+  } else if (options_.idle_s > 0 && seconds_since(last_news_) > options_.idle_s) {
+    follower_.finish();  // a partial word left is a truncated stream, as at the pipe's end
+    std::ostringstream why;
+    why << "no new events for " << options_.idle_s << " s (--follow-idle-s)";
+    end_stream(why.str());
+  }
+  move_backlog();
+  cv_.notify_all();
+}
+
+// As much of the backlog as the ring takes (under mu_); the clock counts once all of it is in.
+void FollowFrameSource::move_backlog() {
+  const int64_t before = latest_t_;
+  const size_t room = options_.max_events - std::min(options_.max_events, ring_.size() - head_);
+  const size_t n = std::min(room, backlog_.size() - backlog_at_);
+  for (size_t i = backlog_at_; i < backlog_at_ + n; ++i) ring_.push(backlog_.t[i], backlog_.x[i], backlog_.y[i], backlog_.p[i]);
+  if (n) latest_t_ = std::max(latest_t_, ring_.t.back());
+  backlog_at_ += n;
+  const bool drained = backlog_at_ == backlog_.size();
+  if (drained) latest_t_ = std::max(latest_t_, backlog_clock_);
+  peak_ = std::max<uint64_t>(peak_, ring_.size() - head_);
+  if (latest_t_ != before) arrivals_.push_back({latest_t_, Clock::now()});
+  if (drained && stream_over_ && !ended_) ended_ = true;
+  if (n || ended_) cv_.notify_all();
+}
+
+// Under mu_: no more reads; once the backlog is in the ring the stream has ended and the job
+// unrolls what is there (a window the stream did not pass is partial).
+void FollowFrameSource::end_stream(const std::string& why) {
+  stream_over_ = true;
+  end_reason_ = why;
+}
+
 void FollowFrameSource::check_stop(const char* waiting_for) const {
-  if (InterruptFlag::raised()) throw StreamStopped(std::string(InterruptFlag::signal_name()) + " while waiting for " + waiting_for);
-  if (reader_error_) std::rethrow_exception(reader_error_);
-  if (options_.stop_requested && options_.stop_requested()) throw StreamStopped(std::string("stopped by the caller while waiting for ") + waiting_for);
+  using K = StreamStopped::Kind;
+  if (InterruptFlag::raised())
+    throw StreamStopped(std::string(InterruptFlag::signal_name()) + " while waiting for " + waiting_for, K::requested);
+  if (reader_error_) {
+    try {
+      std::rethrow_exception(reader_error_);
+    } catch (const Error& e) {  // a bad record (--on-bad error) or a read error: what was written stays
+      throw StreamStopped(e.what(), K::failed);
+    }
+  }
+  if (options_.stop_requested && options_.stop_requested())
+    throw StreamStopped(std::string("stopped by the caller while waiting for ") + waiting_for, K::requested);
 }
 
 void FollowFrameSource::wait_image(const std::string& path, int k) {
   const auto since = Clock::now();
-  while (!frame_file_complete(path)) {
+  for (std::string state; !(state = frame_file_state(path)).empty();) {
     {
       std::lock_guard<std::mutex> lock(mu_);
-      check_stop(("frame " + std::to_string(k)).c_str());
+      const std::string what = k >= 0 ? "frame " + std::to_string(k) : "ground truth " + std::to_string(-1 - k);
+      check_stop(what.c_str());
       const double quiet = std::min(seconds_since(since), seconds_since(last_news_));
-      if (options_.idle_s > 0 && (ended_ ? seconds_since(since) : quiet) > options_.idle_s)
-        throw StreamStopped("frame " + std::to_string(k) + "'s image " + path + " did not appear within " +
-                            std::to_string(options_.idle_s) + " s (" + opt("follow_idle_s") + ")" + (ended_ ? " after " + end_reason_ : ""));
+      if (options_.idle_s > 0 && (ended_ ? seconds_since(since) : quiet) > options_.idle_s) {
+        std::ostringstream why;
+        why << what << "'s image " << path << " " << state << " after " << options_.idle_s << " s (" << opt("follow_idle_s") << ")"
+            << (ended_ ? "; the stream ended: " + end_reason_ : "");
+        throw StreamStopped(why.str(), StreamStopped::Kind::stream);
+      }
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(kPollMs));
   }
   ready_ = std::max(ready_, Clock::now());
 }
 
+// The schema's image rules, as each image appears (offline they hold for the folder up front):
+// images-agree (size, the first frame's channels) and distinct-frame-files (hard links too).
+void FollowFrameSource::check_image_rules(const std::string& path, int k) {
+  try {
+    check_image_rules_or_throw(path, k);
+  } catch (const StreamStopped&) {
+    throw;
+  } catch (const Error& e) {  // refused as offline; the frames written before it stay
+    throw StreamStopped(e.what(), StreamStopped::Kind::failed);
+  }
+}
+
+void FollowFrameSource::check_image_rules_or_throw(const std::string& path, int k) {
+  const std::string field = k >= 0 ? "frames[" + std::to_string(k) + "].file" : "ground_truth[" + std::to_string(-1 - k) + "].file";
+  const ImageHeader h = check_sequence_image(seq_, path, k >= 0 ? "frame" : "ground-truth");
+  if (!reference_header_) reference_header_ = h, reference_field_ = field;
+  rule_image_agrees(seq_, field, path, h, *reference_header_, reference_field_);
+  if (k < 0) return;
+  const auto [it, fresh] = image_ids_.emplace(image_identity(path), k);
+  if (!fresh && it->second != k)
+    throw MetaSchemaError((fs::path(seq_.root) / "meta.json").string(), field, "\"" + path + "\"",
+                          "the same image as frames[" + std::to_string(it->second) + "] (distinct-frame-files: a link to it)");
+}
+
 cv::Mat FollowFrameSource::decode_frame(int k) {
   const std::string& path = seq_.frames.at(size_t(k)).image;
   wait_image(path, k);
+  check_image_rules(path, k);
   return read_frame_image(path, seq_.width, seq_.height);
 }
 
 cv::Mat FollowFrameSource::decode_ground_truth(int j) {
   const std::string& path = seq_.ground_truth.at(size_t(j)).image;
   wait_image(path, -1 - j);
+  check_image_rules(path, -1 - j);
   return read_frame_image(path, seq_.width, seq_.height);
 }
 
@@ -177,6 +246,7 @@ EventStream FollowFrameSource::events(double lo, double hi) {
   if (b < released_before_)
     throw Error("internal: events before " + std::to_string(released_before_) + " us were released, the window starts at " +
                 std::to_string(b) + " us");
+  last_window_whole_ = latest_t_ > e;  // else the stream ended inside (or before) the window
   // When the stream first passed the window's end (the reader logged each read).
   auto when = std::upper_bound(arrivals_.begin(), arrivals_.end(), e,
                                [](int64_t t, const std::pair<int64_t, Clock::time_point>& a) { return t < a.first; });
@@ -229,12 +299,25 @@ nlohmann::json FollowFrameSource::report() const {
           {"bytes_read", follower_.bytes_read()},
           {"records", r.records},
           {"events_kept", r.kept},
-          {"events_dropped", r.records - r.kept - r.outside_window},
+          {"events_dropped", r.dropped()},
+          {"stream_clock_us", follower_.clock_us() == INT64_MIN ? nlohmann::json() : nlohmann::json(follower_.clock_us())},
           {"events_released", released_},
           {"ring_peak_events", peak_},
           {"ring_capacity_events", options_.max_events},
           {"stream_ended", ended_},
           {"end_reason", end_reason_}};
+}
+
+EventTotals FollowFrameSource::event_totals() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  const EventReadReport& r = follower_.report();
+  EventTotals t;
+  t.records = r.records;
+  t.valid = r.records - r.dropped();
+  t.dropped_out_of_sensor = r.dropped_out_of_sensor, t.dropped_time_order = r.dropped_time_order;
+  t.dropped_nan = r.dropped_nan, t.dropped_unknown_word = r.dropped_unknown_word, t.dropped_bad_polarity = r.dropped_bad_polarity;
+  t.size_disagreement = r.size_disagreement;
+  return t;
 }
 
 FollowSink::FollowSink(ResultSink& inner, FollowFrameSource& source, const UnrollJob& job) : inner_(inner), source_(source) {
@@ -250,6 +333,14 @@ FollowSink::FollowSink(ResultSink& inner, FollowFrameSource& source, const Unrol
       for (const UnrollTarget& u : t->second) lo = std::min(lo, u.t_us.to_double());
     later = std::min(later, lo);
   }
+}
+
+void FollowSink::add(const GsResult& r) {
+  if (source_.last_window_whole() || r.reused) return inner_.add(r);
+  if (partial_frames_.empty() || partial_frames_.back() != r.frame) partial_frames_.push_back(r.frame);
+  GsResult partial = r;
+  partial.events_window = "partial";
+  inner_.add(partial);
 }
 
 void FollowSink::frame_finished(int frame, size_t done, size_t total) {
@@ -274,6 +365,38 @@ nlohmann::json FollowSink::report() const {
   const double span_s = std::chrono::duration<double>(last_written_ - first_ready_).count();
   if (span_s > 0) j["gs_frames_per_s"] = double(gs_frames_) / span_s;
   return j;
+}
+
+nlohmann::json follow_summary(const FollowFrameSource& source, const FollowSink& sink, const StreamStopped* stop,
+                              size_t planned, std::vector<std::string>& warnings) {
+  nlohmann::json j = source.report();
+  j.update(sink.report());
+  j["gs_frames_planned"] = planned;
+  j["partial_window_frames"] = sink.partial_frames();
+  const size_t written = j["gs_frames"].get<size_t>();
+  using K = StreamStopped::Kind;
+  std::string status = "complete";
+  if (stop) status = stop->kind == K::requested ? "stopped" : stop->kind == K::failed ? "failed" : "partial";
+  if (!sink.partial_frames().empty() && status != "failed") status = "partial";
+  j["status"] = status;
+  j["stopped_because"] = stop ? nlohmann::json(stop->what()) : nlohmann::json();
+  if (!sink.partial_frames().empty()) {
+    std::string list;
+    for (size_t i = 0; i < sink.partial_frames().size(); ++i) list += (i ? ", " : "") + std::to_string(sink.partial_frames()[i]);
+    warnings.push_back("--follow: the stream ended (" + j.value("end_reason", std::string("?")) + ") inside the event window of " +
+                       std::to_string(sink.partial_frames().size()) + " frame(s) (" + list +
+                       "): their GS frames were computed from part of their events (events_window \"partial\" in gs_frames)");
+  }
+  if (stop && stop->kind != K::requested) warnings.push_back("--follow: " + status + ": " + stop->what() + "; " + std::to_string(written) + " of " +
+                               std::to_string(planned) + " GS frame(s) written");
+  return j;
+}
+
+int follow_exit_code(const nlohmann::json& follow) {
+  const std::string status = follow.value("status", std::string("complete"));
+  if (status == "partial") return 3;
+  if (status == "failed") return 65;
+  return 0;
 }
 
 }  // namespace vkunroll

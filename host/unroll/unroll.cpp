@@ -57,7 +57,8 @@ class FolderSink : public ResultSink {
     if (r.reused) {
       output_.add_reused(reused_records_.at(key(r.frame, t)), r.image, r.rs_input, r.ground_truth);
     } else {
-      output_.add(r.frame, t.t_us.to_double(), t.t_us.str(), t.tau, r.image, r.rs_input, r.ground_truth, gt_file, t.name);
+      output_.add(r.frame, t.t_us.to_double(), t.t_us.str(), t.tau, r.image, r.rs_input, r.ground_truth, gt_file, t.name,
+                  r.events_window);
     }
     progress_.update(++done_, "frame " + std::to_string(r.frame) + (r.reused ? " (reused)" : frame_times(r)));
   }
@@ -214,16 +215,15 @@ SequenceOptions follow_sequence_options(const UnrollOptions& o) {
   return so;
 }
 
-// summary.json's "follow": complete or stopped (why), the stream's counts, latency and rate.
-nlohmann::json follow_report(const FollowFrameSource& source, const FollowSink& sink, const std::string& stopped, size_t planned) {
-  nlohmann::json j = source.report();
-  j.update(sink.report());
-  j["gs_frames_planned"] = planned;
-  j["status"] = stopped.empty() ? "complete" : "stopped";
-  j["stopped_because"] = stopped.empty() ? nlohmann::json() : nlohmann::json(stopped);
-  if (!stopped.empty())
-    log_warning("unroll: stopped: " + stopped + "; " + sink.report()["gs_frames"].dump() + " of " + std::to_string(planned) +
-                " GS frame(s) written, all valid");
+// summary.json's "follow" (follow_summary) and, in the log, why a stopped stream stopped.
+nlohmann::json follow_report(const FollowFrameSource& source, const FollowSink& sink, const std::optional<StreamStopped>& stop,
+                             size_t planned, nlohmann::json& warnings) {
+  std::vector<std::string> said;
+  nlohmann::json j = follow_summary(source, sink, stop ? &*stop : nullptr, planned, said);
+  for (const auto& w : said) warnings.push_back(w);
+  if (stop && stop->kind == StreamStopped::Kind::requested)
+    log_warning("unroll: stopped: " + stop->text() + "; " + j["gs_frames"].dump() + " of " + std::to_string(planned) +
+                " GS frame(s) written");
   return j;
 }
 
@@ -277,11 +277,11 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
     follow_sink.emplace(sink, *follow, job);
     if (!o.quiet) log_info("unroll: following " + o.follow.events + "; GS frames appear in " + output.staging().string());
   }
-  std::string stopped;
+  std::optional<StreamStopped> stopped;
   try {
     job.run(follow_sink ? static_cast<ResultSink&>(*follow_sink) : sink);
   } catch (const StreamStopped& e) {
-    stopped = e.text();
+    stopped = e;
   }
   progress.finish();
 
@@ -289,7 +289,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   if (output.replaces_existing())
     extra["notes"].push_back("replaced the earlier output in " + output.dir().string() + " (" +
                              existing_output_name(o.output.existing) + ")");
-  if (follow) extra["follow"] = follow_report(*follow, *follow_sink, stopped, job.total_targets());
+  if (follow) extra["follow"] = follow_report(*follow, *follow_sink, stopped, job.total_targets(), extra["warnings"]);
   extra["provenance"]["finished_utc"] = utc_now();
   if (const Trace* trace = session.trace(); trace && !o.trace_path.empty()) {  // before the output claims success
     trace->write(o.trace_path);

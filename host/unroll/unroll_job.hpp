@@ -35,6 +35,7 @@ struct GsResult {
   cv::Mat rs_input;                // the RS frame, decoded
   cv::Mat ground_truth;            // empty: none at this instant
   bool reused = false;             // the sink's own earlier image (ResultSink::reusable)
+  std::string events_window;       // "partial": the source's window was cut short (--follow); empty: whole
   // The frame's unroll (all its computed targets): wall, GPU (timestamps) and device-wait ms.
   double frame_ms = 0, frame_gpu_ms = 0, frame_wait_ms = 0;
 };

@@ -166,9 +166,12 @@ void validate_unroll_options(const UnrollOptions& o) {
       throw OptionError("follow", "", "a fresh output", opt("follow") + " writes a fresh output; " + opt("resume") + " does not apply to it");
     if (o.sequence_options.events_file)
       throw OptionError("events", "", "not with follow", opt("follow") + " reads its events from " + opt("follow_events") + " (default stdin), not " + opt("events"));
-    if (!(o.follow.idle_s >= 0) || std::isinf(o.follow.idle_s))
-      refuse("follow_idle_s", number_text(o.follow.idle_s), "expected seconds >= 0 (0: wait for ever)");
-    if (o.follow.max_events < 1024) refuse("follow_max_events", std::to_string(o.follow.max_events), "expected at least 1024");
+    // Below the reader's 20 ms poll a stream would end between two reads of a healthy pipe.
+    if (!(o.follow.idle_s == 0 || (o.follow.idle_s >= 0.1 && o.follow.idle_s <= 1e6)))
+      refuse("follow_idle_s", number_text(o.follow.idle_s), "expected 0 (wait for ever) or seconds in [0.1, 1e6]");
+    if (o.follow.events.empty()) refuse("follow_events", "", "an empty value (name a pipe, a growing file, or - for stdin)");
+    if (o.follow.max_events < 1024 || o.follow.max_events > (size_t(1) << 34))
+      refuse("follow_max_events", std::to_string(o.follow.max_events), "expected 1024 to 2^34 events");
   }
 }
 

@@ -56,6 +56,7 @@ nlohmann::json record_json(const GsFrameRecord& r) {
     if (r.rs_psnr) j["rs_psnr"] = json_psnr(*r.rs_psnr), j["rs_ssim"] = *r.rs_ssim;
   }
   if (r.reused) j["reused"] = true;
+  if (!r.events_window.empty()) j["events_window"] = r.events_window;
   return j;
 }
 
@@ -176,9 +177,10 @@ void UnrollOutput::add_reused(const GsFrameRecord& record, const cv::Mat& image,
 
 GsFrameRecord UnrollOutput::add(int frame, double t_us, const std::string& t_exact, double tau, const cv::Mat& image,
                                 const cv::Mat& rs_input, const cv::Mat& gt, const std::string& gt_file,
-                                const std::string& name) {
+                                const std::string& name, const std::string& events_window) {
   GsFrameRecord r;
   r.frame = frame;
+  r.events_window = events_window;
   r.t_us = t_us;
   r.t_exact = t_exact;
   r.tau = tau;

@@ -33,6 +33,7 @@ struct GsFrameRecord {
   std::string gt_file;    // ground truth compared against (empty: none)
   std::optional<double> psnr, ssim, rs_psnr, rs_ssim;  // result vs GT, RS input vs GT
   bool reused = false;    // taken from an earlier run (--resume)
+  std::string events_window;  // "partial": computed from part of its event window (--follow); empty: whole
 };
 
 struct UnrollOutputOptions {
@@ -65,7 +66,7 @@ class UnrollOutput {
   // (e.g. the ground-truth file's name). Returns the record, with metrics when `gt` is given.
   GsFrameRecord add(int frame, double t_us, const std::string& t_exact, double tau, const cv::Mat& image,
                     const cv::Mat& rs_input, const cv::Mat& gt = {}, const std::string& gt_file = {},
-                    const std::string& name = {});
+                    const std::string& name = {}, const std::string& events_window = {});
 
   // Closes and checks the video, writes contact_sheet.png, metrics.csv, frames.jsonl and, last,
   // summary.json (`extra` merged in), then renames the folder into place. Throws IoError naming

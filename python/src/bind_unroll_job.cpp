@@ -1,5 +1,6 @@
 // vkunroll.unroll's native half: the library's UnrollJob (host/unroll/unroll_job.hpp) over a
 // sequence or arrays, into an array sink. Python only converts arguments (vkunroll/_unroll.py).
+#include <optional>
 #include <opencv2/core.hpp>
 
 #include "common.hpp"
@@ -123,6 +124,7 @@ class StreamSink : public ResultSink {
   void add(const GsResult& r) override {
     images_.push_back(cv::min(cv::max(r.image, 0.0), 1.0));
     targets_.push_back({r.frame, r.target->t_us, r.target->tau, r.method, r.target->gt});
+    window_ = r.events_window.empty() ? "whole" : r.events_window;
   }
   void frame_finished(int frame, size_t done, size_t total) override {
     py::gil_scoped_acquire gil;
@@ -132,11 +134,13 @@ class StreamSink : public ResultSink {
       targets.append(py::dict("frame"_a = t.frame, "t_us"_a = to_fraction(t.t_us), "tau"_a = t.tau,
                               "method"_a = frame_method_name(t.method), "gt"_a = t.gt));
     images_.clear(), targets_.clear();
-    on_frame_(py::dict("frame"_a = frame, "images"_a = images, "targets"_a = targets, "done"_a = done, "total"_a = total));
+    on_frame_(py::dict("frame"_a = frame, "images"_a = images, "targets"_a = targets, "done"_a = done, "total"_a = total,
+                       "events_window"_a = window_));
   }
 
  private:
   py::object on_frame_;
+  std::string window_ = "whole";
   std::vector<cv::Mat> images_;
   std::vector<ArraySink::Target> targets_;
 };
@@ -168,17 +172,16 @@ std::string run_stream(PySession& ps, const Sequence& seq, const py::dict& args,
     }
     ps.to_model = job->physics().to_model;
     FollowSink sink(inner, source, *job);
-    std::string stopped;
+    std::optional<StreamStopped> stopped;
     try {
       job->run(sink);
     } catch (const StreamStopped& e) {
-      stopped = e.text();
+      stopped = e;
     }
     nlohmann::json report = job->report();
-    report["follow"] = source.report();
-    report["follow"].update(sink.report());
-    report["follow"]["status"] = stopped.empty() ? "complete" : "stopped";
-    report["follow"]["stopped_because"] = stopped.empty() ? nlohmann::json() : nlohmann::json(stopped);
+    std::vector<std::string> warnings;
+    report["follow"] = follow_summary(source, sink, stopped ? &*stopped : nullptr, job->total_targets(), warnings);
+    for (const auto& w : warnings) report["warnings"].push_back(w);
     spell_options(report, python_keyword);
     return report.dump();
   });

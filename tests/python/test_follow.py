@@ -60,7 +60,8 @@ def test_follow_on_a_pipe_equals_the_offline_run(recording, tmp_path):
     assert all(frames[f] == expected[f] for f in expected), "a followed GS frame differs from the offline one"
     fo = summary["follow"]
     assert fo["status"] == "complete" and fo["stopped_because"] is None
-    assert fo["pipe"] and fo["stream_ended"] and fo["gs_frames"] == 3 * FRAMES
+    # the camera clock passed the last window: the run may end before the pipe closes
+    assert fo["pipe"] and fo["gs_frames"] == 3 * FRAMES and not fo["partial_window_frames"]
     assert fo["events_kept"] == fo["records"] > 0
     assert fo["events_released"] > 0  # events no later frame needs left the ring
     assert fo["frames"] == FRAMES and fo["latency_ms"]["max"] >= fo["latency_ms"]["median"] >= 0

@@ -70,6 +70,18 @@ def words(t, x, y, p, width, height):
     return ENCODERS[ENCODING][0](t, x, y, p, width, height)
 
 
+def clock_words(t):
+    """The sensor clock's words at time t (us) and no event: what a camera sends through a quiet
+    scene (EVT 3.0 TIME_HIGH + TIME_LOW; EVT 2.0 / 2.1 TIME_HIGH, 64 us steps)."""
+    t = int(t)
+    if ENCODING == "evt3":
+        return np.array([0x8000 | ((t >> 12) & 0xFFF), 0x6000 | (t & 0xFFF)], "<u2").tobytes()
+    high = (0x8 << 28) | ((t >> 6) & 0x0FFFFFFF)
+    if ENCODING == "evt2":
+        return np.array([high], "<u4").tobytes()
+    return np.array([high << 32], "<u8").tobytes()
+
+
 def header(width, height):
     _, evt, fmt = ENCODERS[ENCODING]
     return f"% evt {evt}\n% format {fmt};height={height};width={width}\n% end\n".encode()
@@ -127,6 +139,7 @@ def cmd_play(seq, live, speed, slice_us=2000):
             out.flush()
             i = j
     out.write(words(t[i:], ev["x"][i:], ev["y"][i:], ev["p"][i:], meta["width"], meta["height"]))
+    out.write(clock_words(t_end))  # the camera's clock ran past the last frame: every window is whole
     out.flush()
 
 
