@@ -1,9 +1,12 @@
 // Event files (read_events / write_events) and RowTiming.
 #include "common.hpp"
+#include "output_rule.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #include "vkunroll/host/events/event_writer.hpp"
 
 namespace vkunroll::python {
+
+using namespace pybind11::literals;
 
 BadEventPolicy parse_on_bad(const std::string& s) {
   if (s == "error") return BadEventPolicy::error;
@@ -96,15 +99,23 @@ Row y is read as the r-th row, r = y (top-down) or height-1-y (bottom-up); it is
 simplest fraction that rounds to them: 0.1 -> 1/10), strings ("73000/259", "2.5e3") or
 fractions.Fraction; they come back as fractions.Fraction, so nothing is rounded on the way.
 )doc");
-  cls.def(py::init([](int height, const py::object& t0, const py::object& delay, const py::object& exposure,
-                       const std::string& readout) {
+  cls.def(py::init([](const py::object& height, const py::object& t0, const py::object& delay, const py::object& exposure,
+                       const py::object& readout) {
+             // Types and ranges by the API's one rule (vkunroll/_args.py), naming the keyword.
+             const py::module_ args = py::module_::import("vkunroll._args");
+             const int rows = args.attr("integer")("RowTiming", "height", height, 1, 65536).cast<int>();
+             args.attr("exact_time")("RowTiming", "t0_us", t0);
+             args.attr("exact_time")("RowTiming", "line_delay_us", delay, "nonnegative"_a = true);
+             args.attr("exact_time")("RowTiming", "exposure_us", exposure, "positive"_a = true);
+             const std::string order = args.attr("choice")("RowTiming", "readout", readout,
+                                                           py::make_tuple("top-down", "bottom-up")).cast<std::string>();
              return guarded({}, [&] {
                RowTiming t;
-               t.rows = height;
+               t.rows = rows;
                t.t0 = to_rational(t0, "t0_us");
                t.line_delay = to_rational(delay, "line_delay_us");
                t.exposure = to_rational(exposure, "exposure_us");
-               t.readout = parse_readout(readout);
+               t.readout = parse_readout(order);
                t.validate("RowTiming");
                return t;
              });
@@ -125,10 +136,18 @@ fractions.Fraction; they come back as fractions.Fraction, so nothing is rounded 
       .def_property_readonly("last_end_us", [](const RowTiming& t) { return to_fraction(t.last_end()); },
                              "Exposure end of the last row read out (Fraction, us).")
       .def(
-          "start_us", [](const RowTiming& t, int y) { return guarded({}, [&] { return to_fraction(t.start(y)); }); },
+          "start_us",
+          [](const RowTiming& t, const py::object& y) {
+            const int row = py::module_::import("vkunroll._args").attr("integer")("RowTiming.start_us", "y", y, 0, t.rows - 1).cast<int>();
+            return guarded({}, [&] { return to_fraction(t.start(row)); });
+          },
           py::arg("y"), "Exposure start of sensor row y (Fraction, us).")
       .def(
-          "end_us", [](const RowTiming& t, int y) { return guarded({}, [&] { return to_fraction(t.end(y)); }); },
+          "end_us",
+          [](const RowTiming& t, const py::object& y) {
+            const int row = py::module_::import("vkunroll._args").attr("integer")("RowTiming.end_us", "y", y, 0, t.rows - 1).cast<int>();
+            return guarded({}, [&] { return to_fraction(t.end(row)); });
+          },
           py::arg("y"), "Exposure end of sensor row y (Fraction, us).")
       .def(
           "start_times_us",
@@ -149,6 +168,7 @@ fractions.Fraction; they come back as fractions.Fraction, so nothing is rounded 
       .def(
           "target_time",
           [](const RowTiming& t, const py::object& tau) {
+            py::module_::import("vkunroll._args").attr("exact_time")("RowTiming.target_time", "tau", tau);
             return guarded({}, [&] { return to_fraction(t.target_time(to_rational(tau, "tau"))); });
           },
           py::arg("tau"),
@@ -157,6 +177,7 @@ fractions.Fraction; they come back as fractions.Fraction, so nothing is rounded 
       .def(
           "tau_of",
           [](const RowTiming& t, const py::object& t_us) {
+            py::module_::import("vkunroll._args").attr("exact_time")("RowTiming.tau_of", "t_us", t_us);
             return guarded({}, [&] { return to_fraction(t.tau_of(to_rational(t_us, "t_us"))); });
           },
           py::arg("t_us"), "The normalized instant of t_us (the inverse of target_time), a Fraction.");
@@ -183,6 +204,11 @@ void bind_events(py::module_& m) {
       py::arg("path"), py::arg("t_begin"), py::arg("t_end"), py::arg("format"), py::arg("on_bad"), py::arg("width"),
       py::arg("height"), py::arg("columns"), py::arg("time_unit"), py::arg("array_time_unit"), py::arg("topic") = "");
 
+  // The library's one grammar for exact times (Rational::parse), for vkunroll/_args.py.
+  m.def("_parse_time", [](const std::string& text, const std::string& what) {
+    return guarded({}, [&] { return to_fraction(Rational::parse(text, what)); });
+  });
+
   m.def("_detect_event_format", [](const std::string& path) {
     return guarded({{path}}, [&] { return detect_event_format(path); });
   });
@@ -190,16 +216,18 @@ void bind_events(py::module_& m) {
   m.def(
       "_write_events",
       [](const std::string& path, const I64Array& t, const U16Array& x, const U16Array& y, const I8Array& p, int width,
-         int height, const std::string& format) {
+         int height, const std::string& format, bool overwrite) {
         EventStream ev = guarded({}, [&] { return to_event_stream(t, x, y, p, width, height); });
         without_gil({}, [&] {
-          if (format == "h5") write_events_hdf5(path, ev);
-          else if (format == "txt") write_events_text(path, ev);
-          else throw Error(path + ": event format '" + format + "' cannot be written (expected h5 or txt)");
+          if (format != "h5" && format != "txt") throw UsageError("format='" + format + "': expected 'h5' or 'txt'");
+          write_output_file(path, overwrite, [&](const std::string& tmp) {
+            if (format == "h5") write_events_hdf5(tmp, ev);
+            else write_events_text(tmp, ev);
+          });
         });
       },
       py::arg("path"), py::arg("t"), py::arg("x"), py::arg("y"), py::arg("p"), py::arg("width"), py::arg("height"),
-      py::arg("format"));
+      py::arg("format"), py::arg("overwrite"));
 
   bind_row_timing(m);
 }

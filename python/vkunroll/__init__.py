@@ -21,9 +21,9 @@ from ._events import (EVENT_DTYPE, EXPELLIARMUS_DTYPE, METAVISION_DTYPE, TONIC_D
 from ._model import Model
 from ._runtime import Context, default_context, devices
 from ._sequence import Sequence, simulate
-from ._tensors import event_tensors, event_tensors_batch, physics_unroll
+from ._tensors import event_tensors, event_tensors_batch, physics_unroll, psnr, ssim
 from ._unroll import UnrollResult, UnrollSession, stream, unroll
-from ._vkunroll import RowTiming, default_model, psnr, ssim
+from ._vkunroll import RowTiming, default_model
 
 __version__ = _vkunroll.__version__
 

@@ -4,6 +4,7 @@ import os
 
 import numpy as np
 
+from . import _args as A
 from . import _vkunroll as _vk
 
 __all__ = ["EVENT_DTYPE", "TONIC_DTYPE", "EXPELLIARMUS_DTYPE", "METAVISION_DTYPE", "read_events", "write_events",
@@ -40,6 +41,8 @@ def event_fields(events):
     and y non-negative integers below 65536, p bool or numbers (p > 0 is on, anything else off:
     1/0, 1/-1 and True/False all work). Raises ValueError naming the field and the event.
     """
+    if isinstance(events, str) or events is None:
+        raise TypeError(f"events: expected a numpy structured array or a dict of arrays, got {type(events).__name__}")
     if isinstance(events, np.ndarray) and events.dtype.names is None:
         raise ValueError(f"events: expected a structured array with fields t, x, y, p, got a plain {events.dtype} array")
     if not isinstance(events, (np.ndarray, dict)):
@@ -66,15 +69,23 @@ def event_fields(events):
             raise ValueError(f"events: {name}[{i}] = {a[i]} is outside 0..65535")
     if p.dtype.kind not in "biuf":
         raise ValueError(f"events: field 'p' has dtype {p.dtype}, expected bool or numbers")
+    if p.dtype.kind == "f" and not np.isfinite(p).all():
+        i = int(np.argmax(~np.isfinite(p)))
+        raise ValueError(f"events: p[{i}] = {p[i]!r} is not a polarity (the file readers refuse it too)")
     pol = np.where(p > 0, 1, -1).astype(np.int8)
     return (np.ascontiguousarray(t, dtype=np.int64), np.ascontiguousarray(x, dtype=np.uint16),
             np.ascontiguousarray(y, dtype=np.uint16), pol)
 
 
 def _structured(t, x, y, p, dtype=None, p_off=None):
-    dtype = EVENT_DTYPE if dtype is None else np.dtype(dtype)
+    if dtype is not None:
+        try:
+            dtype = np.dtype(dtype)
+        except (TypeError, ValueError):
+            A.refuse("events", "dtype", dtype, "a numpy structured dtype with fields t, x, y, p", TypeError)
+    dtype = EVENT_DTYPE if dtype is None else dtype
     if dtype.names is None or not all(k in dtype.names for k in "txyp"):
-        raise ValueError(f"dtype {dtype}: expected a structured dtype with fields t, x, y, p")
+        A.refuse("events", "dtype", dtype, "a structured dtype with fields t, x, y, p")
     out = np.empty(t.shape[0], dtype=dtype)
     for name, a in (("t", t), ("x", x), ("y", y)):
         kind = dtype[name]
@@ -103,6 +114,7 @@ def convert_events(events, dtype=EVENT_DTYPE, p_off=None):
     for :data:`EVENT_DTYPE`, 0 for every other dtype, the convention of tonic, expelliarmus and
     Metavision). Raises ValueError when a value does not fit the target field.
     """
+    p_off = A.integer("convert_events", "p_off", p_off, -128, 127, none=True)
     return _structured(*event_fields(events), dtype=dtype, p_off=p_off)
 
 
@@ -110,7 +122,7 @@ def detect_event_format(path):
     """The format :func:`read_events` would read ``path`` as: "txt", "h5", "npy", "npz", "evt2",
     "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4" or "bag" (from the magic bytes, header and
     extension)."""
-    return _vk._detect_event_format(os.fspath(path))
+    return _vk._detect_event_format(A.existing_path("detect_event_format", "path", path))
 
 
 def read_events(path, t_start=None, t_end=None, format=None, on_bad="error", *, dtype=None, sensor_size=None,
@@ -142,10 +154,21 @@ def read_events(path, t_start=None, t_end=None, format=None, on_bad="error", *, 
     Raises FileNotFoundError (missing file), ValueError (bad record, bad option), with the
     reader's message.
     """
-    width, height = (0, 0) if sensor_size is None else (int(sensor_size[0]), int(sensor_size[1]))
-    (t, x, y, p, w, h), info = _vk._read_events(
-        os.fspath(path), None if t_start is None else int(t_start), None if t_end is None else int(t_end),
-        format or "", on_bad, width, height, columns or "", time_unit or "", array_time_unit or "", topic or "")
+    fn = "read_events"
+    path = A.existing_path(fn, "path", path)
+    t_start, t_end = A.whole_us(fn, "t_start", t_start, none=True), A.whole_us(fn, "t_end", t_end, none=True)
+    if t_start is not None and t_end is not None and t_end < t_start:
+        A.refuse(fn, "t_end", t_end, f"a time >= t_start={t_start}")
+    format = A.choice(fn, "format", format, A.EVENT_FORMATS, none=True)
+    on_bad = A.choice(fn, "on_bad", on_bad, A.ON_BAD)
+    width, height = A.size_pair(fn, "sensor_size", sensor_size, none=True) or (0, 0)
+    columns = A.text(fn, "columns", columns, none=True)
+    time_unit = A.choice(fn, "time_unit", time_unit, A.TIME_UNITS, none=True)
+    array_time_unit = A.choice(fn, "array_time_unit", array_time_unit, A.TIME_UNITS, none=True)
+    topic = A.text(fn, "topic", topic, none=True)
+    return_info = A.flag(fn, "return_info", return_info)
+    (t, x, y, p, w, h), info = _vk._read_events(path, t_start, t_end, format or "", on_bad, width, height, columns or "",
+                                                time_unit or "", array_time_unit or "", topic or "")
     info = dict(info)
     info["sensor_size"] = (w, h)
     if info["dropped"] or info["sorted"]:
@@ -156,22 +179,29 @@ def read_events(path, t_start=None, t_end=None, format=None, on_bad="error", *, 
     return (events, info) if return_info else events
 
 
-def write_events(path, events, sensor_size=None, format=None):
+def write_events(path, events, sensor_size=None, format=None, *, overwrite=False):
     """Write events in the project's layouts: HDF5 (.h5: events/{t,x,y,p}, t int64 us, x/y
     uint16, p int8 1/0, width/height attributes) or text (.txt/.csv: "t x y p" lines).
 
     ``events``: any structured array with t, x, y, p (see :func:`convert_events`), t
     non-decreasing. ``sensor_size`` = (width, height) (default: max x + 1, max y + 1).
     ``format``: "h5" or "txt" (default: from the extension). Read back with :func:`read_events`.
+    ``overwrite``: replace an existing file (only one vkunroll wrote); without it an existing
+    ``path`` is refused. The file is written under a temporary name and renamed when complete.
     Raises ValueError naming the event that breaks a rule.
     """
-    path = os.fspath(path)
+    path = A.path("write_events", "path", path)
+    sensor_size = A.size_pair("write_events", "sensor_size", sensor_size, none=True)
+    format = A.choice("write_events", "format", format, ("h5", "txt"), none=True)
+    overwrite = A.flag("write_events", "overwrite", overwrite)
     t, x, y, p = event_fields(events)
     if sensor_size is None:
-        sensor_size = (int(x.max()) + 1 if x.size else 1, int(y.max()) + 1 if y.size else 1)
+        if not x.size:
+            A.refuse("write_events", "sensor_size", None, "(width, height) when there are no events to infer it from")
+        sensor_size = (int(x.max()) + 1, int(y.max()) + 1)
     if format is None:
         ext = os.path.splitext(path)[1].lower()
         format = {".h5": "h5", ".hdf5": "h5", ".txt": "txt", ".csv": "txt"}.get(ext)
         if format is None:
             raise ValueError(f"{path}: cannot tell the event format from the extension '{ext}' (use .h5 or .txt, or format=)")
-    _vk._write_events(path, t, x, y, p, int(sensor_size[0]), int(sensor_size[1]), format)
+    _vk._write_events(path, t, x, y, p, int(sensor_size[0]), int(sensor_size[1]), format, overwrite)

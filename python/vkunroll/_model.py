@@ -3,6 +3,7 @@ import os
 
 import numpy as np
 
+from . import _args as A
 from . import _vkunroll as _vk
 from ._runtime import resolve_context
 
@@ -10,6 +11,8 @@ __all__ = ["Model"]
 
 
 def _nchw(a, name, channels=None):
+    if a is None or isinstance(a, (str, bytes)):
+        A.refuse("Model.run", name, a, "a float array [B, C, H, W]", TypeError)
     a = np.asarray(a)
     if a.ndim == 3:
         a = a[None]
@@ -19,6 +22,8 @@ def _nchw(a, name, channels=None):
         raise ValueError(f"Model.run: {name} has {a.shape[1]} channels, the model expects {channels}")
     if a.dtype.kind != "f":
         raise ValueError(f"Model.run: {name} has dtype {a.dtype}, expected floats")
+    if a.size and not np.isfinite(a).all():
+        A.refuse("Model.run", name, "<array with NaN or inf>", "finite values")
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
@@ -42,11 +47,14 @@ class Model:
         wrong shape (named), the precision is not available, or a gate radius is out of range or
         given for a model without an event gate.
         """
+        fn = "Model.load"
+        path = A.existing_path(fn, "path", path)
+        threads = A.integer(fn, "threads", threads, 0, 1024)
+        precision = A.choice(fn, "precision", precision, ("fp32", "fp16"))
+        gate_radius = A.integer(fn, "gate_radius", gate_radius, 0, 15, none=True)
         ctx = resolve_context(context, backend)
-        if gate_radius is not None and (isinstance(gate_radius, bool) or not isinstance(gate_radius, int)):
-            raise ValueError(f"gate_radius {gate_radius!r}: expected None or an integer 0..15")
         radius = -1 if gate_radius is None else gate_radius
-        return cls(_vk._Model(os.fspath(path), ctx, backend, int(threads), str(precision), radius))
+        return cls(_vk._Model(path, ctx, backend, threads, precision, radius))
 
     @property
     def path(self):
@@ -90,12 +98,21 @@ class Model:
         Returns a dict of float32 arrays: sys, E, flow, warped, fused [B, ...]; m, out [K, ...] in
         mode m. The GIL is released while the network runs.
         """
+        fn = "Model.run"
+        mode = A.choice(fn, "mode", mode, ("s", "m"))
+        precision = A.choice(fn, "precision", precision, ("fp32", "fp16"), none=True)
+        if outputs is not None:
+            if isinstance(outputs, (str, bytes)) or not isinstance(outputs, (list, tuple)):
+                A.refuse(fn, "outputs", outputs, "a list of output names (sys, E, flow, warped, fused, m, out)", TypeError)
+            outputs = [A.choice(fn, "outputs", o, ("sys", "E", "flow", "warped", "fused", "m", "out")) for o in outputs]
+        max_items = A.integer(fn, "max_items", max_items, 0, 1 << 20)
+        force_m = A.number(fn, "force_m", force_m, 0, 1, none=True, what="a blend value")
         n = self.config["N"]
         arrays = [_nchw(rs, "rs", 3), _nchw(ev1, "ev1", 2 * n), _nchw(ev2, "ev2", 2 * n), _nchw(ev3, "ev3", 2 * n)]
         if phys is not None:
             phys = _nchw(phys, "phys", 3)
-        out = self._m.run(*arrays, phys, mode, "" if precision is None else str(precision), list(outputs or []),
-                          int(max_items), -1.0 if force_m is None else float(force_m))
+        out = self._m.run(*arrays, phys, mode, precision or "", list(outputs or []), max_items,
+                          -1.0 if force_m is None else force_m)
         return dict(out)
 
     def __repr__(self):

@@ -1,9 +1,19 @@
 """Devices and the device context."""
 import threading
 
+from . import _args as A
 from . import _vkunroll as _vk
 
 __all__ = ["devices", "Context", "default_context"]
+
+
+def _device_arg(fn, device):
+    """None (VKUNROLL_DEVICE, else the best device), an index >= 0, or a name substring / uuid:UUID."""
+    if device is None:
+        return ""
+    if isinstance(device, str):
+        return A.text(fn, "device", device, limit=256)
+    return str(A.integer(fn, "device", device, 0, 1 << 16))
 
 
 def devices(validation=False):
@@ -20,7 +30,7 @@ def devices(validation=False):
     Raises RuntimeError when no Vulkan driver is installed (the message says how to install
     Mesa's lavapipe).
     """
-    return _vk._devices(bool(validation))
+    return _vk._devices(A.flag("devices", "validation", validation))
 
 
 class Context:
@@ -39,7 +49,8 @@ class Context:
     """
 
     def __init__(self, device=None, validation=False):
-        self._ctx = _vk._Context("" if device is None else str(device), bool(validation))
+        device = _device_arg("Context", device)
+        self._ctx = _vk._Context(device, A.flag("Context", "validation", validation))
 
     @property
     def device(self):
@@ -83,10 +94,14 @@ def default_context():
 
 def resolve_context(context, backend="vulkan"):
     """The internal context handle for `backend` ("vulkan": `context` or the default; "cpu": None)."""
+    if not isinstance(backend, str):
+        raise TypeError(f"backend={backend!r}: expected 'vulkan' or 'cpu'")
     if backend == "cpu":
+        if context is not None:  # an option that does not apply is refused, never ignored
+            raise ValueError("context: a vkunroll.Context applies to backend='vulkan', not 'cpu'")
         return None
     if backend != "vulkan":
-        raise ValueError(f"backend {backend!r}: expected 'vulkan' or 'cpu'")
+        raise ValueError(f"backend={backend!r}: expected 'vulkan' or 'cpu'")
     if context is None:
         context = default_context()
     if not isinstance(context, Context):

@@ -1,19 +1,22 @@
 """Row-aware event tensors and the weight-free physics unroller."""
 import numpy as np
 
+from . import _args as A
 from . import _vkunroll as _vk
 from ._events import event_fields
 from ._runtime import resolve_context
 
-__all__ = ["event_tensors", "event_tensors_batch", "physics_unroll", "image_float"]
+__all__ = ["event_tensors", "event_tensors_batch", "physics_unroll", "image_float", "psnr", "ssim"]
 
 
-def _sensor(x, y, timing, sensor_size):
+def _sensor(x, y, timing, sensor_size, fn="event_tensors"):
     height = timing.height
     if sensor_size is None:
-        width = int(x.max()) + 1 if x.size else 1
+        if not x.size:
+            A.refuse(fn, "sensor_size", None, "(width, height) when there are no events to infer the width from")
+        width = int(x.max()) + 1
     else:
-        width, h = int(sensor_size[0]), int(sensor_size[1])
+        width, h = A.size_pair(fn, "sensor_size", sensor_size)
         if h != height:
             raise ValueError(f"sensor_size height {h} differs from the timing's {height} rows")
         if x.size and int(x.max()) >= width:
@@ -33,14 +36,24 @@ def event_tensors_batch(events, timing, t_us, bins=16, target_exposure_us=None, 
     of different frames). ``t_us``: the targets t* (exact: ints, strings "73000/259",
     Fractions, or floats). Otherwise as :func:`event_tensors`; pair i is (timing[i], t_us[i]).
     """
-    targets = list(t_us) if np.ndim(t_us) or isinstance(t_us, (list, tuple)) else [t_us]
-    timings = list(timing) if isinstance(timing, (list, tuple)) else [timing] * len(targets)
-    if not timings:
-        raise ValueError("event_tensors: no targets")
-    for i, tm in enumerate(timings):
-        if not isinstance(tm, _vk.RowTiming):
-            raise TypeError(f"timing[{i}] is a {type(tm).__name__}, expected vkunroll.RowTiming")
+    fn = "event_tensors"
+    targets = A.time_list(fn, "t_us", t_us)
+    timings = A.row_timing(fn, "timing", timing, _vk.RowTiming)
+    if not isinstance(timing, (list, tuple)):
+        timings = timings * len(targets)
+    if len(timings) != len(targets):
+        A.refuse(fn, "timing", timing, f"one RowTiming, or one per target ({len(targets)})")
+    bins = A.integer(fn, "bins", bins, 1, 4096)
+    target_exposure_us = A.exact_time(fn, "target_exposure_us", target_exposure_us, none=True, positive=True)
+    if crop is not None:
+        if isinstance(crop, (str, bytes)) or not isinstance(crop, (list, tuple, np.ndarray)) or len(crop) != 4:
+            A.refuse(fn, "crop", crop, "(x0, y0, width, height), four integers", TypeError)
+        crop = [A.integer(fn, "crop", c, 0, 65536) for c in crop]
+    A.choice(fn, "backend", backend, ("vulkan", "cpu"))
     t, x, y, p = event_fields(events)
+    if t.size > 1 and np.any(np.diff(t) < 0):
+        i = int(np.argmax(np.diff(t) < 0)) + 1
+        A.refuse(fn, "events", f"<t[{i}] = {t[i]} < t[{i - 1}] = {t[i - 1]}>", "events sorted by t")
     width, height = _sensor(x, y, timings[0], sensor_size)
     ctx = resolve_context(context, backend)
     ev1, ev2, ev3, _considered = _vk._event_tensors(ctx, t, x, y, p, width, height, timings, targets,
@@ -75,15 +88,27 @@ def event_tensors(events, timing, t_us, bins=16, target_exposure_us=None, *, cro
 
 
 def image_float(image, what="image"):
-    """An image as float32 in [0, 1]: uint8 / uint16 scaled by their full scale, floats as given."""
-    a = np.asarray(image)
-    if a.dtype == np.uint8:
-        return a.astype(np.float32) / 255.0
-    if a.dtype == np.uint16:
-        return a.astype(np.float32) / 65535.0
-    if a.dtype.kind not in "fiub":
-        raise ValueError(f"{what}: pixels of dtype {a.dtype}")
-    return a.astype(np.float32, copy=False)
+    """An image as float32 in [0, 1]: uint8 / uint16 scaled by their full scale, floats as given
+    (within [0, 1]); other dtypes and out-of-range floats are refused (_args.image)."""
+    fn, _, name = what.rpartition(": ")
+    return A.image(fn or "image", name or what, image)
+
+
+def _metric_images(fn, a, b):
+    a, b = A.image(fn, "a", a), A.image(fn, "b", b)
+    if a.shape != b.shape:
+        A.refuse(fn, "b", f"<array of shape {b.shape}>", f"an image of a's shape {a.shape}")
+    return a, b
+
+
+def psnr(a, b):
+    """PSNR in dB of two images of one shape (float in [0, 1], uint8 or uint16); inf when equal."""
+    return _vk.psnr(*_metric_images("psnr", a, b))
+
+
+def ssim(a, b):
+    """SSIM (Gaussian window, as the paper's evaluation) of two images of one shape."""
+    return _vk.ssim(*_metric_images("ssim", a, b))
 
 
 def physics_unroll(rs, events, timing, t_us, contrast=0.2, gamma=1.0, *, log_offset=0.0, backend="vulkan", context=None):
@@ -100,12 +125,25 @@ def physics_unroll(rs, events, timing, t_us, contrast=0.2, gamma=1.0, *, log_off
     "vulkan" (GPU; a pixel with more events than the kernel's loop limit runs on the CPU
     reference, logged) or "cpu". Returns float32 of ``rs``'s shape (not clipped to [0, 1]).
     """
-    img = image_float(rs, "physics_unroll: rs")
+    fn = "physics_unroll"
+    img = A.image(fn, "rs", rs)
     if img.ndim not in (2, 3):
         raise ValueError(f"physics_unroll: rs must be H x W or H x W x C, got shape {img.shape}")
+    A.row_timing(fn, "timing", timing, _vk.RowTiming)
+    if isinstance(timing, (list, tuple)):
+        A.refuse(fn, "timing", timing, "one vkunroll.RowTiming (the frame's)", TypeError)
+    t_us = A.exact_time(fn, "t_us", t_us)
+    # Ranges a real sensor can have (the CLI's --contrast and --gamma rules).
+    contrast = A.number(fn, "contrast", contrast, 0, 5, lo_open=True, what="a log-intensity threshold")
+    gamma = A.number(fn, "gamma", gamma, 0.1, 10, what="a decode gamma")
+    log_offset = A.number(fn, "log_offset", log_offset, 0, 1e6, what="a log offset")
+    A.choice(fn, "backend", backend, ("vulkan", "cpu"))
     planes = img[None] if img.ndim == 2 else np.moveaxis(img, 2, 0)
     t, x, y, p = event_fields(events)
-    _sensor(x, y, timing, (planes.shape[2], planes.shape[1]))
+    if t.size > 1 and np.any(np.diff(t) < 0):  # as event_tensors: the double integral needs time order
+        i = int(np.argmax(np.diff(t) < 0)) + 1
+        A.refuse(fn, "events", f"<t[{i}] = {t[i]} < t[{i - 1}] = {t[i - 1]}>", "events sorted by t")
+    _sensor(x, y, timing, (planes.shape[2], planes.shape[1]), fn)
     out = _vk._physics_unroll(resolve_context(context, backend), np.ascontiguousarray(planes), t, x, y, p, timing,
-                              t_us, float(contrast), float(gamma), float(log_offset))
+                              t_us, contrast, gamma, log_offset)
     return out[0] if img.ndim == 2 else np.ascontiguousarray(np.moveaxis(out, 0, 2))

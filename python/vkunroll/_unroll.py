@@ -1,18 +1,21 @@
 """The unroll job: GS frames at chosen instants, frame by frame through one UnrollSession."""
+import atexit
 import json
 import logging
 import os
 import queue
 import threading
+import weakref
 from typing import NamedTuple
 
 import numpy as np
 
+from . import _args as A
 from . import _vkunroll as _vk
 from ._events import event_fields
 from ._model import Model
 from ._sequence import Sequence
-from ._tensors import image_float
+from ._runtime import _device_arg
 
 __all__ = ["UnrollSession", "UnrollResult", "unroll", "stream"]
 
@@ -38,11 +41,18 @@ class UnrollSession:
 
     def __init__(self, model=None, backend="vulkan", device=None, precision="fp32", threads=0, profile=False,
                  conv_choice="auto"):
+        fn = "UnrollSession"
         if isinstance(model, Model):
             model = model.path
-        self.model_path = "" if model is None else os.fspath(model)
-        self._s = _vk._Session(self.model_path, backend, "" if device is None else str(device), precision, int(threads),
-                               bool(profile), str(conv_choice))
+        self.model_path = "" if model is None else A.existing_path(fn, "model", model)
+        A.choice(fn, "backend", backend, ("vulkan", "cpu"))
+        if device is not None and backend == "cpu":
+            A.refuse(fn, "device", device, "None with backend='cpu' (a device applies to the vulkan backend)")
+        device = _device_arg(fn, device)
+        A.choice(fn, "precision", precision, ("fp32", "fp16"))
+        A.choice(fn, "conv_choice", conv_choice, CONV_CHOICES)
+        self._s = _vk._Session(self.model_path, backend, device, precision, A.integer(fn, "threads", threads, 0, 1024),
+                               A.flag(fn, "profile", profile), conv_choice)
 
     has_model = property(lambda self: self._s.has_model, doc="True when a model was loaded.")
     moa = property(lambda self: self._s.moa, doc="True when the model has MOA weights (SelfUnroll-M).")
@@ -63,10 +73,24 @@ class UnrollSession:
         v^e (e: the exponent into the model's gamma encoding that the last :func:`unroll` on this
         session chose, 1 on a fresh session) and come back as v^(1/e). The GIL is released.
         """
+        fn = "UnrollSession.unroll_frame"
+        A.row_timing(fn, "timing1", timing1, _vk.RowTiming)
+        b = None if rs2 is None else _rgb(rs2, "rs2", fn)
+        if rs2 is not None:
+            A.row_timing(fn, "timing2", timing2, _vk.RowTiming)
+        elif timing2 is not None:
+            A.refuse(fn, "timing2", timing2, "None without rs2 (it is the next frame's timing)")
+        if isinstance(targets, (str, bytes)) or not isinstance(targets, (list, tuple)) or not targets:
+            A.refuse(fn, "targets", targets, "a non-empty list of (t_us, method) pairs", TypeError)
+        checked = []
+        for i, pair in enumerate(targets):
+            if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+                A.refuse(fn, f"targets[{i}]", pair, "a (t_us, method) pair", TypeError)
+            checked.append((A.exact_time(fn, f"targets[{i}] t_us", pair[0]),
+                            A.choice(fn, f"targets[{i}] method", pair[1], ("s", "m", "physics"))))
         t, x, y, p = event_fields(events)
-        a = _rgb(rs1, "rs1")
-        b = None if rs2 is None else _rgb(rs2, "rs2")
-        return list(self._s.unroll_frame(a, timing1, b, timing2, t, x, y, p, [(ts, str(m)) for ts, m in targets]))
+        a = _rgb(rs1, "rs1", fn)
+        return list(self._s.unroll_frame(a, timing1, b, timing2, t, x, y, p, checked))
 
 
 class UnrollResult(NamedTuple):
@@ -77,8 +101,8 @@ class UnrollResult(NamedTuple):
     stats: dict          #: mode, notes, ms per GS frame, the session's counters
 
 
-def _rgb(image, what):
-    a = image_float(image, what)
+def _rgb(image, what, fn="unroll"):
+    a = A.image(fn, what, image)
     if a.ndim == 2:
         a = np.repeat(a[:, :, None], 3, axis=2)
     if a.ndim != 3 or a.shape[2] != 3:
@@ -117,13 +141,58 @@ class _Progress:
             self.bar.close()
 
 
-def _times(times, times_us):
+def _times(fn, times, times_us):
     if times_us is not None:
-        values = list(times_us) if isinstance(times_us, (list, tuple, np.ndarray)) else [times_us]
-        return "us", values
+        if not (isinstance(times, float) and times == 0.5):
+            A.refuse(fn, "times", times, "its default with times_us (give one of times and times_us)")
+        return "us", A.time_list(fn, "times_us", times_us)
     if isinstance(times, str) and times == "gt":
         return "gt", []
-    return "tau", list(times) if isinstance(times, (list, tuple, np.ndarray)) else [times]
+    values = A.time_list(fn, "times", times)
+    for i, v in enumerate(values):  # a normalized instant: within +-1e6 frame spans (the CLI's rule)
+        if not isinstance(v, str) and abs(v) > 1e6:
+            A.refuse(fn, "times", v, "normalized instants within +-1e6 frame spans")
+    return "tau", values
+
+
+def _job_args(fn, mode, times, times_us, frames, channel_order, contrast, gamma, tile, halo, sparse, sparse_threshold,
+              gate_radius, progress):
+    """The options unroll and stream share, checked once (the CLI's ranges, named by keyword)."""
+    A.choice(fn, "mode", mode, ("auto", "s", "m", "choose", "physics"))
+    kind, values = _times(fn, times, times_us)
+    frames = A.index_list(fn, "frames", frames)
+    if frames == []:
+        A.refuse(fn, "frames", frames, "None (all frames) or a non-empty list")
+    A.choice(fn, "channel_order", channel_order, ("model", "rgb", "bgr"))
+    contrast = A.number(fn, "contrast", contrast, 0, 5, lo_open=True, none=True, what="a log-intensity threshold")
+    gamma = A.number(fn, "gamma", gamma, 0.1, 10, none=True, what="a decode gamma")
+    tile = A.integer(fn, "tile", tile, 0, 1 << 20)
+    halo = A.integer(fn, "halo", halo, -1, 1 << 20)
+    A.choice(fn, "sparse", sparse, ("off", "exact", "fast"))
+    sparse_threshold = A.number(fn, "sparse_threshold", sparse_threshold, 0, 1e6, what="events per pixel")
+    if not (isinstance(gate_radius, str) and gate_radius in ("auto", "model")):
+        A.integer(fn, "gate_radius", gate_radius, 0, 15)
+    if progress is not None and not callable(progress) and not isinstance(progress, bool):
+        A.refuse(fn, "progress", progress, "None, True/False or a callable progress(done, total, info)", TypeError)
+    return dict(mode=mode, kind=kind, values=values, frames=frames or [], channel_order=channel_order,
+                contrast=contrast, gamma=gamma, tile=tile, halo=halo, sparse=sparse,
+                sparse_threshold=sparse_threshold, gate_radius=str(gate_radius))
+
+
+def _session_for(fn, session, model, mode, backend, device, precision, conv_choice):
+    if session is not None:
+        if not isinstance(session, UnrollSession):
+            A.refuse(fn, "session", session, "a vkunroll.UnrollSession or None", TypeError)
+        for name, value, default in (("model", model, None), ("backend", backend, "vulkan"), ("device", device, None),
+                                     ("precision", precision, "fp32"), ("conv_choice", conv_choice, "auto")):
+            if value != default:  # the session's own; an option that does not apply is refused
+                A.refuse(fn, name, value, f"its default with session= (the session has its own {name})")
+        return session
+    if model is None:  # the shipped default, else physics (said), as the CLI
+        model = _vk._choose_model(A.choice(fn, "mode", mode, ("auto", "s", "m", "choose", "physics")), "")[0] or None
+    elif not isinstance(model, Model):
+        model = A.existing_path(fn, "model", model)
+    return UnrollSession(model, backend, device, precision, conv_choice=conv_choice)
 
 
 def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=None, backend="vulkan", device=None,
@@ -178,16 +247,14 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     Raises ValueError (bad option or input, named as the CLI names it), FileNotFoundError,
     RuntimeError (device failures). The GIL is released while frames are unrolled.
     """
-    if session is None and model is None:  # the shipped default, else physics (said), as the CLI
-        model = _vk._choose_model(mode, "")[0] or None
-    sess = session if session is not None else UnrollSession(model, backend, device, precision, conv_choice=conv_choice)
-    kind, values = _times(times, times_us)
-    args = dict(mode=mode, kind=kind, values=values, frames=list(frames or []), channel_order=channel_order,
-                contrast=contrast, gamma=gamma, tile=int(tile), halo=int(halo), sparse=sparse,
-                sparse_threshold=float(sparse_threshold), gate_radius=str(gate_radius))
+    args = _job_args("unroll", mode, times, times_us, frames, channel_order, contrast, gamma, tile, halo, sparse,
+                     sparse_threshold, gate_radius, progress)
+    _check_source("unroll", source)
+    sess = _session_for("unroll", session, model, mode, backend, device, precision, conv_choice)
     bar = _Progress(progress)
     try:
-        images, targets, metrics, report = _run(sess, source, args, bar.update)
+        with A.renamed("unroll", ["gate_radius", "contrast", "gamma", "tile", "halo", "times", "times_us", "frames"]):
+            images, targets, metrics, report = _run(sess, source, args, bar.update)
     finally:
         bar.close()
     stats = json.loads(report)
@@ -201,6 +268,13 @@ def unroll(source, times=0.5, mode="auto", model=None, *, times_us=None, frames=
     h, w = (images[0].shape[:2]) if images else (0, 0)
     frames_out = np.stack(images) if images else np.zeros((0, h, w, 3), np.float32)
     return UnrollResult(frames_out, metrics, targets, stats)
+
+
+def _check_source(fn, source):
+    if isinstance(source, (str, os.PathLike)):
+        A.existing_path(fn, "source", source)
+    elif not isinstance(source, (Sequence, dict, tuple, list)):
+        A.refuse(fn, "source", source, "a Sequence, a sequence folder, a dict {frames, timing, events} or a tuple", TypeError)
 
 
 def _run(sess, source, args, progress):
@@ -227,11 +301,25 @@ def _run(sess, source, args, progress):
                               args, progress)
 
 
+CONV_CHOICES = ("auto", "heuristic", "cached", "measured", "retune", "gpu")  # as --conv-choice
+_LIVE_STREAMS = weakref.WeakSet()
+
+
+@atexit.register
+def _close_live_streams():
+    """A stream left open (a loop broken out of without close() or ``with``) is stopped and joined
+    before the interpreter goes: its native job never runs on into finalization."""
+    for s in list(_LIVE_STREAMS):
+        s.close()
+
+
 class _Stream:
-    """The iterator :func:`stream` returns; ``report`` is the job's report once it is exhausted."""
+    """The iterator :func:`stream` returns; ``report`` is the job's report once it is exhausted.
+    Once exhausted (or closed) every ``next()`` raises StopIteration again, at once."""
 
     def __init__(self, sess, seq, args, events, idle_s, max_events):
         self.report, self._q, self._stop, self._error = None, queue.Queue(maxsize=4), threading.Event(), None
+        self._done = False
 
         def on_frame(item):
             while not self._stop.is_set():  # back-pressure: the job waits for a slow consumer
@@ -252,22 +340,32 @@ class _Stream:
 
         self._thread = threading.Thread(target=job, daemon=True)
         self._thread.start()
+        _LIVE_STREAMS.add(self)
 
     def __iter__(self):
         return self
 
     def __next__(self):
+        if self._done:
+            raise StopIteration
         item = self._q.get()
         if item is None:
+            self._done = True
             self._thread.join()
+            _LIVE_STREAMS.discard(self)
             if self._error is not None and not self._stop.is_set():
                 raise self._error
+            for w in (self.report or {}).get("warnings", []):
+                _log.warning("stream: warning: %s", w)
             raise StopIteration
+        if item.get("events_window") == "partial":
+            _log.warning("stream: frame %d: the stream ended inside its event window; its GS frames were computed "
+                         "from part of its events", item["frame"])
         item["images"] = [np.asarray(im) for im in item["images"]]
         return item
 
     def close(self):
-        """Stops the job (the frame in work finishes) and waits for it."""
+        """Stops the job (the frame in work finishes) and waits for it. Idempotent."""
         self._stop.set()
         while self._thread.is_alive():
             try:
@@ -275,6 +373,12 @@ class _Stream:
             except queue.Empty:
                 pass
         self._thread.join()
+        self._done = True
+        _LIVE_STREAMS.discard(self)
+
+    def __del__(self):
+        if getattr(self, "_thread", None) is not None and self._thread.is_alive():
+            self.close()
 
     def __enter__(self):
         return self
@@ -297,13 +401,19 @@ def stream(source, events="-", times=0.5, mode="auto", model=None, *, times_us=N
     The iterator's ``close()`` (or leaving a ``with`` block) stops the job; ``report`` holds the
     job's report with ``follow`` (status complete or stopped, latency) after the last frame.
     """
-    if session is None and model is None:
-        model = _vk._choose_model(mode, "")[0] or None
-    sess = session if session is not None else UnrollSession(model, backend, device, precision, conv_choice=conv_choice)
+    fn = "stream"
+    args = _job_args(fn, mode, times, times_us, frames, channel_order, contrast, gamma, tile, halo, sparse,
+                     sparse_threshold, gate_radius, None)
+    if isinstance(source, Sequence):
+        source = source.root
+    source = A.existing_path(fn, "source", source)
+    events = "-" if events == "-" else A.existing_path(fn, "events", events)
+    if not idle_s == 0:  # 0: wait for ever; else at least the reader's poll (the CLI's --follow-idle-s rule)
+        idle_s = A.number(fn, "idle_s", idle_s, 0.1, 1e6, what="seconds (0: wait for ever)")
+    idle_s = A.number(fn, "idle_s", idle_s, 0, 1e6, what="seconds (0: wait for ever)")
+    max_events = A.integer(fn, "max_events", max_events, 1024, 1 << 34)
+    on_bad = A.choice(fn, "on_bad", on_bad, ("error", "drop"))
+    sess = _session_for(fn, session, model, mode, backend, device, precision, conv_choice)
     seq = Sequence.open(source, check_frame_sizes=False, on_bad=on_bad,
-                        events_file="/dev/stdin" if events == "-" else os.fspath(events))
-    kind, values = _times(times, times_us)
-    args = dict(mode=mode, kind=kind, values=values, frames=list(frames or []), channel_order=channel_order,
-                contrast=contrast, gamma=gamma, tile=int(tile), halo=int(halo), sparse=sparse,
-                sparse_threshold=float(sparse_threshold), gate_radius=str(gate_radius))
-    return _Stream(sess, seq, args, "-" if events == "-" else os.fspath(events), idle_s, max_events)
+                        events_file="/dev/stdin" if events == "-" else events)
+    return _Stream(sess, seq, args, events, idle_s, max_events)
