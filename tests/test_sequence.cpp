@@ -269,7 +269,7 @@ TEST(Sequence, VoxelizeCliMatchesTheLibrary) {
   EXPECT_NE(f.metadata.at("pairs").find("t_star_us"), std::string::npos);
   // Bad arguments are clear errors.
   const std::string bad = std::string(VKUNROLL_CLI_PATH) + " voxelize " + d.string() +
-                          " --frames 7 --times 0.5 --out " + out + " > " + (d / "err.txt").string() + " 2>&1";
+                          " --frames 7 --times 0.5 --out " + out + " --overwrite > " + (d / "err.txt").string() + " 2>&1";
   EXPECT_NE(std::system(bad.c_str()), 0);
   std::stringstream err;
   err << std::ifstream(d / "err.txt").rdbuf();
