@@ -15,8 +15,7 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
-sys.path.insert(0, os.path.join(ROOT, "tools"))
-import follow_feed  # noqa: E402  (the EVT encoders the live tests feed)
+from tools.data import follow_feed  # noqa: E402  (the EVT encoders the live tests feed)
 
 W, H, FRAMES = 64, 48, 4
 

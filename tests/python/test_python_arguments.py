@@ -40,9 +40,7 @@ def world(tmp_path_factory):
     ev = sequence.events()
     timing = sequence.timing(0)
     raw = d / "ev.raw"
-    import sys
-    sys.path.insert(0, os.path.join(ROOT, "tools"))
-    import follow_feed
+    from tools.data import follow_feed
     follow_feed.ENCODING = "evt3"
     raw.write_bytes(follow_feed.header(W, H) + follow_feed.words(ev["t"], ev["x"], ev["y"], ev["p"], W, H))
     model = vkunroll.Model.load(TINY_MODEL, backend="cpu")
