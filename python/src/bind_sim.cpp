@@ -52,9 +52,9 @@ void bind_sim(py::module_& m) {
         });
         const std::string meta = without_gil({}, [&] {
           const sim::SimulatedSequence seq = sim::simulate(c);
-          std::string meta;
-          write_sequence_folder(out, overwrite, [&](const std::string& staging) { meta = sim::write_sequence(c, seq, staging).dump(); });
-          return meta;
+          std::string written;
+          write_sequence_folder(out, overwrite, [&](const std::string& staging) { written = sim::write_sequence(c, seq, staging).dump(); });
+          return written;
         });
         return meta;
       },
