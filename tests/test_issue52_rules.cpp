@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "../fuzz/fuzz_follow.hpp"
 #include "cli_test_util.hpp"
 #include "event_test_util.hpp"
 #include "vkunroll/base/error.hpp"
@@ -60,7 +61,8 @@ TEST(EventRules, TimeOrderIsCheckedOverTheWholeStream) {
     EXPECT_NE(std::string(e.what()).find("events.txt"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("record 40"), std::string::npos) << e.what();
   }
-  const std::string out = (d.parent_path() / "swapped_out").string();
+  const std::string out = d.string() + "-out";
+  fs::remove_all(out);
   auto r = clitest::cli("unroll " + d.string() + " --mode physics --contrast 0.2 --no-video --quiet --frames 0:1 --out " + out);
   EXPECT_EQ(r.rc, 65) << r.out;
   EXPECT_TRUE(clitest::has(r, "record 40")) << r.out;
@@ -112,7 +114,7 @@ TEST(EventRules, ATopicIsRefusedForAFileThatIsNotABag) {
   evtest::expect_error(h5, o, {"events topic '/dvs/events'", "topic.h5", "not a ROS bag"});
   const fs::path d = sequence_with("topic", "10 1 1 1\n");
   const auto r = clitest::cli("unroll " + d.string() + " --mode physics --contrast 0.2 --events-topic /dvs/events --out " +
-                              (d.parent_path() / "topic_out").string());
+                              d.string() + "-out");
   EXPECT_EQ(r.rc, 2) << r.out;
   EXPECT_TRUE(clitest::has(r, "not a ROS bag")) << r.out;
 }
@@ -120,6 +122,7 @@ TEST(EventRules, ATopicIsRefusedForAFileThatIsNotABag) {
 // A file that declares another sensor size than the sequence's: the read says it, unroll warns.
 TEST(EventRules, AFileSizeOtherThanTheSequencesIsSaid) {
   const fs::path d = sequence_with("size", "");
+  fs::remove_all(d.string() + "-out");
   fs::remove(d / "events.txt");
   EventStream ev;
   ev.width = 8, ev.height = 6;
@@ -129,7 +132,7 @@ TEST(EventRules, AFileSizeOtherThanTheSequencesIsSaid) {
   meta["events"] = "events.h5";
   std::ofstream(d / "meta.json") << meta.dump(1);
   const auto r = clitest::cli("unroll " + d.string() + " --mode physics --contrast 0.2 --no-video --quiet --out " +
-                              (d.parent_path() / "size_out").string());
+                              d.string() + "-out");
   EXPECT_EQ(r.rc, 0) << r.out;
   EXPECT_TRUE(clitest::has(r, "sensor size 8x6")) << r.out;
   EXPECT_TRUE(clitest::has(r, "differs from the size given")) << r.out;
@@ -156,4 +159,20 @@ TEST(OutputRule, AFileIsReplacedOnlyWhenAskedAndOnlyWhenVkunrollWroteIt) {
                               evtest::tmp("far.safetensors") + " --cpu");
   EXPECT_EQ(r.rc, 2) << r.out;
   EXPECT_TRUE(clitest::has(r, "outside the recording")) << r.out;
+}
+
+// The live decoder's differential check (fuzz/fuzz_follow.hpp: online, chunk by chunk, against the
+// offline reader) over its own corpus and the EVT readers' corpora: the same events and drops, or
+// both refuse.
+TEST(EventRules, TheLiveDecoderMatchesTheOfflineReaderOnTheCorpus) {
+  const fs::path root = fs::path(VKUNROLL_SOURCE_DIR) / "tests" / "fuzz_corpus";
+  size_t files = 0;
+  for (const char* dir : {"follow", "evt3", "evt2", "evt21"}) {
+    for (const auto& entry : fs::directory_iterator(root / dir)) {
+      const std::vector<uint8_t> bytes = evtest::read_bytes(entry.path().string());
+      ++files;
+      EXPECT_TRUE(fuzz::follow_matches_offline(bytes.data(), bytes.size())) << entry.path();
+    }
+  }
+  EXPECT_GE(files, 30u);
 }

@@ -2,7 +2,8 @@
 range and units here, once, before any work, and a refusal names the function and the keyword
 (``read_events: t_start=1000.7: expected ...``). Nothing is truncated, clamped or guessed: a float
 where whole microseconds are meant, an image outside [0, 1], an int64 image, a string where a pair is
-meant are refused. TypeError for a wrong type, ValueError for a wrong value (docs/python.md,
+meant are refused. ArgumentTypeError (a TypeError and a ValueError) for a wrong type, ValueError for
+a wrong value (docs/python.md,
 "Arguments"; tests/python/test_python_arguments.py runs the CLI's option property test over every
 public function and keyword)."""
 import math
@@ -26,8 +27,15 @@ def _shown(value):
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+class ArgumentTypeError(TypeError, ValueError):
+    """A keyword of the wrong type: a TypeError, and a ValueError as every bad input of the API is
+    (the module's documented rule), so `except ValueError` still catches it."""
+
+
 def refuse(fn, name, value, expected, exc=ValueError):
-    """Raises `exc` naming the function, the keyword and its value."""
+    """Raises `exc` naming the function, the keyword and its value (TypeError: ArgumentTypeError)."""
+    if exc is TypeError:
+        exc = ArgumentTypeError
     raise exc(f"{fn}: {name}={_shown(value)}: expected {expected}")
 
 
@@ -154,7 +162,7 @@ def existing_path(fn, name, v):
     """An input path that exists (FileNotFoundError naming the keyword otherwise)."""
     p = path(fn, name, v)
     if not os.path.exists(p):
-        raise FileNotFoundError(f"{fn}: {name}={_shown(p)}: no such file or folder")
+        raise FileNotFoundError(f"{fn}: {name}={p!r}: no such file or folder")
     return p
 
 

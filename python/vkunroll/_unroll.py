@@ -170,7 +170,9 @@ def _job_args(fn, mode, times, times_us, frames, channel_order, contrast, gamma,
     halo = A.integer(fn, "halo", halo, -1, 1 << 20)
     A.choice(fn, "sparse", sparse, ("off", "exact", "fast"))
     sparse_threshold = A.number(fn, "sparse_threshold", sparse_threshold, 0, 1e6, what="events per pixel")
-    if not (isinstance(gate_radius, str) and gate_radius in ("auto", "model")):
+    if isinstance(gate_radius, str) and gate_radius not in ("auto", "model"):
+        A.refuse(fn, "gate_radius", gate_radius, "'auto', 'model' or an integer 0..15")
+    if not isinstance(gate_radius, str):
         A.integer(fn, "gate_radius", gate_radius, 0, 15)
     if progress is not None and not callable(progress) and not isinstance(progress, bool):
         A.refuse(fn, "progress", progress, "None, True/False or a callable progress(done, total, info)", TypeError)

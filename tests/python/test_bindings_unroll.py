@@ -149,7 +149,7 @@ def test_targets_sessions_and_errors(seq, tiny):
         vkunroll.UnrollSession(model=TINY, backend="cpu", precision="fp16")
     with pytest.raises(ValueError, match="tile 5"):
         vkunroll.unroll(seq, tile=5, session=session, mode="s")
-    with pytest.raises(ValueError, match="gate_radius 'wide'"):
+    with pytest.raises(ValueError, match="gate_radius='wide'"):
         vkunroll.unroll(seq, gate_radius="wide", session=session, mode="s")
 
     def stop(done, total, info):
@@ -173,7 +173,7 @@ def test_contrast_without_a_successor_is_said_as_in_the_cli(seq, tmp_path):
 
 def test_option_ranges_are_the_clis(seq):
     # One rule in the library for both front ends: a gamma or contrast no sensor has is refused.
-    with pytest.raises(ValueError, match=r"gamma .*expected a decode gamma in \[0.1, 10\]"):
+    with pytest.raises(ValueError, match=r"gamma=1e\+300: expected a decode gamma in \[0.1, 10\]"):
         vkunroll.unroll(seq, times=[0.5], mode="physics", gamma=1e300)
     with pytest.raises(ValueError, match=r"expected a log-intensity threshold in \(0, 5\]"):
         vkunroll.unroll(seq, times=[0.5], mode="physics", contrast=1e9)
