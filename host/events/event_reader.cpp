@@ -205,7 +205,8 @@ namespace detail {
 
 void check_topic_applies(const std::string& path, const std::string& format, const EventReadOptions& o) {
   if (!o.events_topic.empty() && format != "bag")
-    throw UsageError("events topic '" + o.events_topic + "' (--events-topic, topic= or meta.json's events_topic): " + path + " is " + format +
+    throw OptionError("events_topic", o.events_topic, "a ROS bag to apply to",
+                      "events topic '" + o.events_topic + "' (" + opt("events_topic") + " or meta.json's events_topic): " + path + " is " + format +
                      ", not a ROS bag; a topic applies to bags only (leave it out)");
 }
 

@@ -33,7 +33,7 @@ struct EventStreamFollower::Decoder {
 
 EventStreamFollower::EventStreamFollower(const std::string& path, const EventReadOptions& options)
     : name_(path == "-" ? "stdin" : path), options_(options) {
-  if (path.empty()) throw UsageError("--follow-events: an empty value (name a pipe, a growing file, or - for stdin)");
+  if (path.empty()) throw OptionError("follow_events", "", "an empty value (name a pipe, a growing file, or - for stdin)");
   if (options_.on_bad == BadEventPolicy::sort)
     throw OptionError("on_bad", "sort", "error or drop",
                       opt("follow") + ": " + opt("on_bad") + " sort cannot apply to a live stream (events are used as they come); use error or drop");

@@ -126,7 +126,7 @@ void FollowFrameSource::read_into_ring() {
   } else if (options_.idle_s > 0 && seconds_since(last_news_) > options_.idle_s) {
     follower_.finish();  // a partial word left is a truncated stream, as at the pipe's end
     std::ostringstream why;
-    why << "no new events for " << options_.idle_s << " s (--follow-idle-s)";
+    why << "no new events for " << options_.idle_s << " s (" << opt("follow_idle_s") << ")";
     end_stream(why.str());
   }
   move_backlog();
@@ -164,7 +164,7 @@ void FollowFrameSource::check_stop(const char* waiting_for) const {
     try {
       std::rethrow_exception(reader_error_);
     } catch (const Error& e) {  // a bad record (--on-bad error) or a read error: what was written stays
-      throw StreamStopped(e.what(), K::failed);
+      throw StreamStopped(e.text(), K::failed);
     }
   }
   if (options_.stop_requested && options_.stop_requested())
@@ -199,7 +199,7 @@ void FollowFrameSource::check_image_rules(const std::string& path, int k) {
   } catch (const StreamStopped&) {
     throw;
   } catch (const Error& e) {  // refused as offline; the frames written before it stay
-    throw StreamStopped(e.what(), StreamStopped::Kind::failed);
+    throw StreamStopped(e.text(), StreamStopped::Kind::failed);
   }
 }
 
@@ -379,15 +379,15 @@ nlohmann::json follow_summary(const FollowFrameSource& source, const FollowSink&
   if (stop) status = stop->kind == K::requested ? "stopped" : stop->kind == K::failed ? "failed" : "partial";
   if (!sink.partial_frames().empty() && status != "failed") status = "partial";
   j["status"] = status;
-  j["stopped_because"] = stop ? nlohmann::json(stop->what()) : nlohmann::json();
+  j["stopped_because"] = stop ? nlohmann::json(stop->text()) : nlohmann::json();
   if (!sink.partial_frames().empty()) {
     std::string list;
     for (size_t i = 0; i < sink.partial_frames().size(); ++i) list += (i ? ", " : "") + std::to_string(sink.partial_frames()[i]);
-    warnings.push_back("--follow: the stream ended (" + j.value("end_reason", std::string("?")) + ") inside the event window of " +
+    warnings.push_back(opt("follow") + ": the stream ended (" + j.value("end_reason", std::string("?")) + ") inside the event window of " +
                        std::to_string(sink.partial_frames().size()) + " frame(s) (" + list +
                        "): their GS frames were computed from part of their events (events_window \"partial\" in gs_frames)");
   }
-  if (stop && stop->kind != K::requested) warnings.push_back("--follow: " + status + ": " + stop->what() + "; " + std::to_string(written) + " of " +
+  if (stop && stop->kind != K::requested) warnings.push_back(opt("follow") + ": " + status + ": " + stop->text() + "; " + std::to_string(written) + " of " +
                                std::to_string(planned) + " GS frame(s) written");
   return j;
 }
