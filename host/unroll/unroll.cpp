@@ -172,7 +172,7 @@ void report(const UnrollOptions& o, const nlohmann::json& summary, const UnrollS
             << summary["mode"].get<std::string>() << ", " << summary["ms_per_gs_frame_total"].get<double>()
             << " ms per GS frame (by stage, ms: " << stages(summary["ms_per_gs_frame"]) << "; "
             << (summary["gpu_ms_per_gs_frame"].is_null()
-                    ? std::string("GPU time not measured: the profile and the trace are off")
+                    ? "GPU time not measured: " + opt("profile") + " or " + opt("trace")
                     : "GPU ms " + std::to_string(summary["gpu_ms_per_gs_frame"].get<double>()) + " inside the wait: " +
                           stages(summary["gpu_ms_per_gs_frame_by_stage"]))
             << "), per GS frame " << traffic["upload_bytes"].get<double>() / 1e6 << " MB up, " << traffic["download_bytes"].get<double>() / 1e6
