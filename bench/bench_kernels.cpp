@@ -483,6 +483,17 @@ struct ConvUnderTest {
   }
   Shape output_shape(const Shape& in) const { return transposed ? deconv->output_shape(in) : conv->output_shape(in); }
   double flop_of(const Shape& in) const { return transposed ? deconv->flop(in) : conv->flop(in); }
+  // What the algorithm's tiles imply (kernels/igemm.hpp ConvCost): FMAs and global/shared bytes.
+  ConvCost cost(const std::string& algo, const Shape& in) const {
+    if (transposed) {
+      for (ConvTransposeAlgo a : kConvTransposeAlgos)
+        if (algo == conv_transpose_algo_name(a)) return deconv->cost(a, in);
+    } else {
+      for (ConvAlgo a : kConvAlgos)
+        if (algo == conv_algo_name(a)) return conv->cost(a, in);
+    }
+    return {};
+  }
 };
 
 void make_conv(Context& ctx, const KernelBenchArgs& a, const ConvShape& c, Precision prec, const Shape& in, std::mt19937& rng,
@@ -560,12 +571,17 @@ std::vector<std::pair<Timing, double>> time_rounds(Context& ctx, int reps, const
 
 // One row: printed, and its JSON record.
 nlohmann::json report_row(const ConvShape& c, Precision prec, const std::string& algo, bool chosen, const Timing& t,
-                          double moved_bytes, double flop, double ceiling, double torch_ms, const std::optional<NaiveTiming>& naive) {
+                          double moved_bytes, double flop, double ceiling, double torch_ms, const std::optional<NaiveTiming>& naive,
+                          const ConvCost& cost) {
   const double gf = flop / (t.ms * 1e6), frac = gf / ceiling;
+  // The arithmetic intensity the tile sizes imply: the number to reason with where no GPU is at hand.
+  const double fma_per_global = cost.global_bytes > 0 ? cost.fma / cost.global_bytes : 0;
+  const double fma_per_shared = cost.shared_bytes > 0 ? cost.fma / cost.shared_bytes : 0;
   const double nms = naive ? naive->t.ms : 0, ngf = naive ? naive->flop / (nms * 1e6) : 0;
   const double bytes_per_flop = moved_bytes / flop;
-  std::printf("%-34s %-26s %-4s %-9s %9.2f %8.2f %5.1f%% %6.3f %9.2f %6.2fx %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(),
-              c.shape_str().c_str(), precision_name(prec), algo.c_str(), t.ms, gf, 100 * frac, bytes_per_flop, torch_ms,
+  std::printf("%-34s %-26s %-4s %-9s %9.2f %8.2f %5.1f%% %6.3f %7.1f %7.1f %9.2f %6.2fx %10.2f %8.2f %6.1fx%s%s\n", c.name.c_str(),
+              c.shape_str().c_str(), precision_name(prec), algo.c_str(), t.ms, gf, 100 * frac, bytes_per_flop, fma_per_global,
+              fma_per_shared, torch_ms,
               torch_ms > 0 ? t.ms / torch_ms : 0.0, nms, ngf, ngf > 0 ? gf / ngf : 0.0,
               naive && naive->rows < c.h ? (" (naive: " + std::to_string(naive->rows) + " rows)").c_str() : "",
               chosen ? "" : "  (forced)");
@@ -574,7 +590,9 @@ nlohmann::json report_row(const ConvShape& c, Precision prec, const std::string&
                      {"kernel", c.k}, {"stride", c.s}, {"cin", c.cin}, {"cout", c.cout}, {"h", c.h}, {"w", c.w},
                      {"uses", c.uses}, {"algo", algo}, {"precision", precision_name(prec)}, {"chosen", chosen},
                      {"ms", t.ms}, {"gflop", flop * 1e-9}, {"gflops", gf}, {"ceiling_gflops", ceiling},
-                     {"fraction_of_ceiling", frac}, {"bytes_moved", moved_bytes}, {"bytes_per_flop", bytes_per_flop}};
+                     {"fraction_of_ceiling", frac}, {"bytes_moved", moved_bytes}, {"bytes_per_flop", bytes_per_flop},
+                     {"model_fma", cost.fma}, {"model_global_bytes", cost.global_bytes}, {"model_shared_bytes", cost.shared_bytes},
+                     {"fma_per_global_byte", fma_per_global}, {"fma_per_shared_byte", fma_per_shared}};
   if (torch_ms > 0) {
     row["torch_ms"] = torch_ms;
     row["ratio_to_torch"] = t.ms / torch_ms;
@@ -603,7 +621,8 @@ void bench_shape(Context& ctx, const KernelBenchArgs& a, const ConvShape& c, Pre
   const std::optional<NaiveTiming> naive = time_naive(ctx, a, c, u, dt, rng, prof);
   const auto best = time_rounds(ctx, a.reps, u, xd, yd, prof);
   for (size_t ai = 0; ai < u.algos.size(); ++ai)
-    rows.push_back(report_row(c, prec, u.algos[ai], ai == 0, best[ai].first, best[ai].second, u.flop, ceiling, torch_ms, naive));
+    rows.push_back(report_row(c, prec, u.algos[ai], ai == 0, best[ai].first, best[ai].second, u.flop, ceiling, torch_ms, naive,
+                              u.cost(u.algos[ai], xd.shape())));
 }
 
 // The machine is shared: the ceiling is measured again at the end and every shape judged against the
@@ -654,8 +673,10 @@ int run_bench(const KernelBenchArgs& a) {
     if ((!a.quick || c.quick) && (a.only.empty() || c.name.find(a.only) != std::string::npos)) shapes.push_back(c);
   const std::map<std::string, double> peer =
       a.torch ? torch_peer_ms(shapes, a.torch_threads, a.reps, a.torch_device) : std::map<std::string, double>{};
-  std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %6s %9s %7s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)", "prec",
-              "algo", "ms", "GFLOP/s", "%ceil", "B/FLOP", "torch ms", "x torch", "naive ms", "naive GF", "speedup");
+  // FMA/gB and FMA/sB: FMAs per byte of global and of shared-memory traffic, from the tile sizes (0: none).
+  std::printf("%-34s %-26s %-4s %-9s %9s %8s %6s %6s %7s %7s %9s %7s %10s %8s %7s\n", "op (first use)", "shape (in->out k s @HxW)",
+              "prec", "algo", "ms", "GFLOP/s", "%ceil", "B/FLOP", "FMA/gB", "FMA/sB", "torch ms", "x torch", "naive ms", "naive GF",
+              "speedup");
   nlohmann::json rows = nlohmann::json::array();
   std::mt19937 rng(42);
   for (const ConvShape& c : shapes)
