@@ -344,6 +344,8 @@ constexpr const char* kHelp =
     "The peer: PyTorch's conv2d on the CPU (--torch-threads, default 2) times every shape first,\n"
     "in the same run; `x torch` is our time over its (fp16 rows against its fp32). B/FLOP is the\n"
     "bytes the algorithm's dispatches read and write per direct-conv FLOP (--no-torch: no peer).\n"
+    "FMA/gB and FMA/sB: the FMAs per byte of global and of shared-memory traffic that the algorithm's\n"
+    "tiles imply (Conv2d::cost; 0: no shared-memory tiles), the number to reason with without a GPU.\n"
     "--torch-device cuda: the peer on the CUDA GPU (the race per shape), fp16 rows against its half.\n";
 
 // Everything the command line sets.

@@ -139,18 +139,18 @@ void Trace::write(const std::string& path) const {
   const std::string tmp = path + ".tmp" + std::to_string(::getpid());
   {
     std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
-    if (!f) throw Error("trace file " + path + ": cannot create " + tmp + ": " + std::strerror(errno));
+    if (!f) throw IoError(path + ": cannot create " + tmp + ": " + std::strerror(errno));
     f << text;
     f.flush();
     if (!f) {
       std::remove(tmp.c_str());
-      throw Error("trace file " + path + ": writing " + tmp + " failed: " + std::strerror(errno));
+      throw IoError(path + ": writing " + tmp + " failed: " + std::strerror(errno));
     }
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
     const std::string why = std::strerror(errno);
     std::remove(tmp.c_str());
-    throw Error("trace file " + path + ": cannot rename " + tmp + " to it: " + why);
+    throw IoError(path + ": cannot rename " + tmp + " to it: " + why);
   }
 }
 

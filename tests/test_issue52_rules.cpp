@@ -150,11 +150,19 @@ TEST(OutputRule, AFileIsReplacedOnlyWhenAskedAndOnlyWhenVkunrollWroteIt) {
   EXPECT_TRUE(written_by_vkunroll(ours));
   EXPECT_TRUE(written_by_vkunroll(text));
   EXPECT_FALSE(written_by_vkunroll(mine));
-  EXPECT_THROW(check_output_file_rule(mine, "--out", ExistingOutput::refuse), UsageError);
-  EXPECT_THROW(check_output_file_rule(mine, "--out", ExistingOutput::overwrite), UsageError);
-  EXPECT_THROW(check_output_file_rule(ours, "--out", ExistingOutput::refuse), UsageError);
-  EXPECT_NO_THROW(check_output_file_rule(ours, "--out", ExistingOutput::overwrite));
-  EXPECT_THROW(check_output_file_rule(ours, "--out", ExistingOutput::overwrite, {{"--inputs", ours}}), UsageError);
+  // Refusals are OptionErrors naming the field (the CLI spells it --out, Python its keyword).
+  EXPECT_THROW(check_output_file_rule(mine, "out", ExistingOutput::refuse), OptionError);
+  EXPECT_THROW(check_output_file_rule(mine, "out", ExistingOutput::overwrite), OptionError);
+  EXPECT_THROW(check_output_file_rule(ours, "out", ExistingOutput::refuse), OptionError);
+  EXPECT_NO_THROW(check_output_file_rule(ours, "out", ExistingOutput::overwrite));
+  EXPECT_THROW(check_output_file_rule(ours, "out", ExistingOutput::overwrite, {{"inputs", ours}}), OptionError);
+  try {
+    check_output_file_rule(mine, "out", ExistingOutput::refuse);
+  } catch (const OptionError& e) {
+    EXPECT_EQ(e.field(), "out");
+    EXPECT_EQ(e.kind(), ErrorKind::usage);
+    EXPECT_NE(e.text().find(opt("overwrite")), std::string::npos) << e.text();
+  }
   const auto r = clitest::cli("voxelize " + sequence_with("vox", "10 1 1 1\n").string() + " --frames 0 --times-us 5000000 --out " +
                               evtest::tmp("far.safetensors") + " --cpu");
   EXPECT_EQ(r.rc, 2) << r.out;

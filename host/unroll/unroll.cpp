@@ -239,6 +239,9 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   if (!o.trace_path.empty()) {  // refused now, not after the run
     const fs::path dir = fs::absolute(o.trace_path).parent_path();
     if (!fs::is_directory(dir)) throw OptionError("trace", o.trace_path, "the folder " + dir.string() + " does not exist");
+    // The file is written after the run: a name no file system takes is refused before it.
+    if (fs::path(o.trace_path).filename().string().size() > 200)
+      throw OptionError("trace", o.trace_path.substr(0, 40) + "...", "a file name of at most 200 bytes");
   }
   if (o.mode == UnrollMode::physics) session_options.model_path.clear();
   // The model and the device before the sequence: their errors come first.
@@ -292,7 +295,11 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   if (follow) extra["follow"] = follow_report(*follow, *follow_sink, stopped, job.total_targets(), extra["warnings"]);
   extra["provenance"]["finished_utc"] = utc_now();
   if (const Trace* trace = session.trace(); trace && !o.trace_path.empty()) {  // before the output claims success
-    trace->write(o.trace_path);
+    try {
+      trace->write(o.trace_path);
+    } catch (const Error& e) {
+      throw OptionError("trace", o.trace_path, e.text(), opt("trace") + " " + e.text(), ErrorKind::io);
+    }
     extra["trace"] = {{"file", o.trace_path}, {"spans", trace->spans()}};
   }
   spell_options(extra, o.option_spelling);

@@ -47,10 +47,10 @@ void to_python_logging(LogLevel level, std::string_view message) {
 
 std::string python_keyword(std::string_view field) {
   // Fields whose keyword differs (vkunroll.stream's arguments; overwrite as it is passed to replace an
-  // output); every other field is its keyword.
+  // output; read_events' topic, which Sequence calls events_topic); every other field is its keyword.
   static const std::map<std::string_view, std::string_view> renamed = {
       {"follow_events", "events"}, {"follow_idle_s", "idle_s"}, {"follow_max_events", "max_events"},
-      {"overwrite", "overwrite=True"}};
+      {"overwrite", "overwrite=True"}, {"events_topic", "topic"}};
   const auto it = renamed.find(field);
   return std::string(it == renamed.end() ? field : it->second);
 }

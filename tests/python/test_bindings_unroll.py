@@ -200,5 +200,5 @@ def test_conv_choice_gpu_equals_cli(seq, tmp_path):
     r = vkunroll.unroll(seq, times=[0.5], mode="s", frames=[1], model=TINY, conv_choice="gpu")
     assert_same_as_cli(r, cli_unroll(seq, tmp_path / "cli", "--times", "0.5", "--mode", "s", "--frames", "1",
                                      "--model", TINY, "--conv-choice", "gpu"))
-    with pytest.raises(ValueError, match="conv_choice 'fastest'"):
+    with pytest.raises(ValueError, match="conv_choice='fastest'"):
         vkunroll.UnrollSession(model=TINY, conv_choice="fastest")

@@ -108,9 +108,9 @@ def base(command, inputs, out):
     }[command]()
 
 
-def run(args, inputs):
+def run(args, inputs, cwd=None):
     env = dict(os.environ, VKUNROLL_CACHE_DIR=str(inputs["cache"]))  # tune writes its table there
-    return subprocess.run([CLI, *args], capture_output=True, text=True, timeout=120, env=env)
+    return subprocess.run([CLI, *args], capture_output=True, text=True, timeout=120, env=env, cwd=cwd)
 
 
 def check(command, option, value, inputs, out):
@@ -118,8 +118,12 @@ def check(command, option, value, inputs, out):
     if option in args:  # an option of the base command: the probe's value replaces it
         i = args.index(option)
         del args[i:i + 2]
+    # Each probe in a folder of its own: a value taken as a relative output (--trace nan) must not
+    # become another probe's input (--events nan).
+    cwd = out.parent / f"cwd_{out.name}"
+    cwd.mkdir(parents=True, exist_ok=True)
     try:
-        r = run([*args, option, value], inputs)
+        r = run([*args, option, value], inputs, cwd)
     except subprocess.TimeoutExpired:
         return f"{command} {option} {value[:12]!r}: hung (120 s)"
     allowed = {0, 2, 65} | ({66, 69} if option in PATH_OPTIONS else set())
