@@ -27,7 +27,7 @@ struct TuneOptions {
   std::vector<Precision> precisions{Precision::fp32};
   int reps = 10;                                    // timed submits per candidate at most
   // candidate_ms: wall ms of timed submits per candidate at most (at least one); 8 keeps the published
-  // configuration's table (about 2300 candidates on a GPU with the igemm family, docs/kernels.md)
+  // configuration's table (about 2300 candidates on a GPU with the igemm family, docs/tuning.md)
   // inside budget_s. warm_ms: FMA work at the start. budget_s 0: no limit.
   double candidate_ms = 8, warm_ms = 300, budget_s = 55;
   bool plan = false;    // count shapes and candidates, time nothing, write no table

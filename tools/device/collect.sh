@@ -16,6 +16,6 @@ for d in "$T"/*/; do
   while [ -e "$target" ]; do target=$DEST/$name-run$n; n=$((n + 1)); done  # a second call the same day keeps the first
   mv "$d" "$target"
   echo "collect: $target"; ls "$target"
-  ls "$target"/conv_tables/*.tsv 2>/dev/null | sed 's|^|  a table to commit to models/conv_choices/ (docs/kernels.md): |'
+  ls "$target"/conv_tables/*.tsv 2>/dev/null | sed 's|^|  a table to commit to models/conv_choices/ (docs/tuning.md): |'
 done
 rm -rf "$T"

@@ -97,7 +97,7 @@ races() {  # the paper's size first, then the DAVIS346 size; fp32 before fp16, S
   local sz p m
   for sz in $RACE_SIZES; do for p in fp32 fp16; do for m in s m; do race $m $p $sz ${1:-45}; done; done; done
 }
-save_tables() {  # the measured tables, to commit for this GPU (models/conv_choices/, docs/kernels.md)
+save_tables() {  # the measured tables, to commit for this GPU (models/conv_choices/, docs/tuning.md)
   mkdir -p $O/conv_tables; cp "$VKUNROLL_CACHE_DIR"/conv-choices-*.tsv $O/conv_tables/ 2>/dev/null; ls $O/conv_tables
 }
 MODEL=$R/models/selfunroll_small_physics.safetensors
