@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <string>
 
+#include "vkunroll/base/error.hpp"
 #include "vkunroll/host/events/rosbag_sequence.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {

@@ -8,6 +8,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "vkunroll/host/events/event_file_reader.hpp"
@@ -327,6 +328,9 @@ struct PropheseeHeader {
   bool evt21_legacy = false;
 };
 PropheseeHeader parse_prophesee_header(ByteSource& src);
+// Whether a '%' header line (without its '\n') is the header's last, "% end": '%', spaces, "end",
+// an optional '\r'. The live decoder and the file readers share it, so they agree where data begins.
+bool is_prophesee_header_end(std::string_view line);
 
 // What a binary file that was taken for text looks like, from its magic bytes or '%' header:
 // format "evt3", extension ".raw", description "a Prophesee EVT 3.0 recording (...)"; format empty

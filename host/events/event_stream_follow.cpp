@@ -77,7 +77,7 @@ void EventStreamFollower::parse_header(bool at_end) {
     }
     const std::string line(pending_.begin() + long(off), nl);
     off = size_t(nl - pending_.begin()) + 1;
-    ended = line.rfind("% end", 0) == 0;
+    ended = detail::is_prophesee_header_end(line);
   }
   if (!ended && !at_end) return;  // only header lines so far
   detail::MemorySource head(name_, std::vector<uint8_t>(pending_.begin(), pending_.begin() + long(off)));

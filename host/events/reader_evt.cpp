@@ -117,6 +117,14 @@ inline uint32_t le32(const uint8_t* p) { return uint32_t(p[0]) | (uint32_t(p[1])
 
 }  // namespace
 
+bool is_prophesee_header_end(std::string_view line) {
+  if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+  if (line.empty() || line.front() != '%') return false;
+  line.remove_prefix(1);
+  while (!line.empty() && line.front() == ' ') line.remove_prefix(1);
+  return line == "end";
+}
+
 PropheseeHeader parse_prophesee_header(ByteSource& src) {
   PropheseeHeader h;
   uint64_t off = 0;
@@ -136,10 +144,10 @@ PropheseeHeader parse_prophesee_header(ByteSource& src) {
       throw Error(src.name() + ": Prophesee header line at byte " + std::to_string(off) + " is longer than 64 KiB");
     std::string line(buf.begin(), nl);
     off += line.size() + (nl != buf.end() ? 1 : 0);
+    if (is_prophesee_header_end(line)) break;
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::string body = line.substr(1);
     while (!body.empty() && body.front() == ' ') body.erase(body.begin());
-    if (body == "end") break;
     const auto sp = body.find(' ');
     std::string key = body.substr(0, sp), value = sp == std::string::npos ? "" : body.substr(sp + 1);
     while (!value.empty() && value.back() == ' ') value.pop_back();
@@ -155,7 +163,7 @@ PropheseeHeader parse_prophesee_header(ByteSource& src) {
     return v;
   };
   int w_key = 0, h_key = 0;
-  std::string plugin, generation;
+  std::string plugin, generation, evt_line, format_line;
   for (const auto& [k, v] : h.lines) {
     const std::string key = lower(k);
     if (key == "format") {
@@ -164,6 +172,7 @@ PropheseeHeader parse_prophesee_header(ByteSource& src) {
       if (fv.rfind("evt3", 0) == 0) h.evt = "3.0";
       else if (fv.rfind("evt21", 0) == 0) h.evt = "2.1";
       else if (fv.rfind("evt2", 0) == 0) h.evt = "2.0";
+      if (fv.rfind("evt", 0) == 0) format_line = v;
       int fw = 0, fh = 0;
       size_t p = 0;
       while ((p = fv.find(';', p)) != std::string::npos) {
@@ -177,6 +186,7 @@ PropheseeHeader parse_prophesee_header(ByteSource& src) {
       if (fw > 0 && fh > 0) h.width = fw, h.height = fh, h.geometry_source = "the '% format' line";
     } else if (key == "evt") {
       if (h.evt.empty()) h.evt = v;
+      if (evt_line.empty()) evt_line = v;
     } else if (key == "geometry") {
       const auto x = v.find('x');
       if (x != std::string::npos && h.width == 0) {
@@ -193,6 +203,11 @@ PropheseeHeader parse_prophesee_header(ByteSource& src) {
       generation = v;
     }
   }
+  // Two lines naming different encodings leave the data's meaning open: refused, online and offline.
+  if (!evt_line.empty() && !format_line.empty() && evt_line != h.evt)
+    throw Error(src.name() + ": the '%' header names two encodings, '% evt " + evt_line + "' and '% format " + format_line.substr(0, 40) +
+                    "'; which one the data is in cannot be told",
+                ErrorKind::data);
   if (h.width == 0 && w_key > 0 && h_key > 0)
     h.width = w_key, h.height = h_key, h.geometry_source = "the '% Width'/'% Height' lines";
   int sw = 0, sh = 0;
