@@ -1,6 +1,6 @@
 #!/bin/bash
 # A fault and bad-input campaign against the built CLI: each case's exit code and first stderr line,
-# as a Markdown table (docs/reliability.md quotes its counts). Writes only under a temporary folder.
+# as a Markdown table (docs/campaigns.md quotes its counts). Writes only under a temporary folder.
 #   VK_DRIVER_FILES=/usr/share/vulkan/icd.d/lvp_icd.x86_64.json bash tools/checks/cli_campaign.sh build/vkunroll
 set -u
 V=$(realpath "${1:-build/vkunroll}")
