@@ -142,11 +142,15 @@ def test_time_words_count_as_progress(recording, tmp_path):
                            stdin=subprocess.PIPE, stderr=subprocess.PIPE)
     run.stdin.write(stream_bytes(meta, ev, upto=cut) + follow_feed.clock_words(window_end_us(meta, 2) + 1000))
     run.stdin.flush()
-    staged = tmp_path / ".out.partial" / "frames"
+    staged, final = tmp_path / ".out.partial" / "frames", out / "frames"
+
+    def frames_written():  # in the staging folder, or in the output once the job (all 3 frames) committed
+        return max(len(list(d.glob("*.png"))) if d.exists() else 0 for d in (staged, final))
+
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and (len(list(staged.glob("*.png"))) if staged.exists() else 0) < 3:
+    while time.monotonic() < deadline and frames_written() < 3:
         time.sleep(0.05)
-    written = len(list(staged.glob("*.png"))) if staged.exists() else 0
+    written = frames_written()  # counted before our end of the pipe closes
     run.stdin.close()
     run.wait(timeout=60)
     err = run.stderr.read().decode()
