@@ -146,13 +146,22 @@ void apply_threads(unsigned threads) {
   cv::setNumThreads(static_cast<int>(threads));
 }
 
+namespace {
+// `s` as a finite number into `v`; else what is wrong with it (the validators' shared first step).
+std::string parse_finite(const std::string& s, double& v) {
+  char* end = nullptr;
+  v = std::strtod(s.c_str(), &end);
+  if (end == s.c_str() || *end) return "'" + s + "' is not a number";
+  if (!std::isfinite(v)) return "'" + s + "' is not a finite number";
+  return {};
+}
+}  // namespace
+
 CLI::Validator finite_at_least(double lo, bool open) {
   return CLI::Validator(
       [lo, open](std::string& s) -> std::string {
-        char* end = nullptr;
-        const double v = std::strtod(s.c_str(), &end);
-        if (end == s.c_str() || *end) return "'" + s + "' is not a number";
-        if (!std::isfinite(v)) return "'" + s + "' is not a finite number";
+        double v = 0;
+        if (std::string bad = parse_finite(s, v); !bad.empty()) return bad;
         if (open ? !(v > lo) : !(v >= lo)) return "'" + s + "': expected a value " + (open ? "> " : ">= ") + number_text(lo);
         return {};
       },
@@ -162,10 +171,8 @@ CLI::Validator finite_at_least(double lo, bool open) {
 CLI::Validator finite_range(double lo, double hi) {
   return CLI::Validator(
       [lo, hi](std::string& s) -> std::string {
-        char* end = nullptr;
-        const double v = std::strtod(s.c_str(), &end);
-        if (end == s.c_str() || *end) return "'" + s + "' is not a number";
-        if (!std::isfinite(v)) return "'" + s + "' is not a finite number";
+        double v = 0;
+        if (std::string bad = parse_finite(s, v); !bad.empty()) return bad;
         if (!(v >= lo && v <= hi)) return "'" + s + "': expected a value in [" + number_text(lo) + ", " + number_text(hi) + "]";
         return {};
       },
