@@ -69,6 +69,26 @@ int64_t conv_output_size(int64_t in, int kernel, int stride, int pad);
 void conv2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const HostTensor& bias,
                 const Conv2dParams& params, std::optional<HostSlice> residual = {});
 
+// A conv's input and output folded into the GPU family's addressing (kernels/igemm.hpp): the input is
+// pieces concatenated along the channels, read as they are, reflection-padded to padded_h x padded_w
+// with the pieces at (top, left) (the UNets' size adapter), or space-to-depth (PixelUnshuffle(2));
+// the output slice is the conv's output from (crop_top, crop_left); with tanh_scale > 0 it is
+// tanh_scale x tanh(conv) (for a conv without activation). Exact: the separate ops' values.
+struct ConvFold {
+  InputMap map = InputMap::none;
+  int64_t padded_h = 0, padded_w = 0, top = 0, left = 0;  // reflect_pad
+  int64_t crop_top = 0, crop_left = 0;
+  float tanh_scale = 0.f;
+  // The input as the conv sees it, from the pieces' shapes (equal batch and extent; an Error otherwise).
+  Shape conv_input(const std::vector<Shape>& pieces, const std::string& who) const;
+};
+
+// CPU reference of a folded conv: the separate ops (reflection_pad_ref, space_to_depth_ref, conv2d_ref,
+// crop_ref, tanh) composed.
+void conv2d_folded_ref(const std::vector<HostSlice>& pieces, const ConvFold& fold, HostSliceOut out,
+                       const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
+                       std::optional<HostSlice> residual = {});
+
 // Scratch buffers of the multi-pass algorithms (Winograd's transformed tiles). Share one between
 // all convs of a model: buffers only grow, and a grown-out buffer stays alive (an already recorded
 // dispatch may still use it) until the workspace is destroyed, which must be after the last submit.
@@ -122,6 +142,11 @@ class Conv2d {
   // The same with a forced algorithm (tests and the bench); throws if it does not apply to the shape.
   void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo,
               WinogradInputCache* shared_v = nullptr) const;
+
+  // out = the folded conv of `pieces` (ConvFold) [+ residual], in one dispatch of `algo`: the GPU
+  // family (an igemm variant, or coopmat in fp16); automatic takes gpu_choice. conv2d_fold.cpp.
+  void record_folded(CommandStream& cs, const std::vector<Slice>& pieces, const ConvFold& fold, Slice out,
+                     std::optional<Slice> residual = {}, ConvAlgo algo = ConvAlgo::automatic) const;
 
   // The algorithm `automatic` picks for an input of this height and width.
   ConvAlgo choose_algorithm(int64_t h, int64_t w) const;
@@ -200,6 +225,7 @@ class Conv2d {
   IgemmProblem igemm_problem(const Shape& in) const;                            // conv2d_igemm.cpp
   bool igemm_fits_shape(ConvAlgo algo, const Shape& in) const;                  // conv2d_igemm.cpp
   void pack_igemm() const;                                                       // conv2d_igemm.cpp
+  static IgemmTile igemm_tile(ConvAlgo algo);                                    // conv2d_igemm.cpp
   // The 1x1 paths' shared passes (gemm, coopmat; conv2d_winograd.cpp): input channels [c0, c0 + cn)
   // packed into `v` as `rows` (>= cn; the extra rows zero) x pix_pad values, and M [cout_pad][pix_pad]
   // + bias, activation and residual into the output slice. `tag` names the dispatches.

@@ -8,8 +8,7 @@
 
 namespace vkunroll {
 
-namespace {
-IgemmTile tile_of(ConvAlgo a) {
+IgemmTile Conv2d::igemm_tile(ConvAlgo a) {
   switch (a) {
     case ConvAlgo::igemm_l: return {128, 128, 8, 8, 8};
     case ConvAlgo::igemm_m: return {64, 64, 16, 4, 4};
@@ -19,7 +18,6 @@ IgemmTile tile_of(ConvAlgo a) {
   }
   throw Error(std::string("conv2d: ") + conv_algo_name(a) + " is not an igemm variant");
 }
-}  // namespace
 
 IgemmProblem Conv2d::igemm_problem(const Shape& in) const {
   const Shape os = output_shape(in);
@@ -39,7 +37,7 @@ IgemmProblem Conv2d::igemm_problem(const Shape& in) const {
 }
 
 bool Conv2d::igemm_fits_shape(ConvAlgo algo, const Shape& in) const {
-  return igemm_fits(ctx_.info(), tile_of(algo), igemm_problem(in));
+  return igemm_fits(ctx_.info(), igemm_tile(algo), igemm_problem(in));
 }
 
 ConvAlgo Conv2d::gpu_choice(const Shape& in) const {
@@ -61,7 +59,7 @@ void Conv2d::pack_igemm() const {
 void Conv2d::record_igemm(CommandStream& cs, const Recording& r, ConvAlgo algo) const {
   if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
   pack_igemm();
-  const IgemmTile tile = tile_of(algo);
+  const IgemmTile tile = igemm_tile(algo);
   const IgemmProblem pb = igemm_problem(r.is);
   const uint64_t scratch = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
   const uint32_t splits = igemm_splits(ctx_.info(), tile, pb, scratch, igemm_splits_forced_);
@@ -74,7 +72,7 @@ void Conv2d::record_igemm(CommandStream& cs, const Recording& r, ConvAlgo algo) 
 ConvCost Conv2d::cost(ConvAlgo algo, const Shape& in) const {
   if (algo == ConvAlgo::automatic) algo = choose_algorithm(in.h, in.w);
   if (is_igemm(algo)) {
-    const IgemmTile tile = tile_of(algo);
+    const IgemmTile tile = igemm_tile(algo);
     const IgemmProblem pb = igemm_problem(in);
     const uint64_t scratch = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
     return igemm_cost(tile, pb, igemm_splits(ctx_.info(), tile, pb, scratch, igemm_splits_forced_));

@@ -19,13 +19,17 @@ constexpr uint32_t kDefaultGpuCores = 128;
 int64_t round_up(int64_t v, int64_t m) { return (v + m - 1) / m * m; }
 uint32_t u32(int64_t v) { return static_cast<uint32_t>(v); }
 
+// shaders/igemm_common.glsl's push constants (124 bytes of the 128 every device offers).
 struct IgemmPush {
   uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs;
-  uint32_t cin, h, w, cout, oh, ow, pad;
-  uint32_t kdim, kpad, co4;
-  uint32_t npix, gh, gw;
-  uint32_t ksplit, nsplit;
+  uint32_t h, w, cout, pad;
+  uint32_t kdim, n;
+  uint32_t gh, gw, ksplit;
+  uint32_t out_h, out_w, crop_y, crop_x;
+  uint32_t src_h, src_w, src_y, src_x;
+  uint32_t piece_off[4], piece_bs[4];
 };
+static_assert(sizeof(IgemmPush) <= 128);
 
 int64_t pixel_tiles(const IgemmTile& t, const IgemmProblem& pb) { return (pb.npix() + t.bn - 1) / t.bn; }
 int64_t channel_tiles(const IgemmTile& t, const IgemmProblem& pb) { return (pb.cout + t.bm - 1) / t.bm; }
@@ -36,6 +40,20 @@ int64_t split_depth(const IgemmProblem& pb, uint32_t splits) {
   return (stages + splits - 1) / splits * kKAlign;
 }
 
+// The fold's spec constants 17-23: MAP, PIECES, the channel starts of pieces 1-4, SCALE.
+void append_fold_spec(std::vector<uint32_t>& spec, const IgemmProblem& pb) {
+  spec.resize(17, 0);
+  const size_t pieces = pb.piece_channels.empty() ? 1 : pb.piece_channels.size();
+  spec.push_back(static_cast<uint32_t>(pb.map));
+  spec.push_back(static_cast<uint32_t>(pieces));
+  int64_t start = 0;
+  for (size_t i = 1; i < 5; ++i) {
+    if (i < pieces) start += pb.piece_channels[i - 1];
+    spec.push_back(i < pieces ? static_cast<uint32_t>(start) : 0xffffffffu);
+  }
+  spec.push_back(spec_float(pb.scale));
+}
+
 std::vector<uint32_t> igemm_spec(const IgemmTile& t, const IgemmProblem& pb, bool has_res, bool partial) {
   std::vector<uint32_t> spec{pb.kh, pb.kw, pb.stride, static_cast<uint32_t>(pb.act.kind), spec_float(pb.act.slope),
                              has_res ? 1u : 0u};
@@ -44,7 +62,29 @@ std::vector<uint32_t> igemm_spec(const IgemmTile& t, const IgemmProblem& pb, boo
                              t.warp, t.wm, t.wn});
   else
     spec.insert(spec.end(), {t.bm, t.bn, t.bk, t.tm, t.tn, pb.transposed ? 1u : 0u, t.threads(), partial ? 1u : 0u});
+  append_fold_spec(spec, pb);
   return spec;
+}
+
+IgemmPush make_push(const IgemmProblem& pb, const IgemmBindings& b, uint32_t ksplit) {
+  const bool folded = pb.map != InputMap::none;
+  IgemmPush push{b.in.offset, b.in.batch_stride, b.res.offset, b.res.batch_stride, b.out.offset, b.out.batch_stride,
+                 u32(pb.in.h), u32(pb.in.w), u32(pb.cout), pb.pad, u32(pb.kdim()), u32(pb.in.n), u32(pb.gh), u32(pb.gw),
+                 ksplit, u32(pb.out.h), u32(pb.out.w), u32(pb.crop_y), u32(pb.crop_x),
+                 u32(folded ? pb.src_h : pb.in.h), u32(folded ? pb.src_w : pb.in.w), u32(pb.src_y), u32(pb.src_x),
+                 {0, 0, 0, 0}, {0, 0, 0, 0}};
+  for (size_t i = 0; i < b.more_pieces.size() && i < 4; ++i) {
+    push.piece_off[i] = b.more_pieces[i].offset;
+    push.piece_bs[i] = b.more_pieces[i].batch_stride;
+  }
+  return push;
+}
+
+// Bindings 6-9: input pieces 1-4 (piece 0 again where there are fewer).
+std::vector<Arg> piece_args(const IgemmBindings& b) {
+  std::vector<Arg> a;
+  for (size_t i = 0; i < 4; ++i) a.push_back(i < b.more_pieces.size() ? b.more_pieces[i].arg : b.in.arg);
+  return a;
 }
 
 // What the shader's loads assume of the tile (each invocation keeps fixed X columns).
@@ -104,29 +144,33 @@ void igemm_record(Context& ctx, CommandStream& cs, ConvWorkspace& workspace, con
   if (!tile_divides(tile))
     throw Error(info.name + ": igemm tile " + std::to_string(tile.bm) + "x" + std::to_string(tile.bn) +
                 " does not divide among its invocations");
-  const int64_t kpad = igemm_kpad(pb.kdim());
-  IgemmPush push{b.in.offset, b.in.batch_stride, b.res.offset, b.res.batch_stride, b.out.offset, b.out.batch_stride,
-                 u32(pb.cin), u32(pb.in.h), u32(pb.in.w), u32(pb.cout), u32(pb.out.h), u32(pb.out.w), pb.pad,
-                 u32(pb.kdim()), u32(kpad), u32(igemm_cout_pad(pb.cout) / 4), u32(pb.npix()), u32(pb.gh), u32(pb.gw),
-                 u32(split_depth(pb, splits)), splits};
+  const size_t pieces = pb.piece_channels.empty() ? 1 : pb.piece_channels.size();
+  if (pieces > size_t(kMaxInputPieces) || b.more_pieces.size() + 1 != pieces)
+    throw Error(info.name + ": " + std::to_string(pieces) + " input pieces, " + std::to_string(b.more_pieces.size() + 1) +
+                " bound (at most " + std::to_string(kMaxInputPieces) + ")");
+  const IgemmPush push = make_push(pb, b, u32(split_depth(pb, splits)));
+  std::vector<Arg> args{b.in.arg, b.weight, b.bias, b.res.arg, b.out.arg, b.bias};
+  const std::vector<Arg> more = piece_args(b);
+  args.insert(args.end(), more.begin(), more.end());
   const std::string shader = tile.coopmat ? (tile.emulated ? "conv2d_igemm_coopmat_emulated" : "conv2d_igemm_coopmat")
                                           : shader_for(ctx, "conv2d_igemm", pb.precision, info.name);
   const Groups groups{u32(pixel_tiles(tile, pb)), u32(channel_tiles(tile, pb)), u32(pb.phases() * splits)};
   if (splits == 1) {
-    cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, false), sizeof push),
-                {b.in.arg, b.weight, b.bias, b.res.arg, b.out.arg, b.bias}, push, groups, info);
+    cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, false), sizeof push), args, push, groups,
+                info);
     return;
   }
   const uint64_t part_bytes = static_cast<uint64_t>(splits) * pb.phases() * pb.cout * pb.npix() * 4;
   const Tensor& part = workspace.get(ctx, 2, part_bytes);
   const BufferRange pr = part.range(0, part_bytes);
   const double part_traffic = static_cast<double>(part_bytes);
-  cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, true), sizeof push),
-              {b.in.arg, b.weight, b.bias, b.res.arg, b.out.arg, {pr, Access::write}}, push, groups,
+  args[5] = {pr, Access::write};
+  cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, true), sizeof push), args, push, groups,
               {info.name, info.flop, info.bytes + part_traffic});
   const std::string reduce = shader_for(ctx, "conv2d_igemm_reduce", pb.precision, info.name);
-  const std::vector<uint32_t> rspec{0, 0, pb.stride, static_cast<uint32_t>(pb.act.kind), spec_float(pb.act.slope),
-                                    b.has_res ? 1u : 0u, 0, 0, 0, 0, 0, pb.transposed ? 1u : 0u};
+  std::vector<uint32_t> rspec{0, 0, pb.stride, static_cast<uint32_t>(pb.act.kind), spec_float(pb.act.slope),
+                              b.has_res ? 1u : 0u, 0, 0, 0, 0, 0, pb.transposed ? 1u : 0u};
+  append_fold_spec(rspec, pb);
   cs.dispatch(kernel_pipeline(ctx, reduce, rspec, sizeof push), {{pr, Access::read}, b.bias, b.res.arg, b.out.arg}, push,
               flat_groups(pb.phases() * pb.cout * pb.npix(), 1), {info.name + "_splitk", 0, part_traffic});
 }

@@ -27,15 +27,29 @@ struct IgemmTile {
 // 64 output channels x 64 pixels of lm x ln x lk fragments on 2 x 2 warps (32 pixels a warp).
 IgemmTile coopmat_tile(uint32_t lm, uint32_t ln, uint32_t lk, bool emulated);
 
+// How a conv reads its input and writes its output beyond plain slices, folded into the GEMM's
+// addressing (exact: the same values the separate ops would have made). The input is the
+// concatenation of pieces along the channels, read as they are, reflection-padded (the UNets' size
+// adapter) or space-to-depth (SFENet1's PixelUnshuffle(2)); the output slice is the conv's output
+// from (crop_y, crop_x) (the size adapter's crop), optionally through `scale` x tanh.
+enum class InputMap : uint32_t { none = 0, reflect_pad = 1, space_to_depth = 2 };
+constexpr int kMaxInputPieces = 5;
+
 // What one conv (MODE 0) or one transposed conv (MODE 1, every phase) asks of the shader.
 struct IgemmProblem {
   uint32_t kh = 3, kw = 3, stride = 1, pad = 1;  // MODE 1: the sub-kernel's side, the transposed conv's stride and pad
   bool transposed = false;
   int64_t cin = 0, cout = 0;
-  Shape in, out;     // the slices' shapes
-  int64_t gh = 0, gw = 0;  // GEMM pixel grid per item (and phase)
+  Shape in, out;           // the input as the conv sees it (padded, rearranged), the output slice
+  int64_t gh = 0, gw = 0;  // GEMM pixel grid per item (and phase): the conv's output extent (MODE 1: per phase)
   Act act;
   Precision precision = Precision::fp32;
+  // Folds (InputMap above): the pieces' channels as the conv sees them, their extent and origin.
+  InputMap map = InputMap::none;
+  std::vector<int64_t> piece_channels;  // empty: one piece, all of `in`
+  int64_t src_h = 0, src_w = 0, src_y = 0, src_x = 0;
+  int64_t crop_y = 0, crop_x = 0;
+  float scale = 1.f;  // the output is scale x act(...)
   int64_t kdim() const { return cin * kh * kw; }
   int64_t phases() const { return transposed ? int64_t(stride) * stride : 1; }
   int64_t npix() const { return in.n * gh * gw; }
@@ -61,9 +75,10 @@ bool igemm_fits(const DeviceInfo& info, const IgemmTile& tile, const IgemmProble
 // Records the dispatch (and, split, the reduce into the output). `weight`: the packed A; `bias`: fp32
 // [cout]; `res`: the residual slice, or any bound range when there is none.
 struct IgemmBindings {
-  BoundSlice in, out, res;
+  BoundSlice in, out, res;  // in: input piece 0
   bool has_res = false;
   Arg weight, bias;
+  std::vector<BoundSlice> more_pieces;  // input pieces 1.. (IgemmProblem::piece_channels)
 };
 void igemm_record(Context& ctx, CommandStream& cs, ConvWorkspace& workspace, const IgemmTile& tile,
                   const IgemmProblem& pb, const IgemmBindings& b, uint32_t splits, const DispatchInfo& info);

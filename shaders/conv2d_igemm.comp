@@ -31,9 +31,13 @@ layout(constant_id = 13) const uint PARTIAL = 0;  // 1: split-K partial sums int
 #define IG_OUT 4
 #include "igemm_common.glsl"
 
-layout(std430, binding = 0) readonly buffer In { SFLOAT x[]; };
+layout(std430, binding = 0) readonly buffer In0 { SFLOAT x0[]; };  // input piece 0 (the whole input unless folded)
 layout(std430, binding = 1) readonly buffer Wt { SVEC4 wt[]; };  // [phase][kpad][co4]: vec4s of output channels
 layout(std430, binding = 5) writeonly buffer Part { float part[]; };  // [split][phase][cout][npix]
+layout(std430, binding = 6) readonly buffer In1 { SFLOAT x1[]; };
+layout(std430, binding = 7) readonly buffer In2 { SFLOAT x2[]; };
+layout(std430, binding = 8) readonly buffer In3 { SFLOAT x3[]; };
+layout(std430, binding = 9) readonly buffer In4 { SFLOAT x4[]; };
 
 const uint NT = (BM / TM) * (BN / TN);  // invocations
 const uint TX = BN / TN, TY = BM / TM;  // invocations along the pixels and the channels
@@ -53,8 +57,8 @@ void main() {
   const uint phases = MODE == 1u ? STRIDE * STRIDE : 1u;
   const uint ph = gl_WorkGroupID.z % phases, split = gl_WorkGroupID.z / phases;
   const uvec2 phase = uvec2(ph / STRIDE, ph % STRIDE);
-  const uint kbeg = split * p.ksplit, kend = min(p.kpad, kbeg + p.ksplit);
-  const uint wbase = ph * p.kpad * p.co4;
+  const uint kbeg = split * p.ksplit, kend = min(igemm_kpad(), kbeg + p.ksplit);
+  const uint wbase = ph * igemm_kpad() * ((p.cout + 3u) / 4u);
 
   const uint bcol = tid % BN, brow0 = tid / BN;  // this invocation's X column and first row per stage
   Column col = column_of(n0 + bcol, phase);
@@ -72,7 +76,7 @@ void main() {
 #define LOAD_STAGE(k0)                                                                           \
   for (uint l = 0; l < LA; ++l) {                                                                \
     uint e = tid + l * NT, row = e / (BM / 4u), c4 = m0 / 4u + e % (BM / 4u);                     \
-    ra[l] = (e < AV && c4 < p.co4) ? vec4(wt[wbase + ((k0) + row) * p.co4 + c4]) : vec4(0.0);    \
+    ra[l] = (e < AV && c4 < ((p.cout + 3u) / 4u)) ? vec4(wt[wbase + ((k0) + row) * ((p.cout + 3u) / 4u) + c4]) : vec4(0.0);    \
   }                                                                                              \
   for (uint l = 0; l < LB; ++l) rb[l] = gather(col, (k0) + brow0 + l * (NT / BN));
 #define STORE_STAGE(buf)                                                                         \
@@ -112,7 +116,7 @@ void main() {
       uint co = m0 + (i / 4u) * (BM / (TM / 4u)) + ty * 4u + i % 4u;
       if (!inside || co >= p.cout) continue;
       float v = acc[i][j / 4u][j % 4u];
-      if (PARTIAL != 0u) part[((split * phases + ph) * p.cout + co) * p.npix + gp] = v;
+      if (PARTIAL != 0u) part[((split * phases + ph) * p.cout + co) * igemm_npix() + gp] = v;
       else store_out(v, co, item, pix);
     }
   }

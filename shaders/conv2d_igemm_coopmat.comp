@@ -36,9 +36,13 @@ const uint NW = WM * WN;
 #define IG_OUT 4
 #include "igemm_common.glsl"
 
-layout(std430, binding = 0) readonly buffer In { float16_t x[]; };
+layout(std430, binding = 0) readonly buffer In0 { float16_t x0[]; };  // input piece 0 (the whole input unless folded)
 layout(std430, binding = 1) readonly buffer Wt { uvec4 wt[]; };  // [cout_pad][kpad] halves, 8 a word
 layout(std430, binding = 5) writeonly buffer Part { float part[]; };
+layout(std430, binding = 6) readonly buffer In1 { float16_t x1[]; };
+layout(std430, binding = 7) readonly buffer In2 { float16_t x2[]; };
+layout(std430, binding = 8) readonly buffer In3 { float16_t x3[]; };
+layout(std430, binding = 9) readonly buffer In4 { float16_t x4[]; };
 #include "igemm_gather.glsl"
 #include "coopmat.glsl"
 
@@ -54,7 +58,7 @@ const uint LX = (XU + NT - 1u) / NT;
 
 void main() {
   const uint tid = gl_LocalInvocationIndex, n0 = gl_WorkGroupID.x * BN, m0 = gl_WorkGroupID.y * BM;
-  const uint split = gl_WorkGroupID.z, kbeg = split * p.ksplit, kend = min(p.kpad, kbeg + p.ksplit);
+  const uint split = gl_WorkGroupID.z, kbeg = split * p.ksplit, kend = min(igemm_kpad(), kbeg + p.ksplit);
   const uint wm = warp_id() / WN, wn = warp_id() % WN;
   // This invocation's 8 X columns (the same for every stage and every unit it loads).
   const uint g8 = tid % (BN / 8u);
@@ -67,7 +71,7 @@ void main() {
 #define LOAD_STAGE(k0)                                                                            \
   for (uint l = 0; l < LA; ++l) {                                                                 \
     uint e = tid + l * NT, co = m0 + e / (BK / 8u);                                               \
-    ra[l] = (e < BM * BK / 8u && co < p.co4 * 4u) ? wt[(co * p.kpad + (k0)) / 8u + e % (BK / 8u)] : uvec4(0); \
+    ra[l] = (e < BM * BK / 8u && co < (p.cout + 3u) / 4u * 4u) ? wt[(co * igemm_kpad() + (k0)) / 8u + e % (BK / 8u)] : uvec4(0); \
   }                                                                                               \
   for (uint l = 0; l < LX; ++l) {                                                                 \
     uint u = tid + l * NT, k = (k0) + u / (BN / 8u);                                              \
@@ -112,7 +116,7 @@ void main() {
         uint co = m0 + (wm * FM + i) * lM + e / lN, gp = n0 + (wn * FN + j) * lN + e % lN, item, pix;
         if (co >= p.cout || !out_pixel(gp, uvec2(0), item, pix)) continue;
         float v = sc[tile + e];
-        if (PARTIAL != 0u) part[(split * p.cout + co) * p.npix + gp] = v;
+        if (PARTIAL != 0u) part[(split * p.cout + co) * igemm_npix() + gp] = v;
         else store_out(v + bias[co], co, item, pix);
       }
       barrier();  // read before the next fragment overwrites the tile

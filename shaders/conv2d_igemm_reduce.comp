@@ -19,11 +19,12 @@ layout(std430, binding = 0) readonly buffer Part { float part[]; };  // [split][
 void main() {
   const uint phases = MODE == 1u ? STRIDE * STRIDE : 1u;
   uint i = gl_GlobalInvocationID.y * gl_NumWorkGroups.x * 64u + gl_GlobalInvocationID.x;
-  if (i >= phases * p.cout * p.npix) return;
-  uint gp = i % p.npix, co = (i / p.npix) % p.cout, ph = i / (p.npix * p.cout);
+  if (i >= phases * p.cout * igemm_npix()) return;
+  uint gp = i % igemm_npix(), co = (i / igemm_npix()) % p.cout, ph = i / (igemm_npix() * p.cout);
   uint item, pix;
   if (!out_pixel(gp, uvec2(ph / STRIDE, ph % STRIDE), item, pix)) return;
   float v = bias[co];
-  for (uint s = 0; s < p.nsplit; ++s) v += part[((s * phases + ph) * p.cout + co) * p.npix + gp];
+  const uint splits = (igemm_kpad() + p.ksplit - 1u) / p.ksplit;
+  for (uint s = 0; s < splits; ++s) v += part[((s * phases + ph) * p.cout + co) * igemm_npix() + gp];
   store_out(v, co, item, pix);
 }

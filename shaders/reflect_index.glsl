@@ -6,7 +6,12 @@
 // REFLECT_ONCE (specialization constant 0, set by the host where every pad is below its axis and
 // no axis has size 1) keeps only the one-reflection selects: llvmpipe runs every branch under a
 // mask, so the general path's division would otherwise be paid on every pixel.
+// VKU_REFLECT_GENERAL_ONLY (the GPU convs' folded pads, whose spec constant 0 is the kernel) leaves it out.
+#ifdef VKU_REFLECT_GENERAL_ONLY
+const bool REFLECT_ONCE = false;
+#else
 layout(constant_id = 0) const bool REFLECT_ONCE = false;
+#endif
 uint reflect_index(int i, int n) {
   if (REFLECT_ONCE) return uint(i < 0 ? -i : (i >= n ? 2 * n - 2 - i : i));
   if (i >= 0 && i < n) return uint(i);
