@@ -71,7 +71,8 @@ void conv2d_ref(HostSlice in, HostSliceOut out, const HostTensor& weight, const 
 
 // A conv's input and output folded into the GPU family's addressing (kernels/igemm.hpp): the input is
 // pieces concatenated along the channels, read as they are, reflection-padded to padded_h x padded_w
-// with the pieces at (top, left) (the UNets' size adapter), or space-to-depth (PixelUnshuffle(2));
+// with the pieces at (top, left) (the UNets' size adapter), space-to-depth (PixelUnshuffle(2)) or
+// depth-to-space (PixelShuffle(2));
 // the output slice is the conv's output from (crop_top, crop_left); with tanh_scale > 0 it is
 // tanh_scale x tanh(conv) (for a conv without activation). Exact: the separate ops' values.
 struct ConvFold {
@@ -81,6 +82,10 @@ struct ConvFold {
   float tanh_scale = 0.f;
   // The input as the conv sees it, from the pieces' shapes (equal batch and extent; an Error otherwise).
   Shape conv_input(const std::vector<Shape>& pieces, const std::string& who) const;
+  // The channels a piece of c channels gives the conv's input.
+  int64_t piece_channels(int64_t c) const {
+    return map == InputMap::space_to_depth ? 4 * c : map == InputMap::depth_to_space ? c / 4 : c;
+  }
 };
 
 // CPU reference of a folded conv: the separate ops (reflection_pad_ref, space_to_depth_ref, conv2d_ref,

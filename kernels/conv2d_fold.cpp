@@ -12,11 +12,6 @@
 
 namespace vkunroll {
 
-namespace {
-Shape piece_shape(const Slice& s) { return s.shape(); }
-Shape piece_shape(const HostSlice& s) { return s.shape(); }
-}  // namespace
-
 Shape ConvFold::conv_input(const std::vector<Shape>& pieces, const std::string& who) const {
   if (pieces.empty() || pieces.size() > size_t(kMaxInputPieces))
     throw Error(who + ": a folded conv takes 1 to " + std::to_string(kMaxInputPieces) + " input pieces, " +
@@ -41,6 +36,12 @@ Shape ConvFold::conv_input(const std::vector<Shape>& pieces, const std::string& 
       throw Error(who + ": space-to-depth of a " + std::to_string(in.h) + "x" + std::to_string(in.w) +
                   " input, expected even height and width");
     in.c *= 4, in.h /= 2, in.w /= 2;
+  } else if (map == InputMap::depth_to_space) {
+    for (size_t i = 0; i < pieces.size(); ++i)
+      if (pieces[i].c % 4)
+        throw Error(who + ": depth-to-space of input piece " + std::to_string(i) + " with " + std::to_string(pieces[i].c) +
+                    " channels, expected a multiple of 4");
+    in.c /= 4, in.h *= 2, in.w *= 2;
   }
   return in;
 }
@@ -49,17 +50,19 @@ void conv2d_folded_ref(const std::vector<HostSlice>& pieces, const ConvFold& fol
                        const HostTensor& weight, const HostTensor& bias, const Conv2dParams& params,
                        std::optional<HostSlice> residual) {
   std::vector<Shape> shapes;
-  for (const HostSlice& p : pieces) shapes.push_back(piece_shape(p));
+  for (const HostSlice& p : pieces) shapes.push_back(p.shape());
   const Shape cin = fold.conv_input(shapes, "conv2d_folded_ref");
   HostTensor x({cin.n, cin.c, cin.h, cin.w});
   int64_t c0 = 0;
   for (const HostSlice& p : pieces) {
-    const int64_t c = fold.map == InputMap::space_to_depth ? 4 * p.channels() : p.channels();
+    const int64_t c = fold.piece_channels(p.channels());
     const HostSliceOut dst(x, c0, c);
     if (fold.map == InputMap::reflect_pad)
       reflection_pad_ref(p, dst, {fold.top, fold.padded_h - fold.top - p.height(), fold.left, fold.padded_w - fold.left - p.width()});
     else if (fold.map == InputMap::space_to_depth)
       space_to_depth_ref(p, dst);
+    else if (fold.map == InputMap::depth_to_space)
+      depth_to_space_ref(p, dst);
     else
       crop_ref(p, dst, 0, 0);
     c0 += c;
@@ -113,7 +116,7 @@ void Conv2d::record_folded(CommandStream& cs, const std::vector<Slice>& pieces, 
   IgemmProblem pb = igemm_problem(is);
   pb.out = os;
   pb.map = fold.map;
-  for (const Shape& s : shapes) pb.piece_channels.push_back(fold.map == InputMap::space_to_depth ? 4 * s.c : s.c);
+  for (const Shape& s : shapes) pb.piece_channels.push_back(fold.piece_channels(s.c));
   pb.src_h = shapes[0].h, pb.src_w = shapes[0].w;
   if (fold.map == InputMap::reflect_pad) pb.src_y = fold.top, pb.src_x = fold.left;
   pb.crop_y = fold.crop_top, pb.crop_x = fold.crop_left;

@@ -30,9 +30,10 @@ IgemmTile coopmat_tile(uint32_t lm, uint32_t ln, uint32_t lk, bool emulated);
 // How a conv reads its input and writes its output beyond plain slices, folded into the GEMM's
 // addressing (exact: the same values the separate ops would have made). The input is the
 // concatenation of pieces along the channels, read as they are, reflection-padded (the UNets' size
-// adapter) or space-to-depth (SFENet1's PixelUnshuffle(2)); the output slice is the conv's output
-// from (crop_y, crop_x) (the size adapter's crop), optionally through `scale` x tanh.
-enum class InputMap : uint32_t { none = 0, reflect_pad = 1, space_to_depth = 2 };
+// adapter), space-to-depth (SFENet1's PixelUnshuffle(2)) or depth-to-space (UPNet.2's PixelShuffle(2));
+// the output slice is the conv's output from (crop_y, crop_x) (the size adapter's crop), optionally
+// through `scale` x tanh.
+enum class InputMap : uint32_t { none = 0, reflect_pad = 1, space_to_depth = 2, depth_to_space = 3 };
 constexpr int kMaxInputPieces = 5;
 
 // What one conv (MODE 0) or one transposed conv (MODE 1, every phase) asks of the shader.

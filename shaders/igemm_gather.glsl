@@ -2,7 +2,8 @@
 // conv2d_igemm and conv2d_igemm_coopmat. The input is up to 5 pieces concatenated along the channels
 // (x0..x4, channel starts PC1..PC4), read as they are (MAP 0), reflection-padded to the conv's h x w
 // with the pieces at (src_y, src_x) (MAP 1: the UNets' size adapter), or space-to-depth of the pieces
-// (MAP 2: channel 4c + 2dy + dx at (y, x) is the piece's channel c at (2y + dy, 2x + dx)): the pad,
+// (MAP 2: channel 4c + 2dy + dx at (y, x) is the piece's channel c at (2y + dy, 2x + dx)), or
+// depth-to-space (MAP 3: channel c at (2y + dy, 2x + dx) is the piece's channel 4c + 2dy + dx at (y, x)): the pad,
 // concatenation and rearrangement cost no dispatch and no buffer. The includer declares KH, KW,
 // STRIDE, MODE, the push constants (igemm_common.glsl) and the buffers x0..x4.
 #ifndef VKU_IGEMM_GATHER_GLSL
@@ -51,6 +52,8 @@ float folded_input(uint item, uint ci, uint iy, uint ix) {
     sx = reflect_index(int(ix) - int(p.src_x), int(p.src_w));
   } else if (MAP == 2u) {
     sy = 2u * iy + (sc % 4u) / 2u, sx = 2u * ix + sc % 2u, sc /= 4u;
+  } else if (MAP == 3u) {
+    sc = 4u * sc + 2u * (iy % 2u) + ix % 2u, sy = iy / 2u, sx = ix / 2u;
   }
   uint at = sc * p.src_h * p.src_w + sy * p.src_w + sx;
   if (piece == 0u) return float(x0[p.in_off + item * p.in_bs + at]);

@@ -27,6 +27,11 @@ struct FoldCase {
   int64_t out_h = 0, out_w = 0;  // the output slice (0: the conv's whole output)
 };
 
+ConvFold d2s_tanh(ConvFold f) {
+  f.tanh_scale = 1.f;
+  return f;
+}
+
 std::vector<FoldCase> cases() {
   ConvFold unet;  // the size adapter: 13x10 padded to 32x16, the odd remainder bottom/right
   unet.map = InputMap::reflect_pad, unet.padded_h = 32, unet.padded_w = 16, unet.top = 9, unet.left = 3;
@@ -36,6 +41,8 @@ std::vector<FoldCase> cases() {
   crop_only.tanh_scale = 0;
   ConvFold s2d;
   s2d.map = InputMap::space_to_depth;
+  ConvFold d2s;
+  d2s.map = InputMap::depth_to_space;
   ConvFold wide_pad = unet;  // a pad larger than the image keeps reflecting (3x2 to 16x16)
   wide_pad.padded_h = 16, wide_pad.padded_w = 16, wide_pad.top = 6, wide_pad.left = 7;
   return {
@@ -45,13 +52,14 @@ std::vector<FoldCase> cases() {
       {"pred: crop and 100 tanh", 3, 1, {8}, 2, 32, 16, 2, pred, Act{}, false, 13, 10},
       {"crop with a residual", 3, 1, {8}, 3, 32, 16, 1, crop_only, leaky_relu(0.1f), true, 13, 10},
       {"sfenet1: 5 pieces space-to-depth, 5x5", 5, 1, {3, 4, 4, 4, 3}, 24, 12, 10, 2, s2d, Act{}},
+      {"upnet.2: depth-to-space, tanh", 3, 1, {16}, 3, 6, 5, 2, d2s_tanh(d2s), Act{}},
       {"concatenation only, stride 2", 3, 2, {4, 6}, 9, 11, 9, 1, ConvFold{}, leaky_relu(0.1f)},
   };
 }
 
 optest::OpCase fold_case(const FoldCase& c, ConvAlgo algo, int splits, bool emulated, std::mt19937& rng) {
   int64_t cin = 0;
-  for (int64_t pc : c.piece_channels) cin += c.fold.map == InputMap::space_to_depth ? 4 * pc : pc;
+  for (int64_t pc : c.piece_channels) cin += c.fold.piece_channels(pc);
   const Conv2dParams p{c.k, c.s, c.k / 2, c.act};
   const float ws = 1.f / std::sqrt(static_cast<float>(cin * c.k * c.k));
   const HostTensor w = random_tensor({c.cout, cin, c.k, c.k}, rng, -ws, ws), b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
