@@ -42,8 +42,9 @@ std::string slurp(const fs::path& p) {
 }  // namespace
 
 // --conv-choice gpu runs the GPU kernels' rule on lavapipe: other algorithms than lavapipe's own
-// choice (the igemm family, transposed convs as its sub-pixel phases), and the
-// shipped default model's GS frames equal those of lavapipe's choice within one PNG step.
+// choice (the igemm family, transposed convs as its sub-pixel phases, the folded convs), at most 100
+// dispatches per GS frame, and the shipped default model's GS frames equal those of lavapipe's
+// choice within one PNG step.
 TEST(ConvChoice, GpuChoiceKeepsTheFramesOfTheDevicesOwnChoice) {
   const std::string cli = VKUNROLL_CLI_PATH;
   if (!fs::exists(cli)) GTEST_SKIP() << cli << " is not here (the device bundle carries no CLI)";
@@ -57,12 +58,19 @@ TEST(ConvChoice, GpuChoiceKeepsTheFramesOfTheDevicesOwnChoice) {
   for (const std::string choice : {"heuristic", "gpu"}) {
     const fs::path out = dir / choice;
     ASSERT_EQ(std::system((env + cli + " unroll " + (dir / "seq").string() + " --out " + out.string() + " --model " + model +
-                           " --mode s --sparse off --conv-choice " + choice + " --quiet --no-video > " +
+                           " --mode s --sparse off --conv-choice " + choice + " --quiet --no-video --profile > " +
                            (dir / (choice + ".txt")).string() + " 2>&1").c_str()), 0)
         << slurp(dir / (choice + ".txt"));
     const auto summary = nlohmann::json::parse(slurp(out / "summary.json"));
     EXPECT_EQ(summary.at("conv_algorithms").at("choice"), choice);
     calls[choice] = summary.at("conv_algorithms").at("calls_by_algorithm");
+    if (choice != "gpu") continue;
+    // Issue 49's goal: at most 100 dispatches per GS frame for the default model with the GPU family;
+    // the UNets' pads and crops, SFENet1's space-to-depth and UPNet.2's depth-to-space are folded.
+    EXPECT_LE(summary.at("device_traffic_per_gs_frame").at("dispatches").get<double>(), 100.0) << summary.dump();
+    for (const auto& [op, v] : summary.at("gpu_ms_per_gs_frame_by_op").items())
+      for (const char* folded : {"reflection_pad", "space_to_depth", "depth_to_space", "crop"})
+        EXPECT_EQ(op.find(folded), std::string::npos) << op << " ran as its own dispatch";
   }
   EXPECT_NE(calls["gpu"], calls["heuristic"]) << calls["gpu"].dump();
   EXPECT_TRUE(calls["gpu"].contains("igemm_n")) << calls["gpu"].dump();  // the 8-channel UNet levels, the heads

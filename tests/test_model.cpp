@@ -11,6 +11,7 @@
 
 #include "vkunroll/host/model/backend_cpu.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/conv_choice.hpp"
 #include "vk_test_env.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
@@ -59,6 +60,23 @@ TEST(ModelCpu, PhysicsGoldenMOddSize37x29) { CpuBackend cpu; golden_parity(cpu, 
 TEST(ModelVulkan, PhysicsGoldenS64x48) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_physics_s_64x48.safetensors", Mode::s, kPhysicsModel); }
 TEST(ModelVulkan, PhysicsGoldenM64x48) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_physics_m_64x48.safetensors", Mode::m, kPhysicsModel); }
 TEST(ModelVulkan, PhysicsGoldenMOddSize37x29) { VulkanBackend vk(vktest::context()); golden_parity(vk, "selfunroll_golden_physics_m_37x29.safetensors", Mode::m, kPhysicsModel); }
+
+// The GPU family on lavapipe (--conv-choice gpu): the UNets' pads and crops, the flow's tanh,
+// SFENet1's space-to-depth and UPNet.2's depth-to-space and tanh fold into their convs (one
+// dispatch each), and the outputs still match the PyTorch mirror. Per chunk: the heads and preds of
+// flownet and fusion_net (M: and attfusion_net), SFENet1 and UPNet.2.
+void golden_parity_folded(const std::string& fixture_name, Mode mode, const std::string& model_name, uint64_t folded) {
+  VulkanBackend vk(vktest::context());
+  vk.set_conv_choice(nullptr, ConvChoice::gpu);
+  golden_parity(vk, fixture_name, mode, model_name);
+  EXPECT_EQ(vk.convs_folded(), folded) << fixture_name;
+}
+TEST(ModelVulkanGpuFamily, PhysicsGoldenS64x48Folded) {
+  golden_parity_folded("selfunroll_golden_physics_s_64x48.safetensors", Mode::s, kPhysicsModel, 6);
+}
+TEST(ModelVulkanGpuFamily, GoldenMOddSize37x29Folded) {
+  golden_parity_folded("selfunroll_golden_m_37x29.safetensors", Mode::m, "selfunroll_tiny.safetensors", 8);
+}
 
 TEST(ModelCpu, PhysicsInputIsRequiredByTheVariantAndRefusedOtherwise) {
   CpuBackend cpu;

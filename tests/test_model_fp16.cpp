@@ -10,6 +10,7 @@
 #include "vk_test_env.hpp"
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/host/model/backend_vulkan.hpp"
+#include "vkunroll/host/model/conv_choice.hpp"
 #include "vkunroll/host/model/model.hpp"
 #include "vkunroll/host/model/safetensors.hpp"
 #include "vkunroll/host/model/weights.hpp"
@@ -36,8 +37,10 @@ bool all_finite(const HostTensor& a) {
 // 0.13%); 1% leaves room for other drivers' rounding of the fp32 arithmetic between fp16 stores.
 constexpr double kFp16RelTol = 0.01;
 
-void golden_parity_fp16(const std::string& fixture_name, Mode mode, const std::string& model_name = "selfunroll_tiny.safetensors") {
+void golden_parity_fp16(const std::string& fixture_name, Mode mode, const std::string& model_name = "selfunroll_tiny.safetensors",
+                        ConvChoice choice = ConvChoice::heuristic) {
   VulkanBackend vk(vktest::context(), nullptr, kPoolFlushBytes, Precision::fp16);
+  vk.set_conv_choice(nullptr, choice);
   const Weights w = load_weights(fixture(model_name));
   const SafetensorsFile g = read_safetensors(fixture(fixture_name));
   Model model(vk, w);
@@ -60,6 +63,10 @@ void golden_parity_fp16(const std::string& fixture_name, Mode mode, const std::s
 TEST(ModelVulkanFp16, GoldenS64x48) { golden_parity_fp16("selfunroll_golden_s_64x48.safetensors", Mode::s); }
 TEST(ModelVulkanFp16, GoldenM64x48) { golden_parity_fp16("selfunroll_golden_m_64x48.safetensors", Mode::m); }
 TEST(ModelVulkanFp16, GoldenMOddSize37x29) { golden_parity_fp16("selfunroll_golden_m_37x29.safetensors", Mode::m); }
+// The GPU family with its folded convs (test_model.cpp ModelVulkanGpuFamily) in fp16.
+TEST(ModelVulkanFp16, GpuFamilyFoldedPhysicsGoldenS64x48) {
+  golden_parity_fp16("selfunroll_golden_physics_s_64x48.safetensors", Mode::s, "selfunroll_tiny_physics.safetensors", ConvChoice::gpu);
+}
 TEST(ModelVulkanFp16, PhysicsGoldenM64x48) {
   golden_parity_fp16("selfunroll_golden_physics_m_64x48.safetensors", Mode::m, "selfunroll_tiny_physics.safetensors");
 }

@@ -71,4 +71,59 @@ std::vector<float> Backend::download(const BufferSlice& v) {
   return out;
 }
 
+namespace {
+Shape slice_shape(const Backend& b, const BufferSlice& v) {
+  Shape s = b.shape(v.buf);
+  s.n = v.n, s.c = v.c;
+  return s;
+}
+}  // namespace
+
+void Backend::conv_folded(int conv, const ConvDesc& desc, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
+                          const BufferSlice& out) {
+  if (desc.transposed) throw Error(desc.name + ": a transposed conv is not folded");
+  std::vector<Shape> shapes;
+  for (const BufferSlice& v : pieces) shapes.push_back(slice_shape(*this, v));
+  const Shape is = fold.conv_input(shapes, desc.name);
+  if (conv_folded_at_once(conv, pieces, fold, out)) return;
+  // The separate ops: the input made whole (unless it is one plain piece), the conv, crop, tanh.
+  Buffer x;
+  BufferSlice xin = pieces.at(0);
+  if (pieces.size() > 1 || fold.map != InputMap::none) {
+    x = alloc(is, desc.name + ".input");
+    int64_t c0 = 0;
+    for (size_t i = 0; i < pieces.size(); ++i) {
+      const int64_t c = fold.piece_channels(shapes[i].c);
+      const BufferSlice dst{x.id(), 0, is.n, c0, c};
+      if (fold.map == InputMap::reflect_pad) reflect_pad(pieces[i], dst, int(fold.top), int(fold.left));
+      else if (fold.map == InputMap::space_to_depth) space_to_depth(pieces[i], dst);
+      else if (fold.map == InputMap::depth_to_space) depth_to_space(pieces[i], dst);
+      else copy(pieces[i], dst);
+      c0 += c;
+    }
+    xin = x.whole();
+  }
+  const Shape full{is.n, desc.cout, conv_output_size(is.h, desc.k, desc.stride, desc.pad),
+                   conv_output_size(is.w, desc.k, desc.stride, desc.pad)};
+  const Shape os = slice_shape(*this, out);
+  const bool crops = fold.crop_top || fold.crop_left || os.h != full.h || os.w != full.w;
+  if (!crops && fold.tanh_scale <= 0) {
+    this->conv(conv, xin, out, nullptr);
+    return;
+  }
+  Buffer y = alloc(full, desc.name + ".output");
+  this->conv(conv, xin, y.whole(), nullptr);
+  x.reset();
+  if (fold.tanh_scale <= 0) {
+    crop(y.whole(), out, int(fold.crop_top), int(fold.crop_left));
+  } else if (!crops) {
+    tanh_scale(y.whole(), out, fold.tanh_scale);
+  } else {
+    Buffer c = alloc(os, desc.name + ".cropped");
+    crop(y.whole(), c.whole(), int(fold.crop_top), int(fold.crop_left));
+    y.reset();
+    tanh_scale(c.whole(), out, fold.tanh_scale);
+  }
+}
+
 }  // namespace vkunroll

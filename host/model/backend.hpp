@@ -15,6 +15,7 @@
 #include "vkunroll/base/events.hpp"
 #include "vkunroll/base/precision.hpp"
 #include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
 #include "vkunroll/runtime/tensor.hpp"
@@ -107,6 +108,15 @@ class Backend {
   virtual void begin_dense_block(int64_t channels) { (void)channels; }
   virtual void end_dense_block() {}
 
+  // out = conv `conv` (prepared from `desc`, not transposed) with its input and output folded
+  // (ConvFold, kernels/conv2d.hpp): the input is `pieces` concatenated along the channels, read as
+  // they are, reflection-padded, space-to-depth or depth-to-space; out is the conv's output from
+  // (crop_top, crop_left), optionally tanh_scale x tanh. One dispatch where the backend folds them
+  // into the conv (Vulkan with the GPU family); otherwise the separate ops, through buffers of their
+  // own (the same values).
+  void conv_folded(int conv, const ConvDesc& desc, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
+                   const BufferSlice& out);
+
   virtual void space_to_depth(const BufferSlice& in, const BufferSlice& out) = 0;   // PixelUnshuffle(2)
   virtual void depth_to_space(const BufferSlice& in, const BufferSlice& out) = 0;   // PixelShuffle(2)
   // out (larger) = reflection padding of in, in placed at (top, left).
@@ -172,6 +182,12 @@ class Backend {
   virtual void release_id(int buf) noexcept = 0;
   virtual int event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                                const EventTensorSpec& spec) = 0;
+  // conv_folded in one dispatch; false where this backend does not fold this conv (it then composes).
+  virtual bool conv_folded_at_once(int conv, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
+                                   const BufferSlice& out) {
+    (void)conv, (void)pieces, (void)fold, (void)out;
+    return false;
+  }
   void account_alloc(uint64_t b) {
     live_bytes_ += b;
     if (live_bytes_ > peak_bytes_) peak_bytes_ = live_bytes_;

@@ -249,6 +249,49 @@ ConvAlgo VulkanBackend::gpu_choice(const Conv2d& c, const Shape& in, bool residu
   return std::find(can.begin(), can.end(), a) != can.end() ? a : ConvAlgo::automatic;
 }
 
+ConvAlgo VulkanBackend::conv2d_algorithm(const Conv2d& c, const Shape& in, bool residual, bool residual_in_output,
+                                         bool& from_table) {
+  from_table = false;
+  if (choice_ == ConvChoice::gpu) return gpu_choice(c, in, residual_in_output);
+  if (choice_ == ConvChoice::heuristic || !choice_table_) return ConvAlgo::automatic;
+  const auto time = [&] { return time_conv_algorithms(ctx_, c, in, residual, choice_budget_); };
+  if (auto name = table_algorithm(conv_choice_key(c, in, residual), time))
+    // An entry naming an algorithm this call cannot take (another build's, a residual in the output
+    // for chunked direct) falls back to the heuristic.
+    for (ConvAlgo a : c.candidates(in, residual_in_output))
+      if (*name == conv_algo_name(a)) {
+        from_table = true;
+        return a;
+      }
+  return ConvAlgo::automatic;
+}
+
+bool VulkanBackend::conv_folded_at_once(int id, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
+                                        const BufferSlice& out) {
+  const ConvRef ref = conv_refs_.at(static_cast<size_t>(id));
+  if (ref.transposed || probe_) return false;  // the per-layer probe reads each conv's own output
+  const Conv2d& c = *convs_[ref.index];
+  std::vector<Slice> ps;
+  std::vector<Shape> shapes;
+  for (const BufferSlice& v : pieces) {
+    ps.push_back(slice(tensor(v.buf), v));
+    shapes.push_back(ps.back().shape());
+  }
+  const Shape is = fold.conv_input(shapes, descs_[id].name);
+  bool from_table = false;
+  ConvAlgo algo = conv2d_algorithm(c, is, false, false, from_table);
+  if (algo == ConvAlgo::automatic) algo = c.choose_algorithm(is.h, is.w);
+  if (!(is_igemm(algo) || algo == ConvAlgo::coopmat) || !c.supports(algo, is)) return false;
+  if (from_table) ++convs_from_table_;
+  const Slice so = slice(tensor(out.buf), out);
+  ++conv_calls_by_algorithm_[conv_algo_name(algo)];
+  ++convs_folded_;
+  if (ctx_.trace()) cs_->set_detail(conv_detail(is, so.shape(), (std::string(conv_algo_name(algo)) + " folded").c_str()));
+  c.record_folded(*cs_, ps, fold, so, std::nullopt, algo);
+  cs_->set_detail({});
+  return true;
+}
+
 void VulkanBackend::begin_dense_block(int64_t channels) {
   if (!dense_v_) dense_v_ = std::make_unique<WinogradInputCache>();
   dense_v_->begin(channels);
@@ -281,15 +324,9 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
     const Conv2d& c = *convs_[ref.index];
     std::optional<Slice> r;
     if (residual) r = slice(tensor(residual->buf), *residual);
-    ConvAlgo algo = ConvAlgo::automatic;
-    const auto time = [&] { return time_conv_algorithms(ctx_, c, is, r.has_value(), choice_budget_); };
-    if (auto name = tabled ? table_algorithm(conv_choice_key(c, is, r.has_value()), time) : std::nullopt)
-      // An entry naming an algorithm this call cannot take (another build's, a residual in the
-      // output for chunked direct) falls back to the heuristic.
-      for (ConvAlgo a : c.candidates(is, c.residual_overlaps_output(so, r)))
-        if (*name == conv_algo_name(a)) algo = a;
-    if (algo != ConvAlgo::automatic) ++convs_from_table_;
-    if (choice_ == ConvChoice::gpu) algo = gpu_choice(c, is, c.residual_overlaps_output(so, r));
+    bool from_table = false;
+    const ConvAlgo algo = conv2d_algorithm(c, is, r.has_value(), c.residual_overlaps_output(so, r), from_table);
+    if (from_table) ++convs_from_table_;
     const char* algo_name = conv_algo_name(algo == ConvAlgo::automatic ? c.choose_algorithm(is.h, is.w) : algo);
     ++conv_calls_by_algorithm_[algo_name];
     if (ctx_.trace()) cs_->set_detail(conv_detail(is, so.shape(), algo_name));

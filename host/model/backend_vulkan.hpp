@@ -99,6 +99,8 @@ class VulkanBackend final : public Backend {
   // Conv calls recorded per algorithm name (transposed convs as "transposed NAME"); a call left to the
   // kernel counts under its choose_algorithm. Shows what --conv-choice changed.
   std::map<std::string, uint64_t> conv_calls_by_algorithm() const override { return conv_calls_by_algorithm_; }
+  // conv_folded calls run as one dispatch (their pads, crops, shuffles and tanh folded into the conv).
+  uint64_t convs_folded() const { return convs_folded_; }
 
   Context& context() { return ctx_; }
   // Bytes of device memory held by buffers (live + pooled for reuse), and its peak.
@@ -155,7 +157,7 @@ class VulkanBackend final : public Backend {
   std::set<std::string> past_deadline_;  // keys left untimed for the deadline
   ConvOptions conv_options_;
   std::set<std::string> retuned_;  // keys timed again under ConvChoice::retune
-  uint64_t convs_timed_ = 0, convs_from_table_ = 0;
+  uint64_t convs_timed_ = 0, convs_from_table_ = 0, convs_folded_ = 0;
   std::map<std::string, uint64_t> conv_calls_by_algorithm_;
   std::function<void(const std::string&, const ConvChoiceEntry&, double)> on_conv_timed_;
   // The table's algorithm for this conv call (timing it first where the choice says so); nullopt: the
@@ -163,6 +165,12 @@ class VulkanBackend final : public Backend {
   std::optional<std::string> table_algorithm(const std::string& key, const std::function<ConvChoiceEntry()>& time);
   // ConvChoice::gpu's algorithm for a conv call (gpu_family_algorithm where the call can take it).
   ConvAlgo gpu_choice(const Conv2d& c, const Shape& in, bool residual_in_output) const;
+  // The algorithm a conv call runs under the choice: the table's (from_table set), ConvChoice::gpu's,
+  // or automatic (the kernels' heuristic).
+  ConvAlgo conv2d_algorithm(const Conv2d& c, const Shape& in, bool residual, bool residual_in_output, bool& from_table);
+  // Folds into one dispatch where the conv runs the GPU family (igemm, coopmat) on the folded input.
+  bool conv_folded_at_once(int conv, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
+                           const BufferSlice& out) override;
 };
 
 }  // namespace vkunroll

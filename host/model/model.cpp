@@ -262,7 +262,7 @@ Buffer Model::resblock(const std::string& p, Buffer x) {
 }
 
 void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out,
-                 const UnetPadding& pad) {
+                 const UnetPadding& pad, float out_tanh_scale) {
   Backend& b = backend_;
   const Shape s0 = b.shape(pieces.at(0).buf);
   const int64_t n = pieces[0].n, h = s0.h, w = s0.w;
@@ -271,17 +271,12 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Bu
   const int64_t hp = unet_padded(h, pad.top, pad.bottom), wp = unet_padded(w, pad.left, pad.right);
   const int top = pad.top >= 0 ? pad.top : static_cast<int>((hp - h) / 2);
   const int left = pad.left >= 0 ? pad.left : static_cast<int>((wp - w) / 2);
-  int64_t cin = 0;
-  for (const auto& v : pieces) cin += v.c;
-  Buffer xin = b.alloc({n, cin, hp, wp}, p + ".input");
-  int64_t c0 = 0;
-  for (const auto& v : pieces) {
-    b.reflect_pad(v, chans(xin.whole(), c0, v.c), top, left);
-    c0 += v.c;
-  }
+  // The pad and the pieces' concatenation fold into the head conv's reads (Backend::conv_folded).
+  ConvFold padded;
+  padded.map = InputMap::reflect_pad, padded.padded_h = hp, padded.padded_w = wp, padded.top = top, padded.left = left;
   Buffer x = b.alloc({n, u.base, hp, wp}, p + ".head");
-  b.conv(conv(p + ".head").id, xin.whole(), x.whole(), nullptr);
-  xin.reset();
+  const Conv& head = conv(p + ".head");
+  b.conv_folded(head.id, head.desc, pieces, padded, x.whole());
   std::vector<Buffer> skips;
   for (int i = 0; i < u.depth; ++i) {
     const std::string d = p + ".down_path." + std::to_string(i);
@@ -309,32 +304,31 @@ void Model::unet(const std::string& p, const UnetConfig& u, const std::vector<Bu
     cat.reset();
     x = resblock(q + ".conv2", std::move(x));
   }
-  Buffer pred = b.alloc({n, out.c, hp, wp}, p + ".pred");
-  b.conv(conv(p + ".pred").id, x.whole(), pred.whole(), nullptr);
-  x.reset();
-  b.crop(pred.whole(), out, top, left);
+  // The crop back to h x w (and the flow's tanh) fold into the last conv's writes.
+  ConvFold cropped;
+  cropped.crop_top = top, cropped.crop_left = left, cropped.tanh_scale = out_tanh_scale;
+  const Conv& pred = conv(p + ".pred");
+  b.conv_folded(pred.id, pred.desc, {x.whole()}, cropped, out);
 }
 
 void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
-  const int64_t ev = cfg_.ev_channels(), h2 = ch.he / 2, w2 = ch.we / 2;
-  // space_to_depth(cat(rs, ev1, ev2, ev3)): input channel c lands in output channels 4c..4c+3,
-  // so each piece goes straight into its range and the 99-channel concatenation never exists.
-  Buffer xs = b.alloc({n, 4 * int64_t(cfg_.synthesis_channels()), h2, w2}, "space_to_depth");
-  b.space_to_depth(sub(ch.rs, i0, n), chans(xs.whole(), 0, 12));
+  const int64_t h2 = ch.he / 2, w2 = ch.we / 2;
+  // SFENet1 reads space_to_depth(cat(rs, ev1, ev2, ev3[, p])) through its folded input: input
+  // channel c of a piece is channels 4c..4c+3 of the conv's input, and the 99-channel tensor never exists.
   // The variant: p = clamp(phys, 0, 1) is the last piece of E-IC_T's input and the base of sys.
   Buffer phys_clamped;
+  std::vector<BufferSlice> pieces{sub(ch.rs, i0, n), sub(ch.ev1, i0, n), sub(ch.ev2, i0, n), sub(ch.ev3, i0, n)};
   if (cfg_.physics_input) {
     phys_clamped = b.alloc({n, 3, ch.he, ch.we}, "phys clamped");
     b.clamp01(sub(ch.phys, i0, n), phys_clamped.whole());
-    b.space_to_depth(phys_clamped.whole(), chans(xs.whole(), 12 + 12 * ev, 12));
+    pieces.push_back(phys_clamped.whole());
   }
-  b.space_to_depth(sub(ch.ev1, i0, n), chans(xs.whole(), 12, 4 * ev));
-  b.space_to_depth(sub(ch.ev2, i0, n), chans(xs.whole(), 12 + 4 * ev, 4 * ev));
-  b.space_to_depth(sub(ch.ev3, i0, n), chans(xs.whole(), 12 + 8 * ev, 4 * ev));
+  ConvFold s2d;
+  s2d.map = InputMap::space_to_depth;
   Buffer f1 = b.alloc({n, cfg_.G0, h2, w2}, "SFENet1");
-  b.conv(conv("SFENet1").id, xs.whole(), f1.whole(), nullptr);
-  xs.reset();
+  const Conv& sfenet1 = conv("SFENet1");
+  b.conv_folded(sfenet1.id, sfenet1.desc, pieces, s2d, f1.whole());
   // Each block works in one buffer whose first G0 channels are its input and whose growing tail
   // holds its convs' outputs; LFF (+ block input) writes the block output to a G0-channel buffer,
   // GFF.0 accumulates it, and it is copied back into the head of the block buffer for the next
@@ -370,24 +364,19 @@ void Model::stage_synthesis(Chunk& ch, int64_t i0, int64_t n) {
   Buffer up = b.alloc({n, cfg_.upnet_width, h2, w2}, "UPNet.0");
   b.conv(conv("UPNet.0").id, g.whole(), up.whole(), nullptr);
   g.reset();
-  Buffer shuf = b.alloc({n, cfg_.upnet_width / 4, ch.he, ch.we}, "depth_to_space");
-  b.depth_to_space(up.whole(), shuf.whole());
+  // UPNet.2 reads depth_to_space(up) and writes tanh of its output, both folded (Backend::conv_folded).
+  ConvFold d2s;
+  d2s.map = InputMap::depth_to_space, d2s.tanh_scale = 1.f;
+  const Conv& upnet2 = conv("UPNet.2");
+  b.conv_folded(upnet2.id, upnet2.desc, {up.whole()}, d2s, items(b, ch.E, i0, n));
   up.reset();
-  Buffer e_raw = b.alloc({n, 3, ch.he, ch.we}, "UPNet.2");
-  b.conv(conv("UPNet.2").id, shuf.whole(), e_raw.whole(), nullptr);
-  shuf.reset();
-  b.tanh_scale(e_raw.whole(), items(b, ch.E, i0, n), 1.f);
-  e_raw.reset();
   b.add(phys_clamped ? phys_clamped.whole() : sub(ch.rs, i0, n), items(b, ch.E, i0, n), items(b, ch.sys, i0, n));
 }
 
 void Model::stage_flow(Chunk& ch, int64_t i0, int64_t n) {
   Backend& b = backend_;
-  Buffer raw = b.alloc({n, 2, ch.he, ch.we}, "flownet");
   unet("flownet", cfg_.flownet, {sub(ch.ev1, i0, n), sub(ch.ev2, i0, n), sub(ch.rs, i0, n)},
-       raw.whole(), ch.pad);
-  b.tanh_scale(raw.whole(), items(b, ch.flow, i0, n), 100.f);
-  raw.reset();
+       items(b, ch.flow, i0, n), ch.pad, 100.f);
   b.backward_warp(sub(ch.rs, i0, n), items(b, ch.flow, i0, n), items(b, ch.warped, i0, n));
 }
 

@@ -128,10 +128,10 @@ class Model {
   void stage_fusion(Chunk& ch, int64_t i0, int64_t n);
   void add_physics_gate();
   void stage_moa(Chunk& ch, int64_t t0, int64_t nt, float force_m);
-  // The UNet on `pieces` (views with n items, concatenated along channels), output to `out`.
-  // pad: RunOptions::unet_pad.
+  // The UNet on `pieces` (views with n items, concatenated along channels), output to `out`
+  // (out_tanh_scale > 0: out_tanh_scale x tanh of it). pad: RunOptions::unet_pad.
   void unet(const std::string& p, const UnetConfig& u, const std::vector<BufferSlice>& pieces, const BufferSlice& out,
-            const UnetPadding& pad);
+            const UnetPadding& pad, float out_tanh_scale = 0.f);
   Buffer resblock(const std::string& p, Buffer x);  // returns the output buffer; releases x
 
   // The one check of a run's inputs and options, on their extents (host tensors or backend slices
