@@ -22,7 +22,7 @@ LIBS=$(ninja -C "$B" -t commands bench/vkunroll-bench-kernels | tail -1 | grep -
  T=tests/CMakeFiles/vkunroll_tests.dir
  objs=""
  for t in backward_warp conv2d conv2d_coopmat conv_transpose2d copy_rect elementwise event_tensor model model_fp16 physics_unroll \
-          precision reflection_pad runtime space_to_depth weights safetensors conv_choice backend_buffer op_test_harness conv2d_igemm; do
+          precision reflection_pad runtime space_to_depth weights safetensors conv_choice backend_buffer op_test_harness conv2d_igemm conv2d_fold; do
    if [ -f $T/test_$t.cpp.o ]; then objs="$objs $T/test_$t.cpp.o"; fi  # conv2d_igemm: the GPU conv family (issue 49), where built
  done
  c++ -O3 -Wl,--as-needed $objs $T/vk_test_env.cpp.o $T/op_test_harness.cpp.o $T/shaders_kTestShaders/*.o -o "$R/.devrun/bin/vkunroll_gpu_tests" $LIBS \

@@ -75,9 +75,9 @@ step() {  # step NAME CAP_S LOG CMD...
   timeout $cap stdbuf -oL -eL "$@" > "$log" 2>&1; local rc=$?
   echo "$name rc=$rc ($(( SECONDS - s0 )) s; $(( SECONDS - T0 )) s in all)"; return $rc
 }
-coopmat_tests() {  # the cooperative-matrix conv first, with the implicit-GEMM family it shares its gather with; validation fatal
+coopmat_tests() {  # the cooperative-matrix conv first, with the implicit-GEMM family and its folded convs (they share the gather); validation fatal
   VKUNROLL_VALIDATION=1 VKUNROLL_VALIDATION_FATAL=1 step "coopmat tests" ${1:-40} $O/gpu_tests_coopmat.log \
-    $B/vkunroll_gpu_tests --gtest_filter='Conv2dCoopmat.*:Conv2dIgemm.*'; CM_RC=$?
+    $B/vkunroll_gpu_tests --gtest_filter='Conv2dCoopmat.*:Conv2dIgemm.*:Conv2dFold.*'; CM_RC=$?
   grep -E '^\[ (device|measured) |^\[  (PASSED|FAILED|SKIPPED)|Failure|Skipped|error' $O/gpu_tests_coopmat.log | head -20
 }
 tune() {  # tune NAME MODEL SIZES TILE CAP BUDGET: the conv table the races (and unroll) read
