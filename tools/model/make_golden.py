@@ -21,8 +21,8 @@ and, with --physics only, the physics-informed variant (docs/model.md) of the sa
 
 Usage: /usr/bin/python3 -m tools.model.make_golden [OUT_DIR] [--physics]   (default tests/data)
 """
+import argparse
 import os
-import sys
 
 import torch
 
@@ -101,10 +101,14 @@ def physics_fixtures(out_dir):
 
 
 def main():
-    args = [a for a in sys.argv[1:] if a != "--physics"]
-    out_dir = args[0] if args else os.path.join(os.path.dirname(__file__), "..", "..", "tests", "data")
+    parser = argparse.ArgumentParser(description="Writes the golden fixtures of the model parity tests.")
+    parser.add_argument("out_dir", nargs="?", default=os.path.join(os.path.dirname(__file__), "..", "..", "tests", "data"),
+                        help="where the fixtures go (default: tests/data)")
+    parser.add_argument("--physics", action="store_true", help="only the physics-informed variant's fixtures")
+    opts = parser.parse_args()
+    out_dir = opts.out_dir
     os.makedirs(out_dir, exist_ok=True)
-    if "--physics" in sys.argv[1:]:
+    if opts.physics:
         physics_fixtures(out_dir)
         for name in sorted(os.listdir(out_dir)):
             if name.startswith("selfunroll_") and "physics" in name:
