@@ -1,4 +1,5 @@
-// The conv2d parity cases shared by test_conv2d.cpp and test_conv2d_igemm.cpp: odd shapes, slices
+// The conv2d parity cases shared by test_conv2d.cpp and test_conv2d_igemm.cpp (and their data and
+// reference by test_conv2d_coopmat.cpp): odd shapes, slices
 // inside larger tensors, batches, activations and residuals, run against the CPU reference through
 // the op harness (canaries around every output binding), in fp32 and fp16.
 #pragma once
@@ -98,24 +99,38 @@ inline std::string case_name(const Case& c) {
          std::to_string(c.batch) + " act " + activation_name(c.act.kind) + (c.residual ? " residual" : "");
 }
 
-// One case of the op: weights drawn here, the conv built per precision when the case is recorded.
-inline optest::OpCase conv_case(const Case& c, ConvAlgo algo, const Limits& lim, std::mt19937& rng) {
-  const Conv2dParams p{c.k, c.s, c.k / 2, c.act};
+// What every conv parity case shares (this file's and test_conv2d_coopmat.cpp's): the weights and
+// bias drawn, the inputs (the input, and a residual of the output's shape), the output slice among
+// canaries, and the CPU reference. The caller adds `op.record`.
+struct ConvCaseData {
+  optest::OpCase op;
+  HostTensor w, b;
+  Conv2dParams p;
+};
+inline ConvCaseData conv_case_data(const Case& c, std::mt19937& rng) {
+  ConvCaseData d;
+  d.p = Conv2dParams{c.k, c.s, c.k / 2, c.act};
   const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
-  const HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
-  const HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
+  d.w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
+  d.b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
   const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
   const int64_t nb = std::max(c.batch, c.in_batch_total);
-  optest::OpCase k;
-  k.what = case_name(c);
-  k.inputs = {random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng), random_tensor({nb, c.cout, oh, ow}, rng)};
-  k.outputs = {{{c.batch, c.cout, oh, ow}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
-  k.reference = [c, w, b, p](optest::HostRun& r) {
+  d.op.what = case_name(c);
+  d.op.inputs = {random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng), random_tensor({nb, c.cout, oh, ow}, rng)};
+  d.op.outputs = {{{c.batch, c.cout, oh, ow}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
+  d.op.reference = [c, w = d.w, b = d.b, p = d.p](optest::HostRun& r) {
     const HostSlice residual(r.inputs[1], 0, -1, c.in_n0, c.batch);
     conv2d_ref(HostSlice(r.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch), r.out(0), w, b, p,
                c.residual ? std::optional<HostSlice>(residual) : std::nullopt);
   };
-  k.record = [c, w, b, p, algo, lim](optest::DeviceRun& d) {
+  return d;
+}
+
+// One case of the op: weights drawn here, the conv built per precision when the case is recorded.
+inline optest::OpCase conv_case(const Case& c, ConvAlgo algo, const Limits& lim, std::mt19937& rng) {
+  ConvCaseData data = conv_case_data(c, rng);
+  optest::OpCase k = std::move(data.op);
+  k.record = [c, w = data.w, b = data.b, p = data.p, algo, lim](optest::DeviceRun& d) {
     ConvOptions options = lim.options;
     options.precision = d.precision;
     auto conv = std::make_shared<Conv2d>(d.ctx, w, b, p, "conv2d", nullptr, options);

@@ -8,6 +8,7 @@
 #include <memory>
 #include <optional>
 
+#include "conv_test_cases.hpp"
 #include "kernel_test_util.hpp"
 #include "op_test_harness.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
@@ -18,9 +19,8 @@ using namespace vkunroll;
 using namespace vkunroll::ktest;
 
 namespace {
-// fp16 storage (inputs, weights, residual and output rounded to half; fp32 accumulation) against the
-// fp32 reference: the tolerance of the other fp16 conv tests (test_conv2d.cpp).
-constexpr double kTolFp16 = 1e-2;
+// fp16 storage against the fp32 reference: the tolerance of the other fp16 conv tests.
+using convtest::kTolFp16;
 
 struct Case {
   int k;  // 1, 3 or 5 (pad k / 2)
@@ -88,26 +88,13 @@ struct Run {
 
 // One case of the op in fp16: the conv built when it is recorded, on a shared scratch full of fp16
 // NaNs (split-K's partial sums must be written before the reduce reads them, or NaNs reach the output).
-optest::OpCase coopmat_case(const Case& c, const Run& run, const std::shared_ptr<ConvWorkspace>& workspace,
+optest::OpCase coopmat_case(const Case& cc, const Run& run, const std::shared_ptr<ConvWorkspace>& workspace,
                             std::mt19937& rng) {
-  const Conv2dParams p{c.k, c.s, c.k / 2, c.act};
-  const int64_t oh = conv_output_size(c.h, c.k, c.s, c.k / 2), ow = conv_output_size(c.w, c.k, c.s, c.k / 2);
-  const float wscale = 1.f / std::sqrt(static_cast<float>(c.cin * c.k * c.k));
-  const HostTensor w = random_tensor({c.cout, c.cin, c.k, c.k}, rng, -wscale, wscale);
-  const HostTensor b = random_tensor({1, 1, 1, c.cout}, rng, -0.5f, 0.5f);
-  const int64_t nb = std::max(c.batch, c.in_batch_total);
-  optest::OpCase k;
-  k.what = std::to_string(c.k) + "x" + std::to_string(c.k) + " " + std::to_string(c.cin) + "->" + std::to_string(c.cout) +
-           " " + std::to_string(c.h) + "x" + std::to_string(c.w) + " batch " + std::to_string(c.batch) + " act " +
-           activation_name(c.act.kind) + (c.residual ? " residual" : "") + " stride " + std::to_string(c.s);
-  k.inputs = {random_tensor({nb, c.cin + c.in_extra_c, c.h, c.w}, rng), random_tensor({nb, c.cout, oh, ow}, rng)};
-  k.outputs = {{{c.batch, c.cout, oh, ow}, c.out_c0 + 1, c.out_extra_c - c.out_c0 + 1}};
-  k.reference = [c, w, b, p](optest::HostRun& r) {
-    const HostSlice residual(r.inputs[1], 0, -1, c.in_n0, c.batch);
-    conv2d_ref(HostSlice(r.inputs[0], c.in_c0, c.cin, c.in_n0, c.batch), r.out(0), w, b, p,
-               c.residual ? std::optional<HostSlice>(residual) : std::nullopt);
-  };
-  k.record = [c, w, b, p, run, workspace](optest::DeviceRun& d) {
+  const convtest::Case c{cc.k, cc.s, cc.cin, cc.cout, cc.h, cc.w, cc.act, cc.residual, cc.in_extra_c, cc.in_c0,
+                         cc.out_extra_c, cc.out_c0, cc.batch, cc.in_n0, cc.in_batch_total};
+  convtest::ConvCaseData data = convtest::conv_case_data(c, rng);
+  optest::OpCase k = std::move(data.op);
+  k.record = [c, w = data.w, b = data.b, p = data.p, run, workspace](optest::DeviceRun& d) {
     CommandStream poison(d.ctx);
     poison.fill(workspace->get(d.ctx, 2, 4u << 20), 0x7fc00000u);  // fp32 NaN in the partial sums' slot
     poison.submit_and_wait();
