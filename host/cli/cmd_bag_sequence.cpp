@@ -1,5 +1,5 @@
 // vkunroll bag-sequence: a generic sequence folder from a ROS bag alone (frames from an image topic,
-// events read from the bag in place, row timing from the options); see docs/events.md, "ROS bags".
+// events read from the bag in place, row timing from the options); see docs/rosbags.md.
 #include <iostream>
 #include <memory>
 

@@ -2,7 +2,7 @@
 // sensor_msgs/Image topic written as PNGs, their t0 from each message's header stamp, the row
 // timing from options (a bag does not hold it), and meta.json's `events` naming the bag itself (its
 // events are read in place, no copy), and the frames' sensor_msgs/CameraInfo, when the bag has one,
-// in meta.json's source. `vkunroll bag-sequence`; docs/events.md, "ROS bags".
+// in meta.json's source. `vkunroll bag-sequence`; docs/rosbags.md.
 #pragma once
 #include <cstdint>
 #include <string>

@@ -1,4 +1,4 @@
-"""ROS 1 bags (docs/events.md, "ROS bags"): bags written here by Debian's python3-rosbag, the messages
+"""ROS 1 bags (docs/rosbags.md): bags written here by Debian's python3-rosbag, the messages
 serialized by hand from the .msg layouts (numpy), read back by vkunroll's own bag reader from the CLI
 and from Python. The real EVT 3.0 recording goes into a bag twice, as dvs_msgs/EventArray and as
 event_camera_msgs/EventPacket (evt3), and must read back with its exact events."""
