@@ -227,6 +227,10 @@ class Conv2d {
   void record_coopmat(CommandStream& cs, const Recording& r) const;   // conv2d_coopmat.cpp
   void record_pointwise(CommandStream& cs, const Recording& r) const;  // conv2d_pointwise.cpp
   void record_igemm(CommandStream& cs, const Recording& r, ConvAlgo algo) const;  // conv2d_igemm.cpp
+  // What record_igemm, record_coopmat and record_folded share: the packed weights and tile of `algo`
+  // (an igemm variant or coopmat) bound, the split-K count, the dispatch (conv2d_igemm.cpp).
+  void record_gpu_family(CommandStream& cs, ConvAlgo algo, const IgemmProblem& pb, IgemmBindings b,
+                         const DispatchInfo& info) const;
   IgemmProblem igemm_problem(const Shape& in) const;                            // conv2d_igemm.cpp
   bool igemm_fits_shape(ConvAlgo algo, const Shape& in) const;                  // conv2d_igemm.cpp
   void pack_igemm() const;                                                       // conv2d_igemm.cpp

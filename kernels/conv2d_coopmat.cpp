@@ -57,16 +57,10 @@ void Conv2d::pack_coopmat() const {
 }
 
 void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {
-  if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
-  pack_coopmat();
-  const IgemmTile tile = coopmat_tile_for_device();
-  const IgemmProblem pb = igemm_problem(r.is);
-  const uint64_t scratch = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
-  const uint32_t splits = igemm_splits(ctx_.info(), tile, pb, scratch, igemm_splits_forced_);
-  IgemmBindings b{r.in, r.out, r.res, r.has_res, {weight_coopmat_.range(), Access::read}, {bias_.range(), Access::read}};
   DispatchInfo info = r.info;
   info.name += "_coopmat";
-  igemm_record(ctx_, cs, *workspace_, tile, pb, b, splits, info);
+  record_gpu_family(cs, ConvAlgo::coopmat, igemm_problem(r.is),
+                    {r.in, r.out, r.res, r.has_res, {}, {bias_.range(), Access::read}}, info);
 }
 
 }  // namespace vkunroll

@@ -1,14 +1,13 @@
 // conv2d with its input and output folded into the GPU family's addressing (ConvFold): the UNets'
-// reflection pad and crop, SFENet1's space-to-depth, the concatenation of their input pieces and a
-// tanh after the conv cost no dispatch and no buffer of their own. The CPU reference composes the
+// reflection pad and crop, SFENet1's space-to-depth, UPNet.2's depth-to-space, the concatenation of
+// their input pieces and a tanh after the conv cost no dispatch and no buffer of their own. The CPU reference composes the
 // separate ops' references.
-#include <algorithm>
 #include <cmath>
+#include <utility>
 
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/reflection_pad.hpp"
 #include "vkunroll/kernels/space_to_depth.hpp"
-#include "vkunroll/runtime/context.hpp"
 
 namespace vkunroll {
 
@@ -112,7 +111,6 @@ void Conv2d::record_folded(CommandStream& cs, const std::vector<Slice>& pieces, 
   if (algo == ConvAlgo::automatic) algo = gpu_choice(is);
   if (!(is_igemm(algo) || algo == ConvAlgo::coopmat) || !supports(algo, is))
     throw Error(name_ + ": a folded input or output needs the GPU family (igemm, coopmat), not " + conv_algo_name(algo));
-  if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
   IgemmProblem pb = igemm_problem(is);
   pb.out = os;
   pb.map = fold.map;
@@ -125,22 +123,11 @@ void Conv2d::record_folded(CommandStream& cs, const std::vector<Slice>& pieces, 
                   residual ? bind_slice(*residual, Access::read) : BoundSlice{{bias_.range(), Access::read}, 0, 0},
                   residual.has_value(), {}, {bias_.range(), Access::read}, {}};
   for (size_t i = 1; i < pieces.size(); ++i) b.more_pieces.push_back(bind_slice(pieces[i], Access::read));
-  IgemmTile tile;
-  if (algo == ConvAlgo::coopmat) {
-    pack_coopmat();
-    tile = coopmat_tile_for_device();
-    b.weight = {weight_coopmat_.range(), Access::read};
-  } else {
-    pack_igemm();
-    tile = igemm_tile(algo);
-    b.weight = {weight_igemm_.range(), Access::read};
-  }
-  const uint64_t scratch = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
   const double e = static_cast<double>(elem_bytes());
   const DispatchInfo info{name_ + "_" + std::to_string(params_.kernel) + "x" + std::to_string(params_.kernel) + "_" +
                               conv_algo_name(algo) + "_folded",
                           flop(is), e * static_cast<double>(is.count() + os.count() * (residual ? 2 : 1))};
-  igemm_record(ctx_, cs, *workspace_, tile, pb, b, igemm_splits(ctx_.info(), tile, pb, scratch, igemm_splits_forced_), info);
+  record_gpu_family(cs, algo, pb, std::move(b), info);
 }
 
 }  // namespace vkunroll

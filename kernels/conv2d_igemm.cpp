@@ -56,17 +56,27 @@ void Conv2d::pack_igemm() const {
   }));
 }
 
-void Conv2d::record_igemm(CommandStream& cs, const Recording& r, ConvAlgo algo) const {
+void Conv2d::record_gpu_family(CommandStream& cs, ConvAlgo algo, const IgemmProblem& pb, IgemmBindings b,
+                               const DispatchInfo& info) const {
   if (!workspace_) workspace_ = std::make_shared<ConvWorkspace>();
-  pack_igemm();
-  const IgemmTile tile = igemm_tile(algo);
-  const IgemmProblem pb = igemm_problem(r.is);
+  IgemmTile tile;
+  if (algo == ConvAlgo::coopmat) {
+    pack_coopmat();
+    tile = coopmat_tile_for_device();
+    b.weight = {weight_coopmat_.range(), Access::read};
+  } else {
+    pack_igemm();
+    tile = igemm_tile(algo);
+    b.weight = {weight_igemm_.range(), Access::read};
+  }
   const uint64_t scratch = std::min<uint64_t>(ctx_.info().max_storage_buffer_range, winograd_scratch_limit_);
-  const uint32_t splits = igemm_splits(ctx_.info(), tile, pb, scratch, igemm_splits_forced_);
-  IgemmBindings b{r.in, r.out, r.res, r.has_res, {weight_igemm_.range(), Access::read}, {bias_.range(), Access::read}};
+  igemm_record(ctx_, cs, *workspace_, tile, pb, b, igemm_splits(ctx_.info(), tile, pb, scratch, igemm_splits_forced_), info);
+}
+
+void Conv2d::record_igemm(CommandStream& cs, const Recording& r, ConvAlgo algo) const {
   DispatchInfo info = r.info;
   info.name += std::string("_") + conv_algo_name(algo);
-  igemm_record(ctx_, cs, *workspace_, tile, pb, b, splits, info);
+  record_gpu_family(cs, algo, igemm_problem(r.is), {r.in, r.out, r.res, r.has_res, {}, {bias_.range(), Access::read}}, info);
 }
 
 ConvCost Conv2d::cost(ConvAlgo algo, const Shape& in) const {

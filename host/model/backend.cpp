@@ -71,21 +71,19 @@ std::vector<float> Backend::download(const BufferSlice& v) {
   return out;
 }
 
-namespace {
-Shape slice_shape(const Backend& b, const BufferSlice& v) {
-  Shape s = b.shape(v.buf);
+Shape Backend::slice_shape(const BufferSlice& v) const {
+  Shape s = shape(v.buf);
   s.n = v.n, s.c = v.c;
   return s;
 }
-}  // namespace
 
 void Backend::conv_folded(int conv, const ConvDesc& desc, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
                           const BufferSlice& out) {
   if (desc.transposed) throw Error(desc.name + ": a transposed conv is not folded");
   std::vector<Shape> shapes;
-  for (const BufferSlice& v : pieces) shapes.push_back(slice_shape(*this, v));
+  for (const BufferSlice& v : pieces) shapes.push_back(slice_shape(v));
   const Shape is = fold.conv_input(shapes, desc.name);
-  if (conv_folded_at_once(conv, pieces, fold, out)) return;
+  if (conv_folded_at_once(conv, pieces, is, fold, out)) return;
   // The separate ops: the input made whole (unless it is one plain piece), the conv, crop, tanh.
   Buffer x;
   BufferSlice xin = pieces.at(0);
@@ -105,7 +103,7 @@ void Backend::conv_folded(int conv, const ConvDesc& desc, const std::vector<Buff
   }
   const Shape full{is.n, desc.cout, conv_output_size(is.h, desc.k, desc.stride, desc.pad),
                    conv_output_size(is.w, desc.k, desc.stride, desc.pad)};
-  const Shape os = slice_shape(*this, out);
+  const Shape os = slice_shape(out);
   const bool crops = fold.crop_top || fold.crop_left || os.h != full.h || os.w != full.w;
   if (!crops && fold.tanh_scale <= 0) {
     this->conv(conv, xin, out, nullptr);

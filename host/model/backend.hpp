@@ -91,6 +91,7 @@ class Backend {
   // recorded reads of it have run). `what` names the buffer in errors.
   Buffer alloc(const Shape& shape, const std::string& what) { return Buffer(this, alloc_id(shape, what)); }
   virtual Shape shape(int buf) const = 0;
+  Shape slice_shape(const BufferSlice& v) const;  // the view's items and channels at its buffer's extent
   // Host data in NCHW order with the slice's extent. Both are ordered with the recorded work:
   // upload() copies `data` before returning (no wait); download() fills `dst` by the next flush().
   virtual void upload(const BufferSlice& dst, std::span<const float> data) = 0;
@@ -183,9 +184,10 @@ class Backend {
   virtual int event_tensors_id(const EventStream& events, const std::vector<EventTensorPair>& pairs,
                                const EventTensorSpec& spec) = 0;
   // conv_folded in one dispatch; false where this backend does not fold this conv (it then composes).
-  virtual bool conv_folded_at_once(int conv, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
+  // `in`: the conv's input as the fold makes it (ConvFold::conv_input of the pieces).
+  virtual bool conv_folded_at_once(int conv, const std::vector<BufferSlice>& pieces, const Shape& in, const ConvFold& fold,
                                    const BufferSlice& out) {
-    (void)conv, (void)pieces, (void)fold, (void)out;
+    (void)conv, (void)pieces, (void)in, (void)fold, (void)out;
     return false;
   }
   void account_alloc(uint64_t b) {

@@ -266,23 +266,18 @@ ConvAlgo VulkanBackend::conv2d_algorithm(const Conv2d& c, const Shape& in, bool 
   return ConvAlgo::automatic;
 }
 
-bool VulkanBackend::conv_folded_at_once(int id, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
-                                        const BufferSlice& out) {
+bool VulkanBackend::conv_folded_at_once(int id, const std::vector<BufferSlice>& pieces, const Shape& is,
+                                        const ConvFold& fold, const BufferSlice& out) {
   const ConvRef ref = conv_refs_.at(static_cast<size_t>(id));
   if (ref.transposed || probe_) return false;  // the per-layer probe reads each conv's own output
   const Conv2d& c = *convs_[ref.index];
-  std::vector<Slice> ps;
-  std::vector<Shape> shapes;
-  for (const BufferSlice& v : pieces) {
-    ps.push_back(slice(tensor(v.buf), v));
-    shapes.push_back(ps.back().shape());
-  }
-  const Shape is = fold.conv_input(shapes, descs_[id].name);
   bool from_table = false;
   ConvAlgo algo = conv2d_algorithm(c, is, false, false, from_table);
   if (algo == ConvAlgo::automatic) algo = c.choose_algorithm(is.h, is.w);
   if (!(is_igemm(algo) || algo == ConvAlgo::coopmat) || !c.supports(algo, is)) return false;
   if (from_table) ++convs_from_table_;
+  std::vector<Slice> ps;
+  for (const BufferSlice& v : pieces) ps.push_back(slice(tensor(v.buf), v));
   const Slice so = slice(tensor(out.buf), out);
   ++conv_calls_by_algorithm_[conv_algo_name(algo)];
   ++convs_folded_;

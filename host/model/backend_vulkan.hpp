@@ -169,7 +169,7 @@ class VulkanBackend final : public Backend {
   // or automatic (the kernels' heuristic).
   ConvAlgo conv2d_algorithm(const Conv2d& c, const Shape& in, bool residual, bool residual_in_output, bool& from_table);
   // Folds into one dispatch where the conv runs the GPU family (igemm, coopmat) on the folded input.
-  bool conv_folded_at_once(int conv, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
+  bool conv_folded_at_once(int conv, const std::vector<BufferSlice>& pieces, const Shape& in, const ConvFold& fold,
                            const BufferSlice& out) override;
 };
 

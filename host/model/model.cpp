@@ -527,8 +527,7 @@ std::map<ModelOutput, HostTensor> Model::run(const ModelInputs& in, const RunOpt
 void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt, const std::vector<Buffer>& handed_over) const {
   auto extent = [&](const BufferSlice& v, const char* name) {
     if (v.buf < 0) return InputExtents::Input{name, false, Shape{0, 0, 0, 0}};
-    const Shape s = backend_.shape(v.buf);
-    return InputExtents::Input{name, true, Shape{v.n, v.c, s.h, s.w}};
+    return InputExtents::Input{name, true, backend_.slice_shape(v)};
   };
   check_inputs({extent(in.rs, "rs"), extent(in.ev1, "ev1"), extent(in.ev2, "ev2"), extent(in.ev3, "ev3"), extent(in.phys, "phys")},
                opt);
