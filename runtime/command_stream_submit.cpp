@@ -61,8 +61,15 @@ CommandStream::CommandStream(Context& ctx, Profiler* profiler)
 
 CommandStream::~CommandStream() {
   VkDevice d = ctx_.device();
+  // Nothing below is destroyed while the device may still use it: a wait that timed out (or failed)
+  // waits for the whole device instead (destroying an in-flight fence, pool or staging buffer was
+  // undefined: VUID-vkDestroyFence-fence-01120).
+  bool idle = true;
   for (auto& s : slots_)
-    if (s->in_flight) vkWaitForFences(d, 1, &s->fence, VK_TRUE, static_cast<uint64_t>(std::max(0.0, timeout_s_) * 1e9));
+    if (s->in_flight &&
+        vkWaitForFences(d, 1, &s->fence, VK_TRUE, static_cast<uint64_t>(std::max(0.0, timeout_s_) * 1e9)) != VK_SUCCESS)
+      idle = false;
+  if (!idle) vkDeviceWaitIdle(d);
   for (auto& s : slots_) {
     if (s->queries) vkDestroyQueryPool(d, s->queries, nullptr);
     for (auto p : s->desc_pools) vkDestroyDescriptorPool(d, p, nullptr);

@@ -14,6 +14,7 @@
 
 #include "vkunroll/base/env.hpp"
 #include "vkunroll/base/log.hpp"
+#include "vkunroll/runtime/device_limits_detail.hpp"
 #include "vkunroll/runtime/memory.hpp"
 #include "vkunroll/runtime/pipeline.hpp"
 #include "vkunroll/runtime/pipeline_compiler.hpp"
@@ -510,6 +511,9 @@ void Context::create_device() {
   info_ = infos[chosen];
   info_.min_uniform_buffer_offset_alignment =
       std::max<uint64_t>(info_.min_uniform_buffer_offset_alignment, options_.min_uniform_offset_alignment);
+  bool lowered_fp16 = false;  // tests: a smaller device (VKUNROLL_TEST_LIMITS)
+  lower_device_limits_from_env(info_, &lowered_fp16);
+  options_.without_fp16 = options_.without_fp16 || lowered_fp16;
   if (options_.without_fp16) info_.shader_float16 = info_.storage_buffer_16bit = false;
   if (options_.without_fp16 || options_.without_coopmat) info_.coopmat_nv = false;
   queue_family_ = queue_family_for_compute(physical_);

@@ -4,9 +4,12 @@
 #include <cstring>
 
 #include "vkunroll/base/stopwatch.hpp"
+#include "vkunroll/base/env.hpp"
 #include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/device_limits_detail.hpp"
 #include "vkunroll/runtime/pipeline_compiler.hpp"
 #include "vkunroll/runtime/shader_registry.hpp"
+#include "vkunroll/runtime/spirv_needs.hpp"
 
 namespace vkunroll {
 
@@ -19,6 +22,24 @@ VkDescriptorType descriptor_type(DescriptorKind k) {
   }
   return VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
 }
+
+namespace {
+// A workgroup or shared memory over the device's limit is refused here, by the limit's Vulkan name:
+// a driver would fail the compile, or (a limit a test lowered) run it as if on a bigger device.
+void check_limits(const DeviceInfo& d, const std::string& shader, const SpirvComputeNeeds& n) {
+  if (!n.resolved) return;
+  const auto lowered = env::text(kTestLimitsVariable);
+  const std::string device = "device '" + d.name + "'" + (lowered ? " (lowered for a test: " + std::string(kTestLimitsVariable) + "=" + *lowered + ")" : "");
+  if (n.invocations() > d.max_workgroup_invocations)
+    throw DeviceUnavailableError("pipeline '" + shader + "': a workgroup of " + std::to_string(n.invocations()) +
+                                 " invocations exceeds maxComputeWorkGroupInvocations " +
+                                 std::to_string(d.max_workgroup_invocations) + " of " + device);
+  if (n.shared_bytes > d.max_shared_memory)
+    throw DeviceUnavailableError("pipeline '" + shader + "': " + std::to_string(n.shared_bytes) +
+                                 " bytes of shared memory exceed maxComputeSharedMemorySize " +
+                                 std::to_string(d.max_shared_memory) + " of " + device);
+}
+}  // namespace
 
 uint32_t spec_float(float f) {
   uint32_t u;
@@ -41,6 +62,7 @@ Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vect
     kinds_.push_back(bindings[i].kind);
   }
   binding_count_ = static_cast<uint32_t>(bindings.size());
+  check_limits(ctx.info(), shader, spirv_compute_needs(words, spec));
   if (std::count(kinds_.begin(), kinds_.end(), DescriptorKind::uniform_buffer) > kMaxUniformBindings)
     throw Error("shader '" + shader + "': more than " + std::to_string(kMaxUniformBindings) + " uniform buffers");
   if (std::count_if(kinds_.begin(), kinds_.end(), is_texel_buffer) > kMaxTexelBindings)

@@ -24,8 +24,10 @@ core_packages=(
 # second event generator (tools/data/second_generator.py),
 # Debian's rosbag for the tests that write ROS bags, and python3-build and python3-venv for the test
 # that builds the wheel of `pip install .` and installs it into a fresh venv (tests/python/test_wheel.py).
+# chromium-common (31 MB download) for its SwiftShader Vulkan driver (the `swiftshader` label) and its
+# current Khronos validation layer (synchronization and GPU-assisted validation; docs/testing.md).
 test_packages=(vulkan-validationlayers libgtest-dev libgmock-dev python3-pytest python3-torch python3-h5py python3-pil python3-scipy
-  python3-rosbag python3-roslz4 python3-build python3-venv)
+  python3-rosbag python3-roslz4 python3-build python3-venv chromium-common)
 # workflow/Snakefile (about 650 MB with its dependencies: cloud storage clients and more).
 workflow_packages=(snakemake)
 # The Slurm test (tests/python/test_slurm_workflow.py) starts its own munged, slurmctld and slurmd

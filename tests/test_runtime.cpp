@@ -52,6 +52,27 @@ TEST(Runtime, UploadWrongSizeIsAnError) {
   EXPECT_THROW(t.upload(v), Error);
 }
 
+// A stream destroyed while its submission is still running (its fence wait timed out: the timeout of
+// VKUNROLL_FENCE_TIMEOUT_S, here 0) frees nothing the device still uses: before the fix its destructor
+// destroyed the in-flight fence, command pool and staging (VUID-vkDestroyFence-fence-01120).
+TEST(Runtime, AStreamWhoseWaitTimedOutFreesNothingInFlight) {
+  ContextOptions o;
+  o.validation = true;
+  o.validation_fatal = false;  // the messages are this test's verdict
+  o.announce = false;
+  Context ctx(o);
+  const int n = 1 << 22;
+  Tensor x(ctx, {1, 1, 1, n}), y(ctx, {1, 1, 1, n});
+  {
+    CommandStream cs(ctx);
+    cs.set_timeout_seconds(0);
+    for (int i = 0; i < 32; ++i) axpy(cs, ctx, x, y, 1.f);  // ~0.1 s of lavapipe work, still running below
+    cs.submit();
+  }
+  const auto messages = ctx.validation_messages();
+  EXPECT_TRUE(messages.empty()) << messages.size() << " messages, the first: " << messages.front();
+}
+
 TEST(Runtime, ChainOfDependentDispatches) {
   Context& ctx = vktest::context();
   const int n = 100003;  // not a multiple of the workgroup
