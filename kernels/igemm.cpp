@@ -90,7 +90,9 @@ std::vector<Arg> piece_args(const IgemmBindings& b) {
 // What the shader's loads assume of the tile (each invocation keeps fixed X columns).
 bool tile_divides(const IgemmTile& t) {
   if (t.coopmat) return t.threads() % (t.bn / 8) == 0 && t.bk % 8 == 0 && (t.lm * t.ln) % t.warp == 0;
-  return t.threads() % t.bn == 0 && t.tm % 4 == 0 && t.tn % 4 == 0 && t.tm * t.tn <= 64;
+  // X: each invocation keeps one column, and the rows its passes cover (threads / BN a pass) fill the stage.
+  return t.threads() % t.bn == 0 && t.bk % (t.threads() / t.bn) == 0 && t.bm % t.tm == 0 && t.bn % t.tn == 0 &&
+         t.tm % 4 == 0 && t.tn % 4 == 0 && t.tm * t.tn <= 64;
 }
 }  // namespace
 
