@@ -20,6 +20,7 @@
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
+#include "vkunroll/runtime/profiler.hpp"
 #include "vkunroll/runtime/trace.hpp"
 
 namespace fs = std::filesystem;
@@ -353,7 +354,8 @@ TEST(ConvChoice, CommittedTablesMatchTheDeviceModel) {
 
 // The report names the kernel that ran: a batch whose batch-1 choice differs (the GPU family takes
 // igemm_l only where the whole batch's 128 x 128 tiles give two workgroups per shader core) counts
-// the batch's algorithm in calls_by_algorithm and names it in the trace, not choose_algorithm's.
+// the batch's algorithm in calls_by_algorithm, names it in the trace and in --profile's op, not
+// choose_algorithm's.
 TEST(ConvChoice, ReportNamesTheKernelTheBatchRan) {
   Context& ctx = vktest::context();
   const int64_t cin = 4, cout = 128, side = 128;
@@ -371,7 +373,8 @@ TEST(ConvChoice, ReportNamesTheKernelTheBatchRan) {
   EXPECT_EQ(ran, "igemm_l");
   EXPECT_EQ(std::string(conv_algo_name(one)), "igemm_m");
 
-  VulkanBackend vk(ctx);
+  Profiler profile;
+  VulkanBackend vk(ctx, &profile);
   vk.set_conv_options(gpu);
   const int id = vk.prepare_conv(ConvDesc{"wide", int(cin), int(cout), 1, 1, 0}, WeightTensor{{cout, cin, 1, 1}, w.data},
                                  WeightTensor{{cout}, std::vector<float>(cout, 0.f)});
@@ -385,6 +388,10 @@ TEST(ConvChoice, ReportNamesTheKernelTheBatchRan) {
   vk.flush();
   ctx.set_trace(nullptr);
   EXPECT_EQ(vk.conv_calls_by_algorithm(), (std::map<std::string, uint64_t>{{ran, 1}}));
+  if (ctx.info().timestamps) {  // the profile's op is the dispatch's name, which the kernel that ran gives
+    EXPECT_EQ(profile.ops().count("wide_1x1_" + ran), 1u);
+    EXPECT_EQ(profile.ops().count(std::string("wide_1x1_") + conv_algo_name(one)), 0u);
+  }
   if (traced) {
     const std::string json = trace.json();
     EXPECT_NE(json.find(" " + ran), std::string::npos) << json;

@@ -318,12 +318,14 @@ def markdown(rows: list[dict]) -> str:
         c, w = r["counts"], r["widths"]
         math_ = f"{c['mma']} MMA" if c.get("mma") else f"{c.get('fma', 0)} FMA"
         fmt = lambda kind: ", ".join(f"{n}x{k.split()[1]}" for k, n in sorted(w.items()) if k.startswith(kind)) or "0"
+        shared_loads = " + ".join(x for x in (fmt("shared_load") if c.get("shared_load") else "",
+                                              fmt("fragment_load") + " fragments" if c.get("fragment_load") else "") if x)
         g = r["gather"]
         cost = r.get("cost")
         cost_s = (f"{cost['global_bytes_per_fma']:.3f}, {cost['shared_bytes_per_fma']:.3f}, "
                   f"{100 * cost['m_used']:.0f}%") if cost else "n/a"
         out.append(f"| {r['variant']} | {r.get('conv', r.get('note', ''))} | {math_} | {fmt('global_load')} | "
-                   f"{fmt('shared_load') if c.get('shared_load') else fmt('fragment_load')} | {fmt('shared_store')} | "
+                   f"{shared_loads} | {fmt('shared_store')} | "
                    f"{c.get('barrier', 0)} | {c.get('other', 0)} | {r['non_math_per_op']} | "
                    f"{g.get('per_element', '-')} | {cost_s} |\n")
     return "".join(out)
