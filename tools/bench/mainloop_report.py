@@ -11,7 +11,7 @@ igemm_cost, mirrored in igemm_cost below). Peers (llama.cpp's conv2d_mm.comp, nc
 convolution_gemm_cm.comp) are compiled the same way from a path given on the command line, in a
 temporary folder; their source is never copied here.
 
-    /usr/bin/python3 -m tools.bench.mainloop_report [--shaders DIR] [--llama FILE] [--ncnn FILE]
+    /usr/bin/python3 -m tools.bench.mainloop_report [--tree CHECKOUT] [--llama FILE] [--ncnn FILE]
         [--json OUT.json] [--markdown OUT.md]
 """
 from __future__ import annotations
@@ -107,23 +107,56 @@ def coopmat_variant(name: str, emulated: bool, ln: int = 8, lk: int = 16) -> Var
                    c["wm"] * c["fm"] * c["lm"], c["wn"] * c["fn"] * ln, lk, coopmat=c)
 
 
-VARIANTS = {
-    "igemm_l": Variant("igemm_l", "conv2d_igemm.comp", (), 128, 128, 8, 8, 8),
-    "igemm_m": Variant("igemm_m", "conv2d_igemm.comp", (), 64, 64, 16),
-    "igemm_s": Variant("igemm_s", "conv2d_igemm.comp", (), 32, 64, 16),
-    "igemm_n": Variant("igemm_n", "conv2d_igemm.comp", (), 16, 128, 16),
-    "igemm_m split-K": Variant("igemm_m split-K", "conv2d_igemm.comp", (), 64, 64, 16, partial=True),
-    "igemm_m fp16": Variant("igemm_m fp16", "conv2d_igemm.comp", ("VKU_FP16",), 64, 64, 16),
-    "coopmat emulated": coopmat_variant("coopmat emulated", True),
-    "coopmat NV": coopmat_variant("coopmat NV", False),
-}
+def load_variants(tree: Path) -> dict[str, Variant]:
+    """The scalar tiles as the checkout's Conv2d::igemm_tile (kernels/conv2d_igemm.cpp) lists them,
+    split-K and fp16 forms of igemm_m, and the coopmat forms (coopmat_tile's layout, mirrored)."""
+    text = (tree / "kernels" / "conv2d_igemm.cpp").read_text()
+    tiles = re.findall(r"case ConvAlgo::(igemm_\w+): return \{(\d+), (\d+), (\d+), (\d+), (\d+)\};", text)
+    if not tiles:
+        raise SystemExit(f"{tree / 'kernels' / 'conv2d_igemm.cpp'}: no `case ConvAlgo::igemm_x: return {{bm, bn, bk, tm, "
+                         "tn}};` lines (Conv2d::igemm_tile) to read the tiles from")
+    v = {name: Variant(name, "conv2d_igemm.comp", (), *map(int, t)) for name, *t in tiles}
+    m = v["igemm_m"]
+    v["igemm_m split-K"] = Variant("igemm_m split-K", m.shader, (), m.bm, m.bn, m.bk, m.tm, m.tn, partial=True)
+    v["igemm_m fp16"] = Variant("igemm_m fp16", m.shader, ("VKU_FP16",), m.bm, m.bn, m.bk, m.tm, m.tn)
+    v["coopmat emulated"] = coopmat_variant("coopmat emulated", True)
+    v["coopmat NV"] = coopmat_variant("coopmat NV", False)
+    return v
 
-# (variant, conv): the rows of the report, each variant at the model's conv the GPU choice gives it.
+
+VARIANTS = load_variants(ROOT)
+
+# (variant, conv): the rows of the report, each variant at the model's conv the GPU choice gives it;
+# tiles a checkout lacks are left out (igemm_g: 48 output channels, igemm_t: 1-3, where they exist).
 ROWS = [
-    ("igemm_l", "UPNet.0"), ("igemm_m", "RDB"), ("igemm_m", "LFF"), ("igemm_m", "SFENet1"),
-    ("igemm_s", "flownet.conv1"), ("igemm_s", "flownet.head"), ("igemm_n", "UPNet.2"),
+    ("igemm_l", "UPNet.0"), ("igemm_m", "RDB"), ("igemm_g", "RDB"), ("igemm_m", "LFF"), ("igemm_m", "SFENet1"),
+    ("igemm_s", "flownet.conv1"), ("igemm_s", "flownet.head"), ("igemm_n", "UPNet.2"), ("igemm_t", "UPNet.2"),
     ("igemm_m split-K", "flownet.down3"), ("igemm_m fp16", "RDB"), ("coopmat emulated", "RDB"), ("coopmat NV", "RDB"),
 ]
+
+# The C++ functions mirrored here (coopmat_tile above; igemm_kpad, igemm_cost, igemm_splits and kKAlign below), by
+# the SHA-256 of their text in kernels/igemm.cpp: tests/python/test_mainloop_report.py fails when
+# they change, so that the mirror follows.
+MIRRORED = {"coopmat_tile": "3ce022f36a1683d2", "igemm_kpad": "89d25785cd730be8", "igemm_splits": "6c854f63a8d4e646",
+            "igemm_cost": "4d4221bfda8b9872", "kKAlign": "f5ee394ea92b9526"}
+
+
+def cpp_function_text(source: str, name: str) -> str:
+    """The text of `name`'s definition in kernels/igemm.cpp (a function to its closing brace at column
+    0, or a constant's line), whitespace collapsed."""
+    if name.startswith("k"):
+        m = re.search(rf"constexpr[^\n]*\b{name}\b[^\n]*", source)
+    else:
+        m = re.search(rf"^[\w:<> ]+\b{name}\((?:.|\n)*?^\}}", source, flags=re.M)
+    if not m:
+        raise ValueError(f"kernels/igemm.cpp: no definition of {name}")
+    return " ".join(m.group(0).split())
+
+
+def mirrored_digests(tree: Path) -> dict[str, str]:
+    import hashlib
+    source = (tree / "kernels" / "igemm.cpp").read_text()
+    return {n: hashlib.sha256(cpp_function_text(source, n).encode()).hexdigest()[:16] for n in MIRRORED}
 
 
 def spec_float(f: float) -> int:
@@ -333,7 +366,8 @@ def markdown(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--shaders", type=Path, default=ROOT / "shaders", help="the shaders/ folder to report on")
+    ap.add_argument("--tree", type=Path, default=ROOT,
+                    help="the checkout to report on (its shaders/ and its tiles in kernels/conv2d_igemm.cpp)")
     ap.add_argument("--llama", type=Path, help="path to llama.cpp's conv2d_mm.comp (read, compiled in a temp folder)")
     ap.add_argument("--ncnn", type=Path, help="path to ncnn's convolution_gemm_cm.comp")
     ap.add_argument("--cores", type=int, default=132, help="shader cores for the split-K count (H100: 132)")
@@ -344,10 +378,11 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="vkunroll_mainloop_") as tmp:
         work = Path(tmp)
+        variants = load_variants(a.tree)
         for vname, cname in ROWS:
-            if a.only and a.only not in vname:
+            if vname not in variants or (a.only and a.only not in vname):
                 continue
-            rows.append(report_row(VARIANTS[vname], CONVS[cname], a.shaders, work, a.cores))
+            rows.append(report_row(variants[vname], CONVS[cname], a.tree / "shaders", work, a.cores))
         if a.llama:
             rows += llama_rows(a.llama, work, CONVS["RDB"])
         if a.ncnn:
