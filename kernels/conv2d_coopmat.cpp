@@ -3,8 +3,8 @@
 // padding, both operands staged in shared memory, bias, activation and residual fused, one dispatch
 // (split-K adds the family's reduce). The weights are A [cout_pad][kpad] row-major (16-byte loads).
 // The real shader needs VK_NV_cooperative_matrix with a 16 x {8,16} x {8,16} fp16 -> fp32 subgroup
-// shape and subgroups of 32 (NVIDIA); its emulated form, the same tiling in plain GLSL, runs anywhere
-// (tests: set_coopmat_emulation).
+// shape and subgroups of 32, which its pipeline requires (subgroup size control, full subgroups); its
+// emulated form, the same tiling in plain GLSL, runs anywhere (tests: set_coopmat_emulation).
 #include <algorithm>
 
 #include "vkunroll/kernels/conv2d.hpp"
@@ -13,7 +13,7 @@
 namespace vkunroll {
 
 namespace {
-constexpr uint32_t kWarp = 32;  // invocations per warp: NVIDIA's subgroup size (the real form needs it)
+constexpr uint32_t kWarp = 32;  // invocations per warp: NVIDIA's subgroup size (the real form requires it)
 constexpr int64_t kPad = 16;    // cout padding (every supported fragment side divides it)
 
 int64_t round_up(int64_t v, int64_t m) { return (v + m - 1) / m * m; }
@@ -31,7 +31,7 @@ void Conv2d::set_coopmat_emulation(bool on, uint32_t n, uint32_t k) {
 bool Conv2d::coopmat_applies() const {
   if (precision_ != Precision::fp16) return false;
   if (coopmat_emulated_) return true;
-  return ctx_.info().coopmat_fp16_shape().has_value() && ctx_.info().subgroup_size == kWarp;
+  return ctx_.info().coopmat_fp16_shape().has_value() && ctx_.info().subgroup_width_refusal(kWarp).empty();
 }
 
 IgemmTile Conv2d::coopmat_tile_for_device() const {

@@ -167,10 +167,12 @@ void igemm_record(Context& ctx, CommandStream& cs, ConvWorkspace& workspace, con
   args.insert(args.end(), more.begin(), more.end());
   const std::string shader = tile.coopmat ? (tile.emulated ? "conv2d_igemm_coopmat_emulated" : "conv2d_igemm_coopmat")
                                           : shader_for(ctx, "conv2d_igemm", pb.precision, info.name);
+  // The real coopmat form assumes warps of exactly one subgroup: it asks for that width (full subgroups).
+  const uint32_t width = tile.coopmat && !tile.emulated ? tile.warp : 0;
   const Groups groups{u32(pixel_tiles(tile, pb)), u32(channel_tiles(tile, pb)), u32(pb.phases() * splits)};
   if (splits == 1) {
-    cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, false), sizeof push), args, push, groups,
-                info);
+    cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, false), sizeof push, width), args, push,
+                groups, info);
     return;
   }
   const uint64_t part_bytes = static_cast<uint64_t>(splits) * pb.phases() * pb.cout * pb.npix() * 4;
@@ -178,7 +180,7 @@ void igemm_record(Context& ctx, CommandStream& cs, ConvWorkspace& workspace, con
   const BufferRange pr = part.range(0, part_bytes);
   const double part_traffic = static_cast<double>(part_bytes);
   args[5] = {pr, Access::write};
-  cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, true), sizeof push), args, push, groups,
+  cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, true), sizeof push, width), args, push, groups,
               {info.name, info.flop, info.bytes + part_traffic});
   const std::string reduce = shader_for(ctx, "conv2d_igemm_reduce", pb.precision, info.name);
   std::vector<uint32_t> rspec{0, 0, pb.stride, static_cast<uint32_t>(pb.act.kind), spec_float(pb.act.slope),
