@@ -46,14 +46,13 @@ bool Conv2d::coopmat_fits(const Shape& in) const {
 
 void Conv2d::pack_coopmat() const {
   if (!weight_coopmat_.empty()) return;
-  // A = W row-major [cout_pad][kpad], kk = ci*k*k + ky*k + kx (the given layout's), zeros in the padding.
-  const int64_t kdim = cin_ * params_.kernel * params_.kernel;
-  const int64_t cout_pad = round_up(cout_, kPad), kpad = igemm_kpad(kdim);
-  std::vector<float> a(static_cast<size_t>(cout_pad * kpad), 0.f);
-  for (int64_t co = 0; co < cout_; ++co)
-    for (int64_t kk = 0; kk < kdim; ++kk)
-      a[static_cast<size_t>(co * kpad + kk)] = weight_host_.data[static_cast<size_t>(co * kdim + kk)];
-  weight_coopmat_ = upload_weights(a);  // fp16 (coopmat is fp16 only)
+  // A = W row-major [cout_pad][kpad], the family's tap-major rows (igemm.hpp), zeros in the padding.
+  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
+  const std::vector<float>& w = weight_host_.data;  // [cout][cin][k][k]
+  weight_coopmat_ = upload_weights(igemm_pack_rows(cin_, kk, cout_, round_up(cout_, kPad),  // fp16 (coopmat is fp16 only)
+                                                   [&](int64_t, int64_t ci, int64_t tap, int64_t co) {
+                                                     return w[static_cast<size_t>((co * cin_ + ci) * kk + tap)];
+                                                   }));
 }
 
 void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {

@@ -43,8 +43,8 @@ void record_tile(Context& ctx, CommandStream& cs, const IgemmTile& tile, const C
   auto kept = std::make_shared<Kept>();
   keep = kept;
   const int64_t kk = int64_t(c.k) * c.k;
-  kept->weight = upload_weights(ctx, igemm_pack(1, c.cin * kk, c.cout, [&](int64_t, int64_t r, int64_t co) {
-    return w.data[static_cast<size_t>(co * c.cin * kk + r)];
+  kept->weight = upload_weights(ctx, igemm_pack(1, c.cin, kk, c.cout, [&](int64_t, int64_t ci, int64_t tap, int64_t co) {
+    return w.data[static_cast<size_t>((co * c.cin + ci) * kk + tap)];
   }), precision, "record_tile");
   kept->bias = upload_weights(ctx, b.data, Precision::fp32, "record_tile");
   IgemmProblem pb;
