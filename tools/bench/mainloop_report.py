@@ -134,11 +134,11 @@ ROWS = [
     ("igemm_m split-K", "flownet.down3"), ("igemm_m fp16", "RDB"), ("coopmat emulated", "RDB"), ("coopmat NV", "RDB"),
 ]
 
-# The C++ functions mirrored here (coopmat_tile above; igemm_kpad, igemm_cost, igemm_splits and kKAlign below), by
-# the SHA-256 of their text in kernels/igemm.cpp: tests/python/test_mainloop_report.py fails when
-# they change, so that the mirror follows.
-MIRRORED = {"coopmat_tile": "3ce022f36a1683d2", "igemm_kpad": "89d25785cd730be8", "igemm_splits": "6c854f63a8d4e646",
-            "igemm_cost": "4d4221bfda8b9872", "kKAlign": "f5ee394ea92b9526"}
+# The C++ functions mirrored here (coopmat_tile above; igemm_kpad, igemm_cost, igemm_splits and
+# kKAlign below), by the SHA-256 of their text in kernels/igemm.cpp:
+# tests/python/test_mainloop_report.py fails when they change, so that the mirror follows.
+MIRRORED = {"coopmat_tile": "3ce022f36a1683d2", "igemm_kpad": "6ba85c1fa1418e99", "igemm_splits": "2b21ce67efdb0df9",
+            "igemm_cost": "14287331972846a7", "kKAlign": "6eb24c343de33618"}
 
 
 def cpp_function_text(source: str, name: str) -> str:
@@ -207,14 +207,17 @@ def optimized_text(source: Path, includes: list[Path], defines: tuple[str, ...],
 K_ALIGN, MIN_STAGES_PER_SPLIT, MAX_SPLITS = 16, 4, 16
 
 
-def kpad(kdim: int) -> int:
-    return -(-kdim // K_ALIGN) * K_ALIGN
+def kpad(c: Conv, tap_major: bool = True) -> int:
+    """Tap-major (since 2026-12-07): k*k taps of cin padded to 16; channel-major before: cin*k*k padded."""
+    if tap_major:
+        return c.k * c.k * -(-c.cin // K_ALIGN) * K_ALIGN
+    return -(-(c.cin * c.k * c.k) // K_ALIGN) * K_ALIGN
 
 
 def igemm_splits(v: Variant, c: Conv, cores: int, scratch: int = 64 << 20) -> int:
     oh, ow = c.out_hw()
     npix = oh * ow
-    stages = kpad(c.cin * c.k * c.k) // K_ALIGN
+    stages = kpad(c) // K_ALIGN
     groups = -(-npix // v.bn) * -(-c.cout // v.bm)
     want = min(-(-2 * cores // groups), stages // MIN_STAGES_PER_SPLIT, MAX_SPLITS)
     want = max(1, min(want, scratch // (c.cout * npix * 4)))
@@ -222,11 +225,11 @@ def igemm_splits(v: Variant, c: Conv, cores: int, scratch: int = 64 << 20) -> in
     return -(-stages // depth)
 
 
-def igemm_cost(v: Variant, c: Conv, splits: int, elem: int) -> dict[str, float]:
+def igemm_cost(v: Variant, c: Conv, splits: int, elem: int, tap_major: bool = True) -> dict[str, float]:
     oh, ow = c.out_hw()
     npix = oh * ow
     groups = -(-npix // v.bn) * -(-c.cout // v.bm)
-    kp = kpad(c.cin * c.k * c.k)
+    kp = kpad(c, tap_major)
     fma = groups * v.bm * v.bn * kp
     global_bytes = groups * kp * (v.bm + v.bn) * elem + c.cout * npix * elem
     if splits > 1:
