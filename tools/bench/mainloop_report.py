@@ -213,7 +213,7 @@ def optimized_text(source: Path, includes: list[Path], defines: tuple[str, ...],
 K_ALIGN, MIN_STAGES_PER_SPLIT, MAX_SPLITS = 16, 4, 16
 
 
-def kpad(c: Conv, tap_major: bool) -> int:
+def kpad(c: Conv, tap_major: bool = True) -> int:
     """igemm_kpad: channel-major, cin KH KW rounded up to 16; tap-major, KH KW taps of cin rounded up
     to 16 (the design of issue 56)."""
     if tap_major:
@@ -226,10 +226,10 @@ def tap_major(tree: Path) -> bool:
     return "taps()" in cpp_function_text((tree / "kernels" / "igemm.cpp").read_text(), "igemm_kpad")
 
 
-def igemm_splits(v: Variant, c: Conv, cores: int, tap: bool = False, scratch: int = 64 << 20) -> int:
+def igemm_splits(v: Variant, c: Conv, cores: int, tap_major: bool = True, scratch: int = 64 << 20) -> int:
     oh, ow = c.out_hw()
     npix = oh * ow
-    stages = kpad(c, tap) // K_ALIGN
+    stages = kpad(c, tap_major) // K_ALIGN
     groups = -(-npix // v.bn) * -(-c.cout // v.bm)
     want = min(-(-2 * cores // groups), stages // MIN_STAGES_PER_SPLIT, MAX_SPLITS)
     want = max(1, min(want, scratch // (c.cout * npix * 4)))
@@ -237,11 +237,11 @@ def igemm_splits(v: Variant, c: Conv, cores: int, tap: bool = False, scratch: in
     return -(-stages // depth)
 
 
-def igemm_cost(v: Variant, c: Conv, splits: int, elem: int, tap: bool = False) -> dict[str, float]:
+def igemm_cost(v: Variant, c: Conv, splits: int, elem: int, tap_major: bool = True) -> dict[str, float]:
     oh, ow = c.out_hw()
     npix = oh * ow
     groups = -(-npix // v.bn) * -(-c.cout // v.bm)
-    kp = kpad(c, tap)
+    kp = kpad(c, tap_major)
     fma = groups * v.bm * v.bn * kp
     global_bytes = groups * kp * (v.bm + v.bn) * elem + c.cout * npix * elem
     if splits > 1:
@@ -262,10 +262,10 @@ def report_row(v: Variant, c: Conv, shaders: Path, work: Path, cores: int, tap: 
     text = optimized_text(shaders / v.shader, [shaders], v.defines, spec_constants(v, c), work, tag)
     stage = spirv_loop.count_stage(spirv_loop.parse(text), {0, 6, 7, 8, 9}, v.x_elements())
     fp16 = "VKU_FP16" in v.defines or bool(v.coopmat)
-    splits = igemm_splits(v, c, cores, tap) if v.partial else 1
+    splits = igemm_splits(v, c, cores, tap_major=tap) if v.partial else 1
     row = {"variant": v.name, "conv": c.name, "shape": f"{c.cin}->{c.cout} k{c.k} s{c.stride} @{c.h}x{c.w}",
            "tile": f"{v.bm}x{v.bn}x{v.bk}", "threads": v.threads(), "splits": splits, **stage,
-           "cost": igemm_cost(v, c, splits, 2 if fp16 else 4, tap)}
+           "cost": igemm_cost(v, c, splits, 2 if fp16 else 4, tap_major=tap)}
     return summarize(row)
 
 
@@ -322,7 +322,7 @@ def llama_rows(source: Path, work: Path, conv: Conv) -> list[dict]:
         tile_v = Variant(tile, "", (), bk_, npq, crs, tsk, bk_ * npq // wg // tsk)
         rows.append(peer_row(f"llama.cpp conv2d_mm {tile} (fp32)", source, [inc, source.parent], ("USE_COLLECTIVES",),
                              spec, {1}, crs * npq // wg, work, f"{conv.name}: K x NPQ x CRS {bk_}x{npq}x{crs}, "
-                             f"{wg} invocations", igemm_cost(tile_v, conv, 1, 4)))
+                             f"{wg} invocations", igemm_cost(tile_v, conv, 1, 4, tap_major=False)))
     return rows
 
 
@@ -351,7 +351,7 @@ def ncnn_rows(source: Path, work: Path, conv: Conv) -> list[dict]:
     cm = {"lm": n, "ln": m, "lk": k * sg, "fm": sg, "fn": sg, "wm": sg, "wn": sg, "warp": 32}
     tile_v = Variant("ncnn", "", (), n * sg * sg, m * sg * sg, k * sg, coopmat=cm)
     return [peer_row("ncnn convolution_gemm_cm (NV coopmat)", source, [inc, source.parent], defines, spec, {0},
-                     x_elements, work, f"{conv.name}: fragments 16x8x16, unrolls 2, 4 warps", igemm_cost(tile_v, conv, 1, 2))]
+                     x_elements, work, f"{conv.name}: fragments 16x8x16, unrolls 2, 4 warps", igemm_cost(tile_v, conv, 1, 2, tap_major=False))]
 
 
 def markdown(rows: list[dict]) -> str:
