@@ -223,7 +223,7 @@ void bind_events(py::module_& m) {
         EventStream ev = guarded({}, [&] { return to_event_stream(t, x, y, p, width, height); });
         without_gil({}, [&] {
           if (format != "h5" && format != "txt") throw UsageError("format='" + format + "': expected 'h5' or 'txt'");
-          write_output_file(path, overwrite, [&](const std::string& tmp) {
+          write_output_file("write_events.path", path, overwrite, [&](const std::string& tmp) {
             if (format == "h5") write_events_hdf5(tmp, ev);
             else write_events_text(tmp, ev);
           });
