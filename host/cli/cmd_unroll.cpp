@@ -172,9 +172,9 @@ Command add_unroll(CLI::App& parent) {
                               "ranges start:stop:count, lists -0.25,0.5,1.25; 'gt': exactly the ground-truth instants, "
                               "named after their files")
                     ->capture_default_str()->group(gi)->type_name("LIST");
-  c->add_option("--times-us", a->times_us, "absolute targets in microseconds (each goes to the frame that spans it)")
+  c->add_option("--times-us", a->times_us, "absolute targets in microseconds (each goes to the frame that spans it, else the nearest; refused when --frames leaves that frame out)")
       ->excludes(times)->group(gi)->type_name("LIST");
-  c->add_option("--frames", a->frames, "frames to unroll: 'a:b' (inclusive) or a list (default: all)")->group(gi)->type_name("A:B");
+  c->add_option("--frames", a->frames, "frames to unroll: 'a:b' (inclusive) or a list (default: all); absolute targets (--times-us, gt) of other frames are not unrolled")->group(gi)->type_name("A:B");
   add_model_options(c, *a);
   add_output_options(c, *a);
   add_follow_options(c, *a);

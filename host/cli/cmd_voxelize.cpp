@@ -29,14 +29,14 @@ struct VoxelizeArgs {
 };
 
 SensorCrop parse_crop(const std::string& s) {
-  std::vector<int> v;
+  std::vector<long long> v;
   size_t pos = 0;
   while (pos <= s.size()) {
     const size_t comma = s.find(',', pos);
     const std::string item = s.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
     try {
       size_t used = 0;
-      v.push_back(std::stoi(item, &used));
+      v.push_back(std::stoll(item, &used));
       if (used != item.size()) throw std::invalid_argument("trailing");
     } catch (const std::exception&) {
       throw UsageError("--crop '" + s + "': expected x,y,w,h (four integers)");
@@ -44,10 +44,7 @@ SensorCrop parse_crop(const std::string& s) {
     if (comma == std::string::npos) break;
     pos = comma + 1;
   }
-  if (v.size() != 4) throw UsageError("--crop '" + s + "': expected x,y,w,h (four integers)");
-  if (v[0] < 0 || v[1] < 0) throw UsageError("--crop '" + s + "': x and y must be >= 0");
-  if (v[2] <= 0 || v[3] <= 0) throw UsageError("--crop '" + s + "': the width and height must be positive");
-  return {v[0], v[1], v[2], v[3]};
+  return user_crop(v, "crop");  // the library's rule, as Python's event_tensors(crop=)
 }
 
 // Writes of the output file failing are I/O errors (exit 74), whatever the writer calls them.

@@ -168,7 +168,10 @@ fractions.Fraction; they come back as fractions.Fraction, so nothing is rounded 
       .def(
           "target_time",
           [](const RowTiming& t, const py::object& tau) {
-            py::module_::import("vkunroll._args").attr("exact_time")("RowTiming.target_time", "tau", tau);
+            const py::module_ args = py::module_::import("vkunroll._args");
+            args.attr("exact_time")("RowTiming.target_time", "tau", tau, "what"_a = "a normalized instant tau (0 = the first "
+                                    "row's exposure start, 1 = the last row's exposure end; not microseconds)",
+                                    "limit"_a = 1000000, "within"_a = "+-1e6 frame spans");
             return guarded({}, [&] { return to_fraction(t.target_time(to_rational(tau, "tau"))); });
           },
           py::arg("tau"),

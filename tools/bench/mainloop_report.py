@@ -135,10 +135,15 @@ ROWS = [
 ]
 
 # The C++ functions mirrored here (coopmat_tile above; igemm_kpad, igemm_cost, igemm_splits and kKAlign below), by
-# the SHA-256 of their text in kernels/igemm.cpp: tests/python/test_mainloop_report.py fails when
-# they change, so that the mirror follows.
-MIRRORED = {"coopmat_tile": "3ce022f36a1683d2", "igemm_kpad": "89d25785cd730be8", "igemm_splits": "6c854f63a8d4e646",
-            "igemm_cost": "4d4221bfda8b9872", "kKAlign": "f5ee394ea92b9526"}
+# the SHA-256 of their text in kernels/igemm.cpp, channel-major (main before issue 56) and tap-major (h56-tiles
+# f20b587): tests/python/test_mainloop_report.py fails when they change otherwise, so that the mirror follows.
+MIRRORED = {
+    "coopmat_tile": {"3ce022f36a1683d2"},
+    "igemm_kpad": {"9fabd21e2760154c", "d52ded7669846199"},
+    "igemm_splits": {"2b21ce67efdb0df9", "6c854f63a8d4e646"},
+    "igemm_cost": {"14287331972846a7", "4d4221bfda8b9872"},
+    "kKAlign": {"6eb24c343de33618", "f5ee394ea92b9526"},
+}
 
 
 def cpp_function_text(source: str, name: str) -> str:
@@ -146,8 +151,9 @@ def cpp_function_text(source: str, name: str) -> str:
     0, or a constant's line), whitespace collapsed."""
     if name.startswith("k"):
         m = re.search(rf"constexpr[^\n]*\b{name}\b[^\n]*", source)
-    else:
-        m = re.search(rf"^[\w:<> ]+\b{name}\((?:.|\n)*?^\}}", source, flags=re.M)
+    else:  # a one-line definition, or one that closes at column 0
+        m = re.search(rf"^[\w:<> ]+\b{name}\([^\n]*\}}[ \t]*$", source, flags=re.M) or \
+            re.search(rf"^[\w:<> ]+\b{name}\((?:.|\n)*?^\}}", source, flags=re.M)
     if not m:
         raise ValueError(f"kernels/igemm.cpp: no definition of {name}")
     return " ".join(m.group(0).split())
@@ -207,14 +213,23 @@ def optimized_text(source: Path, includes: list[Path], defines: tuple[str, ...],
 K_ALIGN, MIN_STAGES_PER_SPLIT, MAX_SPLITS = 16, 4, 16
 
 
-def kpad(kdim: int) -> int:
-    return -(-kdim // K_ALIGN) * K_ALIGN
+def kpad(c: Conv, tap_major: bool = True) -> int:
+    """igemm_kpad: channel-major, cin KH KW rounded up to 16; tap-major, KH KW taps of cin rounded up
+    to 16 (the design of issue 56)."""
+    if tap_major:
+        return c.k * c.k * (-(-c.cin // K_ALIGN) * K_ALIGN)
+    return -(-(c.cin * c.k * c.k) // K_ALIGN) * K_ALIGN
 
 
-def igemm_splits(v: Variant, c: Conv, cores: int, scratch: int = 64 << 20) -> int:
+def tap_major(tree: Path) -> bool:
+    """Whether the checkout's igemm_kpad is the tap-major one."""
+    return "taps()" in cpp_function_text((tree / "kernels" / "igemm.cpp").read_text(), "igemm_kpad")
+
+
+def igemm_splits(v: Variant, c: Conv, cores: int, tap_major: bool = True, scratch: int = 64 << 20) -> int:
     oh, ow = c.out_hw()
     npix = oh * ow
-    stages = kpad(c.cin * c.k * c.k) // K_ALIGN
+    stages = kpad(c, tap_major) // K_ALIGN
     groups = -(-npix // v.bn) * -(-c.cout // v.bm)
     want = min(-(-2 * cores // groups), stages // MIN_STAGES_PER_SPLIT, MAX_SPLITS)
     want = max(1, min(want, scratch // (c.cout * npix * 4)))
@@ -222,11 +237,11 @@ def igemm_splits(v: Variant, c: Conv, cores: int, scratch: int = 64 << 20) -> in
     return -(-stages // depth)
 
 
-def igemm_cost(v: Variant, c: Conv, splits: int, elem: int) -> dict[str, float]:
+def igemm_cost(v: Variant, c: Conv, splits: int, elem: int, tap_major: bool = True) -> dict[str, float]:
     oh, ow = c.out_hw()
     npix = oh * ow
     groups = -(-npix // v.bn) * -(-c.cout // v.bm)
-    kp = kpad(c.cin * c.k * c.k)
+    kp = kpad(c, tap_major)
     fma = groups * v.bm * v.bn * kp
     global_bytes = groups * kp * (v.bm + v.bn) * elem + c.cout * npix * elem
     if splits > 1:
@@ -242,15 +257,15 @@ def igemm_cost(v: Variant, c: Conv, splits: int, elem: int) -> dict[str, float]:
             "m_used": c.cout / (-(-c.cout // v.bm) * v.bm)}
 
 
-def report_row(v: Variant, c: Conv, shaders: Path, work: Path, cores: int) -> dict:
+def report_row(v: Variant, c: Conv, shaders: Path, work: Path, cores: int, tap: bool = False) -> dict:
     tag = re.sub(r"\W+", "_", f"{v.name}_{c.name}")
     text = optimized_text(shaders / v.shader, [shaders], v.defines, spec_constants(v, c), work, tag)
     stage = spirv_loop.count_stage(spirv_loop.parse(text), {0, 6, 7, 8, 9}, v.x_elements())
     fp16 = "VKU_FP16" in v.defines or bool(v.coopmat)
-    splits = igemm_splits(v, c, cores) if v.partial else 1
+    splits = igemm_splits(v, c, cores, tap_major=tap) if v.partial else 1
     row = {"variant": v.name, "conv": c.name, "shape": f"{c.cin}->{c.cout} k{c.k} s{c.stride} @{c.h}x{c.w}",
            "tile": f"{v.bm}x{v.bn}x{v.bk}", "threads": v.threads(), "splits": splits, **stage,
-           "cost": igemm_cost(v, c, splits, 2 if fp16 else 4)}
+           "cost": igemm_cost(v, c, splits, 2 if fp16 else 4, tap_major=tap)}
     return summarize(row)
 
 
@@ -307,7 +322,7 @@ def llama_rows(source: Path, work: Path, conv: Conv) -> list[dict]:
         tile_v = Variant(tile, "", (), bk_, npq, crs, tsk, bk_ * npq // wg // tsk)
         rows.append(peer_row(f"llama.cpp conv2d_mm {tile} (fp32)", source, [inc, source.parent], ("USE_COLLECTIVES",),
                              spec, {1}, crs * npq // wg, work, f"{conv.name}: K x NPQ x CRS {bk_}x{npq}x{crs}, "
-                             f"{wg} invocations", igemm_cost(tile_v, conv, 1, 4)))
+                             f"{wg} invocations", igemm_cost(tile_v, conv, 1, 4, tap_major=False)))
     return rows
 
 
@@ -336,7 +351,7 @@ def ncnn_rows(source: Path, work: Path, conv: Conv) -> list[dict]:
     cm = {"lm": n, "ln": m, "lk": k * sg, "fm": sg, "fn": sg, "wm": sg, "wn": sg, "warp": 32}
     tile_v = Variant("ncnn", "", (), n * sg * sg, m * sg * sg, k * sg, coopmat=cm)
     return [peer_row("ncnn convolution_gemm_cm (NV coopmat)", source, [inc, source.parent], defines, spec, {0},
-                     x_elements, work, f"{conv.name}: fragments 16x8x16, unrolls 2, 4 warps", igemm_cost(tile_v, conv, 1, 2))]
+                     x_elements, work, f"{conv.name}: fragments 16x8x16, unrolls 2, 4 warps", igemm_cost(tile_v, conv, 1, 2, tap_major=False))]
 
 
 def markdown(rows: list[dict]) -> str:
@@ -382,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
         for vname, cname in ROWS:
             if vname not in variants or (a.only and a.only not in vname):
                 continue
-            rows.append(report_row(variants[vname], CONVS[cname], a.tree / "shaders", work, a.cores))
+            rows.append(report_row(variants[vname], CONVS[cname], a.tree / "shaders", work, a.cores, tap_major(a.tree)))
         if a.llama:
             rows += llama_rows(a.llama, work, CONVS["RDB"])
         if a.ncnn:
