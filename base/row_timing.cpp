@@ -102,6 +102,7 @@ Rational Rational::parse(const std::string& text, const std::string& what) {
     if (std::isspace(static_cast<unsigned char>(c))) return fail("a space inside it");
   const auto slash = s.find('/');
   if (slash != std::string::npos) {
+    if (s.find('/', slash + 1) != std::string::npos) return fail("more than one '/': a fraction is a single a/b");
     Rational n = parse(s.substr(0, slash), what), d = parse(s.substr(slash + 1), what);
     if (d.num() == 0) return fail("zero denominator");
     return n / d;

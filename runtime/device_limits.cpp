@@ -2,6 +2,7 @@
 // a lavapipe that reports what a smaller real device would, so that every choice made from
 // DeviceInfo (conv algorithm, tiling, each algorithm's fits(), pipelines' limit check) is exercised
 // where it must pick something smaller or refuse by name.
+#include <algorithm>
 #include <charconv>
 #include <sstream>
 
@@ -48,6 +49,9 @@ std::string lower_device_limits_from_env(DeviceInfo& info, bool* without_fp16) {
       const uint64_t n = number(key, v);
       if (n & (n - 1)) throw Error(std::string(kTestLimitsVariable) + ": subgroup=" + v + ": expected a power of two");
       lower(info.subgroup_size, n, key, "subgroupSize");
+      // The widths a pipeline may ask for (subgroup size control) shrink with it.
+      info.max_subgroup_size = std::min<uint32_t>(info.max_subgroup_size, static_cast<uint32_t>(n));
+      info.min_subgroup_size = std::min<uint32_t>(info.min_subgroup_size, static_cast<uint32_t>(n));
     } else if (key == "shared") {
       lower(info.max_shared_memory, number(key, v), key, "maxComputeSharedMemorySize");
     } else if (key == "invocations") {

@@ -150,7 +150,7 @@ Command add_events(CLI::App& parent) {
   c->add_option("--width", a->width, "sensor width when the file lacks it (or to override it; with --height)")
       ->check(int_range(1, 32767))->type_name("W");
   c->add_option("--height", a->height, "sensor height (with --width)")->check(int_range(1, 32767))->type_name("H");
-  c->add_option("--columns", a->columns, "text column order ('_' skips a column)")->capture_default_str()->type_name("ORDER");
+  c->add_option("--columns", a->columns, "text column order ('_' skips a column; text and CSV files only)")->capture_default_str()->type_name("ORDER");
   c->add_option("--time-unit", a->time_unit, "unit of text times: s, ms, us, ns (default: auto, see docs/events.md)")
       ->check(CLI::IsMember({"s", "ms", "us", "ns"}))->type_name("U");
   c->add_option("--array-time-unit", a->array_time_unit, "unit of float time arrays in npy/npz/h5 (default us)")

@@ -121,18 +121,12 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
   c->add_flag("--profile", a.profile,
               "Vulkan: every kernel's GPU time and calls per GS frame in summary.json (gpu_ms_per_gs_frame_by_op)")
       ->group(g);
-  c->add_option("--trace", a.trace,
-                "Vulkan: write the run's timeline to FILE.json (Chrome trace-event format: open it in ui.perfetto.dev "
-                "or chrome://tracing): host stages, and every GPU dispatch with its op, shape, algorithm and GFLOP/s")
-      ->group(g)->type_name("FILE.json");
+  add_output_option(c, "unroll.trace", a.trace)->group(g)->type_name("FILE.json");
 }
 
 void add_output_options(CLI::App* c, UnrollArgs& a) {
   const std::string g = "Output";
-  c->add_option("--out", a.out,
-                "output folder: frames/, gs_video.mp4, contact_sheet.png, metrics.csv, frames.jsonl, summary.json "
-                "(written into .<name>.partial and renamed into place at the end)")
-      ->required()->group(g)->type_name("DIR");
+  add_output_option(c, "unroll.out", a.out)->required()->group(g);
   auto* ow = c->add_flag("--overwrite", a.overwrite, "replace an existing output folder (at the end, whole)")->group(g);
   c->add_flag("--resume", a.resume,
               "continue an output (or a killed run's staging folder): GS frames already written and valid are kept")
@@ -178,9 +172,9 @@ Command add_unroll(CLI::App& parent) {
                               "ranges start:stop:count, lists -0.25,0.5,1.25; 'gt': exactly the ground-truth instants, "
                               "named after their files")
                     ->capture_default_str()->group(gi)->type_name("LIST");
-  c->add_option("--times-us", a->times_us, "absolute targets in microseconds (each goes to the frame that spans it)")
+  c->add_option("--times-us", a->times_us, "absolute targets in microseconds (each goes to the frame that spans it, else the nearest; refused when --frames leaves that frame out)")
       ->excludes(times)->group(gi)->type_name("LIST");
-  c->add_option("--frames", a->frames, "frames to unroll: 'a:b' (inclusive) or a list (default: all)")->group(gi)->type_name("A:B");
+  c->add_option("--frames", a->frames, "frames to unroll: 'a:b' (inclusive) or a list (default: all); absolute targets (--times-us, gt) of other frames are not unrolled")->group(gi)->type_name("A:B");
   add_model_options(c, *a);
   add_output_options(c, *a);
   add_follow_options(c, *a);

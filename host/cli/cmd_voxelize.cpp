@@ -29,14 +29,14 @@ struct VoxelizeArgs {
 };
 
 SensorCrop parse_crop(const std::string& s) {
-  std::vector<int> v;
+  std::vector<long long> v;
   size_t pos = 0;
   while (pos <= s.size()) {
     const size_t comma = s.find(',', pos);
     const std::string item = s.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
     try {
       size_t used = 0;
-      v.push_back(std::stoi(item, &used));
+      v.push_back(std::stoll(item, &used));
       if (used != item.size()) throw std::invalid_argument("trailing");
     } catch (const std::exception&) {
       throw UsageError("--crop '" + s + "': expected x,y,w,h (four integers)");
@@ -44,10 +44,7 @@ SensorCrop parse_crop(const std::string& s) {
     if (comma == std::string::npos) break;
     pos = comma + 1;
   }
-  if (v.size() != 4) throw UsageError("--crop '" + s + "': expected x,y,w,h (four integers)");
-  if (v[0] < 0 || v[1] < 0) throw UsageError("--crop '" + s + "': x and y must be >= 0");
-  if (v[2] <= 0 || v[3] <= 0) throw UsageError("--crop '" + s + "': the width and height must be positive");
-  return {v[0], v[1], v[2], v[3]};
+  return user_crop(v, "crop");  // the library's rule, as Python's event_tensors(crop=)
 }
 
 // Writes of the output file failing are I/O errors (exit 74), whatever the writer calls them.
@@ -177,7 +174,7 @@ VoxelizeCounts write_tensors(const Sequence& seq, const std::vector<EventTensorP
 int run_voxelize(const VoxelizeArgs& a) {
   SequenceOptions so = sequence_options(a.timing);
   check_output_file(a.out, "--out");
-  check_output_file_rule(a.out, "out", a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse,
+  check_output_file_rule(a.out, output_path("voxelize.out"), a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse,
                          {{opt("sequence"), a.sequence}, {opt("events") + " file", so.events_file.value_or("")}});
   const VoxelizeTargets targets = parse_targets(a);
   EventTensorSpec spec;
@@ -245,8 +242,7 @@ Command add_voxelize(CLI::App& parent) {
                     ->type_name("LIST");
   c->add_option("--times-us", a->times_us, "absolute targets t* in microseconds, same syntax (the same t* for every frame)")
       ->excludes(times)->type_name("LIST");
-  c->add_option("--out", a->out, "the safetensors file to write (written under a temporary name, renamed when complete)")
-      ->required()->type_name("FILE");
+  add_output_option(c, "voxelize.out", a->out)->required();
   c->add_flag("--overwrite", a->overwrite, "replace an existing --out file (only one vkunroll wrote)");
   c->add_option("--bins", a->bins, "temporal bins N (2N channels)")->check(int_range(1, 4096))->capture_default_str()->type_name("N");
   c->add_option("--crop", a->crop, "sensor window x,y,w,h (w, h > 0); rows keep their own full-sensor times")->type_name("X,Y,W,H");

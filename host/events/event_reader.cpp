@@ -19,7 +19,15 @@ namespace detail {
 
 // ---- byte sources ----------------------------------------------------------------------------
 
+// The one rule for special files, before anything opens them (opening a FIFO blocks until a
+// writer comes): every reader's and detection's file goes through it.
+void refuse_special_file(const std::string& path) {
+  if (const std::string kind = special_file_kind(path); !kind.empty())
+    throw Error(path + ": is " + kind + ", expected an event file (a regular file: reading " + kind + " could block for ever)");
+}
+
 FileSource::FileSource(const std::string& path) : ByteSource(path) {
+  refuse_special_file(path);
   f_ = std::fopen(path.c_str(), "rb");
   if (!f_) throw Error(path + ": cannot open event file (" + std::strerror(errno) + ")");
   if (fseeko(f_, 0, SEEK_END) != 0) {
@@ -182,9 +190,7 @@ void check_event_file(const std::string& path) {
   const auto st = std::filesystem::status(path, ec);
   if (!std::filesystem::exists(st)) throw Error(path + ": event file does not exist");
   if (std::filesystem::is_directory(st)) throw Error(path + ": is a folder, expected an event file");
-  if (const std::string kind = special_file_kind(path); !kind.empty())
-    throw Error(path + ": is " + kind + ", expected an event file (a regular file: reading " + kind +
-                " could block for ever)");
+  refuse_special_file(path);
 }
 
 }  // namespace detail
@@ -203,11 +209,41 @@ std::string special_file_kind(const std::string& path) {
 
 namespace detail {
 
+namespace {
+
+// Which reading options apply to which (canonical) formats; every other format refuses them.
+struct FormatOption {
+  const char* field;                       // the option (EventReadOptions' field, as opt() names it)
+  std::string EventReadOptions::*value;    // given when neither empty nor `unset`
+  std::vector<std::string_view> formats;   // where it applies
+  const char* kind;                        // what such a file is, said in the refusal
+  const char* applies_to;
+  const char* unset = "";                  // the value that means "not given" (text_columns' default)
+};
+
+const std::vector<FormatOption> kFormatOptions = {
+    {"events_topic", &EventReadOptions::events_topic, {"bag"}, "a ROS bag", "a topic applies to bags only"},
+    {"columns", &EventReadOptions::text_columns, {"txt"}, "a text file", "a column order applies to text and CSV files only",
+     "txyp"},
+    {"time_unit", &EventReadOptions::text_time_unit, {"txt"}, "a text file",
+     "a text time unit applies to text and CSV files only (a binary format carries its own unit)"},
+    {"array_time_unit", &EventReadOptions::array_time_unit, {"npy", "npz", "h5"}, "a file of time arrays",
+     "an array time unit applies to float time arrays in .npy, .npz and .h5 files only"},
+};
+
+}  // namespace
+
+// (Declared as check_topic_applies: the topic was its first row; every option of the table is checked.)
 void check_topic_applies(const std::string& path, const std::string& format, const EventReadOptions& o) {
-  if (!o.events_topic.empty() && format != "bag")
-    throw OptionError("events_topic", o.events_topic, "a ROS bag to apply to",
-                      "events topic '" + o.events_topic + "' (" + opt("events_topic") + " or meta.json's events_topic): " + path + " is " + format +
-                     ", not a ROS bag; a topic applies to bags only (leave it out)");
+  for (const FormatOption& f : kFormatOptions) {
+    const std::string& v = o.*f.value;
+    if (v.empty() || v == f.unset || std::find(f.formats.begin(), f.formats.end(), format) != f.formats.end()) continue;
+    const bool topic = f.field == std::string_view("events_topic");
+    const std::string what = topic ? "events topic '" + v + "' (" + opt(f.field) + " or meta.json's events_topic)"
+                                   : opt(f.field) + " '" + v + "'";
+    throw OptionError(f.field, v, std::string(f.kind) + " to apply to",
+                      what + ": " + path + " is " + format + ", not " + f.kind + "; " + f.applies_to + " (leave it out)");
+  }
 }
 
 }  // namespace detail

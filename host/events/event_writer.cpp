@@ -33,6 +33,12 @@ void check_stream(const std::string& path, const EventStream& ev) {
   }
 }
 
+// A write that failed, with the system's reason (errno's text), never a guess: an IoError.
+[[noreturn]] void write_failed(const std::string& path, const std::string& what, int err) {
+  throw IoError(path + ": " + what + ": " + (err ? std::strerror(err) : "the system gave no reason") +
+                (err ? " (errno " + std::to_string(err) + ")" : ""));
+}
+
 struct H5Closer {
   hid_t id;
   herr_t (*close)(hid_t);
@@ -52,10 +58,11 @@ void write_dataset(const std::string& path, hid_t group, const char* name, hid_t
     hsize_t chunk[1] = {std::min<hsize_t>(n, hsize_t(1) << 16)};
     H5Pset_chunk(dcpl.id, 1, chunk);
   }
+  errno = 0;
   H5Closer d{H5Dcreate2(group, name, file_type, space.id, H5P_DEFAULT, dcpl.id, H5P_DEFAULT), H5Dclose};
-  if (d.id < 0) throw Error(path + ": cannot create dataset events/" + name);
+  if (d.id < 0) write_failed(path, std::string("cannot create dataset events/") + name, errno);
   if (n > 0 && H5Dwrite(d.id, mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
-    throw Error(path + ": cannot write dataset events/" + name + " (disk full?)");
+    write_failed(path, std::string("cannot write dataset events/") + name, errno);
 }
 
 void write_int_attr(const std::string& path, hid_t obj, const char* name, int64_t v) {
@@ -77,8 +84,9 @@ void write_events_hdf5(const std::string& path, const EventStream& ev) {
     void* d;
     ~Restore() { H5Eset_auto2(H5E_DEFAULT, f, d); }
   } restore{func, data};
+  errno = 0;
   H5Closer file{H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose};
-  if (file.id < 0) throw Error(path + ": cannot create the HDF5 file (folder missing or not writable?)");
+  if (file.id < 0) write_failed(path, "cannot create the HDF5 file", errno);
   H5Closer gcpl{H5Pcreate(H5P_GROUP_CREATE), H5Pclose};
   H5Pset_obj_track_times(gcpl.id, 0);
   H5Closer g{H5Gcreate2(file.id, "events", H5P_DEFAULT, gcpl.id, H5P_DEFAULT), H5Gclose};
@@ -93,7 +101,12 @@ void write_events_hdf5(const std::string& path, const EventStream& ev) {
   write_int_attr(path, g.id, "width", ev.width);
   write_int_attr(path, g.id, "height", ev.height);
   write_int_attr(path, file.id, kEventFileMark, 1);  // the output rule replaces only marked files
-  if (H5Fflush(file.id, H5F_SCOPE_GLOBAL) < 0) throw Error(path + ": cannot flush the HDF5 file");
+  errno = 0;
+  if (H5Fflush(file.id, H5F_SCOPE_GLOBAL) < 0) write_failed(path, "cannot flush the HDF5 file", errno);
+  const hid_t id = file.id;
+  file.id = -1;  // closed here, not by the guard: a close that fails (the last blocks) is an error too
+  errno = 0;
+  if (H5Fclose(id) < 0) write_failed(path, "cannot close the HDF5 file", errno);
 }
 
 bool event_file_written_by_vkunroll(const std::string& path) {
@@ -117,7 +130,8 @@ bool event_file_written_by_vkunroll(const std::string& path) {
 void write_events_text(const std::string& path, const EventStream& ev) {
   check_stream(path, ev);
   std::FILE* f = std::fopen(path.c_str(), "wb");
-  if (!f) throw Error(path + ": cannot create the text event file (" + std::strerror(errno) + ")");
+  if (!f) write_failed(path, "cannot create the text event file", errno);
+  int err = 0;
   std::fprintf(f, "%s: t x y p (t in microseconds, p 1 = brightness increase, 0 = decrease)\n", kTextEventMark);
   std::fprintf(f, "# width %d height %d\n", ev.width, ev.height);
   std::vector<char> buf(1 << 20);
@@ -126,14 +140,16 @@ void write_events_text(const std::string& path, const EventStream& ev) {
   for (size_t i = 0; i < ev.size() && ok; ++i) {
     if (buf.size() - used < 64) {
       ok = std::fwrite(buf.data(), 1, used, f) == used;
+      if (!ok) err = errno;
       used = 0;
     }
     used += size_t(std::snprintf(buf.data() + used, buf.size() - used, "%lld %u %u %d\n",
                                  static_cast<long long>(ev.t[i]), unsigned(ev.x[i]), unsigned(ev.y[i]), ev.p[i] > 0 ? 1 : 0));
   }
-  if (ok && used) ok = std::fwrite(buf.data(), 1, used, f) == used;
-  ok = (std::fclose(f) == 0) && ok;
-  if (!ok) throw Error(path + ": cannot write the text event file (disk full?)");
+  if (ok && used && !(ok = std::fwrite(buf.data(), 1, used, f) == used)) err = errno;
+  if (ok && std::fflush(f) != 0) ok = false, err = errno;
+  if (std::fclose(f) != 0 && ok) ok = false, err = errno;
+  if (!ok) write_failed(path, "cannot write the text event file", err);
 }
 
 }  // namespace vkunroll

@@ -48,9 +48,14 @@ void rule_ground_truth_inside_recording(const Sequence& s, const std::string& me
 struct ImageHeader {
   int width = 0, height = 0, channels = 0;
 };
-// A frame or ground-truth image exists, is a regular file and (PNG) ends with its IEND chunk; its
+// A frame or ground-truth image exists, is a regular file and ends whole (image_end_problem); its
 // header (size, channels). Error naming the image otherwise (sequence.cpp).
 ImageHeader check_sequence_image(const Sequence& s, const std::string& image, const char* what);
+// Why the image file at `path` does not end as its format requires, "" when it does (or the format
+// has no end marker to check): a PNG's last chunk is IEND, a JPEG's last scan is followed by its EOI
+// marker (FF D9). A file cut short (a copy cut in half) fails it, where a decoder would fill the
+// missing rows with gray and only warn. Reads at most the file's last 64 KiB.
+std::string image_end_problem(const std::string& path);
 // Every frame and ground-truth image has the sensor's size and the first frame's channel count.
 void rule_images_agree(const Sequence& s, const std::vector<ImageHeader>& frames, const std::vector<ImageHeader>& truth);
 // The same rule for one image as it appears (unroll --follow): `field` names it ("frames[3].file"),

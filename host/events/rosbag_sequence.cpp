@@ -4,6 +4,7 @@
 #include "vkunroll/host/events/rosbag_sequence.hpp"
 
 #include <algorithm>
+#include <cerrno>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -247,9 +248,10 @@ BagSequenceReport write_bag_sequence(const std::string& bag, const std::string& 
   const fs::path tmp = dir / "meta.json.tmp";
   {
     std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
-    if (!f) throw Error(tmp.string() + ": cannot open for writing");
+    errno = 0;
+    if (!f) throw IoError(tmp.string() + ": cannot open for writing: " + std::strerror(errno));
     f << meta.dump(2) << "\n";
-    if (!f.flush()) throw Error(tmp.string() + ": error writing (disk full?)");
+    if (!f.flush()) throw IoError(tmp.string() + ": error writing: " + std::strerror(errno));  // the system's reason
   }
   fs::rename(tmp, dir / "meta.json", ec);
   if (ec) throw Error((dir / "meta.json").string() + ": cannot move meta.json into place: " + ec.message());

@@ -10,6 +10,7 @@
 #include <regex>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/json_read.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #include "vkunroll/host/events/meta_schema.hpp"
 
@@ -106,12 +107,7 @@ void load_generic(Sequence& s, const fs::path& root) {
   const std::string meta_path = (root / "meta.json").string();
   std::ifstream in(meta_path);
   if (!in) throw Error(root.string() + ": no meta.json (generic layout, see sequence-format.md)");
-  nlohmann::json m;
-  try {
-    m = nlohmann::json::parse(in);
-  } catch (const std::exception& e) {
-    throw DataError(meta_path + ": not valid JSON: " + e.what());
-  }
+  nlohmann::json m = parse_json<nlohmann::json>(in, meta_path);  // invalid or a repeated key: DataError
   s.warnings = validate_meta(m, meta_path);
   s.width = m["width"].get<int>();
   s.height = m["height"].get<int>();
@@ -300,18 +296,8 @@ ImageHeader check_image(const Sequence& s, const std::string& image, const char*
   if (const std::string kind = special_file_kind(image); !kind.empty())
     throw Error(image + ": " + what + " image is " + kind + ", expected a regular file");
   const ImageHeader header = image_header(image);
-  std::ifstream in(image, std::ios::binary);
-  unsigned char sig[8] = {};
-  in.read(reinterpret_cast<char*>(sig), 8);
-  if (in.gcount() != 8 || sig[0] != 0x89 || sig[1] != 'P' || sig[2] != 'N' || sig[3] != 'G') return header;
-  const uint64_t size = fs::file_size(image, ec);
-  const uint64_t tail = std::min<uint64_t>(size, 4096);
-  std::string end(tail, '\0');
-  in.seekg(std::streamoff(size - tail));
-  in.read(end.data(), std::streamsize(tail));
-  if (end.find("IEND") == std::string::npos)
-    throw Error(image + ": " + what + " image is a truncated PNG (no IEND chunk at its end; " + std::to_string(size) +
-                " bytes)");
+  if (const std::string problem = image_end_problem(image); !problem.empty())
+    throw DataError(image + ": " + what + " image " + problem);
   return header;
 }
 
@@ -371,6 +357,33 @@ void check_meta_rules(const Sequence& s, const SequenceOptions& o) {
 }
 
 }  // namespace
+
+std::string image_end_problem(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char sig[8] = {};
+  in.read(reinterpret_cast<char*>(sig), 8);
+  const bool png = in.gcount() == 8 && sig[0] == 0x89 && sig[1] == 'P' && sig[2] == 'N' && sig[3] == 'G';
+  const bool jpeg = in.gcount() >= 3 && sig[0] == 0xFF && sig[1] == 0xD8 && sig[2] == 0xFF;
+  if (!png && !jpeg) return "";
+  std::error_code ec;
+  const uint64_t size = fs::file_size(path, ec);
+  if (ec) return "cannot be sized (" + ec.message() + ")";
+  const uint64_t tail = std::min<uint64_t>(size, 64 << 10);
+  std::string end(tail, '\0');
+  in.clear();
+  in.seekg(std::streamoff(size - tail));
+  in.read(end.data(), std::streamsize(tail));
+  if (png && end.find("IEND") == std::string::npos)
+    return "is a truncated PNG (no IEND chunk at its end; " + std::to_string(size) + " bytes)";
+  if (jpeg) {
+    // Inside a scan every FF byte is stuffed (FF 00) or a restart marker, so FF D9 after the last
+    // start of scan (FF DA) is the end of the image; an EXIF thumbnail's own EOI lies before it.
+    const size_t sos = end.rfind("\xFF\xDA");
+    if (end.find("\xFF\xD9", sos == std::string::npos ? 0 : sos) == std::string::npos)
+      return "is a truncated JPEG (no end-of-image marker FF D9 after its last scan; " + std::to_string(size) + " bytes)";
+  }
+  return "";
+}
 
 ImageHeader check_sequence_image(const Sequence& s, const std::string& image, const char* what) {
   return check_image(s, image, what);

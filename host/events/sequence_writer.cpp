@@ -1,12 +1,15 @@
 #include "vkunroll/host/events/sequence_writer.hpp"
 
 #include <cstdio>
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/json_read.hpp"
 #include "vkunroll/host/events/event_writer.hpp"
 
 namespace vkunroll {
@@ -65,12 +68,7 @@ void check_spec(const std::string& dir, const SequenceWriteSpec& s) {
     throw Error(dir + ": the events' sensor is " + std::to_string(s.events.width) + "x" + std::to_string(s.events.height) +
                 ", the frames' " + std::to_string(s.width) + "x" + std::to_string(s.height));
   if (!s.source_json.empty()) {
-    nlohmann::json j;
-    try {
-      j = nlohmann::json::parse(s.source_json);
-    } catch (const std::exception& e) {
-      throw Error(dir + ": source is not valid JSON: " + e.what());
-    }
+    const nlohmann::json j = parse_json<nlohmann::json>(s.source_json, dir + ": source");
     if (!j.is_object()) throw Error(dir + ": source must be a JSON object");
   }
 }
@@ -132,13 +130,14 @@ void write_generic_sequence(const std::string& dir, const SequenceWriteSpec& s) 
                          {"frames", frames},
                          {"events", events_file}};
   if (!gt.empty()) meta["ground_truth"] = gt;
-  if (!s.source_json.empty()) meta["source"] = nlohmann::json::parse(s.source_json);
+  if (!s.source_json.empty()) meta["source"] = parse_json<nlohmann::json>(s.source_json, dir + ": source");
   const fs::path tmp = fs::path(dir) / "meta.json.tmp";
   {
     std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
-    if (!f) throw Error(tmp.string() + ": cannot open for writing");
+    errno = 0;
+    if (!f) throw IoError(tmp.string() + ": cannot open for writing: " + std::strerror(errno));
     f << meta.dump(2) << "\n";
-    if (!f.flush()) throw Error(tmp.string() + ": error writing (disk full?)");
+    if (!f.flush()) throw IoError(tmp.string() + ": error writing: " + std::strerror(errno));  // the system's reason
   }
   fs::rename(tmp, meta_path, ec);
   if (ec) throw Error(meta_path.string() + ": cannot move the finished meta.json into place: " + ec.message());

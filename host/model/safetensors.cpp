@@ -13,6 +13,7 @@
 #include <unistd.h>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/json_read.hpp"
 
 namespace vkunroll {
 namespace {
@@ -279,12 +280,8 @@ SafetensorsFile parse_safetensors(std::span<const uint8_t> bytes, const std::str
     throw Error(where + ": truncated: header length says " + std::to_string(hlen) + " bytes, the file has only " +
                 std::to_string(bytes.size() - 8) + " after the length field");
   const std::string_view htext(reinterpret_cast<const char*>(bytes.data() + 8), hlen);
-  nlohmann::json h;
-  try {
-    h = nlohmann::json::parse(htext);
-  } catch (const std::exception& e) {
-    throw Error(where + ": header is not valid JSON: " + e.what());
-  }
+  // A tensor named twice (a repeated key) is refused, as any invalid header.
+  nlohmann::json h = parse_json<nlohmann::json>(htext, where + ": header");
   if (!h.is_object()) throw Error(where + ": header is a JSON " + json_type(h) + ", expected an object");
   const uint8_t* buffer = bytes.data() + 8 + hlen;
   const uint64_t buffer_size = bytes.size() - 8 - hlen;

@@ -8,6 +8,7 @@
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/model/make_backend.hpp"
 #include "vkunroll/host/model/model.hpp"
+#include "vkunroll/host/unroll/backend_options.hpp"
 #include "vkunroll/host/unroll/default_model.hpp"
 #include "vkunroll/host/unroll/image_planes.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
@@ -74,7 +75,7 @@ FrameTarget::Method parse_frame_method(const std::string& s, const std::string& 
 }
 
 UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
-  if (o.precision == Precision::fp16 && o.backend == BackendKind::cpu) throw fp16_needs_vulkan();
+  check_session_options_apply(o);
   if (!o.model_path.empty()) {
     weights_ = std::make_unique<Weights>(load_weights(o.model_path));
     rgb_ = weights_->config.channel_order != "bgr";

@@ -13,9 +13,10 @@ namespace {
 
 // Targets planned from the options; a time the rationals cannot hold names the option.
 std::map<int, std::vector<UnrollTarget>> planned_targets(const Sequence& layout, const std::vector<int>& frames,
-                                                         const TargetTimes& times, const std::string& where) {
+                                                         const TargetTimes& times, const std::string& where,
+                                                         std::vector<std::string>* notes) {
   try {
-    return plan_targets(layout, frames, times, where);
+    return plan_targets(layout, frames, times, where, notes);
   } catch (const TimeRangeError& e) {
     const std::string field = times.kind == TargetTimes::Kind::absolute_us ? "times_us" : "times";
     const std::string rule = "targets must lie within +-2^53 us of the recording";
@@ -56,7 +57,7 @@ JobPlan plan_job(const UnrollOptions& o, const UnrollSession& session, FrameSour
   const Sequence& layout = source.layout();
   if (layout.frames.empty()) throw DataError(o.sequence + ": the sequence has no frames");
   p.frames = chosen_frames(layout, o.frames);
-  p.targets = planned_targets(layout, p.frames, o.times, o.sequence);
+  p.targets = planned_targets(layout, p.frames, o.times, o.sequence, &p.notes);
   for (const auto& [k, ts] : p.targets) p.total_targets += ts.size();
   // The frames' encoding and the model's: frames go into a model with a known gamma as
   // v^(g_f/g_m) and its results come back (docs/model.md, "unroll").
@@ -86,6 +87,7 @@ void configure_session(UnrollSession& session, const JobPlan& plan) {
 UnrollJob::UnrollJob(const UnrollOptions& o, UnrollSession& session, FrameSource& source)
     : options_(o), session_(session), source_(source) {
   plan_ = plan_job(o, session, source, [&](int k) { return decoded(k).image; });
+  for (const std::string& n : plan_.notes) notes_[n]++;
   if (plan_.contrast_estimate_ms > 0) stage_ms_[Stage::contrast_estimate] = plan_.contrast_estimate_ms;
   const PhysicsPlan& physics = plan_.physics;
   if (physics.uses_physics && !o.quiet) {

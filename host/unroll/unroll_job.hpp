@@ -62,6 +62,7 @@ struct JobPlan {
   TileOptions tiling;
   std::optional<bool> model_rgb;  // the model's channel order asked for (unset: the weights' metadata)
   double contrast_estimate_ms = 0;
+  std::vector<std::string> notes;  // what planning left out and why (the report's notes)
 };
 
 // The plan from the options, the session's model (read only) and the source: errors name the

@@ -5,6 +5,7 @@
 
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
+#include "vkunroll/host/unroll/backend_options.hpp"
 #include "vkunroll/host/unroll/value_list.hpp"
 
 namespace vkunroll {
@@ -130,6 +131,40 @@ void validate_sequence_options(const SequenceOptions& o) {
   if (o.events_file) check_exists(*o.events_file, "events", false);
 }
 
+namespace {
+
+// Options of the Vulkan backend only: given (their value shown; "on" for a switch) or not (empty).
+struct VulkanOnlyOption {
+  const char* field;
+  std::string (*given)(const SessionOptions&);
+  const char* why;
+  bool is_switch = false;
+};
+
+const VulkanOnlyOption kVulkanOnlyOptions[] = {
+    {"precision", [](const SessionOptions& o) { return o.precision == Precision::fp16 ? std::string("fp16") : std::string(); },
+     "the CPU backend computes the fp32 reference"},
+    {"device", [](const SessionOptions& o) { return o.device; }, "the CPU backend opens no device"},
+    {"conv_choice", [](const SessionOptions& o) { return o.conv_choice == ConvChoice::automatic ? std::string() : std::string(conv_choice_name(o.conv_choice)); },
+     "it chooses among the Vulkan conv kernels"},
+    {"profile", [](const SessionOptions& o) { return o.profile_ops ? std::string("on") : std::string(); },
+     "it reads the device's timestamps", true},
+    {"trace", [](const SessionOptions& o) { return o.trace ? std::string("on") : std::string(); },
+     "the timeline is the device's dispatches", true},
+};
+
+}  // namespace
+
+void check_session_options_apply(const SessionOptions& o) {
+  if (o.backend != BackendKind::cpu) return;
+  if (o.precision == Precision::fp16) throw fp16_needs_vulkan();  // the library's one text for it
+  for (const VulkanOnlyOption& v : kVulkanOnlyOptions)
+    if (const std::string value = v.given(o); !value.empty())
+      throw OptionError(v.field, value, "the vulkan backend",
+                        opt(v.field) + (v.is_switch ? "" : " " + value) + " applies to " + opt("backend") + " vulkan only (" + v.why +
+                            "); with " + opt("backend") + " cpu leave it out");
+}
+
 void validate_unroll_options(const UnrollOptions& o) {
   if (o.sequence.empty()) throw OptionError("sequence", "", "a folder", "no " + opt("sequence") + " folder given");
   if (o.out_dir.empty()) throw OptionError("out", "", "a folder", opt("out") + " DIR is required");
@@ -137,7 +172,9 @@ void validate_unroll_options(const UnrollOptions& o) {
   if (needs_model && o.session.model_path.empty())
     throw OptionError("mode", unroll_mode_name(o.mode), "needs a model",
                       std::string(opt("mode") + " ") + unroll_mode_name(o.mode) + " needs " + opt("model") + " FILE.safetensors");
-  if (o.session.precision == Precision::fp16 && o.session.backend == BackendKind::cpu) throw fp16_needs_vulkan();
+  SessionOptions session = o.session;
+  session.trace = session.trace || !o.trace_path.empty();
+  check_session_options_apply(session);
   if (o.tile < 0 || o.tile % kTileAlign)
     refuse("tile", std::to_string(o.tile), "expected 0 (automatic) or a positive multiple of " + std::to_string(kTileAlign));
   if (o.halo < -1 || (o.halo >= 0 && o.halo % kTileAlign))
@@ -158,8 +195,13 @@ void validate_unroll_options(const UnrollOptions& o) {
     else if (!(std::abs(v.to_double()) <= kMaxTau))
       refuse("times", v.str(), "a normalized target must lie within +-1e6 frame spans");
   }
-  for (int k : o.frames)
+  refuse_repeated(o.times.values, times_field, false);  // the lists' one rule, as the CLI's parser applies it
+  std::vector<Rational> frames;
+  for (int k : o.frames) {
     if (k < 0) refuse("frames", "", "frame index " + std::to_string(k) + " is negative");
+    frames.emplace_back(k);
+  }
+  refuse_repeated(frames, "frames", true);
   validate_sequence_options(o.sequence_options);
   if (o.follow.enabled) {
     if (o.output.existing == ExistingOutput::resume)

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/json_read.hpp"
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/host/unroll/sha256.hpp"
 
@@ -94,7 +95,7 @@ std::string csv_number(double v) {
 }
 
 UnrollOutput::UnrollOutput(fs::path dir, UnrollOutputOptions options)
-    : folder_(std::move(dir), options.existing), options_(std::move(options)) {
+    : folder_(std::move(dir), options.existing, output_path("unroll.out")), options_(std::move(options)) {
   if (options_.existing == ExistingOutput::resume) {
     load_journal(folder_.staging());   // a killed run's frames
     load_journal(folder_.final_dir());  // a finished run's frames
@@ -109,7 +110,7 @@ void UnrollOutput::load_journal(const fs::path& folder) {
   std::ifstream in(folder / kJournal);
   for (std::string line; std::getline(in, line);) {
     try {
-      const auto j = nlohmann::json::parse(line);
+      const auto j = parse_json<nlohmann::json>(line, (folder / kJournal).string());
       earlier_[std::to_string(j.at("frame").get<int>()) + "|" + j.at("t_us_exact").get<std::string>()].push_back({j, folder});
     } catch (const std::exception&) {
       // A line cut by a kill: that frame is simply redone.

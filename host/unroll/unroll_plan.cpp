@@ -10,6 +10,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "vkunroll/base/error.hpp"
+#include "vkunroll/base/json_read.hpp"
+#include "vkunroll/host/events/meta_schema.hpp"
 #include "vkunroll/host/unroll/metrics.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
 
@@ -31,6 +33,9 @@ std::string us_text(double v) {
 }  // namespace
 
 cv::Mat read_frame_image(const std::string& path, int width, int height) {
+  // An image that does not end whole is refused before decoding: the decoder would fill what is
+  // missing with gray and only warn on stderr ("Premature end of JPEG file").
+  if (const std::string problem = image_end_problem(path); !problem.empty()) throw DataError(path + ": the image " + problem);
   cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
   if (m.empty()) {
     std::error_code ec;
@@ -68,13 +73,8 @@ int frame_for_time(const Sequence& seq, const std::vector<int>& frames, double t
 double read_meta_gamma(const Sequence& seq) {
   const fs::path meta = fs::path(seq.root) / "meta.json";
   if (seq.layout != SequenceLayout::generic || !fs::exists(meta)) return 1.0;
-  nlohmann::json j;
-  try {
-    std::ifstream in(meta);
-    j = nlohmann::json::parse(in);
-  } catch (const std::exception& e) {
-    throw DataError(meta.string() + ": cannot be parsed (" + e.what() + ")");
-  }
+  std::ifstream in(meta);
+  const nlohmann::json j = parse_json<nlohmann::json>(in, meta.string());
   // The simulator records its output encoding under source.settings.gamma; a value that is there
   // must be a plausible number (a string "2.2" was read as gamma 1 before).
   for (const auto& [pointer, name] : {std::pair{"/source/settings/gamma", "source.settings.gamma"}, std::pair{"/source/gamma", "source.gamma"}}) {
@@ -107,26 +107,51 @@ std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requ
 }
 
 std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const std::vector<int>& frames,
-                                                      const TargetTimes& times, const std::string& where) {
+                                                      const TargetTimes& times, const std::string& where,
+                                                      std::vector<std::string>* notes) {
   std::map<int, std::vector<UnrollTarget>> targets;
   auto gt_at = [&](const Rational& t) {
     for (size_t g = 0; g < seq.ground_truth.size(); ++g)
       if (std::abs((seq.ground_truth[g].t_us - t).to_double()) < 0.5) return static_cast<int>(g);
     return -1;
   };
+  // An absolute instant belongs to the frame whose span holds it, among all the sequence's frames
+  // (else the nearest middle); --frames bounds the targets: one whose frame is not chosen is not
+  // extrapolated from another frame (docs/usage.md, "Which frames").
+  std::vector<int> all(seq.frames.size());
+  for (size_t k = 0; k < all.size(); ++k) all[k] = static_cast<int>(k);
+  auto chosen = [&](int k) { return std::find(frames.begin(), frames.end(), k) != frames.end(); };
+  size_t gt_outside = 0;
   switch (times.kind) {
     case TargetTimes::Kind::ground_truth:
       if (seq.ground_truth.empty()) throw OptionError("times", "gt", where + " has no ground-truth frames");
       for (size_t g = 0; g < seq.ground_truth.size(); ++g) {
         const auto& gt = seq.ground_truth[g];
-        const int k = frame_for_time(seq, frames, gt.t_us.to_double());
+        const int k = frame_for_time(seq, all, gt.t_us.to_double());
+        if (!chosen(k)) {
+          ++gt_outside;
+          continue;
+        }
         targets[k].push_back({gt.t_us, seq.frames[k].timing.tau_of(gt.t_us).to_double(),
                               fs::path(gt.image).filename().string(), static_cast<int>(g)});
       }
+      if (targets.empty())
+        throw OptionError("frames", "", "frames holding ground-truth instants",
+                          opt("times") + " gt: none of the " + std::to_string(seq.ground_truth.size()) +
+                              " ground-truth instants lies in the frames " + opt("frames") + " chose (each instant goes to "
+                              "the frame that spans it): choose those frames, or leave " + opt("frames") + " out");
+      if (gt_outside && notes)
+        notes->push_back(std::to_string(gt_outside) + " ground-truth instant(s) lie in frames outside " + opt("frames") +
+                         ": not unrolled");
       break;
     case TargetTimes::Kind::absolute_us:
       for (const Rational& t : times.values) {
-        const int k = frame_for_time(seq, frames, t.to_double());
+        const int k = frame_for_time(seq, all, t.to_double());
+        if (!chosen(k))
+          throw OptionError("times_us", t.str(), "an instant in a chosen frame",
+                            opt("times_us") + " " + t.str() + ": the instant belongs to frame " + std::to_string(k) +
+                                " (the frame that spans it, else the nearest), which " + opt("frames") +
+                                " leaves out: add frame " + std::to_string(k) + " to " + opt("frames") + " or leave it out");
         targets[k].push_back({t, seq.frames[k].timing.tau_of(t).to_double(), "", gt_at(t)});
       }
       break;
@@ -239,8 +264,12 @@ GateChoice choose_gate_radius(const GateRadiusOption& o, int model_radius, const
   if (physics.frame_noise < 0 || physics.isolated_event_fraction < 0)
     return {model_radius, own + ": the recording's noise was not measured (no contrast estimate)"};
   const bool clean = physics.frame_noise < kCleanFrameNoise && physics.isolated_event_fraction < kCleanIsolatedEvents;
-  char text[200];
-  std::snprintf(text, sizeof text, "auto: a %s recording (frame noise %.4f, isolated events %.1f%%; clean below %g and %g%%)",
+  // frame_noise measures change where no event fired: sensor noise, and motion below the event
+  // threshold too (a noise-free moving scene reads 0.01-0.1); the rule was chosen on that measure.
+  char text[240];
+  std::snprintf(text, sizeof text,
+                "auto: a %s recording (frame noise %.4f: noise or motion below the event threshold; isolated events "
+                "%.1f%%; clean below %g and %g%%)",
                 clean ? "clean" : "noisy", physics.frame_noise, 100 * physics.isolated_event_fraction, kCleanFrameNoise,
                 100 * kCleanIsolatedEvents);
   return {clean ? model_radius : std::max(model_radius, kNoisyGateRadius), text};

@@ -43,11 +43,14 @@ EventStream read_window(const Sequence& seq, double lo, double hi, EventReadRepo
 // `requested` checked against the sequence (empty: every frame).
 std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requested);
 
-// The targets of every chosen frame (a target goes to the chosen frame whose span holds it, else
-// the one with the nearest middle), refused where no events can exist (beyond a frame period
-// outside the recording). `where` prefixes the errors.
+// The targets of every chosen frame, refused where no events can exist (beyond a frame period
+// outside the recording). An absolute instant (gt, times_us) goes to the frame whose span holds it
+// among all frames (else the nearest middle); `frames` bounds them: a times_us instant of a frame
+// not chosen is refused, a ground-truth instant of one is left out and counted in `notes`.
+// `where` prefixes the errors.
 std::map<int, std::vector<UnrollTarget>> plan_targets(const Sequence& seq, const std::vector<int>& frames,
-                                                      const TargetTimes& times, const std::string& where);
+                                                      const TargetTimes& times, const std::string& where,
+                                                      std::vector<std::string>* notes = nullptr);
 
 // A target instant lies within the recording's span, give or take a frame period (an OptionError naming
 // `field`, times or times_us, otherwise): unroll's target times and voxelize's, one rule.

@@ -59,17 +59,23 @@ std::vector<Rational> parse_items(const std::string& text, const std::string& wh
       fail(item, "'" + item + "' is not a value or start:stop:count" + (frames ? " or a:b" : ""));
     }
   }
-  // A value twice would compute (and write) the same result twice: refused, naming it.
-  std::vector<Rational> sorted = out;
-  std::sort(sorted.begin(), sorted.end(), [](const Rational& x, const Rational& y) { return x < y; });
-  for (size_t i = 1; i < sorted.size(); ++i)
-    if (!(sorted[i - 1] < sorted[i]))
-      fail(sorted[i].str(), std::string(frames ? "frame " : "value ") + sorted[i].str() + " is listed twice in '" +
-                                text.substr(0, 64) + (text.size() > 64 ? "...'" : "'") + " (each once)");
+  refuse_repeated(out, what, frames, text);
   return out;
 }
 
 }  // namespace
+
+void refuse_repeated(const std::vector<Rational>& values, const std::string& what, bool frames, const std::string& listed) {
+  std::vector<Rational> sorted = values;
+  std::sort(sorted.begin(), sorted.end(), [](const Rational& x, const Rational& y) { return x < y; });
+  for (size_t i = 1; i < sorted.size(); ++i)
+    if (!(sorted[i - 1] < sorted[i])) {
+      const std::string where = listed.empty() ? std::string(" in the list")
+                                               : " in '" + listed.substr(0, 64) + (listed.size() > 64 ? "...'" : "'");
+      const std::string text = std::string(frames ? "frame " : "value ") + sorted[i].str() + " is listed twice" + where + " (each once)";
+      throw OptionError(what, sorted[i].str(), text, opt(what) + ": " + text);
+    }
+}
 
 std::vector<Rational> parse_value_list(const std::string& text, const std::string& what) {
   return parse_items(text, what, false);
@@ -83,6 +89,18 @@ std::vector<int> parse_frame_list(const std::string& text, const std::string& wh
     out.push_back(static_cast<int>(v.floor()));
   }
   return out;
+}
+
+SensorCrop user_crop(const std::vector<long long>& v, const std::string& field) {
+  std::string shown;
+  for (long long x : v) shown += (shown.empty() ? "" : ",") + std::to_string(x);
+  auto refuse = [&](const std::string& rule) { throw OptionError(field, shown, rule, opt(field) + " " + shown + ": " + rule); };
+  if (v.size() != 4) refuse("expected x0,y0,width,height (four integers)");
+  if (v[0] < 0 || v[1] < 0) refuse("x0 and y0 must be >= 0");
+  if (v[2] <= 0 || v[3] <= 0) refuse("the width and height must be positive (leave the crop out for the whole sensor)");
+  for (long long x : v)
+    if (x > 32767) refuse("each value at most 32767 (the largest sensor)");
+  return {static_cast<int>(v[0]), static_cast<int>(v[1]), static_cast<int>(v[2]), static_cast<int>(v[3])};
 }
 
 }  // namespace vkunroll

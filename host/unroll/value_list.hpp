@@ -8,11 +8,23 @@
 #include <vector>
 
 #include "vkunroll/base/row_timing.hpp"
+#include "vkunroll/kernels/event_tensor.hpp"
 
 namespace vkunroll {
 
 // Errors are OptionErrors of the field `what` (e.g. "times_us").
 std::vector<Rational> parse_value_list(const std::string& text, const std::string& what);
 std::vector<int> parse_frame_list(const std::string& text, const std::string& what);
+
+// The rule of every list of targets or frames, whichever front end built it: each value once (a
+// value twice would compute and write the same result twice). OptionError of `what` naming the
+// value; `listed`: the list as the user typed it, shown in the message when given.
+void refuse_repeated(const std::vector<Rational>& values, const std::string& what, bool frames,
+                     const std::string& listed = {});
+
+// A crop a user gives (`voxelize --crop`, Python's event_tensors(crop=)): x0, y0 >= 0 and a positive
+// width and height, one rule for both front ends (OptionError naming `field`). The spec's width 0
+// ("up to the edge") is how no crop is stored, never a value a user gives.
+SensorCrop user_crop(const std::vector<long long>& x0_y0_width_height, const std::string& field);
 
 }  // namespace vkunroll

@@ -168,7 +168,10 @@ fractions.Fraction; they come back as fractions.Fraction, so nothing is rounded 
       .def(
           "target_time",
           [](const RowTiming& t, const py::object& tau) {
-            py::module_::import("vkunroll._args").attr("exact_time")("RowTiming.target_time", "tau", tau);
+            const py::module_ args = py::module_::import("vkunroll._args");
+            args.attr("exact_time")("RowTiming.target_time", "tau", tau, "what"_a = "a normalized instant tau (0 = the first "
+                                    "row's exposure start, 1 = the last row's exposure end; not microseconds)",
+                                    "limit"_a = 1000000, "within"_a = "+-1e6 frame spans");
             return guarded({}, [&] { return to_fraction(t.target_time(to_rational(tau, "tau"))); });
           },
           py::arg("tau"),
@@ -220,7 +223,7 @@ void bind_events(py::module_& m) {
         EventStream ev = guarded({}, [&] { return to_event_stream(t, x, y, p, width, height); });
         without_gil({}, [&] {
           if (format != "h5" && format != "txt") throw UsageError("format='" + format + "': expected 'h5' or 'txt'");
-          write_output_file(path, overwrite, [&](const std::string& tmp) {
+          write_output_file("write_events.path", path, overwrite, [&](const std::string& tmp) {
             if (format == "h5") write_events_hdf5(tmp, ev);
             else write_events_text(tmp, ev);
           });

@@ -2,6 +2,7 @@
 #include "common.hpp"
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/unroll/metrics.hpp"
+#include "vkunroll/host/unroll/value_list.hpp"
 #include "vkunroll/kernels/event_tensor.hpp"
 #include "vkunroll/kernels/physics_unroll.hpp"
 
@@ -42,7 +43,7 @@ void bind_tensors(py::module_& m) {
       "_event_tensors",
       [](const ContextPtr& ctx, const I64Array& t, const U16Array& x, const U16Array& y, const I8Array& p, int width,
          int height, const std::vector<RowTiming>& timings, const py::sequence& targets, const py::object& target_exposure,
-         int bins, const std::vector<int>& crop) {
+         int bins, const std::vector<long long>& crop) {
         std::vector<EventTensorPair> pairs;
         EventTensorSpec spec;
         const EventStream ev = guarded({}, [&] {
@@ -59,8 +60,7 @@ void bind_tensors(py::module_& m) {
           }
           if (bins < 1) throw Error("event_tensors: bins " + std::to_string(bins) + " (expected at least 1)");
           spec.bins = bins;
-          if (crop.size() == 4) spec.crop = {crop[0], crop[1], crop[2], crop[3]};
-          else if (!crop.empty()) throw Error("event_tensors: crop must be (x0, y0, width, height)");
+          if (!crop.empty()) spec.crop = user_crop(crop, "crop");  // the CLI's --crop rule
           return to_event_stream(t, x, y, p, width, height);
         });
         EventTensors out = without_gil({}, [&] {

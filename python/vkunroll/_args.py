@@ -51,10 +51,22 @@ def _is_real(v):
     return isinstance(v, (numbers.Real, np.integer, np.floating)) and not _is_bool(v)
 
 
+def plain_number(v):
+    """The one conversion rule for numbers: a numpy scalar (any integer or floating type, float16 to
+    longdouble) is the Python int or float it holds; anything else is returned as it is. Every check
+    below reads numbers through it, so np.float32(0.5) is 0.5 wherever 0.5 is accepted."""
+    if isinstance(v, np.integer) and not _is_bool(v):
+        return int(v)
+    if isinstance(v, np.floating):
+        return float(v)
+    return v
+
+
 def integer(fn, name, v, lo, hi, none=False):
     """An int (not a bool, not a float) in [lo, hi]."""
     if v is None and none:
         return None
+    v = plain_number(v)
     if not _is_int(v):
         refuse(fn, name, v, f"an integer in [{lo}, {hi}]" + (" or None" if none else ""), TypeError)
     if not lo <= v <= hi:
@@ -66,6 +78,7 @@ def number(fn, name, v, lo=-math.inf, hi=math.inf, lo_open=False, none=False, wh
     """A finite real number in [lo, hi] ((lo, hi] when lo_open); strings are refused, not parsed."""
     if v is None and none:
         return None
+    v = plain_number(v)
     if not _is_real(v):
         refuse(fn, name, v, f"{what} (a finite number, not {type(v).__name__})", TypeError)
     x = float(v)
@@ -75,13 +88,16 @@ def number(fn, name, v, lo=-math.inf, hi=math.inf, lo_open=False, none=False, wh
     return x
 
 
-def exact_time(fn, name, v, none=False, positive=False, nonnegative=False):
-    """A time in microseconds the library reads exactly: an int, a Fraction, a finite float or a
-    string ("73000/259", read by the library's one grammar), within +-2^53 us."""
+def exact_time(fn, name, v, none=False, positive=False, nonnegative=False, what="a time in microseconds",
+               limit=MAX_TIME_US, within="+-2^53 us"):
+    """A time the library reads exactly: an int, a Fraction, a finite float (numpy scalars included,
+    see plain_number) or a string ("73000/259", read by the library's one grammar), within +-limit.
+    `what` says what the value is (a time in microseconds; a normalized instant for `times`)."""
     if v is None and none:
         return None
+    v = plain_number(v)
     sign = "> 0 " if positive else ">= 0 " if nonnegative else ""
-    rule = f"a time in microseconds {sign}(int, Fraction, finite float or exact string like '73000/259') within +-2^53 us"
+    rule = f"{what} {sign}(int, Fraction, finite float or exact string like '73000/259') within {within}"
     if isinstance(v, str):
         if len(v) > 200:
             refuse(fn, name, v, rule)
@@ -95,7 +111,7 @@ def exact_time(fn, name, v, none=False, positive=False, nonnegative=False):
         value = Fraction(v)
     else:
         refuse(fn, name, v, rule, TypeError)
-    if abs(value) > MAX_TIME_US or (positive and value <= 0) or (nonnegative and value < 0):
+    if abs(value) > limit or (positive and value <= 0) or (nonnegative and value < 0):
         refuse(fn, name, v, rule)
     return v
 
@@ -105,7 +121,8 @@ def whole_us(fn, name, v, none=False):
     if v is None and none:
         return None
     rule = "whole microseconds within +-2^53 (event times are integers; round the bound yourself)"
-    if isinstance(v, (float, np.floating)):
+    v = plain_number(v)
+    if isinstance(v, float):
         if not math.isfinite(v) or v != math.floor(v):
             refuse(fn, name, v, rule)
         v = int(v)
@@ -219,13 +236,16 @@ def index_list(fn, name, v, none=True):
     return out
 
 
-def time_list(fn, name, v, positive=False):
-    """One time or a list of them (see exact_time), at least one."""
+def time_list(fn, name, v, positive=False, **kind):
+    """One time or a list of them (see exact_time; `kind`: its what, limit and within), at least one.
+    A 0-d numpy array is one time."""
+    if isinstance(v, np.ndarray) and v.ndim == 0:
+        v = v[()]
     values = list(v) if isinstance(v, (list, tuple, np.ndarray)) else [v]
     if not values:
         refuse(fn, name, v, "one time or a non-empty list of times")
     return [exact_time(fn, f"{name}[{i}]" if len(values) > 1 or isinstance(v, (list, tuple, np.ndarray)) else name, x,
-                       positive=positive) for i, x in enumerate(values)]
+                       positive=positive, **kind) for i, x in enumerate(values)]
 
 
 def image(fn, name, a, gray=True):
@@ -234,6 +254,8 @@ def image(fn, name, a, gray=True):
     if isinstance(a, (str, bytes)) or a is None:
         refuse(fn, name, a, "an image array (H x W or H x W x 3)", TypeError)
     arr = np.asarray(a)
+    if arr.ndim < 2 or 0 in arr.shape[:2]:  # an image has at least one pixel, whatever its dtype
+        refuse(fn, name, f"<array of shape {arr.shape}>", "an image of H x W (x C) pixels, H and W at least 1")
     if arr.dtype == np.uint8:
         return arr.astype(np.float32) / 255.0
     if arr.dtype == np.uint16:

@@ -9,16 +9,18 @@ from ._runtime import resolve_context
 __all__ = ["event_tensors", "event_tensors_batch", "physics_unroll", "image_float", "psnr", "ssim"]
 
 
-def _sensor(x, y, timing, sensor_size, fn="event_tensors"):
+def _sensor(x, y, timing, sensor_size, fn="event_tensors", name="sensor_size"):
+    """The sensor's (width, height) from `sensor_size`, given as the keyword `name` (physics_unroll:
+    the image rs's size), checked against the timing and the events; errors name that keyword."""
     height = timing.height
     if sensor_size is None:
         if not x.size:
-            A.refuse(fn, "sensor_size", None, "(width, height) when there are no events to infer the width from")
+            A.refuse(fn, name, None, "(width, height) when there are no events to infer the width from")
         width = int(x.max()) + 1
     else:
-        width, h = A.size_pair(fn, "sensor_size", sensor_size)
+        width, h = A.size_pair(fn, name, sensor_size)
         if h != height:
-            raise ValueError(f"sensor_size height {h} differs from the timing's {height} rows")
+            A.refuse(fn, name, sensor_size, f"a height of the timing's {height} rows (timing.height), not {h}")
         if x.size and int(x.max()) >= width:
             i = int(np.argmax(x >= width))
             raise ValueError(f"events: x[{i}] = {x[i]} is outside the sensor width {width}")
@@ -143,7 +145,7 @@ def physics_unroll(rs, events, timing, t_us, contrast=0.2, gamma=1.0, *, log_off
     if t.size > 1 and np.any(np.diff(t) < 0):  # as event_tensors: the double integral needs time order
         i = int(np.argmax(np.diff(t) < 0)) + 1
         A.refuse(fn, "events", f"<t[{i}] = {t[i]} < t[{i - 1}] = {t[i - 1]}>", "events sorted by t")
-    _sensor(x, y, timing, (planes.shape[2], planes.shape[1]), fn)
+    _sensor(x, y, timing, (planes.shape[2], planes.shape[1]), fn, name="rs")
     out = _vk._physics_unroll(resolve_context(context, backend), np.ascontiguousarray(planes), t, x, y, p, timing,
                               t_us, contrast, gamma, log_offset)
     return out[0] if img.ndim == 2 else np.ascontiguousarray(np.moveaxis(out, 0, 2))

@@ -20,6 +20,8 @@ from ._runtime import _device_arg
 __all__ = ["UnrollSession", "UnrollResult", "unroll", "stream"]
 
 _log = logging.getLogger("vkunroll")
+NORMALIZED_INSTANT = ("a normalized instant within the frame (0 = the first row's exposure start, 1 = the last row's "
+                      "exposure end; not microseconds)")
 
 
 class UnrollSession:
@@ -148,11 +150,8 @@ def _times(fn, times, times_us):
         return "us", A.time_list(fn, "times_us", times_us)
     if isinstance(times, str) and times == "gt":
         return "gt", []
-    values = A.time_list(fn, "times", times)
-    for i, v in enumerate(values):  # a normalized instant: within +-1e6 frame spans (the CLI's rule)
-        if not isinstance(v, str) and abs(v) > 1e6:
-            A.refuse(fn, "times", v, "normalized instants within +-1e6 frame spans")
-    return "tau", values
+    # A normalized instant, a position within its frame (not microseconds), within +-1e6 frame spans (the CLI's rule).
+    return "tau", A.time_list(fn, "times", times, what=NORMALIZED_INSTANT, limit=10 ** 6, within="+-1e6 frame spans")
 
 
 def _job_args(fn, mode, times, times_us, frames, channel_order, contrast, gamma, tile, halo, sparse, sparse_threshold,
@@ -189,6 +188,9 @@ def _session_for(fn, session, model, mode, backend, device, precision, conv_choi
                                      ("precision", precision, "fp32"), ("conv_choice", conv_choice, "auto")):
             if value != default:  # the session's own; an option that does not apply is refused
                 A.refuse(fn, name, value, f"its default with session= (the session has its own {name})")
+        if mode in ("s", "m", "choose") and not session.has_model:
+            A.refuse(fn, "mode", mode, "'physics' or 'auto' with a session without a model (mode "
+                     f"{mode!r} runs the network: make the session with UnrollSession(model=FILE.safetensors))")
         return session
     if model is None:  # the shipped default, else physics (said), as the CLI
         model = _vk._choose_model(A.choice(fn, "mode", mode, ("auto", "s", "m", "choose", "physics")), "")[0] or None
@@ -322,6 +324,7 @@ class _Stream:
     def __init__(self, sess, seq, args, events, idle_s, max_events):
         self.report, self._q, self._stop, self._error = None, queue.Queue(maxsize=4), threading.Event(), None
         self._done = False
+        self._next_lock = threading.Lock()  # next() from several threads: served one at a time, never a hang
 
         def on_frame(item):
             while not self._stop.is_set():  # back-pressure: the job waits for a slow consumer
@@ -348,6 +351,13 @@ class _Stream:
         return self
 
     def __next__(self):
+        """The next frame's dict. An iterator shared by threads is serialized: each frame goes to one
+        caller, and once the job ends every caller gets StopIteration (the end is seen once, by
+        the lock's holder, and remembered)."""
+        with self._next_lock:
+            return self._next_locked()
+
+    def _next_locked(self):
         if self._done:
             raise StopIteration
         item = self._q.get()
@@ -376,6 +386,10 @@ class _Stream:
                 pass
         self._thread.join()
         self._done = True
+        try:  # a next() waiting in another thread wakes and ends (the drain above may have taken the end)
+            self._q.put_nowait(None)
+        except queue.Full:
+            pass
         _LIVE_STREAMS.discard(self)
 
     def __del__(self):

@@ -1,7 +1,7 @@
 """The CLI's option property test, run over the Python API (issue 52): every public function, class
 and method of ``vkunroll`` (found from ``vkunroll.__all__``, so a new one fails
 test_every_public_callable_has_a_base_call until it is listed) gets each keyword replaced by NaN,
-+-inf, 1e308, 2**65, -1, 0, '', a 10 kB string, an object() and '0.2' on top of a valid, cheap call.
++-inf, 1e308, 2**65, -1, 0, '', a 10 kB string, an object(), '0.2' and numpy scalars on top of a valid, cheap call.
 Each must end in success or in TypeError / ValueError / FileNotFoundError / IndexError whose message
 names the keyword; never a crash, a hang (60 s), a bare pybind11 conversion error, or a silent
 success for NaN, inf, a 10 kB string or an object(). The checks live in vkunroll/_args.py."""
@@ -19,15 +19,17 @@ vkunroll = pytest.importorskip("vkunroll")
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
 TINY_MODEL = os.path.join(ROOT, "tests", "data", "selfunroll_tiny.safetensors")
-HOSTILE = [math.nan, math.inf, -math.inf, 1e308, 2 ** 65, -1, 0, "", "x" * 10000, object(), "0.2"]
+# numpy scalars (issue 58): every numpy scalar type is the number it holds, wherever a number is taken.
+HOSTILE = [math.nan, math.inf, -math.inf, 1e308, 2 ** 65, -1, 0, "", "x" * 10000, object(), "0.2", np.float32(0.5),
+           np.float16("nan"), np.int64(2)]
 NEVER_SILENT = (math.nan, math.inf, -math.inf)  # and the 10 kB string and object(): see is_never_silent
 ALLOWED = (TypeError, ValueError, FileNotFoundError, IndexError)
 W, H = 32, 24
 
 
 def is_never_silent(v):
-    return (isinstance(v, float) and (math.isnan(v) or math.isinf(v))) or (isinstance(v, str) and len(v) > 4096) or \
-        type(v) is object
+    return (isinstance(v, (float, np.floating)) and (math.isnan(v) or math.isinf(v))) or \
+        (isinstance(v, str) and len(v) > 4096) or type(v) is object
 
 
 @pytest.fixture(scope="module")
