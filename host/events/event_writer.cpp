@@ -17,18 +17,18 @@ namespace {
 void check_stream(const std::string& path, const EventStream& ev) {
   const size_t n = ev.t.size();
   if (ev.x.size() != n || ev.y.size() != n || ev.p.size() != n)
-    throw Error(path + ": cannot write events: arrays have different lengths (t " + std::to_string(n) + ", x " +
+    throw DataError(path + ": cannot write events: arrays have different lengths (t " + std::to_string(n) + ", x " +
                 std::to_string(ev.x.size()) + ", y " + std::to_string(ev.y.size()) + ", p " + std::to_string(ev.p.size()) + ")");
   for (size_t i = 0; i < n; ++i) {
     if ((ev.width > 0 && ev.x[i] >= ev.width) || (ev.height > 0 && ev.y[i] >= ev.height))
-      throw Error(path + ": cannot write events: event " + std::to_string(i) + " at x=" + std::to_string(ev.x[i]) +
+      throw DataError(path + ": cannot write events: event " + std::to_string(i) + " at x=" + std::to_string(ev.x[i]) +
                   " y=" + std::to_string(ev.y[i]) + " is outside the " + std::to_string(ev.width) + "x" +
                   std::to_string(ev.height) + " sensor");
     if (ev.p[i] != 1 && ev.p[i] != -1)
-      throw Error(path + ": cannot write events: event " + std::to_string(i) + " has polarity " +
+      throw DataError(path + ": cannot write events: event " + std::to_string(i) + " has polarity " +
                   std::to_string(int(ev.p[i])) + " (expected +1 or -1)");
     if (i && ev.t[i] < ev.t[i - 1])
-      throw Error(path + ": cannot write events: event " + std::to_string(i) + " at t=" + std::to_string(ev.t[i]) +
+      throw DataError(path + ": cannot write events: event " + std::to_string(i) + " at t=" + std::to_string(ev.t[i]) +
                   " is earlier than the one before (t must be non-decreasing)");
   }
 }
@@ -53,15 +53,15 @@ void write_dataset(const std::string& path, hid_t group, const char* name, hid_t
     H5Pset_chunk(dcpl.id, 1, chunk);
   }
   H5Closer d{H5Dcreate2(group, name, file_type, space.id, H5P_DEFAULT, dcpl.id, H5P_DEFAULT), H5Dclose};
-  if (d.id < 0) throw Error(path + ": cannot create dataset events/" + name);
+  if (d.id < 0) throw IoError(path + ": cannot create dataset events/" + name);
   if (n > 0 && H5Dwrite(d.id, mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
-    throw Error(path + ": cannot write dataset events/" + name + " (disk full?)");
+    throw IoError(path + ": cannot write dataset events/" + name + " (disk full?)");
 }
 
 void write_int_attr(const std::string& path, hid_t obj, const char* name, int64_t v) {
   H5Closer space{H5Screate(H5S_SCALAR), H5Sclose};
   H5Closer a{H5Acreate2(obj, name, H5T_STD_I64LE, space.id, H5P_DEFAULT, H5P_DEFAULT), H5Aclose};
-  if (a.id < 0 || H5Awrite(a.id, H5T_NATIVE_INT64, &v) < 0) throw Error(path + ": cannot write attribute " + name);
+  if (a.id < 0 || H5Awrite(a.id, H5T_NATIVE_INT64, &v) < 0) throw IoError(path + ": cannot write attribute " + name);
 }
 
 }  // namespace
@@ -78,11 +78,11 @@ void write_events_hdf5(const std::string& path, const EventStream& ev) {
     ~Restore() { H5Eset_auto2(H5E_DEFAULT, f, d); }
   } restore{func, data};
   H5Closer file{H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose};
-  if (file.id < 0) throw Error(path + ": cannot create the HDF5 file (folder missing or not writable?)");
+  if (file.id < 0) throw IoError(path + ": cannot create the HDF5 file (folder missing or not writable?)");
   H5Closer gcpl{H5Pcreate(H5P_GROUP_CREATE), H5Pclose};
   H5Pset_obj_track_times(gcpl.id, 0);
   H5Closer g{H5Gcreate2(file.id, "events", H5P_DEFAULT, gcpl.id, H5P_DEFAULT), H5Gclose};
-  if (g.id < 0) throw Error(path + ": cannot create group events");
+  if (g.id < 0) throw IoError(path + ": cannot create group events");
   const hsize_t n = ev.size();
   std::vector<int8_t> p01(n);
   for (size_t i = 0; i < n; ++i) p01[i] = ev.p[i] > 0 ? 1 : 0;
@@ -93,7 +93,7 @@ void write_events_hdf5(const std::string& path, const EventStream& ev) {
   write_int_attr(path, g.id, "width", ev.width);
   write_int_attr(path, g.id, "height", ev.height);
   write_int_attr(path, file.id, kEventFileMark, 1);  // the output rule replaces only marked files
-  if (H5Fflush(file.id, H5F_SCOPE_GLOBAL) < 0) throw Error(path + ": cannot flush the HDF5 file");
+  if (H5Fflush(file.id, H5F_SCOPE_GLOBAL) < 0) throw IoError(path + ": cannot flush the HDF5 file");
 }
 
 bool event_file_written_by_vkunroll(const std::string& path) {
@@ -117,7 +117,7 @@ bool event_file_written_by_vkunroll(const std::string& path) {
 void write_events_text(const std::string& path, const EventStream& ev) {
   check_stream(path, ev);
   std::FILE* f = std::fopen(path.c_str(), "wb");
-  if (!f) throw Error(path + ": cannot create the text event file (" + std::strerror(errno) + ")");
+  if (!f) throw IoError(path + ": cannot create the text event file (" + std::strerror(errno) + ")");
   std::fprintf(f, "%s: t x y p (t in microseconds, p 1 = brightness increase, 0 = decrease)\n", kTextEventMark);
   std::fprintf(f, "# width %d height %d\n", ev.width, ev.height);
   std::vector<char> buf(1 << 20);
@@ -133,7 +133,7 @@ void write_events_text(const std::string& path, const EventStream& ev) {
   }
   if (ok && used) ok = std::fwrite(buf.data(), 1, used, f) == used;
   ok = (std::fclose(f) == 0) && ok;
-  if (!ok) throw Error(path + ": cannot write the text event file (disk full?)");
+  if (!ok) throw IoError(path + ": cannot write the text event file (disk full?)");
 }
 
 }  // namespace vkunroll
