@@ -1,7 +1,7 @@
 // Read speed of every event reader, side by side in one run: the same synthetic stream (default
 // 2,000,000 events at 1280x720) written in each format, then read with read_events (best of 3),
-// printed as Mev/s and as a ratio to the text reader. The real samples are timed too when present.
-// usage: vkunroll-bench-event-readers [EVENTS] [SHARED_DIR]
+// printed as Mev/s and as a ratio to the text reader. The real samples (tests/data/real/) are timed too.
+// usage: vkunroll-bench-event-readers [EVENTS] [REAL_DIR]   (REAL_DIR: default tests/data/real)
 //
 // `windows` mode: a 200-frame sequence read window by window (frame k: [k P, k P + 1.5 P), as
 // `vkunroll unroll` reads overlapping frame windows), per format: one full scan; 200 one-off
@@ -166,7 +166,7 @@ int main(int argc, char** argv) {
     return run_windows(argc > 2 ? size_t(bench_int_arg("vkunroll-bench-event-readers", "events", argv[2], 1, 1LL << 34)) : 1000000,
                        argc > 3 ? static_cast<int>(bench_int_arg("vkunroll-bench-event-readers", "windows", argv[3], 1, 1000000)) : 200);
   const size_t n = argc > 1 ? size_t(bench_int_arg("vkunroll-bench-event-readers", "events", argv[1], 1, 1LL << 34)) : 2000000;
-  const std::string shared = argc > 2 ? argv[2] : std::string(VKUNROLL_SOURCE_DIR) + "/../shared";
+  const std::string real_dir = argc > 2 ? argv[2] : std::string(VKUNROLL_SOURCE_DIR) + "/tests/data/real";
   const fs::path dir = fs::temp_directory_path() / ("vkunroll_bench_readers_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   const EventStream ev = evtest::random_stream(n, 1280, 720, 42, 1000, 3);
@@ -187,8 +187,8 @@ int main(int argc, char** argv) {
     std::printf("%-24s %12.1f %10.3f %10.2f %12.2f\n", label.c_str(), double(fs::file_size(path)) / (1 << 20), s, rate,
                 rate / text_rate);
   }
-  for (const char* real : {"data/real-events/evt3_sample.raw", "data/real-events/sample.aedat4"}) {
-    const fs::path p = fs::path(shared) / real;
+  for (const char* real : {"evt3_sample.raw", "sample.aedat4"}) {
+    const fs::path p = fs::path(real_dir) / real;
     if (!fs::exists(p)) {
       std::printf("%-24s absent (%s)\n", real, p.c_str());
       continue;

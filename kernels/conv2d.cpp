@@ -289,8 +289,19 @@ double Conv2d::flop(const Shape& in) const {
   return 2.0 * static_cast<double>(o.count()) * static_cast<double>(cin_) * params_.kernel * params_.kernel;
 }
 
-void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual) const {
-  record(cs, in, out, residual, ConvAlgo::automatic);
+ConvAlgo Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual) const {
+  return record(cs, in, out, residual, ConvAlgo::automatic);
+}
+
+ConvAlgo Conv2d::resolve_algorithm(const Shape& in, ConvAlgo algo, bool residual_in_output) const {
+  if (algo != ConvAlgo::automatic) return algo;
+  const bool gpu = ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU || gpu_family_;
+  algo = gpu ? gpu_choice(in) : choose_algorithm(in.h, in.w);
+  // direct or pointwise in several chunks accumulates in the output, so it cannot add a residual
+  // that overlaps it.
+  if (accumulates_in_output(algo) && residual_in_output) algo = supports(ConvAlgo::gemm) ? ConvAlgo::gemm : ConvAlgo::winograd;
+  if (!supports(algo, in)) algo = ConvAlgo::blocked;
+  return algo;
 }
 
 bool Conv2d::texel_fits(uint64_t bytes, uint64_t texel_bytes) const {
@@ -316,8 +327,8 @@ bool Conv2d::residual_overlaps_output(const Slice& out, const std::optional<Slic
   return ob < re && rb < oe;
 }
 
-void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo,
-                    WinogradInputCache* shared_v) const {
+ConvAlgo Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo,
+                        WinogradInputCache* shared_v) const {
   check_slice(in, name_, "input");
   check_slice(out, name_, "output");
   check_precision(in, precision_, name_, "input");
@@ -334,15 +345,7 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
     if (residual->shape() != expect)
       throw Error(name_ + ": residual slice " + residual->shape().str() + ", expected " + expect.str());
   }
-  if (algo == ConvAlgo::automatic) {
-    const bool gpu = ctx_.info().type != VK_PHYSICAL_DEVICE_TYPE_CPU || gpu_family_;
-    algo = gpu ? gpu_choice(is) : choose_algorithm(is.h, is.w);
-    // direct or pointwise in several chunks accumulates in the output, so it cannot add a residual
-    // that overlaps it.
-    if (accumulates_in_output(algo) && residual_overlaps_output(out, residual))
-      algo = supports(ConvAlgo::gemm) ? ConvAlgo::gemm : ConvAlgo::winograd;
-    if (!supports(algo, is)) algo = ConvAlgo::blocked;
-  }
+  algo = resolve_algorithm(is, algo, algo == ConvAlgo::automatic && residual_overlaps_output(out, residual));
   if (!supports(algo, is))
     throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " does not apply to kernel " +
                 std::to_string(params_.kernel) + " stride " + std::to_string(params_.stride));
@@ -369,20 +372,20 @@ void Conv2d::record(CommandStream& cs, Slice in, Slice out, std::optional<Slice>
   r.info = {conv_label(name_, params_), flop(is), bytes};
   r.shared_v = shared_v && shared_v->active() ? shared_v : nullptr;
   switch (algo) {
-    case ConvAlgo::naive: return record_naive(cs, r);
-    case ConvAlgo::blocked: return record_blocked(cs, r);
-    case ConvAlgo::direct: return record_direct(cs, r);
-    case ConvAlgo::winograd: return record_winograd(cs, r);
-    case ConvAlgo::gemm: return record_gemm(cs, r);
-    case ConvAlgo::coopmat: return record_coopmat(cs, r);
-    case ConvAlgo::pointwise: return record_pointwise(cs, r);
+    case ConvAlgo::naive: record_naive(cs, r); break;
+    case ConvAlgo::blocked: record_blocked(cs, r); break;
+    case ConvAlgo::direct: record_direct(cs, r); break;
+    case ConvAlgo::winograd: record_winograd(cs, r); break;
+    case ConvAlgo::gemm: record_gemm(cs, r); break;
+    case ConvAlgo::coopmat: record_coopmat(cs, r); break;
+    case ConvAlgo::pointwise: record_pointwise(cs, r); break;
     case ConvAlgo::igemm_l:
     case ConvAlgo::igemm_m:
     case ConvAlgo::igemm_s:
-    case ConvAlgo::igemm_n: return record_igemm(cs, r, algo);
-    default: break;
+    case ConvAlgo::igemm_n: record_igemm(cs, r, algo); break;
+    default: throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " is not implemented");
   }
-  throw Error(name_ + ": algorithm " + std::string(conv_algo_name(algo)) + " is not implemented");
+  return algo;
 }
 
 void Conv2d::record_naive(CommandStream& cs, const Recording& r) const {

@@ -142,18 +142,27 @@ class Conv2d {
          const ConvOptions& options = {});
 
   // Records out = act(conv(in) + bias) [+ residual]; out and residual have the output's extent, and
-  // in, out and residual the conv's precision (f32 or f16 tensors).
-  void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual = {}) const;
+  // in, out and residual the conv's precision (f32 or f16 tensors). Returns the algorithm it recorded
+  // (what reports count: automatic resolved for this input, batch included).
+  ConvAlgo record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual = {}) const;
   // The same with a forced algorithm (tests and the bench); throws if it does not apply to the shape.
-  void record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo,
-              WinogradInputCache* shared_v = nullptr) const;
+  ConvAlgo record(CommandStream& cs, Slice in, Slice out, std::optional<Slice> residual, ConvAlgo algo,
+                  WinogradInputCache* shared_v = nullptr) const;
 
   // out = the folded conv of `pieces` (ConvFold) [+ residual], in one dispatch of `algo`: the GPU
-  // family (an igemm variant, or coopmat in fp16); automatic takes gpu_choice. conv2d_fold.cpp.
-  void record_folded(CommandStream& cs, const std::vector<Slice>& pieces, const ConvFold& fold, Slice out,
-                     std::optional<Slice> residual = {}, ConvAlgo algo = ConvAlgo::automatic) const;
+  // family (an igemm variant, or coopmat in fp16); automatic takes gpu_choice. Returns the algorithm
+  // recorded. conv2d_fold.cpp.
+  ConvAlgo record_folded(CommandStream& cs, const std::vector<Slice>& pieces, const ConvFold& fold, Slice out,
+                         std::optional<Slice> residual = {}, ConvAlgo algo = ConvAlgo::automatic) const;
 
-  // The algorithm `automatic` picks for an input of this height and width.
+  // The algorithm record() runs for `algo` on an input of this shape: `automatic` resolved (the GPU
+  // family's choice on a GPU or with set_gpu_family, choose_algorithm's elsewhere; a chunked path
+  // replaced where the residual overlaps the output, an inapplicable one by blocked), any other as it
+  // is. The one place automatic is resolved: a caller that names the algorithm before recording (a
+  // trace) asks here once and passes the answer to record().
+  ConvAlgo resolve_algorithm(const Shape& in, ConvAlgo algo, bool residual_in_output) const;
+  // The algorithm `automatic` picks for one item of this height and width (record() decides on the
+  // whole batch's pixels: resolve_algorithm).
   ConvAlgo choose_algorithm(int64_t h, int64_t w) const;
   // `automatic` takes the GPU family's choice (gpu_conv_heuristic) on any device, lavapipe included
   // (the default on devices that are not CPUs): `--conv-choice gpu`, tests, dispatch counts.

@@ -3,8 +3,8 @@
 // padding, both operands staged in shared memory, bias, activation and residual fused, one dispatch
 // (split-K adds the family's reduce). The weights are A [cout_pad][kpad] row-major (16-byte loads).
 // The real shader needs VK_NV_cooperative_matrix with a 16 x {8,16} x {8,16} fp16 -> fp32 subgroup
-// shape and subgroups of 32 (NVIDIA); its emulated form, the same tiling in plain GLSL, runs anywhere
-// (tests: set_coopmat_emulation).
+// shape and subgroups of 32, which its pipeline requires (subgroup size control, full subgroups); its
+// emulated form, the same tiling in plain GLSL, runs anywhere (tests: set_coopmat_emulation).
 #include <algorithm>
 
 #include "vkunroll/kernels/conv2d.hpp"
@@ -13,7 +13,7 @@
 namespace vkunroll {
 
 namespace {
-constexpr uint32_t kWarp = 32;  // invocations per warp: NVIDIA's subgroup size (the real form needs it)
+constexpr uint32_t kWarp = 32;  // invocations per warp: NVIDIA's subgroup size (the real form requires it)
 constexpr int64_t kPad = 16;    // cout padding (every supported fragment side divides it)
 
 int64_t round_up(int64_t v, int64_t m) { return (v + m - 1) / m * m; }
@@ -31,7 +31,7 @@ void Conv2d::set_coopmat_emulation(bool on, uint32_t n, uint32_t k) {
 bool Conv2d::coopmat_applies() const {
   if (precision_ != Precision::fp16) return false;
   if (coopmat_emulated_) return true;
-  return ctx_.info().coopmat_fp16_shape().has_value() && ctx_.info().subgroup_size == kWarp;
+  return ctx_.info().coopmat_fp16_shape().has_value() && ctx_.info().subgroup_width_refusal(kWarp).empty();
 }
 
 IgemmTile Conv2d::coopmat_tile_for_device() const {
@@ -46,14 +46,13 @@ bool Conv2d::coopmat_fits(const Shape& in) const {
 
 void Conv2d::pack_coopmat() const {
   if (!weight_coopmat_.empty()) return;
-  // A = W row-major [cout_pad][kpad], kk = ci*k*k + ky*k + kx (the given layout's), zeros in the padding.
-  const int64_t kdim = cin_ * params_.kernel * params_.kernel;
-  const int64_t cout_pad = round_up(cout_, kPad), kpad = igemm_kpad(kdim);
-  std::vector<float> a(static_cast<size_t>(cout_pad * kpad), 0.f);
-  for (int64_t co = 0; co < cout_; ++co)
-    for (int64_t kk = 0; kk < kdim; ++kk)
-      a[static_cast<size_t>(co * kpad + kk)] = weight_host_.data[static_cast<size_t>(co * kdim + kk)];
-  weight_coopmat_ = upload_weights(a);  // fp16 (coopmat is fp16 only)
+  // A = W row-major [cout_pad][kpad], the family's tap-major rows (igemm.hpp), zeros in the padding.
+  const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
+  const std::vector<float>& w = weight_host_.data;  // [cout][cin][k][k]
+  weight_coopmat_ = upload_weights(igemm_pack_rows(cin_, kk, cout_, round_up(cout_, kPad),  // fp16 (coopmat is fp16 only)
+                                                   [&](int64_t, int64_t ci, int64_t tap, int64_t co) {
+                                                     return w[static_cast<size_t>((co * cin_ + ci) * kk + tap)];
+                                                   }));
 }
 
 void Conv2d::record_coopmat(CommandStream& cs, const Recording& r) const {

@@ -83,8 +83,8 @@ void conv2d_folded_ref(const std::vector<HostSlice>& pieces, const ConvFold& fol
         }
 }
 
-void Conv2d::record_folded(CommandStream& cs, const std::vector<Slice>& pieces, const ConvFold& fold, Slice out,
-                           std::optional<Slice> residual, ConvAlgo algo) const {
+ConvAlgo Conv2d::record_folded(CommandStream& cs, const std::vector<Slice>& pieces, const ConvFold& fold, Slice out,
+                               std::optional<Slice> residual, ConvAlgo algo) const {
   std::vector<Shape> shapes;
   for (size_t i = 0; i < pieces.size(); ++i) {
     check_slice(pieces[i], name_, "input piece " + std::to_string(i));
@@ -128,6 +128,7 @@ void Conv2d::record_folded(CommandStream& cs, const std::vector<Slice>& pieces, 
                               conv_algo_name(algo) + "_folded",
                           flop(is), e * static_cast<double>(is.count() + os.count() * (residual ? 2 : 1))};
   record_gpu_family(cs, algo, pb, std::move(b), info);
+  return algo;
 }
 
 }  // namespace vkunroll

@@ -50,9 +50,9 @@ ConvAlgo Conv2d::gpu_choice(const Shape& in) const {
 void Conv2d::pack_igemm() const {
   if (!weight_igemm_.empty()) return;
   const int64_t kk = static_cast<int64_t>(params_.kernel) * params_.kernel;
-  const std::vector<float>& w = weight_host_.data;  // [cout][cin][k][k]: row k = ci * kk + tap
-  weight_igemm_ = upload_weights(igemm_pack(1, cin_ * kk, cout_, [&](int64_t, int64_t k, int64_t co) {
-    return w[static_cast<size_t>(co * cin_ * kk + k)];
+  const std::vector<float>& w = weight_host_.data;  // [cout][cin][k][k]
+  weight_igemm_ = upload_weights(igemm_pack(1, cin_, kk, cout_, [&](int64_t, int64_t ci, int64_t tap, int64_t co) {
+    return w[static_cast<size_t>((co * cin_ + ci) * kk + tap)];
   }));
 }
 

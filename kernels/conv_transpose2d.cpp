@@ -290,8 +290,8 @@ void ConvTranspose2d::record_igemm(CommandStream& cs, const BoundSlice& in, cons
     // Phase (py, px), sub-kernel tap (jy, jx) is the transposed kernel's tap ((py + pad) % s + s (j - 1 - jy), ...):
     // the taps that reach that phase, flipped to the stride-1 conv's order (shaders/conv2d_igemm.comp).
     const std::vector<float>& w = weight_host_.data;  // [cin][cout][k][k]
-    weight_igemm_ = upload_weights(ctx_, igemm_pack(int64_t(s) * s, cin_ * j * j, cout_, [&](int64_t ph, int64_t r, int64_t co) {
-      const int64_t py = ph / s, px = ph % s, ci = r / (j * j), jy = r % (j * j) / j, jx = r % j;
+    weight_igemm_ = upload_weights(ctx_, igemm_pack(int64_t(s) * s, cin_, j * j, cout_, [&](int64_t ph, int64_t ci, int64_t tap, int64_t co) {
+      const int64_t py = ph / s, px = ph % s, jy = tap / j, jx = tap % j;
       const int64_t ky = (py + params_.pad) % s + s * (j - 1 - jy), kx = (px + params_.pad) % s + s * (j - 1 - jx);
       return w[static_cast<size_t>(((ci * cout_ + co) * k + ky) * k + kx)];
     }), precision_, name_);

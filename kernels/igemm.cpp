@@ -10,7 +10,7 @@
 namespace vkunroll {
 
 namespace {
-constexpr int64_t kKAlign = 16;     // the deepest stage (BK) of any tile
+constexpr int64_t kKAlign = 16;     // the deepest stage (BK) of any tile: cin_pad's multiple
 constexpr int kMinStagesPerSplit = 4;
 constexpr uint32_t kMaxSplits = 16;
 // Shader cores assumed where the device does not say (DeviceInfo::compute_units): an H100 has 132 SMs.
@@ -19,11 +19,11 @@ constexpr uint32_t kDefaultGpuCores = 128;
 int64_t round_up(int64_t v, int64_t m) { return (v + m - 1) / m * m; }
 uint32_t u32(int64_t v) { return static_cast<uint32_t>(v); }
 
-// shaders/igemm_common.glsl's push constants (124 bytes of the 128 every device offers).
+// shaders/igemm_common.glsl's push constants (the 128 bytes every device offers).
 struct IgemmPush {
   uint32_t in_off, in_bs, res_off, res_bs, out_off, out_bs;
   uint32_t h, w, cout, pad;
-  uint32_t kdim, n;
+  uint32_t kpad, cin, n;
   uint32_t gh, gw, ksplit;
   uint32_t out_h, out_w, crop_y, crop_x;
   uint32_t src_h, src_w, src_y, src_x;
@@ -36,7 +36,7 @@ int64_t channel_tiles(const IgemmTile& t, const IgemmProblem& pb) { return (pb.c
 
 // The reduction per split: a whole number of stages, the splits covering kpad.
 int64_t split_depth(const IgemmProblem& pb, uint32_t splits) {
-  const int64_t stages = igemm_kpad(pb.kdim()) / kKAlign;
+  const int64_t stages = igemm_kpad(pb) / kKAlign;
   return (stages + splits - 1) / splits * kKAlign;
 }
 
@@ -69,7 +69,7 @@ std::vector<uint32_t> igemm_spec(const IgemmTile& t, const IgemmProblem& pb, boo
 IgemmPush make_push(const IgemmProblem& pb, const IgemmBindings& b, uint32_t ksplit) {
   const bool folded = pb.map != InputMap::none;
   IgemmPush push{b.in.offset, b.in.batch_stride, b.res.offset, b.res.batch_stride, b.out.offset, b.out.batch_stride,
-                 u32(pb.in.h), u32(pb.in.w), u32(pb.cout), pb.pad, u32(pb.kdim()), u32(pb.in.n), u32(pb.gh), u32(pb.gw),
+                 u32(pb.in.h), u32(pb.in.w), u32(pb.cout), pb.pad, u32(igemm_kpad(pb)), u32(pb.cin), u32(pb.in.n), u32(pb.gh), u32(pb.gw),
                  ksplit, u32(pb.out.h), u32(pb.out.w), u32(pb.crop_y), u32(pb.crop_x),
                  u32(folded ? pb.src_h : pb.in.h), u32(folded ? pb.src_w : pb.in.w), u32(pb.src_y), u32(pb.src_x),
                  {0, 0, 0, 0}, {0, 0, 0, 0}};
@@ -90,7 +90,9 @@ std::vector<Arg> piece_args(const IgemmBindings& b) {
 // What the shader's loads assume of the tile (each invocation keeps fixed X columns).
 bool tile_divides(const IgemmTile& t) {
   if (t.coopmat) return t.threads() % (t.bn / 8) == 0 && t.bk % 8 == 0 && (t.lm * t.ln) % t.warp == 0;
-  return t.threads() % t.bn == 0 && t.tm % 4 == 0 && t.tn % 4 == 0 && t.tm * t.tn <= 64;
+  // X: each invocation keeps one column, and the rows its passes cover (threads / BN a pass) fill the stage.
+  return t.threads() % t.bn == 0 && t.bk % (t.threads() / t.bn) == 0 && t.bm % t.tm == 0 && t.bn % t.tn == 0 &&
+         t.tm % 4 == 0 && t.tn % 4 == 0 && t.tm * t.tn <= 64;
 }
 }  // namespace
 
@@ -103,22 +105,33 @@ IgemmTile coopmat_tile(uint32_t lm, uint32_t ln, uint32_t lk, bool emulated) {
   return t;
 }
 
-int64_t igemm_kpad(int64_t kdim) { return round_up(kdim, kKAlign); }
+int64_t igemm_cin_pad(int64_t cin) { return round_up(cin, kKAlign); }
+int64_t igemm_kpad(const IgemmProblem& pb) { return pb.taps() * igemm_cin_pad(pb.cin); }
 int64_t igemm_cout_pad(int64_t cout) { return round_up(cout, 4); }
 
-std::vector<float> igemm_pack(int64_t phases, int64_t kdim, int64_t cout,
-                              const std::function<float(int64_t, int64_t, int64_t)>& weight) {
-  const int64_t kpad = igemm_kpad(kdim), cpad = igemm_cout_pad(cout);
+std::vector<float> igemm_pack(int64_t phases, int64_t cin, int64_t taps, int64_t cout, const IgemmWeight& weight) {
+  const int64_t cinp = igemm_cin_pad(cin), kpad = taps * cinp, cpad = igemm_cout_pad(cout);
   std::vector<float> a(static_cast<size_t>(phases * kpad * cpad), 0.f);
   for (int64_t ph = 0; ph < phases; ++ph)
-    for (int64_t k = 0; k < kdim; ++k)
-      for (int64_t co = 0; co < cout; ++co) a[static_cast<size_t>((ph * kpad + k) * cpad + co)] = weight(ph, k, co);
+    for (int64_t t = 0; t < taps; ++t)
+      for (int64_t ci = 0; ci < cin; ++ci)
+        for (int64_t co = 0; co < cout; ++co)
+          a[static_cast<size_t>((ph * kpad + t * cinp + ci) * cpad + co)] = weight(ph, ci, t, co);
+  return a;
+}
+
+std::vector<float> igemm_pack_rows(int64_t cin, int64_t taps, int64_t cout, int64_t cout_pad, const IgemmWeight& weight) {
+  const int64_t cinp = igemm_cin_pad(cin), kpad = taps * cinp;
+  std::vector<float> a(static_cast<size_t>(cout_pad * kpad), 0.f);
+  for (int64_t co = 0; co < cout; ++co)
+    for (int64_t t = 0; t < taps; ++t)
+      for (int64_t ci = 0; ci < cin; ++ci) a[static_cast<size_t>(co * kpad + t * cinp + ci)] = weight(0, ci, t, co);
   return a;
 }
 
 uint32_t igemm_splits(const DeviceInfo& info, const IgemmTile& tile, const IgemmProblem& pb, uint64_t scratch_limit,
                       int forced) {
-  const int64_t stages = igemm_kpad(pb.kdim()) / kKAlign;
+  const int64_t stages = igemm_kpad(pb) / kKAlign;
   const int64_t groups = pixel_tiles(tile, pb) * channel_tiles(tile, pb) * pb.phases();
   const uint64_t per_split = static_cast<uint64_t>(pb.phases() * pb.cout * pb.npix()) * 4;
   int64_t want = 1;
@@ -154,10 +167,12 @@ void igemm_record(Context& ctx, CommandStream& cs, ConvWorkspace& workspace, con
   args.insert(args.end(), more.begin(), more.end());
   const std::string shader = tile.coopmat ? (tile.emulated ? "conv2d_igemm_coopmat_emulated" : "conv2d_igemm_coopmat")
                                           : shader_for(ctx, "conv2d_igemm", pb.precision, info.name);
+  // The real coopmat form assumes warps of exactly one subgroup: it asks for that width (full subgroups).
+  const uint32_t width = tile.coopmat && !tile.emulated ? tile.warp : 0;
   const Groups groups{u32(pixel_tiles(tile, pb)), u32(channel_tiles(tile, pb)), u32(pb.phases() * splits)};
   if (splits == 1) {
-    cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, false), sizeof push), args, push, groups,
-                info);
+    cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, false), sizeof push, width), args, push,
+                groups, info);
     return;
   }
   const uint64_t part_bytes = static_cast<uint64_t>(splits) * pb.phases() * pb.cout * pb.npix() * 4;
@@ -165,7 +180,7 @@ void igemm_record(Context& ctx, CommandStream& cs, ConvWorkspace& workspace, con
   const BufferRange pr = part.range(0, part_bytes);
   const double part_traffic = static_cast<double>(part_bytes);
   args[5] = {pr, Access::write};
-  cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, true), sizeof push), args, push, groups,
+  cs.dispatch(kernel_pipeline(ctx, shader, igemm_spec(tile, pb, b.has_res, true), sizeof push, width), args, push, groups,
               {info.name, info.flop, info.bytes + part_traffic});
   const std::string reduce = shader_for(ctx, "conv2d_igemm_reduce", pb.precision, info.name);
   std::vector<uint32_t> rspec{0, 0, pb.stride, static_cast<uint32_t>(pb.act.kind), spec_float(pb.act.slope),
@@ -178,7 +193,7 @@ void igemm_record(Context& ctx, CommandStream& cs, ConvWorkspace& workspace, con
 ConvCost igemm_cost(const IgemmTile& t, const IgemmProblem& pb, uint32_t splits) {
   const double e = static_cast<double>(dtype_size(precision_dtype(pb.precision)));
   const double groups = static_cast<double>(pixel_tiles(t, pb) * channel_tiles(t, pb) * pb.phases());
-  const double kpad = static_cast<double>(igemm_kpad(pb.kdim()));
+  const double kpad = static_cast<double>(igemm_kpad(pb));
   ConvCost c;
   c.fma = groups * t.bm * t.bn * kpad;
   // Every workgroup loads its A (BM x kpad) and X (kpad x BN) tiles once; the output once (twice with

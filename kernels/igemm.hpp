@@ -51,19 +51,24 @@ struct IgemmProblem {
   int64_t src_h = 0, src_w = 0, src_y = 0, src_x = 0;
   int64_t crop_y = 0, crop_x = 0;
   float scale = 1.f;  // the output is scale x act(...)
-  int64_t kdim() const { return cin * kh * kw; }
+  int64_t taps() const { return int64_t(kh) * kw; }
   int64_t phases() const { return transposed ? int64_t(stride) * stride : 1; }
   int64_t npix() const { return in.n * gh * gw; }
 };
 
-// kpad: the reduction padded to a whole number of the deepest stage (every tile's BK divides it).
-int64_t igemm_kpad(int64_t kdim);
-int64_t igemm_cout_pad(int64_t cout);  // to whole vec4s
+// The reduction is tap-major: row k = tap * cin_pad + ci (tap = ky * kw + kx), the input channels
+// padded to a whole number of the deepest stage (every tile's BK divides cin_pad), so that a stage
+// reads one tap: one bounds test and one address per column and stage, not per element.
+int64_t igemm_cin_pad(int64_t cin);
+int64_t igemm_kpad(const IgemmProblem& pb);  // taps x cin_pad: whole stages
+int64_t igemm_cout_pad(int64_t cout);        // to whole vec4s
 
-// A as the shader reads it: [phase][kpad][cout_pad], zeros in the padding; `weight(phase, k, co)`
-// gives the value of reduction row k (ci * kh * kw + ky * kw + kx) for output channel co.
-std::vector<float> igemm_pack(int64_t phases, int64_t kdim, int64_t cout,
-                              const std::function<float(int64_t, int64_t, int64_t)>& weight);
+// The weight of tap `tap` (ky * kw + kx) of input channel ci for output channel co, phase `phase`.
+using IgemmWeight = std::function<float(int64_t phase, int64_t ci, int64_t tap, int64_t co)>;
+// A as conv2d_igemm reads it: [phase][kpad][cout_pad], zeros in the padding.
+std::vector<float> igemm_pack(int64_t phases, int64_t cin, int64_t taps, int64_t cout, const IgemmWeight& weight);
+// A as conv2d_igemm_coopmat reads it: [cout_pad][kpad] (one phase), zeros in the padding.
+std::vector<float> igemm_pack_rows(int64_t cin, int64_t taps, int64_t cout, int64_t cout_pad, const IgemmWeight& weight);
 
 // Splits of the reduction so that the device gets enough workgroups (about two per shader core) where
 // the output alone gives few (deep, small layers), each split at least 4 stages deep, their partial sums

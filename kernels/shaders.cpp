@@ -13,8 +13,8 @@ const ShaderModuleBlob& kernel_shader(std::string_view name) {
 }
 
 const Pipeline& kernel_pipeline(Context& ctx, std::string_view shader, const std::vector<uint32_t>& spec,
-                                uint32_t push_constant_bytes) {
-  return ctx.pipeline(kernel_shader(shader), spec, push_constant_bytes);
+                                uint32_t push_constant_bytes, uint32_t required_subgroup_size) {
+  return ctx.pipeline(kernel_shader(shader), spec, push_constant_bytes, required_subgroup_size);
 }
 
 }  // namespace vkunroll

@@ -149,6 +149,35 @@ void read_coopmat_info(VkPhysicalDevice pd, bool v12, DeviceInfo& info) {
                     info.storage_buffer_16bit && (stages.cooperativeMatrixSupportedStages & VK_SHADER_STAGE_COMPUTE_BIT);
 }
 
+// Subgroup size control: core where the device and the instance (make_instance asks the loader's
+// version, at most 1.3) are Vulkan 1.3, else VK_EXT_subgroup_size_control.
+bool subgroup_size_control_core(uint32_t api_version) {
+  uint32_t loader = VK_API_VERSION_1_0;
+  if (vkEnumerateInstanceVersion) vkEnumerateInstanceVersion(&loader);
+  return api_version >= VK_API_VERSION_1_3 && loader >= VK_API_VERSION_1_3;
+}
+bool has_subgroup_size_control(VkPhysicalDevice pd, uint32_t api_version) {
+  return subgroup_size_control_core(api_version) ||
+         device_extension_available(pd, VK_EXT_SUBGROUP_SIZE_CONTROL_EXTENSION_NAME);
+}
+
+void read_subgroup_size_control(VkPhysicalDevice pd, DeviceInfo& info) {
+  info.min_subgroup_size = info.max_subgroup_size = info.subgroup_size;
+  if (!has_subgroup_size_control(pd, info.api_version)) return;
+  VkPhysicalDeviceSubgroupSizeControlFeatures f{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_SIZE_CONTROL_FEATURES};
+  VkPhysicalDeviceFeatures2 feats2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
+  feats2.pNext = &f;
+  vkGetPhysicalDeviceFeatures2(pd, &feats2);
+  VkPhysicalDeviceSubgroupSizeControlProperties p{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_SIZE_CONTROL_PROPERTIES};
+  VkPhysicalDeviceProperties2 props2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2};
+  props2.pNext = &p;
+  vkGetPhysicalDeviceProperties2(pd, &props2);
+  if (p.minSubgroupSize && p.maxSubgroupSize) info.min_subgroup_size = p.minSubgroupSize, info.max_subgroup_size = p.maxSubgroupSize;
+  info.compute_subgroup_size_control =
+      f.subgroupSizeControl && (p.requiredSubgroupSizeStages & VK_SHADER_STAGE_COMPUTE_BIT);
+  info.compute_full_subgroups = f.computeFullSubgroups;
+}
+
 const char* component_name(VkComponentTypeNV t) {
   switch (t) {
     case VK_COMPONENT_TYPE_FLOAT16_NV: return "fp16";
@@ -212,6 +241,7 @@ DeviceInfo read_device_info(VkPhysicalDevice pd, uint32_t index) {
   info.push_descriptor = device_extension_available(pd, VK_KHR_PUSH_DESCRIPTOR_EXTENSION_NAME);
   info.shader_float16 = storage16.pNext && f16.shaderFloat16;
   read_coopmat_info(pd, v12, info);
+  read_subgroup_size_control(pd, info);
   info.compute_units = read_compute_units(pd);
 
   const uint32_t qf = queue_family_for_compute(pd);
@@ -314,6 +344,18 @@ uint32_t compile_threads(std::optional<uint32_t> requested) {
 }  // namespace
 
 std::string Context::cache_directory() { return cache_dir().string(); }
+
+std::string DeviceInfo::subgroup_width_refusal(uint32_t width) const {
+  const std::string offers = min_subgroup_size == max_subgroup_size
+                                 ? "only " + std::to_string(min_subgroup_size)
+                                 : std::to_string(min_subgroup_size) + " to " + std::to_string(max_subgroup_size);
+  std::string why;
+  if (width == 0 || (width & (width - 1)) != 0) why = "not a power of two";
+  else if (!compute_subgroup_size_control) why = "no subgroup size control for compute shaders; its subgroups are " + offers;
+  else if (!compute_full_subgroups) why = "no full subgroups for compute shaders (computeFullSubgroups)";
+  else if (width < min_subgroup_size || width > max_subgroup_size) why = "it offers subgroups of " + offers;
+  return why.empty() ? "" : "device '" + name + "' cannot run subgroups of " + std::to_string(width) + " invocations: " + why;
+}
 
 std::string DeviceInfo::type_name() const {
   switch (type) {
@@ -547,6 +589,14 @@ void Context::create_device() {
     exts.push_back(VK_NV_COOPERATIVE_MATRIX_EXTENSION_NAME);
     if (!v12) exts.push_back(VK_KHR_VULKAN_MEMORY_MODEL_EXTENSION_NAME);
   }
+  VkPhysicalDeviceSubgroupSizeControlFeatures subgroup_control{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_SIZE_CONTROL_FEATURES};
+  if (info_.compute_subgroup_size_control || info_.compute_full_subgroups) {
+    subgroup_control.subgroupSizeControl = info_.compute_subgroup_size_control;
+    subgroup_control.computeFullSubgroups = info_.compute_full_subgroups;
+    subgroup_control.pNext = feats.pNext;
+    feats.pNext = &subgroup_control;
+    if (!subgroup_size_control_core(info_.api_version)) exts.push_back(VK_EXT_SUBGROUP_SIZE_CONTROL_EXTENSION_NAME);
+  }
   VkPhysicalDeviceFeatures supported{};
   vkGetPhysicalDeviceFeatures(physical_, &supported);
   feats.features.shaderInt64 = supported.shaderInt64;
@@ -628,13 +678,16 @@ void Context::save_pipeline_cache() {
 }
 
 const Pipeline& Context::pipeline(const ShaderModuleBlob& shader, const std::vector<uint32_t>& spec,
-                                  uint32_t push_constant_bytes) {
+                                  uint32_t push_constant_bytes, uint32_t required_subgroup_size) {
   std::ostringstream key;
-  key << shader.name << "|" << push_constant_bytes;
+  key << shader.name << "|" << push_constant_bytes << "|" << required_subgroup_size;
   for (uint32_t v : spec) key << "," << v;
   auto it = pipelines_.find(key.str());
   if (it == pipelines_.end())
-    it = pipelines_.emplace(key.str(), std::make_unique<Pipeline>(*this, shader, spec, push_constant_bytes)).first;
+    it = pipelines_
+             .emplace(key.str(),
+                      std::make_unique<Pipeline>(*this, shader, spec, push_constant_bytes, required_subgroup_size))
+             .first;
   return *it->second;
 }
 

@@ -87,6 +87,14 @@ struct DeviceInfo {
   uint32_t vendor_id = 0, device_id = 0;
   std::string driver_name, driver_info;
   uint32_t subgroup_size = 0;
+  // Vulkan 1.3 subgroup size control (or VK_EXT_subgroup_size_control), enabled where offered: the
+  // widths a compute pipeline may require (Context::pipeline's required_subgroup_size) and whether it
+  // may ask for full subgroups. Without control min = max = subgroup_size and the flags are false.
+  uint32_t min_subgroup_size = 0, max_subgroup_size = 0;
+  bool compute_subgroup_size_control = false;  // subgroupSizeControl, compute in requiredSubgroupSizeStages
+  bool compute_full_subgroups = false;         // computeFullSubgroups
+  // Why this device refuses subgroups of `width` invocations for a pipeline ("" where it gives them).
+  std::string subgroup_width_refusal(uint32_t width) const;
   uint32_t compute_units = 0;  // NVIDIA SMs or AMD compute units where the driver says; 0: unknown
   bool shader_float16 = false;          // fp16 arithmetic in shaders (enabled when present)
   bool push_descriptor = false;         // VK_KHR_push_descriptor (enabled unless ContextOptions says no)
@@ -216,10 +224,13 @@ class Context {
   Trace* trace() const { return trace_; }
   void set_trace(Trace* t) { trace_ = t; }
 
-  // Pipelines are created once per (shader, specialization, push size) and kept here.
-  // (The module's name identifies it: one name, one module.)
+  // Pipelines are created once per (shader, specialization, push size, subgroup width) and kept here.
+  // (The module's name identifies it: one name, one module.) required_subgroup_size > 0: a shader
+  // that assumes subgroups of that width asks for it, with full subgroups (its workgroup's x size a
+  // multiple of it); a device that cannot give it refuses with DeviceUnavailableError naming itself
+  // and the width.
   const Pipeline& pipeline(const ShaderModuleBlob& shader, const std::vector<uint32_t>& spec = {},
-                           uint32_t push_constant_bytes = 0);
+                           uint32_t push_constant_bytes = 0, uint32_t required_subgroup_size = 0);
 
   // Messages the validation layer reported (warnings and errors) since creation / last clear.
   std::vector<std::string> validation_messages() const;

@@ -27,10 +27,13 @@ uint32_t spec_float(float f) {
 }
 
 Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vector<uint32_t>& spec,
-                   uint32_t push_constant_bytes)
-    : ctx_(ctx), name_(module.name), push_bytes_(push_constant_bytes) {
+                   uint32_t push_constant_bytes, uint32_t required_subgroup_size)
+    : ctx_(ctx), name_(module.name), push_bytes_(push_constant_bytes), subgroup_size_(required_subgroup_size) {
   const auto t0 = Clock::now();
   const std::string& shader = name_;
+  if (required_subgroup_size)
+    if (const std::string why = ctx.info().subgroup_width_refusal(required_subgroup_size); !why.empty())
+      throw DeviceUnavailableError("pipeline '" + shader + "': " + why);
   if (push_constant_bytes > 128 || push_constant_bytes > ctx.info().max_push_constants)
     throw InternalError("pipeline '" + shader + "': " + std::to_string(push_constant_bytes) +
                 " bytes of push constants exceed the portable limit of 128");
@@ -70,7 +73,8 @@ Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vect
 
   // The fault injector is asked here, on the recording thread, in request order: workers never touch it.
   const VkResult injected = ctx.faults().next(FaultInjection::Site::pipeline);
-  build_ = std::make_shared<PipelineBuild>(ctx.device(), ctx.pipeline_cache(), module_, layout_, spec, injected);
+  build_ = std::make_shared<PipelineBuild>(ctx.device(), ctx.pipeline_cache(), module_, layout_, spec, injected,
+                                           required_subgroup_size);
   ctx.pipeline_compiler().enqueue(build_);  // with no worker threads it compiles here
   ctx.traffic().pipeline_build_ms += ms_since(t0);
 }

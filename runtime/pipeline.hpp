@@ -21,8 +21,10 @@ class Pipeline {
   static constexpr uint32_t kMaxUniformBindings = 2;  // uniform buffers one shader may declare
   static constexpr uint32_t kMaxTexelBindings = 4;    // texel buffers (uniform + storage) one shader may declare
   // spec[i] is specialization constant id i (32-bit; floats bit-cast with spec_float()).
+  // required_subgroup_size > 0: subgroups of that width, full (Context::pipeline); a device that
+  // cannot give them throws DeviceUnavailableError naming the device and the width.
   Pipeline(Context& ctx, const ShaderModuleBlob& shader, const std::vector<uint32_t>& spec,
-           uint32_t push_constant_bytes);
+           uint32_t push_constant_bytes, uint32_t required_subgroup_size = 0);
   ~Pipeline();
   Pipeline(const Pipeline&) = delete;
   Pipeline& operator=(const Pipeline&) = delete;
@@ -38,6 +40,7 @@ class Pipeline {
   DescriptorKind binding_kind(uint32_t i) const { return i < kinds_.size() ? kinds_[i] : DescriptorKind::storage_buffer; }
   bool binding_is_uniform(uint32_t i) const { return binding_kind(i) == DescriptorKind::uniform_buffer; }
   uint32_t push_constant_bytes() const { return push_bytes_; }
+  uint32_t required_subgroup_size() const { return subgroup_size_; }  // 0: the device's choice
 
  private:
   void destroy();
@@ -46,6 +49,7 @@ class Pipeline {
   uint32_t binding_count_ = 0;
   std::vector<DescriptorKind> kinds_;  // per binding
   uint32_t push_bytes_ = 0;
+  uint32_t subgroup_size_ = 0;
   VkShaderModule module_ = VK_NULL_HANDLE;
   VkDescriptorSetLayout set_layout_ = VK_NULL_HANDLE;
   VkPipelineLayout layout_ = VK_NULL_HANDLE;

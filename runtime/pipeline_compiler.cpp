@@ -3,8 +3,14 @@
 namespace vkunroll {
 
 PipelineBuild::PipelineBuild(VkDevice device, VkPipelineCache cache, VkShaderModule module, VkPipelineLayout layout,
-                             std::vector<uint32_t> spec, VkResult injected)
-    : device_(device), cache_(cache), module_(module), layout_(layout), spec_(std::move(spec)), injected_(injected) {}
+                             std::vector<uint32_t> spec, VkResult injected, uint32_t subgroup_size)
+    : device_(device),
+      cache_(cache),
+      module_(module),
+      layout_(layout),
+      spec_(std::move(spec)),
+      injected_(injected),
+      subgroup_size_(subgroup_size) {}
 
 bool PipelineBuild::try_run() {
   int expected = kQueued;
@@ -43,6 +49,13 @@ void PipelineBuild::compile() noexcept try {
   pci.stage.pName = "main";
   pci.stage.pSpecializationInfo = spec_.empty() ? nullptr : &si;
   pci.layout = layout_;
+  VkPipelineShaderStageRequiredSubgroupSizeCreateInfo width{
+      VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_REQUIRED_SUBGROUP_SIZE_CREATE_INFO};
+  if (subgroup_size_) {
+    width.requiredSubgroupSize = subgroup_size_;
+    pci.stage.pNext = &width;
+    pci.stage.flags = VK_PIPELINE_SHADER_STAGE_CREATE_REQUIRE_FULL_SUBGROUPS_BIT;
+  }
   // The pipeline cache is internally synchronized: builds on several threads may share it.
   result_ = vkCreateComputePipelines(device_, cache_, 1, &pci, nullptr, &pipeline_);
   if (result_ != VK_SUCCESS) pipeline_ = VK_NULL_HANDLE;

@@ -21,8 +21,9 @@ namespace vkunroll {
 class PipelineBuild {
  public:
   // `injected` (a test fault, runtime/fault_injection.hpp): the result to report instead of compiling.
+  // `subgroup_size` > 0: the stage requires subgroups of that width, full (the device was checked).
   PipelineBuild(VkDevice device, VkPipelineCache cache, VkShaderModule module, VkPipelineLayout layout,
-                std::vector<uint32_t> spec, VkResult injected = VK_SUCCESS);
+                std::vector<uint32_t> spec, VkResult injected = VK_SUCCESS, uint32_t subgroup_size = 0);
   // Compiles it here if no thread has started it; false if one has (or it is done).
   bool try_run();
   bool done() const { return state_.load() == kDone; }
@@ -44,6 +45,7 @@ class PipelineBuild {
   VkPipelineLayout layout_;
   std::vector<uint32_t> spec_;
   VkResult injected_;
+  uint32_t subgroup_size_;
   VkPipeline pipeline_ = VK_NULL_HANDLE;
   VkResult result_ = VK_NOT_READY;
 };

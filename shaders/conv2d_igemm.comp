@@ -1,7 +1,8 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
 // conv2d as a tiled implicit GEMM, the GPU family (conv2d_igemm.cpp): C[co][p] = sum_k A[k][co] X(k, p),
-// k = ci*KH*KW + ky*KW + kx over the input channels and taps, p over the output pixels of every item
+// k = (ky*KW + kx)*cin_pad + ci over the taps and input channels (tap-major: a stage is one tap,
+// igemm_gather.glsl), p over the output pixels of every item
 // (NCHW, read and written in place through the slices' offsets: no im2col buffer, no pack pass).
 // A workgroup computes a BM x BN tile of C; each step stages a BK-deep slice of A (the packed weights,
 // vec4 loads) and of X (gathered from the input) in shared memory, double-buffered, while the next
@@ -59,6 +60,8 @@ void main() {
   const uvec2 phase = uvec2(ph / STRIDE, ph % STRIDE);
   const uint kbeg = split * p.ksplit, kend = min(igemm_kpad(), kbeg + p.ksplit);
   const uint wbase = ph * igemm_kpad() * ((p.cout + 3u) / 4u);
+  const uint cinp = igemm_kpad() / (KH * KW);  // a tap's rows: whole stages
+  uint ld_tap = kbeg / cinp, ld_ci = kbeg % cinp;  // the next stage to load: its tap and first channel
 
   const uint bcol = tid % BN, brow0 = tid / BN;  // this invocation's X column and first row per stage
   Column col = column_of(n0 + bcol, phase);
@@ -78,7 +81,12 @@ void main() {
     uint e = tid + l * NT, row = e / (BM / 4u), c4 = m0 / 4u + e % (BM / 4u);                     \
     ra[l] = (e < AV && c4 < ((p.cout + 3u) / 4u)) ? vec4(wt[wbase + ((k0) + row) * ((p.cout + 3u) / 4u) + c4]) : vec4(0.0);    \
   }                                                                                              \
-  for (uint l = 0; l < LB; ++l) rb[l] = gather(col, (k0) + brow0 + l * (NT / BN));
+  {                                                                                              \
+    const TapRead t = tap_read(col, ld_tap);                                                     \
+    for (uint l = 0; l < LB; ++l) rb[l] = gather_at(t, ld_ci + brow0 + l * (NT / BN));            \
+    ld_ci += BK;                                                                                 \
+    if (ld_ci == cinp) ld_ci = 0u, ++ld_tap;                                                     \
+  }
 #define STORE_STAGE(buf)                                                                         \
   for (uint l = 0; l < LA; ++l) {                                                                \
     uint e = tid + l * NT;                                                                       \

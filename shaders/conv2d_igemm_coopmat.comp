@@ -66,6 +66,8 @@ void main() {
   for (uint c = 0; c < 8u; ++c) cols[c] = column_of(n0 + g8 * 8u + c, uvec2(0));
   for (uint i = 0; i < FM; ++i)
     for (uint j = 0; j < FN; ++j) cm_zero_c(i, j);
+  const uint cinp = igemm_kpad() / (KH * KW);      // a tap's rows (tap-major K: a stage is one tap)
+  uint ld_tap = kbeg / cinp, ld_ci = kbeg % cinp;  // the next stage to load: its tap and first channel
 
   uvec4 ra[LA], rx[LX];
 #define LOAD_STAGE(k0)                                                                            \
@@ -73,10 +75,16 @@ void main() {
     uint e = tid + l * NT, co = m0 + e / (BK / 8u);                                               \
     ra[l] = (e < BM * BK / 8u && co < (p.cout + 3u) / 4u * 4u) ? wt[(co * igemm_kpad() + (k0)) / 8u + e % (BK / 8u)] : uvec4(0); \
   }                                                                                               \
-  for (uint l = 0; l < LX; ++l) {                                                                 \
-    uint u = tid + l * NT, k = (k0) + u / (BN / 8u);                                              \
-    for (uint c = 0; c < 4u; ++c)                                                                 \
-      rx[l][c] = packFloat2x16(f16vec2(gather(cols[2u * c], k), gather(cols[2u * c + 1u], k)));  \
+  {                                                                                               \
+    TapRead t[8];                                                                                 \
+    for (uint c = 0; c < 8u; ++c) t[c] = tap_read(cols[c], ld_tap);                               \
+    for (uint l = 0; l < LX; ++l) {                                                               \
+      uint ci = ld_ci + (tid + l * NT) / (BN / 8u);                                               \
+      for (uint c = 0; c < 4u; ++c)                                                               \
+        rx[l][c] = packFloat2x16(f16vec2(gather_at(t[2u * c], ci), gather_at(t[2u * c + 1u], ci))); \
+    }                                                                                             \
+    ld_ci += BK;                                                                                  \
+    if (ld_ci == cinp) ld_ci = 0u, ++ld_tap;                                                      \
   }
 #define STORE_STAGE(buf)                                                                          \
   for (uint l = 0; l < LA; ++l) {                                                                 \

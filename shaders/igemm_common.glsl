@@ -14,7 +14,7 @@ layout(push_constant) uniform P {
   uint res_off, res_bs, out_off, out_bs;
   uint h, w;                          // the conv's input extent (folded: as the conv sees it)
   uint cout, pad;                     // pad: the conv's, or the transposed conv's (MODE 1)
-  uint kdim, n;                       // reduction length (cin KH KW), batch items
+  uint kpad, cin, n;                  // reduction length (KH KW cin_pad, tap-major), input channels, batch items
   uint gh, gw, ksplit;                // GEMM pixel grid per item (MODE 1: per phase), reduction per split
   uint out_h, out_w, crop_y, crop_x;  // the output slice's extent, and its origin in the conv's output
   uint src_h, src_w, src_y, src_x;    // folded input: the pieces' extent, their origin in the padded input
@@ -22,7 +22,7 @@ layout(push_constant) uniform P {
 } p;
 
 uint igemm_npix() { return p.n * p.gh * p.gw; }
-uint igemm_kpad() { return (p.kdim + 15u) / 16u * 16u; }  // whole stages of the deepest tile
+uint igemm_kpad() { return p.kpad; }  // whole stages of the deepest tile
 
 layout(std430, binding = IG_BIAS) readonly buffer Bias { float bias[]; };
 layout(std430, binding = IG_RES) readonly buffer Res { SFLOAT res[]; };

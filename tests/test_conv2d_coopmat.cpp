@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <cstdio>
 #include <memory>
 #include <optional>
@@ -11,8 +12,11 @@
 #include "conv_test_cases.hpp"
 #include "kernel_test_util.hpp"
 #include "op_test_harness.hpp"
+#include "vkunroll/kernels/common.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
+#include "vkunroll/kernels/shaders.hpp"
 #include "vkunroll/runtime/context.hpp"
+#include "vkunroll/runtime/pipeline.hpp"
 #include "vk_test_env.hpp"
 
 using namespace vkunroll;
@@ -158,6 +162,53 @@ std::string nv_missing(const Context& ctx) {
 TEST(Conv2dCoopmat, EmulatedMatchesReference) {
   Context& ctx = vktest::context();
   for (auto [n, k] : {std::pair{8u, 16u}, {16u, 16u}, {8u, 8u}}) run_cases(ctx, cases(), {true, n, k});
+}
+
+// Subgroup size control: a pipeline that asks for the device's width compiles and runs (full
+// subgroups); one that asks for a width the device lacks is refused, naming the device and the width;
+// the real coopmat form (it asks for 32) does not apply where 32 is refused. Runs at lavapipe's 8 and 4.
+TEST(Conv2dCoopmat, EmulatedSubgroupWidthIsAskedForOrRefused) {
+  Context& ctx = vktest::context();
+  const DeviceInfo& d = ctx.info();
+  EXPECT_LE(d.min_subgroup_size, d.subgroup_size);
+  EXPECT_GE(d.max_subgroup_size, d.subgroup_size);
+  if (const char* want = std::getenv("VKUNROLL_EXPECT_SUBGROUP")) {
+    EXPECT_EQ(d.subgroup_size, uint32_t(std::atoi(want)));
+  }
+  std::mt19937 rng(9);
+  ConvOptions fp16;
+  fp16.precision = Precision::fp16;
+  Conv2d c1(ctx, random_tensor({8, 4, 1, 1}, rng), random_tensor({1, 1, 1, 8}, rng), {1, 1, 0, {}}, "c1", nullptr, fp16);
+  if (!d.subgroup_width_refusal(32).empty()) {
+    EXPECT_FALSE(c1.supports(ConvAlgo::coopmat));
+  }
+  for (uint32_t w : {d.max_subgroup_size * 2, 3u}) {
+    const std::string why = d.subgroup_width_refusal(w);
+    EXPECT_NE(why.find("'" + d.name + "'"), std::string::npos) << why;
+    EXPECT_NE(why.find("subgroups of " + std::to_string(w) + " "), std::string::npos) << why;
+    try {
+      kernel_pipeline(ctx, "fill_rect", {}, 40, w);
+      ADD_FAILURE() << "a pipeline asking for subgroups of " << w << " was made";
+    } catch (const DeviceUnavailableError& e) {
+      EXPECT_NE(std::string(e.what()).find(why), std::string::npos) << e.what();
+    }
+  }
+  if (!d.compute_subgroup_size_control || !d.compute_full_subgroups) GTEST_SKIP() << "no subgroup size control";
+  // fill_rect (64 invocations a workgroup) at the device's own width, full subgroups: it fills.
+  struct FillPush {
+    uint32_t out_off, out_bs, c, oh, ow, y0, x0, rh, rw;
+    float value;
+  };
+  Tensor t(ctx, {1, 2, 5, 30});
+  CommandStream cs(ctx);
+  cs.fill(t, 0u);
+  const BoundSlice bo = bind_slice(Slice(t), Access::write);
+  const FillPush push{bo.offset, bo.batch_stride, 2, 5, 30, 0, 0, 5, 30, 2.5f};
+  const Pipeline& pl = kernel_pipeline(ctx, "fill_rect", {}, sizeof push, d.min_subgroup_size);
+  EXPECT_EQ(pl.required_subgroup_size(), d.min_subgroup_size);
+  cs.dispatch(pl, {bo.arg}, push, Groups{(150 + 63) / 64, 2, 1}, {"fill_rect_width", 0, 0});
+  cs.submit_and_wait();
+  for (float v : t.download<float>()) ASSERT_EQ(v, 2.5f);
 }
 
 // The reduction in splits: partial sums into scratch, then the family's reduce adds bias,

@@ -20,6 +20,8 @@
 #include "vkunroll/host/model/weights.hpp"
 #include "vkunroll/kernels/conv2d.hpp"
 #include "vkunroll/kernels/conv_transpose2d.hpp"
+#include "vkunroll/runtime/profiler.hpp"
+#include "vkunroll/runtime/trace.hpp"
 
 namespace fs = std::filesystem;
 using namespace vkunroll;
@@ -348,4 +350,51 @@ TEST(ConvChoice, CommittedTablesMatchTheDeviceModel) {
   own.save((dir / "cache.tsv").string(), "here", here);
   EXPECT_EQ(ConvChoiceTable::load((dir / "cache.tsv").string(), nullptr).entries().size(), 1u);
   fs::remove_all(dir);
+}
+
+// The report names the kernel that ran: a batch whose batch-1 choice differs (the GPU family takes
+// igemm_l only where the whole batch's 128 x 128 tiles give two workgroups per shader core) counts
+// the batch's algorithm in calls_by_algorithm, names it in the trace and in --profile's op, not
+// choose_algorithm's.
+TEST(ConvChoice, ReportNamesTheKernelTheBatchRan) {
+  Context& ctx = vktest::context();
+  const int64_t cin = 4, cout = 128, side = 128;
+  std::mt19937 rng(56);
+  const HostTensor w = ktest::random_tensor(Shape{cout, cin, 1, 1}, rng, -0.5f, 0.5f);
+  ConvOptions gpu;
+  gpu.gpu_family = true;
+  Conv2d probe(ctx, w, HostTensor(Shape{1, 1, 1, cout}, std::vector<float>(cout, 0.f)), Conv2dParams{1, 1, 0, {}}, "wide",
+               nullptr, gpu);
+  const ConvAlgo one = probe.choose_algorithm(side, side);
+  int64_t n = 2;
+  while (n <= 16 && probe.gpu_choice(Shape{n, cin, side, side}) == one) ++n;
+  ASSERT_LE(n, 16) << "no batch of " << side << "x" << side << " changes the GPU family's choice";
+  const std::string ran = conv_algo_name(probe.gpu_choice(Shape{n, cin, side, side}));
+  EXPECT_EQ(ran, "igemm_l");
+  EXPECT_EQ(std::string(conv_algo_name(one)), "igemm_m");
+
+  Profiler profile;
+  VulkanBackend vk(ctx, &profile);
+  vk.set_conv_options(gpu);
+  const int id = vk.prepare_conv(ConvDesc{"wide", int(cin), int(cout), 1, 1, 0}, WeightTensor{{cout, cin, 1, 1}, w.data},
+                                 WeightTensor{{cout}, std::vector<float>(cout, 0.f)});
+  Buffer in = vk.alloc(Shape{n, cin, side, side}, "input");
+  Buffer out = vk.alloc(Shape{n, cout, side, side}, "output");
+  vk.upload(in.whole(), ktest::random_tensor(Shape{n, cin, side, side}, rng).data);
+  Trace trace;
+  const bool traced = ctx.info().timestamps;
+  if (traced) ctx.set_trace(&trace);
+  vk.conv(id, in.whole(), out.whole(), nullptr);
+  vk.flush();
+  ctx.set_trace(nullptr);
+  EXPECT_EQ(vk.conv_calls_by_algorithm(), (std::map<std::string, uint64_t>{{ran, 1}}));
+  if (ctx.info().timestamps) {  // the profile's op is the dispatch's name, which the kernel that ran gives
+    EXPECT_EQ(profile.ops().count("wide_1x1_" + ran), 1u);
+    EXPECT_EQ(profile.ops().count(std::string("wide_1x1_") + conv_algo_name(one)), 0u);
+  }
+  if (traced) {
+    const std::string json = trace.json();
+    EXPECT_NE(json.find(" " + ran), std::string::npos) << json;
+    EXPECT_EQ(json.find(std::string(" ") + conv_algo_name(one)), std::string::npos) << json;
+  }
 }

@@ -12,6 +12,7 @@
 
 #include "event_test_encoders.hpp"
 #include "event_test_util.hpp"
+#include "vk_test_env.hpp"
 #include "vkunroll/host/events/event_file_reader.hpp"
 #include "vkunroll/host/events/event_reader_detail.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
@@ -253,11 +254,8 @@ TEST(EventIndex, LaterWindowsSeekInsteadOfRescanning) {
 }
 
 TEST(EventIndex, RealRecordingsEqualTheFullScan) {
-  const fs::path dir = fs::path(VKUNROLL_SHARED_DIR) / "data" / "real-events";
   for (const char* name : {"evt3_sample.raw", "sample.aedat4"}) {
-    const fs::path p = dir / name;
-    if (!fs::exists(p)) GTEST_SKIP() << "real recording absent: " << p;
-    expect_windows_match(p.string(), {}, 5);
+    expect_windows_match(vktest::real_recording(name), {}, 5);
     if (HasFailure()) return;
   }
 }

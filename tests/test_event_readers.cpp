@@ -458,8 +458,7 @@ TEST(EventReaders, DatFromEncoderWithWindowSeek) {
 }
 
 TEST(EventReaders, RealEvt3SampleYieldsExactCount) {
-  const std::string path = vktest::shared_path("data/real-events/evt3_sample.raw");
-  if (path.empty()) GTEST_SKIP() << "../shared/data/real-events/evt3_sample.raw is absent";
+  const std::string path = vktest::real_recording("evt3_sample.raw");
   EventReadReport rep;
   const EventStream ev = read_events(path, {}, &rep);
   EXPECT_EQ(ev.size(), 219596u);
@@ -520,8 +519,7 @@ TEST(EventReadersAedat4, TruncatedAndCorrupt) {
 }
 
 TEST(EventReaders, RealAedat4SampleYieldsExactCount) {
-  const std::string path = vktest::shared_path("data/real-events/sample.aedat4");
-  if (path.empty()) GTEST_SKIP() << "../shared/data/real-events/sample.aedat4 is absent";
+  const std::string path = vktest::real_recording("sample.aedat4");
   EventReadReport rep;
   const EventStream ev = read_events(path, {}, &rep);
   EXPECT_EQ(ev.size(), 111954u);

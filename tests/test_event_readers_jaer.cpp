@@ -236,9 +236,8 @@ TEST(EventReadersJaer, Evt21UnknownWordsTriggersAndTruncation) {
 // ---- the real recordings, re-encoded -------------------------------------------------------------
 
 TEST(EventReadersJaer, RealRecordingsReencodedReadBackEqual) {
-  const std::string evt3 = vktest::shared_path("data/real-events/evt3_sample.raw");
-  const std::string aedat4 = vktest::shared_path("data/real-events/sample.aedat4");
-  if (evt3.empty() || aedat4.empty()) GTEST_SKIP() << "../shared/data/real-events/ samples are absent";
+  const std::string evt3 = vktest::real_recording("evt3_sample.raw");
+  const std::string aedat4 = vktest::real_recording("sample.aedat4");
   const EventStream prophesee = read_events(evt3);  // 1280x720: too wide for AEDAT 2.0's 10-bit x
   ASSERT_EQ(prophesee.size(), 219596u);
   const std::string p21 = tmp("real.raw"), p3 = tmp("real3.aedat"), p2 = tmp("real2.aedat");

@@ -10,6 +10,7 @@
 
 #include "event_test_encoders.hpp"
 #include "event_test_util.hpp"
+#include "vk_test_env.hpp"
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/host/events/event_file_reader.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
@@ -87,14 +88,9 @@ TEST(EventReliability, InfiniteAndHugeTextTimesAreNamedAsSuch) {
 
 // An EVT3 file named .txt gave an error cut after two raw bytes.
 TEST(EventReliability, BinaryFileReadAsTextSaysWhatItLooksLike) {
-  const fs::path real = fs::path(VKUNROLL_SHARED_DIR) / "data" / "real-events" / "evt3_sample.raw";
-  std::vector<uint8_t> b;
-  if (fs::exists(real)) {
-    b = read_bytes(real.string());
-    b.resize(std::min<size_t>(b.size(), 20000));
-  } else {
-    b = encode_evt3(random_stream(2000, 64, 48, 51), "% evt 3.0\n% geometry 64x48\n", true);
-  }
+  std::vector<uint8_t> b = read_bytes(vktest::real_recording("evt3_sample.raw"));
+  ASSERT_GT(b.size(), 20000u);
+  b.resize(20000);
   const std::string p = tmp("evt3_named.txt");
   write_bytes(p, b);
   expect_error(p, {}, {"evt3_named.txt", "not a text event file", "binary", "Prophesee EVT 3.0", "format evt3", ".raw"});

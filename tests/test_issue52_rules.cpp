@@ -151,13 +151,13 @@ TEST(OutputRule, AFileIsReplacedOnlyWhenAskedAndOnlyWhenVkunrollWroteIt) {
   EXPECT_TRUE(written_by_vkunroll(text));
   EXPECT_FALSE(written_by_vkunroll(mine));
   // Refusals are OptionErrors naming the field (the CLI spells it --out, Python its keyword).
-  EXPECT_THROW(check_output_file_rule(mine, "out", ExistingOutput::refuse), OptionError);
-  EXPECT_THROW(check_output_file_rule(mine, "out", ExistingOutput::overwrite), OptionError);
-  EXPECT_THROW(check_output_file_rule(ours, "out", ExistingOutput::refuse), OptionError);
-  EXPECT_NO_THROW(check_output_file_rule(ours, "out", ExistingOutput::overwrite));
-  EXPECT_THROW(check_output_file_rule(ours, "out", ExistingOutput::overwrite, {{"inputs", ours}}), OptionError);
+  EXPECT_THROW(check_output_file_rule(mine, output_path("voxelize.out"), ExistingOutput::refuse), OptionError);
+  EXPECT_THROW(check_output_file_rule(mine, output_path("voxelize.out"), ExistingOutput::overwrite), OptionError);
+  EXPECT_THROW(check_output_file_rule(ours, output_path("voxelize.out"), ExistingOutput::refuse), OptionError);
+  EXPECT_NO_THROW(check_output_file_rule(ours, output_path("voxelize.out"), ExistingOutput::overwrite));
+  EXPECT_THROW(check_output_file_rule(ours, output_path("voxelize.out"), ExistingOutput::overwrite, {{"inputs", ours}}), OptionError);
   try {
-    check_output_file_rule(mine, "out", ExistingOutput::refuse);
+    check_output_file_rule(mine, output_path("voxelize.out"), ExistingOutput::refuse);
   } catch (const OptionError& e) {
     EXPECT_EQ(e.field(), "out");
     EXPECT_EQ(e.kind(), ErrorKind::usage);

@@ -208,9 +208,9 @@ TEST(MetaSchema, CrossFieldRulesAreNamedErrors) {
   EXPECT_EQ(load(d).kind, ErrorKind::input_missing);
 }
 
-// docs/reliability.md's schema section is meta_schema_markdown(), between its markers.
+// docs/sequence-format.md's schema section is meta_schema_markdown(), between its markers.
 TEST(MetaSchema, DocIsInSyncWithTheTable) {
-  const fs::path doc = fs::path(VKUNROLL_SOURCE_DIR) / "docs" / "reliability.md";
+  const fs::path doc = fs::path(VKUNROLL_SOURCE_DIR) / "docs" / "sequence-format.md";
   std::ifstream in(doc);
   std::stringstream ss;
   ss << in.rdbuf();

@@ -81,9 +81,8 @@ const ShaderModuleBlob& test_shader(std::string_view name) {
   return find_shader(::vkunroll::embedded::kTestShaders, "test shaders (tests/shaders/*.comp)", name);
 }
 
-std::string shared_path(const std::string& rel) {
-  const std::filesystem::path p = std::filesystem::path(VKUNROLL_SHARED_DIR) / rel;
-  return std::filesystem::exists(p) ? p.string() : std::string();
+std::string real_recording(const std::string& name) {
+  return (std::filesystem::path(VKUNROLL_SOURCE_DIR) / "tests" / "data" / "real" / name).string();
 }
 
 }  // namespace vkunroll::vktest

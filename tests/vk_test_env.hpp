@@ -27,7 +27,8 @@ inline std::span<const uint32_t> test_shader_words(std::string_view name) {
   const ShaderModuleBlob& b = test_shader(name);
   return {b.words, b.word_count};
 }
-// `../shared/<rel>` next to the checkout; empty when the folder is absent.
-std::string shared_path(const std::string& rel);
+// A real recording of tests/data/real/ (its README gives sources and licenses). The checkout has
+// them: a test that reads one fails, never skips, where it is missing.
+std::string real_recording(const std::string& name);
 
 }  // namespace vkunroll::vktest

@@ -68,6 +68,11 @@ CLI::Validator finite_range(double lo, double hi);             // lo <= x <= hi,
 CLI::Validator int_range(long long lo, long long hi);
 CLI::Validator non_empty();  // refuses "" (an empty value is an error, never "the default")
 
+// Declares the output option `id` of the output table (host/unroll/output_paths.hpp) on `app`: its
+// spelling and help from the table, an empty value refused while parsing (a usage error before any
+// work). std::logic_error for an id that is not one of `app`'s CLI entries.
+CLI::Option* add_output_option(CLI::App* app, std::string_view id, std::string& value);
+
 // An output file that is written under a temporary name and renamed over `path`: refused
 // (UsageError naming `option`) when `path` exists and is not a regular file (a folder, a device
 // such as /dev/full, a FIFO), which the rename would replace.

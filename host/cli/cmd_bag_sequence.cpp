@@ -53,7 +53,7 @@ int run_bag_sequence(const BagSequenceArgs& a) {
   BagSequenceReport r;
   try {
     // The output rule of every writer: staged, checked by the loader's schema, then committed.
-    OutputFolder folder(a.out, a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, sequence_output_layout(), "bag_sequence_out");
+    OutputFolder folder(a.out, a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, output_path("bag-sequence.out"));
     r = write_bag_sequence(a.bag, folder.staging().string(), o);
     check_written_sequence(folder.staging().string(), a.out);
     folder.commit();
@@ -83,7 +83,7 @@ Command add_bag_sequence(CLI::App& parent) {
       "events are the bag itself; each frame's t0 is its header stamp (+ --t0-offset-us). A bag holds no\n"
       "row timing: give --line-delay-us and --exposure-us. Then: vkunroll unroll OUT [--events-topic T].");
   c->add_option("BAG", a->bag, "the ROS 1 bag")->required();
-  c->add_option("OUT", a->out, "the sequence folder to write")->required();
+  add_output_option(c, "bag-sequence.out", a->out)->required();
   c->add_option("--frames-topic", a->frames_topic, "the sensor_msgs/Image topic (default: the bag's only one)")->check(non_empty())->type_name("TOPIC");
   c->add_option("--events-topic", a->events_topic, "the event topic (default: the bag's only one)")->check(non_empty())->type_name("TOPIC");
   c->add_option("--line-delay-us", a->line_delay, "row-to-row start delay of the RS camera (exact: '73000/259')")

@@ -41,6 +41,9 @@ struct DemoArgs {
 int run_demo(const DemoArgs& a) {
   const fs::path out = a.out;
   check_output_folder(a.out, "--out");  // it holds sequence/, physics/ and model/
+  std::error_code ec;
+  if (fs::is_symlink(fs::symlink_status(out, ec)))  // the output rule: never over, nor through, a link
+    throw UsageError("--out " + a.out + ": is a symbolic link; name the folder itself");
   sim::SimulationConfig cfg = sim::simulation_preset("realistic");
   cfg.seed = static_cast<uint64_t>(a.seed);
   char x = 0, extra = 0;
@@ -61,13 +64,13 @@ int run_demo(const DemoArgs& a) {
   const ModelChoice choice = choose_model(a.physics_only ? UnrollMode::physics : UnrollMode::automatic, a.model);
   for (const char* sub : {"sequence", "physics", "model"})
     if (std::string(sub) != "model" || !choice.path.empty())
-      OutputFolder(out / sub, ExistingOutput::overwrite,
-                   std::string(sub) == "sequence" ? sequence_output_layout() : unroll_output_layout());
+      OutputFolder(out / sub, ExistingOutput::overwrite, output_path("demo.out"),
+                   std::string(sub) == "sequence" ? &sequence_output_layout() : &unroll_output_layout());
   const Stopwatch simulating;
   const auto seq = sim::simulate(cfg);
   try {
     // The demo's own earlier sequence is replaced whole, never mixed with this one's files.
-    OutputFolder folder(out / "sequence", ExistingOutput::overwrite, sequence_output_layout());
+    OutputFolder folder(out / "sequence", ExistingOutput::overwrite, output_path("demo.out"), &sequence_output_layout());
     sim::write_sequence(cfg, seq, folder.staging().string());
     folder.commit();
   } catch (const Error& e) {
@@ -127,7 +130,7 @@ Command add_demo(CLI::App& parent) {
       "the default model (or --model, or VKUNROLL_MODEL) and with the weight-free\n"
       "physics unroller, and prints where the outputs are and their PSNR/SSIM against the truth, beside\n"
       "the RS input's. Earlier demo outputs in --out are replaced.");
-  c->add_option("--out", a->out, "output folder")->capture_default_str()->type_name("DIR");
+  add_output_option(c, "demo.out", a->out)->capture_default_str();
   c->add_option("--model", a->model, "weights to run instead of the default model")->type_name("FILE");
   c->add_option("--texture", a->texture, "the scene's background: mixed (default), checkerboard, bars, noise, text or an image file (a photograph)")
       ->type_name("NAME|FILE");

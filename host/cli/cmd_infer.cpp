@@ -62,7 +62,7 @@ int run_infer(const InferArgs& a) {
   const Precision precision = parse_precision(a.precision, "precision");
   if (precision == Precision::fp16 && a.backend != "vulkan") throw fp16_needs_vulkan();  // before the inputs are read
   check_output_file(a.out, "--out");
-  check_output_file_rule(a.out, "out", a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse,
+  check_output_file_rule(a.out, output_path("infer.out"), a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse,
                          {{"--inputs file", a.inputs}, {"--model file", a.model}});
   const std::vector<ModelOutput> outputs = requested_outputs(a.outputs);
   std::error_code ec;
@@ -151,7 +151,7 @@ Command add_infer(CLI::App& parent) {
       "out in mode m) as F32 under the reference's names.");
   c->add_option("--model", a->model, "SelfUnroll weights (safetensors)")->required()->type_name("FILE");
   c->add_option("--inputs", a->inputs, "input tensors rs, ev1, ev2, ev3 (safetensors)")->required()->type_name("FILE");
-  c->add_option("--out", a->out, "the safetensors file to write")->required()->type_name("FILE");
+  add_output_option(c, "infer.out", a->out)->required();
   c->add_flag("--overwrite", a->overwrite, "replace an existing --out file (only one vkunroll wrote)");
   c->add_option("--mode", a->mode, "s | m (default: m when the model has MOA weights and B is even, else s)")
       ->check(CLI::IsMember({"s", "m"}))->type_name("M");

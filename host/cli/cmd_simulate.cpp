@@ -82,7 +82,7 @@ int run_simulate(const SimulateArgs& a) {
   const sim::SimulationConfig c = to_config(a);
   // Staged and renamed into place whole: a killed run leaves no sequence, an earlier one is never
   // mixed with this one's files (and replaced only with --overwrite, if it holds only its own).
-  OutputFolder folder(a.out, a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, sequence_output_layout());
+  OutputFolder folder(a.out, a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, output_path("simulate.out"));
   Stopwatch clock;
   const sim::SimulatedSequence seq = sim::simulate(c);
   const double simulate_ms = clock.ms();
@@ -120,7 +120,7 @@ Command add_simulate(CLI::App& parent) {
       "Simulates a rolling-shutter camera + event camera looking at a moving scene and writes the generic\n"
       "sequence layout: rs/*.png, gs/*.png (sharp global-shutter truth), events.h5|events.txt, meta.json.\n"
       "The same options and seed give the same bytes. See docs/simulator.md. Unset values: the preset's.");
-  c->add_option("--out", a->out, "output folder (created)")->required()->type_name("DIR");
+  add_output_option(c, "simulate.out", a->out)->required();
   c->add_option("--preset", a->preset, "clean | realistic | noisy (event + frame noise model)")
       ->check(CLI::IsMember({"clean", "realistic", "noisy"}))->capture_default_str()->type_name("NAME");
   c->add_option("--seed", a->seed, "scene, motion, thresholds and noise")->check(int_range(0, 1LL << 62))->capture_default_str();

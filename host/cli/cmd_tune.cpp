@@ -7,6 +7,7 @@
 #include "vkunroll/host/cli/exit_codes.hpp"
 #include "vkunroll/host/model/conv_choice_tune.hpp"
 #include "vkunroll/host/model/weights.hpp"
+#include "vkunroll/host/unroll/output_file.hpp"
 
 namespace vkunroll::cli {
 
@@ -44,6 +45,13 @@ int run_tune(TuneArgs& a) {
   o.report = [](const std::string& line) {  // the command's report is its standard output
     std::printf("%s\n", line.c_str());
     std::fflush(stdout);
+  };
+  // The table under the output rule (host/unroll/output_paths.hpp), checked before any timing: a table
+  // vkunroll wrote is merged and replaced; anything else at its name, or a folder that cannot take
+  // it, is refused now with the reason.
+  o.check_table = [](const std::string& table) {
+    check_output_file_rule(table, output_path("tune.table"), ExistingOutput::overwrite);
+    check_output_folder_writable(table, output_path("tune.table").field);
   };
   tune_conv_choices(weights, o);
   return kExitOk;

@@ -121,18 +121,12 @@ void add_model_options(CLI::App* c, UnrollArgs& a) {
   c->add_flag("--profile", a.profile,
               "Vulkan: every kernel's GPU time and calls per GS frame in summary.json (gpu_ms_per_gs_frame_by_op)")
       ->group(g);
-  c->add_option("--trace", a.trace,
-                "Vulkan: write the run's timeline to FILE.json (Chrome trace-event format: open it in ui.perfetto.dev "
-                "or chrome://tracing): host stages, and every GPU dispatch with its op, shape, algorithm and GFLOP/s")
-      ->group(g)->type_name("FILE.json");
+  add_output_option(c, "unroll.trace", a.trace)->group(g)->type_name("FILE.json");
 }
 
 void add_output_options(CLI::App* c, UnrollArgs& a) {
   const std::string g = "Output";
-  c->add_option("--out", a.out,
-                "output folder: frames/, gs_video.mp4, contact_sheet.png, metrics.csv, frames.jsonl, summary.json "
-                "(written into .<name>.partial and renamed into place at the end)")
-      ->required()->group(g)->type_name("DIR");
+  add_output_option(c, "unroll.out", a.out)->required()->group(g);
   auto* ow = c->add_flag("--overwrite", a.overwrite, "replace an existing output folder (at the end, whole)")->group(g);
   c->add_flag("--resume", a.resume,
               "continue an output (or a killed run's staging folder): GS frames already written and valid are kept")

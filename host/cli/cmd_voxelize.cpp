@@ -177,7 +177,7 @@ VoxelizeCounts write_tensors(const Sequence& seq, const std::vector<EventTensorP
 int run_voxelize(const VoxelizeArgs& a) {
   SequenceOptions so = sequence_options(a.timing);
   check_output_file(a.out, "--out");
-  check_output_file_rule(a.out, "out", a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse,
+  check_output_file_rule(a.out, output_path("voxelize.out"), a.overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse,
                          {{opt("sequence"), a.sequence}, {opt("events") + " file", so.events_file.value_or("")}});
   const VoxelizeTargets targets = parse_targets(a);
   EventTensorSpec spec;
@@ -245,8 +245,7 @@ Command add_voxelize(CLI::App& parent) {
                     ->type_name("LIST");
   c->add_option("--times-us", a->times_us, "absolute targets t* in microseconds, same syntax (the same t* for every frame)")
       ->excludes(times)->type_name("LIST");
-  c->add_option("--out", a->out, "the safetensors file to write (written under a temporary name, renamed when complete)")
-      ->required()->type_name("FILE");
+  add_output_option(c, "voxelize.out", a->out)->required();
   c->add_flag("--overwrite", a->overwrite, "replace an existing --out file (only one vkunroll wrote)");
   c->add_option("--bins", a->bins, "temporal bins N (2N channels)")->check(int_range(1, 4096))->capture_default_str()->type_name("N");
   c->add_option("--crop", a->crop, "sensor window x,y,w,h (w, h > 0); rows keep their own full-sensor times")->type_name("X,Y,W,H");

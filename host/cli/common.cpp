@@ -5,10 +5,12 @@
 #include <filesystem>
 #include <iostream>
 #include <map>
+#include <stdexcept>
 #include <opencv2/core/utility.hpp>
 
 #include "vkunroll/base/error.hpp"
 #include "vkunroll/host/cli/cli.hpp"
+#include "vkunroll/host/unroll/output_paths.hpp"
 #include "vkunroll/host/unroll/unroll_options.hpp"
 #include "vkunroll/host/unroll/value_list.hpp"
 
@@ -42,8 +44,11 @@ Rational rational(const std::string& text, const std::string& what) {
 
 std::string flag_for(std::string_view field) {
   // Fields whose flag is not "--" + the field with '-' for '_'.
+  // The output table spells its own fields (OUT, VKUNROLL_CACHE_DIR).
+  for (const OutputPath& p : output_paths())
+    if (std::string_view(p.front_end) != "python" && field == p.field) return p.spelled;
   static const std::map<std::string_view, std::string_view> renamed = {
-      {"sequence", "SEQUENCE"}, {"bag_sequence_out", "OUT"}, {"speed_scale", "--speed"}, {"flicker_amplitude", "--flicker-amp"}, {"hot_fraction", "--hot-pixels"}};
+      {"sequence", "SEQUENCE"}, {"speed_scale", "--speed"}, {"flicker_amplitude", "--flicker-amp"}, {"hot_fraction", "--hot-pixels"}};
   if (auto it = renamed.find(field); it != renamed.end()) return std::string(it->second);
   std::string flag = "--" + std::string(field);
   std::replace(flag.begin(), flag.end(), '_', '-');
@@ -211,6 +216,15 @@ void check_output_file(const std::string& path, const std::string& option) {
                      "); the output is written under a temporary name and renamed over it: name a file");
   const std::filesystem::path parent = std::filesystem::absolute(path, ec).parent_path();
   if (!parent.empty()) check_output_folder(parent.string(), option + " " + path + ": its folder");
+}
+
+CLI::Option* add_output_option(CLI::App* app, std::string_view id, std::string& value) {
+  const OutputPath& p = output_path(id);
+  if (std::string_view(p.front_end) != "cli" || app->get_name() != p.command)
+    throw std::logic_error("output path '" + std::string(id) + "' is not an option of vkunroll " + app->get_name());
+  return app->add_option(p.spelled, value, p.help)
+      ->check(non_empty())
+      ->type_name(p.shape == OutputShape::folder ? "DIR" : "FILE");
 }
 
 CLI::Validator non_empty() {

@@ -272,17 +272,15 @@ bool VulkanBackend::conv_folded_at_once(int id, const std::vector<BufferSlice>& 
   if (ref.transposed || probe_) return false;  // the per-layer probe reads each conv's own output
   const Conv2d& c = *convs_[ref.index];
   bool from_table = false;
-  ConvAlgo algo = conv2d_algorithm(c, is, false, false, from_table);
-  if (algo == ConvAlgo::automatic) algo = c.choose_algorithm(is.h, is.w);
+  const ConvAlgo algo = c.resolve_algorithm(is, conv2d_algorithm(c, is, false, false, from_table), false);
   if (!(is_igemm(algo) || algo == ConvAlgo::coopmat) || !c.supports(algo, is)) return false;
   if (from_table) ++convs_from_table_;
   std::vector<Slice> ps;
   for (const BufferSlice& v : pieces) ps.push_back(slice(tensor(v.buf), v));
   const Slice so = slice(tensor(out.buf), out);
-  ++conv_calls_by_algorithm_[conv_algo_name(algo)];
-  ++convs_folded_;
   if (ctx_.trace()) cs_->set_detail(conv_detail(is, so.shape(), (std::string(conv_algo_name(algo)) + " folded").c_str()));
-  c.record_folded(*cs_, ps, fold, so, std::nullopt, algo);
+  ++conv_calls_by_algorithm_[conv_algo_name(c.record_folded(*cs_, ps, fold, so, std::nullopt, algo))];
+  ++convs_folded_;
   cs_->set_detail({});
   return true;
 }
@@ -320,12 +318,13 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
     std::optional<Slice> r;
     if (residual) r = slice(tensor(residual->buf), *residual);
     bool from_table = false;
-    const ConvAlgo algo = conv2d_algorithm(c, is, r.has_value(), c.residual_overlaps_output(so, r), from_table);
+    const bool overlap = c.residual_overlaps_output(so, r);
+    // Resolved once, here (the trace names it before the dispatches are recorded); the count takes
+    // what record() says it ran, for the whole batch.
+    const ConvAlgo algo = c.resolve_algorithm(is, conv2d_algorithm(c, is, r.has_value(), overlap, from_table), overlap);
     if (from_table) ++convs_from_table_;
-    const char* algo_name = conv_algo_name(algo == ConvAlgo::automatic ? c.choose_algorithm(is.h, is.w) : algo);
-    ++conv_calls_by_algorithm_[algo_name];
-    if (ctx_.trace()) cs_->set_detail(conv_detail(is, so.shape(), algo_name));
-    c.record(*cs_, si, so, r, algo, dense_v_.get());
+    if (ctx_.trace()) cs_->set_detail(conv_detail(is, so.shape(), conv_algo_name(algo)));
+    ++conv_calls_by_algorithm_[conv_algo_name(c.record(*cs_, si, so, r, algo, dense_v_.get()))];
   }
   cs_->set_detail({});
   if (probe_) {

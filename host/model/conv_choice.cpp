@@ -192,7 +192,20 @@ void ConvChoiceTable::merge_committed(const ConvChoiceTable& committed) {
     }
 }
 
+bool is_conv_choice_table(const std::string& path) {
+  std::error_code ec;
+  if (std::filesystem::is_symlink(path, ec) || !std::filesystem::is_regular_file(path, ec)) return false;
+  std::ifstream in(path);
+  std::string first;
+  const std::string_view kind(kFormatLine, std::string_view(kFormatLine).rfind(' '));  // without its version
+  return std::getline(in, first) && first.rfind(kind, 0) == 0;
+}
+
 void ConvChoiceTable::save(const std::string& path, const std::string& header, const ConvDeviceIdentity& identity) const {
+  std::error_code exists_ec;
+  if (std::filesystem::exists(std::filesystem::symlink_status(path, exists_ec)) && !is_conv_choice_table(path))
+    throw IoError(path + ": exists and is not a vkunroll conv choice table (a link, a device or another file); refusing to "
+                  "replace it: move it away or set VKUNROLL_CACHE_DIR to another folder");
   ConvChoiceTable merged = load(path, nullptr);
   for (const auto& [k, e] : entries_)
     if (!e.committed) merged.entries_[k] = e;

@@ -80,7 +80,8 @@ class ConvChoiceTable {
   static ConvChoiceTable load(const std::string& path, std::vector<std::string>* warnings);
   // Writes this table merged over what `path` holds now (another process may have timed other
   // shapes), through a temporary file renamed into place; entries of a committed table stay out.
-  // `header`: the device it was measured on. Throws Error naming the path when it cannot be written.
+  // `header`: the device it was measured on. Throws Error naming the path when it cannot be written,
+  // and refuses (IoError) to replace a file at `path` that is not a conv choice table (issue 58).
   void save(const std::string& path, const std::string& header, const ConvDeviceIdentity& identity = {}) const;
   // Adds `committed`'s entries where this table has none (this device's own timings win), marked committed.
   void merge_committed(const ConvChoiceTable& committed);
@@ -92,6 +93,9 @@ class ConvChoiceTable {
 };
 
 ConvDeviceIdentity conv_device_identity(const Context& ctx);
+
+// A regular file whose first line is a conv choice table's (of any version): vkunroll wrote it.
+bool is_conv_choice_table(const std::string& path);
 
 // This device's table: its cache file (conv_choice_path), with the best committed table of
 // `committed_dirs` merged under it (find_committed_conv_table; the cache's own timings win).

@@ -164,10 +164,11 @@ void tune_precision(const TuneOptions& a, const Weights& weights, Precision prec
   ContextOptions co;
   co.device = a.device;
   Context ctx(co);
+  if (!a.plan && conv_choice_path(ctx).empty()) throw UsageError("no cache directory: set VKUNROLL_CACHE_DIR, XDG_CACHE_HOME or HOME");
+  if (!a.plan && a.check_table) a.check_table(conv_choice_path(ctx));  // before any timing, and before a foreign file is read
   std::vector<std::string> warnings;
   DeviceConvTable d = load_device_conv_table(ctx, {}, &warnings);  // this device's own table; tune never merges a committed one
   for (const auto& w : warnings) log_warning("vkunroll: warning: " + w);
-  if (d.path.empty() && !a.plan) throw UsageError("no cache directory: set VKUNROLL_CACHE_DIR, XDG_CACHE_HOME or HOME");
   auto table = a.plan ? std::make_shared<ConvChoiceTable>() : d.table;
   VulkanBackend backend(ctx, nullptr, kPoolFlushBytes, precision);
   backend.set_conv_choice(table, ConvChoice::retune, ConvTimingBudget{a.reps, a.candidate_ms, candidate_warm_ms(a), a.plan});

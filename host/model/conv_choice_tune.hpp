@@ -35,6 +35,9 @@ struct TuneOptions {
   std::string device;   // ContextOptions::device
   // Each line of the report as it goes; empty: the log sink at info level.
   std::function<void(const std::string&)> report;
+  // Called with this device's table path before anything is timed: throws where the table could not
+  // be written (the front end's output rule; empty: none).
+  std::function<void(const std::string&)> check_table;
 };
 
 // The frames (w, h) at batch 1, and where tile > 0 the sparse tiles' side (tile + 2 halo) at batch 1

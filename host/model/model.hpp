@@ -1,4 +1,4 @@
-// SelfUnroll-S and -M (docs/model.md): the graph of ../shared/reference/selfunroll-network.md,
+// SelfUnroll-S and -M (docs/model.md): the graph of docs/network.md,
 // written once against the Backend interface (host/model/backend.hpp) and run by any backend.
 //
 //   Weights w = load_weights("model.safetensors");

@@ -12,7 +12,9 @@
 #include <cerrno>
 #include <cstring>
 #include <ctime>
+#include <filesystem>
 #include <fstream>
+#include <stdexcept>
 #include <optional>
 #include <set>
 
@@ -110,6 +112,17 @@ const OutputLayout& sequence_output_layout() {
   return layout;
 }
 
+std::string enclosing_output_folder(const std::string& path) {
+  std::error_code ec;
+  const fs::path p = fs::absolute(path, ec).lexically_normal();
+  if (ec) return {};
+  for (fs::path d = p.parent_path(); !d.empty(); d = d.parent_path()) {
+    if (fs::exists(d / kManifestName, ec)) return d.string();
+    if (d == d.root_path()) break;
+  }
+  return {};
+}
+
 void check_written_sequence(const std::string& staging, const std::string& shown, const std::string& events_topic) {
   try {
     SequenceOptions so;
@@ -147,8 +160,9 @@ std::string sha256_file(const fs::path& path) {
   return h.hex();
 }
 
-OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const OutputLayout& layout, std::string field)
-    : field_(std::move(field)), existing_(existing), layout_(layout) {
+OutputFolder::OutputFolder(fs::path final_dir, ExistingOutput existing, const OutputPath& spec, const OutputLayout* layout)
+    : field_(spec.field), existing_(existing), layout_(layout ? *layout : spec.layout ? *spec.layout() : unroll_output_layout()) {
+  if (spec.shape != OutputShape::folder) throw std::logic_error(std::string("output path '") + spec.id + "' is not a folder");
   std::string text = final_dir.string();
   while (text.size() > 1 && text.back() == '/') text.pop_back();
   if (text.empty()) throw OptionError(field_, "", "empty folder name");
@@ -230,7 +244,9 @@ void OutputFolder::check_final() {
   const auto st = fs::symlink_status(final_, ec);
   if (!fs::exists(st)) return;
   if (!fs::is_directory(st))
-    throw OptionError(field_, final_.string(), std::string("exists and is not a folder (") + (fs::is_symlink(st) ? "a symbolic link" : "a file") + ")");
+    throw OptionError(field_, final_.string(),
+                      std::string("exists and is not a folder (") +
+                          (fs::is_symlink(st) ? "a symbolic link" : fs::is_regular_file(st) ? "a file" : "a device, FIFO or socket") + ")");
   if (is_empty_dir(final_)) return;
   if (existing_ == ExistingOutput::refuse)
     throw OptionError(field_, final_.string(),

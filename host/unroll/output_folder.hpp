@@ -13,6 +13,8 @@
 #include <string_view>
 #include <vector>
 
+#include "vkunroll/host/unroll/output_paths.hpp"
+
 namespace vkunroll {
 
 // What to do with an output folder that exists and is not empty.
@@ -45,9 +47,10 @@ class OutputFolder {
   // that holds, at any depth, anything vkunroll did not write there: what its manifest
   // (.vkunroll-manifest, written at commit) does not list, or for an output from before
   // manifests, anything but the output's names and PNGs in frames/ (nothing else is ever deleted).
-  // `field`: the option that names the folder, in messages (opt(): each front end spells it).
-  OutputFolder(std::filesystem::path final_dir, ExistingOutput existing,
-               const OutputLayout& layout = unroll_output_layout(), std::string field = "out");
+  // `spec`: the entry of the output table (output_paths.hpp) naming the folder: its field in messages
+  // (opt(): each front end spells it) and its layout, unless `layout` is given (demo's subfolders).
+  OutputFolder(std::filesystem::path final_dir, ExistingOutput existing, const OutputPath& spec,
+               const OutputLayout* layout = nullptr);
   // Without commit: the staging folder is removed (kept under `resume`, for the next --resume).
   ~OutputFolder();
   OutputFolder(const OutputFolder&) = delete;
@@ -99,6 +102,10 @@ class OutputFolder {
 // first frame's events read) before it is committed: a writer never commits a folder its own loader
 // refuses. DataError naming `shown` (the final folder) and the loader's complaint.
 void check_written_sequence(const std::string& staging, const std::string& shown, const std::string& events_topic = {});
+
+// The vkunroll output folder (one holding a manifest) that `path` lies inside, or "" when none: a
+// file written there would make the folder hold what its manifest does not list.
+std::string enclosing_output_folder(const std::string& path);
 
 // SHA-256 of a file's bytes (hex); throws IoError naming the file.
 std::string sha256_file(const std::filesystem::path& path);

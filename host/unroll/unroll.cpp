@@ -25,6 +25,7 @@
 #include "vkunroll/host/model/backend.hpp"
 #include "vkunroll/host/unroll/device_stage.hpp"
 #include "vkunroll/host/unroll/follow_source.hpp"
+#include "vkunroll/host/unroll/output_file.hpp"
 #include "vkunroll/host/unroll/session.hpp"
 #include "vkunroll/host/unroll/unroll_job.hpp"
 #include "vkunroll/host/unroll/unroll_output.hpp"
@@ -229,6 +230,34 @@ nlohmann::json follow_report(const FollowFrameSource& source, const FollowSink& 
 
 }  // namespace
 
+namespace {
+
+// --trace under the output rule of every writer (output_paths.hpp): never an input of the run, the
+// --out folder or inside it, a link, a device or a file vkunroll did not write; its folder exists
+// and takes a file. `seq`: the loaded sequence (its event files may lie outside its folder).
+void check_trace_path(const UnrollOptions& o, const Sequence* seq) {
+  std::vector<std::pair<std::string, std::string>> inputs = {{opt("sequence"), o.sequence},
+                                                             {opt("events") + " file", o.sequence_options.events_file.value_or("")},
+                                                             {opt("model") + " file", o.session.model_path}};
+  if (seq)
+    for (const auto& f : seq->event_files) inputs.emplace_back("event file", f);
+  const std::string& path = o.trace_path;
+  check_output_file_rule(path, output_path("unroll.trace"), o.output.existing, inputs);
+  std::error_code ec;
+  const fs::path trace = fs::weakly_canonical(fs::absolute(path), ec), out = fs::weakly_canonical(fs::absolute(o.out_dir), ec);
+  if (!ec && (trace == out || (trace.string().rfind(out.string() + "/", 0) == 0)))
+    throw OptionError("trace", path, "apart from the output",
+                      opt("trace") + " " + path + ": " + (trace == out ? "is" : "lies inside") + " the " + opt("out") +
+                          " folder, which is replaced whole when the run commits: write the trace outside it");
+  const fs::path dir = fs::absolute(path).parent_path();
+  if (!fs::is_directory(dir)) throw OptionError("trace", path, "the folder " + dir.string() + " does not exist");
+  // The file is written after the run: a name no file system takes is refused before it.
+  if (fs::path(path).filename().string().size() > 200) throw OptionError("trace", path.substr(0, 40) + "...", "a file name of at most 200 bytes");
+  check_output_folder_writable(path, "trace");
+}
+
+}  // namespace
+
 nlohmann::json run_unroll(const UnrollOptions& o) {
   const Stopwatch since_start;
   validate_unroll_options(o);  // a refused option does not wait for the sequence to load
@@ -236,13 +265,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   SessionOptions session_options = o.session;
   session_options.announce = session_options.announce && !o.quiet;
   session_options.trace = session_options.trace || !o.trace_path.empty();
-  if (!o.trace_path.empty()) {  // refused now, not after the run
-    const fs::path dir = fs::absolute(o.trace_path).parent_path();
-    if (!fs::is_directory(dir)) throw OptionError("trace", o.trace_path, "the folder " + dir.string() + " does not exist");
-    // The file is written after the run: a name no file system takes is refused before it.
-    if (fs::path(o.trace_path).filename().string().size() > 200)
-      throw OptionError("trace", o.trace_path.substr(0, 40) + "...", "a file name of at most 200 bytes");
-  }
+  if (!o.trace_path.empty()) check_trace_path(o, nullptr);  // refused now, not after the run
   if (o.mode == UnrollMode::physics) session_options.model_path.clear();
   // The model and the device before the sequence: their errors come first.
   UnrollSession session = in_device_stage("setting up the device and the model", [&] { return UnrollSession(session_options); });
@@ -253,6 +276,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   std::vector<std::pair<std::string, std::string>> event_files;  // meta.json may name files outside the folder
   for (const auto& f : seq.event_files) event_files.emplace_back("event file", f);
   check_output_apart(o.out_dir, "out", event_files);
+  if (!o.trace_path.empty()) check_trace_path(o, &seq);
   std::optional<InterruptFlag> interrupt;  // --follow: SIGINT stops the stream cleanly
   if (o.follow.enabled) interrupt.emplace();
   std::unique_ptr<FrameSource> source;
@@ -295,6 +319,7 @@ nlohmann::json run_unroll(const UnrollOptions& o) {
   if (follow) extra["follow"] = follow_report(*follow, *follow_sink, stopped, job.total_targets(), extra["warnings"]);
   extra["provenance"]["finished_utc"] = utc_now();
   if (const Trace* trace = session.trace(); trace && !o.trace_path.empty()) {  // before the output claims success
+    check_trace_path(o, &seq);  // a file that appeared during the run is not replaced either
     try {
       trace->write(o.trace_path);
     } catch (const Error& e) {

@@ -94,7 +94,7 @@ std::string csv_number(double v) {
 }
 
 UnrollOutput::UnrollOutput(fs::path dir, UnrollOutputOptions options)
-    : folder_(std::move(dir), options.existing), options_(std::move(options)) {
+    : folder_(std::move(dir), options.existing, output_path("unroll.out")), options_(std::move(options)) {
   if (options_.existing == ExistingOutput::resume) {
     load_journal(folder_.staging());   // a killed run's frames
     load_journal(folder_.final_dir());  // a finished run's frames

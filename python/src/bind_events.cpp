@@ -239,7 +239,7 @@ void bind_events(py::module_& m) {
           const EventFormat* f = find_event_format(format);
           if (!f || !f->write)
             throw OptionError("format", format, "one of " + event_format_names(", ", true));
-          write_output_file(path, overwrite, [&](const std::string& tmp) { f->write(tmp, ev); });
+          write_output_file("write_events.path", path, overwrite, [&](const std::string& tmp) { f->write(tmp, ev); });
         });
       },
       py::arg("path"), py::arg("t"), py::arg("x"), py::arg("y"), py::arg("p"), py::arg("width"), py::arg("height"),

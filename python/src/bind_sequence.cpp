@@ -145,7 +145,7 @@ void bind_sequence(py::module_& m) {
           return s;
         });
         without_gil({}, [&] {
-          write_sequence_folder(dir, overwrite, [&](const std::string& staging) { write_generic_sequence(staging, spec); });
+          write_sequence_folder("Sequence.create.path", dir, overwrite, [&](const std::string& staging) { write_generic_sequence(staging, spec); });
         });
       },
       py::arg("dir"), py::arg("width"), py::arg("height"), py::arg("frames"), py::arg("timings"), py::arg("gt_times"),

@@ -51,9 +51,10 @@ void bind_sim(py::module_& m) {
           return cfg;
         });
         const std::string meta = without_gil({}, [&] {
-          const sim::SimulatedSequence seq = sim::simulate(c);
           std::string written;
-          write_sequence_folder(out, overwrite, [&](const std::string& staging) { written = sim::write_sequence(c, seq, staging).dump(); });
+          // The output is checked (and locked) before the simulation runs.
+          write_sequence_folder("simulate.path", out, overwrite,
+                                [&](const std::string& staging) { written = sim::write_sequence(c, sim::simulate(c), staging).dump(); });
           return written;
         });
         return meta;

@@ -18,9 +18,10 @@ inline void rethrow_as_shown(const Error& e, const std::string& staging, const s
 }
 
 // `fill(staging folder)` writes the sequence; it is loaded back (the loader's schema) and committed.
+// `id`: the keyword's entry in the output table (host/unroll/output_paths.hpp).
 template <class Fill>
-void write_sequence_folder(const std::string& dir, bool overwrite, Fill&& fill) {
-  OutputFolder folder(dir, overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, sequence_output_layout(), "path");
+void write_sequence_folder(const char* id, const std::string& dir, bool overwrite, Fill&& fill) {
+  OutputFolder folder(dir, overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse, output_path(id));
   const std::string staging = folder.staging().string();
   try {
     fill(staging);
@@ -33,8 +34,8 @@ void write_sequence_folder(const std::string& dir, bool overwrite, Fill&& fill) 
 
 // `write(temporary path)` writes the file; it is renamed over `path` when complete.
 template <class Write>
-void write_output_file(const std::string& path, bool overwrite, Write&& write) {
-  check_output_file_rule(path, "path", overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse);
+void write_output_file(const char* id, const std::string& path, bool overwrite, Write&& write) {
+  check_output_file_rule(path, output_path(id), overwrite ? ExistingOutput::overwrite : ExistingOutput::refuse);
   write_file_staged(path, [&](const std::string& tmp) {
     try {
       write(tmp);

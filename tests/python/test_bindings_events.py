@@ -12,7 +12,7 @@ import pytest
 import vkunroll
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-REAL = os.path.join(ROOT, "..", "shared", "data", "real-events")
+REAL = os.path.join(ROOT, "tests", "data", "real")  # its README: sources, licenses
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
 
 # The other libraries' layouts, written out from their documentation (not taken from vkunroll):
@@ -24,10 +24,7 @@ METAVISION = np.dtype({"names": ["x", "y", "p", "t"], "formats": ["<u2", "<u2", 
 
 
 def real(name):
-    path = os.path.join(REAL, name)
-    if not os.path.exists(path):
-        pytest.skip(f"{path} is absent (../shared/data/real-events/)")
-    return path
+    return os.path.join(REAL, name)
 
 
 def cli_events(path, *args):
@@ -42,7 +39,7 @@ def test_real_recording_equals_cli(name, count, size):
     path = real(name)
     ev, info = vkunroll.read_events(path, return_info=True)
     assert ev.dtype == vkunroll.EVENT_DTYPE
-    assert len(ev) == count  # the count a correct decoder yields (real-events/README.md)
+    assert len(ev) == count  # the count a correct decoder yields (tests/data/real/README.md)
     assert info["sensor_size"] == size
     cli = cli_events(path)
     assert int(cli["events"]) == len(ev)

@@ -10,7 +10,7 @@ import pytest
 import vkunroll
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-REAL = os.path.join(ROOT, "..", "shared", "data", "real-events")
+REAL = os.path.join(ROOT, "tests", "data", "real")
 
 # (t us, x, y, p) in the top-left image convention of a 346x260 DAVIS346
 EVENTS = [(10, 0, 0, 1), (12, 345, 259, -1), (12, 100, 7, 1), (70, 5, 200, -1), (5000, 33, 34, 1)]
@@ -75,8 +75,6 @@ def test_evt21_words_both_byte_orders(tmp_path, legacy):
 
 def test_real_recording_as_aedat3(tmp_path):
     src = os.path.join(REAL, "sample.aedat4")
-    if not os.path.exists(src):
-        pytest.skip(f"{src} is absent (../shared/data/real-events/)")
     ev = vkunroll.read_events(src)
     path = str(tmp_path / "real.aedat")
     data = np.zeros(len(ev), dtype=[("d", "<u4"), ("t", "<i4")])

@@ -20,8 +20,6 @@ def example_code():
 
 
 def test_worked_example(monkeypatch, capsys):
-    if not os.path.exists(os.path.join(ROOT, "..", "shared", "data", "real-events", "sample.aedat4")):
-        pytest.skip("../shared/data/real-events/sample.aedat4 is absent")
     monkeypatch.chdir(ROOT)
     ns = {}
     exec(compile(example_code(), "docs/python.md (worked example)", "exec"), ns)

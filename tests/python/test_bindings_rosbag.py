@@ -17,7 +17,7 @@ import genpy.dynamic  # noqa: E402
 import vkunroll  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-REAL = os.path.join(ROOT, "..", "shared", "data", "real-events", "evt3_sample.raw")
+REAL = os.path.join(ROOT, "tests", "data", "real", "evt3_sample.raw")
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
 
 SEP = "\n" + "=" * 80 + "\n"
@@ -67,8 +67,6 @@ def write_raw(bag, topic, cls, data, t_us, md5=None):
 
 
 def real_events():
-    if not os.path.exists(REAL):
-        pytest.skip(f"{REAL} is absent (../shared/data/real-events/)")
     return vkunroll.read_events(REAL, return_info=True)
 
 

@@ -13,7 +13,7 @@ import vkunroll
 from tools.data import event_tensors_numpy as etn
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-REAL = os.path.join(ROOT, "..", "shared", "data", "real-events", "sample.aedat4")
+REAL = os.path.join(ROOT, "tests", "data", "real", "sample.aedat4")
 CLI = os.environ.get("VKUNROLL_CLI", os.path.join(ROOT, "build", "vkunroll"))
 
 W, H = 320, 240
@@ -22,8 +22,6 @@ W, H = 320, 240
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     """The real DVXplorer events with two made-up RS frames (integer timing: float64 is exact)."""
-    if not os.path.exists(REAL):
-        pytest.skip(f"{REAL} is absent")
     ev = vkunroll.read_events(REAL)
     base = int(ev["t"][0])
     rng = np.random.default_rng(5)

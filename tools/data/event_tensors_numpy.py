@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Row-aware event tensors (selfunroll-network.md section 4) in NumPy, the way the reference does
+"""Row-aware event tensors (docs/event_tensors.md, docs/network.md) in NumPy, the way the reference does
 it: float64 row times, boolean masks and np.add.at. Used as an independent check of the C++/GPU
 builder (golden fixture) and as the baseline of bench/bench_event_tensor.cpp.
 

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Reading the generic sequence layout (docs ../shared/reference/sequence-format.md) for training
+"""Reading the generic sequence layout (docs/sequence-format.md) for training
 and evaluation: meta.json, RS/GS PNGs (8/16-bit, gray or color), events.h5 or events.txt; and
 the row-aware event tensors of a crop for any source/target timing (tools/data/event_tensors_numpy.py).
 
@@ -267,7 +267,7 @@ def list_sequences(paths: List[str]) -> List[str]:
 
 # ---- event tensors for any source -> target timing ------------------------------------------------
 def eic_tensors(ev, src_start, src_end, target, target_exposure, bins, crop):
-    """ev1/ev2/ev3 [2N, h, w] of one E-IC pass (selfunroll-network.md section 4, generalized): the
+    """ev1/ev2/ev3 [2N, h, w] of one E-IC pass (docs/event_tensors.md, generalized): the
     source image's rows are exposed over [src_start[y], src_end[y]], the output is the image whose
     row y is exposed over [target[y], target[y] + target_exposure). All arrays are float64 per
     full-sensor row; RS2GS uses a constant target, GS2RS a constant source window."""

@@ -1,4 +1,4 @@
-"""PyTorch mirror of SelfUnroll-S / -M, written from docs/../shared/reference/selfunroll-network.md.
+"""PyTorch mirror of SelfUnroll-S / -M, written from docs/network.md.
 
 Module and parameter names are the published checkpoints' key names, so
 `SelfUnroll(cfg).load_state_dict(checkpoint)` works on a converted or original state_dict.
