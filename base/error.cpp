@@ -28,6 +28,20 @@ std::string spell_fields(std::string_view text, const FieldSpelling& spell) {
   return out;
 }
 
+const char* kind_name(ErrorKind kind) {
+  switch (kind) {
+    case ErrorKind::unspecified: return "unspecified";
+    case ErrorKind::usage: return "usage";
+    case ErrorKind::data: return "data";
+    case ErrorKind::input_missing: return "input_missing";
+    case ErrorKind::device_unavailable: return "device_unavailable";
+    case ErrorKind::internal: return "internal";
+    case ErrorKind::io: return "io";
+    case ErrorKind::temporary: return "temporary";
+  }
+  return "unspecified";
+}
+
 Error::Error(const std::string& text, ErrorKind kind)
     : std::runtime_error(text.find('\x1f') == std::string::npos ? text : spell_fields(text, as_named)), kind_(kind), text_(text) {}
 

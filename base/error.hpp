@@ -17,15 +17,21 @@
 
 namespace vkunroll {
 
+// Each kind, its CLI exit (sysexits) and its Python exception (docs/errors.md):
 enum class ErrorKind {
-  unspecified,         // not classified (treated as bad input data: deterministic, a retry fails again)
-  usage,               // a refused option value or combination
-  data,                // input data that breaks a rule (a file's contents, a sequence's timing)
-  input_missing,       // an input file or folder that does not exist
-  device_unavailable,  // no usable device (no driver, no device matching the selector)
-  io,                  // writing (or reading back) an output failed: disk full, read-only, ...
-  temporary,           // worth retrying: device lost, a submit timed out, the output is busy
+  unspecified,         // not classified yet (treated as data); the library may throw it only from the
+                       // reviewed list in tools/checks/bare_errors_allowed.txt
+  usage,               // 2, ValueError: a refused option value or combination
+  data,                // 65, ValueError: input data that breaks a rule (a file's contents, a sequence's timing)
+  input_missing,       // 66, FileNotFoundError: an input file or folder that does not exist
+  device_unavailable,  // 69, RuntimeError: no usable device (no driver, no device matching the selector)
+  internal,            // 70, RuntimeError: a broken invariant of vkunroll itself (a bug: please report it)
+  io,                  // 74, RuntimeError: reading or writing a file failed: disk full, read-only, a read error
+  temporary,           // 75, RuntimeError: worth retrying: device lost, a submit timed out, the output is busy
 };
+
+// The kind's name for messages and docs: "usage", "data", "input_missing", ...
+const char* kind_name(ErrorKind kind);
 
 // The option `field` inside a message, e.g. opt("times_us") + " 1e400: ...": a mark the front end spells.
 inline std::string opt(std::string_view field) { return "\x1f" + std::string(field) + "\x1f"; }
@@ -74,6 +80,11 @@ struct InputMissingError : Error {
 };
 struct DeviceUnavailableError : Error {
   explicit DeviceUnavailableError(const std::string& what) : Error(what, ErrorKind::device_unavailable) {}
+};
+// A broken invariant of the library itself (a size that the caller already checked, a state that
+// cannot happen): not the user's fault, exit 70.
+struct InternalError : Error {
+  explicit InternalError(const std::string& what) : Error(what, ErrorKind::internal) {}
 };
 struct IoError : Error {
   explicit IoError(const std::string& what) : Error(what, ErrorKind::io) {}

@@ -10,7 +10,7 @@ HostTensor::HostTensor(Shape s, float fill) : shape(s), data(static_cast<size_t>
 
 HostTensor::HostTensor(Shape s, std::vector<float> values) : shape(s), data(std::move(values)) {
   if (static_cast<int64_t>(data.size()) != s.count())
-    throw Error("HostTensor: " + std::to_string(data.size()) + " values given for shape " + s.str() + " (" +
+    throw UsageError("HostTensor: " + std::to_string(data.size()) + " values given for shape " + s.str() + " (" +
                 std::to_string(s.count()) + " expected)");
 }
 

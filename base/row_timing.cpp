@@ -89,7 +89,7 @@ Rational Rational::from_double(double v) {
 
 Rational Rational::parse(const std::string& text, const std::string& what) {
   auto fail = [&](const std::string& why) -> Rational {
-    throw Error(what + ": '" + text + "' is not a number (" + why + "); expected e.g. 12, -3.25, 1e3 or 73000/259");
+    throw DataError(what + ": '" + text + "' is not a number (" + why + "); expected e.g. 12, -3.25, 1e3 or 73000/259");
   };
   // One grammar for exact times: [sign] digits [. digits] [e [sign] digits] [/ the same], spaces
   // only around the whole ("60 000" is not 60000).
@@ -180,12 +180,12 @@ const char* readout_name(Readout r) { return r == Readout::top_down ? "top-down"
 Readout parse_readout(const std::string& s) {
   if (s == "top-down" || s == "top_down") return Readout::top_down;
   if (s == "bottom-up" || s == "bottom_up") return Readout::bottom_up;
-  throw Error("readout: '" + s + "' is not a readout direction (expected \"top-down\" or \"bottom-up\")");
+  throw UsageError("readout: '" + s + "' is not a readout direction (expected \"top-down\" or \"bottom-up\")");
 }
 
 Rational RowTiming::start(int y) const {
   if (y < 0 || y >= rows)
-    throw Error("RowTiming: row " + std::to_string(y) + " outside [0, " + std::to_string(rows) + ")");
+    throw UsageError("RowTiming: row " + std::to_string(y) + " outside [0, " + std::to_string(rows) + ")");
   return t0 + line_delay * Rational(read_index(y));
 }
 Rational RowTiming::end(int y) const { return start(y) + exposure; }
@@ -204,9 +204,9 @@ std::vector<double> RowTiming::end_times_us() const {
 Rational RowTiming::last_end() const { return t0 + line_delay * Rational(rows - 1) + exposure; }
 
 void RowTiming::validate(const std::string& what) const {
-  if (rows <= 0) throw Error(what + ": row count must be positive, got " + std::to_string(rows));
-  if (line_delay < Rational(0)) throw Error(what + ": line delay must be >= 0 us, got " + line_delay.str());
-  if (exposure <= Rational(0)) throw Error(what + ": exposure must be > 0 us, got " + exposure.str());
+  if (rows <= 0) throw DataError(what + ": row count must be positive, got " + std::to_string(rows));
+  if (line_delay < Rational(0)) throw DataError(what + ": line delay must be >= 0 us, got " + line_delay.str());
+  if (exposure <= Rational(0)) throw DataError(what + ": exposure must be > 0 us, got " + exposure.str());
 }
 
 }  // namespace vkunroll

@@ -1,10 +1,11 @@
 // Differential check of the index (fuzz_index and the corpus regression test): windowed reads
-// through EventFileReader against the full scan. The first byte picks the format (text, EVT 2.0,
-// EVT 3.0, .dat, AEDAT 4, EVT 2.1, AEDAT 2.0, AEDAT 3.1) and the policy, the last bytes the windows. Under drop/sort every window
-// must equal the full scan filtered to it; under error each window must throw exactly when (and
-// with the message) a scan from the start to the window's end does.
+// through EventFileReader against the full scan. The first byte picks the format (kIndexFormats)
+// and the policy, the last bytes the windows. Under drop/sort every window must equal the full scan
+// filtered to it; under error each window must throw exactly when (and with the message) a scan
+// from the start to the window's end does.
 #pragma once
 #include <algorithm>
+#include <utility>
 #include <optional>
 #include <string>
 
@@ -29,14 +30,26 @@ inline bool same_stream(const EventStream& a, const EventStream& b) {
   return a.t == b.t && a.x == b.x && a.y == b.y && a.p == b.p && a.width == b.width && a.height == b.height;
 }
 
+// The streamed formats of the table (event_formats.hpp), in the order the committed corpus's first
+// bytes number them (tests/test_event_formats.cpp checks that these are exactly the streamed rows):
+// a new streamed format is appended here.
+inline constexpr const char* kIndexFormats[] = {"txt", "evt2", "evt3", "dat", "aedat4", "evt21", "aedat2", "aedat3", "bag"};
+inline constexpr int kIndexFormatCount = int(sizeof(kIndexFormats) / sizeof(kIndexFormats[0]));
+
+// The format and policy (0 error, 1 drop, 2 sort) of first byte `k` (0-127): 0-14, the first five
+// formats x 3 policies; 15-23, the next three x 3; from 24, each further format x 3 policies in turn;
+// past those, as 0-14.
+inline std::pair<int, int> index_case(int k) {
+  if (k >= 15 && k < 24) return {5 + (k - 15) % 3, (k - 15) / 3};
+  if (k >= 24 && k < 24 + 3 * (kIndexFormatCount - 8)) return {8 + (k - 24) / 3, (k - 24) % 3};
+  return {k % 5, (k / 5) % 3};
+}
+
 // False when an indexed read differs from the full scan.
 inline bool index_matches_full_scan(const uint8_t* data, size_t size) {
   if (size < 4) return true;
-  static const char* kFormats[] = {"txt", "evt2", "evt3", "dat", "aedat4", "evt21", "aedat2", "aedat3"};
-  // (first byte & 0x7f) 0-14: the first five formats x 3 policies; 15-23: the last three x 3; more: as 0-14.
-  const int k = data[0] & 0x7F, f = k >= 15 && k < 24 ? 5 + (k - 15) % 3 : k % 5;
-  const int policy = k >= 15 && k < 24 ? (k - 15) / 3 : (k / 5) % 3;
-  const std::string format = kFormats[f];
+  const auto [f, policy] = index_case(data[0] & 0x7F);
+  const std::string format = kIndexFormats[f];
   EventReadOptions o;
   o.on_bad = policy == 0 ? BadEventPolicy::error : policy == 1 ? BadEventPolicy::drop : BadEventPolicy::sort;
   if (data[0] & 0x80) o.width = 64, o.height = 48;

@@ -59,8 +59,8 @@ EventStream first_events(const std::vector<uint8_t>& raw) {
   return sink.finish();
 }
 
-// The index fuzzer: first byte = format (text, evt2, evt3, dat, aedat4) + 5 * policy (error,
-// drop, sort); files past the 32 KiB checkpoint stride, with records out of time order.
+// The index fuzzer (fuzz_index.hpp's index_case): first byte = format (text, evt2, evt3, dat,
+// aedat4) + 5 * policy (error, drop, sort); files past the 32 KiB checkpoint stride, with records out of time order.
 void put_index_seeds(const fs::path& out) {
   EventStream many = random_stream(9000, 64, 48, 4, 1000, 5);
   for (size_t i = 0; i < many.size(); i += 37) many.t[i] -= 3;
@@ -88,6 +88,15 @@ void put_index_seeds(const fs::path& out) {
       b.insert(b.end(), jaer[size_t(f)].begin(), jaer[size_t(f)].end());
       put(out / "index", "seed_jaer_" + std::to_string(f) + "_" + std::to_string(policy), b);
     }
+  // ROS bags (chunks of 4 messages of 50 events, lz4): first byte 24 + policy.
+  BagOptions bo;
+  bo.events_per_message = 50, bo.compression = "lz4";
+  const std::vector<uint8_t> bag = encode_rosbag(many, bo);
+  for (int policy = 0; policy < 3; ++policy) {
+    std::vector<uint8_t> b{uint8_t(24 + policy)};
+    b.insert(b.end(), bag.begin(), bag.end());
+    put(out / "index", "seed_bag_" + std::to_string(policy), b);
+  }
 }
 
 // Seeds cut from the real recordings of the shared folder, where they exist.

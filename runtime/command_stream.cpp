@@ -25,7 +25,7 @@ bool overlaps(VkBuffer buffer, VkDeviceSize begin, VkDeviceSize end, VkBuffer b2
 }  // namespace
 
 VkDescriptorSet CommandStream::allocate_set(VkDescriptorSetLayout layout, uint32_t bindings) {
-  if (bindings > kDescriptorsPerSet) throw Error("a dispatch binds more than 16 buffers");
+  if (bindings > kDescriptorsPerSet) throw InternalError("a dispatch binds more than 16 buffers");
   Slot& s = *slots_[current_];
   if (s.desc_pools.empty() || s.desc_pool_used >= kSetsPerPool) {
     const VkDescriptorPoolSize sizes[4] = {{VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, kSetsPerPool * kDescriptorsPerSet},
@@ -93,18 +93,18 @@ void CommandStream::add_note(DispatchInfo info, const char* stage, Groups groups
 void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& args, const void* push,
                              uint32_t push_bytes, Groups groups, const DispatchInfo& info) {
   if (args.size() != pipeline.binding_count())
-    throw Error("dispatch '" + info.name + "': shader " + pipeline.name() + " declares " +
+    throw InternalError("dispatch '" + info.name + "': shader " + pipeline.name() + " declares " +
                 std::to_string(pipeline.binding_count()) + " buffers, " + std::to_string(args.size()) + " given");
   if (push_bytes != pipeline.push_constant_bytes())
-    throw Error("dispatch '" + info.name + "': " + std::to_string(push_bytes) + " push-constant bytes given, shader " +
+    throw InternalError("dispatch '" + info.name + "': " + std::to_string(push_bytes) + " push-constant bytes given, shader " +
                 pipeline.name() + " was set up for " + std::to_string(pipeline.push_constant_bytes()));
   const auto& lim = ctx_.info();
   if (groups.x == 0 || groups.y == 0 || groups.z == 0) return;  // nothing to do: an empty output
   if (groups.x > lim.max_workgroup_count[0] || groups.y > lim.max_workgroup_count[1] ||
       groups.z > lim.max_workgroup_count[2])
-    throw Error("dispatch '" + info.name + "': workgroup count " + std::to_string(groups.x) + "x" +
+    throw InternalError("dispatch '" + info.name + "': workgroup count " + std::to_string(groups.x) + "x" +
                 std::to_string(groups.y) + "x" + std::to_string(groups.z) + " exceeds the device limit");
-  if (args.size() > kDescriptorsPerSet) throw Error("dispatch '" + info.name + "' binds more than 16 buffers");
+  if (args.size() > kDescriptorsPerSet) throw InternalError("dispatch '" + info.name + "' binds more than 16 buffers");
   make_room();
 
   std::vector<Span> reads, writes;
@@ -117,16 +117,16 @@ void CommandStream::dispatch(const Pipeline& pipeline, const std::vector<Arg>& a
   for (size_t i = 0; i < args.size(); ++i) {
     const BufferRange& r = args[i].range;
     auto what = [&] { return "dispatch '" + info.name + "': argument " + std::to_string(i); };
-    if (r.buffer == VK_NULL_HANDLE) throw Error(what() + " is an empty tensor");
+    if (r.buffer == VK_NULL_HANDLE) throw InternalError(what() + " is an empty tensor");
     const DescriptorKind kind = pipeline.binding_kind(static_cast<uint32_t>(i));
     const bool uniform = kind == DescriptorKind::uniform_buffer;
     if (uniform && (r.size > lim.max_uniform_buffer_range || r.offset % lim.min_uniform_buffer_offset_alignment != 0))
-      throw Error("dispatch '" + info.name + "': uniform-buffer argument " + std::to_string(i) + " spans " +
+      throw InternalError("dispatch '" + info.name + "': uniform-buffer argument " + std::to_string(i) + " spans " +
                   std::to_string(r.size) + " bytes at offset " + std::to_string(r.offset) +
                   "; at most maxUniformBufferRange (" + std::to_string(lim.max_uniform_buffer_range) +
                   ") bytes at a multiple of " + std::to_string(lim.min_uniform_buffer_offset_alignment) + " allowed");
     if (!is_texel_buffer(kind) && r.size > lim.max_storage_buffer_range)
-      throw Error(what() + " spans " + std::to_string(r.size) + " bytes, more than maxStorageBufferRange (" +
+      throw InternalError(what() + " spans " + std::to_string(r.size) + " bytes, more than maxStorageBufferRange (" +
                   std::to_string(lim.max_storage_buffer_range) + " bytes); bind it in sub-ranges");
     w[i] = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
     w[i].dstSet = set;
@@ -192,14 +192,14 @@ VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const 
   const uint64_t texel = texel_bytes(a.texel_format);
   const char* kind_name = descriptor_kind_name(kind);
   if (texel == 0)
-    throw Error(what + ": texel format " + std::to_string(a.texel_format) +
+    throw InternalError(what + ": texel format " + std::to_string(a.texel_format) +
                 " is not one of R16, R16G16, R16G16B16A16 (float), R32, R32G32, R32G32B32A32 (float, uint, sint)");
   if (r.offset % lim.min_texel_buffer_offset_alignment != 0)
-    throw Error(what + " (" + kind_name + ") starts at byte offset " + std::to_string(r.offset) +
+    throw InternalError(what + " (" + kind_name + ") starts at byte offset " + std::to_string(r.offset) +
                 ", not a multiple of minTexelBufferOffsetAlignment (" +
                 std::to_string(lim.min_texel_buffer_offset_alignment) + ")");
   if (r.size % texel != 0 || r.size / texel > lim.max_texel_buffer_elements)
-    throw Error(what + " (" + kind_name + ") spans " + std::to_string(r.size) + " bytes = " +
+    throw InternalError(what + " (" + kind_name + ") spans " + std::to_string(r.size) + " bytes = " +
                 std::to_string(static_cast<double>(r.size) / static_cast<double>(texel)) + " texels of " +
                 std::to_string(texel) + " bytes; a whole number of at most maxTexelBufferElements (" +
                 std::to_string(lim.max_texel_buffer_elements) + ") allowed");
@@ -215,7 +215,7 @@ VkBufferView CommandStream::texel_view(const Arg& a, DescriptorKind kind, const 
                                         ? VK_FORMAT_FEATURE_UNIFORM_TEXEL_BUFFER_BIT
                                         : VK_FORMAT_FEATURE_STORAGE_TEXEL_BUFFER_BIT;
   if ((ff->second & need) == 0)
-    throw Error(what + ": the device does not support texel format " + std::to_string(a.texel_format) + " as a " +
+    throw DeviceUnavailableError(what + ": the device does not support texel format " + std::to_string(a.texel_format) + " as a " +
                 kind_name);
   VkBufferViewCreateInfo ci{VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO};
   ci.buffer = r.buffer;

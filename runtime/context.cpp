@@ -337,7 +337,7 @@ std::filesystem::path cache_dir() {
 // faster first frames than 2 workers' 1.39-1.44x), 1 to 8.
 uint32_t compile_threads(std::optional<uint32_t> requested) {
   if (requested && *requested > 64)
-    throw Error("ContextOptions::pipeline_compile_threads " + std::to_string(*requested) + ": expected 0 to 64");
+    throw UsageError("ContextOptions::pipeline_compile_threads " + std::to_string(*requested) + ": expected 0 to 64");
   const uint32_t hardware = std::thread::hardware_concurrency();
   return requested.value_or(std::clamp(hardware > 1 ? hardware - 1 : 1u, 1u, 8u));
 }
@@ -536,7 +536,7 @@ void Context::create_instance(bool validation) {
     ci.pUserData = this;
     auto create = reinterpret_cast<PFN_vkCreateDebugUtilsMessengerEXT>(
         vkGetInstanceProcAddr(instance_, "vkCreateDebugUtilsMessengerEXT"));
-    if (!create) throw Error("the validation layer is enabled but vkCreateDebugUtilsMessengerEXT is missing");
+    if (!create) throw DeviceUnavailableError("the validation layer is enabled but vkCreateDebugUtilsMessengerEXT is missing");
     VK_CHECK(create(instance_, &ci, nullptr, &messenger_));
   }
 }

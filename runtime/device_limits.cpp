@@ -17,14 +17,14 @@ uint64_t number(const std::string& key, const std::string& v) {
   uint64_t n = 0;
   const auto [end, ec] = std::from_chars(v.data(), v.data() + v.size(), n);
   if (ec != std::errc() || end != v.data() + v.size() || n == 0)
-    throw Error(std::string(kTestLimitsVariable) + ": " + key + "=" + v + ": expected a positive whole number");
+    throw UsageError(std::string(kTestLimitsVariable) + ": " + key + "=" + v + ": expected a positive whole number");
   return n;
 }
 
 template <typename T>
 void lower(T& field, uint64_t to, const std::string& key, const char* limit) {
   if (to > field)
-    throw Error(std::string(kTestLimitsVariable) + ": " + key + "=" + std::to_string(to) + " is above the device's " + limit +
+    throw UsageError(std::string(kTestLimitsVariable) + ": " + key + "=" + std::to_string(to) + " is above the device's " + limit +
                 " " + std::to_string(field) + ": the override only lowers a limit");
   field = static_cast<T>(to);
 }
@@ -39,15 +39,15 @@ std::string lower_device_limits_from_env(DeviceInfo& info, bool* without_fp16) {
     if (item.empty()) continue;
     const size_t eq = item.find('=');
     if (eq == std::string::npos)
-      throw Error(std::string(kTestLimitsVariable) + ": '" + item + "': expected key=value with a key among " + kKeys);
+      throw UsageError(std::string(kTestLimitsVariable) + ": '" + item + "': expected key=value with a key among " + kKeys);
     const std::string key = item.substr(0, eq), v = item.substr(eq + 1);
     if (key == "fp16" || key == "timestamps") {
-      if (v != "0") throw Error(std::string(kTestLimitsVariable) + ": " + key + "=" + v + ": expected 0 (the override only takes a feature away)");
+      if (v != "0") throw UsageError(std::string(kTestLimitsVariable) + ": " + key + "=" + v + ": expected 0 (the override only takes a feature away)");
       if (key == "fp16") *without_fp16 = true;
       else info.timestamps = false;
     } else if (key == "subgroup") {
       const uint64_t n = number(key, v);
-      if (n & (n - 1)) throw Error(std::string(kTestLimitsVariable) + ": subgroup=" + v + ": expected a power of two");
+      if (n & (n - 1)) throw UsageError(std::string(kTestLimitsVariable) + ": subgroup=" + v + ": expected a power of two");
       lower(info.subgroup_size, n, key, "subgroupSize");
       // The widths a pipeline may ask for (subgroup size control) shrink with it.
       info.max_subgroup_size = std::min<uint32_t>(info.max_subgroup_size, static_cast<uint32_t>(n));
@@ -59,7 +59,7 @@ std::string lower_device_limits_from_env(DeviceInfo& info, bool* without_fp16) {
     } else if (key == "storage_range") {
       lower(info.max_storage_buffer_range, number(key, v), key, "maxStorageBufferRange");
     } else {
-      throw Error(std::string(kTestLimitsVariable) + ": unknown key '" + key + "': expected one of " + kKeys);
+      throw UsageError(std::string(kTestLimitsVariable) + ": unknown key '" + key + "': expected one of " + kKeys);
     }
   }
   return *text;

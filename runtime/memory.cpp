@@ -52,7 +52,7 @@ uint32_t Allocator::memory_type(uint32_t type_bits, bool host_visible) const {
   if (t == UINT32_MAX && host_visible) t = find(hv);
   if (t == UINT32_MAX && !host_visible) t = find(VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT);
   if (t == UINT32_MAX) t = find(0);
-  if (t == UINT32_MAX) throw Error("no Vulkan memory type fits a storage buffer on " + ctx_.info().name);
+  if (t == UINT32_MAX) throw DeviceUnavailableError("no Vulkan memory type fits a storage buffer on " + ctx_.info().name);
   return t;
 }
 

@@ -56,20 +56,20 @@ Pipeline::Pipeline(Context& ctx, const ShaderModuleBlob& module, const std::vect
     if (const std::string why = ctx.info().subgroup_width_refusal(required_subgroup_size); !why.empty())
       throw DeviceUnavailableError("pipeline '" + shader + "': " + why);
   if (push_constant_bytes > 128 || push_constant_bytes > ctx.info().max_push_constants)
-    throw Error("pipeline '" + shader + "': " + std::to_string(push_constant_bytes) +
+    throw InternalError("pipeline '" + shader + "': " + std::to_string(push_constant_bytes) +
                 " bytes of push constants exceed the portable limit of 128");
   const std::span<const uint32_t> words(module.words, module.word_count);
   const auto bindings = spirv_bindings(words);
   for (uint32_t i = 0; i < bindings.size(); ++i) {
-    if (bindings[i].binding != i) throw Error("shader '" + shader + "': bindings must be numbered 0..n-1");
+    if (bindings[i].binding != i) throw InternalError("shader '" + shader + "': bindings must be numbered 0..n-1");
     kinds_.push_back(bindings[i].kind);
   }
   binding_count_ = static_cast<uint32_t>(bindings.size());
   check_limits(ctx.info(), shader, spirv_compute_needs(words, spec));
   if (std::count(kinds_.begin(), kinds_.end(), DescriptorKind::uniform_buffer) > kMaxUniformBindings)
-    throw Error("shader '" + shader + "': more than " + std::to_string(kMaxUniformBindings) + " uniform buffers");
+    throw InternalError("shader '" + shader + "': more than " + std::to_string(kMaxUniformBindings) + " uniform buffers");
   if (std::count_if(kinds_.begin(), kinds_.end(), is_texel_buffer) > kMaxTexelBindings)
-    throw Error("shader '" + shader + "': more than " + std::to_string(kMaxTexelBindings) + " texel buffers");
+    throw InternalError("shader '" + shader + "': more than " + std::to_string(kMaxTexelBindings) + " texel buffers");
 
   VkShaderModuleCreateInfo mci{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
   mci.codeSize = words.size_bytes();

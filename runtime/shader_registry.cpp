@@ -11,7 +11,7 @@ namespace vkunroll {
 const ShaderModuleBlob& find_shader(const ShaderModuleBlob* table, std::string_view table_name, std::string_view name) {
   for (const ShaderModuleBlob* b = table; b->name; ++b)
     if (name == b->name) return *b;
-  throw Error("no shader named '" + std::string(name) + "' among the " + std::string(table_name) +
+  throw InternalError("no shader named '" + std::string(name) + "' among the " + std::string(table_name) +
               " (.comp files are embedded at build time; was it added and rebuilt?)");
 }
 
@@ -31,7 +31,7 @@ std::vector<SpirvBinding> spirv_bindings(std::span<const uint32_t> words) {
   constexpr uint32_t kDecorationBlock = 2, kDecorationBinding = 33;
   constexpr uint32_t kStorageUniformConstant = 0, kStorageUniform = 2;
   constexpr uint32_t kDimBuffer = 5, kSampledWithSampler = 1, kSampledStorage = 2;
-  if (words.size() < 5 || words[0] != 0x07230203u) throw Error("not a SPIR-V module (bad magic)");
+  if (words.size() < 5 || words[0] != 0x07230203u) throw InternalError("not a SPIR-V module (bad magic)");
   std::map<uint32_t, uint32_t> binding_of;        // variable id -> binding
   std::set<uint32_t> block_structs;               // struct ids decorated Block (uniform blocks)
   std::map<uint32_t, uint32_t> pointee_of;        // Uniform/UniformConstant pointer type id -> pointee
@@ -41,7 +41,7 @@ std::vector<SpirvBinding> spirv_bindings(std::span<const uint32_t> words) {
   std::set<uint32_t> opaque_vars;                 // UniformConstant variables (images, samplers)
   for (size_t i = 5; i < words.size();) {
     const uint32_t count = words[i] >> 16, op = words[i] & 0xffffu;
-    if (count == 0 || i + count > words.size()) throw Error("malformed SPIR-V module");
+    if (count == 0 || i + count > words.size()) throw InternalError("malformed SPIR-V module");
     const bool interface_class = count >= 4 && (words[i + 3] == kStorageUniform || words[i + 3] == kStorageUniformConstant);
     if (op == kOpDecorate && count >= 4 && words[i + 2] == kDecorationBinding) binding_of[words[i + 1]] = words[i + 3];
     if (op == kOpDecorate && count >= 3 && words[i + 2] == kDecorationBlock) block_structs.insert(words[i + 1]);
@@ -52,7 +52,7 @@ std::vector<SpirvBinding> spirv_bindings(std::span<const uint32_t> words) {
     if (op == kOpTypeImage && count >= 9 && words[i + 3] == kDimBuffer) {
       if (words[i + 7] == kSampledWithSampler) buffer_images[words[i + 1]] = DescriptorKind::uniform_texel_buffer;
       else if (words[i + 7] == kSampledStorage) buffer_images[words[i + 1]] = DescriptorKind::storage_texel_buffer;
-      else throw Error("SPIR-V buffer image %" + std::to_string(words[i + 1]) +
+      else throw InternalError("SPIR-V buffer image %" + std::to_string(words[i + 1]) +
                        " does not say whether it is sampled or storage (Sampled = 0)");
     }
     if (op == kOpTypeSampledImage && count >= 3) sampled_image_of[words[i + 1]] = words[i + 2];
@@ -68,7 +68,7 @@ std::vector<SpirvBinding> spirv_bindings(std::span<const uint32_t> words) {
         if (block_structs.count(pointee)) kind = DescriptorKind::uniform_buffer;
         else if (auto bi = buffer_images.find(pointee); bi != buffer_images.end()) kind = bi->second;
         else if (opaque_vars.count(var))
-          throw Error("SPIR-V binding " + std::to_string(binding) +
+          throw InternalError("SPIR-V binding " + std::to_string(binding) +
                       " is an image or sampler that is not a buffer; only texel buffers are supported");
       }
     out.push_back({binding, kind});

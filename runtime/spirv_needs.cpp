@@ -111,13 +111,13 @@ struct Reader {
 }  // namespace
 
 SpirvComputeNeeds spirv_compute_needs(std::span<const uint32_t> words, const std::vector<uint32_t>& spec) {
-  if (words.size() < 5 || words[0] != 0x07230203u) throw Error("not a SPIR-V module (bad magic)");
+  if (words.size() < 5 || words[0] != 0x07230203u) throw InternalError("not a SPIR-V module (bad magic)");
   SpirvComputeNeeds needs;
   Reader r{spec};
   uint32_t local_size_ids[3] = {0, 0, 0};
   for (size_t i = 5; i < words.size();) {
     const uint32_t count = words[i] >> 16, op = words[i] & 0xffffu;
-    if (count == 0 || i + count > words.size()) throw Error("malformed SPIR-V module");
+    if (count == 0 || i + count > words.size()) throw InternalError("malformed SPIR-V module");
     const uint32_t* w = &words[i];
     if (op == kOpDecorate && count >= 4 && w[2] == kDecorationSpecId) r.spec_id[w[1]] = w[3];
     if (op == kOpDecorate && count >= 4 && w[2] == kDecorationBuiltIn && w[3] == kBuiltInWorkgroupSize) r.workgroup_size_id = w[1];

@@ -54,14 +54,14 @@ void copy_buffer(Context& ctx, BufferRange src, BufferRange dst) {
 Tensor::Tensor(Context& ctx, Shape shape, DType dtype, Binding binding)
     : ctx_(&ctx), shape_(shape), dtype_(dtype) {
   if (shape.n <= 0 || shape.c <= 0 || shape.h <= 0 || shape.w <= 0)
-    throw Error("Tensor: every dimension must be positive, got " + shape.str());
+    throw UsageError("Tensor: every dimension must be positive, got " + shape.str());
   const uint64_t limit = ctx.info().max_storage_buffer_range;
   if (binding == Binding::whole && bytes() > limit) {
     std::ostringstream os;
     os << "tensor " << shape.str() << " " << dtype_name(dtype) << " is " << bytes() << " bytes, more than "
        << "this device's maxStorageBufferRange of " << limit << " bytes (" << (limit >> 20)
        << " MiB) that one binding can address; use tiled execution or a smaller input";
-    throw Error(os.str());
+    throw DataError(os.str());
   }
   alloc_ = ctx.allocator().allocate(bytes());
 }
@@ -91,7 +91,7 @@ void Tensor::release() {
 
 void Tensor::reshape(const Shape& s) {
   if (static_cast<size_t>(s.count()) * dtype_size(dtype_) != bytes())
-    throw Error("Tensor::reshape: " + shape_.str() + " to " + s.str() + " changes the byte size");
+    throw UsageError("Tensor::reshape: " + shape_.str() + " to " + s.str() + " changes the byte size");
   shape_ = s;
 }
 
@@ -99,14 +99,14 @@ BufferRange Tensor::range() const { return {alloc_.buffer, alloc_.offset, bytes(
 
 BufferRange Tensor::range(size_t byte_offset, size_t nbytes) const {
   if (byte_offset + nbytes > bytes())
-    throw Error("Tensor::range: bytes [" + std::to_string(byte_offset) + ", " + std::to_string(byte_offset + nbytes) +
+    throw UsageError("Tensor::range: bytes [" + std::to_string(byte_offset) + ", " + std::to_string(byte_offset + nbytes) +
                 ") outside the tensor " + shape_.str() + " of " + std::to_string(bytes()) + " bytes");
   return {alloc_.buffer, alloc_.offset + byte_offset, nbytes};
 }
 
 void Tensor::upload(const void* data, size_t nbytes) {
   if (nbytes != bytes())
-    throw Error("Tensor::upload: " + std::to_string(nbytes) + " bytes given for a tensor " + shape_.str() + " " +
+    throw UsageError("Tensor::upload: " + std::to_string(nbytes) + " bytes given for a tensor " + shape_.str() + " " +
                 dtype_name(dtype_) + " of " + std::to_string(bytes()) + " bytes");
   ctx_->traffic().upload_bytes += nbytes;
   if (alloc_.mapped) {
@@ -126,7 +126,7 @@ void Tensor::upload(const void* data, size_t nbytes) {
 
 void Tensor::upload_part(size_t byte_offset, const void* data, size_t nbytes) {
   if (byte_offset > bytes() || nbytes > bytes() - byte_offset)
-    throw Error("Tensor::upload_part: bytes [" + std::to_string(byte_offset) + ", " +
+    throw UsageError("Tensor::upload_part: bytes [" + std::to_string(byte_offset) + ", " +
                 std::to_string(byte_offset + nbytes) + ") outside the tensor " + shape_.str() + " of " +
                 std::to_string(bytes()) + " bytes");
   if (nbytes == 0) return;
@@ -148,7 +148,7 @@ void Tensor::upload_part(size_t byte_offset, const void* data, size_t nbytes) {
 
 void Tensor::download(void* data, size_t nbytes) const {
   if (nbytes != bytes())
-    throw Error("Tensor::download: " + std::to_string(nbytes) + " bytes asked of a tensor " + shape_.str() + " " +
+    throw UsageError("Tensor::download: " + std::to_string(nbytes) + " bytes asked of a tensor " + shape_.str() + " " +
                 dtype_name(dtype_) + " of " + std::to_string(bytes()) + " bytes");
   ctx_->traffic().download_bytes += nbytes;
   if (alloc_.mapped) {

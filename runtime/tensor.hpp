@@ -61,7 +61,7 @@ class Tensor {
   template <class T>
   std::vector<T> download() const {
     if (sizeof(T) != dtype_size(dtype_))
-      throw Error(std::string("Tensor::download: element size does not match dtype ") + dtype_name(dtype_));
+      throw InternalError(std::string("Tensor::download: element size does not match dtype ") + dtype_name(dtype_));
     std::vector<T> v(static_cast<size_t>(shape_.count()));
     download(v.data(), v.size() * sizeof(T));
     return v;

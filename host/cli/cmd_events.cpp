@@ -7,6 +7,7 @@
 
 #include "vkunroll/base/stopwatch.hpp"
 #include "vkunroll/host/cli/cli.hpp"
+#include "vkunroll/host/events/event_formats.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 
 namespace vkunroll::cli {
@@ -55,6 +56,18 @@ EventReadOptions to_options(const EventsArgs& a) {
   o.array_time_unit = a.array_time_unit;
   o.events_topic = a.events_topic;
   return o;
+}
+
+// One line a format, from the table: "  evt3        a Prophesee EVT 3.0 recording (.raw)".
+std::string format_list() {
+  std::string out;
+  for (const EventFormat& f : event_formats()) {
+    std::string names = std::string(f.name) + (f.alias.empty() ? "" : "/" + std::string(f.alias)), exts;
+    for (std::string_view e : f.extensions)
+      if (!e.empty()) exts += (exts.empty() ? "" : " ") + std::string(e);
+    out += "\n  " + names + std::string(names.size() < 10 ? 10 - names.size() : 1, ' ') + std::string(f.what) + " (" + exts + ")";
+  }
+  return out;
 }
 
 int run_events(const EventsArgs& a) {
@@ -135,12 +148,14 @@ Command add_events(CLI::App& parent) {
   auto a = std::make_shared<EventsArgs>();
   CLI::App* c = parent.add_subcommand("events", "read an event file: count, time span, rate, sensor size, polarity, drops");
   c->description(
-      "Reads an event file (txt/csv, h5, npy, npz, Prophesee evt2/evt21/evt3 .raw and .dat, jAER AEDAT 2.0,\n"
-      "AEDAT 3.1, AEDAT 4, ROS 1 bag) in bounded memory and prints the event count, time span, rate, sensor size,\n"
-      "polarity balance, read speed, and what was dropped or ignored.");
+      "Reads an event file in bounded memory and prints the event count, time span, rate, sensor size, polarity\n"
+      "balance, read speed, and what was dropped or ignored. Formats (--format; detected from the file's signature,\n"
+      "then its extension):" + format_list());
   c->add_option("FILE", a->file, "the event file")->required();
-  c->add_option("--format", a->format, "txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4, bag (default: detect)")
-      ->check(CLI::IsMember({"txt", "h5", "npy", "npz", "evt2", "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4", "bag"}))
+  std::vector<std::string> names;
+  for (const EventFormat& f : event_formats()) names.emplace_back(f.name);
+  c->add_option("--format", a->format, event_format_names() + " (default: detect)")
+      ->check(CLI::IsMember(names))
       ->type_name("F");
   c->add_option("--on-bad", a->on_bad,
                 "error: stop at the first bad record | drop: drop and count bad records | sort: keep out-of-order "

@@ -23,15 +23,15 @@ namespace vkunroll::cli {
 namespace {
 
 HostTensor input_array(const SafetensorsFile& f, const std::string& path, const std::string& name) {
-  if (!f.has(name)) throw Error(path + ": no tensor '" + name + "' (expected rs, ev1, ev2, ev3)");
+  if (!f.has(name)) throw DataError(path + ": no tensor '" + name + "' (expected rs, ev1, ev2, ev3)");
   const SafetensorsTensor& t = f.get(name);
   if (t.shape.size() != 4) {
     std::ostringstream os;
     for (size_t i = 0; i < t.shape.size(); ++i) os << (i ? "x" : "") << t.shape[i];
-    throw Error(path + ": tensor '" + name + "' has shape " + os.str() + ", expected 4 dimensions (B, C, H, W)");
+    throw DataError(path + ": tensor '" + name + "' has shape " + os.str() + ", expected 4 dimensions (B, C, H, W)");
   }
   if (t.dtype != StDType::F32 && t.dtype != StDType::F16 && t.dtype != StDType::BF16 && t.dtype != StDType::F64)
-    throw Error(path + ": tensor '" + name + "' has dtype " + st_dtype_name(t.dtype) + ", expected a float type");
+    throw DataError(path + ": tensor '" + name + "' has dtype " + st_dtype_name(t.dtype) + ", expected a float type");
   return {Shape{t.shape[0], t.shape[1], t.shape[2], t.shape[3]}, t.to_f32()};
 }
 

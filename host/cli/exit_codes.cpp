@@ -41,6 +41,7 @@ int code_of(ErrorKind k, std::string* category) {
     case ErrorKind::data: *category = "bad input data"; return kExitData;
     case ErrorKind::input_missing: *category = "missing input"; return kExitNoInput;
     case ErrorKind::device_unavailable: *category = "no usable device"; return kExitUnavailable;
+    case ErrorKind::internal: *category = "internal error (a vkunroll bug: please report it)"; return kExitSoftware;
     case ErrorKind::io: *category = "I/O error"; return kExitIo;
     case ErrorKind::temporary: *category = "temporary failure (retry)"; return kExitTempFail;
     case ErrorKind::unspecified: break;

@@ -12,9 +12,9 @@ enum ExitCode : int {
   kExitData = 65,         // EX_DATAERR: input data that breaks a rule; unclassified vkunroll errors
   kExitNoInput = 66,      // EX_NOINPUT: an input file or folder does not exist
   kExitUnavailable = 69,  // EX_UNAVAILABLE: no usable device (no driver, no device matching --device)
-  kExitSoftware = 70,     // EX_SOFTWARE: an internal error (an exception that is not a vkunroll error)
+  kExitSoftware = 70,     // EX_SOFTWARE: an internal error (ErrorKind::internal, or an exception that is not a vkunroll error)
   kExitOsError = 71,      // EX_OSERR: out of host memory
-  kExitIo = 74,           // EX_IOERR: writing an output failed (disk full, read-only, file too large)
+  kExitIo = 74,           // EX_IOERR: reading or writing a file failed (disk full, read-only, file too large, a read error)
   kExitTempFail = 75,     // EX_TEMPFAIL: retry: device lost, a submit timed out, device memory, output busy
 };
 

@@ -35,10 +35,9 @@ struct FileReaderState {
   bool span_known = false;
   std::optional<std::pair<double, double>> span;
 
-  bool streamed() const {
-    return format == "txt" || format == "evt2" || format == "evt3" || format == "dat" || format == "aedat4" ||
-           format == "bag" || format == "evt21" || format == "aedat2" || format == "aedat3";
-  }
+  const EventFormat* row = nullptr;  // null for an empty file
+  bool streamed() const { return row && row->streamed; }
+  bool reads_path() const { return row && row->read_image; }
   void sync_prefix_max() {
     for (size_t i = prefix_max.size(); i < index.segments.size(); ++i)
       prefix_max.push_back(std::max(i ? prefix_max[i - 1] : INT64_MIN, index.segments[i].t_max));
@@ -48,12 +47,13 @@ struct FileReaderState {
 namespace {
 
 void run_random(FileReaderState& s, EventSink& sink) {
-  if (s.format == "h5") read_hdf5(s.path, nullptr, 0, sink);
-  else if (s.format == "npz") {
+  if (s.row->read_image == read_npz) {  // members opened once, for every window
     if (!s.npz) s.npz = std::make_unique<NpzArchive>(s.path, nullptr, 0);
     s.npz->read(sink);
+  } else if (s.row->read_image) {
+    s.row->read_image(s.path, nullptr, 0, sink);
   } else {
-    read_source(s.format, *s.src, sink);
+    s.row->read_bytes(*s.src, sink);
   }
 }
 
@@ -69,7 +69,7 @@ void read_ordered(FileReaderState& s, EventSink& sink) {
     if (s.index.segments.empty() || from != &s.index.segments.front().start) sink.report().stopped_early = true;
   }
   sink.use_index(&s.index, from, UINT64_MAX);
-  read_source(s.format, *s.src, sink);
+  s.row->read_bytes(*s.src, sink);
 }
 
 // sort: every segment whose valid-time range meets the window, in runs of consecutive segments.
@@ -92,7 +92,7 @@ void read_all_overlapping(FileReaderState& s, EventSink& sink) {
     // A run that reaches the indexed part's end goes on through the rest of the file.
     const bool to_end = j == n;
     sink.use_index(&s.index, &start, to_end ? UINT64_MAX : s.index.segments[j].start.offset);
-    read_source(s.format, *s.src, sink);
+    s.row->read_bytes(*s.src, sink);
     ran = true;
     if (to_end) read_tail = false;
     i = j;
@@ -102,7 +102,7 @@ void read_all_overlapping(FileReaderState& s, EventSink& sink) {
   if (read_tail || !ran) {
     const std::optional<Checkpoint> tail = s.index.tail;
     sink.use_index(&s.index, tail ? &*tail : nullptr, UINT64_MAX);
-    read_source(s.format, *s.src, sink);
+    s.row->read_bytes(*s.src, sink);
   }
 }
 
@@ -118,12 +118,16 @@ EventFileReader::EventFileReader(const std::string& path, const EventReadOptions
   s_->options.t_end_us.reset();
   std::error_code ec;
   s_->empty = std::filesystem::file_size(path, ec) == 0 && !ec;
-  std::string format = detail::canonical_format(options.format);
-  if (format != "h5" && format != "npz") s_->src = std::make_unique<detail::FileSource>(path);
-  if (s_->empty) format = "empty";
-  if (format.empty()) format = detail::canonical_format(detail::detect_format(*s_->src, path));
-  if (format != "empty") detail::check_topic_applies(path, format, options);
-  s_->format = format;
+  const EventFormat* row = options.format.empty() ? nullptr : &detail::format_row(options.format, path);
+  if (!row || row->read_bytes) s_->src = std::make_unique<detail::FileSource>(path);
+  if (s_->empty) {
+    s_->format = "empty";
+    return;
+  }
+  if (!row) row = &detail::format_row(detail::detect_format(*s_->src, path), path);
+  s_->row = row;
+  s_->format = std::string(row->name);
+  detail::check_topic_applies(path, s_->format, options);
 }
 
 EventFileReader::~EventFileReader() = default;
@@ -142,7 +146,7 @@ EventStream EventFileReader::read(std::optional<int64_t> t_begin_us, std::option
   rep.format = s.format;
   rep.time_unit = "us";
   ++s.totals.reads;
-  if (!s.src && s.format != "h5" && s.format != "npz" && !s.empty) s.src = std::make_unique<detail::FileSource>(s.path);
+  if (!s.src && !s.reads_path() && !s.empty) s.src = std::make_unique<detail::FileSource>(s.path);
   detail::EventSink sink(s.path, o, rep);
   sink.count_into(&s.totals, &s.seen);
   if (s.empty) {
@@ -171,7 +175,7 @@ bool EventFileReader::may_have_events_in(int64_t t_begin_us, int64_t t_end_us) {
   if (s.streamed()) return true;
   if (s.options.on_bad == BadEventPolicy::sort && !s.span_known) return true;  // known after the first read
   if (!s.span_known) {
-    if (!s.src && s.format == "npy") s.src = std::make_unique<detail::FileSource>(s.path);
+    if (!s.src && !s.reads_path()) s.src = std::make_unique<detail::FileSource>(s.path);
     EventReadReport rep;
     detail::EventSink sink(s.path, s.options, rep);
     sink.probe_time_span();
@@ -202,11 +206,12 @@ EventFileReader memory_file_reader(const std::string& name, const uint8_t* data,
   s->options = options;
   s->options.t_begin_us.reset();
   s->options.t_end_us.reset();
-  s->format = canonical_format(format);
+  s->row = &format_row(format, name);
+  s->format = std::string(s->row->name);
   s->src = std::make_unique<MemorySource>(name, data, size);
   s->in_memory = true;
-  if (!s->streamed() && s->format != "npy")
-    throw Error(name + ": memory readers take the streamed formats and npy, not '" + format + "'");
+  if (!s->row->read_bytes)
+    throw UsageError(name + ": memory readers take the formats read from a byte source, not '" + format + "'");
   return EventFileReader(std::move(s));
 }
 

@@ -23,16 +23,16 @@ namespace detail {
 // writer comes): every reader's and detection's file goes through it.
 void refuse_special_file(const std::string& path) {
   if (const std::string kind = special_file_kind(path); !kind.empty())
-    throw Error(path + ": is " + kind + ", expected an event file (a regular file: reading " + kind + " could block for ever)");
+    throw DataError(path + ": is " + kind + ", expected an event file (a regular file: reading " + kind + " could block for ever)");
 }
 
 FileSource::FileSource(const std::string& path) : ByteSource(path) {
   refuse_special_file(path);
   f_ = std::fopen(path.c_str(), "rb");
-  if (!f_) throw Error(path + ": cannot open event file (" + std::strerror(errno) + ")");
+  if (!f_) throw Error(path + ": cannot open event file (" + std::strerror(errno) + ")", errno == ENOENT ? ErrorKind::input_missing : ErrorKind::io);
   if (fseeko(f_, 0, SEEK_END) != 0) {
     std::fclose(f_);
-    throw Error(path + ": cannot seek (not a regular file?)");
+    throw IoError(path + ": cannot seek (not a regular file?)");
   }
   size_ = uint64_t(ftello(f_));
 }
@@ -43,9 +43,9 @@ FileSource::~FileSource() {
 
 size_t FileSource::read_at(uint64_t offset, void* dst, size_t n) {
   if (offset >= size_ || n == 0) return 0;
-  if (fseeko(f_, off_t(offset), SEEK_SET) != 0) throw Error(name() + ": seek to byte " + std::to_string(offset) + " failed");
+  if (fseeko(f_, off_t(offset), SEEK_SET) != 0) throw IoError(name() + ": seek to byte " + std::to_string(offset) + " failed");
   const size_t got = std::fread(dst, 1, n, f_);
-  if (got < n && std::ferror(f_)) throw Error(name() + ": read error at byte " + std::to_string(offset));
+  if (got < n && std::ferror(f_)) throw IoError(name() + ": read error at byte " + std::to_string(offset));
   return got;
 }
 
@@ -85,96 +85,10 @@ int time_unit_exponent(const std::string& unit, const std::string& what) {
   if (unit == "ms") return 3;
   if (unit == "us") return 0;
   if (unit == "ns") return -3;
-  throw Error(what + ": unknown time unit '" + unit + "' (expected s, ms, us or ns)");
+  throw UsageError(what + ": unknown time unit '" + unit + "' (expected s, ms, us or ns)");
 }
 
-// ---- detection and dispatch ------------------------------------------------------------------
-
-namespace {
-std::string lower_ext(const std::string& path) {
-  std::string e = std::filesystem::path(path).extension().string();
-  for (auto& c : e) c = char(std::tolower(static_cast<unsigned char>(c)));
-  return e;
-}
-}  // namespace
-
-std::string detect_format(ByteSource& src, const std::string& path) {
-  const auto head = read_range(src, 0, 64);
-  auto starts = [&](const char* magic, size_t n) { return head.size() >= n && std::memcmp(head.data(), magic, n) == 0; };
-  if (starts("\x89HDF\r\n\x1a\n", 8)) return "h5";
-  if (starts("\x93NUMPY", 6)) return "npy";
-  if (starts("PK\x03\x04", 4) || starts("PK\x05\x06", 4)) return "npz";
-  if (starts("#!AER-DAT4", 10)) return "aedat4";
-  if (starts("#ROSBAG V", 9)) return "bag";
-  if (starts("#!AER-DAT2.0", 12)) return "aedat2";
-  if (starts("#!AER-DAT3", 10)) return "aedat3";  // the AEDAT 3 reader names a 3.0 file's problem
-  const std::string ext = lower_ext(path);
-  if (ext == ".h5" || ext == ".hdf5" || ext == ".hdf") return "h5";
-  if (ext == ".npy") return "npy";
-  if (ext == ".npz") return "npz";
-  if (ext == ".bag") return "bag";
-  if (ext == ".aedat4") return "aedat4";
-  if (ext == ".aedat" || ext == ".aedat2" || ext == ".aedat3")
-    throw Error(path + ": an AEDAT file without a '#!AER-DAT2.0', '#!AER-DAT3.1' or '#!AER-DAT4.0' version line "
-                       "(AEDAT 1.0 and headerless files are not supported); pass " + opt("format") + " aedat2/aedat3/aedat4 if it is one");
-  if (ext == ".txt" || ext == ".csv" || ext == ".tsv") return "txt";
-  if (ext == ".dat") return "dat";
-  if (ext == ".raw" || (!head.empty() && head[0] == '%')) {
-    const PropheseeHeader h = parse_prophesee_header(src);
-    if (h.evt == "3.0") return "evt3";
-    if (h.evt == "2.0") return "evt2";
-    if (h.evt == "2.1") return "evt21";
-    if (h.evt.empty())
-      throw Error(path + ": Prophesee header does not say the encoding (no '% evt' or '% format' line, unknown plugin);"
-                         " pass " + opt("format") + " evt2, evt21 or evt3");
-    throw Error(path + ": Prophesee encoding EVT " + h.evt + " is not supported (EVT 2.0, 2.1 and 3.0 are)");
-  }
-  throw Error(path + ": cannot tell the event format from the extension '" + ext +
-              "' or the first bytes; pass " + opt("format") + " (txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4, bag)");
-}
-
-BinaryGuess guess_binary_format(ByteSource& src) {
-  const auto head = read_range(src, 0, 64);
-  auto starts = [&](const char* magic, size_t n) { return head.size() >= n && std::memcmp(head.data(), magic, n) == 0; };
-  if (starts("\x89HDF\r\n\x1a\n", 8)) return {"h5", ".h5", "an HDF5 file (HDF5 signature)"};
-  if (starts("\x93NUMPY", 6)) return {"npy", ".npy", "a NumPy .npy array (\\x93NUMPY magic)"};
-  if (starts("PK\x03\x04", 4) || starts("PK\x05\x06", 4)) return {"npz", ".npz", "a zip archive (.npz; 'PK' magic)"};
-  if (starts("#!AER-DAT4", 10)) return {"aedat4", ".aedat4", "an AEDAT 4 recording ('#!AER-DAT4' magic)"};
-  if (starts("#ROSBAG V", 9)) return {"bag", ".bag", "a ROS bag ('#ROSBAG' magic)"};
-  if (starts("#!AER-DAT2.0", 12)) return {"aedat2", ".aedat", "a jAER AEDAT 2.0 recording ('#!AER-DAT2.0' magic)"};
-  if (starts("#!AER-DAT3", 10)) return {"aedat3", ".aedat", "an AEDAT 3 recording ('#!AER-DAT3' magic)"};
-  if (!head.empty() && head[0] == '%') {
-    const PropheseeHeader h = parse_prophesee_header(src);
-    if (h.evt == "3.0") return {"evt3", ".raw", "a Prophesee EVT 3.0 recording (its '%' header says EVT 3.0)"};
-    if (h.evt == "2.0") return {"evt2", ".raw", "a Prophesee EVT 2.0 recording (its '%' header says EVT 2.0)"};
-    if (h.evt == "2.1") return {"evt21", ".raw", "a Prophesee EVT 2.1 recording (its '%' header says EVT 2.1)"};
-    if (!h.evt.empty())
-      return {"", "", "a Prophesee EVT " + h.evt + " recording, which is not supported (EVT 2.0, 2.1 and 3.0 are)"};
-    return {"dat", ".dat", "a Prophesee recording ('%' header lines, no EVT encoding named: .dat, or .raw with " + opt("format") + " evt2/evt3)"};
-  }
-  return {"", "", "its first bytes match no event format vkunroll reads"};
-}
-
-void read_source(const std::string& format, ByteSource& src, EventSink& sink) {
-  if (format == "txt" || format == "csv") read_text(src, sink);
-  else if (format == "evt2") read_evt2(src, sink);
-  else if (format == "evt3") read_evt3(src, sink);
-  else if (format == "dat") read_dat(src, sink);
-  else if (format == "aedat4") read_aedat4(src, sink);
-  else if (format == "bag") read_rosbag(src, sink);
-  else if (format == "evt21") read_evt21(src, sink);
-  else if (format == "aedat2") read_aedat2(src, sink);
-  else if (format == "aedat3") read_aedat3(src, sink);
-  else if (format == "npy") read_npy(src, sink);
-  else throw Error(src.name() + ": unknown event format '" + format +
-                   "' (expected txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4, bag)");
-}
-
-std::string canonical_format(const std::string& format) {
-  if (format == "hdf5") return "h5";
-  if (format == "csv") return "txt";
-  return format;
-}
+// ---- the empty file, the checks before a read -------------------------------------------
 
 EventStream read_empty_file(EventSink& sink) {
   EventReadReport& rep = sink.report();
@@ -188,8 +102,8 @@ EventStream read_empty_file(EventSink& sink) {
 void check_event_file(const std::string& path) {
   std::error_code ec;
   const auto st = std::filesystem::status(path, ec);
-  if (!std::filesystem::exists(st)) throw Error(path + ": event file does not exist");
-  if (std::filesystem::is_directory(st)) throw Error(path + ": is a folder, expected an event file");
+  if (!std::filesystem::exists(st)) throw InputMissingError(path + ": event file does not exist");
+  if (std::filesystem::is_directory(st)) throw DataError(path + ": is a folder, expected an event file");
   refuse_special_file(path);
 }
 
@@ -268,16 +182,16 @@ EventStream run_reader(const std::string& path, const EventReadOptions& options,
     return detail::read_empty_file(sink);
   }
   std::unique_ptr<detail::FileSource> src;
-  if (format.empty() || (format != "h5" && format != "npz")) src = std::make_unique<detail::FileSource>(path);
-  if (format.empty()) format = detail::detect_format(*src, path);
-  format = detail::canonical_format(format);
+  const EventFormat* row = format.empty() ? nullptr : &detail::format_row(format, path);
+  if (!row || row->read_bytes) src = std::make_unique<detail::FileSource>(path);
+  if (!row) row = &detail::format_row(detail::detect_format(*src, path), path);
+  format = std::string(row->name);
   detail::check_topic_applies(path, format, options);
   rep.format = format;
   rep.time_unit = "us";
   detail::EventSink sink(path, options, rep, std::move(on_chunk), chunk_events);
-  if (format == "h5") detail::read_hdf5(path, nullptr, 0, sink);
-  else if (format == "npz") detail::read_npz(path, nullptr, 0, sink);
-  else detail::read_source(format, *src, sink);
+  if (row->read_image) row->read_image(path, nullptr, 0, sink);
+  else row->read_bytes(*src, sink);
   return sink.finish();
 }
 

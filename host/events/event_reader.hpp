@@ -1,5 +1,5 @@
-// Event file readers: one entry point for every format users have (text/CSV, HDF5 layouts,
-// NumPy .npy/.npz, Prophesee EVT 2.0 / 2.1 / 3.0 .raw and .dat, jAER AEDAT 2.0, AEDAT 3.1, AEDAT 4, ROS 1 bags).
+// Event file readers: one entry point for every format of the table in event_formats.hpp (text/CSV,
+// HDF5 layouts, NumPy, Prophesee, AEDAT, ROS 1 bags).
 // Every reader checks each record (sensor bounds, time order, NaN times, polarity, unknown
 // words) and either throws vkunroll::Error naming the file, record and rule, or drops/sorts
 // and counts what it did in an EventReadReport. See docs/events.md.
@@ -40,8 +40,8 @@ struct EventReadOptions {
   // Time unit of floating-point time arrays in .npy/.npz/.h5 ("s","ms","us","ns"; default "us").
   // Integer time arrays are always microseconds.
   std::string array_time_unit;
-  // Empty: detect from the file's magic bytes, header and extension. Else one of
-  // "txt","h5","npy","npz","evt2","evt21","evt3","dat","aedat2","aedat3","aedat4","bag".
+  // Empty: detect from the file's signature, then its extension. Else a name (or alias) of the
+  // format table, event_formats() (event_formats.hpp).
   std::string format;
   // ROS bags: the topic to read. Empty: the bag's only topic of an event type (an error names them
   // when there are several).
@@ -120,8 +120,7 @@ uint64_t scan_events(const std::string& path, const EventReadOptions& options,
 // (allowed: ...)"), or "" when it is valid: the one rule of the reader, the CLI and Python.
 std::string text_columns_problem(const std::string& order);
 
-// The format read_events would use for `path` ("txt","h5","npy","npz","evt2","evt21","evt3","dat",
-// "aedat2","aedat3","aedat4","bag").
+// The format read_events would use for `path`: a name of event_formats() (event_formats.hpp).
 std::string detect_event_format(const std::string& path);
 
 // "a FIFO", "a character device", "a block device" or "a socket" for such a path, else "" (a

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "vkunroll/host/events/event_file_reader.hpp"
+#include "vkunroll/host/events/event_formats.hpp"
 #include "vkunroll/host/events/event_index_detail.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #include "vkunroll/base/error.hpp"
@@ -340,11 +341,12 @@ struct BinaryGuess {
 };
 BinaryGuess guess_binary_format(ByteSource& src);
 
-// Format of a source from its magic bytes/header and the file name's extension.
+// Format of a source from its magic bytes/header and the file name's extension (the table's
+// signatures and extensions, event_formats.cpp).
 std::string detect_format(ByteSource& src, const std::string& path);
 
-// "hdf5" -> "h5", "csv" -> "txt"; others unchanged.
-std::string canonical_format(const std::string& format);
+// The table's row of `format` (a name or alias); an unknown one is an OptionError naming `path`.
+const EventFormat& format_row(const std::string& format, const std::string& path);
 // Throws Error when `path` does not exist or is a folder.
 void check_event_file(const std::string& path);
 // A ROS bag topic given for a file that is not a bag is refused (UsageError naming the topic and the
@@ -358,7 +360,7 @@ EventStream read_empty_file(EventSink& sink);
 EventFileReader memory_file_reader(const std::string& name, const uint8_t* data, size_t size, const std::string& format,
                                    const EventReadOptions& options);
 
-// Reads `src` with the given (already detected) format into the sink; the fuzzers call this.
+// Reads `src` with the given (already detected) format's byte-source reader; the fuzzers call this.
 void read_source(const std::string& format, ByteSource& src, EventSink& sink);
 
 }  // namespace vkunroll::detail

@@ -27,10 +27,10 @@ EventSink::EventSink(const std::string& file, const EventReadOptions& options, E
                      std::function<void(const EventStream&)> on_chunk, size_t chunk_events)
     : file_(file), options_(options), report_(report), on_chunk_(std::move(on_chunk)), chunk_events_(chunk_events) {
   if (options_.width < 0 || options_.height < 0 || options_.width > 65536 || options_.height > 65536)
-    throw Error(file_ + ": sensor size override " + std::to_string(options_.width) + "x" +
+    throw UsageError(file_ + ": sensor size override " + std::to_string(options_.width) + "x" +
                 std::to_string(options_.height) + " is invalid (expected 1..65536)");
   if (options_.t_begin_us && options_.t_end_us && *options_.t_end_us < *options_.t_begin_us)
-    throw Error(file_ + ": time window [" + std::to_string(*options_.t_begin_us) + ", " +
+    throw UsageError(file_ + ": time window [" + std::to_string(*options_.t_begin_us) + ", " +
                 std::to_string(*options_.t_end_us) + ") us ends before it begins (t_end_us < t_begin_us)");
   if (options_.width > 0 && options_.height > 0) {
     width_ = options_.width;
@@ -49,7 +49,7 @@ void EventSink::note(const std::string& text) {
 void EventSink::set_file_geometry(int width, int height, const std::string& source) {
   if (width <= 0 || height <= 0) return;
   if (width > 65536 || height > 65536)
-    throw Error(file_ + ": sensor size " + std::to_string(width) + "x" + std::to_string(height) + " from " + source +
+    throw DataError(file_ + ": sensor size " + std::to_string(width) + "x" + std::to_string(height) + " from " + source +
                 " is invalid (at most 65536x65536)");
   if (override_size_) {
     if (width != width_ || height != height_) {
@@ -74,7 +74,7 @@ std::string EventSink::where() const {
   return s + ": ";
 }
 
-void EventSink::fail(const std::string& rule) const { throw Error(where() + rule); }
+void EventSink::fail(const std::string& rule) const { throw DataError(where() + rule); }
 
 void EventSink::fail_rule(const std::string& rule) const {
   fail(rule + " (use " + opt("on_bad") + " drop or sort, or EventReadOptions::on_bad, to drop such records and count them)");

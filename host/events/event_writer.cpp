@@ -17,18 +17,18 @@ namespace {
 void check_stream(const std::string& path, const EventStream& ev) {
   const size_t n = ev.t.size();
   if (ev.x.size() != n || ev.y.size() != n || ev.p.size() != n)
-    throw Error(path + ": cannot write events: arrays have different lengths (t " + std::to_string(n) + ", x " +
+    throw DataError(path + ": cannot write events: arrays have different lengths (t " + std::to_string(n) + ", x " +
                 std::to_string(ev.x.size()) + ", y " + std::to_string(ev.y.size()) + ", p " + std::to_string(ev.p.size()) + ")");
   for (size_t i = 0; i < n; ++i) {
     if ((ev.width > 0 && ev.x[i] >= ev.width) || (ev.height > 0 && ev.y[i] >= ev.height))
-      throw Error(path + ": cannot write events: event " + std::to_string(i) + " at x=" + std::to_string(ev.x[i]) +
+      throw DataError(path + ": cannot write events: event " + std::to_string(i) + " at x=" + std::to_string(ev.x[i]) +
                   " y=" + std::to_string(ev.y[i]) + " is outside the " + std::to_string(ev.width) + "x" +
                   std::to_string(ev.height) + " sensor");
     if (ev.p[i] != 1 && ev.p[i] != -1)
-      throw Error(path + ": cannot write events: event " + std::to_string(i) + " has polarity " +
+      throw DataError(path + ": cannot write events: event " + std::to_string(i) + " has polarity " +
                   std::to_string(int(ev.p[i])) + " (expected +1 or -1)");
     if (i && ev.t[i] < ev.t[i - 1])
-      throw Error(path + ": cannot write events: event " + std::to_string(i) + " at t=" + std::to_string(ev.t[i]) +
+      throw DataError(path + ": cannot write events: event " + std::to_string(i) + " at t=" + std::to_string(ev.t[i]) +
                   " is earlier than the one before (t must be non-decreasing)");
   }
 }
@@ -68,7 +68,7 @@ void write_dataset(const std::string& path, hid_t group, const char* name, hid_t
 void write_int_attr(const std::string& path, hid_t obj, const char* name, int64_t v) {
   H5Closer space{H5Screate(H5S_SCALAR), H5Sclose};
   H5Closer a{H5Acreate2(obj, name, H5T_STD_I64LE, space.id, H5P_DEFAULT, H5P_DEFAULT), H5Aclose};
-  if (a.id < 0 || H5Awrite(a.id, H5T_NATIVE_INT64, &v) < 0) throw Error(path + ": cannot write attribute " + name);
+  if (a.id < 0 || H5Awrite(a.id, H5T_NATIVE_INT64, &v) < 0) throw IoError(path + ": cannot write attribute " + name);
 }
 
 }  // namespace
@@ -90,7 +90,7 @@ void write_events_hdf5(const std::string& path, const EventStream& ev) {
   H5Closer gcpl{H5Pcreate(H5P_GROUP_CREATE), H5Pclose};
   H5Pset_obj_track_times(gcpl.id, 0);
   H5Closer g{H5Gcreate2(file.id, "events", H5P_DEFAULT, gcpl.id, H5P_DEFAULT), H5Gclose};
-  if (g.id < 0) throw Error(path + ": cannot create group events");
+  if (g.id < 0) throw IoError(path + ": cannot create group events");
   const hsize_t n = ev.size();
   std::vector<int8_t> p01(n);
   for (size_t i = 0; i < n; ++i) p01[i] = ev.p[i] > 0 ? 1 : 0;

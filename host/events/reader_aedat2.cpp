@@ -31,7 +31,7 @@ Aedat2Header parse_aedat2_header(ByteSource& src) {
   Aedat2Header h;
   const auto magic = read_range(src, 0, 12);
   if (magic.size() < 12 || std::memcmp(magic.data(), "#!AER-DAT2.0", 12) != 0)
-    throw Error(src.name() + ": not an AEDAT 2.0 file (missing '#!AER-DAT2.0' at the start)");
+    throw DataError(src.name() + ": not an AEDAT 2.0 file (missing '#!AER-DAT2.0' at the start)");
   uint64_t off = 0;
   const uint64_t size = src.size();
   HeaderLines lines(src);
@@ -42,7 +42,7 @@ Aedat2Header parse_aedat2_header(ByteSource& src) {
     if (src.read_at(off, &c, 1) != 1 || c != '#') break;
     uint64_t next = 0;
     if (!lines.line(off, line, next))
-      throw Error(src.name() + ": AEDAT 2.0 header line at byte " + std::to_string(off) +
+      throw DataError(src.name() + ": AEDAT 2.0 header line at byte " + std::to_string(off) +
                   " has no end (no newline within 64 KiB or before the end of the file)");
     off = next;
     std::string low = line;
@@ -52,7 +52,7 @@ Aedat2Header parse_aedat2_header(ByteSource& src) {
       for (char ch : low)
         if (std::isalnum(static_cast<unsigned char>(ch))) n += ch;
       if (n.find("dvs128") != std::string::npos && n.find("davis") == std::string::npos)
-        throw Error(src.name() + ": AEDAT 2.0 header line '" + line +
+        throw DataError(src.name() + ": AEDAT 2.0 header line '" + line +
                     "' names a DVS128, whose 16-bit address layout is not read (only jAER's DAVIS layout is)");
       int w = 0, hh = 0;
       if ((h.width == 0 || low.find("aechip:") != std::string::npos) && sensor_size_from_device_name(line, w, hh))
@@ -88,7 +88,7 @@ void read_aedat2(ByteSource& src, EventSink& sink) {
   const Aedat2Header h = parse_aedat2_header(src);
   if (h.width > 0) sink.set_file_geometry(h.width, h.height, "the AEDAT 2.0 header line '" + h.chip + "'");
   if (!sink.geometry_known())
-    throw Error(src.name() + ": the AEDAT 2.0 header names no DAVIS chip (no '# AEChip:' or '# HardwareInterface:' line "
+    throw DataError(src.name() + ": the AEDAT 2.0 header names no DAVIS chip (no '# AEChip:' or '# HardwareInterface:' line "
                              "with DAVIS346, 240, 640, 128 or 208); the sensor size is needed to undo jAER's flipped "
                              "x and y: pass " + opt("width") + " and " + opt("height") + " (EventReadOptions::width/height)");
   sink.note("AEDAT 2.0 records start at byte " + std::to_string(h.data_offset) +

@@ -33,10 +33,10 @@ Aedat3Header parse_aedat3_header(ByteSource& src) {
   const std::string& file = src.name();
   const auto magic = read_range(src, 0, 12);
   if (magic.size() >= 12 && std::memcmp(magic.data(), "#!AER-DAT3.0", 12) == 0)
-    throw Error(file + ": AEDAT 3.0 is not supported (no end-of-header line, origin at the lower left); convert it to "
+    throw DataError(file + ": AEDAT 3.0 is not supported (no end-of-header line, origin at the lower left); convert it to "
                        "AEDAT 3.1 or 4.0 with iniVation's DV");
   if (magic.size() < 12 || std::memcmp(magic.data(), "#!AER-DAT3.1", 12) != 0)
-    throw Error(file + ": not an AEDAT 3.1 file (missing '#!AER-DAT3.1' at the start)");
+    throw DataError(file + ": not an AEDAT 3.1 file (missing '#!AER-DAT3.1' at the start)");
   Aedat3Header h;
   uint64_t off = 0;
   HeaderLines lines(src);
@@ -45,7 +45,7 @@ Aedat3Header parse_aedat3_header(ByteSource& src) {
     uint64_t next = 0;
     uint8_t c = 0;
     if (src.read_at(off, &c, 1) != 1 || c != '#' || !lines.line(off, line, next))
-      throw Error(file + ": the AEDAT 3.1 header has no '#!END-HEADER' line (it ends at byte " + std::to_string(off) +
+      throw DataError(file + ": the AEDAT 3.1 header has no '#!END-HEADER' line (it ends at byte " + std::to_string(off) +
                   "; truncated or not AEDAT 3.1)");
     off = next;
     if (line == "#!END-HEADER") break;
@@ -163,7 +163,7 @@ uint64_t read_packet(ByteSource& src, EventSink& sink, const Aedat3Header& h, ui
   } else {
     buf.resize(size_t(avail));
     if (avail && src.read_at(off + 28, buf.data(), buf.size()) != buf.size())
-      throw Error(src.name() + ": read error in the packet at byte " + std::to_string(off));
+      throw IoError(src.name() + ": read error in the packet at byte " + std::to_string(off));
     if (!polarity_packet(ph, buf.data(), avail, off, record, sink)) return 0;
   }
   if (avail < payload)

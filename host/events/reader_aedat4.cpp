@@ -60,7 +60,7 @@ class FlatView {
     if (pos > n_ || len > n_ - pos) fail("offset " + std::to_string(pos) + "+" + std::to_string(len) + " outside " +
                                          std::to_string(n_) + " bytes");
   }
-  [[noreturn]] void fail(const std::string& why) const { throw Error(what_ + ": corrupt flatbuffer (" + why + ")"); }
+  [[noreturn]] void fail(const std::string& why) const { throw DataError(what_ + ": corrupt flatbuffer (" + why + ")"); }
 
  private:
   const uint8_t* d_;
@@ -126,7 +126,7 @@ void decompress(int compression, const std::vector<uint8_t>& in, std::vector<uin
   }
   if (compression == 1 || compression == 2) {
     LZ4F_dctx* dctx = nullptr;
-    if (LZ4F_isError(LZ4F_createDecompressionContext(&dctx, LZ4F_VERSION))) throw Error(where + ": LZ4 context");
+    if (LZ4F_isError(LZ4F_createDecompressionContext(&dctx, LZ4F_VERSION))) throw InternalError(where + ": LZ4 context");
     struct Free {
       LZ4F_dctx* d;
       ~Free() { LZ4F_freeDecompressionContext(d); }
@@ -137,13 +137,13 @@ void decompress(int compression, const std::vector<uint8_t>& in, std::vector<uin
     for (;;) {
       size_t src = in.size() - in_pos, dst = out.size() - out_pos;
       const size_t r = LZ4F_decompress(dctx, out.data() + out_pos, &dst, in.data() + in_pos, &src, nullptr);
-      if (LZ4F_isError(r)) throw Error(where + ": LZ4 decompression failed (" + LZ4F_getErrorName(r) + ")");
+      if (LZ4F_isError(r)) throw DataError(where + ": LZ4 decompression failed (" + LZ4F_getErrorName(r) + ")");
       in_pos += src;
       out_pos += dst;
       if (r == 0) break;  // frame complete
-      if (in_pos >= in.size() && dst == 0) throw Error(where + ": LZ4 frame is truncated");
+      if (in_pos >= in.size() && dst == 0) throw DataError(where + ": LZ4 frame is truncated");
       if (out.size() - out_pos < 65536) {
-        if (out.size() >= kMaxPacket) throw Error(where + ": packet decompresses to more than 256 MiB");
+        if (out.size() >= kMaxPacket) throw DataError(where + ": packet decompresses to more than 256 MiB");
         out.resize(std::min<size_t>(out.size() * 2, kMaxPacket));
       }
     }
@@ -163,19 +163,19 @@ void decompress(int compression, const std::vector<uint8_t>& in, std::vector<uin
     for (;;) {
       ZSTD_outBuffer ob{out.data() + out_pos, out.size() - out_pos, 0};
       const size_t r = ZSTD_decompressStream(ds, &ob, &ib);
-      if (ZSTD_isError(r)) throw Error(where + ": zstd decompression failed (" + ZSTD_getErrorName(r) + ")");
+      if (ZSTD_isError(r)) throw DataError(where + ": zstd decompression failed (" + ZSTD_getErrorName(r) + ")");
       out_pos += ob.pos;
       if (r == 0) break;
-      if (ib.pos >= ib.size && ob.pos < ob.size) throw Error(where + ": zstd frame is truncated");
+      if (ib.pos >= ib.size && ob.pos < ob.size) throw DataError(where + ": zstd frame is truncated");
       if (out.size() - out_pos < 65536) {
-        if (out.size() >= kMaxPacket) throw Error(where + ": packet decompresses to more than 256 MiB");
+        if (out.size() >= kMaxPacket) throw DataError(where + ": packet decompresses to more than 256 MiB");
         out.resize(std::min<size_t>(out.size() * 2, kMaxPacket));
       }
     }
     out.resize(out_pos);
     return;
   }
-  throw Error(where + ": unknown compression type " + std::to_string(compression) +
+  throw DataError(where + ": unknown compression type " + std::to_string(compression) +
               " (expected 0 none, 1/2 LZ4, 3/4 zstd)");
 }
 
@@ -196,11 +196,11 @@ AedatHeader parse_aedat_header(ByteSource& src, EventSink& sink) {
   const std::string& file = src.name();
   const auto magic = read_range(src, 0, 18);
   if (magic.size() < 18 || std::memcmp(magic.data(), "#!AER-DAT4.0\r\n", 14) != 0)
-    throw Error(file + ": not an AEDAT 4.0 file (missing '#!AER-DAT4.0' at the start)");
+    throw DataError(file + ": not an AEDAT 4.0 file (missing '#!AER-DAT4.0' at the start)");
   uint32_t hsize;
   std::memcpy(&hsize, magic.data() + 14, 4);
   if (hsize > (16u << 20) || 18 + uint64_t(hsize) > src.size())
-    throw Error(file + ": AEDAT 4 header size " + std::to_string(hsize) + " does not fit the file (truncated?)");
+    throw DataError(file + ": AEDAT 4 header size " + std::to_string(hsize) + " does not fit the file (truncated?)");
   const auto hbuf = read_range(src, 18, hsize);
   FlatView hv(hbuf.data(), hbuf.size(), file + ": IOHeader");
   const uint64_t root = hv.root();
@@ -210,7 +210,7 @@ AedatHeader parse_aedat_header(ByteSource& src, EventSink& sink) {
   if (uint64_t f = hv.field(root, 1)) h.table_pos = hv.scalar<int64_t>(f);
   if (uint64_t f = hv.field(root, 2)) xml = hv.str(f);
   if (h.compression < 0 || h.compression > 4)
-    throw Error(file + ": AEDAT 4 compression type " + std::to_string(h.compression) + " is unknown");
+    throw DataError(file + ": AEDAT 4 compression type " + std::to_string(h.compression) + " is unknown");
   static const char* kCompression[] = {"none", "LZ4", "LZ4 high", "zstd", "zstd high"};
   h.streams = parse_streams(xml);
   for (const auto& [id, s] : h.streams)
@@ -220,7 +220,7 @@ AedatHeader parse_aedat_header(ByteSource& src, EventSink& sink) {
                      ", counting stream " + std::to_string(id) + " as ignored");
     }
   if (h.event_stream < 0)
-    throw Error(file + ": the AEDAT 4 info declares no polarity event stream (typeIdentifier EVTS)");
+    throw DataError(file + ": the AEDAT 4 info declares no polarity event stream (typeIdentifier EVTS)");
   const StreamInfo& es = h.streams.at(h.event_stream);
   sink.set_file_geometry(es.width, es.height, "the AEDAT 4 info (sizeX/sizeY of stream '" + es.name + "')");
   sink.note("AEDAT 4: compression " + std::string(kCompression[h.compression]) + ", event stream " +
@@ -274,7 +274,7 @@ bool read_packet(ByteSource& src, EventSink& sink, const AedatHeader& h, uint64_
     return true;
   }
   in.resize(size_t(size));
-  if (src.read_at(off + 8, in.data(), in.size()) != in.size()) throw Error(where + ": read error");
+  if (src.read_at(off + 8, in.data(), in.size()) != in.size()) throw IoError(where + ": read error");
   decompress(h.compression, in, out, where);
   FlatView pv(out.data(), out.size(), where);
   pv.check(0, 8);

@@ -141,7 +141,7 @@ PropheseeHeader parse_prophesee_header(ByteSource& src) {
       if (nl != buf.end() || buf.size() < want || want >= (1 << 16)) break;
     }
     if (nl == buf.end() && buf.size() == (1 << 16))
-      throw Error(src.name() + ": Prophesee header line at byte " + std::to_string(off) + " is longer than 64 KiB");
+      throw DataError(src.name() + ": Prophesee header line at byte " + std::to_string(off) + " is longer than 64 KiB");
     std::string line(buf.begin(), nl);
     off += line.size() + (nl != buf.end() ? 1 : 0);
     if (is_prophesee_header_end(line)) break;
@@ -303,10 +303,10 @@ uint64_t dat_data_start(ByteSource& src, EventSink& sink, const PropheseeHeader&
     return 0;
   }
   if (ts[1] != 8)
-    throw Error(src.name() + ": .dat event size is " + std::to_string(ts[1]) + " bytes at byte " +
+    throw DataError(src.name() + ": .dat event size is " + std::to_string(ts[1]) + " bytes at byte " +
                 std::to_string(data + 1) + "; only 8-byte CD/TD records are supported");
   if (ts[0] != 0x00 && ts[0] != 0x0C)
-    throw Error(src.name() + ": .dat event type " + evt3_hex(ts[0], 2) + " at byte " + std::to_string(data) +
+    throw DataError(src.name() + ": .dat event type " + evt3_hex(ts[0], 2) + " at byte " + std::to_string(data) +
                 " is not a CD/TD event (0x00 or 0x0c)");
   return data + 2;
 }

@@ -128,7 +128,7 @@ Column open_column(hid_t file, const std::string& file_name, const std::string& 
   c.name = col < 0 ? path : path + "[:," + std::to_string(col) + "]";
   c.col = col;
   c.dset = Handle(H5Dopen2(file, path.c_str(), H5P_DEFAULT), H5Dclose);
-  if (!c.dset.valid()) throw Error(file_name + ": cannot open dataset '" + path + "'");
+  if (!c.dset.valid()) throw DataError(file_name + ": cannot open dataset '" + path + "'");
   Handle space(H5Dget_space(c.dset.get()), H5Sclose);
   const int rank = H5Sget_simple_extent_ndims(space.get());
   hsize_t dims[2] = {0, 0};
@@ -140,10 +140,10 @@ Column open_column(hid_t file, const std::string& file_name, const std::string& 
     c.rows = dims[0];
     c.ncols = dims[1];
     if (dims[1] < 4)
-      throw Error(file_name + ": dataset '" + path + "' has shape [" + std::to_string(dims[0]) + ", " +
+      throw DataError(file_name + ": dataset '" + path + "' has shape [" + std::to_string(dims[0]) + ", " +
                   std::to_string(dims[1]) + "]; expected N x 4 columns t, x, y, p");
   } else {
-    throw Error(file_name + ": dataset '" + path + "' has rank " + std::to_string(rank) + "; expected " +
+    throw DataError(file_name + ": dataset '" + path + "' has rank " + std::to_string(rank) + "; expected " +
                 (col < 0 ? "a 1-D array" : "an N x 4 array"));
   }
   // A dataset created but never written reads as its fill value (10^9 zeros read as 10^9 events).
@@ -157,10 +157,10 @@ Column open_column(hid_t file, const std::string& file_name, const std::string& 
   if (c.cls == H5T_ENUM) {
     Handle super(H5Tget_super(type.get()), H5Tclose);
     if (H5Tget_class(super.get()) != H5T_INTEGER || H5Tget_size(super.get()) != 1)
-      throw Error(file_name + ": dataset '" + c.name + "' (" + what + ") is an enum that is not a 1-byte bool");
+      throw DataError(file_name + ": dataset '" + c.name + "' (" + what + ") is an enum that is not a 1-byte bool");
     c.enum_type = Handle(H5Tget_native_type(type.get(), H5T_DIR_ASCEND), H5Tclose);
   } else if (c.cls != H5T_INTEGER && c.cls != H5T_FLOAT) {
-    throw Error(file_name + ": dataset '" + c.name + "' (" + what + ") has type class " + class_name(c.cls) +
+    throw DataError(file_name + ": dataset '" + c.name + "' (" + what + ") has type class " + class_name(c.cls) +
                 "; expected integer or float numbers");
   }
   return c;
@@ -178,7 +178,7 @@ void read_column(const std::string& file_name, Column& c, hsize_t r0, hsize_t n,
     hsize_t start[2] = {r0, hsize_t(c.col)}, count[2] = {n, 1};
     st = H5Sselect_hyperslab(fspace.get(), H5S_SELECT_SET, start, nullptr, count, nullptr);
   }
-  if (st < 0) throw Error(file_name + ": cannot select rows of '" + c.name + "'");
+  if (st < 0) throw DataError(file_name + ": cannot select rows of '" + c.name + "'");
   hsize_t mdims[1] = {n};
   Handle mspace(H5Screate_simple(1, mdims, nullptr), H5Sclose);
   if (c.cls == H5T_FLOAT) {
@@ -193,7 +193,7 @@ void read_column(const std::string& file_name, Column& c, hsize_t r0, hsize_t n,
     st = H5Dread(c.dset.get(), H5T_NATIVE_INT64, mspace.get(), fspace.get(), H5P_DEFAULT, iv.data());
   }
   if (st < 0)
-    throw Error(file_name + ": cannot read rows " + std::to_string(r0) + ".." + std::to_string(r0 + n) + " of '" +
+    throw DataError(file_name + ": cannot read rows " + std::to_string(r0) + ".." + std::to_string(r0 + n) + " of '" +
                 c.name + "' (truncated or corrupt file, or a compression filter that is not installed)");
 }
 
@@ -238,7 +238,7 @@ std::vector<int64_t> read_index_entries(const std::string& file_name, Column& c,
     for (size_t i = 0; i < dv.size(); ++i) {
       // A float index must be an integer that int64 can hold (converting 1e169 would be undefined).
       if (!std::isfinite(dv[i]) || std::fabs(dv[i]) >= 9.2e18 || dv[i] != std::floor(dv[i]))
-        throw Error(file_name + ": '" + c.name + "'[" + std::to_string(r0 + i) + "] = " + std::to_string(dv[i]) +
+        throw DataError(file_name + ": '" + c.name + "'[" + std::to_string(r0 + i) + "] = " + std::to_string(dv[i]) +
                     " is not an integer index");
       iv[i] = int64_t(dv[i]);
     }
@@ -253,16 +253,16 @@ std::vector<int64_t> read_whole_int(hid_t file, const std::string& file_name, co
 
 int64_t read_scalar_int(hid_t file, const std::string& file_name, const std::string& path) {
   Handle d(H5Dopen2(file, path.c_str(), H5P_DEFAULT), H5Dclose);
-  if (!d.valid()) throw Error(file_name + ": cannot open '" + path + "'");
+  if (!d.valid()) throw DataError(file_name + ": cannot open '" + path + "'");
   Handle space(H5Dget_space(d.get()), H5Sclose);
   if (H5Sget_simple_extent_npoints(space.get()) != 1)
-    throw Error(file_name + ": '" + path + "' should hold one number");
+    throw DataError(file_name + ": '" + path + "' should hold one number");
   Handle type(H5Dget_type(d.get()), H5Tclose);
   const H5T_class_t c = H5Tget_class(type.get());
-  if (c != H5T_INTEGER && c != H5T_FLOAT) throw Error(file_name + ": '" + path + "' is not a number");
+  if (c != H5T_INTEGER && c != H5T_FLOAT) throw DataError(file_name + ": '" + path + "' is not a number");
   int64_t v = 0;
   if (H5Dread(d.get(), H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &v) < 0)
-    throw Error(file_name + ": cannot read '" + path + "'");
+    throw DataError(file_name + ": cannot read '" + path + "'");
   return v;
 }
 
@@ -272,15 +272,15 @@ Handle open_file(const std::string& path, const void* image, size_t image_size) 
     Handle fapl(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
     H5Pset_fapl_core(fapl.get(), 1 << 16, false);
     if (H5Pset_file_image(fapl.get(), const_cast<void*>(image), image_size) < 0)
-      throw Error(path + ": cannot use the HDF5 file image");
+      throw InternalError(path + ": cannot use the HDF5 file image");
     Handle f(H5Fopen(path.c_str(), H5F_ACC_RDONLY, fapl.get()), H5Fclose);
-    if (!f.valid()) throw Error(path + ": not a readable HDF5 file");
+    if (!f.valid()) throw DataError(path + ": not a readable HDF5 file");
     return f;
   }
   if (H5Fis_hdf5(path.c_str()) <= 0)
-    throw Error(path + ": not a readable HDF5 file (bad signature or truncated)");
+    throw DataError(path + ": not a readable HDF5 file (bad signature or truncated)");
   Handle f(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose);
-  if (!f.valid()) throw Error(path + ": cannot open the HDF5 file (truncated or corrupt?)");
+  if (!f.valid()) throw DataError(path + ": cannot open the HDF5 file (truncated or corrupt?)");
   return f;
 }
 
@@ -328,14 +328,14 @@ Layout detect_layout(hid_t f, const std::string& file, EventSink& sink) {
     if (is_dataset(f, "image_ts") && !sink.geometry_known())
       sink.set_file_geometry(346, 260, "the DRE layout (DAVIS346; reference section 4)");
   } else {
-    throw Error(file + ": no event datasets found; expected events/{t,x,y,p} (project, DSEC), an N x 4 'events' "
+    throw DataError(file + ": no event datasets found; expected events/{t,x,y,p} (project, DSEC), an N x 4 'events' "
                        "dataset (Gev-RS, v2e) or top-level x, y, p, t (DRE)");
   }
   if (L.kind == "dsec" && !sink.geometry_known()) sink.set_file_geometry(640, 480, "the DSEC layout (Prophesee Gen3.1)");
   int w = 0, h = 0;
   if (!sink.geometry_known() && size_attrs(f, w, h)) sink.set_file_geometry(w, h, "the file's width/height attributes");
   if (L.x.rows != L.t.rows || L.y.rows != L.t.rows || L.p.rows != L.t.rows)
-    throw Error(file + ": event datasets have different lengths (t " + std::to_string(L.t.rows) + ", x " +
+    throw DataError(file + ": event datasets have different lengths (t " + std::to_string(L.t.rows) + ", x " +
                 std::to_string(L.x.rows) + ", y " + std::to_string(L.y.rows) + ", p " + std::to_string(L.p.rows) + ")");
   return L;
 }
@@ -452,14 +452,14 @@ ImageTimestamps read_image_timestamps(const std::string& h5_path) {
   load("image_ts", ts.image_ts);
   load("start_image_ts", ts.start_image_ts);
   load("end_image_ts", ts.end_image_ts);
-  if (!any) throw Error(h5_path + ": no image_ts, start_image_ts or end_image_ts datasets (DRE layout expected)");
+  if (!any) throw DataError(h5_path + ": no image_ts, start_image_ts or end_image_ts datasets (DRE layout expected)");
   return ts;
 }
 
 std::vector<int64_t> read_event_index(const std::string& h5_path, const std::string& dataset) {
   QuietHdf5 quiet;
   Handle f = open_file(h5_path, nullptr, 0);
-  if (!is_dataset(f.get(), dataset)) throw Error(h5_path + ": no dataset '" + dataset + "'");
+  if (!is_dataset(f.get(), dataset)) throw DataError(h5_path + ": no dataset '" + dataset + "'");
   return read_whole_int(f.get(), h5_path, dataset);
 }
 

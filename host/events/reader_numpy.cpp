@@ -99,7 +99,7 @@ class Lit {
     return v;
   }
   [[noreturn]] void fail(const std::string& what) const {
-    throw Error(file_ + ": malformed .npy header (" + what + " at character " + std::to_string(i_) + " of '" +
+    throw DataError(file_ + ": malformed .npy header (" + what + " at character " + std::to_string(i_) + " of '" +
                 s_.substr(0, 200) + "')");
   }
 
@@ -112,7 +112,7 @@ class Lit {
 DType parse_dtype(const std::string& d, const std::string& file, const std::string& what) {
   DType t;
   t.text = d;
-  if (d.size() < 2) throw Error(file + ": " + what + " has dtype '" + d + "'; expected a numeric dtype");
+  if (d.size() < 2) throw DataError(file + ": " + what + " has dtype '" + d + "'; expected a numeric dtype");
   size_t k = 0;
   if (d[0] == '<' || d[0] == '>' || d[0] == '|' || d[0] == '=') {
     t.big_endian = d[0] == '>';
@@ -130,7 +130,7 @@ DType parse_dtype(const std::string& d, const std::string& file, const std::stri
   else if (t.kind == 'i' || t.kind == 'u') ok = size == 1 || size == 2 || size == 4 || size == 8;
   else if (t.kind == 'f') ok = size == 2 || size == 4 || size == 8;
   if (!ok)
-    throw Error(file + ": " + what + " has dtype '" + d +
+    throw DataError(file + ": " + what + " has dtype '" + d +
                 "'; expected bool, integer (i1..i8, u1..u8) or float (f2, f4, f8) numbers");
   return t;
 }
@@ -138,22 +138,22 @@ DType parse_dtype(const std::string& d, const std::string& file, const std::stri
 NpyHeader parse_npy_header(ByteSource& src, const std::string& file) {
   const auto head = read_range(src, 0, 12);
   if (head.size() < 10 || std::memcmp(head.data(), "\x93NUMPY", 6) != 0)
-    throw Error(file + ": not a .npy array (missing the \\x93NUMPY magic)");
+    throw DataError(file + ": not a .npy array (missing the \\x93NUMPY magic)");
   const int major = head[6];
   uint64_t hlen, start;
   if (major == 1) {
     hlen = uint64_t(head[8]) | (uint64_t(head[9]) << 8);
     start = 10;
   } else if (major == 2 || major == 3) {
-    if (head.size() < 12) throw Error(file + ": truncated .npy header");
+    if (head.size() < 12) throw DataError(file + ": truncated .npy header");
     hlen = uint64_t(head[8]) | (uint64_t(head[9]) << 8) | (uint64_t(head[10]) << 16) | (uint64_t(head[11]) << 24);
     start = 12;
   } else {
-    throw Error(file + ": .npy format version " + std::to_string(major) + " is not supported (1, 2, 3 are)");
+    throw DataError(file + ": .npy format version " + std::to_string(major) + " is not supported (1, 2, 3 are)");
   }
-  if (hlen > (1u << 20)) throw Error(file + ": .npy header of " + std::to_string(hlen) + " bytes is implausible");
+  if (hlen > (1u << 20)) throw DataError(file + ": .npy header of " + std::to_string(hlen) + " bytes is implausible");
   const auto hb = read_range(src, start, size_t(hlen));
-  if (hb.size() < hlen) throw Error(file + ": truncated .npy header (file ends at byte " + std::to_string(start + hb.size()) + ")");
+  if (hb.size() < hlen) throw DataError(file + ": truncated .npy header (file ends at byte " + std::to_string(start + hb.size()) + ")");
   const std::string text(hb.begin(), hb.end());
   NpyHeader h;
   h.data_offset = start + hlen;
@@ -212,8 +212,8 @@ NpyHeader parse_npy_header(ByteSource& src, const std::string& file) {
     }
     if (!p.accept(',') && !p.peek('}')) p.fail("expected ',' or '}'");
   }
-  if (!have_descr || !have_shape) throw Error(file + ": .npy header lacks 'descr' or 'shape'");
-  if (h.itemsize == 0) throw Error(file + ": .npy dtype has zero size");
+  if (!have_descr || !have_shape) throw DataError(file + ": .npy header lacks 'descr' or 'shape'");
+  if (h.itemsize == 0) throw DataError(file + ": .npy dtype has zero size");
   return h;
 }
 
@@ -284,7 +284,7 @@ void decode_columns(std::array<ColumnSpec, 4>& cols, uint64_t rows, EventSink& s
     if (rows == 0) break;
     const uint64_t need = c.base + (rows - 1) * c.stride + uint64_t(c.type.size);
     if (c.src->size() < need)
-      throw Error(file + ": " + c.name + " needs " + std::to_string(need) + " bytes for " + std::to_string(rows) +
+      throw DataError(file + ": " + c.name + " needs " + std::to_string(need) + " bytes for " + std::to_string(rows) +
                   " rows but the data has " + std::to_string(c.src->size()) + " (truncated file)");
   }
   auto value_t = [&](uint64_t r) {
@@ -342,7 +342,7 @@ void decode_columns(std::array<ColumnSpec, 4>& cols, uint64_t rows, EventSink& s
       }
       buf[c].resize(size_t(hi - lo));
       const size_t got = cols[size_t(c)].src->read_at(lo, buf[c].data(), buf[c].size());
-      if (got < buf[c].size()) throw Error(file + ": " + cols[size_t(c)].name + " ends early (truncated file)");
+      if (got < buf[c].size()) throw DataError(file + ": " + cols[size_t(c)].name + " ends early (truncated file)");
       buf_start[c] = lo;
     }
     auto at = [&](int c, uint64_t r) {
@@ -385,32 +385,32 @@ uint64_t array_columns(const NpyHeader& h, ByteSource& src, const std::string& w
   const std::string file = src.name();
   if (h.structured) {
     if (h.shape.size() != 1)
-      throw Error(file + ": " + what + " is a record array of " + std::to_string(h.shape.size()) +
+      throw DataError(file + ": " + what + " is a record array of " + std::to_string(h.shape.size()) +
                   " dimensions; expected 1-D with fields x, y, p, t");
     bool have[4] = {false, false, false, false};
     for (const auto& f : h.fields) {
       const char r = field_role(f.name);
       if (!r) continue;
       const int i = role_index(r);
-      if (have[i]) throw Error(file + ": " + what + " has two fields for '" + std::string(1, r) + "'");
+      if (have[i]) throw DataError(file + ": " + what + " has two fields for '" + std::string(1, r) + "'");
       have[i] = true;
       cols[size_t(i)] = {&src, h.data_offset + f.offset, h.itemsize, f.type, what + " field '" + f.name + "'"};
     }
     for (int i = 0; i < 4; ++i)
       if (!have[i])
-        throw Error(file + ": " + what + " is a record array without a '" + std::string(1, "txyp"[i]) +
+        throw DataError(file + ": " + what + " is a record array without a '" + std::string(1, "txyp"[i]) +
                     "' field (expected fields x, y, p, t)");
     layout = "record";
     return h.shape[0];
   }
   if (h.shape.size() != 2 || h.shape[1] < 4)
-    throw Error(file + ": " + what + " has shape (" + [&] {
+    throw DataError(file + ": " + what + " has shape (" + [&] {
       std::string s;
       for (size_t i = 0; i < h.shape.size(); ++i) s += (i ? ", " : "") + std::to_string(h.shape[i]);
       return s;
     }() + "); expected N x 4 columns t, x, y, p or a record array with fields x, y, p, t");
   const uint64_t n = h.shape[0], k = h.shape[1], sz = h.itemsize;
-  if (n > (uint64_t(1) << 40) || k > (uint64_t(1) << 20)) throw Error(file + ": " + what + " shape is implausible");
+  if (n > (uint64_t(1) << 40) || k > (uint64_t(1) << 20)) throw DataError(file + ": " + what + " shape is implausible");
   for (int c = 0; c < 4; ++c) {
     if (h.fortran) cols[size_t(c)] = {&src, h.data_offset + uint64_t(c) * n * sz, sz, h.type, what + " column " + std::to_string(c)};
     else cols[size_t(c)] = {&src, h.data_offset + uint64_t(c) * sz, k * sz, h.type, what + " column " + std::to_string(c)};
@@ -436,7 +436,7 @@ void read_npz(const std::string& path, const uint8_t* data, size_t size, EventSi
 }
 
 void NpzArchive::read(EventSink& sink) {
-  if (members_.empty()) throw Error(path_ + ": the .npz holds no arrays");
+  if (members_.empty()) throw DataError(path_ + ": the .npz holds no arrays");
   std::string listing, key;
   for (const auto& [name, idx] : members_) listing += (listing.empty() ? "" : ", ") + name;
   auto has = [&](const std::string& k) {
@@ -455,7 +455,7 @@ void NpzArchive::read(EventSink& sink) {
   if (key.empty() && !separate) {
     if (members_.size() == 1) key = members_.front().first;
     else
-      throw Error(path_ + ": cannot tell which array holds the events (arrays: " + listing +
+      throw DataError(path_ + ": cannot tell which array holds the events (arrays: " + listing +
                   "); expected 'event'/'events', one array, or separate x, y, p, t");
   }
   std::array<ColumnSpec, 4> cols;
@@ -474,10 +474,10 @@ void NpzArchive::read(EventSink& sink) {
     ZipMemberSource& src = member(sep[i]);
     const NpyHeader h = parse_npy_header(src, src.name());
     if (h.structured || h.shape.size() != 1)
-      throw Error(path_ + ": array '" + sep[i] + "' should be 1-D numbers (separate x, y, p, t arrays)");
+      throw DataError(path_ + ": array '" + sep[i] + "' should be 1-D numbers (separate x, y, p, t arrays)");
     if (i == 0) rows = h.shape[0];
     else if (h.shape[0] != rows)
-      throw Error(path_ + ": arrays x, y, p, t have different lengths ('" + sep[0] + "' " + std::to_string(rows) + ", '" +
+      throw DataError(path_ + ": arrays x, y, p, t have different lengths ('" + sep[0] + "' " + std::to_string(rows) + ", '" +
                   sep[i] + "' " + std::to_string(h.shape[0]) + ")");
     cols[size_t(i)] = {&src, h.data_offset, h.itemsize, h.type, "array '" + sep[i] + "'"};
   }

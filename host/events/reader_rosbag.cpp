@@ -65,17 +65,17 @@ std::string choose_topic(const BagInfo& info, const std::string& asked, const st
   if (!asked.empty()) {
     for (const auto& [id, c] : info.connections)
       if (c.topic == asked) return asked;
-    throw Error(file + ": the bag has no topic '" + asked + "' (its topics: " + topic_list(info) + ")");
+    throw DataError(file + ": the bag has no topic '" + asked + "' (its topics: " + topic_list(info) + ")");
   }
   std::vector<std::string> found;
   for (const auto& [id, c] : info.connections)
     if (known_event_type(c.type) && std::find(found.begin(), found.end(), c.topic) == found.end()) found.push_back(c.topic);
   if (found.empty())
-    throw Error(file + ": the bag has no event topic (types read: " + event_types() + "; its topics: " + topic_list(info) + ")");
+    throw DataError(file + ": the bag has no event topic (types read: " + event_types() + "; its topics: " + topic_list(info) + ")");
   if (found.size() > 1) {
     std::string s;
     for (const auto& t : found) s += (s.empty() ? "" : ", ") + t;
-    throw Error(file + ": the bag has several event topics (" + s +
+    throw DataError(file + ": the bag has several event topics (" + s +
                 "); choose one with " + opt("events_topic") + " (EventReadOptions::events_topic)");
   }
   return found.front();
@@ -89,13 +89,13 @@ std::shared_ptr<const BagPlan> plan_bag(ByteSource& src, const EventReadOptions&
     if (c.topic != plan->topic) continue;
     const KnownType* k = known_event_type(c.type);
     if (!k)
-      throw Error(src.name() + ": topic '" + c.topic + "' has type " + c.type + " (md5 " + c.md5sum +
+      throw DataError(src.name() + ": topic '" + c.topic + "' has type " + c.type + " (md5 " + c.md5sum +
                   "), which is not an event type vkunroll decodes (" + event_types() + ")");
     if (c.md5sum != k->md5)
-      throw Error(src.name() + ": topic '" + c.topic + "' has type " + c.type + " with md5 " + c.md5sum +
+      throw DataError(src.name() + ": topic '" + c.topic + "' has type " + c.type + " with md5 " + c.md5sum +
                   ", not the known definition's " + k->md5 + " (another version of the message: its fields are unknown)");
     if (!plan->type.empty() && plan->type != c.type)
-      throw Error(src.name() + ": topic '" + c.topic + "' has connections of two types, " + plan->type + " and " + c.type);
+      throw DataError(src.name() + ": topic '" + c.topic + "' has connections of two types, " + plan->type + " and " + c.type);
     plan->type = c.type;
     plan->kind = k->kind;
     plan->conns.push_back(id);

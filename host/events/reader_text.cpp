@@ -176,7 +176,7 @@ class LineReader {
       }
       if (eof_) return false;
       if (buf_.size() - pos_ > kMaxLine)
-        throw Error(src_.name() + ": line " + std::to_string(line_no_ + 1) + " is longer than " +
+        throw DataError(src_.name() + ": line " + std::to_string(line_no_ + 1) + " is longer than " +
                     std::to_string(kMaxLine) + " bytes (not a text event file?)");
       buf_.erase(buf_.begin(), buf_.begin() + long(pos_));
       base_ += pos_;
@@ -244,8 +244,8 @@ void refuse_binary(ByteSource& src) {
     msg += "; it looks like " + g.description + ": read it with " + opt("format") + " " + g.format + " (EventReadOptions::format = \"" +
            g.format + "\") or give it the " + g.extension + " extension";
   else
-    msg += "; " + g.description + " (pass " + opt("format") + " if it is one of txt, h5, npy, npz, evt2, evt21, evt3, dat, aedat2, aedat3, aedat4)";
-  throw Error(msg);
+    msg += "; " + g.description + " (pass " + opt("format") + " if it is one of " + event_format_names() + ")";
+  throw DataError(msg);
 }
 
 bool is_comment(std::string_view l) {
@@ -295,7 +295,7 @@ struct TextLayout {
 
 void check_columns(const std::string& file, const std::string& c, const std::string& from) {
   const std::string problem = text_columns_problem(c);
-  if (!problem.empty()) throw Error(file + ": text column order '" + c + "' from " + from + " " + problem);
+  if (!problem.empty()) throw DataError(file + ": text column order '" + c + "' from " + from + " " + problem);
 }
 
 TextLayout prescan_text(ByteSource& src, const EventReadOptions& o) {

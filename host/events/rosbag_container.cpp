@@ -36,7 +36,7 @@ struct Fields {
   uint64_t uint(const char* k, size_t bytes, const std::string& where) const {
     const auto it = f.find(k);
     if (it == f.end() || it->second.size() != bytes)
-      throw Error(where + ": field '" + k + "' is missing or not " + std::to_string(bytes) + " bytes");
+      throw DataError(where + ": field '" + k + "' is missing or not " + std::to_string(bytes) + " bytes");
     const auto* p = reinterpret_cast<const uint8_t*>(it->second.data());
     return bytes == 1 ? p[0] : bytes == 4 ? le32(p) : le64(p);
   }
@@ -109,7 +109,7 @@ BagConnection connection_of(const RecordView& r, const uint8_t* data, size_t n, 
   c.topic = r.fields.str("topic");
   Fields inner;
   std::string err;
-  if (!parse_fields(data, n, inner, err)) throw Error(where + ": corrupt connection header: " + err);
+  if (!parse_fields(data, n, inner, err)) throw DataError(where + ": corrupt connection header: " + err);
   c.type = inner.str("type");
   c.md5sum = inner.str("md5sum");
   c.definition = inner.str("message_definition");
@@ -129,7 +129,7 @@ bool grow(std::vector<uint8_t>& out, size_t used, uint64_t size) {
 std::vector<uint8_t> inflate_bz2(const std::vector<uint8_t>& in, uint64_t size, std::string& why) {
   std::vector<uint8_t> out;
   bz_stream z{};
-  if (BZ2_bzDecompressInit(&z, 0, 0) != BZ_OK) throw Error("bz2: cannot initialise the decompressor");
+  if (BZ2_bzDecompressInit(&z, 0, 0) != BZ_OK) throw InternalError("bz2: cannot initialise the decompressor");
   z.next_in = reinterpret_cast<char*>(const_cast<uint8_t*>(in.data()));
   z.avail_in = unsigned(in.size());
   size_t used = 0;
@@ -150,7 +150,7 @@ std::vector<uint8_t> inflate_bz2(const std::vector<uint8_t>& in, uint64_t size, 
 std::vector<uint8_t> inflate_lz4(const std::vector<uint8_t>& in, uint64_t size, std::string& why) {
   std::vector<uint8_t> out;
   LZ4F_dctx* ctx = nullptr;
-  if (LZ4F_isError(LZ4F_createDecompressionContext(&ctx, LZ4F_VERSION))) throw Error("lz4: cannot create a context");
+  if (LZ4F_isError(LZ4F_createDecompressionContext(&ctx, LZ4F_VERSION))) throw InternalError("lz4: cannot create a context");
   std::unique_ptr<LZ4F_dctx, decltype(&LZ4F_freeDecompressionContext)> guard(ctx, LZ4F_freeDecompressionContext);
   size_t in_at = 0, used = 0;
   while ((in_at < in.size() || used == out.size()) && grow(out, used, size)) {
@@ -219,7 +219,7 @@ bool visit_chunk_record(ByteSource& src, uint64_t off, const RecordView& r, BagV
   const std::string method = r.fields.str("compression");
   const uint64_t size = r.fields.uint("size", 4, where);
   if (size > kMaxChunk || r.data_len > kMaxChunk)
-    throw Error(where + ": a chunk of " + std::to_string(std::max<uint64_t>(size, r.data_len)) +
+    throw DataError(where + ": a chunk of " + std::to_string(std::max<uint64_t>(size, r.data_len)) +
                 " bytes (more than 256 MiB)");
   const uint64_t have = std::min<uint64_t>(r.data_len, src.size() - std::min(src.size(), r.data_at));
   std::vector<uint8_t> in(static_cast<size_t>(have));
@@ -239,7 +239,7 @@ bool visit_chunk_record(ByteSource& src, uint64_t off, const RecordView& r, BagV
 }  // namespace
 
 void RosCursor::need(size_t k) const {
-  if (k > n - at) throw Error(*what + ": the message ends early (" + std::to_string(k) + " bytes needed at its byte " +
+  if (k > n - at) throw DataError(*what + ": the message ends early (" + std::to_string(k) + " bytes needed at its byte " +
                               std::to_string(at) + " of " + std::to_string(n) + ")");
 }
 uint16_t RosCursor::u16() {
@@ -271,7 +271,7 @@ std::string RosCursor::string() {
 void scan_bag_records(ByteSource& src, uint64_t offset, BagVisitor& v) {
   const uint64_t size = src.size();
   auto read = [&](uint64_t o, void* dst, size_t n) {
-    if (src.read_at(o, dst, n) != n) throw Error(src.name() + ": read error at byte " + std::to_string(o));
+    if (src.read_at(o, dst, n) != n) throw IoError(src.name() + ": read error at byte " + std::to_string(o));
   };
   for (uint64_t off = offset; off < size;) {
     if (!v.top_record(off)) return;
@@ -281,7 +281,7 @@ void scan_bag_records(ByteSource& src, uint64_t offset, BagVisitor& v) {
       v.damaged(off, "record at byte " + std::to_string(off) + ": " + err.substr(11) + " (the bag is cut short)");
       return;
     }
-    if (!err.empty()) throw Error(src.name() + ": record at byte " + std::to_string(off) + ": " + err);
+    if (!err.empty()) throw DataError(src.name() + ": record at byte " + std::to_string(off) + ": " + err);
     const std::string where = src.name() + ": record at byte " + std::to_string(off);
     if (r.op == kChunk) {
       if (!visit_chunk_record(src, off, r, v)) return;
@@ -289,7 +289,7 @@ void scan_bag_records(ByteSource& src, uint64_t offset, BagVisitor& v) {
       const auto d = read_range(src, r.data_at, size_t(std::min<uint64_t>(r.data_len, kMaxHeader)));
       v.connection(connection_of(r, d.data(), d.size(), where));
     } else if (r.op == kMessage) {
-      if (r.data_len > kMaxChunk) throw Error(where + ": a message of more than 256 MiB");
+      if (r.data_len > kMaxChunk) throw DataError(where + ": a message of more than 256 MiB");
       const auto d = read_range(src, r.data_at, size_t(r.data_len));
       const uint64_t t = r.fields.uint("time", 8, where);
       if (!v.message(uint32_t(r.fields.uint("conn", 4, where)), uint64_t(uint32_t(t)) * 1000000000ull + (t >> 32),
@@ -324,18 +324,18 @@ BagInfo read_bag_info(ByteSource& src) {
     if (head.size() >= 9 && std::memcmp(head.data(), "#ROSBAG V", 9) == 0) {
       std::string version(head.begin() + 9, head.end());  // up to the newline (a cut file may have none)
       version = version.substr(0, version.find('\n'));
-      throw Error(src.name() + ": ROS bag version '" + version +
+      throw DataError(src.name() + ": ROS bag version '" + version +
                   "' is not supported (bag format 2.0 is; `rosbag fix` converts older bags)");
     }
-    throw Error(src.name() + ": not a ROS bag (no '#ROSBAG V2.0' line at byte 0)");
+    throw DataError(src.name() + ": not a ROS bag (no '#ROSBAG V2.0' line at byte 0)");
   }
   BagInfo info;
   RecordView r;
   auto read = [&](uint64_t o, void* dst, size_t n) { src.read_at(o, dst, n); };
   const std::string err = read_record(kMagicSize, src.size(), read, r, false);
   const std::string where = src.name() + ": bag header record at byte 13";
-  if (!err.empty()) throw Error(where + ": " + err);
-  if (r.op != kBagHeader) throw Error(where + ": op " + hex_op(r.op) + ", expected the bag header (0x03)");
+  if (!err.empty()) throw DataError(where + ": " + err);
+  if (r.op != kBagHeader) throw DataError(where + ": op " + hex_op(r.op) + ", expected the bag header (0x03)");
   info.index_pos = r.fields.uint("index_pos", 8, where);
   info.chunk_count = uint32_t(r.fields.uint("chunk_count", 4, where));
   info.data_start = r.end;

@@ -47,7 +47,7 @@ std::vector<uint32_t> camera_info_connections(const BagInfo& info, const std::st
   for (const auto& [id, c] : info.connections) {
     if (topic.empty() || c.topic != topic) continue;
     if (c.md5sum != kCameraInfoMd5)
-      throw Error(bag + ": camera info topic '" + topic + "' has md5 " + c.md5sum + ", not sensor_msgs/CameraInfo's " +
+      throw DataError(bag + ": camera info topic '" + topic + "' has md5 " + c.md5sum + ", not sensor_msgs/CameraInfo's " +
                   kCameraInfoMd5 + " (another version of the message: its fields are unknown)");
     conns.push_back(id);
   }
@@ -74,7 +74,7 @@ nlohmann::json camera_info_of(const uint8_t* data, size_t size, const std::strin
     return v;
   };
   const uint32_t nd = c.u32();
-  if (nd > 64) throw Error(what + ": " + std::to_string(nd) + " distortion coefficients (at most 64 expected)");
+  if (nd > 64) throw DataError(what + ": " + std::to_string(nd) + " distortion coefficients (at most 64 expected)");
   j["D"] = f64s(nd);
   j["K"] = f64s(9);
   j["R"] = f64s(9);
@@ -95,7 +95,7 @@ std::vector<uint32_t> frame_connections(const BagInfo& info, const std::string& 
     std::string list;
     for (const auto& t : images) list += (list.empty() ? "" : ", ") + t;
     if (images.size() != 1)
-      throw Error(bag + ": " + (images.empty() ? std::string("the bag has no sensor_msgs/Image topic")
+      throw DataError(bag + ": " + (images.empty() ? std::string("the bag has no sensor_msgs/Image topic")
                                                : "the bag has several image topics (" + list + "); choose one with " + opt("frames_topic")));
     topic = images.front();
   }
@@ -103,11 +103,11 @@ std::vector<uint32_t> frame_connections(const BagInfo& info, const std::string& 
   for (const auto& [id, c] : info.connections) {
     if (c.topic != topic) continue;
     if (c.type != kImageType || c.md5sum != kImageMd5)
-      throw Error(bag + ": frames topic '" + topic + "' has type " + c.type + " (md5 " + c.md5sum + "), expected " +
+      throw DataError(bag + ": frames topic '" + topic + "' has type " + c.type + " (md5 " + c.md5sum + "), expected " +
                   kImageType + " (md5 " + kImageMd5 + ")");
     conns.push_back(id);
   }
-  if (conns.empty()) throw Error(bag + ": the bag has no topic '" + topic + "'");
+  if (conns.empty()) throw DataError(bag + ": the bag has no topic '" + topic + "'");
   return conns;
 }
 
@@ -132,11 +132,11 @@ cv::Mat image_of(const uint8_t* data, size_t size, const std::string& what, std:
   for (const auto& k : kEnc)
     if (encoding == k.name) e = &k;
   if (!e)
-    throw Error(what + ": image encoding '" + encoding +
+    throw DataError(what + ": image encoding '" + encoding +
                 "' is not read (mono8, mono16, 8UC1, 16UC1, bgr8, rgb8, bgra8, rgba8 are; debayer the topic first)");
   const size_t row = size_t(w) * size_t(CV_ELEM_SIZE(e->type));
   if (w == 0 || h == 0 || w > 65536 || h > 65536 || step < row || uint64_t(step) * h > len)
-    throw Error(what + ": image " + std::to_string(w) + "x" + std::to_string(h) + " with step " + std::to_string(step) +
+    throw DataError(what + ": image " + std::to_string(w) + "x" + std::to_string(h) + " with step " + std::to_string(step) +
                 " does not fit its " + std::to_string(len) + " data bytes");
   cv::Mat m(int(h), int(w), e->type, const_cast<uint8_t*>(c.p + c.at), step);
   cv::Mat out = m.clone();
@@ -192,15 +192,15 @@ struct FrameWriter final : detail::BagVisitor {
     const cv::Mat im = image_of(data, size, what, encoding, stamp_us);
     if (rep.frames == 0) rep.width = im.cols, rep.height = im.rows, rep.encoding = encoding;
     if (im.cols != rep.width || im.rows != rep.height)
-      throw Error(what + ": " + std::to_string(im.cols) + "x" + std::to_string(im.rows) + ", the first image is " +
+      throw DataError(what + ": " + std::to_string(im.cols) + "x" + std::to_string(im.rows) + ", the first image is " +
                   std::to_string(rep.width) + "x" + std::to_string(rep.height));
     const Rational t0 = Rational(stamp_us) + o.t0_offset_us;
     if (rep.frames > 0 && !(last_t0 < t0))
-      throw Error(what + ": its stamp " + t0.str() + " us is not after the previous image's " + last_t0.str() + " us");
+      throw DataError(what + ": its stamp " + t0.str() + " us is not after the previous image's " + last_t0.str() + " us");
     last_t0 = t0;
     char name[32];
     std::snprintf(name, sizeof name, "rs/%06llu.png", static_cast<unsigned long long>(rep.frames));
-    if (!cv::imwrite((dir / name).string(), im)) throw Error((dir / name).string() + ": cannot write the image");
+    if (!cv::imwrite((dir / name).string(), im)) throw IoError((dir / name).string() + ": cannot write the image");
     frames.push_back({{"file", name}, {"t0_us", exact(t0)}});
     ++rep.frames;
     return true;
@@ -211,7 +211,7 @@ struct FrameWriter final : detail::BagVisitor {
 
 BagSequenceReport write_bag_sequence(const std::string& bag, const std::string& out_dir, const BagSequenceOptions& o) {
   if (!(Rational(0) < o.line_delay_us) || !(Rational(0) < o.exposure_us))
-    throw Error("the row timing needs a line delay and an exposure above 0 us (a bag does not hold them)");
+    throw UsageError("the row timing needs a line delay and an exposure above 0 us (a bag does not hold them)");
   detail::FileSource src(bag);
   const BagInfo info = detail::read_bag_info(src);
   BagSequenceReport rep;
@@ -221,14 +221,14 @@ BagSequenceReport write_bag_sequence(const std::string& bag, const std::string& 
   const fs::path dir(out_dir);
   std::error_code ec;
   fs::create_directories(dir / "rs", ec);
-  if (ec) throw Error((dir / "rs").string() + ": cannot create the folder: " + ec.message());
+  if (ec) throw IoError((dir / "rs").string() + ": cannot create the folder: " + ec.message());
   FrameWriter w(conns, o, dir, bag, rep.frames_topic, rep);
   w.info_conns = camera_info_connections(info, rep.frames_topic, bag, w.info_topic, rep.notes);
   detail::scan_bag_records(src, info.data_start, w);
-  if (rep.frames == 0) throw Error(bag + ": topic " + rep.frames_topic + " holds no image");
+  if (rep.frames == 0) throw DataError(bag + ": topic " + rep.frames_topic + " holds no image");
   const nlohmann::json& ci = w.camera_info;
   if (!ci.is_null() && ci["width"].get<uint32_t>() && (ci["width"] != rep.width || ci["height"] != rep.height))
-    throw Error(bag + ": camera info of topic " + w.info_topic + " is for " + ci["width"].dump() + "x" + ci["height"].dump() +
+    throw DataError(bag + ": camera info of topic " + w.info_topic + " is for " + ci["width"].dump() + "x" + ci["height"].dump() +
                 ", the images of " + rep.frames_topic + " are " + std::to_string(rep.width) + "x" + std::to_string(rep.height));
   if (!w.info_topic.empty() && ci.is_null()) rep.notes.push_back(bag + ": camera info topic " + w.info_topic + " holds no message");
   rep.camera_info_topic = ci.is_null() ? std::string() : w.info_topic;
@@ -254,7 +254,7 @@ BagSequenceReport write_bag_sequence(const std::string& bag, const std::string& 
     if (!f.flush()) throw IoError(tmp.string() + ": error writing: " + std::strerror(errno));  // the system's reason
   }
   fs::rename(tmp, dir / "meta.json", ec);
-  if (ec) throw Error((dir / "meta.json").string() + ": cannot move meta.json into place: " + ec.message());
+  if (ec) throw IoError((dir / "meta.json").string() + ": cannot move meta.json into place: " + ec.message());
   return rep;
 }
 

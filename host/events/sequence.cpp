@@ -84,7 +84,7 @@ Rational json_time(const nlohmann::json& j, const std::string& where) {
     }
   }
   if (j.is_string()) return Rational::parse(j.get<std::string>(), where);
-  throw Error(where + " must be a number (or an exact string like \"73000/259\"), got " + std::string(j.type_name()) +
+  throw DataError(where + " must be a number (or an exact string like \"73000/259\"), got " + std::string(j.type_name()) +
               " " + j.dump());
 }
 
@@ -95,9 +95,9 @@ std::string resolve(const fs::path& root, const std::string& rel) {
 
 std::string one_file(const fs::path& root, const std::vector<std::string>& exts, const std::string& what) {
   auto files = list_files(root, exts);
-  if (files.empty()) throw Error(root.string() + ": no " + what + " file found");
+  if (files.empty()) throw DataError(root.string() + ": no " + what + " file found");
   if (files.size() > 1)
-    throw Error(root.string() + ": " + std::to_string(files.size()) + " " + what + " files found, expected one (" +
+    throw DataError(root.string() + ": " + std::to_string(files.size()) + " " + what + " files found, expected one (" +
                 fs::path(files[0]).filename().string() + ", " + fs::path(files[1]).filename().string() + ", ...)");
   return files[0];
 }
@@ -106,7 +106,7 @@ std::string one_file(const fs::path& root, const std::vector<std::string>& exts,
 void load_generic(Sequence& s, const fs::path& root) {
   const std::string meta_path = (root / "meta.json").string();
   std::ifstream in(meta_path);
-  if (!in) throw Error(root.string() + ": no meta.json (generic layout, see sequence-format.md)");
+  if (!in) throw InputMissingError(root.string() + ": no meta.json (generic layout, see sequence-format.md)");
   nlohmann::json m = parse_json<nlohmann::json>(in, meta_path);  // invalid or a repeated key: DataError
   s.warnings = validate_meta(m, meta_path);
   s.width = m["width"].get<int>();
@@ -142,7 +142,7 @@ void load_generic(Sequence& s, const fs::path& root) {
 }
 
 void sensor_from_first_image(Sequence& s, const std::vector<std::string>& images, const std::string& folder) {
-  if (images.empty()) throw Error(folder + ": no frame images found");
+  if (images.empty()) throw DataError(folder + ": no frame images found");
   const auto [w, h] = image_size(images[0]);
   s.width = w;
   s.height = h;
@@ -150,7 +150,7 @@ void sensor_from_first_image(Sequence& s, const std::vector<std::string>& images
 
 void load_gev_rs(Sequence& s, const fs::path& root, const SequenceOptions& o) {
   const auto rs = subdir(root, {"rs", "RS"});
-  if (!rs) throw Error(root.string() + ": no rs/ folder (Gev-RS layout)");
+  if (!rs) throw DataError(root.string() + ": no rs/ folder (Gev-RS layout)");
   const auto images = list_files(*rs, kImageExts);
   sensor_from_first_image(s, images, rs->string());
   s.event_files.push_back(one_file(root, {".h5", ".hdf5"}, "HDF5 event"));
@@ -176,15 +176,15 @@ void load_gev_rs_real(Sequence& s, const fs::path& root, const SequenceOptions& 
   const std::string name = root.filename().string();
   std::smatch mt;
   if (!std::regex_match(name, mt, name_re))
-    throw Error(root.string() + ": Gev-RS-Real folders are named <id>_<exposure_us>_<readout_us>, got '" + name + "'");
+    throw DataError(root.string() + ": Gev-RS-Real folders are named <id>_<exposure_us>_<readout_us>, got '" + name + "'");
   const Rational exposure = Rational::parse(mt[2].str(), "folder exposure"),
                  readout = Rational::parse(mt[3].str(), "folder readout");
   const auto img = subdir(root, {"image", "images"});
-  if (!img) throw Error(root.string() + ": no image/ folder (Gev-RS-Real layout)");
+  if (!img) throw DataError(root.string() + ": no image/ folder (Gev-RS-Real layout)");
   const auto images = list_files(*img, kImageExts);
   sensor_from_first_image(s, images, img->string());
   s.event_files.push_back(one_file(root, {".npz"}, "NumPy .npz event"));
-  if (s.height < 2) throw Error(root.string() + ": frames must have at least 2 rows");
+  if (s.height < 2) throw DataError(root.string() + ": frames must have at least 2 rows");
   const Rational delay = readout / Rational(s.height - 1);
   // Frame times: the reference gives the rate (about 20.79 fps, 19.61 for two folders), not the
   // t0s. Origin: the first event; period: the option, else whichever of the two rates best fits
@@ -220,24 +220,24 @@ void load_gev_rs_real(Sequence& s, const fs::path& root, const SequenceOptions& 
 
 void load_dre(Sequence& s, const fs::path& root) {
   const auto img = subdir(root, {"images", "image"});
-  if (!img) throw Error(root.string() + ": no images/ folder (DRE layout)");
+  if (!img) throw DataError(root.string() + ": no images/ folder (DRE layout)");
   const auto images = list_files(*img, kImageExts);
   sensor_from_first_image(s, images, img->string());
   const std::string h5 = one_file(root, {".h5", ".hdf5"}, "HDF5 event");
   s.event_files.push_back(h5);
   const ImageTimestamps ts = read_image_timestamps(h5);
   if (ts.start_image_ts.empty() || ts.end_image_ts.empty())
-    throw Error(h5 + ": DRE needs start_image_ts and end_image_ts (exposure = end - start)");
+    throw DataError(h5 + ": DRE needs start_image_ts and end_image_ts (exposure = end - start)");
   if (ts.start_image_ts.size() != ts.end_image_ts.size())
-    throw Error(h5 + ": start_image_ts has " + std::to_string(ts.start_image_ts.size()) + " entries, end_image_ts " +
+    throw DataError(h5 + ": start_image_ts has " + std::to_string(ts.start_image_ts.size()) + " entries, end_image_ts " +
                 std::to_string(ts.end_image_ts.size()));
   if (ts.start_image_ts.size() != images.size())
-    throw Error(h5 + ": " + std::to_string(ts.start_image_ts.size()) + " frame timestamps but " +
+    throw DataError(h5 + ": " + std::to_string(ts.start_image_ts.size()) + " frame timestamps but " +
                 std::to_string(images.size()) + " images in " + img->string());
   for (size_t k = 0; k < images.size(); ++k) {
     const Rational st = Rational::from_double(ts.start_image_ts[k]), en = Rational::from_double(ts.end_image_ts[k]);
     if (en <= st)
-      throw Error(h5 + ": frame " + std::to_string(k) + " has end_image_ts " + en.str() + " <= start_image_ts " + st.str());
+      throw DataError(h5 + ": frame " + std::to_string(k) + " has end_image_ts " + en.str() + " <= start_image_ts " + st.str());
     s.frames.push_back({images[k], {st, Rational(70), en - st, s.height, Readout::top_down}});
   }
   s.notes.push_back("DRE: t0 = start_image_ts, exposure = end_image_ts - start_image_ts, line delay 70 us");
@@ -245,12 +245,12 @@ void load_dre(Sequence& s, const fs::path& root) {
 
 void load_fastec(Sequence& s, const fs::path& root, const SequenceOptions& o) {
   const auto rs = subdir(root, {"RS", "rs"});
-  if (!rs) throw Error(root.string() + ": no RS/ folder (Fastec-RS layout)");
+  if (!rs) throw DataError(root.string() + ": no RS/ folder (Fastec-RS layout)");
   const auto images = list_files(*rs, kImageExts);
   sensor_from_first_image(s, images, rs->string());
   auto ev = list_files(root / "events", {".npz"});
   if (ev.empty()) ev = list_files(root, {".npz"});
-  if (ev.empty()) throw Error(root.string() + ": no per-frame .npz event files (Fastec-RS layout)");
+  if (ev.empty()) throw DataError(root.string() + ": no per-frame .npz event files (Fastec-RS layout)");
   s.event_files = ev;
   // GS at 2400 fps (P = 1250/3 us); rows advance half a GS frame (625/3 us); a row's exposure is
   // one GS frame; RS frame k starts at GS frame step*k (260 by default).
@@ -270,19 +270,19 @@ void load_fastec(Sequence& s, const fs::path& root, const SequenceOptions& o) {
 // Width, height and channels of a PNG (IHDR: colour type) or any image OpenCV reads.
 ImageHeader image_header(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw Error(path + ": cannot open image");
+  if (!in) throw DataError(path + ": cannot open image");
   unsigned char h[26] = {};
   in.read(reinterpret_cast<char*>(h), 26);
   static const unsigned char sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
   if (in.gcount() == 26 && std::equal(sig, sig + 8, h)) {
-    if (std::string(reinterpret_cast<char*>(h + 12), 4) != "IHDR") throw Error(path + ": PNG without IHDR chunk first");
+    if (std::string(reinterpret_cast<char*>(h + 12), 4) != "IHDR") throw DataError(path + ": PNG without IHDR chunk first");
     auto be32 = [&](int o) { return (uint32_t(h[o]) << 24) | (uint32_t(h[o + 1]) << 16) | (uint32_t(h[o + 2]) << 8) | h[o + 3]; };
     // Colour types 0 gray, 2 RGB, 3 palette (decoded as RGB), 4 gray + alpha, 6 RGBA.
     const int channels = h[25] == 0 ? 1 : h[25] == 4 ? 2 : h[25] == 6 ? 4 : 3;
     return {static_cast<int>(be32(16)), static_cast<int>(be32(20)), channels};
   }
   const cv::Mat m = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (m.empty()) throw Error(path + ": not a readable image");
+  if (m.empty()) throw DataError(path + ": not a readable image");
   return {m.cols, m.rows, m.channels()};
 }
 
@@ -292,9 +292,9 @@ ImageHeader image_header(const std::string& path) {
 ImageHeader check_image(const Sequence& s, const std::string& image, const char* what) {
   std::error_code ec;
   if (!fs::exists(image, ec)) throw InputMissingError(s.root + ": " + what + " image '" + image + "' does not exist");
-  if (fs::is_directory(image, ec)) throw Error(image + ": " + what + " image is a folder");
+  if (fs::is_directory(image, ec)) throw DataError(image + ": " + what + " image is a folder");
   if (const std::string kind = special_file_kind(image); !kind.empty())
-    throw Error(image + ": " + what + " image is " + kind + ", expected a regular file");
+    throw DataError(image + ": " + what + " image is " + kind + ", expected a regular file");
   const ImageHeader header = image_header(image);
   if (const std::string problem = image_end_problem(image); !problem.empty())
     throw DataError(image + ": " + what + " image " + problem);
@@ -326,12 +326,12 @@ void check_frame_times(const Sequence& s, const SequenceOptions& o) {
       end = limit + Rational(1);  // beyond 120-bit arithmetic: certainly out of range
     }
     if (t.t0 < -limit || t.t0 > limit || end > limit || t.line_delay > limit || t.exposure > limit)
-      throw Error(field + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ") has t0 " + t.t0.str() +
+      throw DataError(field + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ") has t0 " + t.t0.str() +
                   " us and ends at " + (end > limit ? std::string("more than 2^53") : end.str()) +
                   " us: frame times must lie within +-2^53 us (+-9007199254740992 us, about 285 years) so that event "
                   "windows and float64 times stay exact");
     if (k > 0 && t.t0 <= s.frames[k - 1].timing.t0)
-      throw Error(field + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ") starts at t0 " + t.t0.str() +
+      throw DataError(field + ": frame " + std::to_string(k) + " (" + s.frames[k].image + ") starts at t0 " + t.t0.str() +
                   " us, not after frame " + std::to_string(k - 1) + "'s t0 " + s.frames[k - 1].timing.t0.str() +
                   " us: frames must be in time order (t0s must increase; rule frames-in-time-order)");
   }
@@ -405,7 +405,7 @@ SequenceLayout parse_sequence_layout(const std::string& s) {
   for (auto l : {SequenceLayout::automatic, SequenceLayout::generic, SequenceLayout::gev_rs, SequenceLayout::gev_rs_real,
                  SequenceLayout::dre, SequenceLayout::fastec})
     if (s == sequence_layout_name(l)) return l;
-  throw Error("layout: '" + s + "' is not a sequence layout (expected auto, generic, gev-rs, gev-rs-real, dre, fastec)");
+  throw UsageError("layout: '" + s + "' is not a sequence layout (expected auto, generic, gev-rs, gev-rs-real, dre, fastec)");
 }
 
 std::pair<int, int> image_size(const std::string& path) {
@@ -427,7 +427,7 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
     case SequenceLayout::fastec: load_fastec(s, root, o); break;
     case SequenceLayout::automatic: break;
   }
-  if (s.frames.empty()) throw Error(s.root + ": the sequence has no frames");
+  if (s.frames.empty()) throw DataError(s.root + ": the sequence has no frames");
   // Overrides.
   if (o.t0s_us && o.t0s_us->size() != s.frames.size())
     throw OptionError("t0s_us", "", std::to_string(o.t0s_us->size()) + " values given, the sequence has " +
@@ -465,7 +465,7 @@ Sequence load_sequence(const std::string& path, const SequenceOptions& o) {
 
 const SequenceFrame& Sequence::frame(int index) const {
   if (index < 0 || static_cast<size_t>(index) >= frames.size())
-    throw Error(root + ": frame " + std::to_string(index) + " does not exist (the sequence has " +
+    throw UsageError(root + ": frame " + std::to_string(index) + " does not exist (the sequence has " +
                 std::to_string(frames.size()) + " frames, 0.." + std::to_string(frames.size() - 1) + ")");
   return frames[index];
 }

@@ -94,7 +94,7 @@ Survey survey(const fs::path& root) {
 SequenceLayout detect_sequence_layout(const std::string& path) {
   const fs::path root(path);
   std::error_code ec;
-  if (!fs::is_directory(root, ec)) throw Error(path + ": not a folder (a sequence is a folder)");
+  if (!fs::is_directory(root, ec)) throw Error(path + ": not a folder (a sequence is a folder)", fs::exists(root, ec) ? ErrorKind::data : ErrorKind::input_missing);
   if (fs::exists(root / "meta.json", ec)) return SequenceLayout::generic;
   Survey s = survey(root);
   std::vector<std::string> why;  // why each dataset does not apply
@@ -142,7 +142,7 @@ SequenceLayout detect_sequence_layout(const std::string& path) {
   msg += ". A reference dataset's timing is a convention, so it is not guessed: choose it with " + layout + " gev-rs (200 us "
          "line delay, 3200 us exposure), " + layout + " dre, " + layout + " gev-rs-real or " + layout + " fastec "
          "(SequenceOptions::layout), or write a meta.json";
-  throw Error(msg);
+  throw DataError(msg);
 }
 
 }  // namespace vkunroll

@@ -65,11 +65,11 @@ class SequenceEventReaders {
 std::shared_ptr<SequenceEventReaders> Sequence::make_event_readers() { return std::make_shared<SequenceEventReaders>(); }
 
 EventStream Sequence::read_events(int64_t t_begin_us, int64_t t_end_us, EventReadReport* report) const {
-  if (!event_readers_) throw Error(root + ": read_events on a Sequence that was moved from");
+  if (!event_readers_) throw InternalError(root + ": read_events on a Sequence that was moved from");
   SequenceEventReaders& c = *event_readers_;
   std::lock_guard<std::mutex> lock(c.mutex);
   c.sync(event_files, event_options);
-  if (event_files.empty()) throw Error(root + ": the sequence has no event file");
+  if (event_files.empty()) throw DataError(root + ": the sequence has no event file");
   if (event_files.size() == 1) {
     EventStream ev = c.reader(0).read(t_begin_us, t_end_us, report);
     ev.width = width;

@@ -29,35 +29,35 @@ nlohmann::json json_time(const Rational& r) {
 
 void check_image(const SequenceImage& im, int width, int height, const std::string& what) {
   if (im.width != width || im.height != height)
-    throw Error(what + ": image is " + std::to_string(im.width) + "x" + std::to_string(im.height) + ", the sensor is " +
+    throw DataError(what + ": image is " + std::to_string(im.width) + "x" + std::to_string(im.height) + ", the sensor is " +
                 std::to_string(width) + "x" + std::to_string(height));
   if (im.channels != 1 && im.channels != 3)
-    throw Error(what + ": " + std::to_string(im.channels) + " channels (expected 1 or 3)");
+    throw DataError(what + ": " + std::to_string(im.channels) + " channels (expected 1 or 3)");
   if (im.bit_depth != 8 && im.bit_depth != 16)
-    throw Error(what + ": bit depth " + std::to_string(im.bit_depth) + " (expected 8 or 16)");
+    throw DataError(what + ": bit depth " + std::to_string(im.bit_depth) + " (expected 8 or 16)");
   const size_t n = static_cast<size_t>(width) * height * im.channels;
   const size_t have = im.bit_depth == 8 ? im.u8.size() : im.u16.size();
   if (have != n)
-    throw Error(what + ": " + std::to_string(have) + " values, expected " + std::to_string(n) + " (" + std::to_string(width) +
+    throw DataError(what + ": " + std::to_string(have) + " values, expected " + std::to_string(n) + " (" + std::to_string(width) +
                 "x" + std::to_string(height) + "x" + std::to_string(im.channels) + ")");
 }
 
 void check_spec(const std::string& dir, const SequenceWriteSpec& s) {
   if (s.width <= 0 || s.height <= 0 || s.width > 32767 || s.height > 32767)
-    throw Error(dir + ": sensor size " + std::to_string(s.width) + "x" + std::to_string(s.height) +
+    throw DataError(dir + ": sensor size " + std::to_string(s.width) + "x" + std::to_string(s.height) +
                 " (expected positive, at most 32767)");
-  if (s.frames.empty()) throw Error(dir + ": a sequence needs at least one frame");
+  if (s.frames.empty()) throw DataError(dir + ": a sequence needs at least one frame");
   if (s.events_format != "h5" && s.events_format != "txt")
-    throw Error(dir + ": events format '" + s.events_format + "' (expected h5 or txt)");
+    throw UsageError(dir + ": events format '" + s.events_format + "' (expected h5 or txt)");
   const RowTiming& first = s.frames.front().timing;
   for (size_t k = 0; k < s.frames.size(); ++k) {
     const std::string what = dir + ": frame " + std::to_string(k);
     const RowTiming& t = s.frames[k].timing;
     t.validate(what + " timing");
     if (t.rows != s.height)
-      throw Error(what + ": timing has " + std::to_string(t.rows) + " rows, the sensor " + std::to_string(s.height));
+      throw DataError(what + ": timing has " + std::to_string(t.rows) + " rows, the sensor " + std::to_string(s.height));
     if (t.line_delay != first.line_delay || t.readout != first.readout)
-      throw Error(what + ": line delay " + t.line_delay.str() + " us, readout " + readout_name(t.readout) +
+      throw DataError(what + ": line delay " + t.line_delay.str() + " us, readout " + readout_name(t.readout) +
                   "; the generic layout has one line delay and readout for all frames (frame 0: " + first.line_delay.str() +
                   " us, " + readout_name(first.readout) + ")");
     check_image(s.frames[k].image, s.width, s.height, what);
@@ -65,11 +65,11 @@ void check_spec(const std::string& dir, const SequenceWriteSpec& s) {
   for (size_t g = 0; g < s.ground_truth.size(); ++g)
     check_image(s.ground_truth[g].image, s.width, s.height, dir + ": ground truth " + std::to_string(g));
   if (s.events.width != s.width || s.events.height != s.height)
-    throw Error(dir + ": the events' sensor is " + std::to_string(s.events.width) + "x" + std::to_string(s.events.height) +
+    throw DataError(dir + ": the events' sensor is " + std::to_string(s.events.width) + "x" + std::to_string(s.events.height) +
                 ", the frames' " + std::to_string(s.width) + "x" + std::to_string(s.height));
   if (!s.source_json.empty()) {
     const nlohmann::json j = parse_json<nlohmann::json>(s.source_json, dir + ": source");
-    if (!j.is_object()) throw Error(dir + ": source must be a JSON object");
+    if (!j.is_object()) throw DataError(dir + ": source must be a JSON object");
   }
 }
 
@@ -85,7 +85,7 @@ void write_png(const fs::path& path, const SequenceImage& im) {
     std::swap(ch[0], ch[2]);  // RGB -> OpenCV's BGR
     cv::merge(ch, out);
   }
-  if (!cv::imwrite(path.string(), out)) throw Error(path.string() + ": cannot write the image");
+  if (!cv::imwrite(path.string(), out)) throw IoError(path.string() + ": cannot write the image");
 }
 
 }  // namespace
@@ -94,13 +94,13 @@ void write_generic_sequence(const std::string& dir, const SequenceWriteSpec& s) 
   check_spec(dir, s);
   std::error_code ec;
   fs::create_directories(fs::path(dir) / "rs", ec);
-  if (ec) throw Error(dir + ": cannot create the folder rs/: " + ec.message());
+  if (ec) throw IoError(dir + ": cannot create the folder rs/: " + ec.message());
   const fs::path meta_path = fs::path(dir) / "meta.json";
   fs::remove(meta_path, ec);  // an old meta.json must not describe a half-written folder
-  if (ec) throw Error(meta_path.string() + ": cannot remove the old meta.json: " + ec.message());
+  if (ec) throw IoError(meta_path.string() + ": cannot remove the old meta.json: " + ec.message());
   if (!s.ground_truth.empty()) {
     fs::create_directories(fs::path(dir) / "gs", ec);
-    if (ec) throw Error(dir + ": cannot create the folder gs/: " + ec.message());
+    if (ec) throw IoError(dir + ": cannot create the folder gs/: " + ec.message());
   }
   nlohmann::json frames = nlohmann::json::array(), gt = nlohmann::json::array();
   const RowTiming& first = s.frames.front().timing;
@@ -140,7 +140,7 @@ void write_generic_sequence(const std::string& dir, const SequenceWriteSpec& s) 
     if (!f.flush()) throw IoError(tmp.string() + ": error writing: " + std::strerror(errno));  // the system's reason
   }
   fs::rename(tmp, meta_path, ec);
-  if (ec) throw Error(meta_path.string() + ": cannot move the finished meta.json into place: " + ec.message());
+  if (ec) throw IoError(meta_path.string() + ": cannot move the finished meta.json into place: " + ec.message());
 }
 
 }  // namespace vkunroll

@@ -40,20 +40,20 @@ ZipMemberSource::ZipMemberSource(zip_t* z, zip_uint64_t index, const std::string
   zip_stat_init(&st);
   const zip_uint64_t need = ZIP_STAT_SIZE | ZIP_STAT_COMP_SIZE | ZIP_STAT_COMP_METHOD | ZIP_STAT_CRC;
   if (zip_stat_index(z_, index_, 0, &st) != 0 || (st.valid & need) != need)
-    throw Error(name() + ": cannot stat the zip member (corrupt .npz directory)");
+    throw DataError(name() + ": cannot stat the zip member (corrupt .npz directory)");
   if ((st.valid & ZIP_STAT_ENCRYPTION_METHOD) && st.encryption_method != ZIP_EM_NONE)
-    throw Error(name() + ": the zip member is encrypted; vkunroll reads plain .npz files (numpy.savez)");
+    throw DataError(name() + ": the zip member is encrypted; vkunroll reads plain .npz files (numpy.savez)");
   size_ = st.size;
   comp_size_ = st.comp_size;
   crc_ = st.crc;
   stored_ = st.comp_method == ZIP_CM_STORE;
   if (!stored_ && st.comp_method != ZIP_CM_DEFLATE)
-    throw Error(name() + ": the zip member uses compression method " + std::to_string(st.comp_method) +
+    throw DataError(name() + ": the zip member uses compression method " + std::to_string(st.comp_method) +
                 "; .npz members are stored or deflated (numpy.savez / savez_compressed)");
   if (stored_ && comp_size_ != size_)
     corrupt("a stored member of " + std::to_string(size_) + " bytes occupies " + std::to_string(comp_size_));
   raw_ = zip_fopen_index(z_, index_, ZIP_FL_COMPRESSED);
-  if (!raw_) throw Error(name() + ": cannot open the zip member (" + zip_strerror(z_) + ")");
+  if (!raw_) throw DataError(name() + ": cannot open the zip member (" + zip_strerror(z_) + ")");
   try {
     if (stored_) verify_stored();
     else index_deflated();
@@ -69,7 +69,7 @@ ZipMemberSource::~ZipMemberSource() {
 }
 
 void ZipMemberSource::corrupt(const std::string& why) const {
-  throw Error(archive_ + ": member '" + member_ + "' is corrupt: " + why +
+  throw DataError(archive_ + ": member '" + member_ + "' is corrupt: " + why +
               " (the .npz is damaged; numpy refuses it too)");
 }
 
@@ -79,13 +79,13 @@ size_t ZipMemberSource::read_raw(uint64_t offset, void* dst, size_t n) {
   n = size_t(std::min<uint64_t>(n, comp_size_ - offset));
   if (offset != raw_pos_) {
     if (zip_fseek(raw_, zip_int64_t(offset), SEEK_SET) != 0)
-      throw Error(name() + ": cannot seek in the zip member (" + zip_file_strerror(raw_) + ")");
+      throw DataError(name() + ": cannot seek in the zip member (" + zip_file_strerror(raw_) + ")");
     raw_pos_ = offset;
   }
   size_t done = 0;
   while (done < n) {
     const zip_int64_t r = zip_fread(raw_, static_cast<uint8_t*>(dst) + done, n - done);
-    if (r < 0) throw Error(name() + ": cannot read the zip member (" + zip_file_strerror(raw_) + "; truncated .npz?)");
+    if (r < 0) throw DataError(name() + ": cannot read the zip member (" + zip_file_strerror(raw_) + "; truncated .npz?)");
     if (r == 0) break;
     done += size_t(r);
   }
@@ -109,7 +109,7 @@ void ZipMemberSource::verify_stored() {
 // One pass through the deflate data: the CRC check and the access points (zlib's examples/zran.c).
 void ZipMemberSource::index_deflated() {
   Inflater inf;
-  if (!inf.ok) throw Error(name() + ": cannot start zlib's inflate");
+  if (!inf.ok) throw InternalError(name() + ": cannot start zlib's inflate");
   z_stream& s = inf.s;
   std::vector<uint8_t> in(kChunk), window(kWindow, 0);
   uint64_t in_pos = 0, total_in = 0, total_out = 0, last = 0;
@@ -179,7 +179,7 @@ const ZipMemberSource::Span& ZipMemberSource::span(size_t k) {
   sp.point = k;
   sp.bytes.resize(size_t(end - p.out));
   Inflater inf;
-  if (!inf.ok) throw Error(name() + ": cannot start zlib's inflate");
+  if (!inf.ok) throw InternalError(name() + ": cannot start zlib's inflate");
   z_stream& s = inf.s;
   std::vector<uint8_t> in(kChunk);
   uint64_t in_pos = p.in;
@@ -236,13 +236,13 @@ NpzArchive::NpzArchive(const std::string& path, const uint8_t* data, size_t size
     zip_error_t ze;
     zip_error_init(&ze);
     zip_source_t* zs = zip_source_buffer_create(data, size, 0, &ze);
-    if (!zs) throw Error(path + ": cannot read the .npz bytes");
+    if (!zs) throw IoError(path + ": cannot read the .npz bytes");
     z_ = zip_open_from_source(zs, ZIP_RDONLY, &ze);
     if (!z_) {
       zip_source_free(zs);
       const std::string msg = zip_error_strerror(&ze);
       zip_error_fini(&ze);
-      throw Error(path + ": not a readable .npz (zip) file: " + msg);
+      throw DataError(path + ": not a readable .npz (zip) file: " + msg);
     }
     zip_error_fini(&ze);
   } else {
@@ -253,7 +253,7 @@ NpzArchive::NpzArchive(const std::string& path, const uint8_t* data, size_t size
       zip_error_init_with_code(&ze, err);
       const std::string msg = zip_error_strerror(&ze);
       zip_error_fini(&ze);
-      throw Error(path + ": not a readable .npz (zip) file: " + msg);
+      throw DataError(path + ": not a readable .npz (zip) file: " + msg);
     }
   }
   const zip_int64_t count = zip_get_num_entries(z_, 0);
@@ -279,7 +279,7 @@ ZipMemberSource& NpzArchive::member(const std::string& key) {
       open_.emplace_back(key, std::make_unique<ZipMemberSource>(z_, index, path_, key));
       return *open_.back().second;
     }
-  throw Error(path_ + ": no array '" + key + "'");
+  throw DataError(path_ + ": no array '" + key + "'");
 }
 
 }  // namespace vkunroll::detail

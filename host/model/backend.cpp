@@ -11,7 +11,7 @@ int PlanningBackend::alloc_id(const Shape& shape, const std::string& what) {
   if (pooled_bytes_ > pool_flush_bytes_) flush();
   const uint64_t bytes = static_cast<uint64_t>(shape.count()) * 4;
   if (bytes > max_buffer_bytes_)
-    throw Error("plan: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
+    throw DataError("plan: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
                 " MiB, above the storage-buffer limit of " + std::to_string(max_buffer_bytes_ >> 20) + " MiB");
   if (bytes > largest_) {
     largest_ = bytes;
@@ -79,7 +79,7 @@ Shape Backend::slice_shape(const BufferSlice& v) const {
 
 void Backend::conv_folded(int conv, const ConvDesc& desc, const std::vector<BufferSlice>& pieces, const ConvFold& fold,
                           const BufferSlice& out) {
-  if (desc.transposed) throw Error(desc.name + ": a transposed conv is not folded");
+  if (desc.transposed) throw InternalError(desc.name + ": a transposed conv is not folded");
   std::vector<Shape> shapes;
   for (const BufferSlice& v : pieces) shapes.push_back(slice_shape(v));
   const Shape is = fold.conv_input(shapes, desc.name);

@@ -40,7 +40,7 @@ struct CpuBackend::Impl {
 
   HostTensor& buf(int id) {
     if (id < 0 || id >= static_cast<int>(bufs.size()) || !bufs[id].live)
-      throw Error("cpu backend: buffer " + std::to_string(id) + " is not allocated");
+      throw InternalError("cpu backend: buffer " + std::to_string(id) + " is not allocated");
     return bufs[id].t;
   }
   HostSlice in(const BufferSlice& v) { return HostSlice(buf(v.buf), v.c0, v.c, v.n0, v.n); }
@@ -73,7 +73,7 @@ Shape CpuBackend::shape(int id) const { return impl_->buf(id).shape; }
 
 void CpuBackend::upload(const BufferSlice& v, std::span<const float> data) {
   const Shape s = impl_->in(v).shape();
-  if (static_cast<int64_t>(data.size()) != s.count()) throw Error("cpu backend: upload of " + std::to_string(data.size()) + " values into " + s.str());
+  if (static_cast<int64_t>(data.size()) != s.count()) throw InternalError("cpu backend: upload of " + std::to_string(data.size()) + " values into " + s.str());
   HostTensor src(s, std::vector<float>(data.begin(), data.end()));
   copy_ref(HostSlice(src), impl_->out(v));
 }
@@ -81,7 +81,7 @@ void CpuBackend::upload(const BufferSlice& v, std::span<const float> data) {
 void CpuBackend::download(const BufferSlice& v, std::span<float> dst) {
   const HostSlice s = impl_->in(v);
   if (static_cast<int64_t>(dst.size()) != s.shape().count())
-    throw Error("cpu backend: download of " + s.shape().str() + " into " + std::to_string(dst.size()) + " values");
+    throw InternalError("cpu backend: download of " + s.shape().str() + " into " + std::to_string(dst.size()) + " values");
   HostTensor out(s.shape());
   copy_ref(s, HostSliceOut(out));
   std::copy(out.data.begin(), out.data.end(), dst.begin());
@@ -116,7 +116,7 @@ int CpuBackend::prepare_conv(const ConvDesc& d, const WeightTensor& w, const Wei
 void CpuBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, const BufferSlice* residual) {
   const Impl::Conv& cv = impl_->convs.at(static_cast<size_t>(id));
   const ConvDesc& d = cv.d;
-  if (residual && d.transposed) throw Error("cpu backend: " + d.name + ": a transposed conv takes no residual");
+  if (residual && d.transposed) throw InternalError("cpu backend: " + d.name + ": a transposed conv takes no residual");
   const Act act = d.leaky ? leaky_relu(d.slope) : Act{};
   auto run_part = [&](const Impl::Part& p) {
     const BufferSlice o{out.buf, out.n0, out.n, out.c0 + p.c0, p.c};
@@ -198,7 +198,7 @@ void CpuBackend::physics_unroll(const BufferSlice& rs, const PixelEventLists& li
   const Shape item{1, src.shape.c, src.shape.h, src.shape.w};
   if (rs.n != 1 || out.n != 1 || rs.c != src.shape.c || out.c != dst.shape.c ||
       !(Shape{1, dst.shape.c, dst.shape.h, dst.shape.w} == item))
-    throw Error("cpu backend: physics_unroll takes one whole item [1, C, H, W] each, got " + src.shape.str() + " item " +
+    throw InternalError("cpu backend: physics_unroll takes one whole item [1, C, H, W] each, got " + src.shape.str() + " item " +
                 std::to_string(rs.n0) + " -> " + dst.shape.str() + " item " + std::to_string(out.n0));
   const size_t n = static_cast<size_t>(item.count());
   const std::vector<float> image(src.data.begin() + static_cast<std::ptrdiff_t>(rs.n0 * n),

@@ -55,7 +55,7 @@ uint64_t VulkanBackend::max_buffer_bytes() const {
 
 const Tensor& VulkanBackend::tensor(int id) const {
   if (id < 0 || id >= static_cast<int>(bufs_.size()) || !bufs_[id] || bufs_[id]->state != Buf::State::live)
-    throw Error("vulkan backend: buffer " + std::to_string(id) + " is not allocated");
+    throw InternalError("vulkan backend: buffer " + std::to_string(id) + " is not allocated");
   return bufs_[id]->tensor();
 }
 
@@ -79,7 +79,7 @@ int VulkanBackend::alloc_id(const Shape& shape, const std::string& what) {
       return static_cast<int>(i);
     }
   if (bytes > max_buffer_bytes())
-    throw Error("vulkan backend: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
+    throw DataError("vulkan backend: " + what + " " + shape.str() + " needs " + std::to_string(bytes >> 20) +
                 " MiB, above the device's storage-buffer limit of " + std::to_string(max_buffer_bytes() >> 20) + " MiB");
   auto b = std::make_unique<Buf>();
   b->t = Tensor(ctx_, shape, dtype_);
@@ -155,7 +155,7 @@ void VulkanBackend::upload(const BufferSlice& v, std::span<const float> data) {
   check_slice(slice(t, v), "vulkan backend upload", "destination");
   const int64_t plane = t.shape().h * t.shape().w, item = v.c * plane;
   if (static_cast<int64_t>(data.size()) != v.n * item)
-    throw Error("vulkan backend: upload of " + std::to_string(data.size()) + " values into " +
+    throw InternalError("vulkan backend: upload of " + std::to_string(data.size()) + " values into " +
                 Shape{v.n, v.c, t.shape().h, t.shape().w}.str());
   if (t.dtype() != DType::f32) {  // fp16: the f32 values go up as they are and convert on the device
     Tensor& staged = scratch_f32({v.n, v.c, t.shape().h, t.shape().w});
@@ -173,7 +173,7 @@ void VulkanBackend::download(const BufferSlice& v, std::span<float> dst) {
   check_slice(slice(t, v), "vulkan backend download", "source");
   const int64_t plane = t.shape().h * t.shape().w, item = v.c * plane;
   if (static_cast<int64_t>(dst.size()) != v.n * item)
-    throw Error("vulkan backend: download of " + Shape{v.n, v.c, t.shape().h, t.shape().w}.str() + " into " +
+    throw InternalError("vulkan backend: download of " + Shape{v.n, v.c, t.shape().h, t.shape().w}.str() + " into " +
                 std::to_string(dst.size()) + " values");
   if (t.dtype() != DType::f32) {  // fp16: converted to f32 on the device, then read back
     Tensor& staged = scratch_f32({v.n, v.c, t.shape().h, t.shape().w});
@@ -301,7 +301,7 @@ void VulkanBackend::conv(int id, const BufferSlice& in, const BufferSlice& out, 
   // the key is built only then
   const bool tabled = choice_ != ConvChoice::heuristic && choice_ != ConvChoice::gpu && choice_table_;
   if (ref.transposed) {
-    if (residual) throw Error("vulkan backend: " + descs_[id].name + ": a transposed conv takes no residual");
+    if (residual) throw InternalError("vulkan backend: " + descs_[id].name + ": a transposed conv takes no residual");
     const ConvTranspose2d& c = *deconvs_[ref.index];
     ConvTransposeAlgo algo = choice_ == ConvChoice::gpu ? gpu_family_algorithm(c) : ConvTransposeAlgo::automatic;
     if (auto name = tabled ? table_algorithm(conv_choice_key(c, is), [&] { return time_conv_algorithms(ctx_, c, is, choice_budget_); })

@@ -82,7 +82,7 @@ std::string format_ms(double ms) {
 
 // The fastest of (name, ms) pairs, with every timing listed.
 ConvChoiceEntry fastest(const std::vector<std::pair<std::string, double>>& t, const std::string& who) {
-  if (t.empty()) throw Error(who + ": no algorithm applies to this shape");
+  if (t.empty()) throw InternalError(who + ": no algorithm applies to this shape");
   ConvChoiceEntry e{t.front().first, t.front().second, {}};
   for (const auto& [name, ms] : t) {
     if (ms < e.ms) e = {name, ms, {}};
@@ -215,19 +215,19 @@ void ConvChoiceTable::save(const std::string& path, const std::string& header, c
   const std::string tmp = path + ".tmp-" + std::to_string(::getpid());
   {
     std::ofstream out(tmp, std::ios::trunc);
-    if (!out) throw Error(tmp + ": cannot write the conv choice table");
+    if (!out) throw IoError(tmp + ": cannot write the conv choice table");
     out << kFormatLine << ": " << header << "\n";
     if (identity.known()) out << identity_line(identity) << "\n";
     out << "# key\talgorithm\tms\ttimings of every candidate (ms)\theuristic's algorithm\n";
     for (const auto& [k, e] : merged.entries_)
       out << k << '\t' << e.algo << '\t' << format_ms(e.ms) << '\t' << e.timings << '\t' << e.heuristic << '\n';
     out.flush();
-    if (!out) throw Error(tmp + ": writing the conv choice table failed");
+    if (!out) throw IoError(tmp + ": writing the conv choice table failed");
   }
   std::filesystem::rename(tmp, path, ec);
   if (ec) {
     std::filesystem::remove(tmp, ec);
-    throw Error(path + ": cannot replace the conv choice table (" + ec.message() + ")");
+    throw IoError(path + ": cannot replace the conv choice table (" + ec.message() + ")");
   }
 }
 

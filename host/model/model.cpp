@@ -36,13 +36,13 @@ BufferSlice sub(const BufferSlice& v, int64_t i0, int64_t n) { return {v.buf, v.
 // conv and come out as a NaN image; name the first bad value instead (one pass, negligible).
 void check_values(const HostTensor& a, const char* name) {
   if (static_cast<int64_t>(a.data.size()) != a.shape.count())
-    throw Error(std::string("model input '") + name + "' holds " + std::to_string(a.data.size()) + " values for shape " +
+    throw DataError(std::string("model input '") + name + "' holds " + std::to_string(a.data.size()) + " values for shape " +
                 a.shape.str());
   const int64_t plane = a.shape.h * a.shape.w, item = a.shape.c * plane;
   for (size_t i = 0; i < a.data.size(); ++i)
     if (!std::isfinite(a.data[i])) {
       const int64_t k = static_cast<int64_t>(i);
-      throw Error(std::string("model input '") + name + "' holds " + (std::isnan(a.data[i]) ? "NaN" : "an infinite value") +
+      throw DataError(std::string("model input '") + name + "' holds " + (std::isnan(a.data[i]) ? "NaN" : "an infinite value") +
                   " at (batch " + std::to_string(k / item) + ", channel " + std::to_string(k % item / plane) + ", y " +
                   std::to_string(k % plane / a.shape.w) + ", x " + std::to_string(k % a.shape.w) +
                   "); inputs must be finite");
@@ -179,7 +179,7 @@ std::vector<ModelOutput> Model::resolve_outputs(const std::vector<ModelOutput>& 
 
 const Model::Conv& Model::conv(const std::string& name) const {
   auto it = convs_.find(name);
-  if (it == convs_.end()) throw Error("model: no layer '" + name + "'");
+  if (it == convs_.end()) throw UsageError("model: no layer '" + name + "'");
   return it->second;
 }
 
@@ -199,7 +199,7 @@ int64_t Model::unet_item_bytes(const UnetConfig& u, int cin, int64_t he, int64_t
 int Model::sub_items(int64_t item_bytes, uint64_t memory_budget) const {
   const int64_t limit = static_cast<int64_t>(backend_.max_buffer_bytes());
   if (item_bytes > limit)
-    throw Error("model: one batch item needs a " + std::to_string(item_bytes >> 20) + " MiB buffer, above the device's " +
+    throw DataError("model: one batch item needs a " + std::to_string(item_bytes >> 20) + " MiB buffer, above the device's " +
                 std::to_string(limit >> 20) + " MiB storage-buffer limit; use a smaller image");
   int64_t n = limit / item_bytes;
   // A stage holds about three buffers of its largest size at once.
@@ -468,26 +468,26 @@ struct Model::InputExtents {
 
 void Model::check_inputs(const InputExtents& in, const RunOptions& opt) const {
   if (opt.precision && *opt.precision != backend_.precision())
-    throw Error(std::string("model run: precision ") + precision_name(*opt.precision) + " asked of the " + backend_.name() +
+    throw UsageError(std::string("model run: precision ") + precision_name(*opt.precision) + " asked of the " + backend_.name() +
                 " backend, which runs in " + precision_name(backend_.precision()) + " (choose it when creating the backend)");
   const Shape rs = in.rs.shape;
   const int64_t B = rs.n, H = rs.h, W = rs.w;
-  if (rs.c != 3) throw Error("model input 'rs' has shape " + rs.str() + ", expected 3 channels");
-  if (B < 1 || H < 2 || W < 2) throw Error("model input 'rs' has shape " + rs.str() + ", expected B >= 1, H and W >= 2");
+  if (rs.c != 3) throw DataError("model input 'rs' has shape " + rs.str() + ", expected 3 channels");
+  if (B < 1 || H < 2 || W < 2) throw DataError("model input 'rs' has shape " + rs.str() + ", expected B >= 1, H and W >= 2");
   auto check = [&](const InputExtents::Input& v, int64_t c) {
     const Shape want{B, c, H, W};
     if (!(v.shape == want))
-      throw Error(std::string("model input '") + v.name + "' has shape " + v.shape.str() + ", expected " + want.str());
+      throw DataError(std::string("model input '") + v.name + "' has shape " + v.shape.str() + ", expected " + want.str());
   };
   for (const auto* v : {&in.ev1, &in.ev2, &in.ev3}) check(*v, cfg_.ev_channels());
   if (cfg_.physics_input) {
-    if (!in.phys.given) throw Error("model input 'phys' (the physics estimate) is missing: the model is the physics-informed variant");
+    if (!in.phys.given) throw DataError("model input 'phys' (the physics estimate) is missing: the model is the physics-informed variant");
     check(in.phys, 3);
   } else if (in.phys.given) {
-    throw Error("model input 'phys' is given, but the model is not the physics-informed variant");
+    throw DataError("model input 'phys' is given, but the model is not the physics-informed variant");
   }
-  if (opt.mode == Mode::m && !cfg_.moa) throw Error("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
-  if (opt.mode == Mode::m && B % 2) throw Error("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
+  if (opt.mode == Mode::m && !cfg_.moa) throw UsageError("model has no attfusion_net (MOA) weights: SelfUnroll-S only (use mode s)");
+  if (opt.mode == Mode::m && B % 2) throw DataError("SelfUnroll-M needs an even batch (frames 1 and 2 per target), got B = " + std::to_string(B));
 }
 
 std::map<ModelOutput, HostTensor> Model::run(const ModelInputs& in, const RunOptions& opt) {
@@ -536,7 +536,7 @@ void Model::check_buffers(const ModelBuffers& in, const RunOptions& opt, const s
     int readers = 0;
     for (const BufferSlice* v : {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys}) readers += h && v->buf == h.id();
     if (h && readers != 1)
-      throw Error("model run: handed-over buffer " + std::to_string(h.id()) + " is the buffer of " + std::to_string(readers) +
+      throw InternalError("model run: handed-over buffer " + std::to_string(h.id()) + " is the buffer of " + std::to_string(readers) +
                   " inputs, expected exactly one");
   }
 }
@@ -563,10 +563,10 @@ void Model::check_unet_padding(const UnetPadding& pad, int64_t he, int64_t we) c
                            std::to_string(pad.left) + ", right " + std::to_string(pad.right) + ") of the " + std::to_string(we) + "x" +
                            std::to_string(he) + " input: ";
   auto axis = [&](int before, int after, int64_t n) {
-    if (before >= n || after >= n) throw Error(what + "each pad must be smaller than the input (reflection padding)");
-    if (before < 0 && after >= 0) throw Error(what + "an explicit bottom / right pad needs an explicit top / left one");
+    if (before >= n || after >= n) throw UsageError(what + "each pad must be smaller than the input (reflection padding)");
+    if (before < 0 && after >= 0) throw UsageError(what + "an explicit bottom / right pad needs an explicit top / left one");
     if (after >= 0 && unet_padded(n, before, after) % unet_stride())
-      throw Error(what + "the padded size " + std::to_string(unet_padded(n, before, after)) + " must be a multiple of the UNets' stride " +
+      throw UsageError(what + "the padded size " + std::to_string(unet_padded(n, before, after)) + " must be a multiple of the UNets' stride " +
                   std::to_string(unet_stride()));
   };
   axis(pad.top, pad.bottom, he);

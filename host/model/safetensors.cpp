@@ -67,7 +67,7 @@ T load_le(const uint8_t* p) {
 std::string json_type(const nlohmann::json& j) { return j.type_name(); }
 
 uint64_t checked_mul(uint64_t a, uint64_t b, const std::string& what) {
-  if (a != 0 && b > std::numeric_limits<uint64_t>::max() / a) throw Error(what + ": size overflows 64 bits");
+  if (a != 0 && b > std::numeric_limits<uint64_t>::max() / a) throw DataError(what + ": size overflows 64 bits");
   return a * b;
 }
 
@@ -84,14 +84,14 @@ std::string build_header(const std::vector<SafetensorsTensorRef>& tensors, const
   uint64_t offset = 0;
   for (const auto& t : tensors) {
     if (t.name.empty() || t.name == "__metadata__")
-      throw Error("safetensors write: invalid tensor name '" + t.name + "'");
-    if (!seen.insert(t.name).second) throw Error("safetensors write: duplicate tensor name '" + t.name + "'");
+      throw UsageError("safetensors write: invalid tensor name '" + t.name + "'");
+    if (!seen.insert(t.name).second) throw UsageError("safetensors write: duplicate tensor name '" + t.name + "'");
     const uint64_t need = checked_mul(static_cast<uint64_t>(st_element_count(t.shape)), st_dtype_size(t.dtype),
                                       "safetensors write: tensor '" + t.name + "'");
     if (need != t.bytes)
-      throw Error("safetensors write: tensor '" + t.name + "' has " + std::to_string(t.bytes) + " bytes, its shape and " +
+      throw UsageError("safetensors write: tensor '" + t.name + "' has " + std::to_string(t.bytes) + " bytes, its shape and " +
                   st_dtype_name(t.dtype) + " need " + std::to_string(need));
-    if (need && !t.data) throw Error("safetensors write: tensor '" + t.name + "' has no data pointer");
+    if (need && !t.data) throw UsageError("safetensors write: tensor '" + t.name + "' has no data pointer");
     if (begins) begins->push_back(offset);
     h[t.name] = {{"dtype", st_dtype_name(t.dtype)}, {"shape", t.shape}, {"data_offsets", {offset, offset + need}}};
     offset += need;
@@ -119,7 +119,7 @@ std::string temp_path_for(const std::string& path) { return path + ".tmp" + std:
 size_t st_dtype_size(StDType t) {
   for (const auto& d : kDTypes)
     if (d.t == t) return d.size;
-  throw Error("safetensors: invalid dtype enum");
+  throw InternalError("safetensors: invalid dtype enum");
 }
 
 const char* st_dtype_name(StDType t) {
@@ -131,17 +131,17 @@ const char* st_dtype_name(StDType t) {
 StDType st_dtype_from_name(const std::string& name) {
   for (const auto& d : kDTypes)
     if (name == d.name) return d.t;
-  throw Error("safetensors: unsupported dtype '" + name +
+  throw DataError("safetensors: unsupported dtype '" + name +
               "' (expected one of F64 F32 F16 BF16 I64 I32 I16 I8 U64 U32 U16 U8 BOOL)");
 }
 
 int64_t st_element_count(const std::vector<int64_t>& shape) {
   uint64_t n = 1;
   for (int64_t d : shape) {
-    if (d < 0) throw Error("safetensors: negative dimension " + std::to_string(d));
+    if (d < 0) throw DataError("safetensors: negative dimension " + std::to_string(d));
     n = checked_mul(n, static_cast<uint64_t>(d), "safetensors: shape");
   }
-  if (n > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) throw Error("safetensors: shape too large");
+  if (n > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) throw DataError("safetensors: shape too large");
   return static_cast<int64_t>(n);
 }
 
@@ -164,7 +164,7 @@ std::vector<float> SafetensorsTensor::to_f32() const {
     case StDType::U32: for (size_t i = 0; i < n; ++i) out[i] = static_cast<float>(load_le<uint32_t>(p + 4 * i)); break;
     case StDType::U16: for (size_t i = 0; i < n; ++i) out[i] = load_le<uint16_t>(p + 2 * i); break;
     case StDType::U8: for (size_t i = 0; i < n; ++i) out[i] = p[i]; break;
-    case StDType::BOOL: throw Error("safetensors: tensor '" + name + "' is BOOL, not convertible to float");
+    case StDType::BOOL: throw DataError("safetensors: tensor '" + name + "' is BOOL, not convertible to float");
   }
   return out;
 }
@@ -176,7 +176,7 @@ bool SafetensorsFile::has(const std::string& name) const {
 const SafetensorsTensor& SafetensorsFile::get(const std::string& name) const {
   for (const auto& t : tensors)
     if (t.name == name) return t;
-  throw Error("safetensors: no tensor named '" + name + "'");
+  throw DataError("safetensors: no tensor named '" + name + "'");
 }
 
 std::vector<std::string> SafetensorsFile::names() const {
@@ -196,52 +196,52 @@ struct HeaderEntry {
 };
 
 void parse_metadata(const std::string& where, const nlohmann::json& v, SafetensorsFile& file) {
-  if (!v.is_object()) throw Error(where + ": __metadata__ is a JSON " + json_type(v) + ", expected an object");
+  if (!v.is_object()) throw DataError(where + ": __metadata__ is a JSON " + json_type(v) + ", expected an object");
   for (auto m = v.begin(); m != v.end(); ++m) {
     if (!m.value().is_string())
-      throw Error(where + ": __metadata__ field '" + m.key() + "' is a JSON " + json_type(m.value()) + ", expected a string");
+      throw DataError(where + ": __metadata__ field '" + m.key() + "' is a JSON " + json_type(m.value()) + ", expected a string");
     file.metadata[m.key()] = m.value().get<std::string>();
   }
 }
 
 HeaderEntry parse_entry(const std::string& where, const std::string& name, const nlohmann::json& v, uint64_t buffer_size) {
   const std::string tw = where + ": tensor '" + name + "'";
-  if (!v.is_object()) throw Error(tw + ": entry is a JSON " + json_type(v) + ", expected an object");
-  if (!v.contains("dtype") || !v["dtype"].is_string()) throw Error(tw + ": missing or non-string field 'dtype'");
-  if (!v.contains("shape") || !v["shape"].is_array()) throw Error(tw + ": missing or non-array field 'shape'");
+  if (!v.is_object()) throw DataError(tw + ": entry is a JSON " + json_type(v) + ", expected an object");
+  if (!v.contains("dtype") || !v["dtype"].is_string()) throw DataError(tw + ": missing or non-string field 'dtype'");
+  if (!v.contains("shape") || !v["shape"].is_array()) throw DataError(tw + ": missing or non-array field 'shape'");
   if (!v.contains("data_offsets") || !v["data_offsets"].is_array() || v["data_offsets"].size() != 2)
-    throw Error(tw + ": field 'data_offsets' must be an array [begin, end]");
+    throw DataError(tw + ": field 'data_offsets' must be an array [begin, end]");
   HeaderEntry e;
   e.name = name;
   try {
     e.dtype = st_dtype_from_name(v["dtype"].get<std::string>());
   } catch (const Error& err) {
-    throw Error(tw + ": " + err.what());
+    throw Error(tw + ": " + err.text(), err.kind());
   }
   for (const auto& d : v["shape"]) {
-    if (!d.is_number_unsigned()) throw Error(tw + ": shape entries must be non-negative integers, got " + d.dump());
+    if (!d.is_number_unsigned()) throw DataError(tw + ": shape entries must be non-negative integers, got " + d.dump());
     const uint64_t dv = d.get<uint64_t>();
-    if (dv > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) throw Error(tw + ": dimension too large");
+    if (dv > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) throw DataError(tw + ": dimension too large");
     e.shape.push_back(static_cast<int64_t>(dv));
   }
   for (int k = 0; k < 2; ++k)
     if (!v["data_offsets"][k].is_number_unsigned())
-      throw Error(tw + ": data_offsets must be non-negative integers, got " + v["data_offsets"].dump());
+      throw DataError(tw + ": data_offsets must be non-negative integers, got " + v["data_offsets"].dump());
   e.begin = v["data_offsets"][0].get<uint64_t>();
   e.end = v["data_offsets"][1].get<uint64_t>();
   if (e.end < e.begin)
-    throw Error(tw + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] end before begin");
+    throw DataError(tw + ": data_offsets [" + std::to_string(e.begin) + ", " + std::to_string(e.end) + "] end before begin");
   if (e.end > buffer_size)
-    throw Error(tw + ": data_offsets end " + std::to_string(e.end) + " is beyond the data buffer of " +
+    throw DataError(tw + ": data_offsets end " + std::to_string(e.end) + " is beyond the data buffer of " +
                 std::to_string(buffer_size) + " bytes (truncated file or lying header)");
   uint64_t need;
   try {
     need = checked_mul(static_cast<uint64_t>(st_element_count(e.shape)), st_dtype_size(e.dtype), tw);
   } catch (const Error& err) {
-    throw Error(tw + ": " + err.what());
+    throw Error(tw + ": " + err.text(), err.kind());
   }
   if (e.end - e.begin != need)
-    throw Error(tw + ": data_offsets span " + std::to_string(e.end - e.begin) + " bytes, shape " +
+    throw DataError(tw + ": data_offsets span " + std::to_string(e.end - e.begin) + " bytes, shape " +
                 nlohmann::json(e.shape).dump() + " of " + st_dtype_name(e.dtype) + " needs " + std::to_string(need));
   return e;
 }
@@ -255,15 +255,15 @@ void check_tiling(const std::string& where, std::vector<HeaderEntry>& entries, u
   for (size_t i = 0; i < entries.size(); ++i) {
     const auto& e = entries[i];
     if (e.begin < cursor)
-      throw Error(where + ": tensor '" + e.name + "' data [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
+      throw DataError(where + ": tensor '" + e.name + "' data [" + std::to_string(e.begin) + ", " + std::to_string(e.end) +
                   ") overlaps tensor '" + entries[i - 1].name + "' (ends at " + std::to_string(cursor) + ")");
     if (e.begin > cursor)
-      throw Error(where + ": " + std::to_string(e.begin - cursor) + " unclaimed bytes at offset " + std::to_string(cursor) +
+      throw DataError(where + ": " + std::to_string(e.begin - cursor) + " unclaimed bytes at offset " + std::to_string(cursor) +
                   " before tensor '" + e.name + "' (hole in the data buffer)");
     cursor = e.end;
   }
   if (cursor != buffer_size)
-    throw Error(where + ": data buffer has " + std::to_string(buffer_size) + " bytes but the tensors cover " +
+    throw DataError(where + ": data buffer has " + std::to_string(buffer_size) + " bytes but the tensors cover " +
                 std::to_string(cursor) + " (trailing bytes: corrupt or lying header)");
 }
 
@@ -272,17 +272,17 @@ void check_tiling(const std::string& where, std::vector<HeaderEntry>& entries, u
 SafetensorsFile parse_safetensors(std::span<const uint8_t> bytes, const std::string& origin) {
   const std::string where = "safetensors '" + origin + "'";
   if (bytes.size() < 8)
-    throw Error(where + ": truncated: " + std::to_string(bytes.size()) + " bytes, expected at least 8 (header length)");
+    throw DataError(where + ": truncated: " + std::to_string(bytes.size()) + " bytes, expected at least 8 (header length)");
   const uint64_t hlen = load_le<uint64_t>(bytes.data());
   if (hlen > kMaxHeaderBytes)
-    throw Error(where + ": header length " + std::to_string(hlen) + " exceeds the 100 MB limit (corrupt file?)");
+    throw DataError(where + ": header length " + std::to_string(hlen) + " exceeds the 100 MB limit (corrupt file?)");
   if (hlen > bytes.size() - 8)
-    throw Error(where + ": truncated: header length says " + std::to_string(hlen) + " bytes, the file has only " +
+    throw DataError(where + ": truncated: header length says " + std::to_string(hlen) + " bytes, the file has only " +
                 std::to_string(bytes.size() - 8) + " after the length field");
   const std::string_view htext(reinterpret_cast<const char*>(bytes.data() + 8), hlen);
   // A tensor named twice (a repeated key) is refused, as any invalid header.
   nlohmann::json h = parse_json<nlohmann::json>(htext, where + ": header");
-  if (!h.is_object()) throw Error(where + ": header is a JSON " + json_type(h) + ", expected an object");
+  if (!h.is_object()) throw DataError(where + ": header is a JSON " + json_type(h) + ", expected an object");
   const uint8_t* buffer = bytes.data() + 8 + hlen;
   const uint64_t buffer_size = bytes.size() - 8 - hlen;
 
@@ -312,13 +312,13 @@ SafetensorsFile read_safetensors(const std::string& path) {
     throw DataError("safetensors '" + path + "': is " + (std::filesystem::is_directory(st) ? "a folder" : "not a regular file") +
                     ", expected a .safetensors file");
   std::ifstream f(path, std::ios::binary);
-  if (!f) throw Error("safetensors '" + path + "': cannot open for reading");
+  if (!f) throw IoError("safetensors '" + path + "': cannot open for reading");
   f.seekg(0, std::ios::end);
   const auto size = static_cast<size_t>(f.tellg());
   f.seekg(0);
   std::vector<uint8_t> bytes(size);
   if (size && !f.read(reinterpret_cast<char*>(bytes.data()), static_cast<std::streamsize>(size)))
-    throw Error("safetensors '" + path + "': read failed");
+    throw IoError("safetensors '" + path + "': read failed");
   return parse_safetensors(bytes, path);
 }
 
@@ -373,11 +373,11 @@ SafetensorsStreamWriter::SafetensorsStreamWriter(const std::string& path, const 
     total += views[i].bytes;
   }
   FILE* f = std::fopen(tmp_path_.c_str(), "wb");
-  if (!f) throw Error("safetensors '" + path_ + "': cannot open '" + tmp_path_ + "' for writing: " + std::strerror(errno));
+  if (!f) throw IoError("safetensors '" + path_ + "': cannot open '" + tmp_path_ + "' for writing: " + std::strerror(errno));
   file_ = f;
   if (std::fwrite(prefix.data(), 1, prefix.size(), f) != prefix.size() ||
       std::fwrite(header.data(), 1, header.size(), f) != header.size())
-    throw Error("safetensors '" + path_ + "': write failed: " + std::strerror(errno));
+    throw IoError("safetensors '" + path_ + "': write failed: " + std::strerror(errno));
   (void)total;
 }
 
@@ -390,12 +390,12 @@ SafetensorsStreamWriter::~SafetensorsStreamWriter() {
 }
 
 void SafetensorsStreamWriter::write(const std::string& name, size_t byte_offset, const void* data, size_t bytes) {
-  if (finished_) throw Error("safetensors '" + path_ + "': write after finish");
+  if (finished_) throw InternalError("safetensors '" + path_ + "': write after finish");
   auto it = slots_.find(name);
-  if (it == slots_.end()) throw Error("safetensors '" + path_ + "': write to undeclared tensor '" + name + "'");
+  if (it == slots_.end()) throw InternalError("safetensors '" + path_ + "': write to undeclared tensor '" + name + "'");
   Slot& s = it->second;
   if (byte_offset > s.bytes || bytes > s.bytes - byte_offset)
-    throw Error("safetensors '" + path_ + "': write of " + std::to_string(bytes) + " bytes at " +
+    throw InternalError("safetensors '" + path_ + "': write of " + std::to_string(bytes) + " bytes at " +
                 std::to_string(byte_offset) + " exceeds tensor '" + name + "' (" + std::to_string(s.bytes) + " bytes)");
   if (bytes) {
     // Each byte exactly once: the new piece must not overlap its neighbours.
@@ -403,14 +403,14 @@ void SafetensorsStreamWriter::write(const std::string& name, size_t byte_offset,
     auto next = s.pieces.lower_bound(b);
     if ((next != s.pieces.end() && next->first < e) ||
         (next != s.pieces.begin() && std::prev(next)->second > b))
-      throw Error("safetensors '" + path_ + "': tensor '" + name + "' bytes [" + std::to_string(b) + ", " +
+      throw InternalError("safetensors '" + path_ + "': tensor '" + name + "' bytes [" + std::to_string(b) + ", " +
                   std::to_string(e) + ") overlap a piece written before");
     s.pieces[b] = e;
   }
   FILE* f = static_cast<FILE*>(file_);
   if (std::fseek(f, static_cast<long>(s.file_offset + byte_offset), SEEK_SET) != 0 ||
       (bytes && std::fwrite(data, 1, bytes, f) != bytes))
-    throw Error("safetensors '" + path_ + "': write failed: " + std::strerror(errno));
+    throw IoError("safetensors '" + path_ + "': write failed: " + std::strerror(errno));
   s.written += bytes;
 }
 
@@ -418,15 +418,15 @@ void SafetensorsStreamWriter::finish() {
   if (finished_) return;
   for (const auto& [name, s] : slots_)
     if (s.written != s.bytes)
-      throw Error("safetensors '" + path_ + "': tensor '" + name + "' got " + std::to_string(s.written) + " of " +
+      throw InternalError("safetensors '" + path_ + "': tensor '" + name + "' got " + std::to_string(s.written) + " of " +
                   std::to_string(s.bytes) + " bytes before finish()");
   FILE* f = static_cast<FILE*>(file_);
   file_ = nullptr;
   if (std::fflush(f) != 0 || std::fclose(f) != 0)
-    throw Error("safetensors '" + path_ + "': write failed: " + std::strerror(errno));
+    throw IoError("safetensors '" + path_ + "': write failed: " + std::strerror(errno));
   std::error_code ec;
   std::filesystem::rename(tmp_path_, path_, ec);
-  if (ec) throw Error("safetensors '" + path_ + "': cannot rename temporary file: " + ec.message());
+  if (ec) throw IoError("safetensors '" + path_ + "': cannot rename temporary file: " + ec.message());
   finished_ = true;
 }
 

@@ -56,7 +56,7 @@ std::vector<std::vector<bool>> tile_activity(const TilePlan& plan, const TileOpt
   std::vector<std::vector<bool>> active(T, std::vector<bool>(K, true));
   if (topt.sparse == SparsePolicy::off) return active;
   if (!activity || static_cast<int64_t>(activity->size()) != B)
-    throw Error("run_tiled: the sparse policy needs the activity of every batch item (" + std::to_string(B) + "), got " +
+    throw InternalError("run_tiled: the sparse policy needs the activity of every batch item (" + std::to_string(B) + "), got " +
                 std::to_string(activity ? activity->size() : 0));
   for (int64_t i = 0; i < B; ++i)
     for (size_t t = 0; t < T; ++t) {
@@ -314,9 +314,9 @@ TiledPlan plan_tiled(Model& model, int64_t B, int64_t rs_channels, int64_t H, in
   const bool m_mode = opt.mode == Mode::m;
   p.B = B, p.H = H, p.W = W, p.per = m_mode ? 2 : 1;
   if (rs_channels != 3 || B < 1 || (m_mode && B % 2))
-    throw Error("run_tiled: input 'rs' is " + Shape{B, rs_channels, H, W}.str() + ", expected [B,3,H,W] (B even in mode m)");
+    throw DataError("run_tiled: input 'rs' is " + Shape{B, rs_channels, H, W}.str() + ", expected [B,3,H,W] (B even in mode m)");
   if (topt.sparse == SparsePolicy::fast && !(topt.threshold >= 0))
-    throw Error("run_tiled: sparse threshold " + std::to_string(topt.threshold) + " (expected >= 0 events per pixel)");
+    throw UsageError("run_tiled: sparse threshold " + std::to_string(topt.threshold) + " (expected >= 0 events per pixel)");
   const uint64_t limit = topt.max_buffer_bytes ? std::min(topt.max_buffer_bytes, b.max_buffer_bytes()) : b.max_buffer_bytes();
   const int64_t tile = topt.tile > 0 ? topt.tile : choose_tile(model, H, W, opt.mode, topt.halo, limit);
   TileStats& st = p.stats;
@@ -374,7 +374,7 @@ ActivityTables activity_tables(const std::vector<std::vector<uint32_t>>& counts,
   ActivityTables tables;
   for (const auto& c : counts) {
     if (static_cast<int64_t>(c.size()) != height * width)
-      throw Error("activity_tables: " + std::to_string(c.size()) + " counts for a " + std::to_string(width) + "x" +
+      throw InternalError("activity_tables: " + std::to_string(c.size()) + " counts for a " + std::to_string(width) + "x" +
                   std::to_string(height) + " image");
     tables.push_back(summed_area(std::vector<double>(c.begin(), c.end()), height, width));
   }
@@ -425,9 +425,9 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
   const Shape ev_shape{in.rs.shape.n, model.config().ev_channels(), in.rs.shape.h, in.rs.shape.w};
   for (const auto& [a, name] : {std::pair{&in.ev1, "ev1"}, std::pair{&in.ev2, "ev2"}, std::pair{&in.ev3, "ev3"}})
     if (!(a->shape == ev_shape) || static_cast<int64_t>(a->data.size()) != ev_shape.count())
-      throw Error(std::string("run_tiled: input '") + name + "' has shape " + a->shape.str() + ", expected " + ev_shape.str());
+      throw DataError(std::string("run_tiled: input '") + name + "' has shape " + a->shape.str() + ", expected " + ev_shape.str());
   if (static_cast<int64_t>(in.rs.data.size()) != in.rs.shape.count())
-    throw Error("run_tiled: input 'rs' holds " + std::to_string(in.rs.data.size()) + " values for shape " + in.rs.shape.str());
+    throw DataError("run_tiled: input 'rs' holds " + std::to_string(in.rs.data.size()) + " values for shape " + in.rs.shape.str());
   const ActivityTables activity = topt.sparse == SparsePolicy::off ? ActivityTables{} : activity_tables(in);
   TiledPlan p = plan_tiled(model, in.rs.shape.n, in.rs.shape.c, in.rs.shape.h, in.rs.shape.w, opt, topt, &activity);
   TiledResult res;
@@ -443,7 +443,7 @@ TiledResult run_tiled(Model& model, const ModelInputs& in, const RunOptions& opt
   const HostTensor* full[5] = {&in.rs, &in.ev1, &in.ev2, &in.ev3, &in.phys};
   const int inputs = model.config().physics_input ? 5 : 4;
   if (inputs == 5 && !(in.phys.shape == Shape{in.rs.shape.n, 3, in.rs.shape.h, in.rs.shape.w}))
-    throw Error("run_tiled: input 'phys' has shape " + in.phys.shape.str() + ", expected that of 'rs' (the physics-informed variant)");
+    throw DataError("run_tiled: input 'phys' has shape " + in.phys.shape.str() + ", expected that of 'rs' (the physics-informed variant)");
   HostTensor standing;  // the variant: inactive tiles take clamp(phys, 0, 1), what its gate gives away from events
   if (inputs == 5) {
     standing = HostTensor(in.phys.shape);

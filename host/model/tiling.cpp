@@ -29,7 +29,7 @@ namespace {
 
 void check_aligned(int64_t v, const char* what) {
   if (v < 0 || v % kTileAlign)
-    throw Error(std::string("tiling: ") + what + " " + std::to_string(v) + " must be a non-negative multiple of " +
+    throw UsageError(std::string("tiling: ") + what + " " + std::to_string(v) + " must be a non-negative multiple of " +
                 std::to_string(kTileAlign) + " (tile alignment, docs/tiling.md)");
 }
 
@@ -61,9 +61,9 @@ Rect input_rect(const Rect& interior, int64_t halo, int64_t height, int64_t widt
 
 TilePlan make_tile_plan(int64_t height, int64_t width, int64_t tile_h, int64_t tile_w, int64_t halo) {
   if (height < 2 || width < 2)
-    throw Error("tiling: image " + std::to_string(width) + "x" + std::to_string(height) + " (expected H and W >= 2)");
+    throw DataError("tiling: image " + std::to_string(width) + "x" + std::to_string(height) + " (expected H and W >= 2)");
   if (tile_h <= 0 || tile_w <= 0)
-    throw Error("tiling: tile " + std::to_string(tile_w) + "x" + std::to_string(tile_h) + " (expected a positive size)");
+    throw UsageError("tiling: tile " + std::to_string(tile_w) + "x" + std::to_string(tile_h) + " (expected a positive size)");
   TilePlan p;
   p.height = height;
   p.width = width;
@@ -143,7 +143,7 @@ int64_t choose_tile(const Model& model, int64_t height, int64_t width, Mode mode
     const int64_t h = std::min(height, t + 2 * halo), w = std::min(width, t + 2 * halo);
     if (model.item_buffer_bytes(h, w, mode, UnetPadding{unet_offset(height), unet_offset(width)}) <= limit) return t;
   }
-  throw Error("tiling: even a " + std::to_string(kTileAlign) + "-pixel tile with halo " + std::to_string(halo) +
+  throw UsageError("tiling: even a " + std::to_string(kTileAlign) + "-pixel tile with halo " + std::to_string(halo) +
               " needs a buffer above the " + std::to_string(limit >> 20) + " MiB limit; use a smaller halo");
 }
 

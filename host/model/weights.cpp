@@ -65,7 +65,7 @@ int to_int(const std::map<std::string, std::string>& md, const std::string& key,
     if (pos != it->second.size()) throw std::invalid_argument("trailing");
     return static_cast<int>(v);
   } catch (const std::exception&) {
-    throw Error(origin + ": metadata '" + key + "' = '" + it->second + "' is not an integer");
+    throw DataError(origin + ": metadata '" + key + "' = '" + it->second + "' is not an integer");
   }
 }
 
@@ -79,7 +79,7 @@ float to_float(const std::map<std::string, std::string>& md, const std::string& 
     if (pos != it->second.size()) throw std::invalid_argument("trailing");
     return v;
   } catch (const std::exception&) {
-    throw Error(origin + ": metadata '" + key + "' = '" + it->second + "' is not a number");
+    throw DataError(origin + ": metadata '" + key + "' = '" + it->second + "' is not a number");
   }
 }
 
@@ -145,32 +145,32 @@ std::string ModelConfig::summary() const {
 
 void ModelConfig::validate() const {
   auto pos = [](const char* what, int v) {
-    if (v <= 0) throw Error(std::string("model configuration: ") + what + " = " + std::to_string(v) + " must be positive");
+    if (v <= 0) throw DataError(std::string("model configuration: ") + what + " = " + std::to_string(v) + " must be positive");
   };
   pos("D", D); pos("C", C); pos("G", G); pos("G0", G0); pos("N", N); pos("upnet_width", upnet_width);
-  if (upnet_width % 4) throw Error("model configuration: upnet_width = " + std::to_string(upnet_width) + " must be a multiple of 4");
+  if (upnet_width % 4) throw DataError("model configuration: upnet_width = " + std::to_string(upnet_width) + " must be a multiple of 4");
   for (auto [name, u] : {std::pair{"flownet", flownet}, {"fusion_net", fusion_net}, {"attfusion_net", attfusion_net}}) {
     if (u.base <= 0 || u.depth <= 0 || u.depth > 5)
-      throw Error(std::string("model configuration: ") + name + " base " + std::to_string(u.base) + " depth " +
+      throw DataError(std::string("model configuration: ") + name + " base " + std::to_string(u.base) + " depth " +
                   std::to_string(u.depth) + " (expected base > 0, depth 1..5: the size adapter pads to 32)");
   }
   if (channel_order != "rgb" && channel_order != "bgr")
-    throw Error("model configuration: channel_order '" + channel_order + "' (expected rgb or bgr)");
+    throw DataError("model configuration: channel_order '" + channel_order + "' (expected rgb or bgr)");
   if (gamma && !(*gamma > 0 && std::isfinite(*gamma)))
-    throw Error("model configuration: gamma = " + std::to_string(*gamma) + " (expected a positive number)");
+    throw DataError("model configuration: gamma = " + std::to_string(*gamma) + " (expected a positive number)");
   if (physics_gate < -1 || physics_gate > kMaxPhysicsGate)
-    throw Error("model configuration: physics_gate = " + std::to_string(physics_gate) + " (expected -1 for none, or 0.." +
+    throw DataError("model configuration: physics_gate = " + std::to_string(physics_gate) + " (expected -1 for none, or 0.." +
                 std::to_string(kMaxPhysicsGate) + ")");
   if (physics_gate >= 0 && !physics_input)
-    throw Error("model configuration: physics_gate = " + std::to_string(physics_gate) +
+    throw DataError("model configuration: physics_gate = " + std::to_string(physics_gate) +
                 " needs the physics-informed variant (physics_input)");
   if (physics_confidence && !physics_input)
-    throw Error("model configuration: physics_confidence needs the physics-informed variant (physics_input)");
+    throw DataError("model configuration: physics_confidence needs the physics-informed variant (physics_input)");
   if (physics_input && physics_contrast != "estimate") {
     char* end = nullptr;
     const double c = std::strtod(physics_contrast.c_str(), &end);
     if (end == physics_contrast.c_str() || *end || !(c > 0 && std::isfinite(c)))
-      throw Error("model configuration: physics_contrast '" + physics_contrast + "' (expected 'estimate' or a positive number)");
+      throw DataError("model configuration: physics_contrast '" + physics_contrast + "' (expected 'estimate' or a positive number)");
   }
 }
 
@@ -212,9 +212,9 @@ int64_t parameter_count(const ModelConfig& cfg) {
 ModelConfig infer_config(const std::map<std::string, TensorShape>& shapes) {
   auto need = [&](const std::string& key, size_t rank) -> const TensorShape& {
     auto it = shapes.find(key);
-    if (it == shapes.end()) throw Error("cannot infer the model configuration: tensor '" + key + "' is missing");
+    if (it == shapes.end()) throw DataError("cannot infer the model configuration: tensor '" + key + "' is missing");
     if (it->second.size() != rank)
-      throw Error("cannot infer the model configuration: tensor '" + key + "' has shape " + shape_str(it->second) +
+      throw DataError("cannot infer the model configuration: tensor '" + key + "' has shape " + shape_str(it->second) +
                   ", expected rank " + std::to_string(rank));
     return it->second;
   };
@@ -234,7 +234,7 @@ ModelConfig infer_config(const std::map<std::string, TensorShape>& shapes) {
   c.physics_input = per % 2 == 0;
   const int64_t fixed = c.physics_input ? 6 : 3;
   if (sfe[1] % 4 || per <= fixed || (per - fixed) % 6)
-    throw Error("cannot infer the model configuration: SFENet1.weight has " + std::to_string(sfe[1]) +
+    throw DataError("cannot infer the model configuration: SFENet1.weight has " + std::to_string(sfe[1]) +
                 " input channels, expected 4 * (3 + 6N) (or 4 * (6 + 6N) for the physics-informed variant)");
   c.N = static_cast<int>((per - fixed) / 6);
   c.D = count(std::regex(R"(RDBs\.(\d+)\.LFF\.weight)"));
@@ -257,7 +257,7 @@ ModelConfig infer_config(const std::map<std::string, TensorShape>& shapes) {
   // fusion_net.pred: 3 output channels, or 4 with the variant's learned confidence.
   const auto& pred = need("fusion_net.pred.weight", 4);
   if (pred[0] != 3 && pred[0] != 4)
-    throw Error("cannot infer the model configuration: fusion_net.pred.weight has " + std::to_string(pred[0]) +
+    throw DataError("cannot infer the model configuration: fusion_net.pred.weight has " + std::to_string(pred[0]) +
                 " output channels, expected 3 (or 4: the physics-informed variant's learned confidence)");
   c.physics_confidence = pred[0] == 4;
   c.validate();
@@ -266,7 +266,7 @@ ModelConfig infer_config(const std::map<std::string, TensorShape>& shapes) {
 
 const WeightTensor& Weights::get(const std::string& name) const {
   auto it = tensors.find(name);
-  if (it == tensors.end()) throw Error("weights: no tensor '" + name + "'");
+  if (it == tensors.end()) throw DataError("weights: no tensor '" + name + "'");
   return it->second;
 }
 
@@ -293,23 +293,23 @@ ModelConfig config_from_metadata(const Metadata& md, const std::map<std::string,
   m.physics_input = inferred.physics_input;
   if (md.count("physics_input")) {
     const std::string& v = md.at("physics_input");
-    if (v != "true" && v != "false") throw Error(origin + ": metadata 'physics_input' = '" + v + "' (expected true or false)");
+    if (v != "true" && v != "false") throw DataError(origin + ": metadata 'physics_input' = '" + v + "' (expected true or false)");
     if ((v == "true") != inferred.physics_input)
-      throw Error(origin + ": metadata says physics_input=" + v + " but SFENet1.weight has " +
+      throw DataError(origin + ": metadata says physics_input=" + v + " but SFENet1.weight has " +
                   std::to_string(shapes.at("SFENet1.weight")[1]) + " input channels (" +
                   (inferred.physics_input ? "the physics-informed variant's" : "the family's") + ")");
   }
   m.physics_confidence = inferred.physics_confidence;
   if (md.count("physics_confidence") && md.at("physics_confidence") != (inferred.physics_confidence ? "true" : "false"))
-    throw Error(origin + ": metadata 'physics_confidence' = '" + md.at("physics_confidence") + "' but fusion_net.pred.weight has " +
+    throw DataError(origin + ": metadata 'physics_confidence' = '" + md.at("physics_confidence") + "' but fusion_net.pred.weight has " +
                 std::to_string(shapes.at("fusion_net.pred.weight")[0]) + " output channels (4: confidence, 3: none)");
   if (md.count("moa") && md.at("moa") != "true" && md.at("moa") != "false")
-    throw Error(origin + ": metadata 'moa' = '" + md.at("moa") + "' (expected true or false)");
+    throw DataError(origin + ": metadata 'moa' = '" + md.at("moa") + "' (expected true or false)");
   if (!m.same_shapes(inferred)) {
     if (m.moa && !inferred.moa)
-      throw Error(origin + ": metadata says moa=true but the file has no attfusion_net tensors (missing key "
+      throw DataError(origin + ": metadata says moa=true but the file has no attfusion_net tensors (missing key "
                   "'attfusion_net.head.weight')");
-    throw Error(origin + ": the metadata configuration (" + m.summary() + ") disagrees with the tensor shapes (" +
+    throw DataError(origin + ": the metadata configuration (" + m.summary() + ") disagrees with the tensor shapes (" +
                 inferred.summary() + ")");
   }
   return m;
@@ -327,7 +327,7 @@ void apply_metadata_settings(const Metadata& md, ModelConfig& config, const std:
     char* end = nullptr;
     const long v = std::strtol(g.c_str(), &end, 10);
     if (end == g.c_str() || *end || v < -1 || v > kMaxPhysicsGate)
-      throw Error(origin + ": metadata 'physics_gate' = '" + g + "' (expected an integer radius 0.." +
+      throw DataError(origin + ": metadata 'physics_gate' = '" + g + "' (expected an integer radius 0.." +
                   std::to_string(kMaxPhysicsGate) + ", or -1 for no gate)");
     config.physics_gate = static_cast<int>(v);
   }
@@ -335,7 +335,7 @@ void apply_metadata_settings(const Metadata& md, ModelConfig& config, const std:
     const std::string& g = md.at("gamma");
     char* end = nullptr;
     const double v = std::strtod(g.c_str(), &end);
-    if (end == g.c_str() || *end) throw Error(origin + ": metadata 'gamma' = '" + g + "' (expected a positive number)");
+    if (end == g.c_str() || *end) throw DataError(origin + ": metadata 'gamma' = '" + g + "' (expected a positive number)");
     config.gamma = v;
   }
 }
@@ -351,21 +351,21 @@ void load_expected_tensors(const SafetensorsFile& file, Weights& w, const std::s
   if (!unexpected.empty()) {
     std::string list;
     for (size_t i = 0; i < unexpected.size() && i < 8; ++i) list += (i ? ", " : "") + unexpected[i];
-    throw Error(origin + ": " + std::to_string(unexpected.size()) + " unexpected tensor(s) for configuration " +
+    throw DataError(origin + ": " + std::to_string(unexpected.size()) + " unexpected tensor(s) for configuration " +
                 w.config.summary() + ": " + list + (unexpected.size() > 8 ? ", ..." : ""));
   }
   for (const auto& [name, shape] : expected) {
     if (!file.has(name))
-      throw Error(origin + ": missing tensor '" + name + "' (shape " + shape_str(shape) + ") for configuration " +
+      throw DataError(origin + ": missing tensor '" + name + "' (shape " + shape_str(shape) + ") for configuration " +
                   w.config.summary());
     const SafetensorsTensor& t = file.get(name);
     if (t.shape != shape)
-      throw Error(origin + ": tensor '" + name + "' has shape " + shape_str(t.shape) + ", expected " + shape_str(shape));
+      throw DataError(origin + ": tensor '" + name + "' has shape " + shape_str(t.shape) + ", expected " + shape_str(shape));
     if (t.dtype != StDType::F32 && t.dtype != StDType::F16 && t.dtype != StDType::BF16)
-      throw Error(origin + ": tensor '" + name + "' has dtype " + st_dtype_name(t.dtype) + ", expected F32, F16 or BF16");
+      throw DataError(origin + ": tensor '" + name + "' has dtype " + st_dtype_name(t.dtype) + ", expected F32, F16 or BF16");
     WeightTensor wt{t.shape, t.to_f32()};
     for (float v : wt.data)
-      if (!std::isfinite(v)) throw Error(origin + ": tensor '" + name + "' holds a non-finite value");
+      if (!std::isfinite(v)) throw DataError(origin + ": tensor '" + name + "' holds a non-finite value");
     w.tensors.emplace(name, std::move(wt));
   }
 }
@@ -380,14 +380,14 @@ Weights weights_from_safetensors(const SafetensorsFile& file, const std::string&
   try {
     w.config = infer_config(shapes);
   } catch (const Error& e) {
-    throw Error(origin + ": " + e.what());
+    throw Error(origin + ": " + e.text(), e.kind());
   }
   if (md.count("D") || md.count("G0")) w.config = config_from_metadata(md, shapes, w.config, origin);
   apply_metadata_settings(md, w.config, origin);
   try {
     w.config.validate();
   } catch (const Error& e) {
-    throw Error(origin + ": " + e.what());
+    throw Error(origin + ": " + e.text(), e.kind());
   }
   load_expected_tensors(file, w, origin);
   if (!w.config.moa) w.notes.push_back("no attfusion_net (MOA) weights: SelfUnroll-S only");
@@ -443,7 +443,7 @@ void save_weights(const std::string& path, const Weights& w, bool fp16) {
           // subnormal half: multiples of 2^-24
           h = static_cast<uint16_t>(sign | uint32_t(std::nearbyint(std::fabs(src.data[i]) * 16777216.0f)));
         } else if (exp >= 31) {
-          throw Error("save_weights: " + name + " overflows fp16");
+          throw DataError("save_weights: " + name + " overflows fp16");
         } else {
           uint32_t r = (uint32_t(exp) << 10) | (man >> 13);
           const uint32_t rest = man & 0x1fffu;

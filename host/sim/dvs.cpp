@@ -65,7 +65,7 @@ EventSimParams event_preset(const std::string& name) {
     p.shot_hz = 5.0;
     p.cutoff_hz = 30.0;
   } else {
-    throw Error("unknown event preset '" + name + "': expected clean, realistic or noisy");
+    throw UsageError("unknown event preset '" + name + "': expected clean, realistic or noisy");
   }
   return p;
 }
@@ -73,14 +73,14 @@ EventSimParams event_preset(const std::string& name) {
 EventSimulator::EventSimulator(int width, int height, const EventSimParams& params)
     : width_(width), height_(height), params_(params) {
   if (width < 1 || height < 1 || width > 65535 || height > 65535)
-    throw Error("event simulator: size " + std::to_string(width) + "x" + std::to_string(height) + " out of range");
-  if (!(params.c_on > 0) || !(params.c_off > 0)) throw Error("event simulator: thresholds c_on and c_off must be > 0");
-  if (!(params.c_min > 0)) throw Error("event simulator: c_min must be > 0");
+    throw UsageError("event simulator: size " + std::to_string(width) + "x" + std::to_string(height) + " out of range");
+  if (!(params.c_on > 0) || !(params.c_off > 0)) throw UsageError("event simulator: thresholds c_on and c_off must be > 0");
+  if (!(params.c_min > 0)) throw UsageError("event simulator: c_min must be > 0");
   if (params.sigma < 0 || params.refractory_us < 0 || params.leak_hz < 0 || params.shot_hz < 0 || params.cutoff_hz < 0)
-    throw Error("event simulator: sigma, refractory_us, leak_hz, shot_hz and cutoff_hz must be >= 0");
-  if (!(params.eps > 0)) throw Error("event simulator: eps must be > 0 (log(eps + I))");
+    throw UsageError("event simulator: sigma, refractory_us, leak_hz, shot_hz and cutoff_hz must be >= 0");
+  if (!(params.eps > 0)) throw UsageError("event simulator: eps must be > 0 (log(eps + I))");
   if (!(params.hot_fraction >= 0 && params.hot_fraction <= 1) || !(params.hot_hz >= 0) || !(params.jitter_us >= 0))
-    throw Error("event simulator: hot_fraction must be in [0, 1], hot_hz and jitter_us >= 0");
+    throw UsageError("event simulator: hot_fraction must be in [0, 1], hot_hz and jitter_us >= 0");
   events_.width = width;
   events_.height = height;
   c_on_.create(height, width, CV_32FC1);
@@ -103,7 +103,7 @@ EventSimulator::EventSimulator(int width, int height, const EventSimParams& para
 
 void EventSimulator::log_of(const cv::Mat& luminance, cv::Mat& out) const {
   if (luminance.type() != CV_32FC1 || luminance.rows != height_ || luminance.cols != width_)
-    throw Error("event simulator: luminance must be CV_32FC1 of " + std::to_string(width_) + "x" +
+    throw InternalError("event simulator: luminance must be CV_32FC1 of " + std::to_string(width_) + "x" +
                 std::to_string(height_) + ", got " + std::to_string(luminance.cols) + "x" + std::to_string(luminance.rows) +
                 " type " + std::to_string(luminance.type()));
   cv::max(luminance, 0.0, out);
@@ -138,7 +138,7 @@ void EventSimulator::reset(double t_us, const cv::Mat& luminance) {
 }
 
 double EventSimulator::propose(const cv::Mat& luminance) {
-  if (!started_) throw Error("event simulator: propose() before reset()");
+  if (!started_) throw InternalError("event simulator: propose() before reset()");
   log_of(luminance, log_next_);
   luminance.copyTo(lum_next_);
   proposed_ = true;
@@ -312,8 +312,8 @@ void EventSimulator::gather_events() {
 }
 
 void EventSimulator::accept(double t_us) {
-  if (!proposed_) throw Error("event simulator: accept() without a proposed sample");
-  if (!(t_us > t_)) throw Error("event simulator: sample time " + std::to_string(t_us) + " us is not after " + std::to_string(t_) + " us");
+  if (!proposed_) throw InternalError("event simulator: accept() without a proposed sample");
+  if (!(t_us > t_)) throw InternalError("event simulator: sample time " + std::to_string(t_us) + " us is not after " + std::to_string(t_) + " us");
   const Step step = step_to(t_us);
   // Rows are independent and each writes only its own buffers: deterministic under any threading.
   cv::parallel_for_(cv::Range(0, height_), [&](const cv::Range& rows) {

@@ -355,7 +355,7 @@ void Recorder::run() {
 SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
   config.validate();
   if (scene.width() != config.width || scene.height() != config.height)
-    throw Error("simulate: scene size " + std::to_string(scene.width()) + "x" + std::to_string(scene.height()) +
+    throw UsageError("simulate: scene size " + std::to_string(scene.width()) + "x" + std::to_string(scene.height()) +
                 " differs from the configured " + std::to_string(config.width) + "x" + std::to_string(config.height));
   SimulatedSequence seq;
   seq.width = config.width;
@@ -368,7 +368,7 @@ SimulatedSequence simulate(const SimulationConfig& config, Scene& scene) {
 }
 
 cv::Mat encode_image(const cv::Mat& linear_bgr, double gamma, int bit_depth, bool color) {
-  if (linear_bgr.type() != CV_32FC3) throw Error("encode_image: expected a CV_32FC3 linear image");
+  if (linear_bgr.type() != CV_32FC3) throw InternalError("encode_image: expected a CV_32FC3 linear image");
   cv::Mat src = linear_bgr;
   if (!color)
     cv::transform(linear_bgr, src, cv::Matx13f(static_cast<float>(kLumB), static_cast<float>(kLumG), static_cast<float>(kLumR)));
@@ -383,15 +383,15 @@ cv::Mat encode_image(const cv::Mat& linear_bgr, double gamma, int bit_depth, boo
 nlohmann::json write_sequence(const SimulationConfig& config, const SimulatedSequence& seq, const std::string& dir) {
   std::error_code ec;
   fs::create_directories(fs::path(dir) / "rs", ec);
-  if (ec) throw Error("simulate: cannot create output folder '" + (fs::path(dir) / "rs").string() + "': " + ec.message());
+  if (ec) throw IoError("simulate: cannot create output folder '" + (fs::path(dir) / "rs").string() + "': " + ec.message());
   if (!seq.gt.empty()) {
     fs::create_directories(fs::path(dir) / "gs", ec);
-    if (ec) throw Error("simulate: cannot create output folder '" + (fs::path(dir) / "gs").string() + "': " + ec.message());
+    if (ec) throw IoError("simulate: cannot create output folder '" + (fs::path(dir) / "gs").string() + "': " + ec.message());
   }
   auto write_png = [&](const std::string& rel, const cv::Mat& linear) {
     const std::string path = (fs::path(dir) / rel).string();
     const cv::Mat img = encode_image(linear, config.gamma, config.bit_depth, config.color);
-    if (!cv::imwrite(path, img)) throw Error("simulate: cannot write image '" + path + "'");
+    if (!cv::imwrite(path, img)) throw IoError("simulate: cannot write image '" + path + "'");
   };
   nlohmann::json frames = nlohmann::json::array(), gt = nlohmann::json::array();
   for (size_t k = 0; k < seq.rs.size(); ++k) {
@@ -439,9 +439,9 @@ nlohmann::json write_sequence(const SimulationConfig& config, const SimulatedSeq
   if (config.events_format == "both") meta["source"]["events_text"] = "events.txt";
   const std::string meta_path = (fs::path(dir) / "meta.json").string();
   std::ofstream f(meta_path, std::ios::binary | std::ios::trunc);
-  if (!f) throw Error("simulate: cannot write '" + meta_path + "'");
+  if (!f) throw IoError("simulate: cannot write '" + meta_path + "'");
   f << meta.dump(2) << "\n";
-  if (!f) throw Error("simulate: error writing '" + meta_path + "'");
+  if (!f) throw IoError("simulate: error writing '" + meta_path + "'");
   return meta;
 }
 

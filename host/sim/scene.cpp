@@ -181,7 +181,7 @@ TextureKind parse_texture_kind(const std::string& name) {
   if (name == "noise") return TextureKind::Noise;
   if (name == "text") return TextureKind::Text;
   if (name == "mixed") return TextureKind::Mixed;
-  throw Error("unknown texture '" + name + "': expected checkerboard, bars, noise, text, mixed or an image file");
+  throw UsageError("unknown texture '" + name + "': expected checkerboard, bars, noise, text, mixed or an image file");
 }
 const char* texture_kind_name(TextureKind kind) {
   switch (kind) {
@@ -202,7 +202,7 @@ MotionKind parse_motion_kind(const std::string& name) {
   if (name == "zoom") return MotionKind::Zoom;
   if (name == "shake") return MotionKind::Shake;
   if (name == "mixed") return MotionKind::Mixed;
-  throw Error("unknown motion '" + name + "': expected static, pan, accelerate, rotate, zoom, shake or mixed");
+  throw UsageError("unknown motion '" + name + "': expected static, pan, accelerate, rotate, zoom, shake or mixed");
 }
 const char* motion_kind_name(MotionKind kind) {
   switch (kind) {
@@ -228,8 +228,8 @@ const char* sprite_shape_name(SpriteShape shape) {
 // ---- textures ----------------------------------------------------------------------------------
 
 cv::Mat make_texture(TextureKind kind, cv::Size size, uint64_t seed, double feature_px, double gamma) {
-  if (size.width < 1 || size.height < 1) throw Error("make_texture: empty size");
-  if (!(feature_px >= 1.0)) throw Error("make_texture: feature size must be >= 1 pixel");
+  if (size.width < 1 || size.height < 1) throw UsageError("make_texture: empty size");
+  if (!(feature_px >= 1.0)) throw UsageError("make_texture: feature size must be >= 1 pixel");
   Rng rng(seed, 0x7E47);
   cv::Mat display;
   switch (kind) {
@@ -244,13 +244,13 @@ cv::Mat make_texture(TextureKind kind, cv::Size size, uint64_t seed, double feat
 
 cv::Mat load_texture(const std::string& path, double gamma) {
   cv::Mat img = cv::imread(path, cv::IMREAD_ANYDEPTH | cv::IMREAD_ANYCOLOR);
-  if (img.empty()) throw Error("texture file '" + path + "': cannot be read as an image (expected PNG, JPEG, ...)");
+  if (img.empty()) throw DataError("texture file '" + path + "': cannot be read as an image (expected PNG, JPEG, ...)");
   double scale = 1.0;
   switch (img.depth()) {
     case CV_8U: scale = 1.0 / 255.0; break;
     case CV_16U: scale = 1.0 / 65535.0; break;
     case CV_32F: scale = 1.0; break;
-    default: throw Error("texture file '" + path + "': unsupported pixel depth (expected 8- or 16-bit)");
+    default: throw DataError("texture file '" + path + "': unsupported pixel depth (expected 8- or 16-bit)");
   }
   if (img.channels() == 1) cv::cvtColor(img, img, cv::COLOR_GRAY2BGR);
   else if (img.channels() == 4) cv::cvtColor(img, img, cv::COLOR_BGRA2BGR);
@@ -310,15 +310,15 @@ CameraMotion camera_motion_preset(MotionKind kind, double k, uint64_t seed) {
 
 Scene::Scene(SceneSpec spec) : spec_(std::move(spec)) {
   if (spec_.width < 1 || spec_.height < 1 || spec_.width > 8192 || spec_.height > 8192)
-    throw Error("scene: size " + std::to_string(spec_.width) + "x" + std::to_string(spec_.height) +
+    throw UsageError("scene: size " + std::to_string(spec_.width) + "x" + std::to_string(spec_.height) +
                 " out of range (1..8192)");
   if (spec_.supersample < 1 || spec_.supersample > 8)
-    throw Error("scene: supersample " + std::to_string(spec_.supersample) + " out of range (1..8)");
-  if (!(spec_.background_scale > 0)) throw Error("scene: background_scale must be > 0");
+    throw UsageError("scene: supersample " + std::to_string(spec_.supersample) + " out of range (1..8)");
+  if (!(spec_.background_scale > 0)) throw UsageError("scene: background_scale must be > 0");
   if (spec_.background.empty()) {
     background_color_ = cv::Mat(4, 4, CV_32FC3, spec_.background_color);
   } else {
-    if (spec_.background.type() != CV_32FC3) throw Error("scene: background must be CV_32FC3 linear intensity");
+    if (spec_.background.type() != CV_32FC3) throw InternalError("scene: background must be CV_32FC3 linear intensity");
     background_color_ = spec_.background;
   }
   background_lum_ = luminance_of(background_color_);
@@ -327,14 +327,14 @@ Scene::Scene(SceneSpec spec) : spec_(std::move(spec)) {
   for (size_t i = 0; i < spec_.sprites.size(); ++i) {
     const SpriteSpec& s = spec_.sprites[i];
     if (!(s.size.x >= 1 && s.size.y >= 1))
-      throw Error("scene: sprite " + std::to_string(i) + " is smaller than one pixel");
+      throw UsageError("scene: sprite " + std::to_string(i) + " is smaller than one pixel");
     // Sprite textures are resampled to S samples per sensor pixel so edges stay sharp at render time.
     const cv::Size ts(std::max(2, static_cast<int>(std::ceil(s.size.x * ss))), std::max(2, static_cast<int>(std::ceil(s.size.y * ss))));
     cv::Mat color;
     if (s.texture.empty()) {
       color = cv::Mat(ts, CV_32FC3, s.color);
     } else {
-      if (s.texture.type() != CV_32FC3) throw Error("scene: sprite " + std::to_string(i) + " texture must be CV_32FC3");
+      if (s.texture.type() != CV_32FC3) throw InternalError("scene: sprite " + std::to_string(i) + " texture must be CV_32FC3");
       cv::resize(s.texture, color, ts, 0, 0, cv::INTER_AREA);
     }
     // Alpha mask drawn 4x finer, then area-averaged: anti-aliased shape edges.
@@ -595,8 +595,8 @@ nlohmann::json Scene::describe() const {
 // ---- scene builder -----------------------------------------------------------------------------
 
 SceneSpec build_scene(const SceneOptions& o) {
-  if (o.width < 2 || o.height < 2) throw Error("scene: size must be at least 2x2");
-  if (!(o.duration_us > 0)) throw Error("scene: duration must be > 0");
+  if (o.width < 2 || o.height < 2) throw UsageError("scene: size must be at least 2x2");
+  if (!(o.duration_us > 0)) throw UsageError("scene: duration must be > 0");
   SceneSpec spec;
   spec.width = o.width;
   spec.height = o.height;

@@ -244,7 +244,7 @@ EventStream FollowFrameSource::events(double lo, double hi) {
     cv_.wait_for(lock, std::chrono::milliseconds(kPollMs));
   }
   if (b < released_before_)
-    throw Error("internal: events before " + std::to_string(released_before_) + " us were released, the window starts at " +
+    throw InternalError("internal: events before " + std::to_string(released_before_) + " us were released, the window starts at " +
                 std::to_string(b) + " us");
   last_window_whole_ = latest_t_ > e;  // else the stream ended inside (or before) the window
   // When the stream first passed the window's end (the reader logged each read).

@@ -63,7 +63,7 @@ std::string encode_frame(const cv::Mat& image, FrameFormat format) {
   cv::Mat unit = to_unit_float(image), png;
   unit.convertTo(png, format == FrameFormat::png16 ? CV_16U : CV_8U, format == FrameFormat::png16 ? 65535.0 : 255.0);
   std::vector<uchar> buf;
-  if (!cv::imencode(".png", png, buf)) throw Error("OpenCV could not encode a PNG");
+  if (!cv::imencode(".png", png, buf)) throw InternalError("OpenCV could not encode a PNG");
   return std::string(buf.begin(), buf.end());
 }
 

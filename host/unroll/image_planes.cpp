@@ -7,7 +7,7 @@
 namespace vkunroll {
 
 std::vector<float> image_planes(const cv::Mat& bgr, bool rgb) {
-  if (bgr.type() != CV_32FC3) throw Error("image_planes: a 3-channel float32 image is expected");
+  if (bgr.type() != CV_32FC3) throw InternalError("image_planes: a 3-channel float32 image is expected");
   std::vector<cv::Mat> ch;
   cv::split(bgr, ch);
   if (rgb) std::swap(ch[0], ch[2]);

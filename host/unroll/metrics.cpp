@@ -19,9 +19,9 @@ cv::Mat to_unit_float(const cv::Mat& m) {
 
 namespace {
 void check_pair(const cv::Mat& a, const cv::Mat& b, const char* what) {
-  if (a.empty() || b.empty()) throw Error(std::string(what) + ": empty image");
+  if (a.empty() || b.empty()) throw UsageError(std::string(what) + ": empty image");
   if (a.size() != b.size() || a.channels() != b.channels())
-    throw Error(std::string(what) + ": images differ in size or channels (" + std::to_string(a.cols) + "x" +
+    throw UsageError(std::string(what) + ": images differ in size or channels (" + std::to_string(a.cols) + "x" +
                 std::to_string(a.rows) + "x" + std::to_string(a.channels()) + " vs " + std::to_string(b.cols) + "x" +
                 std::to_string(b.rows) + "x" + std::to_string(b.channels()) + ")");
 }

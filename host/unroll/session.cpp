@@ -107,7 +107,7 @@ UnrollSession::UnrollSession(const SessionOptions& o) : options_(o) {
 
 void UnrollSession::set_gate_radius(int r) {
   if (!weights_ || r == weights_->config.physics_gate) return;
-  if (metadata_gate_radius_ < 0 || r < 0) throw Error("unroll session: this model has no event gate to set");
+  if (metadata_gate_radius_ < 0 || r < 0) throw UsageError("unroll session: this model has no event gate to set");
   weights_->config.physics_gate = r;
   model_ = std::make_unique<Model>(*backend_, *weights_);
 }
@@ -143,7 +143,7 @@ nlohmann::json UnrollSession::conv_choice_report() const {
 }
 
 const Weights& UnrollSession::weights() const {
-  if (!weights_) throw Error("unroll session: no model was given (physics only)");
+  if (!weights_) throw UsageError("unroll session: no model was given (physics only)");
   return *weights_;
 }
 
@@ -189,16 +189,16 @@ void UnrollSession::add_tile_stats(const TileStats& run, size_t targets, int H, 
 }
 
 std::vector<cv::Mat> UnrollSession::unroll(const FrameInput& in, const std::vector<FrameTarget>& targets) {
-  if (!in.events) throw Error("unroll session: the frame's events are missing");
+  if (!in.events) throw UsageError("unroll session: the frame's events are missing");
   if (in.rs1.type() != CV_32FC3 || in.rs1.cols != in.events->width || in.rs1.rows != in.events->height)
-    throw Error("unroll session: the RS frame must be a float BGR image of the event sensor's size (" +
+    throw DataError("unroll session: the RS frame must be a float BGR image of the event sensor's size (" +
                 std::to_string(in.events->width) + "x" + std::to_string(in.events->height) + ")");
   std::vector<size_t> groups[3];  // s, m, physics
   for (size_t j = 0; j < targets.size(); ++j) groups[static_cast<int>(targets[j].method)].push_back(j);
   if ((!groups[0].empty() || !groups[1].empty()) && !model_)
-    throw Error("unroll session: SelfUnroll-S/-M targets need a model (" + opt("model") + " FILE.safetensors)");
+    throw UsageError("unroll session: SelfUnroll-S/-M targets need a model (" + opt("model") + " FILE.safetensors)");
   if (!groups[1].empty() && (in.rs2.empty() || in.rs2.size() != in.rs1.size()))
-    throw Error("unroll session: SelfUnroll-M targets need the next RS frame");
+    throw UsageError("unroll session: SelfUnroll-M targets need the next RS frame");
   std::vector<cv::Mat> results(targets.size());
   stats_.frames_unrolled++;
   if (targets.empty()) return results;

@@ -284,12 +284,12 @@ std::string UnrollOutput::contact_sheet_png() const {
     row += rows_per_frame;
   }
   std::vector<uchar> buf;
-  if (!cv::imencode(".png", sheet, buf)) throw Error("OpenCV could not encode the contact sheet");
+  if (!cv::imencode(".png", sheet, buf)) throw InternalError("OpenCV could not encode the contact sheet");
   return std::string(buf.begin(), buf.end());
 }
 
 nlohmann::json UnrollOutput::finish(const nlohmann::json& extra) {
-  if (finished_) throw Error("unroll output: finish() called twice");
+  if (finished_) throw InternalError("unroll output: finish() called twice");
   std::vector<std::string> keep(files_.begin(), files_.end());
   nlohmann::json outputs = {{"frames", "frames/"}, {"frame_format", frame_format_name(options_.frame_format)}};
   close_video();

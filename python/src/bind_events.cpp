@@ -1,6 +1,7 @@
 // Event files (read_events / write_events) and RowTiming.
 #include "common.hpp"
 #include "output_rule.hpp"
+#include "vkunroll/host/events/event_formats.hpp"
 #include "vkunroll/host/events/event_reader.hpp"
 #include "vkunroll/host/events/event_writer.hpp"
 
@@ -12,7 +13,7 @@ BadEventPolicy parse_on_bad(const std::string& s) {
   if (s == "error") return BadEventPolicy::error;
   if (s == "drop") return BadEventPolicy::drop;
   if (s == "sort") return BadEventPolicy::sort;
-  throw Error("on_bad '" + s + "': expected error, drop or sort");
+  throw UsageError("on_bad '" + s + "': expected error, drop or sort");
 }
 
 py::dict report_dict(const EventReadReport& r) {
@@ -212,6 +213,22 @@ void bind_events(py::module_& m) {
     return guarded({}, [&] { return to_fraction(Rational::parse(text, what)); });
   });
 
+  // The format table (event_formats.hpp), for vkunroll.EVENT_FORMATS and the argument checks.
+  m.def("_event_formats", [] {
+    py::list rows;
+    for (const EventFormat& f : event_formats()) {
+      py::list exts;
+      for (std::string_view e : f.extensions)
+        if (!e.empty()) exts.append(std::string(e));
+      py::dict row;
+      row["name"] = std::string(f.name), row["alias"] = std::string(f.alias), row["what"] = std::string(f.what);
+      row["extensions"] = py::tuple(exts), row["signature"] = std::string(f.signature), row["streamed"] = f.streamed;
+      row["reader"] = std::string(f.reader), row["writable"] = f.write != nullptr, row["fuzzer"] = std::string(f.fuzzer);
+      rows.append(row);
+    }
+    return rows;
+  });
+
   m.def("_detect_event_format", [](const std::string& path) {
     return guarded({{path}}, [&] { return detect_event_format(path); });
   });
@@ -222,11 +239,10 @@ void bind_events(py::module_& m) {
          int height, const std::string& format, bool overwrite) {
         EventStream ev = guarded({}, [&] { return to_event_stream(t, x, y, p, width, height); });
         without_gil({}, [&] {
-          if (format != "h5" && format != "txt") throw UsageError("format='" + format + "': expected 'h5' or 'txt'");
-          write_output_file("write_events.path", path, overwrite, [&](const std::string& tmp) {
-            if (format == "h5") write_events_hdf5(tmp, ev);
-            else write_events_text(tmp, ev);
-          });
+          const EventFormat* f = find_event_format(format);
+          if (!f || !f->write)
+            throw OptionError("format", format, "one of " + event_format_names(", ", true));
+          write_output_file("write_events.path", path, overwrite, [&](const std::string& tmp) { f->write(tmp, ev); });
         });
       },
       py::arg("path"), py::arg("t"), py::arg("x"), py::arg("y"), py::arg("p"), py::arg("width"), py::arg("height"),

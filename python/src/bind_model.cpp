@@ -61,7 +61,7 @@ py::dict config_dict(const Weights& w) {
 }
 
 HostTensor host_tensor(const F32Array& a, const char* name) {
-  if (a.ndim() != 4) throw Error(std::string("Model.run: ") + name + " must have 4 dimensions (B, C, H, W), got " + std::to_string(a.ndim()));
+  if (a.ndim() != 4) throw UsageError(std::string("Model.run: ") + name + " must have 4 dimensions (B, C, H, W), got " + std::to_string(a.ndim()));
   HostTensor t;
   t.shape = Shape{a.shape(0), a.shape(1), a.shape(2), a.shape(3)};
   t.data.assign(a.data(), a.data() + a.size());
@@ -79,7 +79,7 @@ void bind_model(py::module_& m) {
              BackendKind kind = BackendKind::vulkan;
              const Precision precision = guarded({{path}}, [&] {
                kind = parse_backend_kind(backend, "backend");
-               if (kind == BackendKind::vulkan && !ctx) throw Error("Model.load: the vulkan backend needs a context");
+               if (kind == BackendKind::vulkan && !ctx) throw UsageError("Model.load: the vulkan backend needs a context");
                const Precision p = parse_precision(precision_str, "precision");
                if (p == Precision::fp16 && kind == BackendKind::cpu) throw fp16_needs_vulkan();
                if (gate_radius < -1 || gate_radius > kMaxGateRadius)
@@ -116,7 +116,7 @@ void bind_model(py::module_& m) {
             ModelInputs in;
             RunOptions opt;
             guarded({}, [&] {
-              if (mode != "s" && mode != "m") throw Error("Model.run: mode '" + mode + "' (expected s or m)");
+              if (mode != "s" && mode != "m") throw UsageError("Model.run: mode '" + mode + "' (expected s or m)");
               opt.mode = mode == "m" ? Mode::m : Mode::s;
               for (const std::string& name : outputs) opt.outputs.push_back(parse_output(name));
               opt.max_items = max_items;

@@ -31,7 +31,7 @@ SequenceOptions sequence_options(const py::dict& kw) {
                                   "gev_half_row", "fastec_frame_step_gs", "events_file", "events_topic", "on_bad",
                                   "check_frame_sizes"};
     if (std::none_of(std::begin(known), std::end(known), [&](const char* n) { return k == n; }))
-      throw Error("Sequence.open: unknown option '" + k + "'");
+      throw UsageError("Sequence.open: unknown option '" + k + "'");
   }
   return o;
 }
@@ -39,7 +39,7 @@ SequenceOptions sequence_options(const py::dict& kw) {
 // An image array (H x W or H x W x C, uint8 or uint16) -> SequenceImage.
 SequenceImage sequence_image(const py::array& a, const std::string& what) {
   SequenceImage im;
-  if (a.ndim() != 2 && a.ndim() != 3) throw Error(what + ": expected an H x W or H x W x 3 image");
+  if (a.ndim() != 2 && a.ndim() != 3) throw UsageError(what + ": expected an H x W or H x W x 3 image");
   im.height = static_cast<int>(a.shape(0));
   im.width = static_cast<int>(a.shape(1));
   im.channels = a.ndim() == 3 ? static_cast<int>(a.shape(2)) : 1;
@@ -53,7 +53,7 @@ SequenceImage sequence_image(const py::array& a, const std::string& what) {
     auto c = py::array_t<uint16_t, py::array::c_style>::ensure(a);
     im.u16.assign(c.data(), c.data() + n);
   } else {
-    throw Error(what + ": expected uint8 or uint16 pixels (the Python layer encodes float images)");
+    throw UsageError(what + ": expected uint8 or uint16 pixels (the Python layer encodes float images)");
   }
   return im;
 }
@@ -132,7 +132,7 @@ void bind_sequence(py::module_& m) {
           s.width = width;
           s.height = height;
           if (frames.size() != timings.size())
-            throw Error(dir + ": " + std::to_string(frames.size()) + " frames but " + std::to_string(timings.size()) +
+            throw UsageError(dir + ": " + std::to_string(frames.size()) + " frames but " + std::to_string(timings.size()) +
                         " timings (one per frame)");
           for (size_t k = 0; k < frames.size(); ++k)
             s.frames.push_back({sequence_image(frames[k].cast<py::array>(), dir + ": frame " + std::to_string(k)), timings[k]});

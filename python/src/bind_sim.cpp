@@ -45,7 +45,7 @@ void bind_sim(py::module_& m) {
           cfg.events.seed = seed;
           for (auto item : settings) {
             const std::string key = py::str(item.first);
-            if (!set_setting(cfg, key, item.second)) throw Error("simulate: unknown setting '" + key + "'");
+            if (!set_setting(cfg, key, item.second)) throw UsageError("simulate: unknown setting '" + key + "'");
           }
           cfg.validate();
           return cfg;

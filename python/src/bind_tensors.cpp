@@ -30,7 +30,7 @@ std::vector<float> physics_planes(SharedContext* ctx, const std::vector<float>& 
 }
 
 cv::Mat image_mat(const F32Array& a, const std::string& what) {
-  if (a.ndim() != 2 && a.ndim() != 3) throw Error(what + ": expected an H x W or H x W x C image");
+  if (a.ndim() != 2 && a.ndim() != 3) throw UsageError(what + ": expected an H x W or H x W x C image");
   const int c = a.ndim() == 3 ? static_cast<int>(a.shape(2)) : 1;
   return cv::Mat(static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)), CV_MAKETYPE(CV_32F, c),
                  const_cast<float*>(a.data()));
@@ -48,17 +48,17 @@ void bind_tensors(py::module_& m) {
         EventTensorSpec spec;
         const EventStream ev = guarded({}, [&] {
           if (timings.size() != targets.size())
-            throw Error("event_tensors: " + std::to_string(timings.size()) + " timings for " + std::to_string(targets.size()) +
+            throw UsageError("event_tensors: " + std::to_string(timings.size()) + " timings for " + std::to_string(targets.size()) +
                         " targets (one timing per target)");
           std::optional<Rational> texp;
           if (!target_exposure.is_none()) texp = to_rational(target_exposure, "target_exposure_us");
           for (size_t i = 0; i < timings.size(); ++i) {
             if (timings[i].rows != height)
-              throw Error("event_tensors: timing " + std::to_string(i) + " has " + std::to_string(timings[i].rows) +
+              throw UsageError("event_tensors: timing " + std::to_string(i) + " has " + std::to_string(timings[i].rows) +
                           " rows, the sensor " + std::to_string(height));
             pairs.push_back({timings[i], to_rational(targets[i], "t_us[" + std::to_string(i) + "]"), texp});
           }
-          if (bins < 1) throw Error("event_tensors: bins " + std::to_string(bins) + " (expected at least 1)");
+          if (bins < 1) throw UsageError("event_tensors: bins " + std::to_string(bins) + " (expected at least 1)");
           spec.bins = bins;
           if (!crop.empty()) spec.crop = user_crop(crop, "crop");  // the CLI's --crop rule
           return to_event_stream(t, x, y, p, width, height);
@@ -85,14 +85,14 @@ void bind_tensors(py::module_& m) {
         std::vector<float> planes;
         int channels = 0;
         guarded({}, [&] {
-          if (rs.ndim() != 3) throw Error("physics_unroll: expected rs planes [C, H, W]");
+          if (rs.ndim() != 3) throw UsageError("physics_unroll: expected rs planes [C, H, W]");
           channels = static_cast<int>(rs.shape(0));
           const int h = static_cast<int>(rs.shape(1)), w = static_cast<int>(rs.shape(2));
           if (timing.rows != h)
-            throw Error("physics_unroll: the timing has " + std::to_string(timing.rows) + " rows, the image " + std::to_string(h));
-          if (!(contrast > 0)) throw Error("physics_unroll: contrast " + std::to_string(contrast) + " (expected > 0)");
-          if (!(gamma > 0)) throw Error("physics_unroll: gamma " + std::to_string(gamma) + " (expected > 0)");
-          if (!(log_offset >= 0)) throw Error("physics_unroll: log_offset " + std::to_string(log_offset) + " (expected >= 0)");
+            throw UsageError("physics_unroll: the timing has " + std::to_string(timing.rows) + " rows, the image " + std::to_string(h));
+          if (!(contrast > 0)) throw UsageError("physics_unroll: contrast " + std::to_string(contrast) + " (expected > 0)");
+          if (!(gamma > 0)) throw UsageError("physics_unroll: gamma " + std::to_string(gamma) + " (expected > 0)");
+          if (!(log_offset >= 0)) throw UsageError("physics_unroll: log_offset " + std::to_string(log_offset) + " (expected >= 0)");
           prm.contrast = contrast;
           prm.gamma = gamma;
           prm.log_offset = log_offset;
@@ -114,7 +114,7 @@ void bind_tensors(py::module_& m) {
       [](const F32Array& a, const F32Array& b) {
         return guarded({}, [&] {
           if (a.ndim() != b.ndim() || !std::equal(a.shape(), a.shape() + a.ndim(), b.shape()))
-            throw Error("psnr: the images have different shapes");
+            throw UsageError("psnr: the images have different shapes");
           return vkunroll::psnr(image_mat(a, "psnr"), image_mat(b, "psnr"));
         });
       },
@@ -125,7 +125,7 @@ void bind_tensors(py::module_& m) {
       [](const F32Array& a, const F32Array& b) {
         return guarded({}, [&] {
           if (a.ndim() != b.ndim() || !std::equal(a.shape(), a.shape() + a.ndim(), b.shape()))
-            throw Error("ssim: the images have different shapes");
+            throw UsageError("ssim: the images have different shapes");
           return vkunroll::ssim(image_mat(a, "ssim"), image_mat(b, "ssim"));
         });
       },

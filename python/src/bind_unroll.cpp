@@ -108,7 +108,7 @@ void bind_session(py::module_& m) {
           [](PySession& ps, const F32Array& rs1, const RowTiming& timing1, const py::object& rs2, const py::object& timing2,
              const I64Array& t, const U16Array& x, const U16Array& y, const I8Array& p, const py::list& targets) {
             const EventStream ev = guarded({}, [&] {
-              if (rs1.ndim() != 3 || rs1.shape(2) != 3) throw Error("unroll: rs1 must be an H x W x 3 float image");
+              if (rs1.ndim() != 3 || rs1.shape(2) != 3) throw UsageError("unroll: rs1 must be an H x W x 3 float image");
               return to_event_stream(t, x, y, p, static_cast<int>(rs1.shape(1)), static_cast<int>(rs1.shape(0)));
             });
             const std::vector<cv::Mat> out = unroll_frame(ps, rs1, timing1, rs2, timing2, ev, targets);

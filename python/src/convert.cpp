@@ -9,8 +9,8 @@
 namespace vkunroll::python {
 
 Rational to_rational(py::handle v, const std::string& what) {
-  if (v.is_none()) throw Error(what + ": expected a time in microseconds, got None");
-  if (py::isinstance<py::bool_>(v)) throw Error(what + ": expected a number, got a bool");
+  if (v.is_none()) throw UsageError(what + ": expected a time in microseconds, got None");
+  if (py::isinstance<py::bool_>(v)) throw UsageError(what + ": expected a number, got a bool");
   if (py::isinstance<py::str>(v)) return Rational::parse(v.cast<std::string>(), what);
   if (py::isinstance<py::int_>(v) || (py::hasattr(v, "numerator") && py::hasattr(v, "denominator") && !py::isinstance<py::float_>(v))) {
     // int, numpy integers and fractions.Fraction: exact (through text, so big values are not truncated).
@@ -21,10 +21,10 @@ Rational to_rational(py::handle v, const std::string& what) {
   try {
     d = py::float_(py::reinterpret_borrow<py::object>(v));
   } catch (py::error_already_set&) {
-    throw Error(what + ": expected a number, a string like \"73000/259\" or a fractions.Fraction, got " +
+    throw UsageError(what + ": expected a number, a string like \"73000/259\" or a fractions.Fraction, got " +
                 std::string(py::str(py::type::of(v).attr("__name__"))));
   }
-  if (!std::isfinite(d)) throw Error(what + ": " + std::to_string(d) + " is not a finite time");
+  if (!std::isfinite(d)) throw UsageError(what + ": " + std::to_string(d) + " is not a finite time");
   return Rational::from_double(d);
 }
 
@@ -40,7 +40,7 @@ EventStream to_event_stream(const I64Array& t, const U16Array& x, const U16Array
                             int height) {
   const size_t n = static_cast<size_t>(t.size());
   if (static_cast<size_t>(x.size()) != n || static_cast<size_t>(y.size()) != n || static_cast<size_t>(p.size()) != n)
-    throw Error("events: fields t, x, y, p have different lengths (" + std::to_string(t.size()) + ", " +
+    throw UsageError("events: fields t, x, y, p have different lengths (" + std::to_string(t.size()) + ", " +
                 std::to_string(x.size()) + ", " + std::to_string(y.size()) + ", " + std::to_string(p.size()) + ")");
   EventStream ev;
   ev.width = width;
@@ -60,7 +60,7 @@ py::tuple from_event_stream(EventStream&& ev) {
 
 cv::Mat rgb_to_bgr_mat(const F32Array& rgb, const std::string& what) {
   if (rgb.ndim() != 3 || rgb.shape(2) != 3)
-    throw Error(what + ": expected an H x W x 3 float image, got shape " + std::string(py::str(py::tuple(py::cast(
+    throw UsageError(what + ": expected an H x W x 3 float image, got shape " + std::string(py::str(py::tuple(py::cast(
                     std::vector<py::ssize_t>(rgb.shape(), rgb.shape() + rgb.ndim()))))));
   const int h = static_cast<int>(rgb.shape(0)), w = static_cast<int>(rgb.shape(1));
   const cv::Mat view(h, w, CV_32FC3, const_cast<float*>(rgb.data()));

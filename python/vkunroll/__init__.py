@@ -16,7 +16,7 @@ failures), with the library's messages. Long GPU work releases the GIL. The libr
 (the chosen device, validation, notes) go to the ``vkunroll`` logger. See docs/python.md.
 """
 from . import _vkunroll
-from ._events import (EVENT_DTYPE, EXPELLIARMUS_DTYPE, METAVISION_DTYPE, TONIC_DTYPE, convert_events,
+from ._events import (EVENT_DTYPE, EVENT_FORMATS, EXPELLIARMUS_DTYPE, METAVISION_DTYPE, TONIC_DTYPE, convert_events,
                       detect_event_format, read_events, write_events)
 from ._model import Model
 from ._runtime import Context, default_context, devices
@@ -29,7 +29,7 @@ __version__ = _vkunroll.__version__
 
 __all__ = [
     "devices", "Context", "default_context",
-    "EVENT_DTYPE", "TONIC_DTYPE", "EXPELLIARMUS_DTYPE", "METAVISION_DTYPE",
+    "EVENT_DTYPE", "TONIC_DTYPE", "EXPELLIARMUS_DTYPE", "METAVISION_DTYPE", "EVENT_FORMATS",
     "read_events", "write_events", "convert_events", "detect_event_format",
     "Sequence", "simulate", "RowTiming",
     "event_tensors", "event_tensors_batch", "physics_unroll",

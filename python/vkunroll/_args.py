@@ -16,8 +16,9 @@ import numpy as np
 from . import _vkunroll as _vk
 
 MAX_TIME_US = 2 ** 53  # the library's exact-time range (docs/reliability.md)
-EVENT_FORMATS = ("txt", "h5", "hdf5", "csv", "npy", "npz", "evt2", "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4",
-                 "bag")
+# The library's format table (host/events/event_formats.hpp): the names (and aliases) format= takes.
+EVENT_FORMATS = tuple(n for f in _vk._event_formats() for n in (f["name"], f["alias"]) if n)
+WRITABLE_EVENT_FORMATS = tuple(n for f in _vk._event_formats() if f["writable"] for n in (f["name"], f["alias"]) if n)
 ON_BAD = ("error", "drop", "sort")
 TIME_UNITS = ("s", "ms", "us", "ns")
 

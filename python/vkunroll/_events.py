@@ -1,14 +1,15 @@
 """Events as numpy structured arrays: reading, writing, and the dtypes other libraries use."""
 import logging
 import os
+from collections import namedtuple
 
 import numpy as np
 
 from . import _args as A
 from . import _vkunroll as _vk
 
-__all__ = ["EVENT_DTYPE", "TONIC_DTYPE", "EXPELLIARMUS_DTYPE", "METAVISION_DTYPE", "read_events", "write_events",
-           "convert_events", "detect_event_format"]
+__all__ = ["EVENT_DTYPE", "TONIC_DTYPE", "EXPELLIARMUS_DTYPE", "METAVISION_DTYPE", "EVENT_FORMATS", "read_events",
+           "write_events", "convert_events", "detect_event_format"]
 
 _log = logging.getLogger("vkunroll")
 
@@ -21,6 +22,13 @@ EXPELLIARMUS_DTYPE = np.dtype([("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "
 #: Metavision's EventCD: x, y uint16, p int16 (0 / 1), t int64, 16-byte records.
 METAVISION_DTYPE = np.dtype({"names": ["x", "y", "p", "t"], "formats": ["<u2", "<u2", "<i2", "<i8"],
                              "offsets": [0, 2, 4, 8], "itemsize": 16})
+
+#: One row a format vkunroll reads, from the library's table (host/events/event_formats.hpp): name (what
+#: ``format=`` takes), alias (also taken), what, extensions, signature, streamed, reader (its source
+#: file), writable (:func:`write_events` takes it), fuzzer.
+EventFormat = namedtuple("EventFormat", ["name", "alias", "what", "extensions", "signature", "streamed", "reader",
+                                         "writable", "fuzzer"])
+EVENT_FORMATS = tuple(EventFormat(**row) for row in _vk._event_formats())
 
 _ALIASES = {"t": ("t", "ts", "timestamp"), "x": ("x",), "y": ("y",), "p": ("p", "pol", "polarity")}
 
@@ -119,9 +127,8 @@ def convert_events(events, dtype=EVENT_DTYPE, p_off=None):
 
 
 def detect_event_format(path):
-    """The format :func:`read_events` would read ``path`` as: "txt", "h5", "npy", "npz", "evt2",
-    "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4" or "bag" (from the magic bytes, header and
-    extension)."""
+    """The format :func:`read_events` would read ``path`` as: a name of :data:`EVENT_FORMATS` (from
+    the file's signature, then its extension)."""
     return _vk._detect_event_format(A.existing_path("detect_event_format", "path", path))
 
 
@@ -129,10 +136,9 @@ def read_events(path, t_start=None, t_end=None, format=None, on_bad="error", *, 
                 columns=None, time_unit=None, array_time_unit=None, topic=None, return_info=False):
     """Read an event file into a numpy structured array.
 
-    Formats: text/CSV, HDF5 (vkunroll, Gev-RS, DRE, DSEC, v2e layouts), NumPy .npy/.npz,
-    Prophesee EVT 2.0 / 2.1 / 3.0 .raw and .dat, jAER AEDAT 2.0, AEDAT 3.1, iniVation AEDAT 4, ROS 1
-    bags (detected from the file, or ``format`` = "txt", "h5", "npy", "npz", "evt2", "evt21", "evt3",
-    "dat", "aedat2", "aedat3", "aedat4", "bag").
+    Formats: every row of :data:`EVENT_FORMATS` (text/CSV, HDF5 with the vkunroll, Gev-RS, DRE,
+    DSEC and v2e layouts, NumPy .npy/.npz, Prophesee, AEDAT, ROS 1 bags), detected from the file,
+    or ``format`` = a row's name or alias.
 
     Parameters:
       t_start, t_end: read only events with t_start <= t < t_end (integer microseconds; None:
@@ -185,14 +191,15 @@ def write_events(path, events, sensor_size=None, format=None, *, overwrite=False
 
     ``events``: any structured array with t, x, y, p (see :func:`convert_events`), t
     non-decreasing. ``sensor_size`` = (width, height) (default: max x + 1, max y + 1).
-    ``format``: "h5" or "txt" (default: from the extension). Read back with :func:`read_events`.
+    ``format``: a writable row of :data:`EVENT_FORMATS`, "h5" or "txt" (default: from the extension).
+    Read back with :func:`read_events`.
     ``overwrite``: replace an existing file (only one vkunroll wrote); without it an existing
     ``path`` is refused. The file is written under a temporary name and renamed when complete.
     Raises ValueError naming the event that breaks a rule.
     """
     path = A.path("write_events", "path", path)
     sensor_size = A.size_pair("write_events", "sensor_size", sensor_size, none=True)
-    format = A.choice("write_events", "format", format, ("h5", "txt"), none=True)
+    format = A.choice("write_events", "format", format, A.WRITABLE_EVENT_FORMATS, none=True)
     overwrite = A.flag("write_events", "overwrite", overwrite)
     t, x, y, p = event_fields(events)
     if sensor_size is None:
@@ -201,7 +208,9 @@ def write_events(path, events, sensor_size=None, format=None, *, overwrite=False
         sensor_size = (int(x.max()) + 1, int(y.max()) + 1)
     if format is None:
         ext = os.path.splitext(path)[1].lower()
-        format = {".h5": "h5", ".hdf5": "h5", ".txt": "txt", ".csv": "txt"}.get(ext)
+        format = next((f.name for f in EVENT_FORMATS if f.writable and ext in f.extensions), None)
         if format is None:
-            raise ValueError(f"{path}: cannot tell the event format from the extension '{ext}' (use .h5 or .txt, or format=)")
+            exts = " ".join(e for f in EVENT_FORMATS if f.writable for e in f.extensions)
+            raise ValueError(f"{path}: cannot tell the event format from the extension '{ext}' (use one of {exts}, "
+                             "or format=)")
     _vk._write_events(path, t, x, y, p, int(sensor_size[0]), int(sensor_size[1]), format, overwrite)
