@@ -711,13 +711,15 @@ def main():
     ap.add_argument("--cli", default=os.path.join(ROOT, "build", "vkunroll"))
     ap.add_argument("--table", help="write the markdown table here")
     ap.add_argument("-k", help="only cases whose name contains this")
+    ap.add_argument("--cases", help="only these case numbers (comma-separated), e.g. to re-run the flagged ones")
     ap.add_argument("--surfaces", help="only these surfaces (comma-separated), e.g. 'stream(),tune'")
     a = ap.parse_args()
     rows, findings = [], []
     with tempfile.TemporaryDirectory() as root:
         env = Env(os.path.abspath(a.cli), root)
         for i, (surface, name, fn) in enumerate(CASES, 1):
-            if (a.k and a.k not in name) or (a.surfaces and surface not in a.surfaces.split(",")):
+            if (a.k and a.k not in name) or (a.surfaces and surface not in a.surfaces.split(",")) or \
+                    (a.cases and str(i) not in a.cases.split(",")):
                 continue
             try:
                 r, v = fn(env)
