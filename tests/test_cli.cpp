@@ -75,7 +75,7 @@ TEST(Cli, VoxelizeRefusesZeroBinsNegativeExposureAndEmptyCrop) {
   EXPECT_TRUE(has(r, "--target-exposure -5")) << r.out;
   r = cli(base + " --crop 0,0,0,0");
   EXPECT_EQ(r.rc, 2) << r.out;
-  EXPECT_TRUE(has(r, "--crop '0,0,0,0'")) << r.out;
+  EXPECT_TRUE(has(r, "--crop 0,0,0,0: the width and height must be positive")) << r.out;
   EXPECT_FALSE(fs::exists(out));
   // A device, FIFO or folder as --out is refused: the temporary file would be renamed over it
   // (run as root, --out /dev/full replaced the device by a regular file). A FIFO stands in here.

@@ -86,7 +86,8 @@ TEST(LibraryLanguage, NoCliFlagLiteralBelowTheFrontEnds) {
   ASSERT_GT(library_sources().size(), 100u);  // the tree was found
   // A string literal holding "--" and a letter: a flag, which only a front end may spell.
   const std::regex flag(R"("(?:[^"\\\n]|\\.)*--[A-Za-z](?:[^"\\\n]|\\.)*")");
-  for (const std::string& f : findings(flag)) ADD_FAILURE() << f << "  (name the option with opt(\"field\"))";
+  // The output table is the one place that declares each output's spelling in every front end.
+  for (const std::string& f : findings(flag, {"host/unroll/output_paths.cpp"})) ADD_FAILURE() << f << "  (name the option with opt(\"field\"))";
 }
 
 TEST(LibraryLanguage, NoConsoleOutputBelowTheFrontEnds) {

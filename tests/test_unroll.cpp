@@ -90,6 +90,8 @@ TEST(Unroll, NormalizedAndAbsoluteTargets) {
   EXPECT_FALSE(fs::exists(dir / "a" / "gs_video.mp4"));
   o.out_dir = (dir / "b").string();
   o.times = parse_target_times("0.5", "30000,80000");
+  EXPECT_THROW(run_unroll(o), Error);  // 30000 us lies in frame 0, which --frames 1,2 leaves out
+  o.frames.clear();                    // every frame: each instant goes to the frame that spans it
   s = run_unroll(o);
   ASSERT_EQ(s["targets"].get<int>(), 2);
   EXPECT_DOUBLE_EQ(s["gs_frames"][0]["t_us"].get<double>(), 30000.0);
@@ -108,6 +110,7 @@ TEST(Unroll, LearnedModelSAndMOnGpuAndCpuAgree) {
   EXPECT_EQ(vk["runs"]["m"].get<int>(), 1);  // frame 1 has a next frame
   EXPECT_EQ(vk["runs"]["s"].get<int>(), 1);  // frame 2 is the last
   o.session.backend = BackendKind::cpu;
+  o.session.device.clear();  // a device applies to the Vulkan backend only (refused with cpu)
   o.out_dir = (dir / "cpu").string();
   auto cpu = run_unroll(o);
   for (int i = 0; i < 2; ++i) {

@@ -100,7 +100,7 @@ std::vector<int> chosen_frames(const Sequence& seq, const std::vector<int>& requ
   try {
     for (int k : frames) seq.frame(k);  // throws naming the index and the count
   } catch (const Error& e) {
-    if (e.kind() != ErrorKind::unspecified) throw;
+    if (e.kind() != ErrorKind::usage) throw;  // an index out of range: the option's fault, named
     throw OptionError("frames", "", e.text(), opt("frames") + ": " + e.text());
   }
   return frames;

@@ -28,7 +28,7 @@ def cmake_version():
 def test_files_that_state_the_version_state_cmakes():
     v = cmake_version()
     assert re.search(r'^version: "([^"]+)"$', read("CITATION.cff"), re.M).group(1) == v
-    newest = re.search(r"^## (\S+)", read("CHANGELOG.md"), re.M).group(1)
+    newest = re.search(r"^## (?!Unreleased)(\S+)", read("CHANGELOG.md"), re.M).group(1)  # Unreleased: not yet a version
     assert newest == v, f"CHANGELOG.md's newest entry is {newest}, CMake's version {v}"
     pyproject = read("pyproject.toml")
     assert 'dynamic = ["version"]' in pyproject and not re.search(r"^version\s*=", pyproject, re.M)
