@@ -30,19 +30,10 @@
 #include "vkunroll/kernels/event_tensor.hpp"
 
 using namespace vkunroll;
+using evtest::error_of;  // event_test_util.hpp's: the message an Error carries
 namespace fs = std::filesystem;
 
 namespace {
-
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
 
 bool has(const std::string& s, const std::string& part) { return s.find(part) != std::string::npos; }
 
